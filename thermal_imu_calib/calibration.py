@@ -1,0 +1,360 @@
+"""The calibration object and its versioned, self-describing YAML file.
+
+A file looks like::
+
+    format: thermal_imu_calib/1
+    software: {name: thermal_imu_calib, version: 0.1.0}
+    created: '2026-11-22T01:00:00+00:00'
+    sensor: {frame_id: imu_link}
+    units: {accel: m/s^2, gyro: rad/s, temperature: degC, time: s}
+    gravity: {value: 9.80665, unit: m/s^2, source: ...}
+    temperature:
+      inputs: [{name: t0, topic: imu/temperature, unit: degC}]
+      valid_range: {min: [20.1], max: [41.7], unit: degC}
+      out_of_range: clamp            # or extrapolate
+    accel: {kind: field_polynomial, temperature_input: [0, 0, 0], parameters: {...}}
+    gyro: {kind: offset_polynomial, temperature_input: [0, 0, 0], parameters: {...}}
+    noise: {accel_std: [...], gyro_std: [...], unit: ...}
+    fit: {...}
+    notes: [...]
+
+``Calibration.apply`` is the one vectorised entry point the CLI and both nodes use.
+"""
+
+import datetime
+import hashlib
+import os
+import tempfile
+from dataclasses import dataclass, field
+from typing import List, Optional
+
+import numpy as np
+import yaml
+
+from . import __version__
+from .gravity import STANDARD_GRAVITY
+from .models import model_from_dict, SensorModel
+
+FORMAT = 'thermal_imu_calib/1'
+OUT_OF_RANGE_POLICIES = ('clamp', 'extrapolate')
+#: plausible die temperatures; anything outside is a units mistake (K or F) or garbage
+TEMPERATURE_BOUNDS = (-80.0, 200.0)
+
+
+class CalibrationError(ValueError):
+    """A calibration file or object that cannot be used; the message says why and what to do."""
+
+
+@dataclass
+class TemperatureInput:
+    """One temperature signal the model uses (a topic in ROS, a column offline)."""
+
+    name: str
+    topic: str = 'imu/temperature'
+    unit: str = 'degC'
+
+
+@dataclass
+class Compensated:
+    """Result of ``Calibration.apply``: corrected columns plus per-row flags."""
+
+    accel: np.ndarray
+    gyro: np.ndarray
+    #: (n,) bool, True where a temperature was outside the valid range (clamped or extrapolated)
+    out_of_range: np.ndarray
+    #: (n, 3) 1-sigma accel uncertainty in m/s^2 (model + white noise) or None
+    accel_std: Optional[np.ndarray] = None
+    #: (n, 3) 1-sigma gyro uncertainty in rad/s or None
+    gyro_std: Optional[np.ndarray] = None
+
+
+@dataclass
+class Calibration:
+    """A thermal calibration: models for accel and/or gyro, their inputs and validity."""
+
+    accel: Optional[SensorModel] = None
+    gyro: Optional[SensorModel] = None
+    inputs: List[TemperatureInput] = field(default_factory=list)
+    #: (k, 2) valid temperature range per input, degC
+    valid_range: Optional[np.ndarray] = None
+    out_of_range: str = 'clamp'
+    accel_input: List[int] = field(default_factory=lambda: [0, 0, 0])
+    gyro_input: List[int] = field(default_factory=lambda: [0, 0, 0])
+    frame_id: str = ''
+    gravity: float = STANDARD_GRAVITY
+    gravity_source: str = 'standard gravity 9.80665 m/s^2'
+    #: white-noise 1-sigma per sample, per axis: accel m/s^2, gyro rad/s
+    accel_noise_std: Optional[np.ndarray] = None
+    gyro_noise_std: Optional[np.ndarray] = None
+    fit: dict = field(default_factory=dict)
+    notes: List[str] = field(default_factory=list)
+    created: str = ''
+    software_version: str = __version__
+
+    # ------------------------------------------------------------------ apply
+    def axis_temperatures(self, temps, which):
+        """Map (n, k) input temperatures to (n, 3) per-axis temperatures for 'accel'/'gyro'.
+
+        Returns (per_axis, out_of_range_mask). With no inputs the model's reference
+        temperature is used (temperature-independent calibration).
+        """
+        model = self.accel if which == 'accel' else self.gyro
+        idx = self.accel_input if which == 'accel' else self.gyro_input
+        temps = np.asarray(temps, float)
+        n = temps.shape[0]
+        if not self.inputs:
+            t0 = getattr(model, 't0', np.zeros(3))
+            return np.broadcast_to(t0, (n, 3)).copy(), np.zeros(n, bool)
+        if temps.ndim != 2 or temps.shape[1] != len(self.inputs):
+            raise CalibrationError(
+                f'got {temps.shape[1] if temps.ndim == 2 else "?"} temperature columns, the '
+                f'calibration expects {len(self.inputs)} '
+                f'({", ".join(i.topic for i in self.inputs)})')
+        lo, hi = self.valid_range[:, 0], self.valid_range[:, 1]
+        oor = np.any((temps < lo) | (temps > hi), axis=1)
+        if self.out_of_range == 'clamp':
+            temps = np.clip(temps, lo, hi)
+        return temps[:, idx], oor
+
+    def apply(self, accel, gyro, temps=None):
+        """Compensate (n, 3) accel [m/s^2] and gyro [rad/s] at (n, k) temperatures [degC].
+
+        NaN temperatures are not allowed here; resolve missing temperature first (hold or
+        passthrough). Returns a ``Compensated`` with the out-of-range mask.
+        """
+        accel = np.asarray(accel, float)
+        gyro = np.asarray(gyro, float)
+        n = accel.shape[0]
+        if temps is None:
+            temps = np.zeros((n, 0))
+        temps = np.asarray(temps, float).reshape(n, -1)
+        if temps.size and not np.all(np.isfinite(temps)):
+            raise CalibrationError('temperature contains NaN/Inf; resolve missing samples first')
+        oor = np.zeros(n, bool)
+        a_out, g_out, a_std, g_std = accel, gyro, None, None
+        if self.accel is not None:
+            ta, o = self.axis_temperatures(temps, 'accel')
+            oor |= o
+            a_out = self.accel.correct(accel, ta)
+            a_std = _combine_std(self.accel.predict_std(ta), self.accel_noise_std, n)
+        if self.gyro is not None:
+            tg, o = self.axis_temperatures(temps, 'gyro')
+            oor |= o
+            g_out = self.gyro.correct(gyro, tg, aux={'accel': a_out})
+            g_std = _combine_std(self.gyro.predict_std(tg), self.gyro_noise_std, n)
+        return Compensated(a_out, g_out, oor, a_std, g_std)
+
+    # ------------------------------------------------------------------ file
+    @property
+    def temperature_topics(self):
+        """Return the topics of the temperature inputs, in input order."""
+        return [i.topic for i in self.inputs]
+
+    def to_dict(self):
+        """Return the file content as plain Python types."""
+        d = {
+            'format': FORMAT,
+            'software': {'name': 'thermal_imu_calib', 'version': self.software_version},
+            'created': self.created or _now(),
+            'sensor': {'frame_id': self.frame_id},
+            'units': {'accel': 'm/s^2', 'gyro': 'rad/s', 'temperature': 'degC', 'time': 's'},
+            'gravity': {'value': float(self.gravity), 'unit': 'm/s^2',
+                        'source': self.gravity_source},
+            'temperature': {
+                'inputs': [{'name': i.name, 'topic': i.topic, 'unit': i.unit}
+                           for i in self.inputs],
+                'valid_range': None if self.valid_range is None else {
+                    'min': self.valid_range[:, 0].tolist(),
+                    'max': self.valid_range[:, 1].tolist(), 'unit': 'degC'},
+                'out_of_range': self.out_of_range,
+            },
+        }
+        for name, model, idx in (('accel', self.accel, self.accel_input),
+                                 ('gyro', self.gyro, self.gyro_input)):
+            if model is not None:
+                sec = model.to_dict()
+                sec['temperature_input'] = [int(i) for i in idx]
+                d[name] = sec
+        noise = {}
+        if self.accel_noise_std is not None:
+            noise['accel_std'] = {'value': np.asarray(self.accel_noise_std).tolist(),
+                                  'unit': 'm/s^2', 'description': 'white noise 1-sigma per sample'}
+        if self.gyro_noise_std is not None:
+            noise['gyro_std'] = {'value': np.asarray(self.gyro_noise_std).tolist(),
+                                 'unit': 'rad/s', 'description': 'white noise 1-sigma per sample'}
+        if noise:
+            d['noise'] = noise
+        d['fit'] = _plain(self.fit)
+        d['notes'] = list(self.notes)
+        return d
+
+    def to_yaml(self):
+        """Return the file text."""
+        return yaml.safe_dump(self.to_dict(), sort_keys=False, default_flow_style=None, width=100)
+
+    def save(self, path):
+        """Write atomically (temp file + rename); returns the path."""
+        text = self.to_yaml()
+        path = os.fspath(path)
+        d = os.path.dirname(os.path.abspath(path))
+        os.makedirs(d, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix='.calib-', suffix='.yaml', dir=d)
+        try:
+            with os.fdopen(fd, 'w') as f:
+                f.write(text)
+            os.replace(tmp, path)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
+        return path
+
+    @property
+    def id(self):
+        """Return a short content hash identifying this calibration (for diagnostics)."""
+        d = self.to_dict()
+        d.pop('created', None)
+        return hashlib.sha1(yaml.safe_dump(d, sort_keys=True).encode()).hexdigest()[:10]
+
+    @staticmethod
+    def from_yaml(text, source='calibration'):
+        """Parse and validate file text; raises CalibrationError with the reason."""
+        try:
+            d = yaml.safe_load(text)
+        except yaml.YAMLError as e:
+            raise CalibrationError(f'{source}: not valid YAML ({e.__class__.__name__}: '
+                                   f'{str(e).splitlines()[0]})') from None
+        return Calibration.from_dict(d, source)
+
+    @staticmethod
+    def load(path):
+        """Load and validate a calibration file."""
+        path = os.fspath(path)
+        if not os.path.isfile(path):
+            raise CalibrationError(f'calibration file {path!r} does not exist; create one with '
+                                   '`thermal-imu-calib calibrate ... -o FILE`')
+        with open(path) as f:
+            return Calibration.from_yaml(f.read(), path)
+
+    @staticmethod
+    def from_dict(d, source='calibration'):
+        """Validate a parsed file and build the object."""
+        if not isinstance(d, dict):
+            raise CalibrationError(f'{source}: expected a YAML mapping at the top level')
+        fmt = d.get('format')
+        if fmt != FORMAT:
+            raise CalibrationError(f'{source}: format {fmt!r} is not {FORMAT!r}; this is not a '
+                                   'thermal_imu_calib file or it needs a newer version')
+        try:
+            temp = d.get('temperature') or {}
+            inputs = [TemperatureInput(str(i['name']), str(i.get('topic', 'imu/temperature')),
+                                       str(i.get('unit', 'degC')))
+                      for i in temp.get('inputs') or []]
+            for i in inputs:
+                if i.unit != 'degC':
+                    raise ValueError(f'temperature input {i.name!r} has unit {i.unit!r}; '
+                                     'only degC is supported')
+            vr = temp.get('valid_range')
+            valid = None
+            if inputs:
+                if not vr:
+                    raise ValueError('temperature.valid_range is required when there are inputs')
+                valid = np.stack([np.asarray(vr['min'], float), np.asarray(vr['max'], float)], 1)
+                if valid.shape != (len(inputs), 2):
+                    raise ValueError(f'valid_range has {valid.shape[0]} entries for '
+                                     f'{len(inputs)} inputs')
+                if np.any(valid[:, 0] > valid[:, 1]):
+                    raise ValueError('valid_range min is above max')
+                lo, hi = TEMPERATURE_BOUNDS
+                if np.any(valid < lo) or np.any(valid > hi):
+                    raise ValueError(f'valid_range {valid.tolist()} degC is outside {lo}..{hi} '
+                                     'degC (Kelvin or Fahrenheit by mistake?)')
+            oor = temp.get('out_of_range', 'clamp')
+            if oor not in OUT_OF_RANGE_POLICIES:
+                raise ValueError(f'out_of_range {oor!r} is not one of {OUT_OF_RANGE_POLICIES}')
+            models, idx = {}, {}
+            for name in ('accel', 'gyro'):
+                sec = d.get(name)
+                if sec is None:
+                    models[name], idx[name] = None, [0, 0, 0]
+                    continue
+                models[name] = model_from_dict(sec, name)
+                idx[name] = [int(i) for i in sec.get('temperature_input', [0, 0, 0])]
+                if len(idx[name]) != 3 or (inputs and any(
+                        i < 0 or i >= len(inputs) for i in idx[name])):
+                    raise ValueError(f'{name}.temperature_input {idx[name]} must name 3 of the '
+                                     f'{len(inputs)} temperature inputs')
+                _check_bounds(name, models[name])
+            if models['accel'] is None and models['gyro'] is None:
+                raise ValueError('neither an accel nor a gyro model is present')
+            g = d.get('gravity') or {}
+            noise = d.get('noise') or {}
+            cal = Calibration(
+                accel=models['accel'], gyro=models['gyro'], inputs=inputs, valid_range=valid,
+                out_of_range=oor, accel_input=idx['accel'], gyro_input=idx['gyro'],
+                frame_id=str((d.get('sensor') or {}).get('frame_id', '')),
+                gravity=float(g.get('value', STANDARD_GRAVITY)),
+                gravity_source=str(g.get('source', '')),
+                accel_noise_std=_opt_vec(noise.get('accel_std')),
+                gyro_noise_std=_opt_vec(noise.get('gyro_std')),
+                fit=d.get('fit') or {}, notes=list(d.get('notes') or []),
+                created=str(d.get('created', '')),
+                software_version=str((d.get('software') or {}).get('version', '')))
+        except (KeyError, TypeError, ValueError) as e:
+            msg = str(e) if not isinstance(e, KeyError) else f'missing key {e}'
+            raise CalibrationError(f'{source}: {msg}') from None
+        return cal
+
+
+def _check_bounds(name, model):
+    """Refuse parameters no real IMU has (a corrupt or mis-united file)."""
+    p = {k: v.value for k, v in model.params().items()}
+    if 'k0' in p:
+        k = p['k0'] + p.get('dk0', 0)
+        if np.any(np.abs(k - 1) > 0.5):
+            raise ValueError(f'{name}: scale factor {k.tolist()} is not within 0.5..1.5; '
+                             'the file is corrupt or not in SI units')
+    lim = 50.0 if model.sensor == 'accel' else 5.0
+    for key in ('b0', 'db0', 'c0'):
+        if key in p and np.any(np.abs(p[key]) > lim):
+            raise ValueError(f'{name}: {key} = {p[key].tolist()} exceeds {lim} {model.unit}; '
+                             'the file is corrupt or not in SI units')
+    if 'T0' in p and np.any((p['T0'] < TEMPERATURE_BOUNDS[0]) | (p['T0'] > TEMPERATURE_BOUNDS[1])):
+        raise ValueError(f'{name}: T0 = {p["T0"].tolist()} degC is implausible')
+
+
+def _opt_vec(sec):
+    if sec is None:
+        return None
+    v = np.asarray(sec['value'] if isinstance(sec, dict) else sec, float).reshape(3)
+    if np.any(v < 0) or not np.all(np.isfinite(v)):
+        raise ValueError('noise std must be finite and non-negative')
+    return v
+
+
+def _combine_std(model_std, noise_std, n):
+    if model_std is None and noise_std is None:
+        return None
+    var = np.zeros((n, 3))
+    if model_std is not None:
+        var = var + np.asarray(model_std) ** 2
+    if noise_std is not None:
+        var = var + np.asarray(noise_std) ** 2
+    return np.sqrt(var)
+
+
+def _now():
+    return datetime.datetime.now(datetime.timezone.utc).replace(microsecond=0).isoformat()
+
+
+def _plain(x):
+    """Convert numpy scalars/arrays inside nested containers to plain Python for YAML."""
+    if isinstance(x, dict):
+        return {str(k): _plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_plain(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _plain(x.tolist())
+    if isinstance(x, np.generic):
+        return x.item()
+    return x

@@ -1,0 +1,1 @@
+"""Estimation: stationary detection, segment statistics, estimators, model selection."""

@@ -1,0 +1,90 @@
+"""Offset-only polynomial in temperature, per axis (PX4/ArduPilot-style thermal offsets).
+
+    corrected_i = raw_i - sum_{j=j0..order} c_j,i * (T_i - T0_i)^j
+
+With ``include_constant`` (j0 = 0) the constant bias is removed too (gyro bias from static
+segments). Without it (j0 = 1) the model removes only the *drift relative to the reference
+temperature T0*: the single-orientation warm-up case, where a constant accelerometer bias
+cannot be told apart from the projection of gravity.
+"""
+
+import numpy as np
+
+from .base import Param, register, require, SensorModel
+
+
+@register
+class OffsetPolynomialModel(SensorModel):
+    """Per-axis offset polynomial in (T - T0); units follow the sensor (m/s^2 or rad/s)."""
+
+    kind = 'offset_polynomial'
+
+    def __init__(self, t0, coeffs, sensor='accel', include_constant=True, coeff_std=None):
+        self.t0 = np.asarray(t0, float).reshape(3)
+        self.coeffs = np.asarray(coeffs, float)  # (order+1, 3): row j multiplies dT^j
+        if self.coeffs.ndim != 2 or self.coeffs.shape[1] != 3:
+            raise ValueError(f'coeffs must be (order+1, 3), got {self.coeffs.shape}')
+        self.sensor = sensor
+        self.include_constant = bool(include_constant)
+        if not self.include_constant:
+            self.coeffs[0] = 0.0
+        self.coeff_std = None if coeff_std is None else np.asarray(coeff_std, float)
+
+    @property
+    def order(self):
+        """Return the polynomial order."""
+        return self.coeffs.shape[0] - 1
+
+    def offset(self, temps):
+        """Return the modelled (n, 3) offset at per-axis temps (n, 3) degC."""
+        dt = np.asarray(temps, float) - self.t0
+        out = np.zeros_like(dt)
+        for c in self.coeffs[::-1]:  # Horner
+            out = out * dt + c
+        return out
+
+    def correct(self, raw, temps, aux=None):
+        """Subtract the modelled offset."""
+        return np.asarray(raw, float) - self.offset(temps)
+
+    def forward(self, true, temps, aux=None):
+        """Add the modelled offset."""
+        return np.asarray(true, float) + self.offset(temps)
+
+    def predict_std(self, temps):
+        """Return the 1-sigma offset uncertainty from coefficient stds (correlations ignored)."""
+        if self.coeff_std is None:
+            return None
+        dt = np.asarray(temps, float) - self.t0
+        var = np.zeros_like(dt)
+        for j, s in enumerate(self.coeff_std):
+            var += (s * dt ** j) ** 2
+        return np.sqrt(var)
+
+    def params(self):
+        """Return T0 and one parameter per power, c0..cN, each per axis."""
+        u = self.unit
+        out = {'T0': Param(self.t0, 'degC', description='reference temperature per axis')}
+        for j, c in enumerate(self.coeffs):
+            std = None if self.coeff_std is None else self.coeff_std[j]
+            unit = u if j == 0 else (f'{u}/degC' if j == 1 else f'{u}/degC^{j}')
+            desc = 'constant offset' if j == 0 else f'offset coefficient of (T-T0)^{j}'
+            out[f'c{j}'] = Param(c, unit, std, desc)
+        return out
+
+    def meta(self):
+        """Return order and whether the constant term is modelled."""
+        return {'order': self.order, 'include_constant': self.include_constant,
+                'offset_only': not self.include_constant}
+
+    @classmethod
+    def from_params(cls, params, meta):
+        """Rebuild from file parameters."""
+        where = cls.kind
+        order = int(meta.get('order', 0))
+        t0 = require(params, 'T0', (3,), where)
+        coeffs = np.stack([require(params, f'c{j}', (3,), where) for j in range(order + 1)])
+        stds = [params[f'c{j}'].std for j in range(order + 1)]
+        std = None if any(s is None for s in stds) else np.stack(stds)
+        return cls(t0, coeffs, include_constant=bool(meta.get('include_constant', True)),
+                   coeff_std=std)
