@@ -14,7 +14,7 @@ _M = 0.00344978650684    # omega^2 a^2 b / GM
 
 
 def normal_gravity(latitude_deg, altitude_m=0.0):
-    """Return WGS84 normal gravity in m/s^2 at a geodetic latitude (deg) and ellipsoidal height (m).
+    """Return WGS84 normal gravity (m/s^2) at a geodetic latitude (deg) and height (m).
 
     Somigliana's closed formula on the ellipsoid, then the second-order height correction
     of NIMA TR8350.2 eq. 4-3. Raises ValueError for a latitude outside [-90, 90].
@@ -35,5 +35,6 @@ def resolve_gravity(gravity=None, latitude=None, altitude=0.0):
                              'pass m/s^2, not g')
         return float(gravity), 'given'
     if latitude is not None:
-        return normal_gravity(latitude, altitude), f'WGS84 normal gravity at {latitude} deg, {altitude} m'
+        return (normal_gravity(latitude, altitude),
+                f'WGS84 normal gravity at {latitude} deg, {altitude} m')
     return STANDARD_GRAVITY, 'standard gravity 9.80665 m/s^2'

@@ -1,0 +1,336 @@
+"""``thermal-imu-calib``: the library on recorded logs.
+
+Subcommands: calibrate, compensate, evaluate, simulate, info, report. Bad input gets one
+line on stderr saying what was wrong and what to do, and exit status 2; ``--debug`` shows
+the traceback instead.
+"""
+
+import argparse
+import json
+import os
+import sys
+
+import numpy as np
+
+from . import __version__
+from .calibration import Calibration, CalibrationError, TemperatureInput
+from .estimation.calibrate import CalibrateOptions, calibrate_windows, CalibrationRefused
+from .estimation.stationary import DetectorConfig
+from .gravity import resolve_gravity
+from .io.bag import LogError
+
+EXIT_USAGE = 2
+
+
+class UserError(Exception):
+    """Bad input from the command line; printed as one line."""
+
+
+def _add_topics(p, imu_required=False):
+    p.add_argument('--imu-topic', required=imu_required, default=None,
+                   help='sensor_msgs/Imu topic (default: the only Imu topic in the log)')
+    p.add_argument('--temperature-topic', action='append', default=None, metavar='TOPIC',
+                   help='sensor_msgs/Temperature topic; repeat for several inputs (default: '
+                        'all Temperature topics, or those of the calibration)')
+    p.add_argument('--max-gap', type=float, default=5.0, metavar='S',
+                   help='temperature samples further apart than this are a gap: the nearest '
+                        'sample is held instead of interpolating (s, default 5)')
+    p.add_argument('--chunk-size', type=int, default=20000, help=argparse.SUPPRESS)
+    p.add_argument('--progress', action=argparse.BooleanOptionalAction, default=None,
+                   help='progress bar (default: only on a terminal)')
+
+
+def _add_detector(p):
+    d = DetectorConfig()
+    g = p.add_argument_group('stationary detector')
+    g.add_argument('--min-hold', type=float, default=d.min_hold_s, metavar='S',
+                   help=f'minimum stationary segment (s, default {d.min_hold_s})')
+    g.add_argument('--window', type=float, default=d.window_s, metavar='S',
+                   help=f'sub-window length within a hold (s, default {d.window_s})')
+    g.add_argument('--guard', type=float, default=d.guard_s, metavar='S',
+                   help=f'trimmed from both ends of a hold (s, default {d.guard_s})')
+    g.add_argument('--still-factor', type=float, default=d.accel_factor, metavar='X',
+                   help='variance threshold as a multiple of the noise floor (default '
+                        f'{d.accel_factor})')
+
+
+def _detector(args):
+    return DetectorConfig(min_hold_s=args.min_hold, window_s=args.window, guard_s=args.guard,
+                          accel_factor=args.still_factor, gyro_factor=args.still_factor)
+
+
+def _gravity(args):
+    try:
+        return resolve_gravity(args.gravity, args.latitude, args.altitude)
+    except ValueError as e:
+        raise UserError(str(e)) from None
+
+
+def build_parser():
+    """Return the argparse parser (also used to document the CLI)."""
+    ap = argparse.ArgumentParser(prog='thermal-imu-calib', description=__doc__.split('\n')[0])
+    ap.add_argument('--version', action='version', version=f'%(prog)s {__version__}')
+    ap.add_argument('--debug', action='store_true', help='show tracebacks')
+    sub = ap.add_subparsers(dest='cmd', required=True)
+
+    p = sub.add_parser('calibrate', help='estimate a thermal calibration from logs')
+    p.add_argument('inputs', nargs='+', metavar='INPUT', help='rosbag2 dir, .mcap or .db3')
+    _add_topics(p)
+    grav = p.add_mutually_exclusive_group()
+    grav.add_argument('--gravity', type=float, help='local gravity (m/s^2)')
+    grav.add_argument('--latitude', type=float, help='latitude (deg) for WGS84 normal gravity')
+    p.add_argument('--altitude', type=float, default=0.0, help='height (m) with --latitude')
+    p.add_argument('--model', default='auto', choices=('auto', 'field', 'offset'),
+                   help='auto: seed-000 field model with several poses, offset-only with one')
+    p.add_argument('--prior', help='lab calibration (k0, b0, S at T0) the field model refines')
+    p.add_argument('--order', type=int, default=2, choices=(0, 1, 2),
+                   help='temperature polynomial order of the field model (default 2)')
+    p.add_argument('--no-refine', action='store_true', help='skip the joint refinement')
+    p.add_argument('--out-of-range', default='clamp', choices=('clamp', 'extrapolate'))
+    p.add_argument('--frame-id', help='sensor frame_id to record (default: from the log)')
+    p.add_argument('--save-windows', metavar='FILE', help='write the window statistics (JSONL)')
+    p.add_argument('-o', '--output', required=True, help='calibration YAML to write')
+    p.add_argument('--json', action='store_true', help='print the report as JSON')
+    _add_detector(p)
+
+    p = sub.add_parser('compensate', help='write a log with compensated Imu messages added')
+    p.add_argument('input', metavar='INPUT')
+    p.add_argument('--calibration', required=True)
+    _add_topics(p)
+    p.add_argument('--output-topic', default='/imu/data_compensated')
+    p.add_argument('--storage', default='mcap', choices=('mcap', 'sqlite3'),
+                   help='rosbag2 storage when OUTPUT is a directory (OUTPUT.mcap: bare MCAP)')
+    p.add_argument('--temperature-timeout', type=float, default=None, metavar='S',
+                   help='temperature older than this is stale (s, default: --max-gap)')
+    p.add_argument('--on-missing-temperature', default='hold_last',
+                   choices=('hold_last', 'passthrough', 'drop'))
+    p.add_argument('-o', '--output', required=True)
+
+    p = sub.add_parser('evaluate', help='static errors before/after compensation')
+    p.add_argument('input', metavar='INPUT')
+    p.add_argument('--calibration', action='append', default=[], metavar='FILE',
+                   help='calibration to apply; repeat to compare (label = file name)')
+    _add_topics(p)
+    grav = p.add_mutually_exclusive_group()
+    grav.add_argument('--gravity', type=float)
+    grav.add_argument('--latitude', type=float)
+    p.add_argument('--altitude', type=float, default=0.0)
+    p.add_argument('--average', type=float, default=300.0, metavar='S',
+                   help='averaging window of the gravity residual (s, default 300)')
+    p.add_argument('--json', action='store_true')
+    _add_detector(p)
+
+    p = sub.add_parser('simulate', help='write a realistic simulated recording and its truth')
+    p.add_argument('output', metavar='OUTPUT', help='.mcap file or rosbag2 directory')
+    p.add_argument('--scenario', default='demo')
+    p.add_argument('--seed', type=int, default=0)
+    p.add_argument('--storage', default='mcap', choices=('mcap', 'sqlite3'))
+    p.add_argument('--list', action='store_true', help='list the scenarios and exit')
+
+    p = sub.add_parser('info', help='topics, counts, rates, span, temperature range')
+    p.add_argument('input', metavar='INPUT')
+
+    p = sub.add_parser('report', help='print a calibration file for people')
+    p.add_argument('calibration', metavar='CALIB.yaml')
+    return ap
+
+
+def cmd_calibrate(args):
+    """Run the calibrate subcommand."""
+    from .pipeline import collect_windows, merge_windows
+    g, g_src = _gravity(args)
+    prior = Calibration.load(args.prior) if args.prior else None
+    collected = []
+    for path in args.inputs:
+        c = collect_windows(path, args.imu_topic, args.temperature_topic, _detector(args),
+                            args.chunk_size, args.max_gap, args.progress)
+        print(f'{path}: {c.imu_messages} Imu messages in {c.seconds:.1f} s '
+              f'({c.imu_messages / max(c.seconds, 1e-9):,.0f} msgs/s), '
+              f'{len(np.unique(c.windows.hold))} stationary holds', file=sys.stderr)
+        collected.append(c)
+    topics = collected[0].temperature_topics
+    for c in collected[1:]:
+        if c.temperature_topics != topics:
+            raise UserError(f'inputs have different temperature topics ({topics} vs '
+                            f'{c.temperature_topics}); pass --temperature-topic')
+    windows = merge_windows(collected)
+    if args.save_windows:
+        with open(args.save_windows, 'w') as f:
+            f.write(windows.to_jsonl())
+    inputs = [TemperatureInput(t.strip('/').replace('/', '_') or f't{i}', t)
+              for i, t in enumerate(topics)]
+    opts = CalibrateOptions(model=args.model, gravity=g, gravity_source=g_src, prior=prior,
+                            inputs=inputs, frame_id=args.frame_id or collected[0].frame_id,
+                            out_of_range=args.out_of_range, order=args.order,
+                            refine=not args.no_refine, min_hold_s=args.min_hold)
+    result = calibrate_windows(windows, opts)
+    result.calibration.fit['inputs'] = [os.path.basename(os.path.normpath(p))
+                                        for p in args.inputs]
+    result.calibration.save(args.output)
+    if args.json:
+        print(json.dumps({'summary': result.summary, 'output': args.output,
+                          'calibration': result.calibration.to_dict()}, indent=1, default=str))
+    else:
+        print(result.summary)
+        for note in result.calibration.notes:
+            print(f'  note: {note}')
+        print(f'wrote {args.output}')
+    return 0
+
+
+def cmd_compensate(args):
+    """Run the compensate subcommand."""
+    from .pipeline import compensate_log
+    cal = Calibration.load(args.calibration)
+    if os.path.exists(args.output):
+        raise UserError(f'{args.output} exists; remove it or choose another -o')
+    st = compensate_log(args.input, args.output, cal, args.imu_topic, args.temperature_topic,
+                        args.output_topic, args.storage, args.chunk_size, args.max_gap,
+                        args.temperature_timeout, args.on_missing_temperature, args.progress)
+    print(f'wrote {args.output}: {st["copied"]} messages copied, {st["imu_out"]} compensated '
+          f'on {args.output_topic} ({st["out_of_range"]} outside the calibrated temperature '
+          f'range, {st["passthrough"]} passed through, {st["dropped"]} dropped), '
+          f'{st["msgs_per_s"]:,.0f} msgs/s')
+    return 0
+
+
+def cmd_evaluate(args):
+    """Run the evaluate subcommand."""
+    from .pipeline import evaluate_log
+    g, _ = _gravity(args)
+    cals = {}
+    for path in args.calibration:
+        label = os.path.splitext(os.path.basename(path))[0]
+        while label in cals:
+            label += "'"
+        cals[label] = Calibration.load(path)
+    res = evaluate_log(args.input, cals, args.imu_topic, args.temperature_topic,
+                       _detector(args), g, args.average, args.chunk_size, args.max_gap,
+                       args.progress)
+    if args.json:
+        print(json.dumps(res, indent=1))
+        return 0
+    print(format_evaluation(res))
+    return 0
+
+
+def format_evaluation(res):
+    """Render evaluate results as a table (micro-g, micro-g/degC, rad/s)."""
+    r = res['results']
+    labels = list(r)
+    avg_s = r['raw']['averaged_residual_ug']['window_s']
+    rows = [('holds', lambda m: f'{m["holds"]}'),
+            ('gravity residual per hold, RMS [ug]',
+             lambda m: f'{m["gravity_residual_ug"]["rms"]:.1f}'),
+            ('gravity residual per hold, max [ug]',
+             lambda m: f'{m["gravity_residual_ug"]["max"]:.1f}'),
+            (f'{avg_s:.0f}-s averaged residual, RMS [ug]',
+             lambda m: f'{m["averaged_residual_ug"]["rms"]:.1f}'),
+            (f'{avg_s:.0f}-s averaged residual, max [ug]',
+             lambda m: f'{m["averaged_residual_ug"]["max"]:.1f}'),
+            ('drift vs temperature x,y,z RMS [ug/degC]',
+             lambda m: ('/'.join(f'{v:.1f}' for v in m['drift_ug_per_degC_rms'])
+                        if 'drift_ug_per_degC_rms' in m else '-')),
+            ('gyro rate per hold, RMS [rad/s]', lambda m: f'{m["gyro_rate_rms"]["value"]:.2e}')]
+    w0 = max(len(n) for n, _ in rows)
+    cols = [max(len(lb), 14) for lb in labels]
+    out = [f'{res["path"]}: {res["holds"]} stationary holds, {res["windows"]} windows',
+           ' ' * w0 + '  ' + '  '.join(f'{lb:>{c}}' for lb, c in zip(labels, cols))]
+    for name, fn in rows:
+        cells = '  '.join(f'{fn(r[lb]):>{c}}' for lb, c in zip(labels, cols))
+        out.append(f'{name:<{w0}}  {cells}')
+    return '\n'.join(out)
+
+
+def cmd_simulate(args):
+    """Run the simulate subcommand."""
+    from . import sim
+    if args.list:
+        for name, sc in sim.SCENARIOS.items():
+            doc = (getattr(sc, 'description', '') or '').strip().splitlines()
+            print(f'{name:18s} {doc[0] if doc else ""}')
+        return 0
+    if args.scenario not in sim.SCENARIOS:
+        raise UserError(f'unknown scenario {args.scenario!r}; choose one of '
+                        f'{", ".join(sim.SCENARIOS)}')
+    if os.path.exists(args.output):
+        raise UserError(f'{args.output} exists; remove it or choose another OUTPUT')
+    info = sim.write_scenario(args.output, args.scenario, args.seed, storage=args.storage)
+    print(f'wrote {args.output} (scenario {args.scenario}, seed {args.seed})')
+    for k, v in info.items():
+        if isinstance(v, (str, int, float)):
+            print(f'  {k}: {v}')
+    return 0
+
+
+def cmd_info(args):
+    """Run the info subcommand."""
+    from .io.bag import open_log
+    with open_log(args.input) as reader:
+        print(reader.info().format())
+    return 0
+
+
+def cmd_report(args):
+    """Run the report subcommand."""
+    cal = Calibration.load(args.calibration)
+    print(format_calibration(cal))
+    return 0
+
+
+def format_calibration(cal):
+    """Render a calibration for people: models, parameters with units and stds, fit, notes."""
+    out = [f'calibration {cal.id}  frame_id={cal.frame_id or "?"}  created {cal.created}  '
+           f'software {cal.software_version}',
+           f'gravity {cal.gravity:.6f} m/s^2 ({cal.gravity_source})']
+    if cal.inputs:
+        vr = cal.valid_range
+        out.append('temperature inputs: ' + ', '.join(
+            f'{i.topic} [{vr[j, 0]:.2f}..{vr[j, 1]:.2f} degC]' for j, i in enumerate(cal.inputs))
+            + f'; outside: {cal.out_of_range}')
+    else:
+        out.append('temperature inputs: none (temperature-independent)')
+    for name, model in (('accel', cal.accel), ('gyro', cal.gyro)):
+        if model is None:
+            continue
+        out.append(f'{name}: {model.kind} {model.meta()}')
+        for pname, p in model.params().items():
+            v = np.asarray(p.value)
+            val = np.array2string(v.ravel(), precision=4, max_line_width=200)
+            sd = '' if p.std is None else '  std ' + np.array2string(
+                np.asarray(p.std).ravel(), precision=2, max_line_width=200)
+            out.append(f'  {pname:4s} [{p.unit}] {val}{sd}')
+    fit = cal.fit or {}
+    for key in ('holds', 'windows', 'faces', 'temperature_span', 'residual_rms',
+                'gravity_residual_ug'):
+        if key in fit:
+            out.append(f'fit.{key}: {fit[key]}')
+    for n in cal.notes:
+        out.append(f'note: {n}')
+    return '\n'.join(out)
+
+
+COMMANDS = {'calibrate': cmd_calibrate, 'compensate': cmd_compensate,
+            'evaluate': cmd_evaluate, 'simulate': cmd_simulate, 'info': cmd_info,
+            'report': cmd_report}
+
+
+def main(argv=None):
+    """Entry point of ``thermal-imu-calib``."""
+    args = build_parser().parse_args(argv)
+    try:
+        return COMMANDS[args.cmd](args)
+    except (UserError, LogError, CalibrationError, CalibrationRefused, FileNotFoundError,
+            ValueError) as e:
+        if args.debug:
+            raise
+        msg = str(e).strip().replace('\n', ' ')
+        print(f'thermal-imu-calib {args.cmd}: error: {msg}', file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print('interrupted', file=sys.stderr)
+        return 130
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,262 @@
+"""From stationary windows to a Calibration: model choice, observability, refusal, summary.
+
+This is the one estimation entry point used by the CLI (offline logs) and the calibrator
+node (live segment statistics).
+"""
+
+from dataclasses import dataclass, field
+from typing import List, Optional
+
+import numpy as np
+
+from ..calibration import Calibration, TemperatureInput
+from ..gravity import STANDARD_GRAVITY
+from ..models.field import FieldPolynomialModel
+from .field_estimator import fit_field_model, per_axis_temperature_span
+from .offset_fit import fit_offset_model, time_groups
+from .segments import coverage, distinct_orientations, FACE_NAMES
+
+MODEL_CHOICES = ('auto', 'field', 'offset')
+#: temperature span (degC) needed for each polynomial order of the field model
+ORDER_SPAN = {1: 1.0, 2: 3.0}
+
+
+class CalibrationRefused(Exception):
+    """Estimation refused: ``reason`` says what is wrong, ``advice`` what to collect."""
+
+    def __init__(self, reason, advice=''):
+        super().__init__(f'{reason}. {advice}'.strip())
+        self.reason = reason
+        self.advice = advice
+
+
+@dataclass
+class CalibrateOptions:
+    """Settings of one estimation run (SI units)."""
+
+    model: str = 'auto'
+    gravity: float = STANDARD_GRAVITY
+    gravity_source: str = 'standard gravity 9.80665 m/s^2'
+    prior: Optional[Calibration] = None
+    inputs: List[TemperatureInput] = field(default_factory=list)
+    accel_input: Optional[List[int]] = None
+    gyro_input: Optional[List[int]] = None
+    frame_id: str = ''
+    out_of_range: str = 'clamp'
+    order: int = 2
+    refine: bool = True
+    min_hold_s: float = 10.0
+
+
+@dataclass
+class CalibrationResult:
+    """A new calibration, a one-line human summary and a machine-readable report."""
+
+    calibration: Calibration
+    summary: str
+    report: dict
+
+
+def _default_axis_inputs(k):
+    if k == 0:
+        return [0, 0, 0]
+    return [0, 1, 2] if k == 3 else [0, 0, 0]
+
+
+def _face_text(cov):
+    parts = []
+    for f in FACE_NAMES:
+        n = cov['faces'][f]['holds']
+        if n:
+            parts.append(f'{f}x{n}' if n > 1 else f)
+    if cov['tilted_holds']:
+        parts.append(f'{cov["tilted_holds"]} tilted')
+    return ' '.join(parts) or 'none'
+
+
+def _span_text(cov):
+    span = cov['temperature_span']
+    if not span:
+        return 'no temperature'
+    return ', '.join(f'{lo:.1f}-{hi:.1f} degC' for lo, hi in span)
+
+
+def readiness(windows, model='auto', min_holds=1):
+    """Say whether ``calibrate_windows`` would succeed now and what to hold next.
+
+    Returns a dict: ready (bool), mode, reason, next_pose (face label or None), coverage.
+    Cheap: no fitting, only the coverage rules.
+    """
+    cov = coverage(windows)
+    if cov['holds'] < min_holds:
+        return {'ready': False, 'mode': None, 'reason': 'no stationary holds yet',
+                'next_pose': '+z', 'coverage': cov}
+    n_orient = distinct_orientations(windows)
+    missing = cov['missing']
+    if model == 'offset' or (model == 'auto' and n_orient == 1):
+        return {'ready': True, 'mode': 'offset', 'reason': 'single orientation: offset-only model',
+                'next_pose': missing[0] if missing else None, 'coverage': cov}
+    if missing:
+        return {'ready': False, 'mode': 'field', 'reason': f'faces missing: {" ".join(missing)}',
+                'next_pose': missing[0], 'coverage': cov}
+    # all faces held: suggest the face seen at the fewest temperatures to repeat
+    least = min(FACE_NAMES, key=lambda f: cov['faces'][f]['holds'])
+    return {'ready': True, 'mode': 'field', 'reason': 'all six faces held',
+            'next_pose': least, 'coverage': cov}
+
+
+def calibrate_windows(windows, options=None):
+    """Estimate a Calibration from stationary windows; raise CalibrationRefused if impossible."""
+    o = options or CalibrateOptions()
+    if o.model not in MODEL_CHOICES:
+        raise CalibrationRefused(f'unknown model {o.model!r}', f'use one of {MODEL_CHOICES}')
+    if len(windows) == 0:
+        raise CalibrationRefused(
+            'no stationary segments were found',
+            f'hold the IMU still for at least {o.min_hold_s:.0f} s in each pose (check the '
+            'IMU topic, and that the log contains still periods)')
+    k = windows.n_inputs
+    if len(o.inputs) != k:
+        raise ValueError(f'{len(o.inputs)} temperature inputs named but windows carry {k}')
+    accel_input = o.accel_input or _default_axis_inputs(k)
+    gyro_input = o.gyro_input or [0, 0, 0]
+    cov = coverage(windows)
+    n_orient = distinct_orientations(windows)
+    single = o.model == 'offset' or (o.model == 'auto' and n_orient == 1)
+    g = o.gravity
+    notes = []
+    ta = windows.temp[:, accel_input] if k else np.zeros((len(windows), 3))
+    tg = windows.temp[:, gyro_input] if k else np.zeros((len(windows), 3))
+
+    # reference temperature: the prior's, else the middle of the collected range
+    prior_model = o.prior.accel if o.prior is not None else None
+    if prior_model is not None and not isinstance(prior_model, FieldPolynomialModel):
+        raise CalibrationRefused('the prior calibration has no seed 000 accelerometer model',
+                                 'pass a field_polynomial calibration as --prior')
+    if k:
+        t0 = (prior_model.t0.copy() if prior_model is not None
+              else np.round((ta.min(0) + ta.max(0)) / 2.0, 2))
+    else:
+        t0 = np.zeros(3) if prior_model is None else prior_model.t0.copy()
+
+    report = {'coverage': cov, 'distinct_orientations': n_orient}
+    accel_model = None
+    fit_stats = {}
+    if single:
+        if k == 0:
+            notes.append('accelerometer not calibrated: a single orientation without temperature '
+                         'cannot separate bias or scale factor from gravity; hold the six faces '
+                         '(+x -x +y -y +z -z up)')
+        else:
+            accel_model, rep = fit_offset_model(windows, ta, t0, 'accel', 'accel',
+                                                include_constant=False)
+            report['accel_offset'] = rep
+            notes.append('offset-only model for a single orientation: removes the drift of each '
+                         'axis relative to its output at the reference temperature T0; bias and '
+                         'scale factor are not separable from gravity in one pose and are not '
+                         'estimated. Valid for this mounting pose only.')
+            fit_stats['pose'] = 'single orientation (offset-only)'
+    else:
+        # separability of bias and scale: each axis must see at least 1 g of input range
+        _, means = windows.hold_means()
+        u = means / np.linalg.norm(means, axis=1, keepdims=True)
+        reach = np.ptp(u, axis=0)
+        weak = [a for a, r in zip('xyz', reach) if r < 1.0]
+        if weak:
+            missing = cov['missing']
+            raise CalibrationRefused(
+                f'scale factor and bias of axis {",".join(weak)} are not observable: faces held '
+                f'{_face_text(cov)}; missing {" ".join(missing) or "none"}',
+                f'hold each missing face ({" ".join(missing)}) still for at least '
+                f'{o.min_hold_s:.0f} s, ideally repeated during the warm-up so each face is '
+                'seen at several temperatures')
+        order = o.order if k else 0
+        span = float(np.max(np.ptp(ta, axis=0))) if k else 0.0
+        while order > 0 and span < ORDER_SPAN[order]:
+            notes.append(f'temperature span {span:.2f} degC is below {ORDER_SPAN[order]} degC: '
+                         f'polynomial order reduced from {order} to {order - 1}; collect during a '
+                         'warm-up for temperature coefficients')
+            order -= 1
+        if k == 0:
+            notes.append('no temperature input: temperature-independent scale factor and bias '
+                         'only (dk0, db0)')
+        k0 = b0 = s = None
+        if prior_model is not None:
+            k0 = prior_model.k0 + prior_model.thermal[:, 0]
+            b0 = prior_model.b0 + prior_model.thermal[:, 3]
+            s = prior_model.s
+        else:
+            notes.append('no prior calibration: k0 = 1, b0 = 0, S = identity; dk0 and db0 hold '
+                         'the full scale-factor and bias errors at T0, non-orthogonality is not '
+                         'estimated')
+        fit = fit_field_model(windows, ta, g, t0, k0, b0, s, order=order, refine=o.refine)
+        accel_model = fit.model
+        axis_span = per_axis_temperature_span(windows, ta, fit.tilts, fit.hold_ids)
+        for a, sp in zip('xyz', axis_span):
+            if order >= 1 and sp < ORDER_SPAN[1]:
+                notes.append(f'axis {a} was near vertical over only {sp:.2f} degC: its scale '
+                             'temperature coefficients are poorly determined (see their std)')
+        fit_stats.update({'iterations': fit.iterations, 'converged': bool(fit.converged),
+                          'joint_refinement': bool(fit.refined), 'order': order,
+                          'residual_rms': {'value': fit.residual_rms, 'unit': 'm/s^2'},
+                          'chi2_per_dof': fit.chi2_dof,
+                          'axis_vertical_temperature_span': {'value': axis_span.tolist(),
+                                                             'unit': 'degC'}})
+
+    # gyroscope bias vs temperature: all windows, groups = holds when there are enough
+    groups = windows.hold if len(np.unique(windows.hold)) >= 3 else time_groups(windows.t0)
+    gyro_orders = (0, 1, 2, 3) if k else (0,)
+    gyro_model, grep = fit_offset_model(windows, tg, t0 if k else np.zeros(3), 'gyro', 'gyro',
+                                        include_constant=True, orders=gyro_orders,
+                                        groups=groups)
+    report['gyro_offset'] = grep
+    notes.append('gyroscope: bias polynomial from stationary windows; earth rotation is not '
+                 'removed (up to 7.3e-5 rad/s)')
+
+    cal = Calibration(
+        accel=accel_model, gyro=gyro_model, inputs=list(o.inputs),
+        valid_range=(np.stack([windows.temp.min(0), windows.temp.max(0)], 1) if k else None),
+        out_of_range=o.out_of_range, accel_input=accel_input, gyro_input=gyro_input,
+        frame_id=o.frame_id, gravity=g, gravity_source=o.gravity_source,
+        accel_noise_std=np.sqrt(np.median(windows.accel_var, axis=0)),
+        gyro_noise_std=np.sqrt(np.median(windows.gyro_var, axis=0)), notes=notes)
+    before, after = gravity_residuals(windows, cal, g)
+    fit_stats.update({
+        'holds': cov['holds'], 'windows': cov['windows'],
+        'faces': {f: cov['faces'][f]['holds'] for f in FACE_NAMES},
+        'tilted_holds': cov['tilted_holds'],
+        'temperature_span': cov['temperature_span'],
+        'gravity_residual_ug': {'before_rms': _rms(before), 'after_rms': _rms(after),
+                                'before_max': _amax(before), 'after_max': _amax(after),
+                                'note': 'per hold, |mean f| - g in micro-g, on the fit data'},
+    })
+    cal.fit = fit_stats
+    kind = accel_model.kind if accel_model is not None else 'gyro bias only'
+    summary = (f'{kind}: {cov["holds"]} holds ({cov["windows"]} windows), faces '
+               f'{_face_text(cov)}, {_span_text(cov)}, gravity residual '
+               f'{_amax(before):.0f} -> {_amax(after):.1f} ug max')
+    if 'residual_rms' in fit_stats:
+        summary += f', fit residual {fit_stats["residual_rms"]["value"] * 1e6 / g:.1f} ug RMS'
+    return CalibrationResult(cal, summary, report)
+
+
+def gravity_residuals(windows, cal, g):
+    """Return per-hold |mean f| - g in micro-g, before and after ``cal`` (fit data)."""
+    ids = windows.hold_ids
+    before = np.zeros(len(ids))
+    after = np.zeros(len(ids))
+    res = cal.apply(windows.accel, windows.gyro, windows.temp if windows.n_inputs else None)
+    for j, h in enumerate(ids):
+        m = windows.hold == h
+        wts = windows.n[m]
+        before[j] = np.linalg.norm(np.average(windows.accel[m], 0, wts)) - g
+        after[j] = np.linalg.norm(np.average(res.accel[m], 0, wts)) - g
+    return before / g * 1e6, after / g * 1e6
+
+
+def _rms(x):
+    return float(np.sqrt(np.mean(np.square(x)))) if len(x) else 0.0
+
+
+def _amax(x):
+    return float(np.max(np.abs(x))) if len(x) else 0.0

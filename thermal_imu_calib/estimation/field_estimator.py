@@ -1,0 +1,253 @@
+"""Seed 000 estimator: two-step iterative estimation of the accelerometer thermal model.
+
+Unknowns: the thermal vector x (per axis dk0, k1, k2, db0, b1, b2; paper eq. 9) and one
+unit tilt vector c_h per hold (the gravity direction in the reference frame p, eq. 7).
+Observations: window means of the raw accelerometer output with their standard errors.
+
+1. Initial tilts from the normalised outputs mapped through the prior (eq. 29).
+2. Given tilts, x by weighted linear least squares, axis by axis (eq. 16).
+3. Given x, each tilt by Newton iteration on the KKT conditions of the unit-norm
+   constrained problem (eqs. 20-27), generalised to all windows of a hold.
+4. Repeat 2-3 until x and the tilts stop changing; then, optionally, a joint refinement
+   of x and all tilts with scipy.optimize.least_squares that also gives the parameter
+   covariance from the Jacobian.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import brentq, least_squares
+
+from ..models.field import FieldPolynomialModel, THERMAL_NAMES
+
+#: columns of the per-axis design for each polynomial order
+_COLS = {0: [0, 3], 1: [0, 1, 3, 4], 2: [0, 1, 2, 3, 4, 5]}
+
+
+@dataclass
+class FieldFit:
+    """Result of ``fit_field_model``."""
+
+    model: FieldPolynomialModel
+    tilts: np.ndarray          # (h, 3) unit gravity-up directions per hold, frame p
+    hold_ids: np.ndarray
+    iterations: int
+    converged: bool
+    residual_rms: float        # m/s^2, RMS of window-mean residuals
+    chi2_dof: float            # reduced chi-square with the windows' standard errors
+    refined: bool
+
+
+def kkt_unit_tilt(a_mats, y, w, c0, max_iter=50, tol=1e-14):
+    """Solve min sum_j ||w_j (A_j c - y_j)||^2 subject to |c| = 1 (paper eqs. 20-27).
+
+    a_mats: (m, 3, 3), y: (m, 3), w: (m, 3) weights, c0: (3,) start. Newton steps on the
+    Lagrangian L = f(c) + u (c'c - 1) with the bordered KKT system of eq. (24).
+    The global minimiser is the stationary point where the Hessian of L is positive
+    semi-definite (u >= -lambda_min of sum A'W^2A); if Newton lands elsewhere (a bad start
+    far from the data), the secular equation gives that point instead.
+    Returns (c, u, iterations).
+    """
+    aw = a_mats * w[:, :, None]
+    m_mat = np.einsum('mki,mkj->ij', aw, aw)          # sum A' W^2 A
+    v = np.einsum('mki,mk->i', aw, y * w)              # sum A' W^2 y
+    c = c0 / np.linalg.norm(c0)
+    u = -float(c @ (m_mat @ c - v))
+    kkt = np.zeros((4, 4))
+    it = 0
+    for it in range(1, max_iter + 1):
+        grad = 2.0 * (m_mat @ c - v) + 2.0 * u * c    # nabla L, eq. (26)
+        h = c @ c - 1.0
+        kkt[:3, :3] = 2.0 * m_mat + 2.0 * u * np.eye(3)  # eq. (27)
+        kkt[:3, 3] = kkt[3, :3] = 2.0 * c                  # eq. (25)
+        step = np.linalg.solve(kkt, -np.r_[grad, h])
+        c = c + step[:3]
+        u = u + step[3]
+        if np.linalg.norm(step[:3]) < tol:
+            break
+    lam = np.linalg.eigvalsh(m_mat)
+    if u < -lam[0] - 1e-9 * max(abs(lam[-1]), 1.0) or not np.all(np.isfinite(c)):
+        c, u = _secular(m_mat, v)
+    return c / np.linalg.norm(c), u, it
+
+
+def _secular(m_mat, v):
+    """Global minimiser of c'Mc - 2v'c on |c| = 1 via the secular equation in u."""
+    lam, q = np.linalg.eigh(m_mat)
+    vq = q.T @ v
+
+    def norm2(u):
+        return float(np.sum((vq / (lam + u)) ** 2)) - 1.0
+
+    lo = -lam[0] + 1e-12 * max(abs(lam[-1]), 1.0)
+    if norm2(lo) <= 0:  # the "hard case": v has no component on the smallest eigenvector
+        c = q[:, 0]
+        return c, -lam[0]
+    hi = max(lo + 1.0, -lam[0] + np.linalg.norm(v) + 1.0)
+    while norm2(hi) > 0:
+        hi = lo + 2.0 * (hi - lo)
+    u = brentq(norm2, lo, hi, xtol=1e-14 * max(abs(hi), 1.0), maxiter=500)
+    return q @ (vq / (lam + u)), u
+
+
+def _design(f, dt, order):
+    """Per-axis linear design of eq. (16): columns f, dT f, dT^2 f, 1, dT, dT^2."""
+    full = np.stack([f, dt * f, dt * dt * f, np.ones_like(f), dt, dt * dt], axis=1)
+    return full[:, _COLS[order]]
+
+
+def fit_field_model(windows, axis_temps, gravity, t0, k0=None, b0=None, s=None, order=2,
+                    refine=True, max_iter=200, tol=1e-3):
+    """Estimate the seed 000 model from stationary windows.
+
+    windows: estimation.segments.Windows (accel means in m/s^2 with per-sample variances).
+    axis_temps: (m, 3) per-axis temperature of each window, degC.
+    gravity: local gravity magnitude, m/s^2. t0: (3,) reference temperatures, degC.
+    k0, b0, s: prior scale factor, bias (m/s^2) and lower-triangular S (identity if None).
+    order: temperature polynomial order 0, 1 or 2 (0 = temperature-independent dk0, db0).
+    """
+    k0 = np.ones(3) if k0 is None else np.asarray(k0, float)
+    b0 = np.zeros(3) if b0 is None else np.asarray(b0, float)
+    s = np.eye(3) if s is None else np.asarray(s, float)
+    t0 = np.asarray(t0, float)
+    raw = windows.accel
+    se = np.sqrt(np.maximum(windows.accel_var, 1e-30) / windows.n[:, None])
+    w = 1.0 / se
+    dt = np.asarray(axis_temps, float) - t0
+    hold_ids, hold_idx = np.unique(windows.hold, return_inverse=True)
+    nh = len(hold_ids)
+    cols = _COLS[order]
+
+    # eq. (28)-(29): initial tilts from the normalised outputs through the prior
+    s_inv = np.linalg.inv(s)
+    tilts = np.zeros((nh, 3))
+    for j in range(nh):
+        sel = hold_idx == j
+        fp = ((raw[sel] - b0) / k0) @ s_inv.T
+        m = fp.mean(axis=0)
+        tilts[j] = m / np.linalg.norm(m)
+
+    thermal = np.zeros((3, 6))
+    converged = False
+    it = 0
+    pred_prev = None
+    se_min = float(np.median(se))
+    for it in range(1, max_iter + 1):
+        # step 1: thermal vector given tilts (eq. 16), weighted, axis by axis
+        fa = gravity * (tilts[hold_idx] @ s.T)            # specific force in frame a
+        for i in range(3):
+            a = _design(fa[:, i], dt[:, i], order) * w[:, i:i + 1]
+            y = (raw[:, i] - k0[i] * fa[:, i] - b0[i]) * w[:, i]
+            sol, *_ = np.linalg.lstsq(a, y, rcond=None)
+            thermal[i, cols] = sol
+        # step 2: tilt per hold given the thermal vector (eqs. 20-27)
+        model = FieldPolynomialModel(t0, thermal, k0, b0, s)
+        k, b = model.scale_bias(t0 + dt)
+        a_mats = gravity * k[:, :, None] * s[None, :, :]     # diag(k) S g
+        for j in range(nh):
+            sel = hold_idx == j
+            tilts[j], _, _ = kkt_unit_tilt(a_mats[sel], raw[sel] - b[sel], w[sel], tilts[j])
+        # converged when the fitted window means stop moving (relative to their noise)
+        pred = model.forward(gravity * tilts[hold_idx], t0 + dt)
+        if pred_prev is not None and np.max(np.abs(pred - pred_prev)) < tol * se_min:
+            converged = True
+            break
+        pred_prev = pred
+
+    refined = False
+    thermal_std = None
+    if refine:
+        thermal, tilts, thermal_std = _refine(raw, w, dt, hold_idx, tilts, thermal, gravity,
+                                              t0, k0, b0, s, order)
+        refined = True
+    model = FieldPolynomialModel(t0, thermal, k0, b0, s, thermal_std)
+    pred = model.forward(gravity * tilts[hold_idx], t0 + dt)
+    res = raw - pred
+    dof = max(res.size - (3 * len(cols) + 2 * nh), 1)
+    return FieldFit(model, tilts, hold_ids, it, converged,
+                    float(np.sqrt(np.mean(res ** 2))), float(np.sum((res * w) ** 2) / dof),
+                    refined)
+
+
+def _tangent_basis(c):
+    """Return two unit vectors orthogonal to c (and to each other)."""
+    a = np.eye(3)[np.argmin(np.abs(c))]
+    e1 = np.cross(c, a)
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(c, e1)
+
+
+def _refine(raw, w, dt, hold_idx, tilts, thermal, gravity, t0, k0, b0, s, order):
+    """Joint least squares over the thermal vector and all tilts (analytic Jacobian)."""
+    cols = _COLS[order]
+    nh = len(tilts)
+    nc = len(cols)
+    m = len(raw)
+    bases = [_tangent_basis(c) for c in tilts]
+    e1 = np.array([b[0] for b in bases])
+    e2 = np.array([b[1] for b in bases])
+    c0 = tilts.copy()
+
+    def unpack(p):
+        th = np.zeros((3, 6))
+        th[:, cols] = p[:3 * nc].reshape(3, nc)
+        ab = p[3 * nc:].reshape(nh, 2)
+        v = c0 + ab[:, :1] * e1 + ab[:, 1:] * e2
+        return th, v
+
+    def fun(p):
+        th, v = unpack(p)
+        c = v / np.linalg.norm(v, axis=1, keepdims=True)
+        model = FieldPolynomialModel(t0, th, k0, b0, s)
+        pred = model.forward(gravity * c[hold_idx], t0 + dt)
+        return ((raw - pred) * w).ravel()
+
+    def jac(p):
+        th, v = unpack(p)
+        nv = np.linalg.norm(v, axis=1, keepdims=True)
+        c = v / nv
+        k, _ = FieldPolynomialModel(t0, th, k0, b0, s).scale_bias(t0 + dt)
+        fa = gravity * (c[hold_idx] @ s.T)
+        jm = np.zeros((m, 3, 3 * nc + 2 * nh))
+        for i in range(3):
+            d = _design(fa[:, i], dt[:, i], order)
+            jm[:, i, i * nc:(i + 1) * nc] = -d * w[:, i:i + 1]
+        # d c / d(a, b) = (e - c (c.e)) / |v|
+        for q, e in enumerate((e1, e2)):
+            dc = (e - c * np.sum(c * e, axis=1, keepdims=True)) / nv     # (nh, 3)
+            dfa = gravity * (dc[hold_idx] @ s.T)                        # (m, 3)
+            col = 3 * nc + 2 * hold_idx + q
+            jm[np.arange(m), :, col] = -(k * dfa) * w
+        return jm.reshape(m * 3, -1)
+
+    p0 = np.r_[thermal[:, cols].ravel(), np.zeros(2 * nh)]
+    sol = least_squares(fun, p0, jac=jac, method='trf', x_scale='jac', xtol=1e-15,
+                        ftol=1e-15, gtol=1e-15, max_nfev=200)
+    th, v = unpack(sol.x)
+    c = v / np.linalg.norm(v, axis=1, keepdims=True)
+    j = sol.jac
+    dof = max(j.shape[0] - j.shape[1], 1)
+    s2 = 2.0 * sol.cost / dof
+    try:
+        cov = np.linalg.pinv(j.T @ j) * max(s2, 1.0)
+        sd = np.sqrt(np.maximum(np.diag(cov)[:3 * nc], 0)).reshape(3, nc)
+    except np.linalg.LinAlgError:
+        sd = np.full((3, nc), np.nan)
+    std = np.zeros((3, 6))
+    std[:, cols] = sd
+    return th, c, std
+
+
+def per_axis_temperature_span(windows, axis_temps, tilts, hold_ids, min_cos=0.7):
+    """Return, per axis, the temperature span (degC) covered while that axis was near vertical."""
+    out = np.zeros(3)
+    idx = {h: j for j, h in enumerate(hold_ids)}
+    c = tilts[[idx[h] for h in windows.hold]]
+    for i in range(3):
+        sel = np.abs(c[:, i]) >= min_cos
+        if np.any(sel):
+            out[i] = float(np.ptp(axis_temps[sel, i]))
+    return out
+
+
+__all__ = ['FieldFit', 'fit_field_model', 'kkt_unit_tilt', 'THERMAL_NAMES']

@@ -1,0 +1,292 @@
+"""Offline pipelines over recorded logs: collect windows, compensate, evaluate.
+
+Thin glue between log I/O (io.bag, io.align, io.cdr) and the estimation core; the CLI
+prints what these return. Everything streams in column chunks, so memory is bounded by
+``chunk_size`` whatever the log length.
+"""
+
+import sys
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from .io import cdr
+from .io.align import StreamAligner
+from .io.bag import LogError, LogWriter, open_log
+from .io.cdr import IMU_MSGTYPE, TEMPERATURE_MSGTYPE
+from .io.columns import ImuColumns, TemperatureColumns
+from .estimation.evaluate import static_metrics, WindowAccumulator, with_signals
+from .estimation.segments import Windows
+from .estimation.stationary import StationaryDetector
+
+#: temperature samples further apart than this are a gap: the nearest sample is held
+DEFAULT_MAX_GAP_S = 5.0
+MISSING_POLICIES = ('hold_last', 'passthrough', 'drop')
+
+
+@dataclass
+class Collected:
+    """Stationary windows of one log plus what was read."""
+
+    windows: Windows
+    frame_id: str
+    imu_messages: int
+    seconds: float
+    temperature_topics: list
+
+
+def _progress(total, desc, enabled):
+    if enabled is None:
+        enabled = sys.stderr.isatty()
+    if not enabled:
+        return None
+    from tqdm import tqdm
+    return tqdm(total=total, desc=desc, unit='msg', unit_scale=True, file=sys.stderr,
+                leave=False)
+
+
+def resolve_topics(reader, imu_topic, temperature_topics):
+    """Check the IMU topic and pick temperature topics (all Temperature topics when None).
+
+    Returns the temperature topic list; raises LogError naming the topics present.
+    """
+    types = reader.topic_types()
+    if imu_topic is None:
+        imus = [t for t, ty in types.items() if ty == IMU_MSGTYPE]
+        if len(imus) != 1:
+            raise LogError(f'{reader.path}: pass --imu-topic; Imu topics present: '
+                           f'{", ".join(imus) or "none"}')
+        imu_topic = imus[0]
+    reader._check_topics([imu_topic], IMU_MSGTYPE)
+    if temperature_topics is None:
+        temperature_topics = sorted(t for t, ty in types.items() if ty == TEMPERATURE_MSGTYPE)
+    else:
+        reader._check_topics(temperature_topics, TEMPERATURE_MSGTYPE)
+    return imu_topic, list(temperature_topics)
+
+
+def _aligned(reader, imu_topic, temp_topics, chunk_size, max_gap_s, keep_raw=False, bar=None):
+    aligner = StreamAligner(temp_topics, max_gap_s)
+    for raw in reader.stream(imu_topic, temp_topics, chunk_size, keep_raw=keep_raw):
+        if bar is not None:
+            bar.update(len(raw.imu))
+        yield from aligner.push(raw)
+    yield from aligner.finish()
+
+
+def collect_windows(path, imu_topic=None, temperature_topics=None, detector=None,
+                    chunk_size=20000, max_gap_s=DEFAULT_MAX_GAP_S, progress=None):
+    """Run the stationary detector over a log; returns Collected."""
+    with open_log(path) as reader:
+        imu_topic, temps = resolve_topics(reader, imu_topic, temperature_topics)
+        total = reader.topic_types() and reader.topics()[imu_topic].count
+        det = StationaryDetector(detector, len(temps))
+        parts, n, frame = [], 0, ''
+        bar = _progress(total, 'reading', progress)
+        t_start = time.perf_counter()
+        for ch in _aligned(reader, imu_topic, temps, chunk_size, max_gap_s, bar=bar):
+            n += len(ch)
+            frame = frame or ch.imu.frame_id
+            parts.append(det.update(ch.imu.t, ch.imu.accel, ch.imu.gyro, ch.temps))
+        parts.append(det.finish())
+        if bar is not None:
+            bar.close()
+    return Collected(Windows.concat(parts) if any(len(p) for p in parts)
+                     else Windows.empty(len(temps)), frame, n,
+                     time.perf_counter() - t_start, temps)
+
+
+def merge_windows(collected):
+    """Concatenate windows of several logs, keeping hold ids distinct."""
+    parts, offset = [], 0
+    for c in collected:
+        w = c.windows
+        if len(w):
+            w = w.select(np.ones(len(w), bool))
+            w.hold = w.hold + offset
+            offset = int(w.hold.max()) + 1
+        parts.append(w)
+    return Windows.concat(parts)
+
+
+def _resolve_missing(temps, ages, timeout_s, policy, last_good):
+    """Apply the missing/stale-temperature policy; returns (temps, keep_mask, compensate_mask)."""
+    n = temps.shape[0]
+    if temps.shape[1] == 0:
+        return temps, np.ones(n, bool), np.ones(n, bool)
+    stale = np.any(~np.isfinite(temps) | (ages > timeout_s), axis=1)
+    keep = np.ones(n, bool)
+    comp = np.ones(n, bool)
+    if policy == 'drop':
+        keep = ~stale
+        comp = ~stale
+    elif policy == 'passthrough':
+        comp = ~stale
+    else:  # hold_last: the aligner already holds the nearest sample; NaN only before any
+        nan = np.any(~np.isfinite(temps), axis=1)
+        comp = ~nan
+    temps = np.where(np.isfinite(temps), temps, 0.0)
+    return temps, keep, comp
+
+
+def compensate_log(src, dst, calibration, imu_topic=None, temperature_topics=None,
+                   output_topic='/imu/data_compensated', storage='mcap', chunk_size=20000,
+                   max_gap_s=DEFAULT_MAX_GAP_S, temperature_timeout=None,
+                   on_missing='hold_last', progress=None):
+    """Copy every message of ``src`` to ``dst`` and add compensated Imu on ``output_topic``.
+
+    Compensated messages keep the input's header (stamp, frame_id), orientation and
+    covariances byte for byte; only linear_acceleration and angular_velocity change (and
+    nothing else). Returns a stats dict (counts, msgs/s, out-of-range rows).
+    """
+    if on_missing not in MISSING_POLICIES:
+        raise ValueError(f'on_missing must be one of {MISSING_POLICIES}, not {on_missing!r}')
+    timeout = max_gap_s if temperature_timeout is None else temperature_timeout
+    with open_log(src) as reader:
+        if temperature_topics is None and calibration.inputs:
+            temperature_topics = calibration.temperature_topics
+            types = reader.topic_types()
+            absent = [t for t in temperature_topics if t not in types]
+            if absent:
+                raise LogError(f'the calibration expects temperature topics {absent} that '
+                               f'{src} does not have; pass --temperature-topic (present: '
+                               f'{", ".join(sorted(types))})')
+        imu_topic, temps = resolve_topics(reader, imu_topic, temperature_topics or [])
+        if len(temps) != len(calibration.inputs):
+            raise LogError(f'the calibration has {len(calibration.inputs)} temperature inputs '
+                           f'({", ".join(calibration.temperature_topics) or "none"}) but '
+                           f'{len(temps)} topics were given')
+        types = reader.topic_types()
+        if output_topic in types:
+            raise LogError(f'output topic {output_topic} already exists in {src}; choose '
+                           'another --output-topic')
+        stats = {'imu_in': 0, 'imu_out': 0, 'dropped': 0, 'passthrough': 0,
+                 'out_of_range': 0, 'copied': 0}
+        aligner = StreamAligner(temps, max_gap_s)
+        bar = _progress(reader.message_count, 'compensating', progress)
+        t_start = time.perf_counter()
+        with LogWriter(dst, storage=storage) as writer:
+            for topic, ty in types.items():
+                writer.add_topic(topic, ty)
+            writer.add_topic(output_topic, IMU_MSGTYPE)
+            buf_raw, buf_t = [], []
+            buf_temp = {t: ([], []) for t in temps}
+
+            def flush(final=False):
+                imu_cols = cdr.decode_imu(buf_raw) if buf_raw else ImuColumns.empty()
+                tcols = []
+                for t in temps:
+                    raws = buf_temp[t][0]
+                    tcols.append(cdr.decode_temperature(raws) if raws
+                                 else TemperatureColumns.empty())
+                    buf_temp[t][0].clear()
+                out = aligner.push_columns(imu_cols, tcols, {
+                    'imu_log_time_ns': np.asarray(buf_t, np.int64), 'imu_raw': list(buf_raw)})
+                buf_raw.clear()
+                buf_t.clear()
+                if final:
+                    out += aligner.finish()
+                for ch in out:
+                    _write_compensated(writer, output_topic, ch, calibration, timeout,
+                                       on_missing, stats)
+
+            for topic, _, t, raw in reader.iter_raw():
+                writer.write(topic, t, raw)
+                stats['copied'] += 1
+                if bar is not None:
+                    bar.update(1)
+                if topic == imu_topic:
+                    buf_raw.append(raw)
+                    buf_t.append(t)
+                    stats['imu_in'] += 1
+                    if len(buf_raw) >= chunk_size:
+                        flush()
+                elif topic in buf_temp:
+                    buf_temp[topic][0].append(raw)
+            flush(final=True)
+        if bar is not None:
+            bar.close()
+    stats['seconds'] = time.perf_counter() - t_start
+    stats['msgs_per_s'] = stats['copied'] / max(stats['seconds'], 1e-9)
+    stats['imu_topic'] = imu_topic
+    stats['temperature_topics'] = temps
+    return stats
+
+
+def _write_compensated(writer, topic, ch, cal, timeout, policy, stats):
+    n = len(ch)
+    if n == 0:
+        return
+    temps, keep, comp = _resolve_missing(ch.temps, ch.temp_age, timeout, policy, None)
+    raws = ch.extra['imu_raw']
+    accel = ch.imu.accel.copy()
+    gyro = ch.imu.gyro.copy()
+    if np.any(comp):
+        res = cal.apply(ch.imu.accel[comp], ch.imu.gyro[comp], temps[comp])
+        accel[comp] = res.accel
+        gyro[comp] = res.gyro
+        stats['out_of_range'] += int(np.sum(res.out_of_range))
+    finite = np.all(np.isfinite(accel), axis=1) & np.all(np.isfinite(gyro), axis=1)
+    keep &= finite
+    stats['passthrough'] += int(np.sum(keep & ~comp))
+    stats['dropped'] += int(np.sum(~keep))
+    patched = cdr.patch_imu(raws, accel, gyro)
+    times = ch.extra['imu_log_time_ns']
+    idx = np.flatnonzero(keep)
+    writer.write_many(topic, times[idx], [patched[i] for i in idx])
+    stats['imu_out'] += len(idx)
+
+
+def evaluate_log(path, calibrations, imu_topic=None, temperature_topics=None, detector=None,
+                 gravity=9.80665, average_s=300.0, chunk_size=20000,
+                 max_gap_s=DEFAULT_MAX_GAP_S, progress=None):
+    """Compute static metrics of a log, raw and with each calibration (label -> Calibration).
+
+    Pass 1 finds stationary windows on the raw data; pass 2 averages each compensated
+    signal over exactly those windows, so every label is judged on the same data.
+    """
+    if temperature_topics is None:
+        for cal in calibrations.values():
+            if cal.inputs:
+                temperature_topics = cal.temperature_topics
+                break
+    col = collect_windows(path, imu_topic, temperature_topics, detector, chunk_size,
+                          max_gap_s, progress)
+    w = col.windows
+    results = {'raw': static_metrics(w, gravity, average_s)}
+    if len(w) and calibrations:
+        acc = WindowAccumulator(w.t0, w.t1)
+        with open_log(path) as reader:
+            imu_topic, temps = resolve_topics(reader, imu_topic, col.temperature_topics)
+            for ch in _aligned(reader, imu_topic, temps, chunk_size, max_gap_s):
+                sig = {}
+                for label, cal in calibrations.items():
+                    t = np.where(np.isfinite(ch.temps), ch.temps, np.nan)
+                    if t.shape[1] and np.any(~np.isfinite(t)):
+                        t = np.nan_to_num(t, nan=float(np.nanmean(w.temp)))
+                    sel = _select_inputs(cal, temps, t)
+                    res = cal.apply(ch.imu.accel, ch.imu.gyro, sel)
+                    sig[f'{label}/a'] = res.accel
+                    sig[f'{label}/g'] = res.gyro
+                acc.add(ch.imu.t, sig)
+        for label in calibrations:
+            cw = with_signals(w, acc.means(f'{label}/a'), acc.means(f'{label}/g'))
+            results[label] = static_metrics(cw, gravity, average_s)
+    return {'path': str(path), 'windows': len(w), 'holds': len(np.unique(w.hold)),
+            'temperature_topics': col.temperature_topics, 'results': results}
+
+
+def _select_inputs(cal, topics, temps):
+    """Reorder/select temperature columns to the calibration's inputs (by topic name)."""
+    if not cal.inputs:
+        return np.zeros((temps.shape[0], 0))
+    norm = [t.lstrip('/') for t in topics]
+    idx = []
+    for inp in cal.inputs:
+        name = inp.topic.lstrip('/')
+        if name not in norm:
+            raise LogError(f'calibration input topic {inp.topic} is not among the temperature '
+                           f'topics read ({", ".join(topics) or "none"})')
+        idx.append(norm.index(name))
+    return temps[:, idx]
