@@ -342,7 +342,9 @@ class LogReader:
         items = [f'{c.topic} [{c.msgtype}]' for c in self._src.conns]
         return ', '.join(items) if items else '(none)'
 
-    def _check_topics(self, topics: Iterable[str], expected: str | None = None) -> None:
+    def check_topics(self, topics: Iterable[str], expected: str | None = None) -> None:
+        """Raise LogError unless every topic exists (and has type ``expected`` if given)."""
+        topics = [topics] if isinstance(topics, str) else topics
         types = self.topic_types()
         for topic in topics:
             if topic not in types:
@@ -356,13 +358,15 @@ class LogReader:
                                f'expected {expected}; pick a {expected} topic from: '
                                f'{self._describe_topics()}.')
 
+    _check_topics = check_topics  # kept for callers that used the private name
+
     def iter_raw(self, topics: Iterable[str] | None = None
                  ) -> Iterator[tuple[str, str, int, bytes]]:
         """Yield ``(topic, msgtype, log_time_ns, raw_cdr)`` in log-time order."""
         wanted = None
         if topics is not None:
             wanted = set([topics] if isinstance(topics, str) else topics)
-            self._check_topics(wanted)
+            self.check_topics(wanted)
         return self._src.messages(wanted)
 
     def stream(self, imu_topic: str, temperature_topics: Sequence[str] = (),
@@ -391,7 +395,7 @@ class LogReader:
             return self._scan_cache
         wanted = None if topics is None else set([topics] if isinstance(topics, str) else topics)
         if wanted is not None:
-            self._check_topics(wanted)
+            self.check_topics(wanted)
         stats = {c.topic: _StatsBuilder(c.topic, c.msgtype) for c in self._src.conns}
         for c in self._src.conns:
             if wanted is not None and c.topic not in wanted:
@@ -492,8 +496,8 @@ class _Chunker:
                 temperature_topics):
             raise LogError(f'topics must be distinct: IMU {imu_topic!r}, temperature '
                            f'{temperature_topics}; list each topic once.')
-        reader._check_topics([imu_topic], IMU_MSGTYPE)
-        reader._check_topics(temperature_topics, TEMPERATURE_MSGTYPE)
+        reader.check_topics([imu_topic], IMU_MSGTYPE)
+        reader.check_topics(temperature_topics, TEMPERATURE_MSGTYPE)
         self.imu_topic = imu_topic
         self.temperature_topics = temperature_topics
         self.topics = {imu_topic, *temperature_topics}
