@@ -157,11 +157,14 @@ def calibrate_windows(windows, options=None):
                          'estimated. Valid for this mounting pose only.')
             fit_stats['pose'] = 'single orientation (offset-only)'
     else:
-        # separability of bias and scale: each axis must see at least 1 g of input range
+        # separability of bias and scale (seed 000 sect. 3): each axis must have been held
+        # pointing up and pointing down (within 45 deg); the tilt is unknown, so a
+        # horizontal axis alone does not pin its bias
         _, means = windows.hold_means()
         u = means / np.linalg.norm(means, axis=1, keepdims=True)
-        reach = np.ptp(u, axis=0)
-        weak = [a for a, r in zip('xyz', reach) if r < 1.0]
+        c45 = np.cos(np.radians(45.0))
+        weak = [a for i, a in enumerate('xyz')
+                if not (np.any(u[:, i] > c45) and np.any(u[:, i] < -c45))]
         if weak:
             missing = cov['missing']
             raise CalibrationRefused(

@@ -41,34 +41,50 @@ class FieldFit:
 def kkt_unit_tilt(a_mats, y, w, c0, max_iter=50, tol=1e-14):
     """Solve min sum_j ||w_j (A_j c - y_j)||^2 subject to |c| = 1 (paper eqs. 20-27).
 
-    a_mats: (m, 3, 3), y: (m, 3), w: (m, 3) weights, c0: (3,) start. Newton steps on the
-    Lagrangian L = f(c) + u (c'c - 1) with the bordered KKT system of eq. (24).
-    The global minimiser is the stationary point where the Hessian of L is positive
-    semi-definite (u >= -lambda_min of sum A'W^2A); if Newton lands elsewhere (a bad start
-    far from the data), the secular equation gives that point instead.
-    Returns (c, u, iterations).
+    a_mats: (m, 3, 3), y: (m, 3), w: (m, 3) weights, c0: (3,) start.
+    Returns (c, u, iterations); see ``kkt_unit_tilt_batch``.
     """
     aw = a_mats * w[:, :, None]
-    m_mat = np.einsum('mki,mkj->ij', aw, aw)          # sum A' W^2 A
-    v = np.einsum('mki,mk->i', aw, y * w)              # sum A' W^2 y
-    c = c0 / np.linalg.norm(c0)
-    u = -float(c @ (m_mat @ c - v))
-    kkt = np.zeros((4, 4))
+    m_mat = np.einsum('mki,mkj->ij', aw, aw)
+    v = np.einsum('mki,mk->i', aw, y * w)
+    c, u, it = kkt_unit_tilt_batch(m_mat[None], v[None], np.asarray(c0, float)[None],
+                                   max_iter, tol)
+    return c[0], float(u[0]), it
+
+
+def kkt_unit_tilt_batch(m_mat, v, c0, max_iter=50, tol=1e-14):
+    """Newton-KKT for many holds at once: min c'Mc - 2v'c s.t. |c| = 1, per hold.
+
+    m_mat: (h, 3, 3) = sum A' W^2 A, v: (h, 3) = sum A' W^2 y, c0: (h, 3) starts.
+    Newton steps on the Lagrangian L = f(c) + u (c'c - 1) with the bordered KKT system of
+    eq. (24): gradient eq. (26), Hessian eq. (27), constraint gradient eq. (25). The
+    global minimiser is the stationary point where the Hessian of L is positive
+    semi-definite (u >= -lambda_min(M)); a hold where Newton lands elsewhere (a start far
+    from the data) is solved through the secular equation instead.
+    Returns (c (h, 3), u (h,), iterations).
+    """
+    h = m_mat.shape[0]
+    c = c0 / np.linalg.norm(c0, axis=1, keepdims=True)
+    u = -np.einsum('hi,hi->h', c, np.einsum('hij,hj->hi', m_mat, c) - v)
+    kkt = np.zeros((h, 4, 4))
+    eye = np.eye(3)
     it = 0
     for it in range(1, max_iter + 1):
-        grad = 2.0 * (m_mat @ c - v) + 2.0 * u * c    # nabla L, eq. (26)
-        h = c @ c - 1.0
-        kkt[:3, :3] = 2.0 * m_mat + 2.0 * u * np.eye(3)  # eq. (27)
-        kkt[:3, 3] = kkt[3, :3] = 2.0 * c                  # eq. (25)
-        step = np.linalg.solve(kkt, -np.r_[grad, h])
-        c = c + step[:3]
-        u = u + step[3]
-        if np.linalg.norm(step[:3]) < tol:
+        grad = 2.0 * (np.einsum('hij,hj->hi', m_mat, c) - v) + 2.0 * u[:, None] * c
+        hc = np.einsum('hi,hi->h', c, c) - 1.0
+        kkt[:, :3, :3] = 2.0 * m_mat + 2.0 * u[:, None, None] * eye
+        kkt[:, :3, 3] = kkt[:, 3, :3] = 2.0 * c
+        step = np.linalg.solve(kkt, -np.concatenate([grad, hc[:, None]], 1)[..., None])[..., 0]
+        c = c + step[:, :3]
+        u = u + step[:, 3]
+        if np.max(np.linalg.norm(step[:, :3], axis=1)) < tol:
             break
     lam = np.linalg.eigvalsh(m_mat)
-    if u < -lam[0] - 1e-9 * max(abs(lam[-1]), 1.0) or not np.all(np.isfinite(c)):
-        c, u = _secular(m_mat, v)
-    return c / np.linalg.norm(c), u, it
+    bad = (u < -lam[:, 0] - 1e-9 * np.maximum(np.abs(lam[:, -1]), 1.0)) | \
+        ~np.all(np.isfinite(c), axis=1)
+    for j in np.flatnonzero(bad):
+        c[j], u[j] = _secular(m_mat[j], v[j])
+    return c / np.linalg.norm(c, axis=1, keepdims=True), u, it
 
 
 def _secular(m_mat, v):
@@ -97,7 +113,7 @@ def _design(f, dt, order):
 
 
 def fit_field_model(windows, axis_temps, gravity, t0, k0=None, b0=None, s=None, order=2,
-                    refine=True, max_iter=200, tol=1e-3):
+                    refine=True, max_iter=1000, tol=1e-3):
     """Estimate the seed 000 model from stationary windows.
 
     windows: estimation.segments.Windows (accel means in m/s^2 with per-sample variances).
@@ -143,10 +159,14 @@ def fit_field_model(windows, axis_temps, gravity, t0, k0=None, b0=None, s=None, 
         # step 2: tilt per hold given the thermal vector (eqs. 20-27)
         model = FieldPolynomialModel(t0, thermal, k0, b0, s)
         k, b = model.scale_bias(t0 + dt)
-        a_mats = gravity * k[:, :, None] * s[None, :, :]     # diag(k) S g
-        for j in range(nh):
-            sel = hold_idx == j
-            tilts[j], _, _ = kkt_unit_tilt(a_mats[sel], raw[sel] - b[sel], w[sel], tilts[j])
+        aw = gravity * k[:, :, None] * s[None, :, :] * w[:, :, None]   # W diag(k) S g
+        m_win = np.einsum('mki,mkj->mij', aw, aw)
+        v_win = np.einsum('mki,mk->mi', aw, (raw - b) * w)
+        m_hold = np.zeros((nh, 3, 3))
+        v_hold = np.zeros((nh, 3))
+        np.add.at(m_hold, hold_idx, m_win)
+        np.add.at(v_hold, hold_idx, v_win)
+        tilts, _, _ = kkt_unit_tilt_batch(m_hold, v_hold, tilts)
         # converged when the fitted window means stop moving (relative to their noise)
         pred = model.forward(gravity * tilts[hold_idx], t0 + dt)
         if pred_prev is not None and np.max(np.abs(pred - pred_prev)) < tol * se_min:
