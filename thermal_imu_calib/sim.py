@@ -724,6 +724,8 @@ def _config(name, overrides):
         cfg = dataclasses.replace(cfg, **overrides)
     if cfg.device not in DEVICES:
         raise ValueError(f'unknown device family {cfg.device!r}; known: {sorted(DEVICES)}')
+    if cfg.profile == 'cycle' and cfg.repetitions * len(cfg.faces) != 1:
+        raise ValueError('a chamber cycle is recorded in one pose: use one face, 1 repetition')
     if len(cfg.temp_topics) not in (1, 3):
         raise ValueError('temp_topics must be one shared topic or three per-axis topics')
     return cfg
