@@ -1,0 +1,338 @@
+"""Compensator node over real DDS: compensation, reload, policies, rejection, diagnostics."""
+
+import threading
+
+from conftest import imu_msg, temperature_msg, wait_for
+import numpy as np
+import pytest
+
+pytest.importorskip('rclpy')
+
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from sensor_msgs.msg import Imu, Temperature  # noqa: E402
+from std_msgs.msg import String  # noqa: E402
+from std_srvs.srv import Trigger  # noqa: E402
+
+from thermal_imu_calib.calibration import Calibration, TemperatureInput  # noqa: E402
+from thermal_imu_calib.models.field import FieldPolynomialModel  # noqa: E402
+from thermal_imu_calib.models.polynomial import OffsetPolynomialModel  # noqa: E402
+from thermal_imu_calib.nodes import common  # noqa: E402
+from thermal_imu_calib.nodes.compensator import CompensatorNode  # noqa: E402
+
+S = 1_000_000_000
+T0_NS = 1_700_000_000 * S
+ACCEL = (0.3, -0.2, 9.7)
+GYRO = (0.01, -0.02, 0.005)
+
+
+def make_cal(db0=0.05, b1=2e-3, topics=('imu/temperature',), valid=(20.0, 40.0),
+             frame_id='imu_link'):
+    """Return a field + gyro-offset calibration with clearly visible corrections."""
+    th = np.zeros((3, 6))
+    th[:, 0], th[:, 1], th[:, 3], th[:, 4] = 2e-3, -5e-5, db0, b1
+    k = len(topics)
+    idx = [0, 1, 2] if k == 3 else [0, 0, 0]
+    return Calibration(
+        accel=FieldPolynomialModel([30.0] * 3, th),
+        gyro=OffsetPolynomialModel([30.0] * 3, np.array([[1e-3, 1e-4, 0.0]] * 3), 'gyro'),
+        inputs=[TemperatureInput(f't{i}', t) for i, t in enumerate(topics)],
+        valid_range=np.array([valid] * k) if k else None, accel_input=idx, gyro_input=idx,
+        frame_id=frame_id, accel_noise_std=np.array([1e-3, 2e-3, 3e-3]),
+        gyro_noise_std=np.array([1e-4, 2e-4, 3e-4]))
+
+
+def expected(cal, temp):
+    """Return the core's result for the test sample at one temperature."""
+    return cal.apply(np.array([ACCEL]), np.array([GYRO]), np.array([[temp]]))
+
+
+def vec(m):
+    """Return (accel, gyro) of an Imu message as arrays."""
+    a, w = m.linear_acceleration, m.angular_velocity
+    return np.array([a.x, a.y, a.z]), np.array([w.x, w.y, w.z])
+
+
+class Rig:
+    """A compensator plus a driver node publishing inputs and collecting the output."""
+
+    def __init__(self, ros, **params):
+        overrides = [Parameter(k, value=v) for k, v in params.items()]
+        self.ros = ros
+        self.node = ros.add(CompensatorNode(context=ros.context, parameter_overrides=overrides))
+        self.driver = ros.node('driver')
+        self.imu_pub = self.driver.create_publisher(Imu, 'imu/data_raw', 1000)
+        self.temp_pub = self.driver.create_publisher(Temperature, 'imu/temperature', 100)
+        self.cal_pub = self.driver.create_publisher(String, 'imu/calibration',
+                                                    common.CALIBRATION_QOS)
+        self.out = ros.collect(self.driver, Imu, 'imu/data_compensated', 1000)
+        self.diag = ros.collect(self.driver, DiagnosticArray, '/diagnostics', 10)
+        ros.wait_matched(self.imu_pub)
+        ros.wait_matched(self.temp_pub)
+        wait_for(lambda: self.node.pub.get_subscription_count() >= 1, 10, 'output subscriber')
+        self.stamp = T0_NS
+
+    def temperature(self, value, stamp=None):
+        """Publish one temperature reading and wait until the node has it."""
+        before = sum(self.node.temps.received)
+        self.temp_pub.publish(temperature_msg(self.stamp if stamp is None else stamp, value))
+        wait_for(lambda: sum(self.node.temps.received) > before, 10, 'the temperature reading')
+
+    def send(self, n=1, dt=0.01, accel=ACCEL, gyro=GYRO):
+        """Publish n IMU samples dt apart (stamps continue from the last ones)."""
+        for _ in range(n):
+            self.imu_pub.publish(imu_msg(self.stamp, accel, gyro))
+            self.stamp += int(dt * S)
+
+    def receive(self, total, what='compensated messages'):
+        """Wait until ``total`` IMU messages were received by the node; return the output."""
+        wait_for(lambda: self.node.counts['received'] >= total, 10, f'{total} inputs')
+        return self.out
+
+    def diagnostics(self):
+        """Wait for a fresh /diagnostics message of the node; return its values dict."""
+        n = len(self.diag)
+        wait_for(lambda: any(s.name.startswith('thermal_imu_compensator')
+                             for d in self.diag[n:] for s in d.status), 5, 'diagnostics')
+        st = [s for d in self.diag[n:] for s in d.status
+              if s.name.startswith('thermal_imu_compensator')][-1]
+        return st, {kv.key: kv.value for kv in st.values}
+
+
+def test_no_calibration_passes_through_and_says_so(ros, tmp_path):
+    rig = Rig(ros, calibration_file=str(tmp_path / 'none.yaml'))
+    rig.send(5)
+    wait_for(lambda: len(rig.out) >= 5, 10, '5 passed-through messages')
+    for m in rig.out:
+        a, w = vec(m)
+        assert np.allclose(a, ACCEL) and np.allclose(w, GYRO)
+        assert m.orientation_covariance[0] == -1.0
+    st, values = rig.diagnostics()
+    assert values['model_loaded'] == 'false'
+    assert 'no calibration loaded' in st.message and st.level == common.WARN
+    assert int(values['passthrough']) == 5
+
+
+def test_compensates_with_core_result_header_and_covariance(ros, tmp_path):
+    cal = make_cal()
+    path = cal.save(tmp_path / 'cal.yaml')
+    rig = Rig(ros, calibration_file=str(path))
+    assert rig.node.active.id == cal.id
+    rig.temperature(25.0)
+    rig.send(20)
+    wait_for(lambda: len(rig.out) >= 20, 10, '20 compensated messages')
+    exp = expected(cal, 25.0)
+    for i, m in enumerate(rig.out):
+        a, w = vec(m)
+        np.testing.assert_allclose(a, exp.accel[0], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(w, exp.gyro[0], rtol=0, atol=1e-12)
+        assert common.stamp_to_ns(m.header.stamp) == T0_NS + i * S // 100
+        assert m.header.frame_id == 'imu_link'
+        assert m.orientation_covariance[0] == -1.0
+        np.testing.assert_allclose(np.diag(m.linear_acceleration_covariance.reshape(3, 3)),
+                                   exp.accel_std[0] ** 2)
+        np.testing.assert_allclose(np.diag(m.angular_velocity_covariance.reshape(3, 3)),
+                                   exp.gyro_std[0] ** 2)
+    assert not np.allclose(exp.accel[0], ACCEL, atol=1e-3)
+    st, values = rig.diagnostics()
+    assert st.level == common.OK, st.message
+    assert values['model_id'] == cal.id and values['model_loaded'] == 'true'
+    assert int(values['compensated']) == 20
+
+
+def test_temperature_is_interpolated_by_header_stamp(ros, tmp_path):
+    cal = make_cal()
+    rig = Rig(ros, calibration_file=str(cal.save(tmp_path / 'cal.yaml')))
+    rig.temperature(24.0, T0_NS)
+    rig.temperature(26.0, T0_NS + S)
+    rig.stamp = T0_NS + S // 2  # halfway between the readings
+    rig.send(1)
+    wait_for(lambda: len(rig.out) >= 1, 10, 'the compensated message')
+    np.testing.assert_allclose(vec(rig.out[0])[0], expected(cal, 25.0).accel[0], atol=1e-12)
+
+
+def test_reload_from_file_and_service(ros, tmp_path):
+    a, b = make_cal(db0=0.05), make_cal(db0=-0.08)
+    path = tmp_path / 'cal.yaml'
+    a.save(path)
+    rig = Rig(ros, calibration_file=str(path))
+    rig.temperature(30.0)
+    b.save(path)
+    resp = ros.call(rig.driver, Trigger, '/thermal_imu_compensator/reload')
+    assert resp.success, resp.message
+    assert b.id in resp.message
+    rig.send(3)
+    wait_for(lambda: len(rig.out) >= 3, 10, 'messages after reload')
+    np.testing.assert_allclose(vec(rig.out[-1])[0], expected(b, 30.0).accel[0], atol=1e-12)
+    # a bad file is refused with its reason; the model in use stays
+    path.write_text('format: thermal_imu_calib/1\naccel: {kind: nope}\n')
+    resp = ros.call(rig.driver, Trigger, '/thermal_imu_compensator/reload')
+    assert not resp.success
+    assert 'rejected' in resp.message and f'keeping calibration {b.id}' in resp.message
+    assert rig.node.active.id == b.id
+    rig.send(2)
+    wait_for(lambda: len(rig.out) >= 5, 10, 'messages after the bad reload')
+    np.testing.assert_allclose(vec(rig.out[-1])[0], expected(b, 30.0).accel[0], atol=1e-12)
+
+
+def test_calibration_topic_applies_and_bad_ones_are_rejected(ros, tmp_path):
+    a, b = make_cal(db0=0.05), make_cal(db0=-0.08)
+    rig = Rig(ros, calibration_file=str(a.save(tmp_path / 'cal.yaml')))
+    rig.temperature(28.0)
+    rig.cal_pub.publish(String(data=b.to_yaml()))
+    wait_for(lambda: rig.node.active.id == b.id, 10, 'the topic calibration to apply')
+    assert rig.node.active.source == 'imu/calibration topic'
+    bad = [
+        ('not: [valid', 'not valid YAML'),
+        (make_cal(topics=('imu/other_temperature',)).to_yaml(), 'not among temperature_topics'),
+        (b.to_yaml().replace("format: thermal_imu_calib/1", "format: other/9"), 'format'),
+    ]
+    for i, (text, reason) in enumerate(bad):
+        rig.cal_pub.publish(String(data=text))
+        wait_for(lambda: rig.node.counts['calibrations_rejected'] >= i + 1, 10,
+                 f'rejection of bad calibration {i}')
+        assert reason in rig.node.last_rejection
+        assert rig.node.active.id == b.id
+    rig.send(4)
+    wait_for(lambda: len(rig.out) >= 4, 10, 'messages after rejections')
+    for m in rig.out:
+        np.testing.assert_allclose(vec(m)[0], expected(b, 28.0).accel[0], atol=1e-12)
+    _, values = rig.diagnostics()
+    assert int(values['calibrations_rejected']) == 3
+    assert 'format' in values['last_rejection']
+
+
+def test_late_compensator_gets_latched_calibration(ros, tmp_path):
+    cal = make_cal(db0=-0.03)
+    pub_node = ros.node('latcher')
+    pub = pub_node.create_publisher(String, 'imu/calibration', common.CALIBRATION_QOS)
+    pub.publish(String(data=cal.to_yaml()))
+    node = ros.add(CompensatorNode(context=ros.context, parameter_overrides=[
+        Parameter('calibration_file', value=str(tmp_path / 'absent.yaml'))]))
+    wait_for(lambda: node.active is not None and node.active.id == cal.id, 10,
+             'the latched calibration')
+
+
+@pytest.mark.parametrize('policy', ['hold_last', 'passthrough', 'drop'])
+def test_stale_and_missing_temperature_policies(ros, tmp_path, policy):
+    cal = make_cal()
+    rig = Rig(ros, calibration_file=str(cal.save(tmp_path / 'cal.yaml')),
+              temperature_timeout=0.5, on_missing_temperature=policy)
+    # never received: hold_last has nothing to hold, so it passes through
+    rig.send(3)
+    rig.receive(3)
+    rig.temperature(25.0, T0_NS + 30_000_000)
+    rig.send(3)           # fresh: 0.03 .. 0.05 s, age < 0.5 s
+    rig.stamp += 2 * S    # the temperature is now 2 s old
+    rig.send(4)           # stale
+    rig.receive(10)
+    n_out = 3 if policy == 'drop' else 10
+    wait_for(lambda: len(rig.out) >= n_out, 10, f'{n_out} published messages')
+    comp = expected(cal, 25.0).accel[0]
+    got = [vec(m)[0] for m in rig.out]
+    is_comp = [bool(np.allclose(g, comp, atol=1e-12)) for g in got]
+    is_raw = [bool(np.allclose(g, ACCEL, atol=1e-12)) for g in got]
+    assert all(c or r for c, r in zip(is_comp, is_raw))
+    c = rig.node.counts
+    if policy == 'hold_last':
+        assert is_comp == [False] * 3 + [True] * 7
+        assert c['temperature_held'] == 4 and c['temperature_missing'] == 3
+    elif policy == 'passthrough':
+        assert is_comp == [False] * 3 + [True] * 3 + [False] * 4
+        assert c['temperature_missing'] == 7 and c['passthrough'] == 7
+    else:
+        assert is_comp == [True] * 3 and len(got) == 3
+        assert c['dropped'] == 7
+    st, values = rig.diagnostics()
+    assert st.level == common.WARN and 'temperature stale' in st.message
+    assert float(values['temperature_age_s[imu/temperature]']) >= 2.0
+
+
+def test_out_of_range_is_clamped_and_counted(ros, tmp_path):
+    cal = make_cal(valid=(20.0, 40.0))
+    rig = Rig(ros, calibration_file=str(cal.save(tmp_path / 'cal.yaml')))
+    rig.temperature(55.0)
+    rig.send(5)
+    wait_for(lambda: len(rig.out) >= 5, 10, 'compensated messages')
+    np.testing.assert_allclose(vec(rig.out[-1])[0], expected(cal, 40.0).accel[0], atol=1e-12)
+    assert rig.node.counts['clamped'] == 5
+    _, values = rig.diagnostics()
+    assert int(values['clamped']) == 5
+
+
+def test_non_finite_input_is_never_published(ros, tmp_path):
+    cal = make_cal()
+    rig = Rig(ros, calibration_file=str(cal.save(tmp_path / 'cal.yaml')))
+    rig.temperature(25.0)
+    rig.send(2)
+    rig.send(1, accel=(float('nan'), 0.0, 9.8))
+    rig.send(1, gyro=(0.0, float('inf'), 0.0))
+    rig.temp_pub.publish(temperature_msg(rig.stamp, float('nan')))
+    rig.send(2)
+    rig.receive(6)
+    wait_for(lambda: len(rig.out) >= 4, 10, 'the 4 finite messages')
+    for m in rig.out:
+        a, w = vec(m)
+        assert np.all(np.isfinite(a)) and np.all(np.isfinite(w))
+    assert rig.node.counts['invalid'] == 2
+    wait_for(lambda: rig.node.temps.invalid == 1, 5, 'the NaN temperature to be counted')
+
+
+def test_model_swap_never_mixes_parameters(ros, tmp_path):
+    a, b = make_cal(db0=0.05), make_cal(db0=-0.08)
+    b.gyro = OffsetPolynomialModel([30.0] * 3, np.array([[-2e-3, 0.0, 0.0]] * 3), 'gyro')
+    rig = Rig(ros, calibration_file=str(a.save(tmp_path / 'cal.yaml')))
+    rig.temperature(33.0)
+    ea, eb = expected(a, 33.0), expected(b, 33.0)
+    stop = threading.Event()
+
+    def swapper():
+        i = 0
+        while not stop.is_set():
+            rig.node.activate(a if i % 2 else b, 'test')
+            i += 1
+
+    th = threading.Thread(target=swapper)
+    th.start()
+    try:
+        rig.send(400, dt=0.001)
+        rig.receive(400)
+    finally:
+        stop.set()
+        th.join()
+    wait_for(lambda: len(rig.out) >= 400, 10, '400 outputs')
+    kinds = set()
+    for m in rig.out:
+        acc, gyr = vec(m)
+        if np.allclose(acc, ea.accel[0], atol=1e-12):
+            assert np.allclose(gyr, ea.gyro[0], atol=1e-12), 'accel from A, gyro not from A'
+            kinds.add('a')
+        else:
+            np.testing.assert_allclose(acc, eb.accel[0], atol=1e-12)
+            np.testing.assert_allclose(gyr, eb.gyro[0], atol=1e-12)
+            kinds.add('b')
+    assert kinds == {'a', 'b'}
+
+
+def test_several_temperature_topics_map_by_name(ros, tmp_path):
+    topics = ('imu/temperature/x', 'imu/temperature/y', 'imu/temperature/z')
+    # the file lists absolute names; the node subscribes relative ones (in reverse order)
+    cal = make_cal(topics=tuple('/' + t for t in topics))
+    rig_node = ros.add(CompensatorNode(context=ros.context, parameter_overrides=[
+        Parameter('calibration_file', value=str(cal.save(tmp_path / 'cal.yaml'))),
+        Parameter('temperature_topics', value=list(reversed(topics)))]))
+    assert rig_node.active.columns == (2, 1, 0)
+    driver = ros.node('driver3')
+    pubs = {t: driver.create_publisher(Temperature, t, 10) for t in topics}
+    imu_pub = driver.create_publisher(Imu, 'imu/data_raw', 10)
+    out = ros.collect(driver, Imu, 'imu/data_compensated', 10)
+    for p in list(pubs.values()) + [imu_pub]:
+        ros.wait_matched(p)
+    wait_for(lambda: rig_node.pub.get_subscription_count() >= 1, 10, 'output subscriber')
+    for t, v in zip(topics, (22.0, 27.0, 35.0)):
+        pubs[t].publish(temperature_msg(T0_NS, v))
+    wait_for(lambda: sum(rig_node.temps.received) >= 3, 10, 'three temperatures')
+    imu_pub.publish(imu_msg(T0_NS, ACCEL, GYRO))
+    wait_for(lambda: len(out) >= 1, 10, 'the compensated message')
+    exp = cal.apply(np.array([ACCEL]), np.array([GYRO]), np.array([[22.0, 27.0, 35.0]]))
+    np.testing.assert_allclose(vec(out[0])[0], exp.accel[0], atol=1e-12)

@@ -1,0 +1,345 @@
+"""Live thermal compensation: imu/data_raw + temperature -> imu/data_compensated.
+
+Subscribes ``imu/data_raw`` (sensor_msgs/Imu) and every topic of ``temperature_topics``
+(sensor_msgs/Temperature), resolves each calibration input's temperature at the IMU header
+stamp (interpolated between readings, else the nearest reading held) and publishes the
+``Calibration.apply`` result on ``imu/data_compensated`` with the same header and
+orientation. The calibration comes from ``calibration_file`` (at start and on
+``~/reload``) or from the latched ``imu/calibration`` topic; a bad one is rejected with
+its reason and the previous one stays active.
+"""
+
+from dataclasses import dataclass
+import math
+import os
+import time
+
+import numpy as np
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from sensor_msgs.msg import Imu, Temperature
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+
+from . import common
+from ..calibration import Calibration, CalibrationError
+
+NODE_NAME = 'thermal_imu_compensator'
+MISSING_POLICIES = ('hold_last', 'passthrough', 'drop')
+
+
+@dataclass(frozen=True)
+class ActiveModel:
+    """The calibration in use and how its inputs map to subscribed topics (never mutated)."""
+
+    calibration: Calibration
+    columns: tuple
+    id: str
+    source: str
+    loaded_at: float
+
+
+class CompensatorNode(Node):
+    """Apply a thermal calibration to a live IMU stream."""
+
+    def __init__(self, node_name=NODE_NAME, **kwargs):
+        super().__init__(node_name, **kwargs)
+        p = common.Parameters(self, apply=self._on_params)
+        self.calibration_file = p.declare(
+            'calibration_file', '~/.ros/thermal_imu_calib/calibration.yaml',
+            'Calibration YAML loaded at start and on ~/reload (~ is expanded; empty: none).')
+        self.temperature_topics = list(p.declare(
+            'temperature_topics', ['imu/temperature'],
+            'sensor_msgs/Temperature topics to subscribe; the calibration file maps its '
+            'inputs to them by name (relative names follow namespaces and remaps).',
+            read_only=True))
+        self.temperature_timeout = p.declare(
+            'temperature_timeout', 2.0,
+            'Seconds (by header stamp) after which a temperature reading is stale; readings '
+            'closer than this are interpolated.', lo=0.001, hi=3600.0)
+        self.on_missing = p.declare(
+            'on_missing_temperature', 'hold_last',
+            'What to do when a temperature is stale or absent: hold_last compensates with the '
+            'nearest reading (passthrough if none was ever received), passthrough publishes '
+            'the raw sample, drop publishes nothing.', choices=MISSING_POLICIES)
+        self.passthrough_uncalibrated = p.declare(
+            'passthrough_without_calibration', True,
+            'With no calibration loaded: true publishes raw samples, false publishes nothing.')
+        out_rel = p.declare('output_reliability', 'reliable',
+                            'QoS reliability of imu/data_compensated.',
+                            choices=('reliable', 'best_effort'), read_only=True)
+        out_depth = p.declare('output_depth', 1000, 'QoS history depth of imu/data_compensated.',
+                              lo=1, hi=100000, read_only=True)
+        in_depth = p.declare('input_depth', 1000,
+                             'QoS history depth (best effort) of the IMU and temperature '
+                             'subscriptions; 1000 holds one second of a 1 kHz stream.',
+                             lo=1, hi=100000, read_only=True)
+        self.batch_limit = p.declare('max_batch', 200,
+                                     'Most queued IMU messages compensated together in one '
+                                     'callback under load.', lo=1, hi=10000)
+        period = p.declare('diagnostics_period', 1.0, 'Seconds between /diagnostics messages.',
+                           lo=0.05, hi=60.0, read_only=True)
+        if len(set(self.temperature_topics)) != len(self.temperature_topics):
+            raise ValueError(f'temperature_topics has duplicates: {self.temperature_topics}')
+
+        self.temps = common.TemperatureInputs(self.temperature_topics,
+                                              max(60.0, 4 * self.temperature_timeout))
+        self._active = None
+        self.counts = {'received': 0, 'published': 0, 'compensated': 0, 'passthrough': 0,
+                       'dropped': 0, 'invalid': 0, 'clamped': 0, 'temperature_held': 0,
+                       'temperature_missing': 0, 'frame_mismatch': 0,
+                       'calibrations_rejected': 0, 'calibrations_loaded': 0}
+        self.last_rejection = ''
+        self._last_stamp_ns = None
+        self._rate = common.RateMeter()
+        self._warned = set()
+
+        self.pub = self.create_publisher(Imu, 'imu/data_compensated',
+                                         common.output_qos(out_rel, out_depth))
+        self.imu_sub = self.create_subscription(Imu, 'imu/data_raw', self._on_imu,
+                                                common.sensor_qos(in_depth))
+        self.temp_subs = [
+            self.create_subscription(Temperature, topic, self._temperature_cb(i),
+                                     common.sensor_qos(in_depth))
+            for i, topic in enumerate(self.temperature_topics)]
+        self.cal_sub = self.create_subscription(String, 'imu/calibration', self._on_calibration,
+                                                common.CALIBRATION_QOS)
+        self.reload_srv = self.create_service(Trigger, '~/reload', self._on_reload)
+        self.diagnostics = common.Diagnostics(self)
+        self.diag_timer = self.create_timer(period, self._publish_diagnostics)
+        if self.calibration_file:
+            ok, msg = self.load_file()
+            common.log(self, ok, msg, failure='warning')
+        if self._active is None:
+            self.get_logger().warning(
+                'no calibration loaded: ' + ('passing IMU data through uncompensated'
+                                             if self.passthrough_uncalibrated
+                                             else 'publishing nothing') + ' until one arrives')
+
+    # ------------------------------------------------------------------ calibration
+    @property
+    def active(self):
+        """Return the ActiveModel in use, or None."""
+        return self._active
+
+    def activate(self, cal, source):
+        """Make ``cal`` the active calibration if this node can serve its inputs.
+
+        Returns (ok, message). On failure the previous calibration stays active.
+        """
+        columns, reason = common.match_topics(self, cal.temperature_topics,
+                                              self.temperature_topics)
+        if reason:
+            return self._reject(source, reason)
+        reason = _probe(cal)
+        if reason:
+            return self._reject(source, reason)
+        # one reference swap: a message is compensated entirely with the old or the new model
+        self._active = ActiveModel(cal, tuple(columns), cal.id, source, time.time())
+        self.counts['calibrations_loaded'] += 1
+        return True, (f'calibration {cal.id} active from {source}: accel '
+                      f'{cal.accel.kind if cal.accel else "none"}, gyro '
+                      f'{cal.gyro.kind if cal.gyro else "none"}, inputs '
+                      f'{cal.temperature_topics or "none"}')
+
+    def _reject(self, source, reason):
+        self.counts['calibrations_rejected'] += 1
+        self.last_rejection = f'{source}: {reason}'
+        keep = (f'; keeping calibration {self._active.id}' if self._active
+                else '; no calibration active')
+        return False, f'rejected calibration from {source}: {reason}{keep}'
+
+    def load_file(self):
+        """(Re)load ``calibration_file``; returns (ok, message)."""
+        path = os.path.expanduser(self.get_parameter('calibration_file').value)
+        if not path:
+            return self._reject('calibration_file', 'the parameter is empty')
+        try:
+            cal = Calibration.load(path)
+        except CalibrationError as e:
+            return self._reject(path, str(e))
+        return self.activate(cal, path)
+
+    def _on_reload(self, request, response):
+        response.success, response.message = self.load_file()
+        common.log(self, response.success, response.message)
+        return response
+
+    def _on_calibration(self, msg):
+        active = self._active
+        try:
+            cal = Calibration.from_yaml(msg.data, 'imu/calibration')
+        except CalibrationError as e:
+            ok, text = self._reject('imu/calibration', str(e))
+            self.get_logger().error(text)
+            return
+        if active is not None and cal.id == active.id:
+            return
+        ok, text = self.activate(cal, 'imu/calibration topic')
+        common.log(self, ok, text)
+
+    def _on_params(self, changed):
+        for name, value in changed.items():
+            if name == 'temperature_timeout':
+                self.temperature_timeout = value
+            elif name == 'on_missing_temperature':
+                self.on_missing = value
+            elif name == 'passthrough_without_calibration':
+                self.passthrough_uncalibrated = value
+            elif name == 'max_batch':
+                self.batch_limit = value
+
+    # ------------------------------------------------------------------ data
+    def _temperature_cb(self, index):
+        def cb(msg):
+            self.temps.add(index, common.stamp_to_ns(msg.header.stamp), msg.temperature)
+        return cb
+
+    def _on_imu(self, msg):
+        msgs = [msg]
+        msgs.extend(common.drain(self.imu_sub, self.batch_limit - 1))
+        self.process(msgs)
+
+    def process(self, msgs):
+        """Compensate and publish a batch of Imu messages (in arrival order)."""
+        active = self._active  # read once: the whole batch uses one model
+        c = self.counts
+        n = len(msgs)
+        c['received'] += n
+        self._rate.add(n)
+        stamps, accel, gyro = common.imu_to_arrays(msgs)
+        self._last_stamp_ns = int(stamps[-1])
+        send = np.isfinite(accel).all(1) & np.isfinite(gyro).all(1)  # rows to publish
+        c['invalid'] += n - int(send.sum())
+        if active is None:
+            if self.passthrough_uncalibrated:
+                c['passthrough'] += self._publish(msgs, send)
+            else:
+                c['dropped'] += int(send.sum())
+            return
+        cal = active.calibration
+        if cal.frame_id and msgs[0].header.frame_id != cal.frame_id:
+            c['frame_mismatch'] += n
+            self._warn_once('frame', f'IMU frame_id {msgs[0].header.frame_id!r} differs from '
+                                     f'the calibration frame {cal.frame_id!r}; compensating '
+                                     'anyway')
+        comp = send.copy()  # rows to compensate; the other sent rows pass through
+        temps = np.zeros((n, len(active.columns)))
+        if active.columns:
+            temps, age = self.temps.resolve(stamps, active.columns, self.temperature_timeout)
+            known = np.isfinite(temps).all(1)
+            stale = send & (~known | (age > self.temperature_timeout).any(1))
+            if stale.any():
+                if self.on_missing == 'hold_last':
+                    c['temperature_held'] += int((stale & known).sum())
+                    c['temperature_missing'] += int((stale & ~known).sum())
+                    comp &= known
+                else:
+                    c['temperature_missing'] += int(stale.sum())
+                    comp &= ~stale
+                    if self.on_missing == 'drop':
+                        send &= ~stale
+                        c['dropped'] += int(stale.sum())
+        rows = np.flatnonzero(comp)
+        if len(rows):
+            res = cal.apply(accel[rows], gyro[rows], temps[rows])
+            good = np.isfinite(res.accel).all(1) & np.isfinite(res.gyro).all(1)
+            if not good.all():  # never publish NaN/Inf
+                c['invalid'] += int((~good).sum())
+                send[rows[~good]] = False
+            sel = rows[good]
+            va = None if res.accel_std is None else res.accel_std[good] ** 2
+            vg = None if res.gyro_std is None else res.gyro_std[good] ** 2
+            va = va if va is not None and np.isfinite(va).all() else None
+            vg = vg if vg is not None and np.isfinite(vg).all() else None
+            common.write_imu([msgs[i] for i in sel], res.accel[good], res.gyro[good], va, vg)
+            c['clamped'] += int(res.out_of_range[good].sum())
+            c['compensated'] += len(sel)
+            comp[:] = False
+            comp[sel] = True
+        c['passthrough'] += int((send & ~comp).sum())
+        self._publish(msgs, send)
+
+    def _publish(self, msgs, send):
+        count = 0
+        for m, s in zip(msgs, send.tolist()):
+            if s:
+                self.pub.publish(m)
+                count += 1
+        self.counts['published'] += count
+        return count
+
+    def _warn_once(self, key, text):
+        if key not in self._warned:
+            self._warned.add(key)
+            self.get_logger().warning(text)
+
+    # ------------------------------------------------------------------ diagnostics
+    def diagnostics_values(self):
+        """Return (level, message, values) describing the node's state now."""
+        active = self._active
+        rate = self._rate.rate()
+        values = {'model_loaded': active is not None,
+                  'model_id': active.id if active else '',
+                  'model_source': active.source if active else '',
+                  'input_rate_hz': rate,
+                  'on_missing_temperature': self.on_missing}
+        ages = (self.temps.age_at(self._last_stamp_ns) if self._last_stamp_ns is not None
+                else {t: math.inf for t in self.temperature_topics})
+        for topic, age in ages.items():
+            values[f'temperature_age_s[{topic}]'] = age
+        values.update(self.counts)
+        values['temperature_invalid'] = self.temps.invalid
+        values['last_rejection'] = self.last_rejection
+        level, msg = common.OK, 'compensating'
+        if active is None:
+            level = common.WARN
+            msg = ('no calibration loaded: passing through' if self.passthrough_uncalibrated
+                   else 'no calibration loaded: dropping all samples')
+        elif active.columns and any(ages[self.temperature_topics[i]] > self.temperature_timeout
+                                    for i in active.columns):
+            level, msg = common.WARN, f'temperature stale or missing ({self.on_missing})'
+        elif rate == 0.0:
+            level, msg = common.WARN, 'no IMU input'
+        return level, msg, values
+
+    def _publish_diagnostics(self):
+        level, msg, values = self.diagnostics_values()
+        self.diagnostics.publish([common.diagnostic_status(
+            f'{self.get_name()}: thermal compensation', self.get_fully_qualified_name(),
+            level, msg, values)])
+
+
+def _probe(cal):
+    """Return why ``cal`` cannot compensate one sample mid-range, or None when it can."""
+    mid = (np.zeros((1, 0)) if cal.valid_range is None or not cal.inputs
+           else cal.valid_range.mean(1).reshape(1, -1))
+    try:
+        res = cal.apply(np.array([[0.0, 0.0, cal.gravity]]), np.zeros((1, 3)), mid)
+    except Exception as e:  # noqa: B902 - any failure makes the model unusable
+        return f'applying it to a test sample failed ({e.__class__.__name__}: {e})'
+    if not (np.isfinite(res.accel).all() and np.isfinite(res.gyro).all()):
+        return 'it turns a test sample into NaN/Inf'
+    return None
+
+
+def main(args=None):
+    """Run the compensator node."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = CompensatorNode()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()
