@@ -38,8 +38,9 @@ def demo():
 
 
 def test_scenario_names():
-    assert set(sim.SCENARIOS) == {'nav-coldstart', 'nav-validation', 'mems-coldstart',
-                                  'mems-validation', 'single-warmup', 'demo',
+    assert set(sim.SCENARIOS) == {'nav-coldstart', 'nav-validation', 'nav-coldstart-short',
+                                  'nav-validation-short', 'mems-coldstart',
+                                  'mems-validation', 'single-warmup', 'demo', 'demo-validation',
                                   'chamber-cycle', 'lag-warmup'}
     for name, cfg in sim.SCENARIOS.items():
         assert cfg.name == name

@@ -202,6 +202,9 @@ class Calibration:
         try:
             with os.fdopen(fd, 'w') as f:
                 f.write(text)
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; a calibration is not secret
             os.replace(tmp, path)
         except BaseException:
             if os.path.exists(tmp):

@@ -86,7 +86,11 @@ def build_parser():
     p.add_argument('--order', type=int, default=2, choices=(0, 1, 2),
                    help='temperature polynomial order of the field model (default 2)')
     p.add_argument('--no-refine', action='store_true', help='skip the joint refinement')
-    p.add_argument('--out-of-range', default='clamp', choices=('clamp', 'extrapolate'))
+    p.add_argument('--out-of-range', default='clamp', choices=('clamp', 'extrapolate'),
+                   help='outside the valid temperature range: hold the edge value (clamp) or '
+                        'evaluate the model (extrapolate); both are counted and flagged')
+    p.add_argument('--range-margin', type=float, default=1.0, metavar='DEGC',
+                   help='valid range = collected temperature range widened by this (default 1)')
     p.add_argument('--frame-id', help='sensor frame_id to record (default: from the log)')
     p.add_argument('--save-windows', metavar='FILE', help='write the window statistics (JSONL)')
     p.add_argument('-o', '--output', required=True, help='calibration YAML to write')
@@ -162,7 +166,8 @@ def cmd_calibrate(args):
     opts = CalibrateOptions(model=args.model, gravity=g, gravity_source=g_src, prior=prior,
                             inputs=inputs, frame_id=args.frame_id or collected[0].frame_id,
                             out_of_range=args.out_of_range, order=args.order,
-                            refine=not args.no_refine, min_hold_s=args.min_hold)
+                            refine=not args.no_refine, min_hold_s=args.min_hold,
+                            range_margin=args.range_margin)
     result = calibrate_windows(windows, opts)
     result.calibration.fit['inputs'] = [os.path.basename(os.path.normpath(p))
                                         for p in args.inputs]
@@ -218,6 +223,7 @@ def format_evaluation(res):
     """Render evaluate results as a table (micro-g, micro-g/degC, rad/s)."""
     r = res['results']
     labels = list(r)
+    heads = ['recorded' if lb == 'raw' else lb for lb in labels]
     avg_s = r['raw']['averaged_residual_ug']['window_s']
     rows = [('holds', lambda m: f'{m["holds"]}'),
             ('gravity residual per hold, RMS [ug]',
@@ -233,9 +239,9 @@ def format_evaluation(res):
                         if 'drift_ug_per_degC_rms' in m else '-')),
             ('gyro rate per hold, RMS [rad/s]', lambda m: f'{m["gyro_rate_rms"]["value"]:.2e}')]
     w0 = max(len(n) for n, _ in rows)
-    cols = [max(len(lb), 14) for lb in labels]
+    cols = [max(len(lb), 14) for lb in heads]
     out = [f'{res["path"]}: {res["holds"]} stationary holds, {res["windows"]} windows',
-           ' ' * w0 + '  ' + '  '.join(f'{lb:>{c}}' for lb, c in zip(labels, cols))]
+           ' ' * w0 + '  ' + '  '.join(f'{lb:>{c}}' for lb, c in zip(heads, cols))]
     for name, fn in rows:
         cells = '  '.join(f'{fn(r[lb]):>{c}}' for lb, c in zip(labels, cols))
         out.append(f'{name:<{w0}}  {cells}')

@@ -13,9 +13,8 @@ import numpy as np
 
 from .io import cdr
 from .io.align import StreamAligner
-from .io.bag import LogError, LogWriter, open_log
+from .io.bag import copy_and_stream, LogError, LogWriter, open_log
 from .io.cdr import IMU_MSGTYPE, TEMPERATURE_MSGTYPE
-from .io.columns import ImuColumns, TemperatureColumns
 from .estimation.evaluate import static_metrics, WindowAccumulator, with_signals
 from .estimation.segments import Windows
 from .estimation.stationary import StationaryDetector
@@ -58,11 +57,11 @@ def resolve_topics(reader, imu_topic, temperature_topics):
             raise LogError(f'{reader.path}: pass --imu-topic; Imu topics present: '
                            f'{", ".join(imus) or "none"}')
         imu_topic = imus[0]
-    reader._check_topics([imu_topic], IMU_MSGTYPE)
+    reader.check_topics([imu_topic], IMU_MSGTYPE)
     if temperature_topics is None:
         temperature_topics = sorted(t for t, ty in types.items() if ty == TEMPERATURE_MSGTYPE)
     else:
-        reader._check_topics(temperature_topics, TEMPERATURE_MSGTYPE)
+        reader.check_topics(temperature_topics, TEMPERATURE_MSGTYPE)
     return imu_topic, list(temperature_topics)
 
 
@@ -162,49 +161,23 @@ def compensate_log(src, dst, calibration, imu_topic=None, temperature_topics=Non
             raise LogError(f'output topic {output_topic} already exists in {src}; choose '
                            'another --output-topic')
         stats = {'imu_in': 0, 'imu_out': 0, 'dropped': 0, 'passthrough': 0,
-                 'out_of_range': 0, 'copied': 0}
+                 'out_of_range': 0, 'copied': reader.message_count}
         aligner = StreamAligner(temps, max_gap_s)
-        bar = _progress(reader.message_count, 'compensating', progress)
+        bar = _progress(reader.topics()[imu_topic].count, 'compensating', progress)
         t_start = time.perf_counter()
         with LogWriter(dst, storage=storage) as writer:
-            for topic, ty in types.items():
-                writer.add_topic(topic, ty)
             writer.add_topic(output_topic, IMU_MSGTYPE)
-            buf_raw, buf_t = [], []
-            buf_temp = {t: ([], []) for t in temps}
-
-            def flush(final=False):
-                imu_cols = cdr.decode_imu(buf_raw) if buf_raw else ImuColumns.empty()
-                tcols = []
-                for t in temps:
-                    raws = buf_temp[t][0]
-                    tcols.append(cdr.decode_temperature(raws) if raws
-                                 else TemperatureColumns.empty())
-                    buf_temp[t][0].clear()
-                out = aligner.push_columns(imu_cols, tcols, {
-                    'imu_log_time_ns': np.asarray(buf_t, np.int64), 'imu_raw': list(buf_raw)})
-                buf_raw.clear()
-                buf_t.clear()
-                if final:
-                    out += aligner.finish()
-                for ch in out:
+            for raw in copy_and_stream(reader, writer, imu_topic, temps,
+                                       chunk_size=chunk_size, keep_raw=True):
+                stats['imu_in'] += len(raw.imu)
+                if bar is not None:
+                    bar.update(len(raw.imu))
+                for ch in aligner.push(raw):
                     _write_compensated(writer, output_topic, ch, calibration, timeout,
                                        on_missing, stats)
-
-            for topic, _, t, raw in reader.iter_raw():
-                writer.write(topic, t, raw)
-                stats['copied'] += 1
-                if bar is not None:
-                    bar.update(1)
-                if topic == imu_topic:
-                    buf_raw.append(raw)
-                    buf_t.append(t)
-                    stats['imu_in'] += 1
-                    if len(buf_raw) >= chunk_size:
-                        flush()
-                elif topic in buf_temp:
-                    buf_temp[topic][0].append(raw)
-            flush(final=True)
+            for ch in aligner.finish():
+                _write_compensated(writer, output_topic, ch, calibration, timeout, on_missing,
+                                   stats)
         if bar is not None:
             bar.close()
     stats['seconds'] = time.perf_counter() - t_start

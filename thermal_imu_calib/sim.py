@@ -184,16 +184,33 @@ class ScenarioConfig:
 SCENARIOS = {
     'nav-coldstart': ScenarioConfig(
         name='nav-coldstart', device='nav', imu_rate=100.0,
-        description='navigation-grade cold start at ~20 degC: 5 x six-position scheme, '
-                    '3-4 min holds, per-accelerometer temperature sensors (seed 000 setup)',
-        faces=SIX_FACES, repetitions=5, hold_s=(180.0, 240.0), transition_s=(4.0, 8.0),
-        tilt_deg=(0.5, 4.0), t_amb=20.0, t_amb_jitter=0.2, rise=16.0, tau_s=1800.0,
+        description='navigation-grade cold start at ~20 degC as in seed 000: 5 x six-position '
+                    'scheme over a ~3 h warm-up (45-min thermal time constant), 5.5-6.5 min '
+                    'holds, per-accelerometer temperature sensors',
+        faces=SIX_FACES, repetitions=5, hold_s=(330.0, 390.0), transition_s=(4.0, 8.0),
+        tilt_deg=(0.5, 4.0), t_amb=20.0, t_amb_jitter=0.2, rise=16.0, tau_s=2700.0,
         temp_topics=('/imu/temperature/x', '/imu/temperature/y', '/imu/temperature/z'),
         temp_rate=10.0, temp_lsb=0.01, temp_noise=0.003),
     'nav-validation': ScenarioConfig(
         name='nav-validation', device='nav', imu_rate=100.0,
-        description='second, independent cold start of the nav-coldstart device: six faces '
-                    'x 20 min holds for 300-s averages',
+        description='second, independent ~3 h cold start of the nav-coldstart device: six '
+                    'faces x 28-30 min holds for 300-s averages',
+        faces=SIX_FACES, repetitions=1, shuffle=True, hold_s=(1680.0, 1800.0),
+        transition_s=(4.0, 8.0), tilt_deg=(0.5, 4.0), t_amb=20.4, t_amb_jitter=0.2,
+        rise=16.0, tau_s=2700.0,
+        temp_topics=('/imu/temperature/x', '/imu/temperature/y', '/imu/temperature/z'),
+        temp_rate=10.0, temp_lsb=0.01, temp_noise=0.003),
+    'nav-coldstart-short': ScenarioConfig(
+        name='nav-coldstart-short', device='nav', imu_rate=100.0,
+        description='a hurried variant of nav-coldstart: 5 x six faces with 3-4 min holds '
+                    'over a 107-min warm-up (30-min time constant)',
+        faces=SIX_FACES, repetitions=5, hold_s=(180.0, 240.0), transition_s=(4.0, 8.0),
+        tilt_deg=(0.5, 4.0), t_amb=20.0, t_amb_jitter=0.2, rise=16.0, tau_s=1800.0,
+        temp_topics=('/imu/temperature/x', '/imu/temperature/y', '/imu/temperature/z'),
+        temp_rate=10.0, temp_lsb=0.01, temp_noise=0.003),
+    'nav-validation-short': ScenarioConfig(
+        name='nav-validation-short', device='nav', imu_rate=100.0,
+        description='validation for nav-coldstart-short: six faces x 20 min holds',
         faces=SIX_FACES, repetitions=1, shuffle=True, hold_s=(1200.0, 1260.0),
         transition_s=(4.0, 8.0), tilt_deg=(0.5, 4.0), t_amb=20.4, t_amb_jitter=0.2,
         rise=16.0, tau_s=1800.0,
@@ -223,6 +240,12 @@ SCENARIOS = {
         description='short MEMS cold start for `make demo`: 2 x six faces, 15-20 s holds',
         faces=SIX_FACES, repetitions=2, hold_s=(15.0, 20.0), transition_s=(2.0, 3.0),
         tilt_deg=(0.5, 4.0), t_amb=22.0, rise=15.0, tau_s=90.0, temp_rate=10.0),
+    'demo-validation': ScenarioConfig(
+        name='demo-validation', device='mems', imu_rate=100.0,
+        description='second short cold start of the demo device: six faces, 30-40 s holds',
+        faces=SIX_FACES, repetitions=1, shuffle=True, hold_s=(30.0, 40.0),
+        transition_s=(2.0, 3.0), tilt_deg=(0.5, 4.0), t_amb=22.3, rise=15.0, tau_s=90.0,
+        temp_rate=10.0),
     'chamber-cycle': ScenarioConfig(
         name='chamber-cycle', device='mems', imu_rate=50.0,
         description='one pose in a climatic chamber, 2 cycles 10..50 degC at 1 degC/min with '

@@ -46,6 +46,10 @@ class CalibrateOptions:
     order: int = 2
     refine: bool = True
     min_hold_s: float = 10.0
+    #: the valid range is the collected range widened by this much on both sides (degC):
+    #: a low-order polynomial is trustworthy just past its data, a clamp at the exact data
+    #: edge is not (the next warm-up often ends a little higher)
+    range_margin: float = 1.0
 
 
 @dataclass
@@ -68,7 +72,7 @@ def _face_text(cov):
     for f in FACE_NAMES:
         n = cov['faces'][f]['holds']
         if n:
-            parts.append(f'{f}x{n}' if n > 1 else f)
+            parts.append(f'{f}({n})' if n > 1 else f)
     if cov['tilted_holds']:
         parts.append(f'{cov["tilted_holds"]} tilted')
     return ' '.join(parts) or 'none'
@@ -218,7 +222,8 @@ def calibrate_windows(windows, options=None):
 
     cal = Calibration(
         accel=accel_model, gyro=gyro_model, inputs=list(o.inputs),
-        valid_range=(np.stack([windows.temp.min(0), windows.temp.max(0)], 1) if k else None),
+        valid_range=(np.stack([windows.temp.min(0) - o.range_margin,
+                               windows.temp.max(0) + o.range_margin], 1) if k else None),
         out_of_range=o.out_of_range, accel_input=accel_input, gyro_input=gyro_input,
         frame_id=o.frame_id, gravity=g, gravity_source=o.gravity_source,
         accel_noise_std=np.sqrt(np.median(windows.accel_var, axis=0)),
@@ -229,6 +234,7 @@ def calibrate_windows(windows, options=None):
         'faces': {f: cov['faces'][f]['holds'] for f in FACE_NAMES},
         'tilted_holds': cov['tilted_holds'],
         'temperature_span': cov['temperature_span'],
+        'valid_range_margin': {'value': o.range_margin, 'unit': 'degC'},
         'gravity_residual_ug': {'before_rms': _rms(before), 'after_rms': _rms(after),
                                 'before_max': _amax(before), 'after_max': _amax(after),
                                 'note': 'per hold, |mean f| - g in micro-g, on the fit data'},

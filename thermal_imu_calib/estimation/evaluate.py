@@ -7,13 +7,16 @@ boundaries, so the numbers compare like with like:
 * averaged-window gravity residual: consecutive windows of a hold merged into blocks of
   ``average_s`` seconds (300 s by default, as a navigation-grade check), max and RMS;
 * drift vs temperature per axis: the slope of each axis' window means against temperature
-  within each hold (micro-g/degC), RMS over holds;
+  within each hold that spans at least ``MIN_DRIFT_SPAN`` (micro-g/degC), RMS over holds;
 * gyro: RMS of the per-hold mean rate (rad/s) — the residual bias plus earth rate.
 """
 
 from dataclasses import replace
 
 import numpy as np
+
+#: a hold needs this temperature span (degC) before its drift slope is meaningful
+MIN_DRIFT_SPAN = 1.0
 
 
 class WindowAccumulator:
@@ -73,7 +76,7 @@ def static_metrics(windows, gravity, average_s=300.0, axis_temp_input=0):
         if windows.n_inputs:
             temp = windows.temp[m, axis_temp_input]
             rec['temp_range'] = [float(temp.min()), float(temp.max())]
-            if np.ptp(temp) > 0.2 and m.sum() >= 3:
+            if np.ptp(temp) >= MIN_DRIFT_SPAN and m.sum() >= 3:
                 tt = temp - np.average(temp, weights=w)
                 sl = (tt * w) @ (a - mean) / max(float((tt * w) @ tt), 1e-12)
                 rec['drift_ug_per_degC'] = (sl / g * 1e6).tolist()
