@@ -14,7 +14,8 @@ import numpy as np
 
 from . import __version__
 from .calibration import Calibration, CalibrationError, TemperatureInput
-from .estimation.calibrate import CalibrateOptions, calibrate_windows, CalibrationRefused
+from .estimation.calibrate import (CalibrateOptions, calibrate_windows, CalibrationRefused,
+                                   model_choices)
 from .estimation.stationary import DetectorConfig
 from .gravity import resolve_gravity
 from .io.bag import LogError
@@ -80,8 +81,9 @@ def build_parser():
     grav.add_argument('--gravity', type=float, help='local gravity (m/s^2)')
     grav.add_argument('--latitude', type=float, help='latitude (deg) for WGS84 normal gravity')
     p.add_argument('--altitude', type=float, default=0.0, help='height (m) with --latitude')
-    p.add_argument('--model', default='auto', choices=('auto', 'field', 'offset'),
-                   help='auto: seed-000 field model with several poses, offset-only with one')
+    p.add_argument('--model', default='auto', choices=model_choices(),
+                   help='auto: chosen from the data (see the summary); field: seed 000; '
+                        'offset: single-orientation drift only')
     p.add_argument('--prior', help='lab calibration (k0, b0, S at T0) the field model refines')
     p.add_argument('--order', type=int, default=2, choices=(0, 1, 2),
                    help='temperature polynomial order of the field model (default 2)')

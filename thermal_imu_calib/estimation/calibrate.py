@@ -11,12 +11,12 @@ import numpy as np
 
 from ..calibration import Calibration, TemperatureInput
 from ..gravity import STANDARD_GRAVITY
+from ..models.base import SensorModel
 from ..models.field import FieldPolynomialModel
 from .field_estimator import fit_field_model, per_axis_temperature_span
 from .offset_fit import fit_offset_model, time_groups
-from .segments import coverage, distinct_orientations, FACE_NAMES
+from .segments import coverage, distinct_orientations, FACE_NAMES, Windows
 
-MODEL_CHOICES = ('auto', 'field', 'offset')
 #: temperature span (degC) needed for each polynomial order of the field model
 ORDER_SPAN = {1: 1.0, 2: 3.0}
 
@@ -109,11 +109,80 @@ def readiness(windows, model='auto', min_holds=1):
             'next_pose': least, 'coverage': cov}
 
 
+@dataclass
+class Context:
+    """What every estimator gets: the windows, the options and derived per-axis inputs."""
+
+    windows: Windows
+    options: CalibrateOptions
+    k: int                      # number of temperature inputs
+    ta: np.ndarray              # (m, 3) per-axis accel temperature of each window, degC
+    tg: np.ndarray              # (m, 3) per-axis gyro temperature of each window, degC
+    t0: np.ndarray              # (3,) reference temperature, degC
+    accel_input: List[int]
+    gyro_input: List[int]
+    coverage: dict
+    n_orientations: int
+    prior_model: Optional[FieldPolynomialModel]
+
+
+@dataclass
+class Estimate:
+    """What an estimator returns; a None gyro gets the default bias polynomial."""
+
+    accel: Optional[SensorModel] = None
+    gyro: Optional[SensorModel] = None
+    notes: List[str] = field(default_factory=list)
+    fit: dict = field(default_factory=dict)
+    report: dict = field(default_factory=dict)
+
+
+#: model name -> estimator(Context) -> Estimate; see ``register_estimator``
+ESTIMATORS = {}
+#: modules that register further estimators when imported (one line per model family)
+ESTIMATOR_MODULES = []
+
+
+def register_estimator(name):
+    """Register an estimator under a ``--model`` name (decorator)."""
+    def deco(fn):
+        ESTIMATORS[name] = fn
+        return fn
+    return deco
+
+
+def model_choices():
+    """Return the accepted ``--model`` names (``auto`` first)."""
+    _load_plugins()
+    return ('auto',) + tuple(ESTIMATORS)
+
+
+def _load_plugins():
+    import importlib
+    for mod in ESTIMATOR_MODULES:
+        importlib.import_module(mod)
+
+
+def auto_choice(ctx):
+    """Pick the model for ``--model auto``: offset-only for one pose, else the field model.
+
+    Returns (name, reason). Model families may replace this with held-out validation.
+    """
+    if ctx.n_orientations == 1:
+        return 'offset', 'one orientation only: offset-only drift model'
+    return 'field', f'{ctx.n_orientations} orientations: seed 000 field model'
+
+
+#: the ``auto`` policy; replaceable (e.g. by held-out validation across families)
+AUTO_POLICY = [auto_choice]
+
+
 def calibrate_windows(windows, options=None):
     """Estimate a Calibration from stationary windows; raise CalibrationRefused if impossible."""
     o = options or CalibrateOptions()
-    if o.model not in MODEL_CHOICES:
-        raise CalibrationRefused(f'unknown model {o.model!r}', f'use one of {MODEL_CHOICES}')
+    choices = model_choices()
+    if o.model not in choices:
+        raise CalibrationRefused(f'unknown model {o.model!r}', f'use one of {choices}')
     if len(windows) == 0:
         raise CalibrationRefused(
             'no stationary segments were found',
@@ -124,14 +193,8 @@ def calibrate_windows(windows, options=None):
         raise ValueError(f'{len(o.inputs)} temperature inputs named but windows carry {k}')
     accel_input = o.accel_input or _default_axis_inputs(k)
     gyro_input = o.gyro_input or [0, 0, 0]
-    cov = coverage(windows)
-    n_orient = distinct_orientations(windows)
-    single = o.model == 'offset' or (o.model == 'auto' and n_orient == 1)
-    g = o.gravity
-    notes = []
     ta = windows.temp[:, accel_input] if k else np.zeros((len(windows), 3))
     tg = windows.temp[:, gyro_input] if k else np.zeros((len(windows), 3))
-
     # reference temperature: the prior's, else the middle of the collected range
     prior_model = o.prior.accel if o.prior is not None else None
     if prior_model is not None and not isinstance(prior_model, FieldPolynomialModel):
@@ -142,86 +205,22 @@ def calibrate_windows(windows, options=None):
               else np.round((ta.min(0) + ta.max(0)) / 2.0, 2))
     else:
         t0 = np.zeros(3) if prior_model is None else prior_model.t0.copy()
-
-    report = {'coverage': cov, 'distinct_orientations': n_orient}
-    accel_model = None
-    fit_stats = {}
-    if single:
-        if k == 0:
-            notes.append('accelerometer not calibrated: a single orientation without temperature '
-                         'cannot separate bias or scale factor from gravity; hold the six faces '
-                         '(+x -x +y -y +z -z up)')
-        else:
-            accel_model, rep = fit_offset_model(windows, ta, t0, 'accel', 'accel',
-                                                include_constant=False)
-            report['accel_offset'] = rep
-            notes.append('offset-only model for a single orientation: removes the drift of each '
-                         'axis relative to its output at the reference temperature T0; bias and '
-                         'scale factor are not separable from gravity in one pose and are not '
-                         'estimated. Valid for this mounting pose only.')
-            fit_stats['pose'] = 'single orientation (offset-only)'
-    else:
-        # separability of bias and scale (seed 000 sect. 3): each axis must have been held
-        # pointing up and pointing down (within 45 deg); the tilt is unknown, so a
-        # horizontal axis alone does not pin its bias
-        _, means = windows.hold_means()
-        u = means / np.linalg.norm(means, axis=1, keepdims=True)
-        c45 = np.cos(np.radians(45.0))
-        weak = [a for i, a in enumerate('xyz')
-                if not (np.any(u[:, i] > c45) and np.any(u[:, i] < -c45))]
-        if weak:
-            missing = cov['missing']
-            raise CalibrationRefused(
-                f'scale factor and bias of axis {",".join(weak)} are not observable: faces held '
-                f'{_face_text(cov)}; missing {" ".join(missing) or "none"}',
-                f'hold each missing face ({" ".join(missing)}) still for at least '
-                f'{o.min_hold_s:.0f} s, ideally repeated during the warm-up so each face is '
-                'seen at several temperatures')
-        order = o.order if k else 0
-        span = float(np.max(np.ptp(ta, axis=0))) if k else 0.0
-        while order > 0 and span < ORDER_SPAN[order]:
-            notes.append(f'temperature span {span:.2f} degC is below {ORDER_SPAN[order]} degC: '
-                         f'polynomial order reduced from {order} to {order - 1}; collect during a '
-                         'warm-up for temperature coefficients')
-            order -= 1
-        if k == 0:
-            notes.append('no temperature input: temperature-independent scale factor and bias '
-                         'only (dk0, db0)')
-        k0 = b0 = s = None
-        if prior_model is not None:
-            k0 = prior_model.k0 + prior_model.thermal[:, 0]
-            b0 = prior_model.b0 + prior_model.thermal[:, 3]
-            s = prior_model.s
-        else:
-            notes.append('no prior calibration: k0 = 1, b0 = 0, S = identity; dk0 and db0 hold '
-                         'the full scale-factor and bias errors at T0, non-orthogonality is not '
-                         'estimated')
-        fit = fit_field_model(windows, ta, g, t0, k0, b0, s, order=order, refine=o.refine)
-        accel_model = fit.model
-        axis_span = per_axis_temperature_span(windows, ta, fit.tilts, fit.hold_ids)
-        for a, sp in zip('xyz', axis_span):
-            if order >= 1 and sp < ORDER_SPAN[1]:
-                notes.append(f'axis {a} was near vertical over only {sp:.2f} degC: its scale '
-                             'temperature coefficients are poorly determined (see their std)')
-        fit_stats.update({'iterations': fit.iterations, 'converged': bool(fit.converged),
-                          'joint_refinement': bool(fit.refined), 'order': order,
-                          'residual_rms': {'value': fit.residual_rms, 'unit': 'm/s^2'},
-                          'chi2_per_dof': fit.chi2_dof,
-                          'axis_vertical_temperature_span': {'value': axis_span.tolist(),
-                                                             'unit': 'degC'}})
-
-    # gyroscope bias vs temperature: all windows, groups = holds when there are enough
-    groups = windows.hold if len(np.unique(windows.hold)) >= 3 else time_groups(windows.t0)
-    gyro_orders = (0, 1, 2, 3) if k else (0,)
-    gyro_model, grep = fit_offset_model(windows, tg, t0 if k else np.zeros(3), 'gyro', 'gyro',
-                                        include_constant=True, orders=gyro_orders,
-                                        groups=groups)
-    report['gyro_offset'] = grep
-    notes.append('gyroscope: bias polynomial from stationary windows; earth rotation is not '
-                 'removed (up to 7.3e-5 rad/s)')
-
+    ctx = Context(windows, o, k, ta, tg, t0, accel_input, gyro_input, coverage(windows),
+                  distinct_orientations(windows), prior_model)
+    name, why = (o.model, 'requested') if o.model != 'auto' else AUTO_POLICY[0](ctx)
+    est = ESTIMATORS[name](ctx)
+    notes = list(est.notes)
+    report = {'coverage': ctx.coverage, 'distinct_orientations': ctx.n_orientations,
+              'model_choice': {'model': name, 'reason': why}, **est.report}
+    gyro_model = est.gyro
+    if gyro_model is None:
+        gyro_model, report['gyro_offset'] = _gyro_bias(ctx)
+        notes.append('gyroscope: bias polynomial from stationary windows; earth rotation is '
+                     'not removed (up to 7.3e-5 rad/s)')
+    cov = ctx.coverage
+    g = o.gravity
     cal = Calibration(
-        accel=accel_model, gyro=gyro_model, inputs=list(o.inputs),
+        accel=est.accel, gyro=gyro_model, inputs=list(o.inputs),
         valid_range=(np.stack([windows.temp.min(0) - o.range_margin,
                                windows.temp.max(0) + o.range_margin], 1) if k else None),
         out_of_range=o.out_of_range, accel_input=accel_input, gyro_input=gyro_input,
@@ -229,7 +228,9 @@ def calibrate_windows(windows, options=None):
         accel_noise_std=np.sqrt(np.median(windows.accel_var, axis=0)),
         gyro_noise_std=np.sqrt(np.median(windows.gyro_var, axis=0)), notes=notes)
     before, after = gravity_residuals(windows, cal, g)
+    fit_stats = dict(est.fit)
     fit_stats.update({
+        'model_choice': {'model': name, 'reason': why},
         'holds': cov['holds'], 'windows': cov['windows'],
         'faces': {f: cov['faces'][f]['holds'] for f in FACE_NAMES},
         'tilted_holds': cov['tilted_holds'],
@@ -240,13 +241,102 @@ def calibrate_windows(windows, options=None):
                                 'note': 'per hold, |mean f| - g in micro-g, on the fit data'},
     })
     cal.fit = fit_stats
-    kind = accel_model.kind if accel_model is not None else 'gyro bias only'
+    kind = est.accel.kind if est.accel is not None else 'gyro bias only'
     summary = (f'{kind}: {cov["holds"]} holds ({cov["windows"]} windows), faces '
                f'{_face_text(cov)}, {_span_text(cov)}, gravity residual '
                f'{_amax(before):.0f} -> {_amax(after):.1f} ug max')
     if 'residual_rms' in fit_stats:
         summary += f', fit residual {fit_stats["residual_rms"]["value"] * 1e6 / g:.1f} ug RMS'
     return CalibrationResult(cal, summary, report)
+
+
+def _gyro_bias(ctx):
+    """Fit the default gyro bias polynomial; groups = holds when there are enough."""
+    w = ctx.windows
+    groups = w.hold if len(np.unique(w.hold)) >= 3 else time_groups(w.t0)
+    orders = (0, 1, 2, 3) if ctx.k else (0,)
+    return fit_offset_model(w, ctx.tg, ctx.t0 if ctx.k else np.zeros(3), 'gyro', 'gyro',
+                            include_constant=True, orders=orders, groups=groups)
+
+
+@register_estimator('offset')
+def estimate_offset(ctx):
+    """Single orientation: per-axis drift relative to T0 (offset-only)."""
+    if ctx.k == 0:
+        return Estimate(notes=[
+            'accelerometer not calibrated: a single orientation without temperature cannot '
+            'separate bias or scale factor from gravity; hold the six faces (+x -x +y -y +z '
+            '-z up)'])
+    model, rep = fit_offset_model(ctx.windows, ctx.ta, ctx.t0, 'accel', 'accel',
+                                  include_constant=False)
+    return Estimate(accel=model, report={'accel_offset': rep},
+                    fit={'pose': 'single orientation (offset-only)'},
+                    notes=['offset-only model for a single orientation: removes the drift of '
+                           'each axis relative to its output at the reference temperature T0; '
+                           'bias and scale factor are not separable from gravity in one pose '
+                           'and are not estimated. Valid for this mounting pose only.'])
+
+
+def check_faces_up_and_down(ctx):
+    """Refuse unless every axis was held pointing up and pointing down (within 45 deg).
+
+    Seed 000 sect. 3: bias and scale of an axis separate only between its up and down
+    poses; the tilt is unknown, so a horizontal axis alone does not pin its bias.
+    """
+    w, o, cov = ctx.windows, ctx.options, ctx.coverage
+    _, means = w.hold_means()
+    u = means / np.linalg.norm(means, axis=1, keepdims=True)
+    c45 = np.cos(np.radians(45.0))
+    weak = [a for i, a in enumerate('xyz')
+            if not (np.any(u[:, i] > c45) and np.any(u[:, i] < -c45))]
+    if weak:
+        missing = cov['missing']
+        raise CalibrationRefused(
+            f'scale factor and bias of axis {",".join(weak)} are not observable: faces held '
+            f'{_face_text(cov)}; missing {" ".join(missing) or "none"}',
+            f'hold each missing face ({" ".join(missing)}) still for at least '
+            f'{o.min_hold_s:.0f} s, ideally repeated during the warm-up so each face is '
+            'seen at several temperatures')
+
+
+@register_estimator('field')
+def estimate_field(ctx):
+    """Seed 000 field model: two-step iteration plus joint refinement."""
+    w, o, k, ta = ctx.windows, ctx.options, ctx.k, ctx.ta
+    check_faces_up_and_down(ctx)
+    notes = []
+    order = o.order if k else 0
+    span = float(np.max(np.ptp(ta, axis=0))) if k else 0.0
+    while order > 0 and span < ORDER_SPAN[order]:
+        notes.append(f'temperature span {span:.2f} degC is below {ORDER_SPAN[order]} degC: '
+                     f'polynomial order reduced from {order} to {order - 1}; collect during a '
+                     'warm-up for temperature coefficients')
+        order -= 1
+    if k == 0:
+        notes.append('no temperature input: temperature-independent scale factor and bias '
+                     'only (dk0, db0)')
+    k0 = b0 = s = None
+    pm = ctx.prior_model
+    if pm is not None:
+        k0 = pm.k0 + pm.thermal[:, 0]
+        b0 = pm.b0 + pm.thermal[:, 3]
+        s = pm.s
+    else:
+        notes.append('no prior calibration: k0 = 1, b0 = 0, S = identity; dk0 and db0 hold '
+                     'the full scale-factor and bias errors at T0, non-orthogonality is not '
+                     'estimated')
+    fit = fit_field_model(w, ta, o.gravity, ctx.t0, k0, b0, s, order=order, refine=o.refine)
+    axis_span = per_axis_temperature_span(w, ta, fit.tilts, fit.hold_ids)
+    for a, sp in zip('xyz', axis_span):
+        if order >= 1 and sp < ORDER_SPAN[1]:
+            notes.append(f'axis {a} was near vertical over only {sp:.2f} degC: its scale '
+                         'temperature coefficients are poorly determined (see their std)')
+    stats = {'iterations': fit.iterations, 'converged': bool(fit.converged),
+             'joint_refinement': bool(fit.refined), 'order': order,
+             'residual_rms': {'value': fit.residual_rms, 'unit': 'm/s^2'},
+             'chi2_per_dof': fit.chi2_dof,
+             'axis_vertical_temperature_span': {'value': axis_span.tolist(), 'unit': 'degC'}}
+    return Estimate(accel=fit.model, notes=notes, fit=stats)
 
 
 def gravity_residuals(windows, cal, g):
