@@ -83,9 +83,17 @@ def run(n: int = 200_000, rosbags_n: int | None = None) -> dict[str, float]:
 
 def main(argv=None) -> int:
     """Print a msgs/s table."""
-    argv = sys.argv[1:] if argv is None else argv
-    n = int(argv[0]) if argv else 200_000
+    import argparse
+    import json
+    ap = argparse.ArgumentParser(description='io msgs/s benchmark')
+    ap.add_argument('n', type=int, nargs='?', default=200_000, help='Imu messages')
+    ap.add_argument('--json', help='write the figures here')
+    args = ap.parse_args(argv)
+    n = args.n
     rates = run(n)
+    if args.json:
+        with open(args.json, 'w') as f:
+            json.dump({'messages': n, 'msgs_per_s': rates}, f, indent=1)
     width = max(map(len, rates))
     print(f'io benchmark, {n} sensor_msgs/msg/Imu messages')
     print(f'{"stage":<{width}}  {"msgs/s":>12}')

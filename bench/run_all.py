@@ -1,0 +1,48 @@
+"""`make bench`: run every benchmark and evaluation script; figures go to bench/results/.
+
+Each script prints a markdown table (copied into the README's results section) and writes
+its figures as JSON. Run one alone with ``python bench/<name>.py --help``.
+"""
+
+import os
+import subprocess
+import sys
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+RESULTS = os.path.join(HERE, 'results')
+#: (script, extra arguments) in the order they run
+BENCHES = [
+    ('bench_io.py', []),
+    ('bench_nodes.py', []),
+    ('bench_nav_accuracy.py', []),
+    ('bench_nav_accuracy.py', ['--short']),
+    ('bench_mems.py', []),
+    ('bench_real_data.py', []),
+    ('bench_thermal.py', []),
+]
+
+
+def main():
+    """Run the benchmarks that exist; exit non-zero if any failed to run."""
+    os.makedirs(RESULTS, exist_ok=True)
+    only = sys.argv[1:]
+    failed = []
+    for script, extra in BENCHES:
+        path = os.path.join(HERE, script)
+        name = script[:-3] + ('_short' if '--short' in extra else '')
+        if not os.path.exists(path) or (only and name not in only):
+            continue
+        print(f'\n## {name}\n', flush=True)
+        t0 = time.perf_counter()
+        r = subprocess.run([sys.executable, path, *extra, '--json',
+                            os.path.join(RESULTS, f'{name}.json')])
+        print(f'\n({name}: {time.perf_counter() - t0:.0f} s, exit {r.returncode})', flush=True)
+        if r.returncode not in (0, 1):  # 1: ran, but an acceptance target was missed
+            failed.append(name)
+    if failed:
+        sys.exit(f'benchmarks that failed to run: {", ".join(failed)}')
+
+
+if __name__ == '__main__':
+    main()
