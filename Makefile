@@ -5,6 +5,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 ROS_PINS := 'ros-jazzy-rclpy[fastrtps]==7.1.6' 'ros-jazzy-common-interfaces==5.3.6'
+BUILD_PINS := 'colcon-core>=0.17' 'colcon-ros>=0.5'
 export AMENT_PREFIX_PATH := $(abspath $(VENV))
 export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 export PYTHONDONTWRITEBYTECODE := 1
@@ -17,7 +18,7 @@ $(STAMP): setup.py package.xml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	@echo "installing dependencies into $(VENV) (log: $(VENV)/install.log)"
 	@$(PY) -m pip install -q --upgrade pip 'setuptools<80' wheel > $(VENV)/install.log 2>&1 \
-	  && $(PY) -m pip install -q $(ROS_PINS) >> $(VENV)/install.log 2>&1 \
+	  && $(PY) -m pip install -q $(ROS_PINS) $(BUILD_PINS) >> $(VENV)/install.log 2>&1 \
 	  && $(PY) -m pip install -q -e '.[test]' >> $(VENV)/install.log 2>&1 \
 	  || { tail -n 30 $(VENV)/install.log; exit 1; }
 	@touch $(STAMP)
