@@ -20,24 +20,31 @@ DOMAIN_ID = int(os.environ['ROS_DOMAIN_ID'])
 
 
 def wait_for(predicate, timeout, what, poll=0.01):
-    """Poll ``predicate`` until it is truthy; fail with ``what`` after ``timeout`` seconds."""
+    """Poll ``predicate`` until it is truthy; fail with ``what`` after ``timeout`` seconds.
+
+    ``what`` may be a callable, evaluated at failure time (to show the state reached).
+    """
     deadline = time.monotonic() + timeout
     while True:
         value = predicate()
         if value:
             return value
         if time.monotonic() > deadline:
-            pytest.fail(f'timed out after {timeout:.1f} s waiting for {what}')
+            pytest.fail(f'timed out after {timeout:.1f} s waiting for '
+                        f'{what() if callable(what) else what}')
         time.sleep(poll)
 
 
 class RosHarness:
-    """Nodes of one test in one context, spun by a MultiThreadedExecutor in a thread."""
+    """Nodes of one test in one context, spun by a SingleThreadedExecutor in a thread.
+
+    Single-threaded like the nodes' own mains: it is the executor they are built for.
+    """
 
     def __init__(self, context):
-        from rclpy.executors import MultiThreadedExecutor
+        from rclpy.executors import SingleThreadedExecutor
         self.context = context
-        self.executor = MultiThreadedExecutor(num_threads=4, context=context)
+        self.executor = SingleThreadedExecutor(context=context)
         self.nodes = []
         self.errors = []
         self._thread = threading.Thread(target=self._spin, daemon=True)

@@ -11,6 +11,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from ..io.align import TemperatureTrack
@@ -161,14 +162,18 @@ def _diag9(var):
     return out
 
 
-def drain(subscription, limit):
+def drain(subscription, limit, node=None):
     """Take up to ``limit`` further waiting messages of ``subscription`` without the executor.
 
-    Called from the subscription's own callback (a mutually exclusive group, so the
-    executor does not take from it concurrently). Processing a burst as one batch keeps
-    the per-message executor overhead off the hot path when input queues up; when idle it
-    returns nothing and costs one failed take.
+    Called from the subscription's own callback. Processing a burst as one batch keeps the
+    per-message executor overhead off the hot path when input queues up; when idle it
+    returns nothing and costs one failed take. Only done under a SingleThreadedExecutor:
+    taking on a worker thread while a MultiThreadedExecutor waits on the same participant
+    loses samples of *other* subscriptions (seen with rclpy 7.1.6 / rmw_fastrtps), so with
+    any other executor (or none known, when ``node`` is given) this returns nothing.
     """
+    if node is not None and not isinstance(node.executor, SingleThreadedExecutor):
+        return []
     out = []
     try:
         handle = subscription.handle

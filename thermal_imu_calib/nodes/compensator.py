@@ -198,7 +198,7 @@ class CompensatorNode(Node):
 
     def _on_imu(self, msg):
         msgs = [msg]
-        msgs.extend(common.drain(self.imu_sub, self.batch_limit - 1))
+        msgs.extend(common.drain(self.imu_sub, self.batch_limit - 1, self))
         self.process(msgs)
 
     def process(self, msgs):

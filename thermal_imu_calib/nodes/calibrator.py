@@ -1,0 +1,468 @@
+"""Live field calibration: collect stationary segments, estimate on request, publish.
+
+Subscribes ``imu/data_raw`` and ``temperature_topics``; aligns temperature to IMU header
+stamps (``io.align.StreamAligner``), runs the ``StationaryDetector`` online and keeps only
+the closed holds' window statistics (``Windows``), appending each to ``collection_file``
+(JSON lines) so a restarted node resumes where it stopped. Services (std_srvs/Trigger):
+``~/calibrate`` estimates with ``calibrate_windows`` on a worker thread, writes
+``calibration_file`` atomically (previous kept as ``.bak``) and publishes it latched on
+``imu/calibration``; ``~/reset`` clears the collection; ``~/save`` writes the current model.
+``~/progress`` (JSON) and ``/diagnostics`` report coverage and what to hold next.
+"""
+
+from concurrent.futures import ThreadPoolExecutor
+import copy
+import json
+import os
+import shutil
+import tempfile
+import threading
+import time
+
+import numpy as np
+import rclpy
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.task import Future
+from sensor_msgs.msg import Imu, Temperature
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+
+from . import common
+from ..calibration import Calibration, CalibrationError, TemperatureInput
+from ..estimation import calibrate as estimation
+from ..estimation.calibrate import (CalibrateOptions, CalibrationRefused, calibrate_windows,
+                                    readiness)
+from ..estimation.segments import FACE_NAMES, Windows
+from ..estimation.stationary import DetectorConfig, StationaryDetector
+from ..gravity import resolve_gravity
+from ..io.align import StreamAligner
+from ..io.columns import ImuColumns, TemperatureColumns
+
+NODE_NAME = 'thermal_imu_calibrator'
+
+#: DetectorConfig fields exposed as parameters: (default, lo, hi, description)
+DETECTOR_PARAMS = {
+    'block_s': (0.5, 0.01, 10.0, 'Block length (s) of the stillness test.'),
+    'window_s': (5.0, 0.05, 600.0, 'Length (s) of the windows a hold is cut into.'),
+    'min_hold_s': (10.0, 0.1, 36000.0, 'Minimum segment length (s): shorter holds (after the '
+                                       'guards) are discarded.'),
+    'guard_s': (1.0, 0.0, 60.0, 'Seconds trimmed from both ends of each hold.'),
+    'accel_factor': (4.0, 1.0, 1000.0, 'A block is still when its accel variance is below this '
+                                       'factor times the noise floor.'),
+    'gyro_factor': (4.0, 1.0, 1000.0, 'Same for the gyro variance.'),
+    'mean_sigmas': (6.0, 1.0, 1000.0, 'Neighbouring block means may differ by this many '
+                                      'standard errors in a hold.'),
+    'noise_quantile': (0.05, 0.001, 0.9, 'Quantile of block variances taken as noise floor.'),
+}
+
+
+class CalibratorNode(Node):
+    """Collect stationary statistics from a live IMU and estimate a thermal calibration."""
+
+    def __init__(self, node_name=NODE_NAME, **kwargs):
+        super().__init__(node_name, **kwargs)
+        p = common.Parameters(self)
+        ro = {'read_only': True}
+        self.calibration_file = p.declare(
+            'calibration_file', '~/.ros/thermal_imu_calib/calibration.yaml',
+            'Where ~/calibrate and ~/save write the calibration (atomically; the previous '
+            'file is kept as <file>.bak).')
+        self.collection_file = p.declare(
+            'collection_file', '~/.ros/thermal_imu_calib/collection.jsonl',
+            'JSON-lines file the collected windows are appended to and resumed from at start '
+            '(empty: keep them in memory only).', **ro)
+        self.temperature_topics = list(p.declare(
+            'temperature_topics', ['imu/temperature'],
+            'sensor_msgs/Temperature topics, one model input each, in this order; they are '
+            'written into the calibration as the inputs\' topics.', **ro))
+        self.temperature_timeout = p.declare(
+            'temperature_timeout', 2.0,
+            'Seconds (header stamps) a reading may be interpolated over or held; IMU samples '
+            'without a temperature that fresh are not collected.', lo=0.001, hi=3600.0, **ro)
+        self.model = p.declare('model', 'auto', 'Model to estimate: auto picks offset for a '
+                               'single orientation, else field.', choices=_model_choices())
+        self.order = p.declare('order', 2, 'Highest polynomial order in temperature (reduced '
+                               'automatically when the span is small).', lo=0, hi=2)
+        self.out_of_range = p.declare('out_of_range', 'clamp',
+                                      'Written into the calibration: what the compensator does '
+                                      'outside the collected temperature range.',
+                                      choices=('clamp', 'extrapolate'))
+        self.gravity = p.declare('gravity', 0.0, 'Local gravity in m/s^2 (9.7..9.9); 0 derives '
+                                 'it from latitude/altitude (use_latitude) or uses standard '
+                                 'gravity.', lo=0.0, hi=9.9, validator=_check_gravity)
+        self.use_latitude = p.declare('use_latitude', False,
+                                      'Derive gravity from latitude and altitude (WGS84 normal '
+                                      'gravity) when gravity is 0.')
+        self.latitude = p.declare('latitude', 45.0, 'Geodetic latitude, degrees.',
+                                  lo=-90.0, hi=90.0)
+        self.altitude = p.declare('altitude', 0.0, 'Ellipsoidal height, metres.',
+                                  lo=-1000.0, hi=10000.0)
+        self.frame_id = p.declare('frame_id', '', 'IMU frame written into the calibration; '
+                                  'empty: the header frame_id of the first IMU message.')
+        self.prior_file = p.declare('prior_file', '', 'Optional lab calibration (k0, b0, S at '
+                                    'T0) the field estimate refines; empty: none.')
+        det = {name: p.declare(name, d, desc, lo=lo, hi=hi, **ro)
+               for name, (d, lo, hi, desc) in DETECTOR_PARAMS.items()}
+        self.detector_config = DetectorConfig(**det)
+        self.detector_config.validate()
+        in_depth = p.declare('input_depth', 1000, 'QoS history depth (best effort) of the '
+                             'input subscriptions.', lo=1, hi=100000, **ro)
+        period = p.declare('progress_period', 1.0, 'Seconds between ~/progress and '
+                           '/diagnostics messages.', lo=0.05, hi=60.0, **ro)
+        self.k = len(self.temperature_topics)
+        self.inputs = [TemperatureInput(f't{i}', t) for i, t in enumerate(self.temperature_topics)]
+
+        self._lock = threading.Lock()    # detector, aligner, windows, pending data
+        self._busy = threading.Lock()    # held while an estimation runs
+        self._busy_since = 0.0
+        self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix='estimation')
+        self._result = None              # last CalibrationResult
+        self._last_message = ''
+        self._seen_frame = ''
+        self._rate = common.RateMeter()
+        self.counts = {'samples': 0, 'stale_temperature': 0, 'invalid': 0,
+                       'temperature_readings': 0, 'temperature_invalid': 0}
+        self._new_collection()
+        self._resume()
+
+        data = MutuallyExclusiveCallbackGroup()
+        self.imu_sub = self.create_subscription(Imu, 'imu/data_raw', self._on_imu,
+                                                common.sensor_qos(in_depth), callback_group=data)
+        for i, topic in enumerate(self.temperature_topics):
+            self.create_subscription(Temperature, topic, self._temperature_cb(i),
+                                     common.sensor_qos(in_depth), callback_group=data)
+        self.create_timer(0.1, self._process, callback_group=data)
+        services = ReentrantCallbackGroup()
+        self.create_service(Trigger, '~/calibrate', self._on_calibrate, callback_group=services)
+        self.create_service(Trigger, '~/reset', self._on_reset, callback_group=services)
+        self.create_service(Trigger, '~/save', self._on_save, callback_group=services)
+        self.cal_pub = self.create_publisher(String, 'imu/calibration', common.CALIBRATION_QOS)
+        self.progress_pub = self.create_publisher(String, '~/progress', 10)
+        self.diagnostics = common.Diagnostics(self)
+        self.create_timer(period, self._report, callback_group=MutuallyExclusiveCallbackGroup())
+
+    # ------------------------------------------------------------------ collection state
+    def _new_collection(self):
+        self.detector = StationaryDetector(DetectorConfig(**vars(self.detector_config)), self.k)
+        self.aligner = StreamAligner(self.k, self.temperature_timeout)
+        self.windows = Windows.empty(self.k)
+        self._hold_offset = 0
+        self._pending_imu = []
+        self._pending_temp = [[] for _ in range(self.k)]
+
+    def _collection_path(self):
+        return os.path.expanduser(self.collection_file) if self.collection_file else ''
+
+    def _resume(self):
+        path = self._collection_path()
+        if not path or not os.path.exists(path):
+            return
+        with open(path) as f:
+            text = f.read()
+        try:
+            win = Windows.from_jsonl(text, self.k)
+        except (KeyError, TypeError, ValueError) as e:
+            win, why = None, f'unreadable ({e.__class__.__name__}: {e})'
+        else:
+            why = (None if len(win) == 0 or win.n_inputs == self.k else
+                   f'it has {win.n_inputs} temperature inputs, this node {self.k}')
+        if why:
+            aside = f'{path}.incompatible-{int(time.time())}'
+            os.replace(path, aside)
+            self.get_logger().error(f'collection file {path} not resumed: {why}; moved to '
+                                    f'{aside}, starting a new collection')
+            return
+        self.windows = win
+        self._hold_offset = int(win.hold.max()) + 1 if len(win) else 0
+        # rewrite only the complete records, so appends never follow a torn last line
+        _atomic_write(path, win.to_jsonl())
+        self.get_logger().info(f'resumed {len(win)} windows ({len(win.hold_ids)} holds) from '
+                               f'{path}')
+
+    def _persist(self, win):
+        path = self._collection_path()
+        if not path:
+            return
+        os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+        with open(path, 'a') as f:
+            f.write(win.to_jsonl())
+            f.flush()
+            os.fsync(f.fileno())
+
+    # ------------------------------------------------------------------ data
+    def _temperature_cb(self, index):
+        def cb(msg):
+            if not np.isfinite(msg.temperature):
+                self.counts['temperature_invalid'] += 1
+                return
+            self.counts['temperature_readings'] += 1
+            with self._lock:
+                self._pending_temp[index].append((common.stamp_to_ns(msg.header.stamp),
+                                                  msg.temperature))
+        return cb
+
+    def _on_imu(self, msg):
+        msgs = [msg]
+        msgs.extend(common.drain(self.imu_sub, 999, self))
+        if not self._seen_frame:
+            self._seen_frame = msg.header.frame_id
+        stamps, accel, gyro = common.imu_to_arrays(msgs)
+        self._rate.add(len(msgs))
+        with self._lock:
+            self._pending_imu.append((stamps, accel, gyro))
+
+    def _process(self):
+        with self._lock:
+            pending, self._pending_imu = self._pending_imu, []
+            temps, self._pending_temp = self._pending_temp, [[] for _ in range(self.k)]
+            if not pending and not any(temps):
+                return
+            imu = ImuColumns(*(np.concatenate(c) for c in zip(*pending))) if pending \
+                else ImuColumns.empty()
+            tcols = [TemperatureColumns(np.array([s for s, _ in t], np.int64),
+                                        np.array([v for _, v in t], float)) for t in temps]
+            for chunk in self.aligner.push_columns(imu, tcols):
+                self._collect(chunk)
+
+    def _collect(self, chunk):
+        imu = chunk.imu
+        use = np.isfinite(imu.accel).all(1) & np.isfinite(imu.gyro).all(1)
+        self.counts['invalid'] += int((~use).sum())
+        if self.k:
+            fresh = (chunk.temp_age <= self.temperature_timeout).all(1)
+            self.counts['stale_temperature'] += int((use & ~fresh).sum())
+            use &= fresh
+        self.counts['samples'] += int(use.sum())
+        if not use.any():
+            return
+        win = self.detector.update(imu.t[use], imu.accel[use], imu.gyro[use],
+                                   chunk.temps[use])
+        if len(win):
+            win.hold = win.hold + self._hold_offset
+            self._persist(win)
+            self.windows = Windows.concat([self.windows, win])
+
+    # ------------------------------------------------------------------ services
+    def options(self):
+        """Return the CalibrateOptions built from the parameters."""
+        g = self.get_parameter('gravity').value
+        if g > 0:
+            value, source = resolve_gravity(g)
+        elif self.get_parameter('use_latitude').value:
+            lat = self.get_parameter('latitude').value
+            alt = self.get_parameter('altitude').value
+            value, source = resolve_gravity(None, lat, alt)
+        else:
+            value, source = resolve_gravity()
+        prior = None
+        prior_file = self.get_parameter('prior_file').value
+        if prior_file:
+            prior = Calibration.load(os.path.expanduser(prior_file))
+        return CalibrateOptions(
+            model=self.get_parameter('model').value, gravity=value, gravity_source=source,
+            prior=prior, inputs=list(self.inputs),
+            frame_id=self.get_parameter('frame_id').value or self._seen_frame,
+            out_of_range=self.get_parameter('out_of_range').value,
+            order=self.get_parameter('order').value,
+            min_hold_s=self.detector_config.min_hold_s)
+
+    async def _on_calibrate(self, request, response):
+        # a coroutine: while the worker thread estimates, the executor keeps serving data
+        if not self._busy.acquire(blocking=False):
+            response.success = False
+            response.message = (f'refused: an estimation is already running (started '
+                                f'{time.monotonic() - self._busy_since:.1f} s ago); wait for '
+                                'its result')
+            return response
+        try:
+            self._busy_since = time.monotonic()
+            with self._lock:
+                windows = self.windows  # never mutated in place: a consistent snapshot
+                detector = copy.deepcopy(self.detector)
+                offset = self._hold_offset
+            done = Future(executor=self.executor)
+            done.add_done_callback(lambda _: None)  # completion wakes the executor
+            job = self._worker.submit(self._estimate, windows, detector, offset)
+            job.add_done_callback(lambda j: done.set_result(
+                j.result() if not j.cancelled() and j.exception() is None
+                else (False, f'failed: {j.exception() if not j.cancelled() else "cancelled"}')))
+            response.success, response.message = await done
+        finally:
+            self._busy.release()
+        self._last_message = response.message
+        common.log(self, response.success, response.message)
+        return response
+
+    def _estimate(self, windows, detector, offset):
+        """Run on the worker thread: estimate, write, publish. Returns (success, message).
+
+        ``detector`` is a copy of the live one: finishing it adds the hold in progress (if
+        long enough) to this estimate without closing it in the live collection.
+        """
+        try:
+            tail = detector.finish()
+            if len(tail):
+                tail.hold = tail.hold + offset
+                windows = Windows.concat([windows, tail])
+            result = calibrate_windows(windows, self.options())
+        except CalibrationRefused as e:
+            return False, f'refused: {e}'
+        except (CalibrationError, ValueError) as e:
+            return False, f'failed: {e}'
+        except Exception as e:  # noqa: B902 - report, never kill the worker or the node
+            self.get_logger().error(f'estimation crashed: {e!r}')
+            return False, f'failed: estimation error {e.__class__.__name__}: {e}'
+        self._result = result
+        ok, where = self._write(result.calibration)
+        self.cal_pub.publish(String(data=result.calibration.to_yaml()))
+        return True, f'{result.summary}; id {result.calibration.id}; {where}'
+
+    def _write(self, cal):
+        path = os.path.expanduser(self.get_parameter('calibration_file').value)
+        if not path:
+            return False, 'not written (calibration_file is empty)'
+        try:
+            if os.path.exists(path):
+                _atomic_copy(path, path + '.bak')
+            cal.save(path)
+        except OSError as e:
+            return False, f'NOT written to {path}: {e}'
+        return True, f'written to {path}'
+
+    def _on_save(self, request, response):
+        result = self._result
+        if result is None:
+            response.success = False
+            response.message = 'no calibration estimated yet; call ~/calibrate first'
+            return response
+        response.success, where = self._write(result.calibration)
+        response.message = f'calibration {result.calibration.id} {where}'
+        return response
+
+    def _on_reset(self, request, response):
+        with self._lock:
+            n, h = len(self.windows), len(self.windows.hold_ids)
+            self._new_collection()
+            path = self._collection_path()
+            if path and os.path.exists(path):
+                os.unlink(path)
+        response.success = True
+        response.message = f'cleared {n} windows ({h} holds)' + (
+            f' and removed {path}' if path else '')
+        self.get_logger().info(response.message)
+        return response
+
+    # ------------------------------------------------------------------ reporting
+    def progress(self):
+        """Return the progress dict published on ~/progress."""
+        with self._lock:
+            windows = self.windows
+            status = self.detector.status()
+        ready = readiness(windows, model=self.get_parameter('model').value)
+        cov = ready['coverage']
+        return {
+            'segments': cov['holds'], 'windows': cov['windows'],
+            'faces': {f: cov['faces'][f]['holds'] for f in FACE_NAMES},
+            'faces_covered': [f for f in FACE_NAMES if cov['faces'][f]['holds']],
+            'missing_faces': cov['missing'], 'tilted_segments': cov['tilted_holds'],
+            'temperature_span': cov['temperature_span'],
+            'ready': ready['ready'], 'mode': ready['mode'], 'reason': ready['reason'],
+            'next_pose': ready['next_pose'],
+            'stationary': status['stationary'], 'hold_seconds': round(status['hold_seconds'], 2),
+            'samples': self.counts['samples'],
+            'stale_temperature_samples': self.counts['stale_temperature'],
+            'calibrating': self._busy.locked(), 'last_result': self._last_message,
+        }
+
+    def _report(self):
+        prog = self.progress()
+        self.progress_pub.publish(String(data=json.dumps(prog)))
+        rate = self._rate.rate()
+        values = {k: v for k, v in prog.items() if k not in ('faces',)}
+        values.update({f'face {f}': n for f, n in prog['faces'].items()})
+        values['input_rate_hz'] = rate
+        values.update(self.counts)
+        level = common.OK
+        msg = ('ready: ' if prog['ready'] else 'collecting: ') + prog['reason']
+        if prog['next_pose']:
+            msg += f'; next pose {prog["next_pose"]} up'
+        if rate == 0.0:
+            level, msg = common.WARN, 'no IMU input; ' + msg
+        elif self.k and self.counts['stale_temperature'] and self.counts['samples'] == 0:
+            level, msg = common.WARN, 'no fresh temperature; ' + msg
+        self.diagnostics.publish([common.diagnostic_status(
+            f'{self.get_name()}: thermal calibration', self.get_fully_qualified_name(), level,
+            msg, values)])
+
+    def destroy_node(self):
+        """Stop the estimation worker, then destroy the node."""
+        self._worker.shutdown(wait=False, cancel_futures=True)
+        return super().destroy_node()
+
+
+def _model_choices():
+    """Return the estimator names the core accepts (older cores: a constant tuple)."""
+    if hasattr(estimation, 'model_choices'):
+        return tuple(estimation.model_choices())
+    return tuple(getattr(estimation, 'MODEL_CHOICES', ('auto', 'field', 'offset')))
+
+
+def _check_gravity(value):
+    if value == 0.0:
+        return None
+    try:
+        resolve_gravity(value)
+    except ValueError as e:
+        return str(e)
+    return None
+
+
+def _atomic_write(path, text):
+    d = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(prefix='.collection-', dir=d)
+    try:
+        with os.fdopen(fd, 'w') as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _atomic_copy(src, dst):
+    d = os.path.dirname(os.path.abspath(dst))
+    fd, tmp = tempfile.mkstemp(prefix='.bak-', dir=d)
+    os.close(fd)
+    try:
+        shutil.copy2(src, tmp)
+        os.replace(tmp, dst)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def main(args=None):
+    """Run the calibrator node (estimation runs on a worker thread, data keeps flowing)."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = CalibratorNode()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()
