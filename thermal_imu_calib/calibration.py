@@ -12,6 +12,7 @@ A file looks like::
       inputs: [{name: t0, topic: imu/temperature, unit: degC}]
       valid_range: {min: [20.1], max: [41.7], unit: degC}
       out_of_range: clamp            # or extrapolate
+      filter: {kind: lag, tau_s: [300.0], unit: s}   # optional (thermal_input)
     accel: {kind: field_polynomial, temperature_input: [0, 0, 0], parameters: {...}}
     gyro: {kind: offset_polynomial, temperature_input: [0, 0, 0], parameters: {...}}
     noise: {accel_std: [...], gyro_std: [...], unit: ...}
@@ -34,6 +35,7 @@ import yaml
 from . import __version__
 from .gravity import STANDARD_GRAVITY
 from .models import model_from_dict, SensorModel
+from .thermal_input import CalibrationStream, ThermalFilter
 
 FORMAT = 'thermal_imu_calib/1'
 OUT_OF_RANGE_POLICIES = ('clamp', 'extrapolate')
@@ -90,6 +92,8 @@ class Calibration:
     notes: List[str] = field(default_factory=list)
     created: str = ''
     software_version: str = __version__
+    #: optional lag of the temperature inputs (thermal_input); None: the reading is the input
+    temperature_filter: Optional[ThermalFilter] = None
 
     # ------------------------------------------------------------------ apply
     def axis_temperatures(self, temps, which):
@@ -120,7 +124,9 @@ class Calibration:
         """Compensate (n, 3) accel [m/s^2] and gyro [rad/s] at (n, k) temperatures [degC].
 
         NaN temperatures are not allowed here; resolve missing temperature first (hold or
-        passthrough). Returns a ``Compensated`` with the out-of-range mask.
+        passthrough). Returns a ``Compensated`` with the out-of-range mask. With a
+        ``temperature_filter``, ``temps`` are the models' (lagged) inputs: stream data
+        through ``stream().apply``; raw readings here mean thermal equilibrium.
         """
         accel = np.asarray(accel, float)
         gyro = np.asarray(gyro, float)
@@ -143,6 +149,10 @@ class Calibration:
             g_out = self.gyro.correct(gyro, tg, aux={'accel': a_out})
             g_std = _combine_std(self.gyro.predict_std(tg), self.gyro_noise_std, n)
         return Compensated(a_out, g_out, oor, a_std, g_std)
+
+    def stream(self):
+        """Return a ``CalibrationStream``: ``apply`` batch after batch with the filter state."""
+        return CalibrationStream(self)
 
     # ------------------------------------------------------------------ file
     @property
@@ -169,6 +179,8 @@ class Calibration:
                 'out_of_range': self.out_of_range,
             },
         }
+        if self.temperature_filter is not None:
+            d['temperature']['filter'] = self.temperature_filter.to_dict()
         for name, model, idx in (('accel', self.accel, self.accel_input),
                                  ('gyro', self.gyro, self.gyro_input)):
             if model is not None:
@@ -275,6 +287,11 @@ class Calibration:
             oor = temp.get('out_of_range', 'clamp')
             if oor not in OUT_OF_RANGE_POLICIES:
                 raise ValueError(f'out_of_range {oor!r} is not one of {OUT_OF_RANGE_POLICIES}')
+            filt = None
+            if temp.get('filter') is not None:
+                if not inputs:
+                    raise ValueError('temperature.filter needs temperature inputs')
+                filt = ThermalFilter.from_dict(temp['filter'], len(inputs))
             models, idx = {}, {}
             for name in ('accel', 'gyro'):
                 sec = d.get(name)
@@ -302,7 +319,8 @@ class Calibration:
                 gyro_noise_std=_opt_vec(noise.get('gyro_std')),
                 fit=d.get('fit') or {}, notes=list(d.get('notes') or []),
                 created=str(d.get('created', '')),
-                software_version=str((d.get('software') or {}).get('version', '')))
+                software_version=str((d.get('software') or {}).get('version', '')),
+                temperature_filter=filt)
         except (KeyError, TypeError, ValueError) as e:
             msg = str(e) if not isinstance(e, KeyError) else f'missing key {e}'
             raise CalibrationError(f'{source}: {msg}') from None

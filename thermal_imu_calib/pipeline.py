@@ -163,6 +163,7 @@ def compensate_log(src, dst, calibration, imu_topic=None, temperature_topics=Non
         stats = {'imu_in': 0, 'imu_out': 0, 'dropped': 0, 'passthrough': 0,
                  'out_of_range': 0, 'copied': reader.message_count}
         aligner = StreamAligner(temps, max_gap_s)
+        stream = calibration.stream()  # carries the temperature filter state across chunks
         bar = _progress(reader.topics()[imu_topic].count, 'compensating', progress)
         t_start = time.perf_counter()
         with LogWriter(dst, storage=storage) as writer:
@@ -173,10 +174,10 @@ def compensate_log(src, dst, calibration, imu_topic=None, temperature_topics=Non
                 if bar is not None:
                     bar.update(len(raw.imu))
                 for ch in aligner.push(raw):
-                    _write_compensated(writer, output_topic, ch, calibration, timeout,
+                    _write_compensated(writer, output_topic, ch, stream, timeout,
                                        on_missing, stats)
             for ch in aligner.finish():
-                _write_compensated(writer, output_topic, ch, calibration, timeout, on_missing,
+                _write_compensated(writer, output_topic, ch, stream, timeout, on_missing,
                                    stats)
         if bar is not None:
             bar.close()
@@ -187,7 +188,7 @@ def compensate_log(src, dst, calibration, imu_topic=None, temperature_topics=Non
     return stats
 
 
-def _write_compensated(writer, topic, ch, cal, timeout, policy, stats):
+def _write_compensated(writer, topic, ch, stream, timeout, policy, stats):
     n = len(ch)
     if n == 0:
         return
@@ -196,7 +197,7 @@ def _write_compensated(writer, topic, ch, cal, timeout, policy, stats):
     accel = ch.imu.accel.copy()
     gyro = ch.imu.gyro.copy()
     if np.any(comp):
-        res = cal.apply(ch.imu.accel[comp], ch.imu.gyro[comp], temps[comp])
+        res = stream.apply(ch.imu.t[comp], ch.imu.accel[comp], ch.imu.gyro[comp], temps[comp])
         accel[comp] = res.accel
         gyro[comp] = res.gyro
         stats['out_of_range'] += int(np.sum(res.out_of_range))
@@ -230,6 +231,7 @@ def evaluate_log(path, calibrations, imu_topic=None, temperature_topics=None, de
     results = {'raw': static_metrics(w, gravity, average_s)}
     if len(w) and calibrations:
         acc = WindowAccumulator(w.t0, w.t1)
+        streams = {label: cal.stream() for label, cal in calibrations.items()}
         with open_log(path) as reader:
             imu_topic, temps = resolve_topics(reader, imu_topic, col.temperature_topics)
             for ch in _aligned(reader, imu_topic, temps, chunk_size, max_gap_s):
@@ -239,7 +241,7 @@ def evaluate_log(path, calibrations, imu_topic=None, temperature_topics=None, de
                     if t.shape[1] and np.any(~np.isfinite(t)):
                         t = np.nan_to_num(t, nan=float(np.nanmean(w.temp)))
                     sel = _select_inputs(cal, temps, t)
-                    res = cal.apply(ch.imu.accel, ch.imu.gyro, sel)
+                    res = streams[label].apply(ch.imu.t, ch.imu.accel, ch.imu.gyro, sel)
                     sig[f'{label}/a'] = res.accel
                     sig[f'{label}/g'] = res.gyro
                 acc.add(ch.imu.t, sig)

@@ -1,0 +1,227 @@
+"""The thermal input of a calibration: a stateful first-order lag of each temperature input.
+
+The temperature sensor is not where the error is made: the proof mass and the die follow
+the reading with a delay, so heating and cooling legs disagree at the same reading
+(hysteresis). ``ThermalFilter`` describes, per temperature input, a first-order lag with
+time constant ``tau`` (s); every model family then sees the lagged temperature::
+
+    tau * dT_lag/dt = T - T_lag          (T_lag = T when tau = 0)
+
+To first order ``T_lag = T - tau * dT/dt``: the same thing as a model in temperature and
+its rate with one shared coefficient per input, without differentiating a quantised
+signal. File section (``temperature.filter``, one tau per input)::
+
+    filter: {kind: lag, tau_s: [300.0], unit: s}
+
+Because the lag has memory, it must run over the whole temperature history: the offline
+paths and the live compensator push every batch through one ``ThermalStream`` (via
+``CalibrationStream``) before ``Calibration.apply``. A stream starts in equilibrium
+(``T_lag = T`` at its first sample), exactly as the estimator assumes at the start of each
+recording. ``Calibration.apply`` alone, without a stream, evaluates the models at thermal
+equilibrium (``T_lag = T``).
+
+The discretisation is exact for a temperature that is piecewise linear between samples,
+for any (also irregular) sample spacing, so 5-s window means and 200-Hz IMU rows give the
+same lagged temperature.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: largest accepted time constant, s (a day: anything longer is a units mistake)
+MAX_TAU_S = 86400.0
+#: at window level, a gap longer than this (or time going backwards, as between merged
+#: logs) restarts the filter in equilibrium: the temperature history in between is unknown
+RESTART_GAP_S = 1800.0
+FILTER_KINDS = ('lag',)
+
+
+def lag_filter(t, u, tau, state=None):
+    """Filter samples ``u`` at times ``t`` (s) by a first-order lag with time constant ``tau``.
+
+    ``state`` is ``(t_last, u_last, y_last)`` from the previous call (None: start in
+    equilibrium at the first sample). Returns ``(y, state)``. Vectorised: the linear
+    recurrence ``y_i = a_i y_(i-1) + g_i`` is solved by cumulative sums in blocks whose
+    total decay stays below e^40, so there is no per-sample Python loop.
+    """
+    t = np.asarray(t, float)
+    u = np.asarray(u, float)
+    n = t.shape[0]
+    if n == 0:
+        return np.zeros(0), state
+    if tau <= 0:
+        return u.copy(), (float(t[-1]), float(u[-1]), float(u[-1]))
+    if state is None:
+        state = (float(t[0]), float(u[0]), float(u[0]))
+    t_prev, u_prev, y = state
+    dt = np.maximum(np.diff(t, prepend=t_prev), 0.0)   # time going backwards: hold
+    r = dt / tau
+    a = np.exp(-r)
+    small = r < 1e-4
+    rs = np.where(small, 1.0, r)
+    # weight of the new sample for a linear ramp between samples: 1 - (1 - a) / r
+    c0 = np.where(small, r / 2 - r * r / 6 + r ** 3 / 24, (r + np.expm1(-r)) / rs)
+    g = c0 * u + (1.0 - a - c0) * np.concatenate([[u_prev], u[:-1]])
+    big = np.cumsum(r)
+    out = np.empty(n)
+    start, base = 0, 0.0
+    while start < n:
+        end = max(int(np.searchsorted(big, base + 40.0, side='right')), start + 1)
+        if end == start + 1 and big[start] - base > 40.0:
+            out[start] = a[start] * y + g[start]          # one huge step: no exp overflow
+        else:
+            rel = big[start:end] - base
+            out[start:end] = np.exp(-rel) * (y + np.cumsum(np.exp(rel) * g[start:end]))
+        y = float(out[end - 1])
+        base = float(big[end - 1])
+        start = end
+    return out, (float(t[-1]), float(u[-1]), y)
+
+
+@dataclass
+class ThermalFilter:
+    """Per-input first-order lag turning temperature readings into the models' input."""
+
+    tau_s: np.ndarray
+    kind: str = 'lag'
+
+    def __post_init__(self):
+        self.tau_s = np.atleast_1d(np.asarray(self.tau_s, float))
+        if self.kind not in FILTER_KINDS:
+            raise ValueError(f'temperature filter kind {self.kind!r} is not one of '
+                             f'{FILTER_KINDS}')
+        if self.tau_s.ndim != 1 or not np.all(np.isfinite(self.tau_s)) \
+                or np.any(self.tau_s < 0) or np.any(self.tau_s > MAX_TAU_S):
+            raise ValueError(f'temperature filter tau_s {self.tau_s.tolist()} must be finite, '
+                             f'in 0..{MAX_TAU_S:g} s (one value per temperature input)')
+
+    @property
+    def n_inputs(self):
+        """Return the number of temperature inputs the filter expects."""
+        return int(self.tau_s.shape[0])
+
+    @property
+    def is_identity(self):
+        """Return True when every time constant is zero (the reading is the input)."""
+        return bool(np.all(self.tau_s == 0))
+
+    def to_dict(self):
+        """Return the ``temperature.filter`` file section."""
+        return {'kind': self.kind, 'tau_s': self.tau_s.tolist(), 'unit': 's',
+                'description': 'first-order lag per temperature input: the models see '
+                               'T_lag with tau dT_lag/dt = T - T_lag'}
+
+    @staticmethod
+    def from_dict(d, n_inputs):
+        """Parse the file section; raises ValueError naming what is wrong."""
+        if not isinstance(d, dict) or 'tau_s' not in d:
+            raise ValueError('temperature.filter needs "kind" and "tau_s"')
+        if str(d.get('unit', 's')) != 's':
+            raise ValueError(f'temperature.filter unit {d.get("unit")!r} must be s')
+        f = ThermalFilter(np.asarray(d['tau_s'], float), str(d.get('kind', 'lag')))
+        if f.n_inputs != n_inputs:
+            raise ValueError(f'temperature.filter has {f.n_inputs} tau_s for {n_inputs} '
+                             'temperature inputs')
+        return f
+
+    def stream(self):
+        """Return a new stateful stream (one per compensated IMU stream)."""
+        return ThermalStream(self)
+
+    def window_temperatures(self, windows):
+        """Return the (m, k) lagged mean temperature of each window, degC.
+
+        Windows are taken in time order at their mid times; the filter restarts in
+        equilibrium where time goes backwards or a gap exceeds ``RESTART_GAP_S``.
+        """
+        return lag_windows(windows.t0, windows.t1, windows.temp, self.tau_s)
+
+
+def lag_windows(t0, t1, temp, tau_s):
+    """Lag (m, k) window temperatures at window mid times (see ThermalFilter)."""
+    temp = np.asarray(temp, float)
+    out = temp.copy()
+    if temp.shape[0] == 0:
+        return out
+    tm = 0.5 * (np.asarray(t0, float) + np.asarray(t1, float))
+    order = np.argsort(tm, kind='stable')
+    ts = tm[order]
+    gaps = np.flatnonzero(np.diff(ts) > RESTART_GAP_S) + 1
+    bounds = np.concatenate([[0], gaps, [len(ts)]])
+    for j, tau in enumerate(np.broadcast_to(np.asarray(tau_s, float), (temp.shape[1],))):
+        col = temp[order, j]
+        res = np.empty_like(col)
+        for a, b in zip(bounds[:-1], bounds[1:]):
+            res[a:b], _ = lag_filter(ts[a:b], col[a:b], float(tau))
+        out[order, j] = res
+    return out
+
+
+class ThermalStream:
+    """The running state of a ThermalFilter over one temperature stream."""
+
+    def __init__(self, thermal_filter):
+        self.filter = thermal_filter
+        self._state = None
+
+    def reset(self):
+        """Forget the history: the next sample starts in equilibrium."""
+        self._state = None
+
+    def push(self, t, temps):
+        """Return the (n, k) model-input temperatures for readings ``temps`` at times ``t`` (s).
+
+        Rows must be in time order within and across calls; a step back in time holds
+        the state.
+        """
+        temps = np.asarray(temps, float)
+        t = np.asarray(t, float)
+        k = self.filter.n_inputs
+        if temps.ndim != 2 or temps.shape[1] != k or t.shape != (temps.shape[0],):
+            raise ValueError(f'need (n,) times and (n, {k}) temperatures, got {t.shape} and '
+                             f'{temps.shape}')
+        if not np.all(np.isfinite(temps)):
+            raise ValueError('temperature contains NaN/Inf; resolve missing samples first '
+                             '(the lag filter would carry it forever)')
+        if len(t) == 0:
+            return temps.copy()
+        out = np.empty_like(temps)
+        states = self._state or [None] * k
+        new = []
+        for j in range(k):
+            out[:, j], st = lag_filter(t, temps[:, j], float(self.filter.tau_s[j]), states[j])
+            new.append(st)
+        self._state = new
+        return out
+
+
+class CalibrationStream:
+    """Apply a Calibration batch after batch, carrying the thermal filter state.
+
+    One per compensated IMU stream: ``apply(t, accel, gyro, temps)`` with stamps in s and
+    raw temperature readings; without a filter in the calibration it is ``apply`` itself.
+    """
+
+    def __init__(self, calibration):
+        self.calibration = calibration
+        f = getattr(calibration, 'temperature_filter', None)
+        self.thermal = None if f is None or f.is_identity else f.stream()
+
+    def model_temperatures(self, t, temps):
+        """Return the models' input temperatures for raw readings (advances the state)."""
+        temps = np.asarray(temps, float)
+        if self.thermal is None or temps.ndim != 2 or temps.shape[1] == 0:
+            return temps
+        return self.thermal.push(t, temps)
+
+    def apply(self, t, accel, gyro, temps=None):
+        """Compensate one batch (rows in time order, t in s); returns ``Compensated``."""
+        if temps is not None:
+            temps = self.model_temperatures(t, np.asarray(temps, float).reshape(len(t), -1))
+        return self.calibration.apply(accel, gyro, temps)
+
+    def reset(self):
+        """Restart the filter in equilibrium (e.g. after a long temperature dropout)."""
+        if self.thermal is not None:
+            self.thermal.reset()
