@@ -11,7 +11,7 @@ the lab prior, then evaluate the second with the estimated and with the true par
     thermal-imu-calib evaluate val.mcap --calibration est.yaml \\
         --calibration val.mcap.truth.yaml --average 300
 
-Usage: python bench/bench_nav_accuracy.py [--seeds 0 1 2 3 4] [--short] [--json out.json]
+Usage: python bench/bench_nav_accuracy.py [--seeds 0 1 2 3 4] [--variant V] [--json out.json]
 """
 
 import argparse
@@ -30,13 +30,18 @@ from thermal_imu_calib.calibration import TemperatureInput
 from thermal_imu_calib.pipeline import collect_windows, evaluate_log
 
 
-def run_seed(seed, tmp, suffix=''):
+VARIANTS = {'recommended': ('nav-coldstart', 'nav-validation'),
+            'uniform': ('nav-coldstart-uniform', 'nav-validation'),
+            'short': ('nav-coldstart-short', 'nav-validation-short')}
+
+
+def run_seed(seed, tmp, cal_scenario='nav-coldstart', val_scenario='nav-validation'):
     """Simulate, calibrate and evaluate one seed; return a dict of figures."""
     cal_bag = os.path.join(tmp, f'cal{seed}.mcap')
     val_bag = os.path.join(tmp, f'val{seed}.mcap')
     t0 = time.perf_counter()
-    sim.write_scenario(cal_bag, 'nav-coldstart' + suffix, seed)
-    sim.write_scenario(val_bag, 'nav-validation' + suffix, seed)
+    sim.write_scenario(cal_bag, cal_scenario, seed)
+    sim.write_scenario(val_bag, val_scenario, seed)
     t_sim = time.perf_counter() - t0
     prior = Calibration.load(cal_bag + '.prior.yaml')
     truth = Calibration.load(val_bag + '.truth.yaml')
@@ -68,6 +73,7 @@ def run_seed(seed, tmp, suffix=''):
         'read_msgs_per_s': col.imu_messages / max(t_read, 1e-9),
         'fit_s': t_fit, 'sim_s': t_sim,
         'iterations': res.calibration.fit.get('iterations'),
+        'cal_scenario': cal_scenario, 'val_scenario': val_scenario,
     }
 
 
@@ -76,18 +82,20 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     ap.add_argument('--seeds', type=int, nargs='+', default=[0, 1, 2, 3, 4])
     ap.add_argument('--json', help='write the figures here')
-    ap.add_argument('--short', action='store_true',
-                    help='use the hurried nav-coldstart-short / nav-validation-short pair')
+    ap.add_argument('--variant', default='recommended', choices=VARIANTS,
+                    help='recommended: quick first pass then long holds (nav-coldstart); '
+                         'uniform: every hold long; short: 3-4 min holds, faster warm-up')
     args = ap.parse_args(argv)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for seed in args.seeds:
-            rows.append(run_seed(seed, tmp, '-short' if args.short else ''))
+            rows.append(run_seed(seed, tmp, *VARIANTS[args.variant]))
             r = rows[-1]
             print(f'seed {seed}: raw max {r["raw_max"]:.1f} ug, estimated max {r["est_max"]:.2f} '
                   f'RMS {r["est_rms"]:.2f} ug, truth max {r["truth_max"]:.2f} RMS '
                   f'{r["truth_rms"]:.2f} ug ({r["windows_300s"]} windows of 300 s)',
                   file=sys.stderr)
+    print(f'scenarios: {" / ".join(VARIANTS[args.variant])}')
     print('| seed | raw max [ug] | est. max [ug] | est. RMS [ug] | truth max [ug] | '
           'truth RMS [ug] | RMS ratio |')
     print('|---|---|---|---|---|---|---|')

@@ -16,7 +16,8 @@ BENCHES = [
     ('bench_io.py', []),
     ('bench_nodes.py', []),
     ('bench_nav_accuracy.py', []),
-    ('bench_nav_accuracy.py', ['--short']),
+    ('bench_nav_accuracy.py', ['--variant', 'uniform']),
+    ('bench_nav_accuracy.py', ['--variant', 'short']),
     ('bench_mems.py', []),
     ('bench_real_data.py', []),
     ('bench_thermal.py', []),
@@ -30,7 +31,7 @@ def main():
     failed = []
     for script, extra in BENCHES:
         path = os.path.join(HERE, script)
-        name = script[:-3] + ('_short' if '--short' in extra else '')
+        name = script[:-3] + (f'_{extra[-1]}' if extra else '')
         if not os.path.exists(path) or (only and name not in only):
             continue
         print(f'\n## {name}\n', flush=True)

@@ -39,6 +39,7 @@ def demo():
 
 def test_scenario_names():
     assert set(sim.SCENARIOS) == {'nav-coldstart', 'nav-validation', 'nav-coldstart-short',
+                                  'nav-coldstart-uniform',
                                   'nav-validation-short', 'mems-coldstart',
                                   'mems-validation', 'single-warmup', 'demo', 'demo-validation',
                                   'chamber-cycle', 'lag-warmup'}
