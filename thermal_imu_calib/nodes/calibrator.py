@@ -130,9 +130,10 @@ class CalibratorNode(Node):
         data = MutuallyExclusiveCallbackGroup()
         self.imu_sub = self.create_subscription(Imu, 'imu/data_raw', self._on_imu,
                                                 common.sensor_qos(in_depth), callback_group=data)
-        for i, topic in enumerate(self.temperature_topics):
+        self.temp_subs = [
             self.create_subscription(Temperature, topic, self._temperature_cb(i),
                                      common.sensor_qos(in_depth), callback_group=data)
+            for i, topic in enumerate(self.temperature_topics)]
         self.create_timer(0.1, self._process, callback_group=data)
         services = ReentrantCallbackGroup()
         self.create_service(Trigger, '~/calibrate', self._on_calibrate, callback_group=services)
@@ -228,12 +229,10 @@ class CalibratorNode(Node):
 
     def _collect(self, chunk):
         imu = chunk.imu
-        use = np.isfinite(imu.accel).all(1) & np.isfinite(imu.gyro).all(1)
-        self.counts['invalid'] += int((~use).sum())
-        if self.k:
-            fresh = (chunk.temp_age <= self.temperature_timeout).all(1)
-            self.counts['stale_temperature'] += int((use & ~fresh).sum())
-            use &= fresh
+        finite = np.isfinite(imu.accel).all(1) & np.isfinite(imu.gyro).all(1)
+        use = _usable(chunk, self.k, self.temperature_timeout)
+        self.counts['invalid'] += int((~finite).sum())
+        self.counts['stale_temperature'] += int((finite & ~use).sum())
         self.counts['samples'] += int(use.sum())
         if not use.any():
             return
@@ -278,13 +277,15 @@ class CalibratorNode(Node):
             return response
         try:
             self._busy_since = time.monotonic()
+            self._process()  # take in what arrived since the last timer tick
             with self._lock:
                 windows = self.windows  # never mutated in place: a consistent snapshot
                 detector = copy.deepcopy(self.detector)
+                aligner = copy.deepcopy(self.aligner)
                 offset = self._hold_offset
             done = Future(executor=self.executor)
             done.add_done_callback(lambda _: None)  # completion wakes the executor
-            job = self._worker.submit(self._estimate, windows, detector, offset)
+            job = self._worker.submit(self._estimate, windows, detector, aligner, offset)
             job.add_done_callback(lambda j: done.set_result(
                 j.result() if not j.cancelled() and j.exception() is None
                 else (False, f'failed: {j.exception() if not j.cancelled() else "cancelled"}')))
@@ -295,14 +296,23 @@ class CalibratorNode(Node):
         common.log(self, response.success, response.message)
         return response
 
-    def _estimate(self, windows, detector, offset):
+    def _estimate(self, windows, detector, aligner, offset):
         """Run on the worker thread: estimate, write, publish. Returns (success, message).
 
-        ``detector`` is a copy of the live one: finishing it adds the hold in progress (if
-        long enough) to this estimate without closing it in the live collection.
+        ``detector`` and ``aligner`` are copies of the live ones: finishing them adds the
+        samples still waiting for a newer temperature reading and the hold in progress (if
+        long enough) to this estimate without closing anything in the live collection.
         """
         try:
-            tail = detector.finish()
+            parts = []
+            for chunk in aligner.finish():
+                use = _usable(chunk, self.k, self.temperature_timeout)
+                if use.any():
+                    imu = chunk.imu
+                    parts.append(detector.update(imu.t[use], imu.accel[use], imu.gyro[use],
+                                                 chunk.temps[use]))
+            parts.append(detector.finish())
+            tail = Windows.concat(parts)
             if len(tail):
                 tail.hold = tail.hold + offset
                 windows = Windows.concat([windows, tail])
@@ -345,6 +355,7 @@ class CalibratorNode(Node):
         with self._lock:
             n, h = len(self.windows), len(self.windows.hold_ids)
             self._new_collection()
+            self.counts.update({k: 0 for k in self.counts})
             path = self._collection_path()
             if path and os.path.exists(path):
                 os.unlink(path)
@@ -371,7 +382,10 @@ class CalibratorNode(Node):
             'ready': ready['ready'], 'mode': ready['mode'], 'reason': ready['reason'],
             'next_pose': ready['next_pose'],
             'stationary': status['stationary'], 'hold_seconds': round(status['hold_seconds'], 2),
-            'samples': self.counts['samples'],
+            'samples': self.counts['samples'], 'imu_received': self._rate.total,
+            'temperature_readings': self.counts['temperature_readings'],
+            'imu_publishers': self.imu_sub.get_publisher_count(),
+            'temperature_publishers': [sub.get_publisher_count() for sub in self.temp_subs],
             'stale_temperature_samples': self.counts['stale_temperature'],
             'calibrating': self._busy.locked(), 'last_result': self._last_message,
         }
@@ -380,7 +394,7 @@ class CalibratorNode(Node):
         prog = self.progress()
         self.progress_pub.publish(String(data=json.dumps(prog)))
         rate = self._rate.rate()
-        values = {k: v for k, v in prog.items() if k not in ('faces',)}
+        values = {k: v for k, v in prog.items() if k not in ('faces', 'imu_received')}
         values.update({f'face {f}': n for f, n in prog['faces'].items()})
         values['input_rate_hz'] = rate
         values.update(self.counts)
@@ -400,6 +414,15 @@ class CalibratorNode(Node):
         """Stop the estimation worker, then destroy the node."""
         self._worker.shutdown(wait=False, cancel_futures=True)
         return super().destroy_node()
+
+
+def _usable(chunk, k, timeout):
+    """Rows of an AlignedChunk with finite IMU data and every temperature fresher than timeout."""
+    imu = chunk.imu
+    use = np.isfinite(imu.accel).all(1) & np.isfinite(imu.gyro).all(1)
+    if k:
+        use &= (chunk.temp_age <= timeout).all(1)
+    return use
 
 
 def _model_choices():

@@ -1,0 +1,261 @@
+"""Calibrator node over real DDS: refusal, busy refusal, reset/save, kill -9 and resume."""
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import threading
+
+from conftest import DOMAIN_ID, replay, wait_for
+import numpy as np
+import pytest
+
+pytest.importorskip('rclpy')
+
+from rclpy.parameter import Parameter  # noqa: E402
+from sensor_msgs.msg import Imu, Temperature  # noqa: E402
+from std_msgs.msg import String  # noqa: E402
+from std_srvs.srv import Trigger  # noqa: E402
+
+from thermal_imu_calib.calibration import Calibration  # noqa: E402
+from thermal_imu_calib.estimation.segments import Windows  # noqa: E402
+from thermal_imu_calib.nodes import common  # noqa: E402
+from thermal_imu_calib.nodes.calibrator import CalibratorNode  # noqa: E402
+
+sim = pytest.importorskip('thermal_imu_calib.sim')
+
+RATE = 2000.0     # IMU messages per second (20x the 100 Hz recordings)
+SHORT = {'hold_s': (14.0, 15.0), 'transition_s': (1.5, 2.0)}
+
+
+def recording(**overrides):
+    """Return a short simulated warm-up (demo device) with the given overrides."""
+    return sim.simulate('demo', 5, **{**SHORT, **overrides})
+
+
+class Player:
+    """A driver node publishing a recording and reading the calibrator's progress."""
+
+    def __init__(self, ros, n_subscribers=1):
+        self.ros = ros
+        self.node = ros.node('player')
+        self.imu_pub = self.node.create_publisher(Imu, 'imu/data_raw', 1000)
+        self.temp_pub = self.node.create_publisher(Temperature, '/imu/temperature', 100)
+        self.progress = []
+        self.sent = [0, 0]
+        self.node.create_subscription(String, '/thermal_imu_calibrator/progress',
+                                      lambda m: self.progress.append(json.loads(m.data)), 10)
+        ros.wait_matched(self.imu_pub, n_subscribers, timeout=30)
+        ros.wait_matched(self.temp_pub, n_subscribers, timeout=30)
+        self.wait_connected()
+
+    def wait_connected(self):
+        """Wait until the calibrator reports it has matched our publishers (both ways)."""
+        self.latest_progress(lambda p: p['imu_publishers'] >= 1
+                             and min(p['temperature_publishers']) >= 1, 30,
+                             'the calibrator to match the player\'s publishers')
+
+    def play(self, rec, i0=0, i1=None):
+        """Publish IMU samples i0..i1 of ``rec`` with the temperatures of that interval."""
+        imu = rec.imu()
+        i1 = len(imu) if i1 is None else i1
+        part = imu.slice(slice(i0, i1))
+        (_, tc), = rec.temperatures.items()
+        m = (tc.stamp_ns >= part.stamp_ns[0]) & (tc.stamp_ns <= part.stamp_ns[-1])
+        n = replay(self.imu_pub, part, [(self.temp_pub, tc.stamp_ns[m],
+                                         tc.temperature[m])], RATE)
+        self.sent[0] += n
+        self.sent[1] += int(m.sum())
+        return n
+
+    def prime(self, rec, i, timeout=30):
+        """Repeat IMU sample i (and the temperature before it) until the calibrator has one.
+
+        After a restart the publisher may still be matched to the dead reader; data, not
+        the match count, shows that the path to the new process works. Returns the count
+        the calibrator reports, to be added to what ``play`` publishes afterwards.
+        """
+        imu = rec.imu().slice(slice(i, i + 1))
+        (_, tc), = rec.temperatures.items()
+        j = max(int(np.searchsorted(tc.stamp_ns, imu.stamp_ns[0])) - 1, 0)
+
+        def received():
+            replay(self.imu_pub, imu, [(self.temp_pub, tc.stamp_ns[j:j + 1],
+                                        tc.temperature[j:j + 1])])
+            return next((p for p in reversed(self.progress) if p['imu_received'] >= 1
+                         and p['temperature_readings'] >= 1), None)
+
+        wait_for(received, timeout, 'a primed sample at the calibrator', poll=0.05)
+
+    def wait_received(self, timeout=30):
+        """Wait until the calibrator reports every message published so far as received."""
+        imu, temps = self.sent
+        self.latest_progress(lambda p: p['imu_received'] >= imu
+                             and p['temperature_readings'] >= temps, timeout,
+                             f'{imu} IMU messages and {temps} temperatures at the calibrator')
+
+    def call(self, service, timeout=60):
+        """Call a Trigger service of the calibrator."""
+        return self.ros.call(self.node, Trigger, f'/thermal_imu_calibrator/{service}',
+                             timeout=timeout)
+
+    def latest_progress(self, predicate, timeout=20, what='progress'):
+        """Wait for a progress message satisfying ``predicate``; return it."""
+        def hit():
+            return next((p for p in reversed(self.progress) if predicate(p)), None)
+        return wait_for(hit, timeout, lambda: f'{what}; last: '
+                        f'{self.progress[-1] if self.progress else "no progress message"}')
+
+
+def calibrator(ros, tmp_path, **params):
+    """Start an in-process calibrator writing to tmp_path."""
+    defaults = {'calibration_file': str(tmp_path / 'calibration.yaml'),
+                'collection_file': str(tmp_path / 'collection.jsonl'),
+                'progress_period': 0.2}
+    overrides = [Parameter(k, value=v) for k, v in {**defaults, **params}.items()]
+    return ros.add(CalibratorNode(context=ros.context, parameter_overrides=overrides))
+
+
+def test_refusal_lists_missing_faces_and_next_pose(ros, tmp_path):
+    rec = recording(faces=('+z', '-z', '+z'), repetitions=1)
+    calibrator(ros, tmp_path)
+    player = Player(ros)
+    player.play(rec)
+    player.wait_received()
+    prog = player.latest_progress(lambda p: p['segments'] >= 2, what='two closed segments')
+    assert not prog['ready'] and prog['next_pose'] in ('+x', '-x', '+y', '-y')
+    assert set(prog['missing_faces']) == {'+x', '-x', '+y', '-y'}
+    resp = player.call('calibrate')
+    assert not resp.success
+    assert resp.message.startswith('refused:')
+    for face in ('+x', '-x', '+y', '-y'):
+        assert face in resp.message, resp.message
+    assert not os.path.exists(tmp_path / 'calibration.yaml')
+
+
+def test_second_calibrate_is_refused_while_data_keeps_flowing(ros, tmp_path):
+    rec = recording(repetitions=1)
+    node = calibrator(ros, tmp_path)
+    player = Player(ros)
+    player.play(rec)
+    player.wait_received()
+    gate, started = threading.Event(), threading.Event()
+    real = node._estimate
+
+    def slow_estimate(*args):
+        started.set()
+        assert gate.wait(30), 'the test never released the estimation'
+        return real(*args)
+
+    node._estimate = slow_estimate
+    first = {}
+    caller = threading.Thread(target=lambda: first.update(r=player.call('calibrate')))
+    caller.start()
+    try:
+        wait_for(started.is_set, 20, 'the first estimation to start')
+        second = player.call('calibrate')
+        assert not second.success and 'already running' in second.message
+        # the executor is not blocked: new samples are still taken in during the estimation
+        before = node._rate.total
+        extra = sim.simulate('demo', 6, **SHORT).imu().slice(slice(0, 400))
+        extra.stamp_ns = extra.stamp_ns - extra.stamp_ns[0] + rec.imu().stamp_ns[-1] + 10 ** 9
+        replay(player.imu_pub, extra, (), RATE)
+        wait_for(lambda: node._rate.total >= before + 400, 10, 'samples during estimation')
+        assert node.progress()['calibrating']
+    finally:
+        gate.set()
+        caller.join(60)
+    assert first['r'].success, first['r'].message
+    cal = Calibration.load(tmp_path / 'calibration.yaml')
+    assert cal.id in first['r'].message and 'holds' in first['r'].message
+
+
+def test_calibrate_writes_bak_save_and_reset(ros, tmp_path):
+    rec = recording(repetitions=1)
+    node = calibrator(ros, tmp_path)
+    player = Player(ros)
+    latched = []
+    player.node.create_subscription(String, 'imu/calibration', latched.append,
+                                    common.CALIBRATION_QOS)
+    resp = player.call('save')
+    assert not resp.success and 'no calibration estimated yet' in resp.message
+    (tmp_path / 'calibration.yaml').write_text('previous file\n')
+    player.play(rec)
+    player.wait_received()
+    resp = player.call('calibrate')
+    assert resp.success, (resp.message, node.counts)
+    assert (tmp_path / 'calibration.yaml.bak').read_text() == 'previous file\n'
+    cal = Calibration.load(tmp_path / 'calibration.yaml')
+    wait_for(lambda: latched, 10, 'the published calibration')
+    assert Calibration.from_yaml(latched[-1].data).id == cal.id
+    os.unlink(tmp_path / 'calibration.yaml')
+    resp = player.call('save')
+    assert resp.success and cal.id in resp.message
+    assert Calibration.load(tmp_path / 'calibration.yaml').id == cal.id
+    lines = (tmp_path / 'collection.jsonl').read_text().splitlines()
+    assert len(lines) == len(node.windows) > 0
+    resp = player.call('reset')
+    assert resp.success and 'cleared' in resp.message
+    assert not (tmp_path / 'collection.jsonl').exists()
+    assert len(node.windows) == 0
+    prog = player.latest_progress(lambda p: p['segments'] == 0 and p['samples'] == 0,
+                                  what='progress after reset')
+    assert prog['missing_faces'] == ['+x', '-x', '+y', '-y', '+z', '-z']
+
+
+def _calibrator_process(tmp_path, log):
+    exe = shutil.which('calibrator_node')
+    assert exe, 'the calibrator_node console script is not installed (pip install -e .)'
+    env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID),
+               ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
+    return subprocess.Popen(
+        [exe, '--ros-args', '-p', f'calibration_file:={tmp_path / "calibration.yaml"}',
+         '-p', f'collection_file:={tmp_path / "collection.jsonl"}',
+         '-p', 'progress_period:=0.2'],
+        env=env, stdout=log, stderr=subprocess.STDOUT)
+
+
+def test_kill_9_and_restart_resumes_from_collection_file(ros, tmp_path):
+    rec = recording(repetitions=1)
+    imu = rec.imu()
+    # kill in the pose change after the third hold
+    mid = (rec.schedule[2].stamp_end_ns + rec.schedule[3].stamp_start_ns) // 2
+    cut = int(np.searchsorted(imu.stamp_ns, mid))
+    log = open(tmp_path / 'calibrator.log', 'w')
+    proc = _calibrator_process(tmp_path, log)
+    try:
+        player = Player(ros)
+        player.play(rec, 0, cut)
+        player.wait_received()
+        first = player.latest_progress(lambda p: p['segments'] >= 3, 30,
+                                       'three segments before the kill')
+        proc.send_signal(signal.SIGKILL)
+        assert proc.wait(10) == -signal.SIGKILL
+        saved = Windows.from_jsonl((tmp_path / 'collection.jsonl').read_text())
+        assert len(saved.hold_ids) == first['segments'] >= 3
+        player.progress.clear()
+        proc = _calibrator_process(tmp_path, log)
+        resumed = player.latest_progress(lambda p: True, 30, 'progress after the restart')
+        assert resumed['segments'] == first['segments'] and resumed['samples'] == 0
+        assert resumed['faces_covered'] == first['faces_covered']
+        player.wait_connected()
+        player.prime(rec, cut)
+        player.sent = [0, 0]   # the new process counts from zero (primes come on top)
+        player.play(rec, cut + 1)
+        player.wait_received()
+        resp = player.call('calibrate')
+        assert resp.success, (resp.message, player.progress[-1])
+        assert f'{len(rec.schedule)} holds' in resp.message, resp.message
+        total = Windows.from_jsonl((tmp_path / 'collection.jsonl').read_text())
+        assert len(np.unique(total.hold)) == len(total.hold_ids) >= len(rec.schedule) - 1
+        assert np.all(total.hold[:len(saved)] == saved.hold)
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(5)
+        log.close()
