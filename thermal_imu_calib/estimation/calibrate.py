@@ -13,12 +13,14 @@ from ..calibration import Calibration, TemperatureInput
 from ..gravity import STANDARD_GRAVITY
 from ..models.base import SensorModel
 from ..models.field import FieldPolynomialModel
-from .field_estimator import fit_field_model, per_axis_temperature_span
+from .field_estimator import fit_field_model, per_axis_vertical_range
 from .offset_fit import fit_offset_model, time_groups
 from .segments import coverage, distinct_orientations, FACE_NAMES, Windows
 
 #: temperature span (degC) needed for each polynomial order of the field model
 ORDER_SPAN = {1: 1.0, 2: 3.0}
+#: warn when an axis was never vertical within this many degC of the collected range's ends
+EXTRAPOLATION_WARN_DEGC = 2.0
 
 
 class CalibrationRefused(Exception):
@@ -326,16 +328,26 @@ def estimate_field(ctx):
                      'the full scale-factor and bias errors at T0, non-orthogonality is not '
                      'estimated')
     fit = fit_field_model(w, ta, o.gravity, ctx.t0, k0, b0, s, order=order, refine=o.refine)
-    axis_span = per_axis_temperature_span(w, ta, fit.tilts, fit.hold_ids)
-    for a, sp in zip('xyz', axis_span):
-        if order >= 1 and sp < ORDER_SPAN[1]:
-            notes.append(f'axis {a} was near vertical over only {sp:.2f} degC: its scale '
-                         'temperature coefficients are poorly determined (see their std)')
+    vert = per_axis_vertical_range(w, ta, fit.tilts, fit.hold_ids)
+    axis_span = np.nan_to_num(vert[:, 1] - vert[:, 0])
+    for i, a in enumerate('xyz'):
+        if order >= 1 and axis_span[i] < ORDER_SPAN[1]:
+            notes.append(f'axis {a} was near vertical over only {axis_span[i]:.2f} degC: its '
+                         'scale temperature coefficients are poorly determined (see their std)')
+        if k:
+            lo, hi = ta[:, i].min(), ta[:, i].max()
+            gap_lo, gap_hi = vert[i, 0] - lo, hi - vert[i, 1]
+            if max(gap_lo, gap_hi) > EXTRAPOLATION_WARN_DEGC:
+                notes.append(
+                    f'axis {a} was held vertical only between {vert[i, 0]:.1f} and '
+                    f'{vert[i, 1]:.1f} degC of the {lo:.1f}-{hi:.1f} degC collected: its '
+                    'temperature terms are extrapolated outside that; next time hold every '
+                    'face once early in the warm-up (a quick first pass of ~1 min per face)')
     stats = {'iterations': fit.iterations, 'converged': bool(fit.converged),
              'joint_refinement': bool(fit.refined), 'order': order,
              'residual_rms': {'value': fit.residual_rms, 'unit': 'm/s^2'},
              'chi2_per_dof': fit.chi2_dof,
-             'axis_vertical_temperature_span': {'value': axis_span.tolist(), 'unit': 'degC'}}
+             'axis_vertical_temperature_range': {'value': vert.tolist(), 'unit': 'degC'}}
     return Estimate(accel=fit.model, notes=notes, fit=stats)
 
 

@@ -258,15 +258,20 @@ def _refine(raw, w, dt, hold_idx, tilts, thermal, gravity, t0, k0, b0, s, order)
     return th, c, std
 
 
-def per_axis_temperature_span(windows, axis_temps, tilts, hold_ids, min_cos=0.7):
-    """Return, per axis, the temperature span (degC) covered while that axis was near vertical."""
-    out = np.zeros(3)
+def per_axis_vertical_range(windows, axis_temps, tilts, hold_ids, min_cos=0.7):
+    """Return (3, 2) per-axis [min, max] temperature (degC) seen with that axis near vertical.
+
+    NaN where an axis was never near vertical. Outside this range the axis' scale and bias
+    temperature terms are extrapolated (seed 000 sect. 3: the sensitivity is largest with
+    the axis vertical).
+    """
+    out = np.full((3, 2), np.nan)
     idx = {h: j for j, h in enumerate(hold_ids)}
     c = tilts[[idx[h] for h in windows.hold]]
     for i in range(3):
         sel = np.abs(c[:, i]) >= min_cos
         if np.any(sel):
-            out[i] = float(np.ptp(axis_temps[sel, i]))
+            out[i] = [float(axis_temps[sel, i].min()), float(axis_temps[sel, i].max())]
     return out
 
 
