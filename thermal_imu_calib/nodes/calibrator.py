@@ -195,13 +195,15 @@ class CalibratorNode(Node):
     # ------------------------------------------------------------------ data
     def _temperature_cb(self, index):
         def cb(msg):
-            if not np.isfinite(msg.temperature):
-                self.counts['temperature_invalid'] += 1
-                return
-            self.counts['temperature_readings'] += 1
-            with self._lock:
-                self._pending_temp[index].append((common.stamp_to_ns(msg.header.stamp),
-                                                  msg.temperature))
+            # drained too, so temperature keeps pace with batched IMU data under load
+            for m in [msg] + common.drain(self.temp_subs[index], 100, self):
+                if not np.isfinite(m.temperature):
+                    self.counts['temperature_invalid'] += 1
+                    continue
+                self.counts['temperature_readings'] += 1
+                with self._lock:
+                    self._pending_temp[index].append((common.stamp_to_ns(m.header.stamp),
+                                                      m.temperature))
         return cb
 
     def _on_imu(self, msg):

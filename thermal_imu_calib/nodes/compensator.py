@@ -193,7 +193,9 @@ class CompensatorNode(Node):
     # ------------------------------------------------------------------ data
     def _temperature_cb(self, index):
         def cb(msg):
-            self.temps.add(index, common.stamp_to_ns(msg.header.stamp), msg.temperature)
+            # drained too, so temperature keeps pace with batched IMU data under load
+            for m in [msg] + common.drain(self.temp_subs[index], 100, self):
+                self.temps.add(index, common.stamp_to_ns(m.header.stamp), m.temperature)
         return cb
 
     def _on_imu(self, msg):
