@@ -291,12 +291,14 @@ def test_model_swap_never_mixes_parameters(ros, tmp_path):
         while not stop.is_set():
             rig.node.activate(a if i % 2 else b, 'test')
             i += 1
+            stop.wait(0.0005)  # leave the GIL to the executor between swaps
 
     th = threading.Thread(target=swapper)
     th.start()
     try:
-        rig.send(400, dt=0.001)
-        rig.receive(400)
+        for k in range(40):  # bursts, so batches see different models
+            rig.send(10, dt=0.001)
+            rig.receive(10 * (k + 1))
     finally:
         stop.set()
         th.join()
