@@ -126,7 +126,7 @@ class ThermalFilter:
         return f
 
     def stream(self):
-        """Return a new stateful stream (one per compensated IMU stream)."""
+        """Return a new ThermalStream holding the filter state (one per IMU stream)."""
         return ThermalStream(self)
 
     def window_temperatures(self, windows):
