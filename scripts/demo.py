@@ -1,7 +1,8 @@
 """`make demo`: simulate a cold start, calibrate, compensate, and show before/after.
 
-Everything goes through the ``thermal-imu-calib`` command line, exactly as a user would
-type it; the commands are printed as they run. Output lands in ``demo_out/``.
+The offline part goes through the ``thermal-imu-calib`` command line, exactly as a user
+would type it (the commands are printed as they run); the live part (scripts/demo_live.py)
+runs both ROS 2 nodes and calls the calibrate service. Output lands in ``demo_out/``.
 """
 
 import os
@@ -49,6 +50,10 @@ def main():
     print('\nThe compensated stream itself, as written to validation_compensated.mcap:')
     run('evaluate', 'validation_compensated.mcap', '--imu-topic', '/imu/data_compensated',
         '--average', '30')
+    print('\nLive: both ROS 2 nodes over DDS (localhost only), calibrated by a service call.')
+    r = subprocess.run([sys.executable, os.path.join(ROOT, 'scripts', 'demo_live.py')])
+    if r.returncode != 0:
+        sys.exit('demo step failed: live nodes')
     print(f'\ndemo finished in {time.perf_counter() - t0:.0f} s; files in {OUT}')
 
 

@@ -338,3 +338,21 @@ def test_several_temperature_topics_map_by_name(ros, tmp_path):
     wait_for(lambda: len(out) >= 1, 10, 'the compensated message')
     exp = cal.apply(np.array([ACCEL]), np.array([GYRO]), np.array([[22.0, 27.0, 35.0]]))
     np.testing.assert_allclose(vec(out[0])[0], exp.accel[0], atol=1e-12)
+
+
+def test_stamps_jumping_back_start_a_new_temperature_timeline(ros, tmp_path):
+    # a bag replayed again, or a second recording with earlier stamps: the temperature of
+    # the old timeline must not be used for the new one
+    cal = make_cal()
+    rig = Rig(ros, calibration_file=str(cal.save(tmp_path / 'cal.yaml')))
+    rig.temperature(35.0)
+    rig.send(3)
+    rig.receive(3)
+    rig.stamp = T0_NS - 3600 * S            # one hour earlier
+    rig.temperature(25.0, stamp=rig.stamp)  # the new timeline's first reading
+    rig.send(3)
+    out = rig.receive(6)
+    wait_for(lambda: len(out) >= 6, 10, '6 outputs')
+    a_new, _ = vec(out[-1])
+    np.testing.assert_allclose(a_new, expected(cal, 25.0).accel[0], atol=1e-9)
+    assert rig.node.temps.time_resets == 1

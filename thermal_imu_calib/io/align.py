@@ -95,6 +95,11 @@ class TemperatureTrack:
         if math.isfinite(self.max_history_s):
             self.discard_before(int(self._t[-1]) - int(self.max_history_s * NS))
 
+    def clear(self) -> None:
+        """Forget every sample (the stamps jumped backwards: a new recording or clock)."""
+        self._t = np.zeros(0, np.int64)
+        self._v = np.zeros(0)
+
     def discard_before(self, stamp_ns: int) -> None:
         """Drop samples older than ``stamp_ns``, keeping the newest of them as a bracket."""
         i = int(np.searchsorted(self._t, stamp_ns, side='left')) - 1

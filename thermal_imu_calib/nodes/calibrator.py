@@ -150,6 +150,7 @@ class CalibratorNode(Node):
         self.aligner = StreamAligner(self.k, self.temperature_timeout)
         self.windows = Windows.empty(self.k)
         self._hold_offset = 0
+        self._newest_ns = None
         self._pending_imu = []
         self._pending_temp = [[] for _ in range(self.k)]
 
@@ -226,8 +227,35 @@ class CalibratorNode(Node):
                 else ImuColumns.empty()
             tcols = [TemperatureColumns(np.array([s for s, _ in t], np.int64),
                                         np.array([v for _, v in t], float)) for t in temps]
+            if len(imu):
+                self._check_time(int(imu.stamp_ns.min()))
+                self._newest_ns = max(self._newest_ns or 0, int(imu.stamp_ns.max()))
             for chunk in self.aligner.push_columns(imu, tcols):
                 self._collect(chunk)
+
+    def _check_time(self, stamp_ns):
+        """Close the open hold and restart detection when header stamps jump back.
+
+        A replayed bag restarting or a second recording must not be merged into the hold
+        in progress; the windows collected so far are kept.
+        """
+        if self._newest_ns is None or stamp_ns >= self._newest_ns - int(common.JUMP_S * 1e9):
+            return
+        for chunk in self.aligner.finish():
+            self._collect(chunk)
+        win = self.detector.finish()
+        if len(win):
+            win.hold = win.hold + self._hold_offset
+            self._persist(win)
+            self.windows = Windows.concat([self.windows, win])
+        self._hold_offset = int(self.windows.hold.max()) + 1 if len(self.windows) else 0
+        self.detector = StationaryDetector(DetectorConfig(**vars(self.detector_config)), self.k)
+        self.aligner = StreamAligner(self.k, self.temperature_timeout)
+        self._newest_ns = None
+        self.counts['time_resets'] = self.counts.get('time_resets', 0) + 1
+        self.get_logger().warning('IMU header stamps jumped back by more than '
+                                  f'{common.JUMP_S:.0f} s: closed the hold in progress and '
+                                  'restarted detection (collected windows kept)')
 
     def _collect(self, chunk):
         imu = chunk.imu

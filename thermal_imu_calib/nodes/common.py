@@ -191,6 +191,10 @@ def drain(subscription, limit, node=None):
 # ---------------------------------------------------------------------------- temperature
 
 
+#: header stamps stepping back by more than this (s) start a new timeline
+JUMP_S = 10.0
+
+
 class TemperatureInputs:
     """One hold/interpolate track per subscribed temperature topic (header stamps)."""
 
@@ -199,12 +203,28 @@ class TemperatureInputs:
         self.tracks = [TemperatureTrack(history_s) for _ in self.topics]
         self.received = [0] * len(self.topics)
         self.invalid = 0
+        self.time_resets = 0
+
+    def check_time(self, stamp_ns):
+        """Forget all readings when header stamps jumped back by more than ``JUMP_S``.
+
+        A replayed bag restarting, a second recording or a reset clock must not be
+        compensated with temperatures from the other timeline. Returns True on a reset.
+        """
+        newest = [tr.newest_ns for tr in self.tracks if tr.newest_ns is not None]
+        if newest and stamp_ns < max(newest) - int(JUMP_S * NS):
+            for tr in self.tracks:
+                tr.clear()
+            self.time_resets += 1
+            return True
+        return False
 
     def add(self, index, stamp_ns, value):
         """Add one reading; non-finite readings are counted and ignored."""
         if not math.isfinite(value):
             self.invalid += 1
             return
+        self.check_time(stamp_ns)
         self.received[index] += 1
         self.tracks[index].add(stamp_ns, value)
 

@@ -229,6 +229,9 @@ class CompensatorNode(Node):
         comp = send.copy()  # rows to compensate; the other sent rows pass through
         temps = np.zeros((n, len(active.columns)))
         if active.columns:
+            if self.temps.check_time(int(stamps.min())):
+                self._warn_once('jump', 'IMU header stamps jumped back by more than '
+                                f'{common.JUMP_S:.0f} s: temperature history cleared')
             temps, age = self.temps.resolve(stamps, active.columns, self.temperature_timeout)
             known = np.isfinite(temps).all(1)
             stale = send & (~known | (age > self.temperature_timeout).any(1))
@@ -293,6 +296,7 @@ class CompensatorNode(Node):
             values[f'temperature_age_s[{topic}]'] = age
         values.update(self.counts)
         values['temperature_invalid'] = self.temps.invalid
+        values['temperature_time_resets'] = self.temps.time_resets
         values['last_rejection'] = self.last_rejection
         level, msg = common.OK, 'compensating'
         if active is None:
