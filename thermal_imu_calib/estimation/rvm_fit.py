@@ -147,7 +147,7 @@ class RvmSettings:
 
     sigma2_grid: Tuple[float, ...] = (2.0 ** -5, 2.0 ** -3, 2.0 ** -1, 2.0)
     d_grid: Tuple[int, ...] = (1, 2, 3)
-    lambda_grid: Tuple[float, ...] = (0.0, 1.0 / 3.0, 2.0 / 3.0, 1.0)
+    lambda_grid: Tuple[float, ...] = (0.0, 0.5, 1.0)
     n_centres: int = 16
     #: windows are merged (consecutive, within a hold) into at most this many points
     max_points: int = 300

@@ -1,0 +1,537 @@
+"""``--model auto``: choose the thermal model by held-out validation on the collected data.
+
+One orientation (warm-up, chamber cycle): the candidates are the offset polynomial
+(order per axis by CV, 0..3) and the RVM (seed 003), each in the temperature reading and
+in a first-order lagged temperature whose time constant is estimated from the same data
+(thermal_lag). Every candidate is refitted with one temperature leg (chamber cycle), hold,
+or contiguous time block (single warm-up) left out, and scored on it: the held-out drift is
+the corrected output minus its mean over the training part (the constant is not
+observable in one pose), RMS over windows and axes, divided by the raw signal's held-out
+drift, averaged over accelerometer and gyroscope. The simplest candidate within 5 % of the
+best wins (order: offset, lag, rvm, rvm-lag).
+
+Several orientations: the seed 000 field model is fitted once for the hold tilts; with
+those tilts fixed, its thermal polynomial (by linear least squares), the same in a lagged
+temperature (when the gyro-bias lag search finds one) and the bias/scale RVM are refitted
+with a fifth of the holds left out and scored by the held-out raw-output residual. The
+field model stays unless the lagged one is 10 % and the RVM 25 % better.
+
+``auto_policy`` is installed as ``calibrate.AUTO_POLICY[0]``; its decision and the table of
+held-out errors go to ``ctx.thermal_selection`` so that the estimators registered here
+reuse the time constant and RVM kernels instead of searching again.
+"""
+
+import dataclasses
+import time
+from dataclasses import dataclass, field
+from typing import Dict, Optional
+
+import numpy as np
+
+from ..thermal_input import ThermalFilter
+from ..calibration import Calibration
+from .calibrate import (_default_axis_inputs, AUTO_POLICY, CalibrateOptions, CalibrationRefused,
+                        check_faces_up_and_down, Context, Estimate, estimate_field, ORDER_SPAN,
+                        register_estimator)
+from .field_estimator import fit_field_model
+from .offset_fit import fit_offset_model
+from .segments import coverage, distinct_orientations
+from .rvm_fit import fit_rvm_bias_scale, fit_rvm_offset
+from .thermal_lag import cv_groups, estimate_tau, lagged_axis_temperatures, tau_or_none
+
+#: candidates in order of complexity (parsimony prefers the earlier one on a near tie)
+SINGLE_CANDIDATES = ('offset', 'lag', 'rvm', 'rvm-lag')
+MULTI_CANDIDATES = ('field', 'field-lag', 'rvm')
+#: a more complex single-orientation candidate must be this much better (relative)
+SINGLE_MARGIN = 0.05
+#: the lag is used when it cuts the held-out error of the lag search by this much
+LAG_MIN_IMPROVEMENT = 0.10
+#: several orientations: the lagged field model must beat the field model by this much
+MULTI_MARGIN = 0.10
+#: ... and the RVM the better of them by this much (a richer model that only matches the
+#: parametric one is not worth it)
+MULTI_RVM_MARGIN = 0.25
+#: the gyro-bias lag search must improve by this much before a lag is tried
+MULTI_LAG_IMPROVEMENT = 0.20
+#: how many hold folds the several-orientation comparison uses
+MULTI_FOLDS = 5
+#: Estimate carries a temperature filter into the Calibration (calibrate.py support)
+FILTER_SUPPORTED = 'temperature_filter' in {f.name for f in dataclasses.fields(Estimate)}
+
+
+@dataclass
+class Selection:
+    """The outcome of the automatic choice, kept on the Context for the estimators."""
+
+    model: str
+    reason: str
+    tau_s: Optional[np.ndarray] = None
+    table: Dict[str, dict] = field(default_factory=dict)
+    lag: Optional[dict] = None
+    groups: str = ''
+    kernels: Dict[str, list] = field(default_factory=dict)
+    seconds: float = 0.0
+
+    def report(self):
+        """Return a plain dict for the calibration file's fit section."""
+        return {'model': self.model, 'reason': self.reason, 'cv_groups': self.groups,
+                'heldout': self.table, 'lag': self.lag, 'seconds': round(self.seconds, 2)}
+
+
+def _weighted_mean(x, n):
+    return np.average(x, axis=0, weights=n)
+
+
+def _rms(x):
+    return float(np.sqrt(np.mean(np.square(x)))) if np.size(x) else float('nan')
+
+
+def make_context(windows, options=None):
+    """Build the estimators' Context for windows, as ``calibrate_windows`` does."""
+    o = options or CalibrateOptions()
+    k = windows.n_inputs
+    accel_input = o.accel_input or _default_axis_inputs(k)
+    gyro_input = o.gyro_input or [0, 0, 0]
+    ta = windows.temp[:, accel_input] if k else np.zeros((len(windows), 3))
+    tg = windows.temp[:, gyro_input] if k else np.zeros((len(windows), 3))
+    prior = o.prior.accel if o.prior is not None else None
+    if prior is not None:
+        t0 = prior.t0.copy()
+    else:
+        t0 = np.round((ta.min(0) + ta.max(0)) / 2.0, 2) if k else np.zeros(3)
+    return Context(windows, o, k, ta, tg, t0, accel_input, gyro_input, coverage(windows),
+                   distinct_orientations(windows), prior)
+
+
+def calibration_from(ctx, est):
+    """Return the Calibration an Estimate makes (models, filter, inputs, range, noise)."""
+    o, w = ctx.options, ctx.windows
+    return Calibration(
+        accel=est.accel, gyro=est.gyro, inputs=list(o.inputs),
+        valid_range=(np.stack([w.temp.min(0) - o.range_margin, w.temp.max(0) + o.range_margin],
+                              1) if ctx.k else None),
+        out_of_range=o.out_of_range, accel_input=ctx.accel_input, gyro_input=ctx.gyro_input,
+        frame_id=o.frame_id, gravity=o.gravity, gravity_source=o.gravity_source,
+        accel_noise_std=np.sqrt(np.median(w.accel_var, axis=0)),
+        gyro_noise_std=np.sqrt(np.median(w.gyro_var, axis=0)), notes=list(est.notes),
+        fit=dict(est.fit), temperature_filter=getattr(est, 'temperature_filter', None))
+
+
+# ---------------------------------------------------------------------- single orientation
+def fit_single(ctx, family, tau, windows=None, groups=None, kernels=None, rvm_settings=None,
+               signals=('accel', 'gyro')):
+    """Fit accel and gyro offset models of ``family`` ('poly'/'rvm') on lagged inputs.
+
+    Returns (accel model, gyro model, report); a sensor not in ``signals`` gets None.
+    ``windows`` defaults to the context's; ``groups`` are its CV groups (legs, holds,
+    time blocks).
+    """
+    w = ctx.windows if windows is None else windows
+    if groups is None:
+        groups, _ = cv_groups(w)
+    kernels = kernels or {}
+    out, rep = {}, {}
+    for sig, idx in (('accel', ctx.accel_input), ('gyro', ctx.gyro_input)):
+        if sig not in signals:
+            out[sig], rep[sig] = None, None
+            continue
+        temps = lagged_axis_temperatures(w, tau, idx)
+        single_accel = sig == 'accel'    # one pose: the constant is gravity, not bias
+        if family == 'poly':
+            out[sig], rep[sig] = fit_offset_model(w, temps, ctx.t0, sig, sig,
+                                                  include_constant=not single_accel,
+                                                  groups=groups)
+        else:
+            out[sig], rep[sig] = fit_rvm_offset(w, temps, sig, sig, groups,
+                                                offset_only=single_accel, t_ref=ctx.t0,
+                                                settings=rvm_settings,
+                                                kernels=kernels.get(sig))
+    return out['accel'], out['gyro'], rep
+
+
+def clamp_to_training(temps, windows, train, axis_input, margin):
+    """Clamp model-input temperatures to the training readings' range +- margin (degC).
+
+    What ``Calibration.apply`` does with the default ``clamp`` policy and the valid range
+    of a calibration made from the training windows.
+    """
+    lo = windows.temp[train].min(0)[axis_input] - margin
+    hi = windows.temp[train].max(0)[axis_input] + margin
+    return np.clip(temps, lo, hi)
+
+
+def heldout_single(ctx, family, tau, groups, kernels=None, rvm_settings=None,
+                   signals=('accel', 'gyro')):
+    """Return the per-axis held-out drift RMS {'accel': (3,), 'gyro': (3,)} of a candidate.
+
+    Each group is left out in turn; the drift of a held-out window is its corrected
+    output minus the n-weighted mean corrected output of the training windows. Inputs
+    are clamped to the training range as a calibration from the training part would.
+    """
+    w = ctx.windows
+    ta = lagged_axis_temperatures(w, tau, ctx.accel_input)
+    tg = lagged_axis_temperatures(w, tau, ctx.gyro_input)
+    margin = ctx.options.range_margin
+    sse = {s: np.zeros(3) for s in signals}
+    for g in np.unique(groups):
+        test = groups == g
+        train = ~test
+        wt = w.select(train)
+        if family == 'raw':
+            models = {'accel': None, 'gyro': None}
+        else:
+            acc, gyr, _ = fit_single(ctx, family, tau, wt, groups[train], kernels,
+                                     rvm_settings, signals)
+            models = {'accel': acc, 'gyro': gyr}
+        for sig, temps, idx in (('accel', ta, ctx.accel_input), ('gyro', tg, ctx.gyro_input)):
+            if sig not in signals:
+                continue
+            y = getattr(w, sig)
+            m = models[sig]
+            c = y if m is None else m.correct(y, clamp_to_training(temps, w, train, idx,
+                                                                   margin))
+            ref = _weighted_mean(c[train], w.n[train])
+            sse[sig] += np.sum((c[test] - ref) ** 2, axis=0)
+    return {k: np.sqrt(v / len(w)) for k, v in sse.items()}
+
+
+def select_single(ctx, rvm_settings=None, candidates=SINGLE_CANDIDATES,
+                  signals=('accel', 'gyro')):
+    """Compare the single-orientation candidates; returns a ``Selection``.
+
+    ``signals`` limits the score to the accelerometer or the gyroscope (e.g. a gyro-only
+    comparison across soaks in different orientations).
+    """
+    t_start = time.perf_counter()
+    w = ctx.windows
+    groups, kind = cv_groups(w)
+    if len(np.unique(groups)) < 2:
+        return Selection('offset', 'too few windows for held-out validation: offset '
+                         'polynomial', groups=kind)
+    lag = estimate_tau(w, ctx.accel_input, ctx.gyro_input, groups, group_kind=kind,
+                       signals=signals)
+    tau = tau_or_none(lag, LAG_MIN_IMPROVEMENT)
+    lag_note = (f'lag search: tau {lag.tau_s[0]:.0f} s cuts the held-out error of a '
+                f'quadratic by {100 * lag.improvement:.0f} % (used above '
+                f'{100 * LAG_MIN_IMPROVEMENT:.0f} %)')
+    if tau is not None and not _filter_ok(ctx):
+        lag_note += ' (not used: this calibrate.py cannot store a temperature filter)'
+        tau = None
+    kernels = {}
+    if 'rvm' in candidates or 'rvm-lag' in candidates:
+        # the RVM (the costly candidate) only with the filter the lag search chose
+        for name, tt in (('rvm', None), ('rvm-lag', tau)):
+            if name not in candidates or (name == 'rvm-lag') != (tau is not None):
+                continue
+            acc, gyr, _ = fit_single(ctx, 'rvm', tt, groups=groups, rvm_settings=rvm_settings,
+                                     signals=signals)
+            kernels[name] = {s: m.kernel_list for s, m in (('accel', acc), ('gyro', gyr))
+                             if m is not None}
+    raw = heldout_single(ctx, 'raw', None, groups, signals=signals)
+    table = {'raw': {s: _rms(v) for s, v in raw.items()}}
+    spec = {'offset': ('poly', None), 'lag': ('poly', tau), 'rvm': ('rvm', None),
+            'rvm-lag': ('rvm', tau)}
+    scores = {}
+    for name in candidates:
+        family, tt = spec[name]
+        if (name.endswith('lag') and tt is None) or (family == 'rvm' and name not in kernels):
+            continue
+        err = heldout_single(ctx, family, tt, groups, kernels.get(name), rvm_settings, signals)
+        table[name] = {s: _rms(v) for s, v in err.items()}
+        ratios = [table[name][s] / table['raw'][s] for s in signals if table['raw'][s] > 0]
+        scores[name] = float(np.mean(ratios))
+        table[name]['score'] = scores[name]
+    # the filter comes from the lag search (same polynomial order with and without the
+    # lag, so the comparison is not confounded by the order); the family by held-out error
+    pool = [n for n in candidates if n in scores and n.endswith('lag') == (tau is not None)]
+    best = min(scores[n] for n in pool)
+    chosen = next(n for n in pool if scores[n] <= best * (1 + SINGLE_MARGIN))
+    units = {'accel': 'm/s^2', 'gyro': 'rad/s'}
+    parts = ', '.join(n + ' ' + ' / '.join(f'{table[n][s]:.3g} {units[s]}' for s in signals)
+                      for n in ['raw'] + list(scores))
+    reason = (f'one orientation; held-out drift (leave one of {len(np.unique(groups))} '
+              f'{kind} out, {" / ".join(signals)} RMS): {parts}; {lag_note}; chose {chosen} '
+              f'(score {scores[chosen]:.3f} of raw)')
+    return Selection(chosen, reason, tau if chosen.endswith('lag') else None, table,
+                     lag.report(), kind, kernels, time.perf_counter() - t_start)
+
+
+# ---------------------------------------------------------------------- several orientations
+def _hold_folds(windows, n_folds=MULTI_FOLDS):
+    ids = windows.hold_ids
+    fold_of = {int(h): i % n_folds for i, h in enumerate(ids)}
+    return np.array([fold_of[int(h)] for h in windows.hold])
+
+
+def _field_fit(ctx, windows, ta):
+    o = ctx.options
+    pm = ctx.prior_model
+    k0 = b0 = s = None
+    if pm is not None:
+        k0, b0, s = pm.k0 + pm.thermal[:, 0], pm.b0 + pm.thermal[:, 3], pm.s
+    return fit_field_model(windows, ta, o.gravity, ctx.t0, k0, b0, s, order=o.order,
+                           refine=o.refine)
+
+
+def _up_per_window(windows, fit):
+    up = np.zeros((len(windows), 3))
+    for h, u in zip(fit.hold_ids, fit.tilts):
+        up[windows.hold == h] = u
+    return up
+
+
+def _prior(ctx):
+    pm = ctx.prior_model
+    if pm is None:
+        return np.ones(3), np.zeros(3), np.eye(3)
+    return pm.k0, pm.b0, pm.s
+
+
+def fit_rvm_multi(ctx, windows=None, tau=None, kernels=None, rvm_settings=None, up=None):
+    """Fit the bias/scale RVM on the field model's hold tilts; returns (model, report).
+
+    ``up`` (per window) skips the field fit that provides the tilts.
+    """
+    w = ctx.windows if windows is None else windows
+    ta = lagged_axis_temperatures(w, tau, ctx.accel_input)
+    if up is None:
+        up = _up_per_window(w, _field_fit(ctx, w, ta))
+    k0, b0, s = _prior(ctx)
+    return fit_rvm_bias_scale(w, ta, up, _hold_folds(w), ctx.options.gravity, k0, b0, s,
+                              rvm_settings, kernels)
+
+
+def _field_design(dt, sf, order):
+    """Return the per-axis regressors of the field model's thermal terms (seed 000 eq. 8)."""
+    powers = np.stack([dt ** j for j in range(order + 1)], 1)
+    return np.concatenate([powers * sf[:, None], powers], 1)
+
+
+def heldout_multi(ctx, up, tau, kernels=None, rvm_settings=None):
+    """Return held-out raw-output residuals {'field': (m, 3), 'rvm': ...} at known tilts.
+
+    The tilts of the holds (``up`` per window, from one field fit on all holds) are kept;
+    the thermal part is refitted on the training holds: the field model's polynomial by
+    linear least squares, the RVM with fixed kernels. The residual is the raw output minus
+    the output each model predicts for the held-out hold's specific force.
+    """
+    w = ctx.windows
+    g = ctx.options.gravity
+    ta = lagged_axis_temperatures(w, tau, ctx.accel_input)
+    k0, b0, s = _prior(ctx)
+    sf = g * up @ s.T
+    y = w.accel - b0 - k0 * sf
+    span = float(np.max(np.ptp(ta, axis=0))) if ctx.k else 0.0
+    order = max(o for o in range(ctx.options.order + 1) if o == 0 or span >= ORDER_SPAN[o])
+    folds = _hold_folds(w)
+    out = {'field': np.zeros_like(y), 'rvm': np.zeros_like(y) if kernels else None}
+    for f in np.unique(folds):
+        test = folds == f
+        train = ~test
+        for a in range(3):
+            dt = ta[:, a] - ctx.t0[a]
+            v = _field_design(dt, sf[:, a], order)
+            coef, *_ = np.linalg.lstsq(v[train], y[train, a], rcond=None)
+            out['field'][test, a] = y[test, a] - v[test] @ coef
+        if kernels:
+            model, _ = fit_rvm_multi(ctx, w.select(train), tau, kernels, rvm_settings,
+                                     up[train])
+            out['rvm'][test] = w.accel[test] - model.forward(g * up[test], ta[test])
+    return out
+
+
+def select_multi(ctx, rvm_settings=None):
+    """Compare field, lagged field and bias/scale RVM by held-out holds; ``Selection``."""
+    t_start = time.perf_counter()
+    g = ctx.options.gravity
+    w = ctx.windows
+    up = _up_per_window(w, _field_fit(ctx, w, ctx.ta))
+    lag, tau, kernels = None, None, {}
+    lag_note = 'no temperature input'
+    if ctx.k:
+        lag = estimate_tau(w, ctx.accel_input, ctx.gyro_input, signals=('gyro',),
+                           groups=w.hold, group_kind='holds')
+        tau = tau_or_none(lag, MULTI_LAG_IMPROVEMENT) if _filter_ok(ctx) else None
+        lag_note = (f'gyro-bias lag search: tau {lag.tau_s[0]:.0f} s, '
+                    f'{100 * lag.improvement:.0f} % better held out')
+        model, _ = fit_rvm_multi(ctx, rvm_settings=rvm_settings, up=up)
+        kernels['rvm'] = model.kernel_list
+    res = heldout_multi(ctx, up, None, kernels.get('rvm'), rvm_settings)
+    scores = {'field': _rms(res['field'])}
+    if res['rvm'] is not None:
+        scores['rvm'] = _rms(res['rvm'])
+    if tau is not None:
+        scores['field-lag'] = _rms(heldout_multi(ctx, up, tau)['field'])
+    table = {n: {'residual_ug': v / g * 1e6} for n, v in scores.items()}
+    chosen = 'field'
+    if 'field-lag' in scores and scores['field-lag'] < scores['field'] * (1 - MULTI_MARGIN):
+        chosen = 'field-lag'
+    if 'rvm' in scores and scores['rvm'] < scores[chosen] * (1 - MULTI_RVM_MARGIN):
+        chosen = 'rvm'
+    parts = ', '.join(f'{n} {v / g * 1e6:.1f} ug' for n, v in scores.items())
+    reason = (f'{ctx.n_orientations} orientations; held-out raw-output residual RMS at the '
+              f'holds\' tilts (holds in {MULTI_FOLDS} folds): {parts}; {lag_note}; chose '
+              f'{chosen}')
+    return Selection(chosen, reason, tau if chosen == 'field-lag' else None, table,
+                     None if lag is None else lag.report(), 'holds', kernels,
+                     time.perf_counter() - t_start)
+
+
+# ---------------------------------------------------------------------- policy, estimators
+def auto_policy(ctx):
+    """Choose the model for ``--model auto`` by held-out validation; returns (name, reason)."""
+    if ctx.n_orientations == 1:
+        if ctx.k == 0:
+            return 'offset', 'one orientation and no temperature input'
+        sel = select_single(ctx)
+    else:
+        try:
+            check_faces_up_and_down(ctx)
+        except CalibrationRefused:
+            return 'field', (f'{ctx.n_orientations} orientations but faces missing: the '
+                             'field estimator explains what to collect')
+        sel = select_multi(ctx)
+    ctx.thermal_selection = sel
+    return sel.model, sel.reason
+
+
+def _selection(ctx, name):
+    sel = getattr(ctx, 'thermal_selection', None)
+    return sel if sel is not None and sel.model == name else None
+
+
+def _filter_ok(ctx):
+    return FILTER_SUPPORTED or getattr(ctx, 'filter_ok', False)
+
+
+def _require_filter(ctx, name):
+    if not _filter_ok(ctx):
+        raise CalibrationRefused(f'the {name} model needs a temperature filter in the '
+                                 'calibration, which this calibrate.py cannot store',
+                                 'use --model offset, rvm or field')
+
+
+def _lag_for(ctx, name, sel):
+    if sel is not None and sel.tau_s is not None:
+        return sel.tau_s, sel.lag
+    if ctx.k == 0:
+        raise CalibrationRefused(f'the {name} model needs a temperature input',
+                                 'record the IMU temperature topic')
+    if ctx.n_orientations == 1:
+        est = estimate_tau(ctx.windows, ctx.accel_input, ctx.gyro_input)
+    else:
+        est = estimate_tau(ctx.windows, ctx.accel_input, ctx.gyro_input, signals=('gyro',),
+                           groups=ctx.windows.hold, group_kind='holds')
+    return est.tau_s, est.report()
+
+
+def _estimate(ctx, name, family, lagged):
+    if ctx.k == 0:
+        raise CalibrationRefused(f'the {name} model needs a temperature input',
+                                 'record the IMU temperature topic')
+    sel = _selection(ctx, name)
+    tau, lag_rep = None, None
+    if lagged:
+        _require_filter(ctx, name)
+        tau, lag_rep = _lag_for(ctx, name, sel)
+    notes = []
+    fit_stats = {}
+    report = {}
+    if ctx.n_orientations == 1:
+        kernels = sel.kernels.get(name) if sel is not None else None
+        acc, gyr, rep = fit_single(ctx, family, tau, kernels=kernels)
+        report.update({'accel_offset': rep['accel'], 'gyro_offset': rep['gyro']})
+        fit_stats['pose'] = 'single orientation (offset-only)'
+        notes.append('one orientation: the accelerometer model removes the drift relative '
+                     'to its output at the reference temperature; valid for this mounting '
+                     'pose only')
+    else:
+        check_faces_up_and_down(ctx)
+        if family == 'field':
+            lag_ctx = dataclasses.replace(
+                ctx, ta=lagged_axis_temperatures(ctx.windows, tau, ctx.accel_input),
+                tg=lagged_axis_temperatures(ctx.windows, tau, ctx.gyro_input))
+            est = estimate_field(lag_ctx)
+            acc, notes, fit_stats = est.accel, list(est.notes), dict(est.fit)
+        else:
+            kernels = sel.kernels.get(name) if sel is not None else None
+            acc, rep = fit_rvm_multi(ctx, tau=tau, kernels=kernels)
+            report['accel_rvm'] = rep
+            fit_stats['pose'] = 'several orientations (bias and scale by pose, seed 003)'
+        tg = lagged_axis_temperatures(ctx.windows, tau, ctx.gyro_input)
+        groups, _ = cv_groups(ctx.windows)
+        if family == 'rvm':
+            gyr, report['gyro_offset'] = fit_rvm_offset(ctx.windows, tg, 'gyro', 'gyro',
+                                                        groups, t_ref=ctx.t0)
+        else:
+            gyr, report['gyro_offset'] = fit_offset_model(ctx.windows, tg, ctx.t0, 'gyro',
+                                                          'gyro', include_constant=True,
+                                                          groups=groups)
+        notes.append('gyroscope: bias vs temperature from stationary windows; earth rotation '
+                     'is not removed (up to 7.3e-5 rad/s)')
+    if sel is not None:
+        fit_stats['selection'] = sel.report()
+    if lagged:
+        fit_stats['thermal_lag'] = lag_rep
+        notes.append(f'the models take the temperature through a first-order lag of '
+                     f'{float(np.max(tau)):.0f} s (temperature.filter): stream data through '
+                     'Calibration.stream()')
+    est = Estimate(accel=acc, gyro=gyr, notes=notes, fit=fit_stats, report=report)
+    # carried as a field once calibrate.Estimate has one, else as an attribute that
+    # calibrate_thermal (below) reads
+    est.temperature_filter = ThermalFilter(tau) if lagged else None
+    return est
+
+
+@register_estimator('lag')
+def estimate_lag(ctx):
+    """Estimate polynomial (or field) models in a lagged temperature, tau from the data."""
+    return _estimate(ctx, 'lag', 'poly' if ctx.n_orientations == 1 else 'field', True)
+
+
+@register_estimator('field-lag')
+def estimate_field_lag(ctx):
+    """Estimate the seed 000 field model in a lagged temperature (several orientations)."""
+    if ctx.n_orientations == 1:
+        raise CalibrationRefused('the field model needs several orientations',
+                                 'use --model lag for one orientation')
+    return _estimate(ctx, 'field-lag', 'field', True)
+
+
+@register_estimator('rvm')
+def estimate_rvm(ctx):
+    """Estimate RVM models (seed 003): offsets in one pose, bias and scale in several."""
+    return _estimate(ctx, 'rvm', 'rvm', False)
+
+
+@register_estimator('rvm-lag')
+def estimate_rvm_lag(ctx):
+    """Estimate RVM models in a lagged temperature, tau from the data."""
+    return _estimate(ctx, 'rvm-lag', 'rvm', True)
+
+
+def calibrate_thermal(windows, options=None):
+    """Run the ``--model`` choice and estimator on windows; returns (Calibration, Estimate).
+
+    The same decisions as ``calibrate_windows`` (auto policy, registered estimators, gyro
+    default) with the temperature filter honoured even where calibrate.py cannot store it
+    yet; the Calibration has no fit statistics beyond the estimator's.
+    """
+    from .calibrate import _gyro_bias, ESTIMATORS, model_choices
+    o = options or CalibrateOptions()
+    if o.model not in model_choices():
+        raise CalibrationRefused(f'unknown model {o.model!r}', f'use one of {model_choices()}')
+    ctx = make_context(windows, o)
+    ctx.filter_ok = True
+    name, why = (o.model, 'requested') if o.model != 'auto' else AUTO_POLICY[0](ctx)
+    est = ESTIMATORS[name](ctx)
+    if est.gyro is None:
+        est.gyro, _ = _gyro_bias(ctx)
+    est.fit.setdefault('model_choice', {'model': name, 'reason': why})
+    sel = getattr(ctx, 'thermal_selection', None)
+    if sel is not None:
+        est.fit.setdefault('selection', sel.report())
+    return calibration_from(ctx, est), est
+
+
+AUTO_POLICY[0] = auto_policy
