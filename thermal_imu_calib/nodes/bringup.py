@@ -9,30 +9,14 @@ Parameters for both come from the usual ``--ros-args`` (e.g. ``--params-file`` w
 sections ``thermal_imu_compensator`` and ``thermal_imu_calibrator``).
 """
 
-import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-
+from . import common
 from .calibrator import CalibratorNode
 from .compensator import CompensatorNode
 
 
 def main(args=None):
     """Run both nodes until shutdown."""
-    rclpy.init(args=args)
-    nodes = []
-    try:
-        nodes.append(CompensatorNode())
-        nodes.append(CalibratorNode())
-        executor = SingleThreadedExecutor()
-        for node in nodes:
-            executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        for node in nodes:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    common.run_nodes([CompensatorNode, CalibratorNode], args)
 
 
 if __name__ == '__main__':

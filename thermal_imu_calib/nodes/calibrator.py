@@ -20,9 +20,7 @@ import threading
 import time
 
 import numpy as np
-import rclpy
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.task import Future
 from sensor_msgs.msg import Imu, Temperature
@@ -502,19 +500,7 @@ def _atomic_copy(src, dst):
 
 def main(args=None):
     """Run the calibrator node (estimation runs on a worker thread, data keeps flowing)."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = CalibratorNode()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    common.run_nodes([CalibratorNode], args)
 
 
 if __name__ == '__main__':

@@ -15,8 +15,6 @@ import os
 import time
 
 import numpy as np
-import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import Imu, Temperature
 from std_msgs.msg import String
@@ -332,19 +330,7 @@ def _probe(cal):
 
 def main(args=None):
     """Run the compensator node."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = CompensatorNode()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    common.run_nodes([CompensatorNode], args)
 
 
 if __name__ == '__main__':
