@@ -1,4 +1,6 @@
-"""Window statistics for the thermal-model tests: from the simulator, or synthetic."""
+"""Window statistics for the thermal-model tests: simulator, synthetic, real BMI270 slices."""
+
+import os
 
 import numpy as np
 
@@ -52,3 +54,36 @@ def make_windows(t, temp, accel, gyro, hold=None, n=500, sigma_a=1e-3, sigma_g=1
                    np.full(m, n), acc, gyr, np.full((m, 3), sigma_a ** 2),
                    np.full((m, 3), sigma_g ** 2), np.asarray(temp, float)[:, None],
                    rate[:, None])
+
+
+BMI270 = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'fixtures', 'real', 'bmi270')
+
+
+def bmi270_windows(directory=BMI270, window=64, rate_hz=100.0):
+    """Return Windows of the cold (hold 0) and hot (hold 1) BMI270 soaks (see SOURCE.md).
+
+    Lines that are not 7 floats are skipped; accel g/4 -> m/s^2, gyro deg/s -> rad/s. There
+    is no time base: ``rate_hz`` is assumed and the hot soak placed an hour after the cold.
+    """
+    parts, t_off = [], 0.0
+    for hold, name in enumerate(('BMI_270_cold_test_.csv', 'BMI_270_hot_test.csv')):
+        rows = []
+        with open(os.path.join(directory, name), errors='replace') as f:
+            for line in f:
+                vals = line.strip().split(',')
+                if len(vals) == 7:
+                    try:
+                        rows.append([float(v) for v in vals])
+                    except ValueError:
+                        pass
+        a = np.asarray(rows)
+        m = len(a) // window
+        blocks = a[:m * window].reshape(m, window, 7)
+        acc = blocks[:, :, 1:4] * 4.0 * G
+        gyr = np.radians(blocks[:, :, 4:7])
+        t0 = t_off + np.arange(m) * window / rate_hz
+        parts.append(Windows(np.full(m, hold), t0, t0 + window / rate_hz, np.full(m, window),
+                             acc.mean(1), gyr.mean(1), acc.var(1, ddof=1), gyr.var(1, ddof=1),
+                             blocks[:, :, :1].mean(1), np.zeros((m, 1))))
+        t_off = t0[-1] + 3600.0
+    return Windows.concat(parts)
