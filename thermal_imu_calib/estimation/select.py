@@ -263,14 +263,14 @@ def _hold_folds(windows, n_folds=MULTI_FOLDS):
     return np.array([fold_of[int(h)] for h in windows.hold])
 
 
-def _field_fit(ctx, windows, ta):
+def _field_fit(ctx, windows, ta, refine=None):
     o = ctx.options
     pm = ctx.prior_model
     k0 = b0 = s = None
     if pm is not None:
         k0, b0, s = pm.k0 + pm.thermal[:, 0], pm.b0 + pm.thermal[:, 3], pm.s
     return fit_field_model(windows, ta, o.gravity, ctx.t0, k0, b0, s, order=o.order,
-                           refine=o.refine)
+                           refine=o.refine if refine is None else refine)
 
 
 def _up_per_window(windows, fit):
@@ -345,7 +345,9 @@ def select_multi(ctx, rvm_settings=None):
     t_start = time.perf_counter()
     g = ctx.options.gravity
     w = ctx.windows
-    up = _up_per_window(w, _field_fit(ctx, w, ctx.ta))
+    # tilts from the two-step iteration (the joint refinement changes them by far less than
+    # the thermal models differ, and costs most of the time)
+    up = _up_per_window(w, _field_fit(ctx, w, ctx.ta, refine=False))
     lag, tau, kernels = None, None, {}
     lag_note = 'no temperature input'
     if ctx.k:
