@@ -18,11 +18,11 @@ Kernel (eq. 33) on inputs normalised to [-1, 1] (eq. 34)::
 
     K(x, xi) = lambda exp(-|x - xi|^2 / (2 sigma2)) + (1 - lambda) (x xi + 1)^d
 
-Basis candidates are ``n_centres`` quantiles of the training inputs rather than every
-training point (the design stays N x 26 instead of N x N; the sparse prior prunes most of
-them anyway). Bias- and scale-type errors are separated by pose as in seed 003 sect. 3:
-with a pose factor ``u`` (the axis' share of gravity, +-1 vertical, 0 horizontal) the
-design is ``[1, K(x, c)] + u [1, K(x, c)]``, so horizontal holds pin the bias and vertical
+Basis candidates are ``n_centres`` quantiles of the training inputs (snapped to a grid of
+as many points) rather than every training point: the design stays N x 17 instead of N x N,
+and the sparse prior prunes further. Bias- and scale-type errors are separated by pose as
+in seed 003 sect. 3: with a pose factor ``u`` (the axis' share of gravity, +-1 vertical,
+0 horizontal) the design is ``[1, K(x, c)] + u [1, K(x, c)]``, so horizontal holds pin the bias and vertical
 ones the scale factor; one orientation only gives the offset part.
 
 Hyperparameters (sigma2, d, lambda) are chosen per axis by grouped cross-validation on the
@@ -222,8 +222,11 @@ def fit_axes(x, y, groups, u=None, settings=None, x_range=None, kernels=None):
     y_range = np.stack([y.min(0), y.max(0)], 1)
     xn = normalise(x, x_range[:, 0], x_range[:, 1])
     yn = normalise(y, y_range[:, 0], y_range[:, 1])
-    cents = [np.unique(np.quantile(xn[:, a], np.linspace(0, 1, s.n_centres)))
-             for a in range(3)]
+    # candidate centres: quantiles of the inputs snapped to a grid of n_centres points, so a
+    # dwell at one temperature does not yield several nearly identical basis functions
+    half = 0.5 * (s.n_centres - 1)
+    cents = [np.unique(np.round((np.quantile(xn[:, a], np.linspace(0, 1, s.n_centres)) + 1.0)
+                                * half)) / half - 1.0 for a in range(3)]
     # batch: (kernel, axis) designs; CV folds share a design and differ in rows
     designs = {}
     for a in range(3):
