@@ -22,8 +22,8 @@ Basis candidates are ``n_centres`` quantiles of the training inputs (snapped to 
 as many points) rather than every training point: the design stays N x 17 instead of N x N,
 and the sparse prior prunes further. Bias- and scale-type errors are separated by pose as
 in seed 003 sect. 3: with a pose factor ``u`` (the axis' share of gravity, +-1 vertical,
-0 horizontal) the design is ``[1, K(x, c)] + u [1, K(x, c)]``, so horizontal holds pin the bias and vertical
-ones the scale factor; one orientation only gives the offset part.
+0 horizontal) the design is ``[1, K(x, c)] + u [1, K(x, c)]``, so horizontal holds pin the
+bias and vertical ones the scale factor; one orientation only gives the offset part.
 
 Hyperparameters (sigma2, d, lambda) are chosen per axis by grouped cross-validation on the
 training data (leave one temperature leg, hold or time block out), never on test data.
