@@ -142,7 +142,8 @@ class Estimate:
 #: model name -> estimator(Context) -> Estimate; see ``register_estimator``
 ESTIMATORS = {}
 #: modules that register further estimators when imported (one line per model family)
-ESTIMATOR_MODULES = ['thermal_imu_calib.estimation.baselines',
+ESTIMATOR_MODULES = ['thermal_imu_calib.estimation.whole_unit_fit',
+                     'thermal_imu_calib.estimation.baselines',
                      'thermal_imu_calib.estimation.select']
 
 
