@@ -226,7 +226,7 @@ def lag_warmup(seed, methods):
     tests = {
         'fast warm-up': sim_windows(sim.simulate(dataclasses.replace(
             base, name='lag-warmup-fast', tau_s=300.0, t_amb=20.5), seed)),
-        '21-39 degC cycle': sim_windows(sim.simulate(dataclasses.replace(
+        '21-38 degC cycle': sim_windows(sim.simulate(dataclasses.replace(
             base, name='lag-cycle', profile='cycle', cycles=1, cycle_lo=21.5, cycle_hi=38.0,
             ramp_degc_per_min=1.0, dwell_s=300.0, case_tau_s=60.0), seed)),
     }

@@ -1,14 +1,15 @@
 """``--model auto``: choose the thermal model by held-out validation on the collected data.
 
-One orientation (warm-up, chamber cycle): the candidates are the offset polynomial
-(order per axis by CV, 0..3) and the RVM (seed 003), each in the temperature reading and
-in a first-order lagged temperature whose time constant is estimated from the same data
-(thermal_lag). Every candidate is refitted with one temperature leg (chamber cycle), hold,
-or contiguous time block (single warm-up) left out, and scored on it: the held-out drift is
-the corrected output minus its mean over the training part (the constant is not
-observable in one pose), RMS over windows and axes, divided by the raw signal's held-out
-drift, averaged over accelerometer and gyroscope. The simplest candidate within 5 % of the
-best wins (order: offset, lag, rvm, rvm-lag).
+One orientation (warm-up, chamber cycle): the lag search (thermal_lag.estimate_tau, same
+polynomial order with and without the lag) decides whether the models see a first-order
+lagged temperature. The candidates are the offset polynomial (order per axis by CV, 0..3)
+with and without that lag and the RVM (seed 003) with the chosen filter. Every candidate is
+refitted with one temperature leg (chamber cycle), hold, or contiguous time block (single
+warm-up) left out, and scored on it: the held-out drift is the corrected output minus its
+mean over the training part (the constant is not observable in one pose), inputs clamped
+to the training range, RMS over windows and axes, divided by the raw signal's held-out
+drift, averaged over accelerometer and gyroscope. Among the candidates with the chosen
+filter the simplest within 5 % of the best wins (order: offset, lag, rvm, rvm-lag).
 
 Several orientations: the seed 000 field model is fitted once for the hold tilts; with
 those tilts fixed, its thermal polynomial (by linear least squares), the same in a lagged
