@@ -14,8 +14,8 @@ filter the simplest within 5 % of the best wins (order: offset, lag, rvm, rvm-la
 Several orientations: the seed 000 field model is fitted once for the hold tilts; with
 those tilts fixed, its thermal polynomial (by linear least squares), the same in a lagged
 temperature (when the gyro-bias lag search finds one) and the bias/scale RVM are refitted
-with a fifth of the holds left out and scored by the held-out raw-output residual. The
-field model stays unless the lagged one is 10 % and the RVM 25 % better.
+with holds left out (at most one per face) and scored by the held-out raw-output residual.
+The field model stays unless the lagged one is 10 % and the RVM 50 % better.
 
 ``auto_policy`` is installed as ``calibrate.AUTO_POLICY[0]``; its decision and the table of
 held-out errors go to ``ctx.thermal_selection`` so that the estimators registered here
@@ -36,7 +36,7 @@ from .calibrate import (_default_axis_inputs, AUTO_POLICY, CalibrateOptions, Cal
                         register_estimator)
 from .field_estimator import fit_field_model
 from .offset_fit import fit_offset_model
-from .segments import coverage, distinct_orientations
+from .segments import coverage, distinct_orientations, face_of
 from .rvm_fit import fit_rvm_bias_scale, fit_rvm_offset
 from .thermal_lag import cv_groups, estimate_tau, lagged_axis_temperatures, tau_or_none
 
@@ -51,10 +51,11 @@ LAG_MIN_IMPROVEMENT = 0.10
 MULTI_MARGIN = 0.10
 #: ... and the RVM the better of them by this much (a richer model that only matches the
 #: parametric one is not worth it)
-MULTI_RVM_MARGIN = 0.25
+MULTI_RVM_MARGIN = 0.5
 #: the gyro-bias lag search must improve by this much before a lag is tried
 MULTI_LAG_IMPROVEMENT = 0.20
-#: how many hold folds the several-orientation comparison uses
+#: at most this many hold folds in the several-orientation comparison (fewer when a face
+#: was held fewer times)
 MULTI_FOLDS = 5
 #: Estimate carries a temperature filter into the Calibration (calibrate.py support)
 FILTER_SUPPORTED = 'temperature_filter' in {f.name for f in dataclasses.fields(Estimate)}
@@ -259,9 +260,26 @@ def select_single(ctx, rvm_settings=None, candidates=SINGLE_CANDIDATES,
 
 # ---------------------------------------------------------------------- several orientations
 def _hold_folds(windows, n_folds=MULTI_FOLDS):
-    ids = windows.hold_ids
-    fold_of = {int(h): i % n_folds for i, h in enumerate(ids)}
-    return np.array([fold_of[int(h)] for h in windows.hold])
+    """Return (fold per window, number of folds): the k-th hold of each face goes to fold k.
+
+    A fold then leaves out at most one hold per face, so every axis keeps an up and a down
+    pose in training (needed to separate bias from scale factor). When a face was held only
+    once that is impossible: fewer than 2 folds are returned (no comparison is made; the
+    folds are then a plain round robin of the holds, for the RVM's own kernel search).
+    """
+    ids, means = windows.hold_means()
+    faces = [face_of(m) for m in means]
+    names = sorted(set(faces))
+    counts = [faces.count(f) for f in names if f != 'tilted']
+    n = min([n_folds] + counts) if counts else 0
+    seen, fold_of = {}, {}
+    for i, (h, f) in enumerate(zip(ids, faces)):
+        k = seen.get(f, 0)
+        seen[f] = k + 1
+        # shifted per face, so a fold mixes repetitions (temperatures) instead of being one
+        # time block of a warm-up; else a plain round robin
+        fold_of[int(h)] = (k + names.index(f)) % n if n >= 2 else i % n_folds
+    return np.array([fold_of[int(h)] for h in windows.hold]), n
 
 
 def _field_fit(ctx, windows, ta, refine=None):
@@ -298,7 +316,7 @@ def fit_rvm_multi(ctx, windows=None, tau=None, kernels=None, rvm_settings=None, 
     if up is None:
         up = _up_per_window(w, _field_fit(ctx, w, ta))
     k0, b0, s = _prior(ctx)
-    return fit_rvm_bias_scale(w, ta, up, _hold_folds(w), ctx.options.gravity, k0, b0, s,
+    return fit_rvm_bias_scale(w, ta, up, _hold_folds(w)[0], ctx.options.gravity, k0, b0, s,
                               rvm_settings, kernels)
 
 
@@ -324,20 +342,22 @@ def heldout_multi(ctx, up, tau, kernels=None, rvm_settings=None):
     y = w.accel - b0 - k0 * sf
     span = float(np.max(np.ptp(ta, axis=0))) if ctx.k else 0.0
     order = max(o for o in range(ctx.options.order + 1) if o == 0 or span >= ORDER_SPAN[o])
-    folds = _hold_folds(w)
+    folds, _ = _hold_folds(w)
     out = {'field': np.zeros_like(y), 'rvm': np.zeros_like(y) if kernels else None}
     for f in np.unique(folds):
         test = folds == f
         train = ~test
+        # evaluated as a calibration from the training holds would be: clamped to its range
+        tc = clamp_to_training(ta, w, train, ctx.accel_input, ctx.options.range_margin)
         for a in range(3):
-            dt = ta[:, a] - ctx.t0[a]
-            v = _field_design(dt, sf[:, a], order)
+            v = _field_design(ta[:, a] - ctx.t0[a], sf[:, a], order)
+            vt = _field_design(tc[:, a] - ctx.t0[a], sf[:, a], order)
             coef, *_ = np.linalg.lstsq(v[train], y[train, a], rcond=None)
-            out['field'][test, a] = y[test, a] - v[test] @ coef
+            out['field'][test, a] = y[test, a] - vt[test] @ coef
         if kernels:
             model, _ = fit_rvm_multi(ctx, w.select(train), tau, kernels, rvm_settings,
                                      up[train])
-            out['rvm'][test] = w.accel[test] - model.forward(g * up[test], ta[test])
+            out['rvm'][test] = w.accel[test] - model.forward(g * up[test], tc[test])
     return out
 
 
@@ -346,6 +366,11 @@ def select_multi(ctx, rvm_settings=None):
     t_start = time.perf_counter()
     g = ctx.options.gravity
     w = ctx.windows
+    _, n_folds = _hold_folds(w)
+    if n_folds < 2:
+        return Selection('field', f'{ctx.n_orientations} orientations; a face was held only '
+                         'once, so no held-out split keeps every axis up and down in '
+                         'training: seed 000 field model', groups='holds')
     # tilts from the two-step iteration (the joint refinement changes them by far less than
     # the thermal models differ, and costs most of the time)
     up = _up_per_window(w, _field_fit(ctx, w, ctx.ta, refine=False))
@@ -373,8 +398,8 @@ def select_multi(ctx, rvm_settings=None):
         chosen = 'rvm'
     parts = ', '.join(f'{n} {v / g * 1e6:.1f} ug' for n, v in scores.items())
     reason = (f'{ctx.n_orientations} orientations; held-out raw-output residual RMS at the '
-              f'holds\' tilts (holds in {MULTI_FOLDS} folds): {parts}; {lag_note}; chose '
-              f'{chosen}')
+              f'holds\' tilts ({n_folds} folds, at most one hold per face out): {parts}; '
+              f'{lag_note}; chose {chosen}')
     return Selection(chosen, reason, tau if chosen == 'field-lag' else None, table,
                      None if lag is None else lag.report(), 'holds', kernels,
                      time.perf_counter() - t_start)
