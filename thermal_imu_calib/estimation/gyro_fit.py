@@ -561,6 +561,7 @@ class PreparedTransitions:
     sigma: np.ndarray      # (k,) rad, direction-residual standard deviation
     closed: np.ndarray     # (k,) bool
     index: List[int] = field(default_factory=list)   # positions in the input list
+    cone: Optional[np.ndarray] = None                 # (k, n, 3) coning increments, rad
 
 
 def _trapezoid(x, dt):
@@ -576,7 +577,7 @@ MOTION_SIGMAS = 8.0
 MOTION_MARGIN_S = 0.25
 
 
-def _merge_commuting(b, c2, c3):
+def _merge_commuting(b, c2, c3, cone):
     """Sum runs of increments whose composition is their sum to 1e-7 rad (one pass)."""
     groups = [0]
     sx = sy = sz = ex = ey = ez = 0.0
@@ -591,8 +592,7 @@ def _merge_commuting(b, c2, c3):
         else:
             sx, sy, sz, ex, ey, ez = sx + x, sy + y, sz + z, nx, ny, nz
     starts = np.array(groups)
-    return (np.add.reduceat(b, starts, axis=0), np.add.reduceat(c2, starts, axis=0),
-            np.add.reduceat(c3, starts, axis=0))
+    return tuple(np.add.reduceat(x, starts, axis=0) for x in (b, c2, c3, cone))
 
 
 def _motion_extent(t, d, noise):
@@ -643,17 +643,21 @@ def prepare_transitions(transitions, hold_up, hold_sigma, static, accel_model, a
         keep = _motion_extent(tr.t, d, gyro_noise)
         tt, d, w = tr.t[keep], d[keep], w[keep]
         dt = np.diff(tt)
-        bb, cc2, cc3 = _merge_commuting(_trapezoid(d, dt), _trapezoid(w * w, dt),
-                                        _trapezoid(w ** 3, dt))
-        rows.append((i, tr, bb, cc2, cc3, dt))
+        # within-interval coning of a linearly varying rate (Bortz): dt^2/12 w_a x w_b,
+        # evaluated with the prior scale (its Omega1 dependence is second order)
+        cone = np.cross(d[:-1], d[1:]) * (dt ** 2 / 12.0)[:, None]
+        bb, cc2, cc3, cc = _merge_commuting(_trapezoid(d, dt), _trapezoid(w * w, dt),
+                                            _trapezoid(w ** 3, dt), cone)
+        rows.append((i, tr, bb, cc2, cc3, cc, dt))
     k = len(rows)
     n = max([len(r[2]) for r in rows], default=1)
     b = np.zeros((k, n, 3))
     c2 = np.zeros((k, n, 3))
     c3 = np.zeros((k, n, 3))
+    c0 = np.zeros((k, n, 3))
     uf, ut, sg, cl, idx = [], [], [], [], []
-    for j, (i, tr, bb, cc2, cc3, dt) in enumerate(rows):
-        b[j, :len(bb)], c2[j, :len(bb)], c3[j, :len(bb)] = bb, cc2, cc3
+    for j, (i, tr, bb, cc2, cc3, cc, dt) in enumerate(rows):
+        b[j, :len(bb)], c2[j, :len(bb)], c3[j, :len(bb)], c0[j, :len(bb)] = bb, cc2, cc3, cc
         uf.append(hold_up[tr.hold_from])
         ut.append(hold_up[tr.hold_to])
         gn = 0.0 if gyro_noise is None else \
@@ -664,7 +668,7 @@ def prepare_transitions(transitions, hold_up, hold_sigma, static, accel_model, a
         idx.append(i)
     return PreparedTransitions(b, c2, c3, np.array(uf).reshape(k, 3),
                                np.array(ut).reshape(k, 3), np.array(sg), np.array(cl, bool),
-                               idx)
+                               idx, c0)
 
 
 def prefix_products(q):
@@ -691,6 +695,8 @@ def quat_to_matrix(q):
 def transition_rotations(prep, omega1, omega2, omega3, prefixes=False):
     """Return (k, 4) quaternions dR of every prepared transition (and the prefixes)."""
     theta = prep.b @ np.asarray(omega1).T + omega2 * prep.c2 + omega3 * prep.c3
+    if prep.cone is not None:
+        theta = theta + prep.cone
     q = quat_from_rotvec(theta)
     if not prefixes:
         return integrate_batch(theta), None
@@ -736,9 +742,60 @@ def direction_error_deg(prep, omega1, omega2=0.0, omega3=0.0):
     return ang
 
 
+def _subset(prep, rows):
+    """Return the prepared transitions selected by a bool mask."""
+    return PreparedTransitions(prep.b[rows], prep.c2[rows], prep.c3[rows], prep.u_from[rows],
+                               prep.u_to[rows], prep.sigma[rows], prep.closed[rows],
+                               [i for i, r in zip(prep.index, rows) if r],
+                               None if prep.cone is None else prep.cone[rows])
+
+
+def _select_rotation_terms(lay, free, p1, prep, solve_rows, k, tol=0.01):
+    """Drop Omega3, then Omega2, unless leave-pose-changes-out validation supports them."""
+    if k < 6:
+        return free, {}
+    folds = np.arange(k) % min(5, k)
+
+    def cv_error(fr):
+        err = 0.0
+        for f in np.unique(folds):
+            test = folds == f
+            p = solve_rows(fr, p1, ~test)
+            r = rotation_residuals(_subset(prep, test), lay.get(p, 'Omega1'),
+                                   lay.get(p, 'Omega2'), lay.get(p, 'Omega3'))
+            err += float(np.sum((r / prep.sigma[test, None]) ** 2))
+        return err / k
+
+    current = free.copy()
+    best = cv_error(current)
+    scores = {'all determined': best}
+    for g in ('Omega3', 'Omega2'):
+        i = np.arange(lay.slices[g].start, lay.slices[g].stop)
+        i = i[current[i]]
+        if not len(i):
+            continue
+        fr = current.copy()
+        fr[i] = False
+        e = cv_error(fr)
+        scores[f'without {g}'] = e
+        if e <= best * (1.0 + tol):
+            current = fr
+            best = min(best, e)
+            for j in i:
+                lay.reason[j] = ('determined, but leave-pose-changes-out validation does not '
+                                 'support it: fixed at its prior')
+        else:
+            break
+    return current, scores
+
+
 def fit_gyro_rotations(prep, priors=None, omega1_prior=None, ratio=DETERMINED_RATIO,
-                       robust=True):
-    """Estimate Omega1 (and, when determined, Omega2/Omega3) from prepared transitions."""
+                       robust=True, select=True):
+    """Estimate Omega1 (and, when determined, Omega2/Omega3) from prepared transitions.
+
+    ``select``: keep the nonlinear terms only when leave-pose-changes-out validation
+    supports them (as the accelerometer's optional terms).
+    """
     priors = priors or Priors()
     lay = Layout()
     std1 = np.full((3, 3), priors.gyro_misalignment)
@@ -781,6 +838,32 @@ def fit_gyro_rotations(prep, priors=None, omega1_prior=None, ratio=DETERMINED_RA
             least_squares(fun, z0, **kw)
         return full(res.x), res
 
+    def solve_rows(free, base, rows):
+        """Plain least squares of the free parameters on a subset of transitions."""
+        sub = _subset(prep, rows)
+        idx = np.flatnonzero(free)
+        sd = lay.std[idx]
+
+        def full(z):
+            p = base.copy()
+            p[idx] = base[idx] + z * sd
+            return p
+
+        def fun(z):
+            p = full(z)
+            r = rotation_residuals(sub, lay.get(p, 'Omega1'), lay.get(p, 'Omega2'),
+                                   lay.get(p, 'Omega3'))
+            return (r / sub.sigma[:, None]).ravel()
+
+        def jac(z):
+            p = full(z)
+            _, j = rotation_residuals(sub, lay.get(p, 'Omega1'), lay.get(p, 'Omega2'),
+                                      lay.get(p, 'Omega3'), True)
+            return (j / sub.sigma[:, None, None]).reshape(-1, lay.size)[:, idx] * sd[None, :]
+
+        res = least_squares(fun, np.zeros(len(idx)), jac=jac, method='trf', max_nfev=50)
+        return full(res.x)
+
     if k < 2:
         free = np.zeros(lay.size, bool)
         for i in range(lay.size):
@@ -800,6 +883,9 @@ def fit_gyro_rotations(prep, priors=None, omega1_prior=None, ratio=DETERMINED_RA
         s = max(robust_scale(r1), 1.0)
         free, ratios = decide_determined(lay, j1, s, ratio,
                                          chains=[[9 + i, 12 + i] for i in range(3)])
+        cv = {}
+        if select:
+            free, cv = _select_rotation_terms(lay, free, p1, prep, solve_rows, k)
         p0 = lay.mean.copy()
         p0[free] = p1[free]
         p, res = solve(free, p0, False, robust)

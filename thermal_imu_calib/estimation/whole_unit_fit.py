@@ -557,6 +557,68 @@ def _notes(lay, free, ratios, holds_bad):
     return notes
 
 
+# ------------------------------------------------------------------------ both triads
+@dataclass
+class WholeUnitFit:
+    """Accelerometer and gyroscope fits of one whole-unit calibration."""
+
+    accel: AccelFit
+    gyro: object                 # gyro_fit.GyroFit
+    notes: list
+    stats: dict
+
+
+def fit_whole_unit(windows, gravity, axis_temps=None, t0=None, gyro_inputs=None, t0g=None,
+                   latitude=None, transitions=None, priors=None, order=2,
+                   accel_input=(0, 0, 0), gyro_input=(0, 0, 0), residual='norm',
+                   gyro_input_unit='degC', accel_rows=None):
+    """Fit both triads from stationary windows (and pose changes); no refusal logic.
+
+    windows: Windows; gravity m/s^2; axis_temps / gyro_inputs: (m, 3) thermal inputs of the
+    accel / gyro axes per window (None: temperature-independent); t0 / t0g their references
+    (default: middle of the range); latitude (deg) for the earth rate; transitions from
+    ``gyro_fit.MotionCollector``; ``accel_rows``: bool mask of the windows the accelerometer
+    is fitted on (default all; the gyro always uses every window, its hold directions come
+    from the fitted accelerometer). Returns WholeUnitFit (models in ``.accel.model`` and
+    ``.gyro.model``).
+    """
+    from .gyro_fit import fit_gyro
+    priors = priors or Priors()
+    m = len(windows)
+    if axis_temps is not None and t0 is None:
+        t0 = np.round((axis_temps.min(0) + axis_temps.max(0)) / 2.0, 2)
+    if gyro_inputs is not None and t0g is None:
+        t0g = np.round((gyro_inputs.min(0) + gyro_inputs.max(0)) / 2.0, 2)
+    t0 = np.zeros(3) if t0 is None else np.asarray(t0, float)
+    t0g = np.zeros(3) if t0g is None else np.asarray(t0g, float)
+    rows = np.ones(m, bool) if accel_rows is None else np.asarray(accel_rows, bool)
+    fit = fit_whole_unit_accel(windows.select(rows),
+                               None if axis_temps is None else axis_temps[rows], gravity, t0,
+                               priors, order=order if axis_temps is not None else 0,
+                               residual=residual)
+    am = fit.model
+    acc = am.correct(windows.accel, axis_temps if axis_temps is not None
+                     else np.broadcast_to(am.t0, (m, 3)))
+    gfit = fit_gyro(windows, gyro_inputs, acc, t0g, latitude=latitude,
+                    transitions=transitions, accel_model=am, accel_input=accel_input,
+                    gyro_input=gyro_input, priors=priors,
+                    order=order if gyro_inputs is not None else 0, input_unit=gyro_input_unit)
+    n_est, n_fix = am.count()
+    g_est, g_fix = gfit.model.count()
+    notes = [f'seed 002 whole-unit model: {n_est + g_est} of {n_est + n_fix + g_est + g_fix} '
+             'coefficients (the 63 of seed 002 plus the scale temperature terms) estimated '
+             'from the data, the rest fixed (see meta.estimated and meta.fixed of each model)'
+             ] + fit.notes + gfit.notes
+    stats = {'residual_rms': {'value': fit.residual_rms, 'unit': 'm/s^2'},
+             'chi2_per_dof': fit.chi2_dof, 'robust_scale': fit.robust_scale,
+             'outlier_holds': fit.outlier_holds, 'accel_residual': residual,
+             'accel_estimated': n_est, 'accel_fixed': n_fix,
+             'gyro_estimated': g_est, 'gyro_fixed': g_fix,
+             'observability_ratio_limit': DETERMINED_RATIO,
+             'accel_posterior_ratio': fit.determined, 'accel_cv': fit.cv, **gfit.stats}
+    return WholeUnitFit(fit, gfit, notes, stats)
+
+
 # ------------------------------------------------------------------------ estimator
 def _register():
     """Register the ``whole_unit`` estimator (imported by calibrate.ESTIMATOR_MODULES)."""
@@ -564,8 +626,12 @@ def _register():
 
     @register_estimator('whole_unit')
     def estimate_whole_unit(ctx):
-        """Seed 002 whole-unit model: accel (norm fit) and gyro (static + rotations)."""
-        from .gyro_fit import fit_gyro
+        """Seed 002 whole-unit model: accel (norm fit) and gyro (static + rotations).
+
+        Reads optional settings from the options: ``latitude`` (deg), ``transitions``
+        (pose changes from gyro_fit.MotionCollector), ``whole_unit_priors`` (Priors) and
+        ``whole_unit_residual`` ('norm' or 'vector').
+        """
         w, o, k = ctx.windows, ctx.options, ctx.k
         priors = getattr(o, 'whole_unit_priors', None) or Priors()
         if ctx.prior_model is not None:
@@ -576,11 +642,18 @@ def _register():
                 'the whole-unit model needs at least the six faces (+x -x +y -y +z -z up), '
                 'plus tilted poses for misalignment, each still for '
                 f'{o.min_hold_s:.0f} s or more')
-        order = o.order if k else 0
-        fit = fit_whole_unit_accel(w, ctx.ta if k else None, o.gravity, ctx.t0, priors,
-                                   order=order,
-                                   residual=getattr(o, 'whole_unit_residual', 'norm'))
-        am = fit.model
+        t0g = None
+        if k and list(ctx.gyro_input) == list(ctx.accel_input):
+            t0g = ctx.t0
+        unit = 'degC'
+        if k and o.inputs:
+            unit = getattr(o.inputs[ctx.gyro_input[0]], 'unit', 'degC')
+        res = fit_whole_unit(w, o.gravity, ctx.ta if k else None, ctx.t0,
+                             ctx.tg if k else None, t0g, getattr(o, 'latitude', None),
+                             getattr(o, 'transitions', None), priors,
+                             o.order if k else 0, ctx.accel_input, ctx.gyro_input,
+                             getattr(o, 'whole_unit_residual', 'norm'), unit)
+        am = res.accel.model
         weak = [f'{a}' for i, a in enumerate('xyz')
                 if not (am.estimated_mask('ct0')[i] and am.estimated_mask('A1')[i, i])]
         if weak:
@@ -590,29 +663,9 @@ def _register():
                 f'{" ".join(ctx.coverage["missing"]) or "none"})',
                 'hold every axis pointing up and pointing down, still, ideally several '
                 'times during the warm-up')
-        acc = am.correct(w.accel, ctx.ta if k else np.broadcast_to(am.t0, w.accel.shape))
-        tg = ctx.tg if k else None
-        t0g = (np.round((ctx.tg.min(0) + ctx.tg.max(0)) / 2.0, 2) if k else np.zeros(3))
-        if k and ctx.gyro_input == ctx.accel_input:
-            t0g = ctx.t0
-        gfit = fit_gyro(w, tg, acc, t0g, latitude=getattr(o, 'latitude', None),
-                        transitions=getattr(o, 'transitions', None), accel_model=am,
-                        accel_input=ctx.accel_input, gyro_input=ctx.gyro_input,
-                        priors=priors, order=order)
-        n_est, n_fix = am.count()
-        g_est, g_fix = gfit.model.count()
-        notes = [f'seed 002 whole-unit model: {n_est + g_est} of {n_est + n_fix + g_est + g_fix}'
-                 ' coefficients estimated from the data, the rest fixed (see meta.estimated '
-                 'and meta.fixed in each model)'] + fit.notes + gfit.notes
-        stats = {'residual_rms': {'value': fit.residual_rms, 'unit': 'm/s^2'},
-                 'chi2_per_dof': fit.chi2_dof, 'robust_scale': fit.robust_scale,
-                 'outlier_holds': fit.outlier_holds,
-                 'accel_estimated': n_est, 'accel_fixed': n_fix,
-                 'gyro_estimated': g_est, 'gyro_fixed': g_fix,
-                 'observability_ratio_limit': DETERMINED_RATIO,
-                 'accel_posterior_ratio': fit.determined, **gfit.stats}
-        return Estimate(accel=am, gyro=gfit.model, notes=notes, fit=stats,
-                        report={'whole_unit': {'accel': fit.determined, 'gyro': gfit.stats}})
+        return Estimate(accel=am, gyro=res.gyro.model, notes=res.notes, fit=res.stats,
+                        report={'whole_unit': {'accel': res.accel.determined,
+                                               'gyro': res.gyro.stats}})
 
     return estimate_whole_unit
 
