@@ -74,6 +74,8 @@ def run_seed(seed, tmp, cal_scenario='nav-coldstart', val_scenario='nav-validati
         'fit_s': t_fit, 'sim_s': t_sim,
         'iterations': res.calibration.fit.get('iterations'),
         'cal_scenario': cal_scenario, 'val_scenario': val_scenario,
+        'model': res.calibration.fit.get('model_choice', {}).get('model'),
+        'model_reason': res.calibration.fit.get('model_choice', {}).get('reason'),
     }
 
 
@@ -93,7 +95,8 @@ def main(argv=None):
             r = rows[-1]
             print(f'seed {seed}: raw max {r["raw_max"]:.1f} ug, estimated max {r["est_max"]:.2f} '
                   f'RMS {r["est_rms"]:.2f} ug, truth max {r["truth_max"]:.2f} RMS '
-                  f'{r["truth_rms"]:.2f} ug ({r["windows_300s"]} windows of 300 s)',
+                  f'{r["truth_rms"]:.2f} ug ({r["windows_300s"]} windows of 300 s), model '
+                  f'{r["model"]}',
                   file=sys.stderr)
     print(f'scenarios: {" / ".join(VARIANTS[args.variant])}')
     print('| seed | raw max [ug] | est. max [ug] | est. RMS [ug] | truth max [ug] | '
