@@ -157,6 +157,8 @@ def clamp_to_training(temps, windows, train, axis_input, margin):
     What ``Calibration.apply`` does with the default ``clamp`` policy and the valid range
     of a calibration made from the training windows.
     """
+    if windows.n_inputs == 0:
+        return temps
     lo = windows.temp[train].min(0)[axis_input] - margin
     hi = windows.temp[train].max(0)[axis_input] + margin
     return np.clip(temps, lo, hi)
@@ -366,6 +368,9 @@ def select_multi(ctx, rvm_settings=None):
     t_start = time.perf_counter()
     g = ctx.options.gravity
     w = ctx.windows
+    if ctx.k == 0:
+        return Selection('field', f'{ctx.n_orientations} orientations, no temperature input: '
+                         'seed 000 field model (temperature-independent terms)', groups='holds')
     _, n_folds = _hold_folds(w)
     if n_folds < 2:
         return Selection('field', f'{ctx.n_orientations} orientations; a face was held only '
