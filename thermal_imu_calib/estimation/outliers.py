@@ -15,7 +15,8 @@ Spikes
 
     No sample is flagged before the first block is complete (the noise is not known yet).
     A smooth ramp is never a spike (the centred median follows it); an isolated wild
-    sample of up to ``h`` consecutive samples is. Flagged samples are replaced by the
+    sample is. Two spikes closer than ``2 h + 1`` samples inflate the local spread and may
+    both pass (the window trades that against the output lag). Flagged samples are replaced by the
     window median (``mode='replace'``) or only flagged (``'flag'``). Everything is
     vectorised per chunk and the result does not depend on how the stream is chunked:
     blocks and windows are counted in samples since the start. The output lags the input
