@@ -901,11 +901,18 @@ def fit_gyro_rotations(prep, priors=None, omega1_prior=None, ratio=DETERMINED_RA
         after = direction_error_deg(prep, lay.get(p, 'Omega1'), lay.get(p, 'Omega2'),
                                     lay.get(p, 'Omega3'))
         notes = []
-        labels = [lay.label(i) for i in range(lay.size) if not free[i]]
+        by_cv = [lay.label(i) for i in range(lay.size) if not free[i]
+                 and (lay.reason[i] or '').startswith('determined, but')]
+        labels = [lay.label(i) for i in range(lay.size) if not free[i]
+                  and lay.label(i) not in by_cv]
         if labels:
             notes.append(f'gyroscope {", ".join(labels)} not determined by the {k} pose '
                          'changes: fixed at the prior (scale needs rotations about each axis; '
                          'nonlinearity needs fast ones)')
+        if by_cv:
+            notes.append(f'gyroscope {", ".join(by_cv)}: determined, but held-out pose changes '
+                         'do not support it (leave-pose-changes-out validation): fixed at the '
+                         'prior')
     return RotationFit(lay.get(p, 'Omega1'), lay.get(p, 'Omega2'), lay.get(p, 'Omega3'),
                        {n: lay.get(std, n) for n in lay.names}, lay.masks(free),
                        lay.reasons(free), {lay.label(i): v for i, v in ratios.items()}, k,

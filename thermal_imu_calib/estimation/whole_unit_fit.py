@@ -48,6 +48,9 @@ CONVENTION = 'convention'
 #: folds and parsimony tolerance of the leave-holds-out selection of optional terms
 CV_FOLDS = 5
 CV_TOLERANCE = 0.01
+#: reason stored for a determined parameter that cross-validation drops
+CV_REASON = ('determined, but leave-holds-out cross-validation does not support it: fixed at '
+             'its prior')
 #: residual forms of the accelerometer fit
 RESIDUALS = ('norm', 'vector')
 
@@ -525,28 +528,32 @@ def _select_by_cv(lay, free, p1, run, resid, windows, ns, no, tol):
         current[groups.pop(g)] = False
         for i in np.flatnonzero(free & ~current):
             if lay.reason[i] is None:
-                lay.reason[i] = ('determined, but leave-holds-out cross-validation does not '
-                                 'support it: fixed at its prior')
+                lay.reason[i] = CV_REASON
         best = min(best, trials[g])
     return current, scores
 
 
 def _notes(lay, free, ratios, holds_bad):
-    """Human notes: which seed 002 parameters were not determined, and why."""
+    """Human notes: which seed 002 parameters were fixed at their prior, and why."""
     notes = []
-    fixed = [i for i in range(lay.size) if not free[i] and lay.reason[i] is not None
-             and not lay.reason[i].startswith(CONVENTION)
-             and lay.reason[i] != 'no temperature input']
     groups = {}
-    for i in fixed:
+    for i in range(lay.size):
+        r = lay.reason[i]
+        if free[i] or r is None or r.startswith(CONVENTION) or r == 'no temperature input':
+            continue
         name, _ = lay.block_of(i)
-        groups.setdefault(name, []).append(lay.label(i))
+        groups.setdefault((name, r == CV_REASON), []).append(lay.label(i))
     advice = {'A1': 'misalignment needs poses off the six faces (tilted / corner-up holds)',
               'A2': 'needs inputs of several magnitudes on each axis (1 g only spans '
                     '-g..+g; use tilted poses, or lab mode)',
               'A3': 'needs large inputs (a centrifuge, lab mode) to separate from scale',
               'ct0': 'hold each axis up and down', }
-    for name, labels in groups.items():
+    for (name, by_cv), labels in groups.items():
+        if by_cv:
+            notes.append(f'accelerometer {", ".join(labels)}: determined, but held-out holds '
+                         'do not support it (leave-holds-out cross-validation): fixed at the '
+                         'prior')
+            continue
         adv = advice.get(name, 'needs a wider temperature span seen in several poses'
                          if name.startswith(('ct', 'kt')) else '')
         notes.append(f'accelerometer {", ".join(labels)} not determined by the data: fixed at '
