@@ -356,3 +356,27 @@ def test_stamps_jumping_back_start_a_new_temperature_timeline(ros, tmp_path):
     a_new, _ = vec(out[-1])
     np.testing.assert_allclose(a_new, expected(cal, 25.0).accel[0], atol=1e-9)
     assert rig.node.temps.time_resets == 1
+
+
+def test_lagged_temperature_filter_runs_live(ros, tmp_path):
+    # a calibration whose models see a 5-s lagged temperature: right after a step from 25
+    # to 35 degC the compensation still uses ~25 degC, and it converges to 35 degC later
+    from thermal_imu_calib.thermal_input import ThermalFilter
+    cal = make_cal()
+    cal.temperature_filter = ThermalFilter([5.0])
+    rig = Rig(ros, calibration_file=str(cal.save(tmp_path / 'cal.yaml')))
+    rig.temperature(25.0)
+    rig.send(10, dt=1.0)           # 10 s at 25 degC: the filter settles at 25
+    rig.stamp -= int(0.01 * S)
+    rig.send(1, dt=0.01)           # 10 ms before the step
+    rig.temperature(35.0)          # the step
+    rig.send(1, dt=0.01)           # at the step, 10 ms after the previous sample
+    rig.temperature(35.0, stamp=rig.stamp + 60 * S)
+    rig.stamp += 60 * S            # a minute later: settled at 35
+    rig.send(1)
+    out = rig.receive(13)
+    wait_for(lambda: len(out) >= 13, 10, '13 outputs')
+    just_after, _ = vec(out[11])
+    settled, _ = vec(out[12])
+    np.testing.assert_allclose(just_after, expected(cal, 25.0).accel[0], atol=2e-4)
+    np.testing.assert_allclose(settled, expected(cal, 35.0).accel[0], atol=1e-6)

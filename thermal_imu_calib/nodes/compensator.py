@@ -22,6 +22,7 @@ from std_srvs.srv import Trigger
 
 from . import common
 from ..calibration import Calibration, CalibrationError
+from ..thermal_input import CalibrationStream
 
 NODE_NAME = 'thermal_imu_compensator'
 MISSING_POLICIES = ('hold_last', 'passthrough', 'drop')
@@ -36,6 +37,8 @@ class ActiveModel:
     id: str
     source: str
     loaded_at: float
+    #: carries the thermal-input filter state (lagged temperature) of this model only
+    stream: CalibrationStream = None
 
 
 class CompensatorNode(Node):
@@ -134,7 +137,8 @@ class CompensatorNode(Node):
         if reason:
             return self._reject(source, reason)
         # one reference swap: a message is compensated entirely with the old or the new model
-        self._active = ActiveModel(cal, tuple(columns), cal.id, source, time.time())
+        self._active = ActiveModel(cal, tuple(columns), cal.id, source, time.time(),
+                                   CalibrationStream(cal))
         self.counts['calibrations_loaded'] += 1
         return True, (f'calibration {cal.id} active from {source}: accel '
                       f'{cal.accel.kind if cal.accel else "none"}, gyro '
@@ -228,6 +232,7 @@ class CompensatorNode(Node):
         temps = np.zeros((n, len(active.columns)))
         if active.columns:
             if self.temps.check_time(int(stamps.min())):
+                active.stream.reset()
                 self._warn_once('jump', 'IMU header stamps jumped back by more than '
                                 f'{common.JUMP_S:.0f} s: temperature history cleared')
             temps, age = self.temps.resolve(stamps, active.columns, self.temperature_timeout)
@@ -246,7 +251,7 @@ class CompensatorNode(Node):
                         c['dropped'] += int(stale.sum())
         rows = np.flatnonzero(comp)
         if len(rows):
-            res = cal.apply(accel[rows], gyro[rows], temps[rows])
+            res = active.stream.apply(stamps[rows] * 1e-9, accel[rows], gyro[rows], temps[rows])
             good = np.isfinite(res.accel).all(1) & np.isfinite(res.gyro).all(1)
             if not good.all():  # never publish NaN/Inf
                 c['invalid'] += int((~good).sum())
