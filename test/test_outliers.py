@@ -68,9 +68,15 @@ def test_imu_filter_delays_stamps_and_temperatures_with_the_samples():
     outs = []
     for i in range(0, n, 700):
         sl = slice(i, i + 700)
+        raw = [bytes([i % 251]) * 3 for i in range(i, min(i + 700, n))]
         outs.append(f.push(AlignedChunk(ImuColumns(stamps[sl], acc[sl], gyr[sl]), temps[sl],
-                                        np.zeros((len(temps[sl]), 1)))))
+                                        np.zeros((len(temps[sl]), 1)),
+                                        {'imu_raw': raw, 'imu_log_time_ns': stamps[sl] + 7})))
     outs.append(f.flush())
+    assert sum((o.extra['imu_raw'] for o in outs), []) == [bytes([i % 251]) * 3
+                                                           for i in range(n)]
+    assert np.array_equal(np.concatenate([o.extra['imu_log_time_ns'] for o in outs]),
+                          stamps + 7)
     st = np.concatenate([o.imu.stamp_ns for o in outs])
     tm = np.concatenate([o.temps for o in outs])
     g = np.concatenate([o.imu.gyro for o in outs])

@@ -215,9 +215,10 @@ def despike(x, **kwargs):
 class ImuSpikeFilter:
     """Spike gate for IMU column chunks: accel and gyro (6 channels), stamps passed through.
 
-    ``push(chunk)`` takes an ``io.columns.ImuColumns`` (or an ``AlignedChunk``, whose
-    temperatures and ages are delayed with the samples) and returns the same type, ``delay``
-    samples late; ``flush()`` returns the tail. ``counts()`` reports the rejections.
+    ``push(chunk)`` takes an ``io.columns.ImuColumns`` or an ``AlignedChunk`` (whose
+    temperatures, ages and ``extra`` passthrough, e.g. raw CDR buffers and log times, are
+    delayed with the samples) and returns the same type, ``delay`` samples late; ``flush()``
+    returns the tail. ``counts()`` reports the rejections per channel.
     """
 
     def __init__(self, accel_min_sigma=0.0, gyro_min_sigma=0.0, **kwargs):
@@ -225,6 +226,7 @@ class ImuSpikeFilter:
         self.filter = SpikeFilter(channels=6, min_sigma=ms, **kwargs)
         self._frame = ''
         self._aligned = None
+        self._keys = None            # extra keys of aligned chunks, and which were lists
 
     @property
     def delay(self):
@@ -245,6 +247,15 @@ class ImuSpikeFilter:
         extra = [imu.stamp_ns]
         if aligned:
             extra += [chunk.temps, chunk.temp_age]
+            if self._keys is None:
+                self._keys = [(k, isinstance(v, list)) for k, v in sorted(chunk.extra.items())]
+            for k, is_list in self._keys:
+                v = chunk.extra[k]
+                if is_list:
+                    arr = np.empty(len(v), object)
+                    arr[:] = v
+                    v = arr
+                extra.append(np.asarray(v))
         out = self.filter.push(np.hstack([imu.accel, imu.gyro]), extra)
         return self._wrap(out)
 
@@ -258,7 +269,10 @@ class ImuSpikeFilter:
         imu = ImuColumns(np.asarray(stamps, np.int64), out.values[:, :3].copy(),
                          out.values[:, 3:].copy(), self._frame)
         if self._aligned:
-            return AlignedChunk(imu, out.extra[1], out.extra[2])
+            extra = {}
+            for (k, is_list), v in zip(self._keys or [], out.extra[3:]):
+                extra[k] = list(v) if is_list else v
+            return AlignedChunk(imu, out.extra[1], out.extra[2], extra)
         return imu
 
 
