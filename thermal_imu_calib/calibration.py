@@ -35,7 +35,6 @@ import yaml
 from . import __version__
 from .gravity import STANDARD_GRAVITY
 from .models import model_from_dict, SensorModel
-from .models import rvm as _rvm  # noqa: F401  (registers the RVM family, seed 003)
 from .thermal_input import CalibrationStream, ThermalFilter
 
 FORMAT = 'thermal_imu_calib/1'

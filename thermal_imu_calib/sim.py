@@ -44,6 +44,7 @@ from scipy.spatial.transform import Rotation
 import yaml
 
 from .calibration import Calibration, TemperatureInput
+from .thermal_input import ThermalFilter
 from .gravity import normal_gravity
 from .io.columns import ImuColumns, TemperatureColumns
 from .models.field import FieldPolynomialModel
@@ -840,7 +841,8 @@ def simulate(name, seed=0, **overrides):
         frame_id='imu_link', gravity=gravity,
         gravity_source=f'WGS84 normal gravity at {cfg.latitude} deg, 0 m',
         accel_noise_std=np.full(3, sig_a), gyro_noise_std=np.full(3, sig_g),
-        fit={'method': 'simulation truth', 'simulation': meta}, notes=notes)
+        fit={'method': 'simulation truth', 'simulation': meta}, notes=notes,
+        temperature_filter=ThermalFilter(np.full(k, cfg.lag_s)) if cfg.lag_s > 0 else None)
     lo = np.array([dev.t0[[a for a in range(3) if idx[a] == i]].min() - 0.5 for i in range(k)])
     hi = np.array([dev.t0[[a for a in range(3) if idx[a] == i]].max() + 0.5 for i in range(k)])
     prior = Calibration(

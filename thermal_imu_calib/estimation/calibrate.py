@@ -13,6 +13,7 @@ from ..calibration import Calibration, TemperatureInput
 from ..gravity import STANDARD_GRAVITY
 from ..models.base import SensorModel
 from ..models.field import FieldPolynomialModel
+from ..thermal_input import ThermalFilter
 from .field_estimator import fit_field_model, per_axis_vertical_range
 from .offset_fit import fit_offset_model, time_groups
 from .segments import coverage, distinct_orientations, FACE_NAMES, Windows
@@ -137,6 +138,8 @@ class Estimate:
     notes: List[str] = field(default_factory=list)
     fit: dict = field(default_factory=dict)
     report: dict = field(default_factory=dict)
+    #: the lag of the temperature inputs the models were fitted in (None: the reading)
+    temperature_filter: Optional[ThermalFilter] = None
 
 
 #: model name -> estimator(Context) -> Estimate; see ``register_estimator``
@@ -230,7 +233,8 @@ def calibrate_windows(windows, options=None):
         out_of_range=o.out_of_range, accel_input=accel_input, gyro_input=gyro_input,
         frame_id=o.frame_id, gravity=g, gravity_source=o.gravity_source,
         accel_noise_std=np.sqrt(np.median(windows.accel_var, axis=0)),
-        gyro_noise_std=np.sqrt(np.median(windows.gyro_var, axis=0)), notes=notes)
+        gyro_noise_std=np.sqrt(np.median(windows.gyro_var, axis=0)), notes=notes,
+        temperature_filter=est.temperature_filter)
     before, after = gravity_residuals(windows, cal, g)
     fit_stats = dict(est.fit)
     fit_stats.update({
@@ -358,7 +362,10 @@ def gravity_residuals(windows, cal, g):
     ids = windows.hold_ids
     before = np.zeros(len(ids))
     after = np.zeros(len(ids))
-    res = cal.apply(windows.accel, windows.gyro, windows.temp if windows.n_inputs else None)
+    temps = windows.temp if windows.n_inputs else None
+    if temps is not None and cal.temperature_filter is not None:
+        temps = cal.temperature_filter.window_temperatures(windows)
+    res = cal.apply(windows.accel, windows.gyro, temps)
     for j, h in enumerate(ids):
         m = windows.hold == h
         wts = windows.n[m]

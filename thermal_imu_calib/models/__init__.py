@@ -6,3 +6,5 @@ Importing this package registers every family, so ``model_from_dict`` can rebuil
 from .base import MODEL_KINDS, model_from_dict, Param, SensorModel  # noqa: F401
 from . import polynomial  # noqa: F401  (registers offset_polynomial)
 from . import field  # noqa: F401  (registers field_polynomial, seed 000)
+from . import rvm  # noqa: F401  (registers rvm, seed 003)
+from . import whole_unit  # noqa: F401  (registers the seed 002 whole-unit families)
