@@ -221,3 +221,30 @@ def test_rotations_about_one_axis_leave_the_other_columns_at_the_prior():
     assert fit.model.m1[2, 2] == 1.0 and np.all(fit.model.m1[:, :2] == np.eye(3)[:, :2])
     assert np.max(np.abs(fit.model.m1[:2, 2] - np.linalg.inv(m)[:2, 2])) < 2e-4
     assert 'Omega1' in fit.model.fixed
+
+
+def test_gyro_thermal_input_can_be_a_separate_proxy_signal():
+    from thermal_imu_calib.calibration import TemperatureInput
+    from thermal_imu_calib.estimation.calibrate import CalibrateOptions, calibrate_windows
+    from test_whole_unit import directions, synth_windows, truth_accel
+    rng = np.random.default_rng(6)
+    w = synth_windows(rng, truth_accel(rng), directions(rng, tilted=4), reps=3)
+    # a second input: the gyro's own thermal proxy, lagging the die temperature
+    proxy = 25.0 + 0.7 * (w.temp[:, 0] - 22.0) + 0.3 * np.sin(np.arange(len(w)) / 9.0)
+    w.temp = np.column_stack([w.temp[:, 0], proxy])
+    w.temp_rate = np.zeros((len(w), 2))
+    beta, c1 = np.array([2e-3, -1e-3, 5e-4]), np.array([1e-4, -2e-4, 5e-5])
+    x0 = np.round((proxy.min() + proxy.max()) / 2, 2)
+    w.gyro = beta + np.outer(proxy - x0, c1) + rng.normal(0, 1e-6, (len(w), 3))
+    w.gyro_var = np.full((len(w), 3), 1e-12 * 1000)
+    opts = CalibrateOptions(model='whole_unit', order=1,
+                            inputs=[TemperatureInput('die', '/imu/temperature'),
+                                    TemperatureInput('gyro_proxy', '/imu/gyro_temperature')],
+                            accel_input=[0, 0, 0], gyro_input=[1, 1, 1])
+    cal = calibrate_windows(w, opts).calibration      # no earth rate in these data
+    assert cal.gyro_input == [1, 1, 1] and cal.accel_input == [0, 0, 0]
+    assert np.allclose(cal.gyro.t0, x0)
+    assert np.max(np.abs(cal.gyro.offset[1] - c1)) < 2e-6
+    assert np.max(np.abs(cal.gyro.offset[0] - beta)) < 1e-5
+    res = cal.apply(w.accel, w.gyro, w.temp)
+    assert np.max(np.abs(res.gyro)) < 2e-5
