@@ -103,3 +103,26 @@ def test_schedule_files_round_trip_and_bad_input_is_refused(tmp_path):
              np.full((1000, 1), 20.0))
     with pytest.raises(LabError, match='no turntable segments'):
         solve_lab(acc.means(), (0, 0, 0), (0, 0, 0))
+
+
+def test_lab_log_with_schedule_file_end_to_end(tmp_path):
+    from thermal_imu_calib.estimation.lab import accumulate_log
+    from thermal_imu_calib.io.bag import write_columns
+    from thermal_imu_calib.io.columns import ImuColumns, TemperatureColumns
+    sched, setpoints = paper_schedule(G, temps=tuple(range(0, 75, 10)),
+                                      rates_deg=tuple(range(0, 520, 50)),
+                                      centrifuge_g=(0, 10, 20, 30), segment_s=3.0)
+    accel, gyro = truth(sched)
+    t, a, w, x = simulate_lab_log(sched, setpoints, accel, gyro, 100.0, proxy=proxy)
+    t0_ns = 1_735_689_600 * 10 ** 9
+    stamps = t0_ns + np.round(t * 1e9).astype(np.int64)
+    topics = ['/lab/t_x', '/lab/t_y', '/lab/t_z', '/lab/f_x', '/lab/f_y', '/lab/f_z']
+    temps = {tp: TemperatureColumns(stamps[::10], x[::10, j]) for j, tp in enumerate(topics)}
+    log = str(tmp_path / 'lab.mcap')
+    write_columns(log, '/imu/data_raw', ImuColumns(stamps, a, w), temps)
+    path = write_schedule(sched, str(tmp_path / 'lab.yaml'))
+    means, used = accumulate_log(log, read_schedule(path), temperature_topics=topics)
+    assert used == topics and means.empty == 0
+    res = solve_lab(means, (0, 1, 2), (3, 4, 5), gyro_input_unit='Hz', t0=T0, x0=X0)
+    for name, err, _, val in coefficient_errors(res, accel, gyro):
+        assert np.all(np.abs(err) <= 1e-4 * np.abs(val) + 1e-9), (name, err)
