@@ -74,11 +74,14 @@ def test_live_calibration_then_compensation_of_a_new_cold_start(ros, tmp_path):
     # 1. calibration run
     imu = cal_run.imu()
     n = replay(imu_pub, imu, [(temp_pub, temps.stamp_ns, temps.temperature)], RATE)
-    wait_for(lambda: compensator.counts['received'] >= n, 20, f'compensator input {n}')
-    wait_for(lambda: calibrator.counts['samples'] >= n - 200, 20,
+    # generous waits: a loaded 2-core machine may take a while to drain the queues, but
+    # every message must still arrive
+    wait_for(lambda: compensator.counts['received'] >= n, 60,
+             lambda: f'compensator input {n} (got {compensator.counts["received"]})')
+    wait_for(lambda: calibrator.counts['samples'] >= n - 200, 60,
              lambda: f'calibrator to collect ~{n} samples: {calibrator.counts}, '
                      f'received {calibrator._rate.total}')
-    wait_for(lambda: len(out) >= n, 20, lambda: f'{n} passed-through messages (got {len(out)})')
+    wait_for(lambda: len(out) >= n, 60, lambda: f'{n} passed-through messages (got {len(out)})')
     assert compensator.counts['passthrough'] == n   # no model yet: passthrough, nothing lost
     progress = calibrator.progress()
     assert progress['missing_faces'] == [] and progress['ready'], progress
@@ -100,7 +103,7 @@ def test_live_calibration_then_compensation_of_a_new_cold_start(ros, tmp_path):
     vimu.stamp_ns = vimu.stamp_ns + shift
     (vtopic, vtemps), = val_run.temperatures.items()
     n = replay(imu_pub, vimu, [(temp_pub, vtemps.stamp_ns + shift, vtemps.temperature)], RATE)
-    wait_for(lambda: len(out) >= n, 30, lambda: f'all {n} compensated messages (got {len(out)})')
+    wait_for(lambda: len(out) >= n, 60, lambda: f'all {n} compensated messages (got {len(out)})')
     assert len(out) == n
     stamps, accel, _ = common.imu_to_arrays(out)
     order = np.argsort(stamps)
