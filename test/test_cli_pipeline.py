@@ -228,3 +228,26 @@ def test_too_few_poses_and_no_stationary_segments(tmp_path, capsys):
     err = _err(capsys, ['calibrate', bag, '-o', str(tmp_path / 'c.yaml'),
                         '--min-hold', '600'])
     assert 'no stationary segments' in err and 'hold the IMU still' in err
+
+
+def test_compensate_despike_removes_injected_spikes(tmp_path, capsys):
+    from thermal_imu_calib.io.bag import write_columns
+    rec = sim.simulate('demo', 8, repetitions=1)
+    imu = rec.imu()
+    # one bump of ~5 g on a single sample in the middle of every hold
+    mids = [(h.stamp_start_ns + h.stamp_end_ns) // 2 for h in rec.schedule]
+    spikes = np.searchsorted(imu.stamp_ns, mids)
+    imu.accel[spikes, 2] += 50.0
+    src = str(tmp_path / 'spiky.mcap')
+    write_columns(src, '/imu/data_raw', [imu], rec.temperatures)
+    cal = str(tmp_path / 'c.yaml')
+    rec.truth.save(cal)
+    out = str(tmp_path / 'out.mcap')
+    assert main(['compensate', src, '--calibration', cal, '--despike', '-o', out]) == 0
+    printed = capsys.readouterr().out
+    assert f'{len(spikes)} spike values replaced' in printed
+    comp = sorted(_read_mcap(out, '/imu/data_compensated'),
+                  key=lambda x: x[1].header.stamp.sec * 10 ** 9 + x[1].header.stamp.nanosec)
+    assert len(comp) == len(imu)
+    az = np.array([m.linear_acceleration.z for _, m in comp])
+    assert np.max(np.abs(az[spikes] - az[spikes - 1])) < 1.0   # spikes gone

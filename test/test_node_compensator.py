@@ -380,3 +380,23 @@ def test_lagged_temperature_filter_runs_live(ros, tmp_path):
     settled, _ = vec(out[12])
     np.testing.assert_allclose(just_after, expected(cal, 25.0).accel[0], atol=2e-4)
     np.testing.assert_allclose(settled, expected(cal, 35.0).accel[0], atol=1e-6)
+
+
+def test_despike_replaces_a_spike_before_compensation(ros, tmp_path):
+    cal = make_cal()
+    rig = Rig(ros, calibration_file=str(cal.save(tmp_path / 'cal.yaml')), despike=True)
+    rig.temperature(30.0)
+    rng = np.random.default_rng(0)
+    n = 800                      # the gate learns the noise floor from the first 512
+    for i in range(n):
+        a = np.array(ACCEL) + rng.normal(0, 1e-3, 3)
+        if i == 700:
+            a[2] += 30.0                      # one ~3 g bump
+        rig.send(1, accel=a)
+    out = rig.receive(n - 3)     # the gate holds the last 3 samples back
+    wait_for(lambda: len(out) >= n - 3, 10, 'outputs')
+    az = np.array([vec(m)[0][2] for m in out])
+    ref = expected(cal, 30.0).accel[0][2]
+    assert np.max(np.abs(az - ref)) < 0.05, az
+    st, values = rig.diagnostics()
+    assert values['spikes_replaced'] == '1'

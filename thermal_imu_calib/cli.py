@@ -110,6 +110,9 @@ def build_parser():
                    help='temperature older than this is stale (s, default: --max-gap)')
     p.add_argument('--on-missing-temperature', default='hold_last',
                    choices=('hold_last', 'passthrough', 'drop'))
+    p.add_argument('--despike', action='store_true',
+                   help='replace isolated spikes by the local median before compensation '
+                        '(median/MAD gate, 3-sample look-ahead) and count them')
     p.add_argument('-o', '--output', required=True)
 
     p = sub.add_parser('evaluate', help='static errors before/after compensation')
@@ -193,10 +196,12 @@ def cmd_compensate(args):
         raise UserError(f'{args.output} exists; remove it or choose another -o')
     st = compensate_log(args.input, args.output, cal, args.imu_topic, args.temperature_topic,
                         args.output_topic, args.storage, args.chunk_size, args.max_gap,
-                        args.temperature_timeout, args.on_missing_temperature, args.progress)
+                        args.temperature_timeout, args.on_missing_temperature, args.progress,
+                        args.despike)
     print(f'wrote {args.output}: {st["copied"]} messages copied, {st["imu_out"]} compensated '
           f'on {args.output_topic} ({st["out_of_range"]} outside the calibrated temperature '
-          f'range, {st["passthrough"]} passed through, {st["dropped"]} dropped), '
+          f'range, {st["passthrough"]} passed through, {st["dropped"]} dropped'
+          + (f', {st["spikes"]} spike values replaced' if args.despike else '') + '), '
           f'{st["msgs_per_s"]:,.0f} msgs/s')
     return 0
 

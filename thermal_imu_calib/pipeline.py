@@ -15,6 +15,7 @@ from .io import cdr
 from .io.align import StreamAligner
 from .io.bag import copy_and_stream, LogError, LogWriter, open_log
 from .io.cdr import IMU_MSGTYPE, TEMPERATURE_MSGTYPE
+from .estimation.outliers import ImuSpikeFilter
 from .estimation.evaluate import static_metrics, WindowAccumulator, with_signals
 from .estimation.segments import Windows
 from .estimation.stationary import StationaryDetector
@@ -132,12 +133,14 @@ def _resolve_missing(temps, ages, timeout_s, policy, last_good):
 def compensate_log(src, dst, calibration, imu_topic=None, temperature_topics=None,
                    output_topic='/imu/data_compensated', storage='mcap', chunk_size=20000,
                    max_gap_s=DEFAULT_MAX_GAP_S, temperature_timeout=None,
-                   on_missing='hold_last', progress=None):
+                   on_missing='hold_last', progress=None, despike=False):
     """Copy every message of ``src`` to ``dst`` and add compensated Imu on ``output_topic``.
 
     Compensated messages keep the input's header (stamp, frame_id), orientation and
     covariances byte for byte; only linear_acceleration and angular_velocity change (and
-    nothing else). Returns a stats dict (counts, msgs/s, out-of-range rows).
+    nothing else). With ``despike`` a median/MAD gate (estimation.outliers, seed 002 §3.2)
+    replaces isolated spikes by the local median before compensation and counts them.
+    Returns a stats dict (counts, msgs/s, out-of-range rows, spikes).
     """
     if on_missing not in MISSING_POLICIES:
         raise ValueError(f'on_missing must be one of {MISSING_POLICIES}, not {on_missing!r}')
@@ -164,6 +167,11 @@ def compensate_log(src, dst, calibration, imu_topic=None, temperature_topics=Non
                  'out_of_range': 0, 'copied': reader.message_count}
         aligner = StreamAligner(temps, max_gap_s)
         stream = calibration.stream()  # carries the temperature filter state across chunks
+        gate = ImuSpikeFilter() if despike else None
+
+        def gated(chunks):
+            for ch in chunks:
+                yield gate.push(ch) if gate is not None else ch
         bar = _progress(reader.topics()[imu_topic].count, 'compensating', progress)
         t_start = time.perf_counter()
         with LogWriter(dst, storage=storage) as writer:
@@ -173,15 +181,19 @@ def compensate_log(src, dst, calibration, imu_topic=None, temperature_topics=Non
                 stats['imu_in'] += len(raw.imu)
                 if bar is not None:
                     bar.update(len(raw.imu))
-                for ch in aligner.push(raw):
+                for ch in gated(aligner.push(raw)):
                     _write_compensated(writer, output_topic, ch, stream, timeout,
                                        on_missing, stats)
-            for ch in aligner.finish():
+            tail = list(gated(aligner.finish()))
+            if gate is not None:
+                tail.append(gate.flush())
+            for ch in tail:
                 _write_compensated(writer, output_topic, ch, stream, timeout, on_missing,
                                    stats)
         if bar is not None:
             bar.close()
     stats['seconds'] = time.perf_counter() - t_start
+    stats['spikes'] = gate.counts()['rejected_total'] if despike else 0
     stats['msgs_per_s'] = stats['copied'] / max(stats['seconds'], 1e-9)
     stats['imu_topic'] = imu_topic
     stats['temperature_topics'] = temps

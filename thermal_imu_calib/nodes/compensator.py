@@ -22,6 +22,8 @@ from std_srvs.srv import Trigger
 
 from . import common
 from ..calibration import Calibration, CalibrationError
+from ..estimation.outliers import ImuSpikeFilter
+from ..io.columns import AlignedChunk, ImuColumns
 from ..thermal_input import CalibrationStream
 
 NODE_NAME = 'thermal_imu_compensator'
@@ -79,6 +81,11 @@ class CompensatorNode(Node):
         self.batch_limit = p.declare('max_batch', 200,
                                      'Most queued IMU messages compensated together in one '
                                      'callback under load.', lo=1, hi=10000)
+        self.despike = p.declare(
+            'despike', False,
+            'Replace isolated spikes by the local median before compensation (median/MAD '
+            'gate, seed 002 sect. 3.2); delays the output by 3 samples.')
+        self._gate = ImuSpikeFilter() if self.despike else None
         period = p.declare('diagnostics_period', 1.0, 'Seconds between /diagnostics messages.',
                            lo=0.05, hi=60.0, read_only=True)
         if len(set(self.temperature_topics)) != len(self.temperature_topics):
@@ -203,16 +210,29 @@ class CompensatorNode(Node):
     def _on_imu(self, msg):
         msgs = [msg]
         msgs.extend(common.drain(self.imu_sub, self.batch_limit - 1, self))
-        self.process(msgs)
+        if self._gate is None:
+            self.process(msgs)
+            return
+        stamps, accel, gyro = common.imu_to_arrays(msgs)
+        obj = np.empty(len(msgs), object)
+        obj[:] = msgs
+        out = self._gate.push(AlignedChunk(ImuColumns(stamps, accel, gyro), np.zeros((
+            len(msgs), 0)), np.zeros((len(msgs), 0)), {'msg': obj}))
+        if len(out):
+            self.process(list(out.extra['msg']), (out.imu.stamp_ns, out.imu.accel,
+                                                  out.imu.gyro))
 
-    def process(self, msgs):
-        """Compensate and publish a batch of Imu messages (in arrival order)."""
+    def process(self, msgs, arrays=None):
+        """Compensate and publish a batch of Imu messages (in arrival order).
+
+        ``arrays`` = (stamps, accel, gyro) replaces the messages' own values (despiked).
+        """
         active = self._active  # read once: the whole batch uses one model
         c = self.counts
         n = len(msgs)
         c['received'] += n
         self._rate.add(n)
-        stamps, accel, gyro = common.imu_to_arrays(msgs)
+        stamps, accel, gyro = arrays if arrays is not None else common.imu_to_arrays(msgs)
         self._last_stamp_ns = int(stamps[-1])
         send = np.isfinite(accel).all(1) & np.isfinite(gyro).all(1)  # rows to publish
         c['invalid'] += n - int(send.sum())
@@ -300,6 +320,8 @@ class CompensatorNode(Node):
         values.update(self.counts)
         values['temperature_invalid'] = self.temps.invalid
         values['temperature_time_resets'] = self.temps.time_resets
+        if self._gate is not None:
+            values['spikes_replaced'] = self._gate.counts()['rejected_total']
         values['last_rejection'] = self.last_rejection
         level, msg = common.OK, 'compensating'
         if active is None:
