@@ -172,7 +172,7 @@ def cmd_calibrate(args):
                             inputs=inputs, frame_id=args.frame_id or collected[0].frame_id,
                             out_of_range=args.out_of_range, order=args.order,
                             refine=not args.no_refine, min_hold_s=args.min_hold,
-                            range_margin=args.range_margin)
+                            range_margin=args.range_margin, latitude=args.latitude)
     result = calibrate_windows(windows, opts)
     result.calibration.fit['inputs'] = [os.path.basename(os.path.normpath(p))
                                         for p in args.inputs]

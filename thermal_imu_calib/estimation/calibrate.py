@@ -53,6 +53,8 @@ class CalibrateOptions:
     #: a low-order polynomial is trustworthy just past its data, a clamp at the exact data
     #: edge is not (the next warm-up often ends a little higher)
     range_margin: float = 1.0
+    #: geodetic latitude (deg) when known: the gyro fit removes earth rotation with it
+    latitude: Optional[float] = None
 
 
 @dataclass

@@ -278,11 +278,13 @@ class CalibratorNode(Node):
         if g > 0:
             value, source = resolve_gravity(g)
         elif self.get_parameter('use_latitude').value:
-            lat = self.get_parameter('latitude').value
+            lat = self.get_parameter('latitude').value  # deg
             alt = self.get_parameter('altitude').value
             value, source = resolve_gravity(None, lat, alt)
         else:
             value, source = resolve_gravity()
+        latitude = (self.get_parameter('latitude').value
+                    if self.get_parameter('use_latitude').value else None)
         prior = None
         prior_file = self.get_parameter('prior_file').value
         if prior_file:
@@ -293,7 +295,7 @@ class CalibratorNode(Node):
             frame_id=self.get_parameter('frame_id').value or self._seen_frame,
             out_of_range=self.get_parameter('out_of_range').value,
             order=self.get_parameter('order').value,
-            min_hold_s=self.detector_config.min_hold_s)
+            min_hold_s=self.detector_config.min_hold_s, latitude=latitude)
 
     async def _on_calibrate(self, request, response):
         # a coroutine: while the worker thread estimates, the executor keeps serving data
