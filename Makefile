@@ -7,6 +7,7 @@ STAMP := $(VENV)/.installed
 ROS_PINS := 'ros-jazzy-rclpy[fastrtps]==7.1.6' 'ros-jazzy-common-interfaces==5.3.6'
 BUILD_PINS := 'colcon-core>=0.17' 'colcon-ros>=0.5'
 export AMENT_PREFIX_PATH := $(abspath $(VENV))
+export PATH := $(abspath $(VENV))/bin:$(PATH)
 export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 export PYTHONDONTWRITEBYTECODE := 1
 
