@@ -7,29 +7,15 @@ import numpy as np
 from thermal_imu_calib.calibration import TemperatureInput
 from thermal_imu_calib.estimation.calibrate import CalibrateOptions
 from thermal_imu_calib.estimation.segments import Windows
-from thermal_imu_calib.estimation.stationary import StationaryDetector
-from thermal_imu_calib.io.align import StreamAligner
-from thermal_imu_calib.io.columns import TemperatureColumns
+from thermal_imu_calib.pipeline import windows_from_columns
 
 G = 9.80665
 
 
 def sim_windows(rec):
     """Run the stationary detector over a simulated recording (no bag round trip)."""
-    topics = list(rec.config.temp_topics)
-    aligner = StreamAligner(len(topics), 5.0)
-    det = StationaryDetector(None, len(topics))
-    empty = [TemperatureColumns.empty() for _ in topics]
-    parts, first = [], True
-    for ch in rec.imu_chunks():
-        temps = [rec.temperatures[t] for t in topics] if first else empty
-        first = False
-        for a in aligner.push_columns(ch, temps):
-            parts.append(det.update(a.imu.t, a.imu.accel, a.imu.gyro, a.temps))
-    for a in aligner.finish():
-        parts.append(det.update(a.imu.t, a.imu.accel, a.imu.gyro, a.temps))
-    parts.append(det.finish())
-    return Windows.concat(parts)
+    return windows_from_columns(rec.imu_chunks(),
+                                [rec.temperatures[t] for t in rec.config.temp_topics])
 
 
 def options(k=1):

@@ -15,6 +15,7 @@ from .io import cdr
 from .io.align import StreamAligner
 from .io.bag import copy_and_stream, LogError, LogWriter, open_log
 from .io.cdr import IMU_MSGTYPE, TEMPERATURE_MSGTYPE
+from .io.columns import TemperatureColumns
 from .estimation.outliers import ImuSpikeFilter
 from .estimation.evaluate import static_metrics, WindowAccumulator, with_signals
 from .estimation.segments import Windows
@@ -95,6 +96,29 @@ def collect_windows(path, imu_topic=None, temperature_topics=None, detector=None
     return Collected(Windows.concat(parts) if any(len(p) for p in parts)
                      else Windows.empty(len(temps)), frame, n,
                      time.perf_counter() - t_start, temps)
+
+
+def windows_from_columns(imu_chunks, temperatures=(), detector=None,
+                         max_gap_s=DEFAULT_MAX_GAP_S):
+    """Run the stationary detector over in-memory columns (no log): e.g. a simulation.
+
+    imu_chunks: iterable of ImuColumns in time order; temperatures: one TemperatureColumns
+    per input (whole series). Returns the Windows table.
+    """
+    temperatures = list(temperatures)
+    aligner = StreamAligner(len(temperatures), max_gap_s)
+    det = StationaryDetector(detector, len(temperatures))
+    pending = temperatures
+    parts = []
+    for ch in imu_chunks:
+        for a in aligner.push_columns(ch, pending):
+            parts.append(det.update(a.imu.t, a.imu.accel, a.imu.gyro, a.temps))
+        pending = [TemperatureColumns.empty() for _ in temperatures]
+    for a in aligner.finish():
+        parts.append(det.update(a.imu.t, a.imu.accel, a.imu.gyro, a.temps))
+    parts.append(det.finish())
+    return Windows.concat(parts) if any(len(p) for p in parts) \
+        else Windows.empty(len(temperatures))
 
 
 def merge_windows(collected):
