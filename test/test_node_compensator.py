@@ -400,3 +400,18 @@ def test_despike_replaces_a_spike_before_compensation(ros, tmp_path):
     assert np.max(np.abs(az - ref)) < 0.05, az
     st, values = rig.diagnostics()
     assert values['spikes_replaced'] == '1'
+
+
+def test_fill_covariance_can_be_switched_off_at_run_time(ros, tmp_path):
+    cal = make_cal()
+    rig = Rig(ros, calibration_file=str(cal.save(tmp_path / 'cal.yaml')))
+    rig.temperature(30.0)
+    rig.send(1)
+    out = rig.receive(1)
+    wait_for(lambda: len(out) >= 1, 10, 'one output')
+    assert out[0].linear_acceleration_covariance[0] == pytest.approx(1e-3 ** 2, rel=1e-6)
+    rig.node.set_parameters([Parameter('fill_covariance', value=False)])
+    rig.send(1)
+    rig.receive(2)
+    wait_for(lambda: len(out) >= 2, 10, 'two outputs')
+    assert list(out[1].linear_acceleration_covariance) == [0.0] * 9   # as received

@@ -81,6 +81,11 @@ class CompensatorNode(Node):
         self.batch_limit = p.declare('max_batch', 200,
                                      'Most queued IMU messages compensated together in one '
                                      'callback under load.', lo=1, hi=10000)
+        self.fill_covariance = p.declare(
+            'fill_covariance', True,
+            'Write the calibration\'s 1-sigma (white noise + model predictive std, squared) '
+            'into the linear_acceleration/angular_velocity covariance diagonals; false keeps '
+            'the covariances as received.')
         self.despike = p.declare(
             'despike', False,
             'Replace isolated spikes by the local median before compensation (median/MAD '
@@ -198,6 +203,8 @@ class CompensatorNode(Node):
                 self.passthrough_uncalibrated = value
             elif name == 'max_batch':
                 self.batch_limit = value
+            elif name == 'fill_covariance':
+                self.fill_covariance = value
 
     # ------------------------------------------------------------------ data
     def _temperature_cb(self, index):
@@ -281,6 +288,8 @@ class CompensatorNode(Node):
             vg = None if res.gyro_std is None else res.gyro_std[good] ** 2
             va = va if va is not None and np.isfinite(va).all() else None
             vg = vg if vg is not None and np.isfinite(vg).all() else None
+            if not self.fill_covariance:
+                va = vg = None
             common.write_imu([msgs[i] for i in sel], res.accel[good], res.gyro[good], va, vg)
             c['clamped'] += int(res.out_of_range[good].sum())
             c['compensated'] += len(sel)
