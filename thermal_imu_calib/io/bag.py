@@ -377,13 +377,7 @@ class LogReader:
         since the previous chunk; memory stays bounded by ``chunk_size``.
         """
         chunker = _Chunker(self, imu_topic, temperature_topics, chunk_size, keep_raw)
-        for topic, _, t, raw in self._src.messages(chunker.topics):
-            chunk = chunker.add(topic, t, raw)
-            if chunk is not None:
-                yield chunk
-        last = chunker.flush()
-        if last is not None:
-            yield last
+        yield from _chunked(chunker, self._src.messages(chunker.topics))
 
     def info(self, topics: Iterable[str] | None = None) -> LogInfo:
         """Scan the log once and summarise it (counts, log times, header-stamp rates, degC).
@@ -870,10 +864,21 @@ def copy_and_stream(reader: LogReader, writer: LogWriter, imu_topic: str,
                          type_hash=c.type_hash or None, qos=c.qos)
         copied.add(c.topic)
     write = writer.write
-    for topic, _, t, raw in reader._src.messages(None):
-        if topic in copied:
-            write(topic, t, raw)
-        if topic in chunker.topics:
+
+    def copy(messages):
+        for msg in messages:
+            if msg[0] in copied:
+                write(msg[0], msg[2], msg[3])
+            yield msg
+
+    yield from _chunked(chunker, copy(reader._src.messages(None)))
+
+
+def _chunked(chunker, messages):
+    """Feed ``(topic, msgtype, log_time, raw)`` messages to a _Chunker; yield its chunks."""
+    wanted = chunker.topics
+    for topic, _, t, raw in messages:
+        if topic in wanted:
             chunk = chunker.add(topic, t, raw)
             if chunk is not None:
                 yield chunk
