@@ -40,13 +40,13 @@ from dataclasses import dataclass, field
 from typing import List, Optional
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from ..models.whole_unit import WholeUnitGyroModel
-from .outliers import robust_least_squares, robust_scale
+from .outliers import robust_scale
 from .segments import Windows
 from .stationary import DetectorConfig, StationaryDetector
-from .whole_unit_fit import CONVENTION, decide_determined, DETERMINED_RATIO, Layout, Priors
+from .whole_unit_fit import (CONVENTION, decide_determined, DETERMINED_RATIO, fit_free, Layout,
+                             Priors)
 
 EARTH_RATE = 7.2921150e-5    # rad/s, WGS84
 BYTES_PER_SAMPLE = 56        # t, gyro xyz, accel xyz as float64
@@ -806,63 +806,26 @@ def fit_gyro_rotations(prep, priors=None, omega1_prior=None, ratio=DETERMINED_RA
     k = len(prep.sigma)
     before = direction_error_deg(prep, lay.get(lay.mean, 'Omega1')) if k else np.zeros(0)
 
-    def resid(p, want_jac=False):
-        out = rotation_residuals(prep, lay.get(p, 'Omega1'), lay.get(p, 'Omega2'),
-                                 lay.get(p, 'Omega3'), want_jac)
-        if not want_jac:
-            return (out / prep.sigma[:, None]).ravel()
-        r, j = out
-        return ((r / prep.sigma[:, None]).ravel(),
-                (j / prep.sigma[:, None, None]).reshape(3 * k, lay.size))
+    def residuals_of(pr):
+        def resid(p, want_jac=False):
+            out = rotation_residuals(pr, lay.get(p, 'Omega1'), lay.get(p, 'Omega2'),
+                                     lay.get(p, 'Omega3'), want_jac)
+            if not want_jac:
+                return (out / pr.sigma[:, None]).ravel()
+            r, j = out
+            return ((r / pr.sigma[:, None]).ravel(),
+                    (j / pr.sigma[:, None, None]).reshape(-1, lay.size))
+        return resid
+
+    resid = residuals_of(prep)
 
     def solve(free, base, with_prior, use_robust):
-        idx = np.flatnonzero(free)
-        sd = lay.std[idx]
-
-        def full(z):
-            p = base.copy()
-            p[idx] = base[idx] + z * sd
-            return p
-
-        def fun(z):
-            r = resid(full(z))
-            return np.r_[r, z] if with_prior else r
-
-        def jac(z):
-            j = resid(full(z), True)[1][:, idx] * sd[None, :]
-            return np.vstack([j, np.eye(len(idx))]) if with_prior else j
-
-        kw = dict(jac=jac, method='trf', xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=100)
-        z0 = np.zeros(len(idx))
-        res = robust_least_squares(fun, z0, **kw) if use_robust else \
-            least_squares(fun, z0, **kw)
-        return full(res.x), res
+        return fit_free(resid, lay.std, base, free, with_prior, use_robust, max_nfev=100)
 
     def solve_rows(free, base, rows):
         """Plain least squares of the free parameters on a subset of transitions."""
-        sub = _subset(prep, rows)
-        idx = np.flatnonzero(free)
-        sd = lay.std[idx]
-
-        def full(z):
-            p = base.copy()
-            p[idx] = base[idx] + z * sd
-            return p
-
-        def fun(z):
-            p = full(z)
-            r = rotation_residuals(sub, lay.get(p, 'Omega1'), lay.get(p, 'Omega2'),
-                                   lay.get(p, 'Omega3'))
-            return (r / sub.sigma[:, None]).ravel()
-
-        def jac(z):
-            p = full(z)
-            _, j = rotation_residuals(sub, lay.get(p, 'Omega1'), lay.get(p, 'Omega2'),
-                                      lay.get(p, 'Omega3'), True)
-            return (j / sub.sigma[:, None, None]).reshape(-1, lay.size)[:, idx] * sd[None, :]
-
-        res = least_squares(fun, np.zeros(len(idx)), jac=jac, method='trf', max_nfev=50)
-        return full(res.x)
+        return fit_free(residuals_of(_subset(prep, rows)), lay.std, base, free, tight=False,
+                        max_nfev=50)[0]
 
     if k < 2:
         free = np.zeros(lay.size, bool)

@@ -56,6 +56,40 @@ RESIDUALS = ('norm', 'vector')
 
 
 # ------------------------------------------------------------------------ parameter layout
+
+def fit_free(resid, std, base, free, with_prior=False, robust=False, tight=True, **kwargs):
+    """Least squares over the ``free`` parameters of ``base``, in units of their prior std.
+
+    ``resid(p, want_jac=False)`` returns whitened residuals, or (residuals, (m, n) Jacobian)
+    over all n parameters. Free parameters move as ``base + z * std``; with ``with_prior``
+    the rows ``z`` (the prior, one sigma each) are appended. ``robust`` uses
+    ``outliers.robust_least_squares``; ``tight`` sets xtol = ftol = gtol = 1e-12; other
+    ``kwargs`` go to scipy. Returns (parameters, scipy/robust result).
+    """
+    idx = np.flatnonzero(free)
+    sd = std[idx]
+
+    def full(z):
+        p = base.copy()
+        p[idx] = base[idx] + z * sd
+        return p
+
+    def fun(z):
+        r = resid(full(z))
+        return np.r_[r, z] if with_prior else r
+
+    def jac(z):
+        j = resid(full(z), True)[1][:, idx] * sd[None, :]
+        return np.vstack([j, np.eye(len(idx))]) if with_prior else j
+
+    if tight:
+        kwargs = dict(dict(xtol=1e-12, ftol=1e-12, gtol=1e-12), **kwargs)
+    z0 = np.zeros(len(idx))
+    solver = robust_least_squares if robust else least_squares
+    res = solver(fun, z0, jac=jac, method='trf', **kwargs)
+    return full(res.x), res
+
+
 class Layout:
     """Named parameter blocks flattened into one vector, with priors and a free mask."""
 
@@ -400,30 +434,9 @@ def fit_whole_unit_accel(windows, axis_temps, gravity, t0, priors=None, order=2,
         return (r, j) if want_jac else r
 
     def run(free, base, with_prior, loss_robust, rows=None):
-        idx = np.flatnonzero(free)
-        sd = lay.std[idx]
-
-        def full(z):
-            p = base.copy()
-            p[idx] = base[idx] + z * sd
-            return p
-
-        def fun(z):
-            r = resid(full(z), rows)
-            return np.r_[r, z] if with_prior else r
-
-        def jac(z):
-            j = resid(full(z), rows, True)[1][:, idx] * sd[None, :]
-            return np.vstack([j, np.eye(len(idx))]) if with_prior else j
-
-        z0 = np.zeros(len(idx))
-        if loss_robust:
-            res = robust_least_squares(fun, z0, jac=jac, method='trf', x_scale=1.0,
-                                       xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=200)
-            return full(res.x), res
-        res = least_squares(fun, z0, jac=jac, method='trf', xtol=1e-12, ftol=1e-12,
-                            gtol=1e-12, max_nfev=200)
-        return full(res.x), res
+        return fit_free(lambda p, want_jac=False: resid(p, rows, want_jac), lay.std, base,
+                        free, with_prior, loss_robust, max_nfev=200,
+                        **({'x_scale': 1.0} if loss_robust else {}))
 
     # 1. prior-regularised fit of every candidate: a point to judge observability at
     p1, res1 = run(lay.candidates, lay.mean, True, False)
