@@ -55,6 +55,15 @@ class CalibrateOptions:
     range_margin: float = 1.0
     #: geodetic latitude (deg) when known: the gyro fit removes earth rotation with it
     latitude: Optional[float] = None
+    #: pose changes between holds (``gyro_fit.Transition``, e.g. from
+    #: ``gyro_fit.MotionCollector``; hold ids as in the windows): the ``whole_unit``
+    #: estimator fits gyro scale and misalignment (Omega1, Omega2, Omega3) from them
+    transitions: list = field(default_factory=list)
+    #: accelerometer residual of ``whole_unit``: 'norm' (|a| - g per window) or 'vector'
+    whole_unit_residual: str = 'norm'
+    #: prior means and stds of ``whole_unit`` (``whole_unit_fit.Priors``; None: the
+    #: consumer-MEMS defaults)
+    whole_unit_priors: Optional[object] = None
 
 
 @dataclass

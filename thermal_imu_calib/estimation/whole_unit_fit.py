@@ -648,12 +648,12 @@ def _register():
     def estimate_whole_unit(ctx):
         """Seed 002 whole-unit model: accel (norm fit) and gyro (static + rotations).
 
-        Reads optional settings from the options: ``latitude`` (deg), ``transitions``
-        (pose changes from gyro_fit.MotionCollector), ``whole_unit_priors`` (Priors) and
+        Settings from CalibrateOptions: ``latitude`` (deg), ``transitions`` (pose changes
+        from gyro_fit.MotionCollector), ``whole_unit_priors`` (Priors) and
         ``whole_unit_residual`` ('norm' or 'vector').
         """
         w, o, k = ctx.windows, ctx.options, ctx.k
-        priors = getattr(o, 'whole_unit_priors', None) or Priors()
+        priors = o.whole_unit_priors or Priors()
         if ctx.prior_model is not None:
             priors.accel_mean = prior_from_field_model(ctx.prior_model)
         if ctx.n_orientations < 4:
@@ -669,10 +669,9 @@ def _register():
         if k and o.inputs:
             unit = getattr(o.inputs[ctx.gyro_input[0]], 'unit', 'degC')
         res = fit_whole_unit(w, o.gravity, ctx.ta if k else None, ctx.t0,
-                             ctx.tg if k else None, t0g, getattr(o, 'latitude', None),
-                             getattr(o, 'transitions', None), priors,
+                             ctx.tg if k else None, t0g, o.latitude, o.transitions, priors,
                              o.order if k else 0, ctx.accel_input, ctx.gyro_input,
-                             getattr(o, 'whole_unit_residual', 'norm'), unit)
+                             o.whole_unit_residual, unit)
         am = res.accel.model
         weak = [f'{a}' for i, a in enumerate('xyz')
                 if not (am.estimated_mask('ct0')[i] and am.estimated_mask('A1')[i, i])]
