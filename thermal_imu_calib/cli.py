@@ -94,7 +94,9 @@ def build_parser():
     p.add_argument('--range-margin', type=float, default=1.0, metavar='DEGC',
                    help='valid range = collected temperature range widened by this (default 1)')
     p.add_argument('--frame-id', help='sensor frame_id to record (default: from the log)')
-    p.add_argument('--save-windows', metavar='FILE', help='write the window statistics (JSONL)')
+    p.add_argument('--save-windows', metavar='FILE',
+                   help='write the window statistics (JSONL) and the pose changes between '
+                        'holds (FILE.transitions.npz, gyro_fit.load_transitions)')
     p.add_argument('-o', '--output', required=True, help='calibration YAML to write')
     p.add_argument('--json', action='store_true', help='print the report as JSON')
     _add_detector(p)
@@ -145,17 +147,26 @@ def build_parser():
 
 
 def cmd_calibrate(args):
-    """Run the calibrate subcommand."""
-    from .pipeline import collect_windows, merge_windows
+    """Run the calibrate subcommand.
+
+    The pose changes between holds are always collected (their raw samples, bounded
+    memory; ~0.1 s more per 375k messages): ``whole_unit`` fits gyro scale and
+    misalignment from them, the other models report them, ``--save-windows`` keeps them.
+    """
+    from .estimation.gyro_fit import save_transitions
+    from .pipeline import collect_windows, merge_transitions, merge_windows
     g, g_src = _gravity(args)
     prior = Calibration.load(args.prior) if args.prior else None
     collected = []
     for path in args.inputs:
         c = collect_windows(path, args.imu_topic, args.temperature_topic, _detector(args),
-                            args.chunk_size, args.max_gap, args.progress)
+                            args.chunk_size, args.max_gap, args.progress, motion=True)
+        dropped = ', '.join(f'{n} {why.replace("_", " ")}'
+                            for why, n in c.motion['dropped'].items() if n)
         print(f'{path}: {c.imu_messages} Imu messages in {c.seconds:.1f} s '
               f'({c.imu_messages / max(c.seconds, 1e-9):,.0f} msgs/s), '
-              f'{len(np.unique(c.windows.hold))} stationary holds', file=sys.stderr)
+              f'{len(np.unique(c.windows.hold))} stationary holds, {len(c.transitions)} pose '
+              f'changes' + (f' ({dropped} dropped)' if dropped else ''), file=sys.stderr)
         collected.append(c)
     topics = collected[0].temperature_topics
     for c in collected[1:]:
@@ -163,16 +174,22 @@ def cmd_calibrate(args):
             raise UserError(f'inputs have different temperature topics ({topics} vs '
                             f'{c.temperature_topics}); pass --temperature-topic')
     windows = merge_windows(collected)
+    transitions = merge_transitions(collected)
     if args.save_windows:
         with open(args.save_windows, 'w') as f:
             f.write(windows.to_jsonl())
+        with open(args.save_windows + '.transitions.npz', 'wb') as f:
+            save_transitions(f, transitions)
+        print(f'wrote {len(windows)} windows to {args.save_windows} and {len(transitions)} '
+              f'pose changes to {args.save_windows}.transitions.npz', file=sys.stderr)
     inputs = [TemperatureInput(t.strip('/').replace('/', '_') or f't{i}', t)
               for i, t in enumerate(topics)]
     opts = CalibrateOptions(model=args.model, gravity=g, gravity_source=g_src, prior=prior,
                             inputs=inputs, frame_id=args.frame_id or collected[0].frame_id,
                             out_of_range=args.out_of_range, order=args.order,
                             refine=not args.no_refine, min_hold_s=args.min_hold,
-                            range_margin=args.range_margin, latitude=args.latitude)
+                            range_margin=args.range_margin, latitude=args.latitude,
+                            transitions=transitions)
     result = calibrate_windows(windows, opts)
     result.calibration.fit['inputs'] = [os.path.basename(os.path.normpath(p))
                                         for p in args.inputs]

@@ -5,9 +5,11 @@ prints what these return. Everything streams in column chunks, so memory is boun
 ``chunk_size`` whatever the log length.
 """
 
+import dataclasses
+from dataclasses import dataclass, field
 import sys
 import time
-from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
 
@@ -18,6 +20,7 @@ from .io.cdr import IMU_MSGTYPE, TEMPERATURE_MSGTYPE
 from .io.columns import TemperatureColumns
 from .estimation.outliers import ImuSpikeFilter
 from .estimation.evaluate import static_metrics, WindowAccumulator, with_signals
+from .estimation.gyro_fit import MotionCollector
 from .estimation.segments import Windows
 from .estimation.stationary import StationaryDetector
 
@@ -28,13 +31,17 @@ MISSING_POLICIES = ('hold_last', 'passthrough', 'drop')
 
 @dataclass
 class Collected:
-    """Stationary windows of one log plus what was read."""
+    """Stationary windows of one log (and the pose changes between them) plus what was read."""
 
     windows: Windows
     frame_id: str
     imu_messages: int
     seconds: float
     temperature_topics: list
+    #: pose changes between consecutive holds (gyro_fit.Transition), with ``motion=True``
+    transitions: list = field(default_factory=list)
+    #: with ``motion=True``: pose changes dropped by reason and the collector's peak bytes
+    motion: Optional[dict] = None
 
 
 def _progress(total, desc, enabled):
@@ -77,25 +84,36 @@ def _aligned(reader, imu_topic, temp_topics, chunk_size, max_gap_s, keep_raw=Fal
 
 
 def collect_windows(path, imu_topic=None, temperature_topics=None, detector=None,
-                    chunk_size=20000, max_gap_s=DEFAULT_MAX_GAP_S, progress=None):
-    """Run the stationary detector over a log; returns Collected."""
+                    chunk_size=20000, max_gap_s=DEFAULT_MAX_GAP_S, progress=None,
+                    motion=False):
+    """Run the stationary detector over a log; returns Collected.
+
+    With ``motion`` a ``gyro_fit.MotionCollector`` also keeps the raw samples of the pose
+    changes between holds (``Collected.transitions``; what the ``whole_unit`` gyro rotation
+    fit needs); memory stays bounded (see its ``memory_bytes``).
+    """
     with open_log(path) as reader:
         imu_topic, temps = resolve_topics(reader, imu_topic, temperature_topics)
         total = reader.topic_types() and reader.topics()[imu_topic].count
-        det = StationaryDetector(detector, len(temps))
-        parts, n, frame = [], 0, ''
+        det = (MotionCollector(detector, len(temps)) if motion
+               else StationaryDetector(detector, len(temps)))
+        parts, n, frame, peak = [], 0, '', 0
         bar = _progress(total, 'reading', progress)
         t_start = time.perf_counter()
         for ch in _aligned(reader, imu_topic, temps, chunk_size, max_gap_s, bar=bar):
             n += len(ch)
             frame = frame or ch.imu.frame_id
             parts.append(det.update(ch.imu.t, ch.imu.accel, ch.imu.gyro, ch.temps))
+            if motion:
+                peak = max(peak, det.memory_bytes())
         parts.append(det.finish())
         if bar is not None:
             bar.close()
     return Collected(Windows.concat(parts) if any(len(p) for p in parts)
                      else Windows.empty(len(temps)), frame, n,
-                     time.perf_counter() - t_start, temps)
+                     time.perf_counter() - t_start, temps,
+                     det.transitions if motion else [],
+                     {'dropped': dict(det.dropped), 'peak_bytes': peak} if motion else None)
 
 
 def windows_from_columns(imu_chunks, temperatures=(), detector=None,
@@ -121,17 +139,33 @@ def windows_from_columns(imu_chunks, temperatures=(), detector=None,
         else Windows.empty(len(temperatures))
 
 
-def merge_windows(collected):
-    """Concatenate windows of several logs, keeping hold ids distinct."""
-    parts, offset = [], 0
+def hold_offsets(collected):
+    """Return what to add to the hold ids of each Collected so merged ids stay distinct."""
+    out, offset = [], 0
     for c in collected:
+        out.append(offset)
+        if len(c.windows):
+            offset += int(c.windows.hold.max()) + 1
+    return out
+
+
+def merge_windows(collected):
+    """Concatenate windows of several logs, keeping hold ids distinct (``hold_offsets``)."""
+    parts = []
+    for c, offset in zip(collected, hold_offsets(collected)):
         w = c.windows
         if len(w):
             w = w.select(np.ones(len(w), bool))
             w.hold = w.hold + offset
-            offset = int(w.hold.max()) + 1
         parts.append(w)
     return Windows.concat(parts)
+
+
+def merge_transitions(collected):
+    """Concatenate the pose changes of several logs with the hold ids of ``merge_windows``."""
+    return [dataclasses.replace(tr, hold_from=tr.hold_from + offset,
+                                hold_to=tr.hold_to + offset)
+            for c, offset in zip(collected, hold_offsets(collected)) for tr in c.transitions]
 
 
 def _resolve_missing(temps, ages, timeout_s, policy, last_good):

@@ -259,6 +259,9 @@ def calibrate_windows(windows, options=None):
                                 'before_max': _amax(before), 'after_max': _amax(after),
                                 'note': 'per hold, |mean f| - g in micro-g, on the fit data'},
     })
+    if o.transitions:
+        fit_stats['pose_changes'] = report['pose_changes'] = {
+            'collected': len(o.transitions), 'used': int(est.fit.get('rotations_used', 0))}
     cal.fit = fit_stats
     kind = est.accel.kind if est.accel is not None else 'gyro bias only'
     summary = (f'{kind}: {cov["holds"]} holds ({cov["windows"]} windows), faces '
@@ -266,7 +269,22 @@ def calibrate_windows(windows, options=None):
                f'{_amax(before):.0f} -> {_amax(after):.1f} ug max')
     if 'residual_rms' in fit_stats:
         summary += f', fit residual {fit_stats["residual_rms"]["value"] * 1e6 / g:.1f} ug RMS'
-    return CalibrationResult(cal, summary, report)
+    return CalibrationResult(cal, summary + _pose_change_text(est.fit, len(o.transitions)),
+                             report)
+
+
+def _pose_change_text(fit, collected):
+    """Return the summary's clause on the pose changes between holds."""
+    if 'rotations_used' in fit and not collected:
+        return (', no pose changes between holds: gyro scale and misalignment stay at their '
+                'prior')
+    if not collected:
+        return ''
+    if 'rotations_used' not in fit:
+        return (f', {collected} pose changes collected but not used (--model whole_unit fits '
+                'gyro scale and misalignment from them)')
+    return (f', {fit["rotations_used"]} of {collected} pose changes used for gyro scale and '
+            'misalignment')
 
 
 def _gyro_bias(ctx):

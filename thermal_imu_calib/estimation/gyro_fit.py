@@ -38,6 +38,7 @@ flight, ~4.5 MB kept.
 
 from dataclasses import dataclass, field
 from typing import List, Optional
+import zipfile
 
 import numpy as np
 
@@ -237,6 +238,18 @@ class MotionCollector:
         self._tape = None
         return closed
 
+    def status(self):
+        """Return the detector's status dict (still now, open-hold seconds, noise floor)."""
+        return self.det.status()
+
+    def pop_transitions(self):
+        """Return the pose changes kept so far and forget them (a caller that stores them).
+
+        They no longer count in ``memory_bytes`` nor towards ``max_transitions``.
+        """
+        out, self.transitions = self.transitions, []
+        return out
+
     def _on_holds(self, windows):
         if not len(windows):
             return
@@ -292,6 +305,61 @@ class MotionCollector:
                 self.dropped['too_long'] += 1
                 self._tape = None
                 self._prev = None
+
+
+#: ``format`` entry of a transitions file (``save_transitions``)
+TRANSITIONS_FORMAT = 'thermal_imu_calib/transitions/1'
+
+
+def save_transitions(file, transitions):
+    """Write pose changes to an ``.npz`` file (path or binary file object).
+
+    One file holds any number of them: per transition the hold ids, ``closed``, the
+    thermal inputs (k,) and the sample count; the samples (t s, gyro rad/s, accel m/s^2)
+    concatenated.
+    """
+    trs = list(transitions)
+    k = len(np.ravel(trs[0].temps)) if trs else 0
+    cat = [np.concatenate([getattr(tr, name) for tr in trs]) if trs else np.zeros(shape)
+           for name, shape in (('t', 0), ('gyro', (0, 3)), ('accel', (0, 3)))]
+    np.savez(file, format=np.array(TRANSITIONS_FORMAT),
+             hold_from=np.array([tr.hold_from for tr in trs], np.int64),
+             hold_to=np.array([tr.hold_to for tr in trs], np.int64),
+             closed=np.array([tr.closed for tr in trs], bool),
+             length=np.array([len(tr.t) for tr in trs], np.int64),
+             temps=np.array([np.ravel(tr.temps) for tr in trs], float).reshape(len(trs), k),
+             t=cat[0], gyro=cat[1], accel=cat[2])
+
+
+def load_transitions(file):
+    """Read pose changes written by ``save_transitions``; returns a list of Transition.
+
+    Raises ValueError naming what is wrong when the file is not such a file.
+    """
+    try:
+        with np.load(file, allow_pickle=False) as z:
+            data = {name: z[name] for name in z.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
+        raise ValueError(f'{file}: not a readable transitions file (not an .npz archive, or '
+                         f'damaged: {e.__class__.__name__}); delete it or write it again with '
+                         'save_transitions') from None
+    missing = {'hold_from', 'hold_to', 'closed', 'length', 'temps', 't', 'gyro',
+               'accel'} - set(data)
+    if str(data.get('format', '')) != TRANSITIONS_FORMAT or missing:
+        raise ValueError(f'{file}: not a transitions file (format '
+                         f'{str(data.get("format", "missing"))!r}, expected '
+                         f'{TRANSITIONS_FORMAT!r}, missing {sorted(missing) or "nothing"}); '
+                         'delete it or write it again with save_transitions')
+    ends = np.cumsum(data['length'])
+    if len(ends) and ends[-1] != len(data['t']):
+        raise ValueError(f'{file}: the sample counts ({int(ends[-1])}) do not match the '
+                         f'samples stored ({len(data["t"])}); the file is damaged, delete it')
+    out = []
+    for i, (lo, hi) in enumerate(zip(ends - data['length'], ends)):
+        out.append(Transition(int(data['hold_from'][i]), int(data['hold_to'][i]),
+                              data['t'][lo:hi], data['gyro'][lo:hi], data['accel'][lo:hi],
+                              data['temps'][i], closed=bool(data['closed'][i])))
+    return out
 
 
 def collect_motion(chunks, config=None, n_inputs=0, **kwargs):
