@@ -5,7 +5,6 @@ prints what these return. Everything streams in column chunks, so memory is boun
 ``chunk_size`` whatever the log length.
 """
 
-import dataclasses
 from dataclasses import dataclass, field
 import sys
 import time
@@ -20,7 +19,7 @@ from .io.cdr import IMU_MSGTYPE, TEMPERATURE_MSGTYPE
 from .io.columns import TemperatureColumns
 from .estimation.outliers import ImuSpikeFilter
 from .estimation.evaluate import static_metrics, WindowAccumulator, with_signals
-from .estimation.gyro_fit import MotionCollector
+from .estimation.gyro_fit import MotionCollector, offset_holds
 from .estimation.segments import Windows
 from .estimation.stationary import StationaryDetector
 
@@ -163,9 +162,8 @@ def merge_windows(collected):
 
 def merge_transitions(collected):
     """Concatenate the pose changes of several logs with the hold ids of ``merge_windows``."""
-    return [dataclasses.replace(tr, hold_from=tr.hold_from + offset,
-                                hold_to=tr.hold_to + offset)
-            for c, offset in zip(collected, hold_offsets(collected)) for tr in c.transitions]
+    return [tr for c, offset in zip(collected, hold_offsets(collected))
+            for tr in offset_holds(c.transitions, offset)]
 
 
 def _resolve_missing(temps, ages, timeout_s, policy, last_good):

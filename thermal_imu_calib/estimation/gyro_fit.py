@@ -36,6 +36,7 @@ kept transitions (each at most ``rate x max_transition_s`` samples, at most
 flight, ~4.5 MB kept.
 """
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import List, Optional
 import zipfile
@@ -305,6 +306,12 @@ class MotionCollector:
                 self.dropped['too_long'] += 1
                 self._tape = None
                 self._prev = None
+
+
+def offset_holds(transitions, offset):
+    """Return copies of pose changes with ``offset`` added to both hold ids (merging logs)."""
+    return [dataclasses.replace(t, hold_from=t.hold_from + offset, hold_to=t.hold_to + offset)
+            for t in transitions]
 
 
 #: ``format`` entry of a transitions file (``save_transitions``)

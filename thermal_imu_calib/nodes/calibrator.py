@@ -1,9 +1,12 @@
 """Live field calibration: collect stationary segments, estimate on request, publish.
 
 Subscribes ``imu/data_raw`` and ``temperature_topics``; aligns temperature to IMU header
-stamps (``io.align.StreamAligner``), runs the ``StationaryDetector`` online and keeps only
-the closed holds' window statistics (``Windows``), appending each to ``collection_file``
-(JSON lines) so a restarted node resumes where it stopped. Services (std_srvs/Trigger):
+stamps (``io.align.StreamAligner``), runs the stationary detector online
+(``gyro_fit.MotionCollector``) and keeps only the closed holds' window statistics
+(``Windows``), appending each to ``collection_file`` (JSON lines), and the raw samples of the
+pose changes between consecutive holds (what ``whole_unit`` fits gyro scale and misalignment
+from), one ``.npz`` each written atomically into ``<collection_file>.transitions/``, so a
+restarted node resumes where it stopped. Services (std_srvs/Trigger):
 ``~/calibrate`` estimates with ``calibrate_windows`` on a worker thread, writes
 ``calibration_file`` atomically (previous kept as ``.bak``) and publishes it latched on
 ``imu/calibration``; ``~/reset`` clears the collection; ``~/save`` writes the current model.
@@ -12,6 +15,7 @@ the closed holds' window statistics (``Windows``), appending each to ``collectio
 
 from concurrent.futures import ThreadPoolExecutor
 import copy
+import io
 import json
 import os
 import shutil
@@ -32,8 +36,10 @@ from ..calibration import Calibration, CalibrationError, TemperatureInput
 from ..estimation import calibrate as estimation
 from ..estimation.calibrate import (CalibrateOptions, CalibrationRefused, calibrate_windows,
                                     readiness)
+from ..estimation.gyro_fit import (load_transitions, MotionCollector, offset_holds,
+                                   save_transitions)
 from ..estimation.segments import FACE_NAMES, Windows
-from ..estimation.stationary import DetectorConfig, StationaryDetector
+from ..estimation.stationary import DetectorConfig
 from ..gravity import resolve_gravity
 from ..io.align import StreamAligner
 from ..io.columns import ImuColumns, TemperatureColumns
@@ -80,7 +86,9 @@ class CalibratorNode(Node):
             'Seconds (header stamps) a reading may be interpolated over or held; IMU samples '
             'without a temperature that fresh are not collected.', lo=0.001, hi=3600.0, **ro)
         self.model = p.declare('model', 'auto', 'Model to estimate: auto picks offset for a '
-                               'single orientation, else field.', choices=_model_choices())
+                               'single orientation, else field; whole_unit (seed 002) also '
+                               'fits gyro scale and misalignment from the pose changes '
+                               'between holds.', choices=_model_choices())
         self.order = p.declare('order', 2, 'Highest polynomial order in temperature (reduced '
                                'automatically when the span is small).', lo=0, hi=2)
         self.out_of_range = p.declare('out_of_range', 'clamp',
@@ -105,6 +113,14 @@ class CalibratorNode(Node):
                for name, (d, lo, hi, desc) in DETECTOR_PARAMS.items()}
         self.detector_config = DetectorConfig(**det)
         self.detector_config.validate()
+        self.max_transitions = p.declare(
+            'max_transitions', 500, 'Most pose changes between holds kept (raw samples, ~70 '
+            'kB each at 200 Hz) for the whole_unit gyro scale/misalignment fit; further ones '
+            'are counted as dropped; 0: keep none.', lo=0, hi=10000, **ro)
+        self.max_transition_s = p.declare(
+            'max_transition_s', 30.0, 'Longest pose change kept (s, end of one hold to the '
+            'start of the next); longer ones are dropped and counted.', lo=1.0, hi=600.0,
+            **ro)
         in_depth = p.declare('input_depth', 1000, 'QoS history depth (best effort) of the '
                              'input subscriptions.', lo=1, hi=100000, **ro)
         period = p.declare('progress_period', 1.0, 'Seconds between ~/progress and '
@@ -124,6 +140,7 @@ class CalibratorNode(Node):
                        'temperature_readings': 0, 'temperature_invalid': 0}
         self._new_collection()
         self._resume()
+        self._resume_transitions()
 
         data = MutuallyExclusiveCallbackGroup()
         self.imu_sub = self.create_subscription(Imu, 'imu/data_raw', self._on_imu,
@@ -144,16 +161,27 @@ class CalibratorNode(Node):
 
     # ------------------------------------------------------------------ collection state
     def _new_collection(self):
-        self.detector = StationaryDetector(DetectorConfig(**vars(self.detector_config)), self.k)
+        self.detector = self._collector()
         self.aligner = StreamAligner(self.k, self.temperature_timeout)
         self.windows = Windows.empty(self.k)
+        self.transitions = []            # replaced, never mutated: snapshots stay consistent
+        self.transitions_dropped = {'too_long': 0, 'incomplete': 0, 'over_limit': 0}
         self._hold_offset = 0
         self._newest_ns = None
         self._pending_imu = []
         self._pending_temp = [[] for _ in range(self.k)]
 
+    def _collector(self):
+        """Return a new stationary detector that also keeps the pose changes between holds."""
+        return MotionCollector(DetectorConfig(**vars(self.detector_config)), self.k,
+                               max_transition_s=self.max_transition_s)
+
     def _collection_path(self):
         return os.path.expanduser(self.collection_file) if self.collection_file else ''
+
+    def _transitions_dir(self):
+        path = self._collection_path()
+        return path + '.transitions' if path else ''
 
     def _resume(self):
         path = self._collection_path()
@@ -171,6 +199,9 @@ class CalibratorNode(Node):
         if why:
             aside = f'{path}.incompatible-{int(time.time())}'
             os.replace(path, aside)
+            tdir = self._transitions_dir()
+            if os.path.isdir(tdir):
+                os.replace(tdir, aside + '.transitions')
             self.get_logger().error(f'collection file {path} not resumed: {why}; moved to '
                                     f'{aside}, starting a new collection')
             return
@@ -181,6 +212,42 @@ class CalibratorNode(Node):
         self.get_logger().info(f'resumed {len(win)} windows ({len(win.hold_ids)} holds) from '
                                f'{path}')
 
+    def _resume_transitions(self):
+        """Load the pose changes persisted next to the collection file.
+
+        Those whose holds were not resumed (killed between the two writes) are removed: the
+        next holds reuse their ids. Unreadable files are renamed ``*.unreadable``.
+        """
+        tdir = self._transitions_dir()
+        if not tdir or not os.path.isdir(tdir):
+            return
+        holds = set(self.windows.hold_ids.tolist())
+        kept, stale = [], 0
+        for name in sorted(os.listdir(tdir)):
+            path = os.path.join(tdir, name)
+            if name.startswith('.'):     # a temporary file of a write that was cut short
+                os.unlink(path)
+                continue
+            if not name.endswith('.npz'):
+                continue
+            try:
+                trs = load_transitions(path)
+            except ValueError as e:
+                os.replace(path, path + '.unreadable')
+                self.get_logger().error(f'pose change not resumed: {e}; renamed to '
+                                        f'{path}.unreadable (one pose change lost)')
+                continue
+            if all(t.hold_from in holds and t.hold_to in holds and len(t.temps) == self.k
+                   for t in trs):
+                kept.extend(trs)
+            else:
+                stale += 1
+                os.unlink(path)
+        self.transitions = sorted(kept, key=lambda t: t.hold_to)[:self.max_transitions]
+        self.get_logger().info(f'resumed {len(self.transitions)} pose changes from {tdir}' + (
+            f' ({stale} removed: their holds were not in the collection file)' if stale
+            else ''))
+
     def _persist(self, win):
         path = self._collection_path()
         if not path:
@@ -190,6 +257,34 @@ class CalibratorNode(Node):
             f.write(win.to_jsonl())
             f.flush()
             os.fsync(f.fileno())
+
+    def _persist_transition(self, tr):
+        tdir = self._transitions_dir()
+        if not tdir:
+            return
+        os.makedirs(tdir, exist_ok=True)
+        buf = io.BytesIO()
+        save_transitions(buf, [tr])
+        _atomic_write(os.path.join(tdir, f'{tr.hold_from:06d}-{tr.hold_to:06d}.npz'),
+                      buf.getvalue())
+
+    def _store(self, win, detector, offset):
+        """Add closed holds and the pose changes ``detector`` made, with ids offset; persist.
+
+        Windows are written before the pose changes that refer to them (see
+        ``_resume_transitions``); beyond ``max_transitions`` pose changes are counted only.
+        """
+        if len(win):
+            win.hold = win.hold + offset
+            self._persist(win)
+            self.windows = Windows.concat([self.windows, win])
+        new = offset_holds(detector.pop_transitions(), offset)
+        room = max(self.max_transitions - len(self.transitions), 0)
+        self.transitions_dropped['over_limit'] += max(len(new) - room, 0)
+        for tr in new[:room]:
+            self._persist_transition(tr)
+        if new[:room]:
+            self.transitions = self.transitions + new[:room]
 
     # ------------------------------------------------------------------ data
     def _temperature_cb(self, index):
@@ -241,13 +336,11 @@ class CalibratorNode(Node):
             return
         for chunk in self.aligner.finish():
             self._collect(chunk)
-        win = self.detector.finish()
-        if len(win):
-            win.hold = win.hold + self._hold_offset
-            self._persist(win)
-            self.windows = Windows.concat([self.windows, win])
+        self._store(self.detector.finish(), self.detector, self._hold_offset)
         self._hold_offset = int(self.windows.hold.max()) + 1 if len(self.windows) else 0
-        self.detector = StationaryDetector(DetectorConfig(**vars(self.detector_config)), self.k)
+        for why, n in self.detector.dropped.items():
+            self.transitions_dropped[why] += n
+        self.detector = self._collector()   # no pose change across the jump
         self.aligner = StreamAligner(self.k, self.temperature_timeout)
         self._newest_ns = None
         self.counts['time_resets'] = self.counts.get('time_resets', 0) + 1
@@ -266,14 +359,11 @@ class CalibratorNode(Node):
             return
         win = self.detector.update(imu.t[use], imu.accel[use], imu.gyro[use],
                                    chunk.temps[use])
-        if len(win):
-            win.hold = win.hold + self._hold_offset
-            self._persist(win)
-            self.windows = Windows.concat([self.windows, win])
+        self._store(win, self.detector, self._hold_offset)
 
     # ------------------------------------------------------------------ services
-    def options(self):
-        """Return the CalibrateOptions built from the parameters."""
+    def options(self, transitions=()):
+        """Return the CalibrateOptions built from the parameters (and these pose changes)."""
         g = self.get_parameter('gravity').value
         if g > 0:
             value, source = resolve_gravity(g)
@@ -295,7 +385,8 @@ class CalibratorNode(Node):
             frame_id=self.get_parameter('frame_id').value or self._seen_frame,
             out_of_range=self.get_parameter('out_of_range').value,
             order=self.get_parameter('order').value,
-            min_hold_s=self.detector_config.min_hold_s, latitude=latitude)
+            min_hold_s=self.detector_config.min_hold_s, latitude=latitude,
+            transitions=list(transitions))
 
     async def _on_calibrate(self, request, response):
         # a coroutine: while the worker thread estimates, the executor keeps serving data
@@ -309,13 +400,15 @@ class CalibratorNode(Node):
             self._busy_since = time.monotonic()
             self._process()  # take in what arrived since the last timer tick
             with self._lock:
-                windows = self.windows  # never mutated in place: a consistent snapshot
+                # never mutated in place: consistent snapshots
+                windows, transitions = self.windows, self.transitions
                 detector = copy.deepcopy(self.detector)
                 aligner = copy.deepcopy(self.aligner)
                 offset = self._hold_offset
             done = Future(executor=self.executor)
             done.add_done_callback(lambda _: None)  # completion wakes the executor
-            job = self._worker.submit(self._estimate, windows, detector, aligner, offset)
+            job = self._worker.submit(self._estimate, windows, transitions, detector, aligner,
+                                      offset)
             job.add_done_callback(lambda j: done.set_result(
                 j.result() if not j.cancelled() and j.exception() is None
                 else (False, f'failed: {j.exception() if not j.cancelled() else "cancelled"}')))
@@ -326,12 +419,13 @@ class CalibratorNode(Node):
         common.log(self, response.success, response.message)
         return response
 
-    def _estimate(self, windows, detector, aligner, offset):
+    def _estimate(self, windows, transitions, detector, aligner, offset):
         """Run on the worker thread: estimate, write, publish. Returns (success, message).
 
         ``detector`` and ``aligner`` are copies of the live ones: finishing them adds the
         samples still waiting for a newer temperature reading and the hold in progress (if
-        long enough) to this estimate without closing anything in the live collection.
+        long enough), and the pose change into it, to this estimate without closing
+        anything in the live collection.
         """
         try:
             parts = []
@@ -346,7 +440,10 @@ class CalibratorNode(Node):
             if len(tail):
                 tail.hold = tail.hold + offset
                 windows = Windows.concat([windows, tail])
-            result = calibrate_windows(windows, self.options())
+            room = max(self.max_transitions - len(transitions), 0)
+            transitions = list(transitions) + offset_holds(detector.pop_transitions(),
+                                                           offset)[:room]
+            result = calibrate_windows(windows, self.options(transitions))
         except CalibrationRefused as e:
             return False, f'refused: {e}'
         except (CalibrationError, ValueError) as e:
@@ -383,15 +480,18 @@ class CalibratorNode(Node):
 
     def _on_reset(self, request, response):
         with self._lock:
-            n, h = len(self.windows), len(self.windows.hold_ids)
+            n, h, t = len(self.windows), len(self.windows.hold_ids), len(self.transitions)
             self._new_collection()
             self.counts.update({k: 0 for k in self.counts})
             path = self._collection_path()
             if path and os.path.exists(path):
                 os.unlink(path)
+            tdir = self._transitions_dir()
+            if tdir and os.path.isdir(tdir):
+                shutil.rmtree(tdir)
         response.success = True
-        response.message = f'cleared {n} windows ({h} holds)' + (
-            f' and removed {path}' if path else '')
+        response.message = f'cleared {n} windows ({h} holds) and {t} pose changes' + (
+            f'; removed {path} and {tdir}/' if path else '')
         self.get_logger().info(response.message)
         return response
 
@@ -399,8 +499,10 @@ class CalibratorNode(Node):
     def progress(self):
         """Return the progress dict published on ~/progress."""
         with self._lock:
-            windows = self.windows
+            windows, n_transitions = self.windows, len(self.transitions)
             status = self.detector.status()
+            dropped = sum(self.transitions_dropped.values()) + sum(
+                self.detector.dropped.values())
         ready = readiness(windows, model=self.get_parameter('model').value)
         cov = ready['coverage']
         return {
@@ -412,6 +514,7 @@ class CalibratorNode(Node):
             'ready': ready['ready'], 'mode': ready['mode'], 'reason': ready['reason'],
             'next_pose': ready['next_pose'],
             'stationary': status['stationary'], 'hold_seconds': round(status['hold_seconds'], 2),
+            'pose_changes': n_transitions, 'pose_changes_dropped': dropped,
             'samples': self.counts['samples'], 'imu_received': self._rate.total,
             'temperature_readings': self.counts['temperature_readings'],
             'imu_publishers': self.imu_sub.get_publisher_count(),
@@ -472,12 +575,13 @@ def _check_gravity(value):
     return None
 
 
-def _atomic_write(path, text):
+def _atomic_write(path, data):
+    """Write str or bytes ``data`` to ``path`` via a temporary file and a rename."""
     d = os.path.dirname(os.path.abspath(path))
     fd, tmp = tempfile.mkstemp(prefix='.collection-', dir=d)
     try:
-        with os.fdopen(fd, 'w') as f:
-            f.write(text)
+        with os.fdopen(fd, 'wb' if isinstance(data, bytes) else 'w') as f:
+            f.write(data)
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
