@@ -1,0 +1,114 @@
+"""Pose changes between holds through the offline pipeline and the CLI (whole_unit gyro).
+
+``--model whole_unit`` fits the gyro scale and misalignment (Omega1) from the rotations
+between static holds. Checked here: the pipeline collects them (MotionCollector) without
+changing the windows, keeps each on its own holds when logs are merged, ``--save-windows``
+writes them, and the CLI estimate is real: much closer to the true Omega1 than the prior.
+"""
+
+import io
+
+from _motion_data import recording, SHORT_COLDSTART
+import numpy as np
+import pytest
+
+from thermal_imu_calib.calibration import Calibration
+from thermal_imu_calib.cli import main
+from thermal_imu_calib.estimation.gyro_fit import load_transitions, save_transitions, Transition
+from thermal_imu_calib.estimation.segments import Windows
+from thermal_imu_calib.pipeline import collect_windows, merge_transitions, merge_windows
+
+
+def assert_on_their_holds(windows, transitions):
+    """Each pose change spans from the end of its hold_from to the start of its hold_to."""
+    for tr in transitions:
+        end = windows.t1[windows.hold == tr.hold_from].max()
+        start = windows.t0[windows.hold == tr.hold_to].min()
+        assert abs(tr.t[0] - end) < 0.011 and abs(tr.t[-1] - start) < 0.011, \
+            (tr.hold_from, tr.hold_to, tr.t[0], end, tr.t[-1], start)
+
+
+@pytest.fixture(scope='module')
+def coldstart(tmp_path_factory):
+    """Return (recording, bag path) of a short MEMS cold start with a distorted gyro."""
+    rec = recording('mems-coldstart', 0, **SHORT_COLDSTART)
+    return rec, rec.write(str(tmp_path_factory.mktemp('coldstart') / 'cold.mcap'))
+
+
+def test_merged_logs_keep_each_pose_change_on_its_own_holds(tmp_path):
+    recs = [recording('demo', seed, repetitions=1) for seed in (3, 4)]
+    paths = [r.write(str(tmp_path / f'log{i}.mcap')) for i, r in enumerate(recs)]
+    cols = [collect_windows(p, motion=True, progress=False) for p in paths]
+    plain = collect_windows(paths[1], progress=False)
+    assert plain.transitions == [] and plain.motion is None
+    assert np.array_equal(plain.windows.t0, cols[1].windows.t0)
+    assert np.array_equal(plain.windows.accel, cols[1].windows.accel)
+    for c, r in zip(cols, recs):
+        assert len(c.transitions) == len(c.windows.hold_ids) - 1 == len(r.schedule) - 1
+        assert 0 < c.motion['peak_bytes'] < 3e6 and not any(c.motion['dropped'].values())
+        assert_on_their_holds(c.windows, c.transitions)
+    w, trs = merge_windows(cols), merge_transitions(cols)
+    assert len(w.hold_ids) == sum(len(c.windows.hold_ids) for c in cols)
+    assert len(trs) == sum(len(c.transitions) for c in cols)
+    assert_on_their_holds(w, trs)
+    assert trs[len(cols[0].transitions)].hold_from == len(cols[0].windows.hold_ids)
+    assert cols[1].transitions[0].hold_from == 0          # the inputs are not modified
+
+
+def test_cli_whole_unit_fits_gyro_scale_and_misalignment_from_pose_changes(coldstart, tmp_path,
+                                                                           capsys):
+    rec, bag = coldstart
+    out, saved = str(tmp_path / 'cal.yaml'), str(tmp_path / 'windows.jsonl')
+    assert main(['calibrate', bag, '--model', 'whole_unit', '--latitude', '45', '-o', out,
+                 '--save-windows', saved]) == 0
+    cap = capsys.readouterr()
+    n = len(rec.schedule) - 1
+    assert f'stationary holds, {n} pose changes' in cap.err, cap.err
+    assert f'{n} of {n} pose changes used for gyro scale and misalignment' in cap.out, cap.out
+    cal = Calibration.load(out)
+    assert cal.gyro.kind == 'whole_unit_gyro'
+    assert np.all(cal.gyro.meta()['estimated']['Omega1'])
+    assert 'Omega1' not in cal.gyro.meta().get('fixed', {})
+    assert cal.fit['pose_changes'] == {'collected': n, 'used': n}
+    truth = rec.true_omega1()
+    err = np.abs(cal.gyro.params()['Omega1'].value - truth).max()
+    prior_err = np.abs(np.eye(3) - truth).max()
+    assert err < prior_err / 5, (err, prior_err)
+    d = cal.fit['rotation_direction_error_deg']
+    assert d['after_rms'] < d['before_rms'] / 3, d
+    # --save-windows keeps the pose changes next to the windows, on the same hold ids
+    windows = Windows.from_jsonl(open(saved).read())
+    trs = load_transitions(saved + '.transitions.npz')
+    assert len(trs) == n and len(windows.hold_ids) == n + 1
+    assert_on_their_holds(windows, trs)
+
+
+def test_cli_other_models_skip_the_pose_changes(coldstart, tmp_path, capsys):
+    _, bag = coldstart
+    assert main(['calibrate', bag, '--model', 'field', '-o', str(tmp_path / 'f.yaml')]) == 0
+    cap = capsys.readouterr()
+    assert 'pose changes' not in cap.err + cap.out
+
+
+def test_transitions_file_round_trip_and_bad_files():
+    rng = np.random.default_rng(0)
+    trs = [Transition(h, h + 1, np.arange(n) * 0.005, rng.normal(size=(n, 3)),
+                      rng.normal(size=(n, 3)), np.array([22.0 + h]), closed=(h == 4))
+           for h, n in ((0, 700), (4, 3))]
+    buf = io.BytesIO()
+    save_transitions(buf, trs)
+    back = load_transitions(io.BytesIO(buf.getvalue()))
+    for a, b in zip(trs, back):
+        assert (a.hold_from, a.hold_to, a.closed) == (b.hold_from, b.hold_to, b.closed)
+        for name in ('t', 'gyro', 'accel', 'temps'):
+            assert np.array_equal(getattr(a, name), getattr(b, name))
+    empty = io.BytesIO()
+    save_transitions(empty, [])
+    assert load_transitions(io.BytesIO(empty.getvalue())) == []
+    for bad in (buf.getvalue()[:len(buf.getvalue()) // 2], b'not an npz'):
+        with pytest.raises(ValueError, match='not a readable transitions file.*delete it'):
+            load_transitions(io.BytesIO(bad))
+    other = io.BytesIO()
+    np.savez(other, t=np.zeros(3))
+    with pytest.raises(ValueError, match="not a transitions file.*missing.*'accel'"):
+        load_transitions(io.BytesIO(other.getvalue()))
