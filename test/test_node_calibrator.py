@@ -1,4 +1,8 @@
-"""Calibrator node over real DDS: refusal, busy refusal, reset/save, kill -9 and resume."""
+"""Calibrator node over real DDS: refusal, busy refusal, reset/save, kill -9 and resume.
+
+Also the pose changes between holds (whole_unit gyro scale/misalignment): used by
+``~/calibrate``, persisted, resumed after a restart, cleared on ``~/reset``.
+"""
 
 import json
 import os
@@ -7,6 +11,7 @@ import signal
 import subprocess
 import threading
 
+import _motion_data
 from conftest import DOMAIN_ID, replay, wait_for
 import numpy as np
 import pytest
@@ -19,6 +24,8 @@ from std_msgs.msg import String  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
 from thermal_imu_calib.calibration import Calibration  # noqa: E402
+from thermal_imu_calib.estimation.gyro_fit import (load_transitions,  # noqa: E402
+                                                   save_transitions)
 from thermal_imu_calib.estimation.segments import Windows  # noqa: E402
 from thermal_imu_calib.nodes import common  # noqa: E402
 from thermal_imu_calib.nodes.calibrator import CalibratorNode  # noqa: E402
@@ -32,6 +39,12 @@ SHORT = {'hold_s': (14.0, 15.0), 'transition_s': (1.5, 2.0)}
 def recording(**overrides):
     """Return a short simulated warm-up (demo device) with the given overrides."""
     return sim.simulate('demo', 5, **{**SHORT, **overrides})
+
+
+def motion_recording():
+    """Return six faces and two corners up, 14-15 s holds, a scaled and misaligned gyro."""
+    return _motion_data.recording('demo', 5, **SHORT, repetitions=1,
+                                  faces=sim.SIX_FACES + (sim.TILTED,) * 2)
 
 
 class Player:
@@ -259,3 +272,84 @@ def test_kill_9_and_restart_resumes_from_collection_file(ros, tmp_path):
                 proc.kill()
                 proc.wait(5)
         log.close()
+
+
+def _saved_pose_changes(tmp_path):
+    tdir = tmp_path / 'collection.jsonl.transitions'
+    return sorted(p.name for p in tdir.iterdir()) if tdir.exists() else []
+
+
+def test_whole_unit_calibrate_uses_the_pose_changes_and_reset_clears_them(ros, tmp_path):
+    rec = motion_recording()
+    n = len(rec.schedule) - 1
+    calibrator(ros, tmp_path, model='whole_unit', use_latitude=True, latitude=45.0)
+    player = Player(ros)
+    player.play(rec)
+    player.wait_received()
+    # the last hold is still open: the pose change into it is added by ~/calibrate
+    prog = player.latest_progress(lambda p: p['pose_changes'] == n - 1, 20,
+                                  f'{n - 1} pose changes')
+    assert prog['pose_changes_dropped'] == 0
+    assert len(_saved_pose_changes(tmp_path)) == n - 1
+    resp = player.call('calibrate')
+    assert resp.success, resp.message
+    assert f'{n} of {n} pose changes used for gyro scale and misalignment' in resp.message
+    cal = Calibration.load(tmp_path / 'calibration.yaml')
+    assert cal.gyro.kind == 'whole_unit_gyro'
+    assert np.all(cal.gyro.meta()['estimated']['Omega1'])
+    d = cal.fit['rotation_direction_error_deg']
+    assert d['after_rms'] < d['before_rms']
+    resp = player.call('reset')
+    assert resp.success and f'{n - 1} pose changes' in resp.message, resp.message
+    assert not (tmp_path / 'collection.jsonl.transitions').exists()
+    player.latest_progress(lambda p: p['pose_changes'] == 0 and p['segments'] == 0, 20,
+                           'no pose changes after the reset')
+
+
+def test_pose_changes_resume_after_restart_and_restart_with_the_timeline(ros, tmp_path):
+    rec = motion_recording()
+    imu = rec.imu()
+    # stop in the pose change after the fifth hold (its samples are lost with the process)
+    mid = (rec.schedule[4].stamp_end_ns + rec.schedule[5].stamp_start_ns) // 2
+    cut = int(np.searchsorted(imu.stamp_ns, mid))
+    node = calibrator(ros, tmp_path, model='whole_unit')
+    player = Player(ros)
+    player.play(rec, 0, cut)
+    player.wait_received()
+    player.latest_progress(lambda p: p['segments'] == 5 and p['pose_changes'] == 4, 20,
+                           'five holds and four pose changes before the restart')
+    saved = _saved_pose_changes(tmp_path)
+    assert saved == [f'{h:06d}-{h + 1:06d}.npz' for h in range(4)]
+    # what a kill -9 can leave: a temporary file, a pose change whose hold was not written
+    tdir = tmp_path / 'collection.jsonl.transitions'
+    (tdir / '.collection-x1').write_bytes(b'partial')
+    orphan = load_transitions(str(tdir / saved[-1]))[0]
+    orphan.hold_from, orphan.hold_to = 4, 5
+    save_transitions(str(tdir / '000004-000005.npz'), [orphan])
+    ros.remove(node)
+    player.progress.clear()
+    node = calibrator(ros, tmp_path, model='whole_unit')
+    resumed = player.latest_progress(lambda p: True, 30, 'progress after the restart')
+    assert resumed['pose_changes'] == 4 and resumed['segments'] == 5
+    assert _saved_pose_changes(tmp_path) == saved
+    player.wait_connected()
+    player.prime(rec, cut)
+    player.sent = [0, 0]
+    player.play(rec, cut + 1)
+    player.wait_received()
+    # the pose change cut by the restart is lost; 5 -> 6 is new, 6 -> 7 waits for hold 7
+    player.latest_progress(lambda p: p['pose_changes'] == 5, 20, 'five pose changes')
+    # a replay from the start (stamps jump back): hold 7 closes, its pose change is kept,
+    # and the replayed holds get new ids, with pose changes between them only
+    end = int(np.searchsorted(imu.stamp_ns, (rec.schedule[2].stamp_end_ns
+                                             + rec.schedule[3].stamp_start_ns) // 2))
+    player.play(rec, 0, end)
+    player.wait_received()
+    player.latest_progress(lambda p: p['pose_changes'] == 8, 20, 'eight pose changes')
+    assert node.counts['time_resets'] == 1
+    trs = node.transitions
+    assert [(t.hold_from, t.hold_to) for t in trs[-3:]] == [(6, 7), (8, 9), (9, 10)]
+    assert len(_saved_pose_changes(tmp_path)) == 8
+    resp = player.call('calibrate')
+    assert resp.success, resp.message
+    assert '8 of 8 pose changes used' in resp.message, resp.message
