@@ -274,6 +274,16 @@ def test_kill_9_and_restart_resumes_from_collection_file(ros, tmp_path):
         log.close()
 
 
+def _wait_processed(node, stamp_ns):
+    """Wait until ``node`` has processed the sample stamped ``stamp_ns`` (and so all before).
+
+    After ``Player.prime`` the received count includes the primes, so it cannot show that
+    the last published samples have arrived; the newest processed stamp can.
+    """
+    wait_for(lambda: node._newest_ns == int(stamp_ns), 20,
+             lambda: f'sample {stamp_ns} at the calibrator (newest {node._newest_ns})')
+
+
 def _saved_pose_changes(tmp_path):
     tdir = tmp_path / 'collection.jsonl.transitions'
     return sorted(p.name for p in tdir.iterdir()) if tdir.exists() else []
@@ -337,6 +347,7 @@ def test_pose_changes_resume_after_restart_and_restart_with_the_timeline(ros, tm
     player.sent = [0, 0]
     player.play(rec, cut + 1)
     player.wait_received()
+    _wait_processed(node, imu.stamp_ns[-1])
     # the pose change cut by the restart is lost; 5 -> 6 is new, 6 -> 7 waits for hold 7
     player.latest_progress(lambda p: p['pose_changes'] == 5, 20, 'five pose changes')
     # a replay from the start (stamps jump back): hold 7 closes, its pose change is kept,
@@ -345,6 +356,7 @@ def test_pose_changes_resume_after_restart_and_restart_with_the_timeline(ros, tm
                                              + rec.schedule[3].stamp_start_ns) // 2))
     player.play(rec, 0, end)
     player.wait_received()
+    _wait_processed(node, imu.stamp_ns[end - 1])
     player.latest_progress(lambda p: p['pose_changes'] == 8, 20, 'eight pose changes')
     assert node.counts['time_resets'] == 1
     trs = node.transitions
