@@ -227,6 +227,7 @@ def table(results):
 
 def main(argv=None):
     """Run the benchmark and print the tables (``--json FILE`` writes the figures)."""
+    global RESIDUAL, SCENARIO, NOISE_SCALE
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     ap.add_argument('--seeds', type=int, nargs='+', default=list(range(7)))
     ap.add_argument('--scenario', default=SCENARIO, choices=sorted(
@@ -241,7 +242,6 @@ def main(argv=None):
     ap.add_argument('--json', metavar='FILE', help='write the figures as JSON')
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
-    global RESIDUAL, SCENARIO, NOISE_SCALE
     RESIDUAL, SCENARIO = args.residual, args.scenario
     NOISE_SCALE = args.calibration_noise_scale
     results = []
