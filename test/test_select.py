@@ -1,6 +1,7 @@
 """``--model auto``: held-out choice between polynomial, lag-aware, RVM and field models."""
 
 import dataclasses
+import re
 
 import numpy as np
 import pytest
@@ -114,6 +115,25 @@ def test_several_orientations_keep_the_field_model():
     with pytest.raises(CalibrationRefused, match='needs several orientations'):
         single = sim_windows(sim.simulate('single-warmup', 1, hold_s=(600.0, 600.0)))
         calibrate_windows(single, _opts('field-lag'))
+
+
+def test_tilted_poses_offer_the_whole_unit_model():
+    # mems-coldstart: no lab calibration, 6 of 24 holds corner-up -> misalignment observable
+    w = sim_windows(sim.simulate('mems-coldstart', 1))
+    res = calibrate_windows(w, _opts())
+    choice = res.report['model_choice']
+    assert choice['model'] == 'whole_unit', choice['reason']
+    assert res.calibration.accel.kind == 'whole_unit_accel'
+    assert 'holds off the six faces' in choice['reason']
+    scores = re.search(r'field ([0-9.]+) ug, whole_unit ([0-9.]+) ug', choice['reason'])
+    field, whole = map(float, scores.groups())
+    assert whole < (1 - select.WHOLE_UNIT_MARGIN) * field
+    # the misalignment it estimates is the true one (frame p, A1 lower-triangular)
+    truth = sim.simulate('mems-coldstart', 1).truth.accel
+    est = res.calibration.accel.m1 / np.diag(res.calibration.accel.m1)[:, None]
+    true = np.linalg.inv(truth.s)
+    low = np.tril_indices(3, -1)
+    assert np.max(np.abs(est[low] - true[low])) < 2e-4, (est[low], true[low])
 
 
 def test_parameter_uncertainty_in_the_file(chamber):

@@ -21,8 +21,10 @@ Physics (body frame = accelerometer reference frame p, navigation frame ENU):
 
   with f^p = C_nb^T (a^n - g^n) the specific force (gravity rotating during pose changes,
   plus the hand's translational acceleration);
-* gyro: raw = w_nb^b + C_nb^T w_ie^n (earth rate at the configured latitude)
-  + sum_j c_j dT^j + noise;
+* gyro, seed 002 eq. (3)-(4) written forward: raw = M w^b + G f^p + sum_j c_j dT^j + noise
+  with w^b = w_nb^b + C_nb^T w_ie^n (earth rate at the configured latitude), M = I +
+  scale errors + misalignment (3x3), G the g-sensitivity (rad/s per m/s^2); the 'nav'
+  family has M = I, G = 0;
 * temperature: per sensor a first-order warm-up T = T_amb + rise (1 - exp(-t / tau)) or a
   chamber cycle; the error is driven by the sensor reading itself or, with ``lag_s > 0``, by
   a first-order lagged copy of it (hysteresis between heating and cooling legs). Published
@@ -49,6 +51,7 @@ from .gravity import normal_gravity
 from .io.columns import ImuColumns, TemperatureColumns
 from .models.field import FieldPolynomialModel
 from .models.polynomial import OffsetPolynomialModel
+from .models.whole_unit import WholeUnitGyroModel
 
 G0 = 9.80665                 # m/s^2 per g, to convert datasheet densities
 EARTH_RATE = 7.2921150e-5    # rad/s, WGS84
@@ -98,6 +101,12 @@ class DeviceSpec:
     gyro_lsb: float = 0.0        # rad/s
     #: per-sensor relative spread of the warm-up rise and time constant (device property)
     warmup_spread: float = 0.08
+    #: gyro scale-factor errors (diagonal of M - I), 1
+    gyro_scale: tuple = ('const', 0.0)
+    #: gyro misalignment (off-diagonal of M, 6 elements), rad
+    gyro_misalignment: tuple = ('const', 0.0)
+    #: gyro g-sensitivity G (9 elements), rad/s per m/s^2
+    gyro_g_sensitivity: tuple = ('const', 0.0)
 
 
 DEVICES = {
@@ -131,7 +140,11 @@ DEVICES = {
         gyro_noise_density=0.005 * DEG,           # 0.005 deg/s/sqrt(Hz)
         accel_lsb=8 * G0 / 65536,                 # +-4 g, 16 bit
         gyro_lsb=1000 * DEG / 65536,              # +-500 deg/s, 16 bit
-        warmup_spread=0.05),
+        warmup_spread=0.05,
+        # seed 002 Table 2 class: scale 0.1-0.4 %, misalignment 0.02-0.09 deg,
+        # g-sensitivity 0.01-0.04 deg/s/g per element
+        gyro_scale=('uniform+-', 1e-3, 4e-3), gyro_misalignment=('uniform+-', 3e-4, 1.5e-3),
+        gyro_g_sensitivity=('uniform+-', 1.8e-5, 7e-5)),
 }
 
 
@@ -161,6 +174,8 @@ class ScenarioConfig:
     #: hold range of the first repetition (None: as ``hold_s``); a quick first pass puts
     #: every face into the fastest, coldest part of a warm-up
     first_hold_s: Optional[Tuple[float, float]] = None
+    #: repetitions that use ``first_hold_s``
+    first_repetitions: int = 1
     transition_s: Tuple[float, float] = (2.0, 4.0)
     tilt_deg: Tuple[float, float] = (0.5, 4.0)
     lift_m: Tuple[float, float] = (0.02, 0.08)
@@ -237,6 +252,15 @@ SCENARIOS = {
         faces=SIX_FACES + (TILTED, TILTED), repetitions=3, shuffle=True, hold_s=(60.0, 90.0),
         transition_s=(2.0, 4.0), tilt_deg=(0.5, 5.0), t_amb=22.0, rise=17.0, tau_s=540.0,
         temp_rate=1.0),
+    'mems-coldstart-poses': ScenarioConfig(
+        name='mems-coldstart-poses', device='mems', imu_rate=200.0,
+        description='consumer MEMS cold start for the whole-unit model (seed 002): 13 x (six '
+                    'faces + 4 corner-up poses), 15-20 s holds for the first three rounds '
+                    '(many poses while the temperature moves fast), then 25-35 s holds; '
+                    '~65 min, 130 holds, one 1-Hz die temperature topic',
+        faces=SIX_FACES + (TILTED,) * 4, repetitions=13, hold_s=(25.0, 35.0),
+        first_hold_s=(15.0, 20.0), first_repetitions=3, transition_s=(2.0, 4.0),
+        tilt_deg=(0.5, 5.0), t_amb=22.0, rise=17.0, tau_s=540.0, temp_rate=1.0),
     'mems-validation': ScenarioConfig(
         name='mems-validation', device='mems', imu_rate=200.0,
         description='second cold start of the mems-coldstart device: six faces + 2 tilted '
@@ -296,10 +320,18 @@ def accel_forward(f, temps, t0, k0, b0, s, thermal):
     return bias + scale * f_a
 
 
-def gyro_forward(w, temps, t0, coeffs):
-    """Return raw gyro output (n, 3): true rate plus the bias polynomial sum_j c_j dT^j."""
+def gyro_forward(w, temps, t0, coeffs, m=None, g=None, f=None):
+    """Return raw gyro output (n, 3): M w + G f + the bias polynomial sum_j c_j dT^j.
+
+    ``w`` (n, 3) rad/s true rate, ``temps`` (n, 3) degC; ``m`` (3, 3) scale/misalignment
+    (None: identity), ``g`` (3, 3) g-sensitivity in rad/s per m/s^2 applied to the specific
+    force ``f`` (n, 3) m/s^2 (None: none).
+    """
     d = np.asarray(temps, float) - np.asarray(t0, float)
-    out = np.array(w, float, copy=True)
+    w = np.asarray(w, float)
+    out = w @ np.asarray(m, float).T if m is not None else w.copy()
+    if g is not None:
+        out += np.asarray(f, float) @ np.asarray(g, float).T
     for j, c in enumerate(np.asarray(coeffs, float)):
         out += c * d ** j
     return out
@@ -318,6 +350,27 @@ class DeviceParams:
     gyro_coeffs: np.ndarray   # (3, 3) rows c0, c1, c2 (rad/s, /degC, /degC^2)
     rise_factor: np.ndarray   # (3,) per temperature sensor, multiplies the scenario rise
     tau_factor: np.ndarray    # (3,) per temperature sensor, multiplies the scenario tau
+    #: (3, 3) gyro scale/misalignment M (raw = M w + ...), identity when ideal
+    gyro_m: np.ndarray = field(default_factory=lambda: np.eye(3))
+    #: (3, 3) gyro g-sensitivity G, rad/s per m/s^2
+    gyro_g: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
+
+    @property
+    def gyro_ideal(self):
+        """Return True when the gyro has no scale, misalignment or g-sensitivity error."""
+        return bool(np.all(self.gyro_m == np.eye(3)) and not np.any(self.gyro_g))
+
+    def gyro_truth_model(self):
+        """Return the true gyro calibration model (offset polynomial, or seed 002 form).
+
+        raw = M w + G f + c(dT) inverts to w = Omega1 (raw - c(dT)) + C f with
+        Omega1 = M^-1 and C = -M^-1 G (``models.whole_unit.WholeUnitGyroModel``).
+        """
+        if self.gyro_ideal:
+            return OffsetPolynomialModel(self.t0, self.gyro_coeffs, sensor='gyro')
+        om1 = np.linalg.inv(self.gyro_m)
+        return WholeUnitGyroModel(self.t0, self.gyro_coeffs, None, np.zeros(3), om1, None,
+                                  None, -om1 @ self.gyro_g)
 
     @property
     def prior_k0(self):
@@ -377,8 +430,10 @@ def draw_device(family, seed):
     w = _rng(seed, 'device', spec.name, 'warmup')
     rise_f = 1.0 + spec.warmup_spread * np.clip(w.standard_normal(3), -2, 2)
     tau_f = 1.0 + spec.warmup_spread * np.clip(w.standard_normal(3), -2, 2)
+    m = np.eye(3) + np.diag(p('gyro_scale'))
+    m[~np.eye(3, dtype=bool)] = p('gyro_misalignment', 6)
     return DeviceParams(spec, t0, 1.0 + p('k0_error'), p('b0'), s, thermal, gyro,
-                        rise_f, tau_f)
+                        rise_f, tau_f, m, p('gyro_g_sensitivity', (3, 3)))
 
 
 # ---------------------------------------------------------------------------------- poses
@@ -483,7 +538,7 @@ def _build_schedule(cfg, rng):
     else:
         holds_s = rng.uniform(*cfg.hold_s, len(poses))
         if cfg.first_hold_s is not None:
-            n_first = len(cfg.faces)
+            n_first = len(cfg.faces) * cfg.first_repetitions
             holds_s[:n_first] = rng.uniform(*cfg.first_hold_s, min(n_first, len(poses)))
     trans_s = rng.uniform(*cfg.transition_s, max(len(poses) - 1, 0))
     nj = 3
@@ -699,8 +754,8 @@ class SimRecording:
             tg = tc.temps[:, cal.gyro_input]
             acc = accel_forward(tc.specific_force, ta, dev.t0, dev.k0, dev.b0, dev.s,
                                 dev.thermal) + sig_a * noise[:, :3]
-            gyr = gyro_forward(tc.angular_rate, tg, dev.t0, dev.gyro_coeffs) \
-                + sig_g * noise[:, 3:]
+            gyr = gyro_forward(tc.angular_rate, tg, dev.t0, dev.gyro_coeffs, dev.gyro_m,
+                               dev.gyro_g, tc.specific_force) + sig_g * noise[:, 3:]
             if spec.accel_lsb > 0:
                 acc = np.round(acc / spec.accel_lsb) * spec.accel_lsb
             if spec.gyro_lsb > 0:
@@ -834,9 +889,12 @@ def simulate(name, seed=0, **overrides):
                      'temperature')
     if spec.prior == 'nominal':
         notes.append('the prior is nominal (k0 = 1, b0 = 0, S = I); the true S is skewed')
+    if not dev.gyro_ideal:
+        notes.append('gyro: seed 002 form with scale/misalignment Omega1 = M^-1 and '
+                     'g-sensitivity C = -M^-1 G (rad/s per m/s^2)')
     truth = Calibration(
         accel=FieldPolynomialModel(dev.t0, dev.thermal, dev.k0, dev.b0, dev.s),
-        gyro=OffsetPolynomialModel(dev.t0, dev.gyro_coeffs, sensor='gyro'),
+        gyro=dev.gyro_truth_model(),
         inputs=inputs, valid_range=valid, accel_input=idx, gyro_input=idx,
         frame_id='imu_link', gravity=gravity,
         gravity_source=f'WGS84 normal gravity at {cfg.latitude} deg, 0 m',

@@ -17,6 +17,14 @@ temperature (when the gyro-bias lag search finds one) and the bias/scale RVM are
 with holds left out (at most one per face) and scored by the held-out raw-output residual.
 The field model stays unless the lagged one is 10 % and the RVM 50 % better.
 
+Whole-unit (seed 002): when the field model was chosen and at least
+``WHOLE_UNIT_MIN_TILTED`` holds lie off the six faces (what misalignment needs), the field
+and whole-unit accelerometer fits are repeated with the same hold folds and scored by the
+held-out gravity-norm residual |a| - g (inputs clamped to the training range; the only
+comparison both models admit without knowing the tilts of the held-out holds). The
+whole-unit model is chosen when it is ``WHOLE_UNIT_MARGIN`` better: it then also fits the
+gyro's g-sensitivity and, with pose changes, its scale and misalignment.
+
 ``auto_policy`` is installed as ``calibrate.AUTO_POLICY[0]``; its decision and the table of
 held-out errors go to ``ctx.thermal_selection`` so that the estimators registered here
 reuse the time constant and RVM kernels instead of searching again.
@@ -57,6 +65,11 @@ MULTI_LAG_IMPROVEMENT = 0.20
 #: at most this many hold folds in the several-orientation comparison (fewer when a face
 #: was held fewer times)
 MULTI_FOLDS = 5
+#: several orientations with tilted holds: the whole-unit model must beat the field model's
+#: held-out gravity-norm residual by this much (relative) to be chosen
+WHOLE_UNIT_MARGIN = 0.25
+#: holds off the six faces needed before the whole-unit model is tried (misalignment)
+WHOLE_UNIT_MIN_TILTED = 3
 #: Estimate carries a temperature filter into the Calibration (calibrate.py support)
 FILTER_SUPPORTED = 'temperature_filter' in {f.name for f in dataclasses.fields(Estimate)}
 
@@ -410,6 +423,63 @@ def select_multi(ctx, rvm_settings=None):
                      time.perf_counter() - t_start)
 
 
+def _weighted_rms(x, n):
+    return float(np.sqrt(np.sum(n * x * x) / np.sum(n)))
+
+
+def heldout_norm(ctx):
+    """Return held-out |a| - g per window {'field': (m,), 'whole_unit': (m,)} and the folds.
+
+    Both accelerometer fits are repeated on the training holds of each fold (``_hold_folds``)
+    and evaluated on the held-out holds' raw means, inputs clamped to the training range.
+    """
+    from .whole_unit_fit import fit_whole_unit_accel, Priors, prior_from_field_model
+    w, o = ctx.windows, ctx.options
+    folds, n = _hold_folds(w)
+    priors = o.whole_unit_priors if getattr(o, 'whole_unit_priors', None) else Priors()
+    if ctx.prior_model is not None:
+        priors.accel_mean = prior_from_field_model(ctx.prior_model)
+    out = {'field': np.zeros(len(w)), 'whole_unit': np.zeros(len(w))}
+    for f in range(n):
+        test = folds == f
+        train = ~test
+        tc = clamp_to_training(ctx.ta, w, train, ctx.accel_input, o.range_margin)
+        fm = _field_fit(ctx, w.select(train), ctx.ta[train], refine=False).model
+        wm = fit_whole_unit_accel(w.select(train), ctx.ta[train] if ctx.k else None,
+                                  o.gravity, ctx.t0, priors, order=o.order if ctx.k else 0,
+                                  residual=getattr(o, 'whole_unit_residual', 'norm')).model
+        for name, model in (('field', fm), ('whole_unit', wm)):
+            a = model.correct(w.accel[test], tc[test])
+            out[name][test] = np.linalg.norm(a, axis=1) - o.gravity
+    return out, n
+
+
+def select_whole_unit(ctx, sel):
+    """Return ``sel`` or a whole-unit Selection when it wins held out (see the docstring)."""
+    ids, means = ctx.windows.hold_means()
+    tilted = sum(face_of(m) == 'tilted' for m in means)
+    if sel.model != 'field' or tilted < WHOLE_UNIT_MIN_TILTED or sel.groups != 'holds':
+        return sel
+    if _hold_folds(ctx.windows)[1] < 2:
+        return sel
+    t_start = time.perf_counter()
+    res, n_folds = heldout_norm(ctx)
+    g, n = ctx.options.gravity, ctx.windows.n
+    scores = {k: _weighted_rms(v, n) / g * 1e6 for k, v in res.items()}
+    sel.table.update({f'{k} (|a|-g)': {'residual_ug': v} for k, v in scores.items()})
+    sel.seconds += time.perf_counter() - t_start
+    better = scores['whole_unit'] < scores['field'] * (1 - WHOLE_UNIT_MARGIN)
+    text = (f'; {tilted} holds off the six faces: held-out |a|-g RMS field '
+            f'{scores["field"]:.1f} ug, whole_unit {scores["whole_unit"]:.1f} ug '
+            f'({n_folds} folds); ')
+    if better:
+        sel.model = 'whole_unit'
+        sel.reason += text + 'chose whole_unit (seed 002)'
+    else:
+        sel.reason += text + f'whole_unit not {100 * WHOLE_UNIT_MARGIN:.0f} % better: field'
+    return sel
+
+
 # ---------------------------------------------------------------------- policy, estimators
 def auto_policy(ctx):
     """Choose the model for ``--model auto`` by held-out validation; returns (name, reason)."""
@@ -423,7 +493,7 @@ def auto_policy(ctx):
         except CalibrationRefused:
             return 'field', (f'{ctx.n_orientations} orientations but faces missing: the '
                              'field estimator explains what to collect')
-        sel = select_multi(ctx)
+        sel = select_whole_unit(ctx, select_multi(ctx))
     ctx.thermal_selection = sel
     return sel.model, sel.reason
 
