@@ -151,8 +151,8 @@ def cmd_calibrate(args):
     """Run the calibrate subcommand.
 
     The pose changes between holds (raw samples, bounded memory) are collected for the
-    models that fit them (``MOTION_MODELS``: gyro scale and misalignment) and for
-    ``--save-windows``; elsewhere they would cost ~4 % more CPU for nothing.
+    models that may fit them (``MOTION_MODELS``: whole_unit, and auto, which may choose it)
+    and for ``--save-windows``; elsewhere they would cost ~4 % more CPU for nothing.
     """
     from .estimation.gyro_fit import save_transitions
     from .pipeline import collect_windows, merge_transitions, merge_windows

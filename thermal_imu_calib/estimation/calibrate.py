@@ -155,9 +155,10 @@ class Estimate:
 
 #: model name -> estimator(Context) -> Estimate; see ``register_estimator``
 ESTIMATORS = {}
-#: estimators that fit the pose changes between holds (``CalibrateOptions.transitions``):
-#: callers collect them (raw samples between holds) only for these
-MOTION_MODELS = ('whole_unit',)
+#: ``--model`` names whose estimate may fit the pose changes between holds
+#: (``CalibrateOptions.transitions``; auto may choose whole_unit): callers collect them
+#: (raw samples between holds) only for these
+MOTION_MODELS = ('auto', 'whole_unit')
 #: modules that register further estimators when imported (one line per model family)
 ESTIMATOR_MODULES = ['thermal_imu_calib.estimation.whole_unit_fit',
                      'thermal_imu_calib.estimation.baselines',

@@ -436,7 +436,7 @@ def heldout_norm(ctx):
     from .whole_unit_fit import fit_whole_unit_accel, Priors, prior_from_field_model
     w, o = ctx.windows, ctx.options
     folds, n = _hold_folds(w)
-    priors = o.whole_unit_priors if getattr(o, 'whole_unit_priors', None) else Priors()
+    priors = o.whole_unit_priors or Priors()
     if ctx.prior_model is not None:
         priors.accel_mean = prior_from_field_model(ctx.prior_model)
     out = {'field': np.zeros(len(w)), 'whole_unit': np.zeros(len(w))}
@@ -447,7 +447,7 @@ def heldout_norm(ctx):
         fm = _field_fit(ctx, w.select(train), ctx.ta[train], refine=False).model
         wm = fit_whole_unit_accel(w.select(train), ctx.ta[train] if ctx.k else None,
                                   o.gravity, ctx.t0, priors, order=o.order if ctx.k else 0,
-                                  residual=getattr(o, 'whole_unit_residual', 'norm')).model
+                                  residual=o.whole_unit_residual).model
         for name, model in (('field', fm), ('whole_unit', wm)):
             a = model.correct(w.accel[test], tc[test])
             out[name][test] = np.linalg.norm(a, axis=1) - o.gravity
