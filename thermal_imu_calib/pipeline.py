@@ -14,7 +14,7 @@ import numpy as np
 from .io import cdr
 from .io.align import StreamAligner
 from .io.bag import copy_and_stream, LogError, LogWriter, open_log
-from .io.cdr import IMU_MSGTYPE, TEMPERATURE_MSGTYPE
+from .io.cdr import IMU_MSGTYPE, SCALAR_MSGTYPES, TEMPERATURE_MSGTYPE
 from .io.columns import TemperatureColumns
 from .estimation.outliers import ImuSpikeFilter
 from .estimation.evaluate import static_metrics, WindowAccumulator, with_signals
@@ -50,7 +50,9 @@ def _progress(total, desc, enabled):
 def resolve_topics(reader, imu_topic, temperature_topics):
     """Check the IMU topic and pick temperature topics (all Temperature topics when None).
 
-    Returns the temperature topic list; raises LogError naming the topics present.
+    Named thermal-input topics may be any header-stamped scalar of ``SCALAR_MSGTYPES``
+    (e.g. a proxy on sensor_msgs/Temperature or FluidPressure). Returns the temperature
+    topic list; raises LogError naming the topics present.
     """
     types = reader.topic_types()
     if imu_topic is None:
@@ -63,7 +65,7 @@ def resolve_topics(reader, imu_topic, temperature_topics):
     if temperature_topics is None:
         temperature_topics = sorted(t for t, ty in types.items() if ty == TEMPERATURE_MSGTYPE)
     else:
-        reader.check_topics(temperature_topics, TEMPERATURE_MSGTYPE)
+        reader.check_topics(temperature_topics, SCALAR_MSGTYPES)
     return imu_topic, list(temperature_topics)
 
 
