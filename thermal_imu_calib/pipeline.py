@@ -266,7 +266,8 @@ def evaluate_log(path, calibrations, imu_topic=None, temperature_topics=None, de
     col = collect_windows(path, imu_topic, temperature_topics, detector, chunk_size,
                           max_gap_s, progress)
     w = col.windows
-    results = {'raw': static_metrics(w, gravity, average_s)}
+    tcol = _temperature_column(calibrations, col.temperature_topics)
+    results = {'raw': static_metrics(w, gravity, average_s, tcol)}
     if len(w) and calibrations:
         acc = WindowAccumulator(w.t0, w.t1)
         streams = {label: cal.stream() for label, cal in calibrations.items()}
@@ -285,9 +286,19 @@ def evaluate_log(path, calibrations, imu_topic=None, temperature_topics=None, de
                 acc.add(ch.imu.t, sig)
         for label in calibrations:
             cw = with_signals(w, acc.means(f'{label}/a'), acc.means(f'{label}/g'))
-            results[label] = static_metrics(cw, gravity, average_s)
+            results[label] = static_metrics(cw, gravity, average_s, tcol)
     return {'path': str(path), 'windows': len(w), 'holds': len(np.unique(w.hold)),
             'temperature_topics': col.temperature_topics, 'results': results}
+
+
+def _temperature_column(calibrations, topics):
+    """Return the first topic column the calibrations declare degC (0 if none says).
+
+    None when every input they name is a non-degC proxy (no drift per degC then).
+    """
+    units = {i.topic.lstrip('/'): i.unit for cal in calibrations.values() for i in cal.inputs}
+    cols = [j for j, t in enumerate(topics) if units.get(t.lstrip('/'), 'degC') == 'degC']
+    return cols[0] if cols else None
 
 
 def _select_inputs(cal, topics, temps):

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from ..input_units import TEMPERATURE_BOUNDS
 from . import cdr
 from .cdr import IMU_MSGTYPE, SCALAR_MSGTYPES, TEMPERATURE_MSGTYPE
 from .columns import ImuColumns, TemperatureColumns
@@ -110,7 +111,11 @@ class LogInfo:
             if t.stamps_backwards:
                 line += f'  {t.stamps_backwards} stamps backwards'
             if t.temperature_min is not None:
-                unit = ' degC' if t.msgtype == TEMPERATURE_MSGTYPE else ''
+                lo, hi = TEMPERATURE_BOUNDS
+                plausible = lo <= t.temperature_min and t.temperature_max <= hi
+                unit = (' degC' if t.msgtype == TEMPERATURE_MSGTYPE and plausible else
+                        ' (not degC: a thermal proxy? declare its unit with --input-unit)'
+                        if t.msgtype == TEMPERATURE_MSGTYPE else '')
                 line += f'  {t.temperature_min:.2f}..{t.temperature_max:.2f}{unit}'
             lines.append(line)
         return '\n'.join(lines)
