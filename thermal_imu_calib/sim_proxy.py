@@ -44,7 +44,7 @@ class ResonanceProxy:
     noise_hz: float = 0.005          # white noise of one reading, 1 sigma
 
     def frequency(self, temp):
-        """Return the noise-free frequency (Hz) at gyro temperature(s) ``temp`` (degC)."""
+        """Return the noise-free resonance (Hz) at gyro temperatures ``temp`` (degC)."""
         return self.f0_hz + self.kf_hz_per_degc * np.asarray(temp, float)
 
 
