@@ -16,8 +16,8 @@ from rosbags.highlevel import AnyReader
 from thermal_imu_calib import sim
 from thermal_imu_calib.calibration import Calibration, CalibrationError, TemperatureInput
 from thermal_imu_calib.cli import main
-from thermal_imu_calib.estimation.calibrate import (CalibrateOptions, default_input_map,
-                                                    input_margins)
+from thermal_imu_calib.estimation.calibrate import (CalibrateOptions, calibrate_windows,
+                                                    default_input_map, input_margins)
 from thermal_imu_calib.input_units import normalize_unit, parse_unit_map
 from thermal_imu_calib.io.bag import open_log, write_columns
 from thermal_imu_calib.io.columns import TemperatureColumns
@@ -293,3 +293,41 @@ def test_cli_refuses_kelvin_and_unknown_unit_topics(proxy_bags, capsys):
     assert 'not a thermal input' in capsys.readouterr().err
     assert main(base + ['--gyro-input', PROXY]) == 2
     assert 'must name one or three' in capsys.readouterr().err
+
+
+def test_lag_applies_to_the_temperature_not_to_the_proxy():
+    """One pose, errors following the die temperature through a 240-s lag (``lag-warmup``).
+
+    The resonance frequency follows the gyro's own (lagged) temperature: the lag search
+    lags only the degC input, and the gyro on the proxy needs none.
+    """
+    from thermal_imu_calib.estimation.evaluate import WindowAccumulator
+    from thermal_imu_calib.pipeline import windows_from_columns
+
+    def windows(rec):
+        return windows_from_columns(rec.imu_chunks(), [rec.temperatures['/imu/temperature'],
+                                                       rec.temperatures[PROXY]])
+    cal_rec = with_resonance_proxy(sim.simulate('lag-warmup', 0))
+    val_rec = with_resonance_proxy(sim.simulate('lag-warmup', 0, tau_s=300.0, t_amb=23.0))
+    wc, wv = windows(cal_rec), windows(val_rec)
+    acc = WindowAccumulator(wv.t0, wv.t1)
+    for tc in val_rec.truth_chunks():
+        acc.add(tc.stamp_ns * 1e-9, {'w': tc.angular_rate})
+    rate = acc.means('w')
+    die = TemperatureInput('die', '/imu/temperature')
+    drift = {}
+    for label, w, inputs, cols in (
+            ('degC', wc.select(np.ones(len(wc), bool)), [die], [0]),
+            ('Hz', wc, [die, TemperatureInput('f', PROXY, 'Hz')], [0, 1])):
+        if label == 'degC':
+            w.temp, w.temp_rate = w.temp[:, :1], w.temp_rate[:, :1]
+        cal = calibrate_windows(w, CalibrateOptions(model='auto', inputs=inputs)).calibration
+        tau = cal.temperature_filter.tau_s
+        assert 150 < tau[0] < 350 and (label == 'degC' or tau[1] == 0.0), tau
+        assert cal.gyro.input_unit == label
+        g = cal.stream().apply(0.5 * (wv.t0 + wv.t1), wv.accel, wv.gyro, wv.temp[:, cols]).gyro
+        d = g - rate
+        drift[label] = float(np.sqrt(np.mean((d - d.mean(0)) ** 2)))
+    d = wv.gyro - rate
+    raw = float(np.sqrt(np.mean((d - d.mean(0)) ** 2)))
+    assert drift['Hz'] < 1.25 * drift['degC'] and drift['Hz'] < raw / 4

@@ -29,6 +29,7 @@ from typing import Dict, Optional
 
 import numpy as np
 
+from ..input_units import is_temperature
 from ..thermal_input import ThermalFilter
 from ..calibration import Calibration
 from .calibrate import (AUTO_POLICY, CalibrateOptions, CalibrationRefused,
@@ -217,9 +218,9 @@ def select_single(ctx, rvm_settings=None, candidates=SINGLE_CANDIDATES,
         return Selection('offset', 'too few windows for held-out validation: offset '
                          'polynomial', groups=kind)
     lag = estimate_tau(w, ctx.accel_input, ctx.gyro_input, groups, group_kind=kind,
-                       signals=signals)
+                       signals=signals, lagged=_lagged_inputs(ctx))
     tau = tau_or_none(lag, LAG_MIN_IMPROVEMENT)
-    lag_note = (f'lag search: tau {lag.tau_s[0]:.0f} s cuts the held-out error of a '
+    lag_note = (f'lag search: tau {np.max(lag.tau_s):.0f} s cuts the held-out error of a '
                 f'quadratic by {100 * lag.improvement:.0f} % (used above '
                 f'{100 * LAG_MIN_IMPROVEMENT:.0f} %)')
     if tau is not None and not _filter_ok(ctx):
@@ -388,9 +389,9 @@ def select_multi(ctx, rvm_settings=None):
     lag_note = 'no temperature input'
     if ctx.k:
         lag = estimate_tau(w, ctx.accel_input, ctx.gyro_input, signals=('gyro',),
-                           groups=w.hold, group_kind='holds')
+                           groups=w.hold, group_kind='holds', lagged=_lagged_inputs(ctx))
         tau = tau_or_none(lag, MULTI_LAG_IMPROVEMENT) if _filter_ok(ctx) else None
-        lag_note = (f'gyro-bias lag search: tau {lag.tau_s[0]:.0f} s, '
+        lag_note = (f'gyro-bias lag search: tau {np.max(lag.tau_s):.0f} s, '
                     f'{100 * lag.improvement:.0f} % better held out')
         model, _ = fit_rvm_multi(ctx, rvm_settings=rvm_settings, up=up)
         kernels['rvm'] = model.kernel_list
@@ -433,6 +434,11 @@ def auto_policy(ctx):
     return sel.model, sel.reason
 
 
+def _lagged_inputs(ctx):
+    """Return the inputs a thermal lag applies to: the degC ones (a proxy has none)."""
+    return [is_temperature(u) for u in input_units(ctx.options, ctx.k)]
+
+
 def _selection(ctx, name):
     sel = getattr(ctx, 'thermal_selection', None)
     return sel if sel is not None and sel.model == name else None
@@ -456,10 +462,12 @@ def _lag_for(ctx, name, sel):
         raise CalibrationRefused(f'the {name} model needs a temperature input',
                                  'record the IMU temperature topic')
     if ctx.n_orientations == 1:
-        est = estimate_tau(ctx.windows, ctx.accel_input, ctx.gyro_input)
+        est = estimate_tau(ctx.windows, ctx.accel_input, ctx.gyro_input,
+                           lagged=_lagged_inputs(ctx))
     else:
         est = estimate_tau(ctx.windows, ctx.accel_input, ctx.gyro_input, signals=('gyro',),
-                           groups=ctx.windows.hold, group_kind='holds')
+                           groups=ctx.windows.hold, group_kind='holds',
+                           lagged=_lagged_inputs(ctx))
     return est.tau_s, est.report()
 
 
