@@ -58,7 +58,7 @@ class CalibrateOptions:
     #: a low-order polynomial is trustworthy just past its data, a clamp at the exact data
     #: edge is not (the next warm-up often ends a little higher)
     range_margin: float = 1.0
-    #: margins of non-degC (proxy) inputs, {unit: margin in that unit}; a proxy unit not
+    #: margins by unit, {unit: margin in that unit} (e.g. {'Hz': 2.0}); a proxy unit not
     #: named here gets ``range_margin`` scaled by the ratio of its collected span to the
     #: degC inputs' (see ``input_margins``)
     unit_margins: Optional[dict] = None
@@ -122,10 +122,11 @@ def gyro_reference(units, gyro_input, tg, t0):
 def input_margins(windows, options):
     """Return the (k,) valid-range margin of each input, in its unit.
 
-    degC inputs get ``range_margin``. A proxy input gets ``unit_margins[unit]`` when
-    given, else ``range_margin`` degC expressed in its unit through the ratio of its
-    collected span to the median span of the degC inputs (exact for a proxy linear in the
-    same temperature), else, without a degC input, ``PROXY_MARGIN_FRACTION`` of its span.
+    An input whose unit is in ``unit_margins`` gets that; other degC inputs get
+    ``range_margin``; other proxies ``range_margin`` degC expressed in their unit through
+    the ratio of their collected span to the median span of the degC inputs (exact for a
+    proxy linear in the same temperature), else, without a degC input,
+    ``PROXY_MARGIN_FRACTION`` of their span.
     """
     k = windows.n_inputs
     units = input_units(options, k)
@@ -134,10 +135,10 @@ def input_margins(windows, options):
     t_span = [span[j] for j, u in enumerate(units) if is_temperature(u) and span[j] > 0]
     out = np.full(k, float(options.range_margin))
     for j, u in enumerate(units):
-        if is_temperature(u):
-            continue
         if u in explicit:
             out[j] = float(explicit[u])
+        elif is_temperature(u):
+            continue
         elif t_span:
             out[j] = options.range_margin * span[j] / float(np.median(t_span))
         else:
@@ -155,7 +156,7 @@ def valid_range(windows, options):
 
 def _margin_report(windows, options):
     units = input_units(options, windows.n_inputs)
-    if all(map(is_temperature, units)):
+    if all(map(is_temperature, units)) and not options.unit_margins:
         return {'value': options.range_margin, 'unit': DEGC}
     return {'value': input_margins(windows, options).tolist(), 'unit': units,
             'note': 'per input; a proxy without an explicit margin gets range_margin degC '
