@@ -8,6 +8,7 @@ cold start of the same device is as small as with the die temperature.
 """
 
 import copy
+import json
 
 import numpy as np
 import pytest
@@ -281,6 +282,16 @@ def test_cli_calibrates_a_gyro_on_its_resonance_frequency(proxy_bags, capsys):
           f'Hz proxy {res["hz"]:.3g}')
     assert res['hz'] < raw / 40 and res['degc'] < raw / 40
     assert res['hz'] < 1.25 * res['degc']
+    # evaluate reads the units from the files; drift per degC is taken on the degC input
+    capsys.readouterr()
+    assert main(['evaluate', str(d / 'val.mcap'), '--calibration', str(d / 'hz.yaml'),
+                 '--calibration', str(d / 'degc.yaml'), '--json']) == 0
+    ev = json.loads(capsys.readouterr().out)
+    assert ev['temperature_topics'] == ['/imu/temperature', PROXY]
+    r = ev['results']
+    assert r['hz']['gyro_rate_rms']['value'] < 1.1 * r['degc']['gyro_rate_rms']['value']
+    assert r['hz']['gyro_rate_rms']['value'] < r['raw']['gyro_rate_rms']['value'] / 20
+    assert all(20 < h['temp_range'][0] < 40 for h in r['hz']['per_hold'])
 
 
 def test_cli_refuses_kelvin_and_unknown_unit_topics(proxy_bags, capsys):

@@ -278,7 +278,8 @@ def evaluate_log(path, calibrations, imu_topic=None, temperature_topics=None, de
                 for label, cal in calibrations.items():
                     t = np.where(np.isfinite(ch.temps), ch.temps, np.nan)
                     if t.shape[1] and np.any(~np.isfinite(t)):
-                        t = np.nan_to_num(t, nan=float(np.nanmean(w.temp)))
+                        # per input: the columns may be in different units (degC, Hz)
+                        t = np.where(np.isfinite(t), t, np.nanmean(w.temp, axis=0))
                     sel = _select_inputs(cal, temps, t)
                     res = streams[label].apply(ch.imu.t, ch.imu.accel, ch.imu.gyro, sel)
                     sig[f'{label}/a'] = res.accel
