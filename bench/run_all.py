@@ -21,6 +21,7 @@ BENCHES = [
     ('bench_mems.py', []),
     ('bench_real_data.py', []),
     ('bench_thermal.py', []),
+    ('bench_proxy.py', []),
 ]
 
 

@@ -19,6 +19,22 @@ A file looks like::
     fit: {...}
     notes: [...]
 
+Thermal inputs need not be temperatures: each input carries its unit (``degC``, or a
+thermal proxy's unit such as ``Hz`` for a gyro's resonance frequency, see
+``input_units``), e.g. a die temperature for the accelerometer and a proxy for the gyro::
+
+    temperature:
+      inputs: [{name: die, topic: imu/temperature, unit: degC},
+               {name: gyro_resonance, topic: imu/gyro_resonance, unit: Hz}]
+      valid_range: {min: [21.0, 24950.2], max: [40.1, 24979.0], unit: [degC, Hz]}
+    accel: {..., temperature_input: [0, 0, 0]}
+    gyro: {..., temperature_input: [1, 1, 1], meta: {input_unit: Hz, ...}}
+
+``valid_range.unit`` is one string when every input has that unit (as in files written
+before proxies), else a list aligned with the inputs. A model's reference value and
+coefficients are in the unit of the inputs its axes are mapped to (``T0`` in Hz, ``c1`` in
+rad/s/Hz); files without units are degC.
+
 ``Calibration.apply`` is the one vectorised entry point the CLI and both nodes use.
 """
 
@@ -34,13 +50,15 @@ import yaml
 
 from . import __version__
 from .gravity import STANDARD_GRAVITY
+from .input_units import (check_values, DEGC, is_temperature, normalize_unit,
+                          TEMPERATURE_BOUNDS)
 from .models import model_from_dict, SensorModel
 from .thermal_input import CalibrationStream, ThermalFilter
 
 FORMAT = 'thermal_imu_calib/1'
 OUT_OF_RANGE_POLICIES = ('clamp', 'extrapolate')
-#: plausible die temperatures; anything outside is a units mistake (K or F) or garbage
-TEMPERATURE_BOUNDS = (-80.0, 200.0)
+__all__ = ['Calibration', 'CalibrationError', 'Compensated', 'FORMAT', 'TemperatureInput',
+           'TEMPERATURE_BOUNDS']
 
 
 class CalibrationError(ValueError):
@@ -49,11 +67,18 @@ class CalibrationError(ValueError):
 
 @dataclass
 class TemperatureInput:
-    """One temperature signal the model uses (a topic in ROS, a column offline)."""
+    """One thermal input the models use (a topic in ROS, a column offline).
+
+    ``unit`` is degC for a temperature, or a proxy's unit (e.g. Hz); Kelvin and Fahrenheit
+    raise ValueError (convert to degC).
+    """
 
     name: str
     topic: str = 'imu/temperature'
-    unit: str = 'degC'
+    unit: str = DEGC
+
+    def __post_init__(self):
+        self.unit = normalize_unit(self.unit, f'temperature input {self.name!r}')
 
 
 @dataclass
@@ -77,7 +102,7 @@ class Calibration:
     accel: Optional[SensorModel] = None
     gyro: Optional[SensorModel] = None
     inputs: List[TemperatureInput] = field(default_factory=list)
-    #: (k, 2) valid temperature range per input, degC
+    #: (k, 2) valid range per input, in each input's unit (degC, or a proxy's unit)
     valid_range: Optional[np.ndarray] = None
     out_of_range: str = 'clamp'
     accel_input: List[int] = field(default_factory=lambda: [0, 0, 0])
@@ -95,9 +120,43 @@ class Calibration:
     #: optional lag of the temperature inputs (thermal_input); None: the reading is the input
     temperature_filter: Optional[ThermalFilter] = None
 
+    def __post_init__(self):
+        for which in ('accel', 'gyro'):
+            model = getattr(self, which)
+            if model is None or not self.inputs:
+                continue
+            unit = self.model_input_unit(which)
+            if model.input_unit != unit:
+                if model.input_unit != DEGC:
+                    raise CalibrationError(
+                        f'the {which} model is a function of an input in '
+                        f'{model.input_unit} but its axes are mapped to inputs in {unit}; '
+                        'map it to inputs of its unit')
+                model.input_unit = unit   # fitted on these inputs: their unit is its unit
+
+    @property
+    def input_units(self):
+        """Return the unit of each input, in input order."""
+        return [i.unit for i in self.inputs]
+
+    def model_input_unit(self, which):
+        """Return the unit of the inputs the 'accel' or 'gyro' axes are mapped to.
+
+        Raises CalibrationError when the three axes are mapped to inputs of different units.
+        """
+        idx = self.accel_input if which == 'accel' else self.gyro_input
+        if not self.inputs:
+            return DEGC
+        units = sorted({self.inputs[i].unit for i in idx if 0 <= i < len(self.inputs)})
+        if len(units) != 1:
+            raise CalibrationError(f'the {which} axes are mapped to inputs of different units '
+                                   f'({", ".join(units) or "none"}); map all three axes to '
+                                   'inputs of one unit')
+        return units[0]
+
     # ------------------------------------------------------------------ apply
     def axis_temperatures(self, temps, which):
-        """Map (n, k) input temperatures to (n, 3) per-axis temperatures for 'accel'/'gyro'.
+        """Map (n, k) thermal inputs to (n, 3) per-axis inputs for 'accel'/'gyro'.
 
         Returns (per_axis, out_of_range_mask). With no inputs the model's reference
         temperature is used (temperature-independent calibration).
@@ -121,7 +180,9 @@ class Calibration:
         return temps[:, idx], oor
 
     def apply(self, accel, gyro, temps=None):
-        """Compensate (n, 3) accel [m/s^2] and gyro [rad/s] at (n, k) temperatures [degC].
+        """Compensate (n, 3) accel [m/s^2] and gyro [rad/s] at (n, k) thermal inputs.
+
+        Column j of ``temps`` is input j in its unit (degC, or a proxy's unit such as Hz).
 
         NaN temperatures are not allowed here; resolve missing temperature first (hold or
         passthrough). Returns a ``Compensated`` with the out-of-range mask. With a
@@ -162,12 +223,15 @@ class Calibration:
 
     def to_dict(self):
         """Return the file content as plain Python types."""
+        units = self.input_units
         d = {
             'format': FORMAT,
             'software': {'name': 'thermal_imu_calib', 'version': self.software_version},
             'created': self.created or _now(),
             'sensor': {'frame_id': self.frame_id},
-            'units': {'accel': 'm/s^2', 'gyro': 'rad/s', 'temperature': 'degC', 'time': 's'},
+            'units': {'accel': 'm/s^2', 'gyro': 'rad/s', 'temperature': 'degC', 'time': 's',
+                      **({} if all(map(is_temperature, units)) else
+                         {'thermal_inputs': 'per input, see temperature.inputs[].unit'})},
             'gravity': {'value': float(self.gravity), 'unit': 'm/s^2',
                         'source': self.gravity_source},
             'temperature': {
@@ -175,7 +239,8 @@ class Calibration:
                            for i in self.inputs],
                 'valid_range': None if self.valid_range is None else {
                     'min': self.valid_range[:, 0].tolist(),
-                    'max': self.valid_range[:, 1].tolist(), 'unit': 'degC'},
+                    'max': self.valid_range[:, 1].tolist(),
+                    'unit': units[0] if len(set(units)) == 1 else units},
                 'out_of_range': self.out_of_range,
             },
         }
@@ -263,12 +328,8 @@ class Calibration:
         try:
             temp = d.get('temperature') or {}
             inputs = [TemperatureInput(str(i['name']), str(i.get('topic', 'imu/temperature')),
-                                       str(i.get('unit', 'degC')))
+                                       str(i.get('unit', DEGC)))
                       for i in temp.get('inputs') or []]
-            for i in inputs:
-                if i.unit != 'degC':
-                    raise ValueError(f'temperature input {i.name!r} has unit {i.unit!r}; '
-                                     'only degC is supported')
             vr = temp.get('valid_range')
             valid = None
             if inputs:
@@ -278,12 +339,12 @@ class Calibration:
                 if valid.shape != (len(inputs), 2):
                     raise ValueError(f'valid_range has {valid.shape[0]} entries for '
                                      f'{len(inputs)} inputs')
+                _check_range_units(vr.get('unit'), inputs)
+                for i, inp in enumerate(inputs):
+                    check_values(valid[i], inp.unit,
+                                 f'valid_range of input {inp.name!r} ({inp.topic})')
                 if np.any(valid[:, 0] > valid[:, 1]):
                     raise ValueError('valid_range min is above max')
-                lo, hi = TEMPERATURE_BOUNDS
-                if np.any(valid < lo) or np.any(valid > hi):
-                    raise ValueError(f'valid_range {valid.tolist()} degC is outside {lo}..{hi} '
-                                     'degC (Kelvin or Fahrenheit by mistake?)')
             oor = temp.get('out_of_range', 'clamp')
             if oor not in OUT_OF_RANGE_POLICIES:
                 raise ValueError(f'out_of_range {oor!r} is not one of {OUT_OF_RANGE_POLICIES}')
@@ -304,6 +365,19 @@ class Calibration:
                         i < 0 or i >= len(inputs) for i in idx[name])):
                     raise ValueError(f'{name}.temperature_input {idx[name]} must name 3 of the '
                                      f'{len(inputs)} temperature inputs')
+                if inputs:
+                    units = {inputs[i].unit for i in idx[name]}
+                    if len(units) > 1:
+                        raise ValueError(f'{name}.temperature_input {idx[name]} maps the axes '
+                                         f'to inputs of different units {sorted(units)}; map '
+                                         'all three axes to inputs of one unit')
+                    unit = units.pop()
+                    if models[name].input_unit != unit:
+                        raise ValueError(
+                            f'{name} parameters are in {models[name].input_unit} (unit of its '
+                            f'reference value) but temperature_input maps it to inputs in '
+                            f'{unit}; the file was edited inconsistently: recalibrate or fix '
+                            'the units')
                 _check_bounds(name, models[name])
             if models['accel'] is None and models['gyro'] is None:
                 raise ValueError('neither an accel nor a gyro model is present')
@@ -340,8 +414,26 @@ def _check_bounds(name, model):
         if key in p and np.any(np.abs(p[key]) > lim):
             raise ValueError(f'{name}: {key} = {p[key].tolist()} exceeds {lim} {model.unit}; '
                              'the file is corrupt or not in SI units')
-    if 'T0' in p and np.any((p['T0'] < TEMPERATURE_BOUNDS[0]) | (p['T0'] > TEMPERATURE_BOUNDS[1])):
-        raise ValueError(f'{name}: T0 = {p["T0"].tolist()} degC is implausible')
+    unit = model.input_unit
+    if is_temperature(unit) and 'T0' in p and np.any((p['T0'] < TEMPERATURE_BOUNDS[0])
+                                                     | (p['T0'] > TEMPERATURE_BOUNDS[1])):
+        raise ValueError(f'{name}: T0 = {p["T0"].tolist()} degC is implausible (outside '
+                         f'{TEMPERATURE_BOUNDS[0]}..{TEMPERATURE_BOUNDS[1]} degC; Kelvin or '
+                         'Fahrenheit by mistake?)')
+
+
+def _check_range_units(unit, inputs):
+    """Refuse a valid_range unit (string or per-input list) that contradicts the inputs'."""
+    if unit is None:
+        return
+    units = [unit] * len(inputs) if isinstance(unit, str) else list(unit)
+    if len(units) != len(inputs):
+        raise ValueError(f'valid_range.unit has {len(units)} entries for {len(inputs)} inputs')
+    for u, inp in zip(units, inputs):
+        u = normalize_unit(u, f'valid_range of input {inp.name!r}')
+        if u != inp.unit:
+            raise ValueError(f'valid_range of input {inp.name!r} is in {u} but the input is in '
+                             f'{inp.unit}; give the range in the input\'s unit')
 
 
 def _opt_vec(sec):

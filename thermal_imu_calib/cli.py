@@ -18,6 +18,7 @@ from .estimation.calibrate import (CalibrateOptions, calibrate_windows, Calibrat
                                    model_choices, MOTION_MODELS)
 from .estimation.stationary import DetectorConfig
 from .gravity import resolve_gravity
+from .input_units import parse_unit_map
 from .io.bag import LogError
 
 EXIT_USAGE = 2
@@ -31,8 +32,10 @@ def _add_topics(p, imu_required=False):
     p.add_argument('--imu-topic', required=imu_required, default=None,
                    help='sensor_msgs/Imu topic (default: the only Imu topic in the log)')
     p.add_argument('--temperature-topic', action='append', default=None, metavar='TOPIC',
-                   help='sensor_msgs/Temperature topic; repeat for several inputs (default: '
-                        'all Temperature topics, or those of the calibration)')
+                   help='thermal input topic: sensor_msgs/Temperature (a temperature, or a '
+                        'proxy such as a resonance frequency) or another stamped scalar '
+                        '(FluidPressure, Illuminance, RelativeHumidity); repeat for several '
+                        'inputs (default: all Temperature topics, or those of the calibration)')
     p.add_argument('--max-gap', type=float, default=5.0, metavar='S',
                    help='temperature samples further apart than this are a gap: the nearest '
                         'sample is held instead of interpolating (s, default 5)')
@@ -94,6 +97,19 @@ def build_parser():
                         'evaluate the model (extrapolate); both are counted and flagged')
     p.add_argument('--range-margin', type=float, default=1.0, metavar='DEGC',
                    help='valid range = collected temperature range widened by this (default 1)')
+    p.add_argument('--input-unit', action='append', default=[], metavar='TOPIC=UNIT',
+                   help='unit of a thermal input, recorded in the calibration: degC (default) '
+                        'or a proxy unit such as Hz (e.g. /imu/gyro_resonance=Hz); repeat per '
+                        'input. Kelvin/Fahrenheit are refused: publish degC')
+    p.add_argument('--input-margin', action='append', default=[], metavar='UNIT=VALUE',
+                   help='valid-range margin of the inputs in UNIT (default for a proxy: '
+                        '--range-margin degC scaled by its span relative to the degC inputs)')
+    p.add_argument('--accel-input', metavar='TOPIC[,TOPIC,TOPIC]',
+                   help='input(s) driving the accelerometer axes (default: the degC inputs, '
+                        'three per axis, else the first)')
+    p.add_argument('--gyro-input', metavar='TOPIC[,TOPIC,TOPIC]',
+                   help='input(s) driving the gyro axes (default: the one non-degC input, '
+                        'e.g. a resonance-frequency proxy, else the first input)')
     p.add_argument('--frame-id', help='sensor frame_id to record (default: from the log)')
     p.add_argument('--save-windows', metavar='FILE',
                    help='write the window statistics (JSONL) and the pose changes between '
@@ -138,6 +154,10 @@ def build_parser():
     p.add_argument('--seed', type=int, default=0)
     p.add_argument('--storage', default='mcap', choices=('mcap', 'sqlite3'))
     p.add_argument('--list', action='store_true', help='list the scenarios and exit')
+    p.add_argument('--gyro-proxy', action='store_true',
+                   help='also publish the gyro\'s drive-mode resonance frequency (Hz, f = 25 kHz '
+                        '- 1.5 Hz/degC T) on /imu/gyro_resonance as a thermal proxy '
+                        '(sensor_msgs/Temperature); writes OUTPUT.truth_proxy.yaml too')
 
     p = sub.add_parser('info', help='topics, counts, rates, span, temperature range')
     p.add_argument('input', metavar='INPUT')
@@ -182,14 +202,13 @@ def cmd_calibrate(args):
             save_transitions(f, transitions)
         print(f'wrote {len(windows)} windows to {args.save_windows} and {len(transitions)} '
               f'pose changes to {args.save_windows}.transitions.npz', file=sys.stderr)
-    inputs = [TemperatureInput(t.strip('/').replace('/', '_') or f't{i}', t)
-              for i, t in enumerate(topics)]
+    inputs, mapping = _thermal_inputs(args, topics)
     opts = CalibrateOptions(model=args.model, gravity=g, gravity_source=g_src, prior=prior,
                             inputs=inputs, frame_id=args.frame_id or collected[0].frame_id,
                             out_of_range=args.out_of_range, order=args.order,
                             refine=not args.no_refine, min_hold_s=args.min_hold,
                             range_margin=args.range_margin, latitude=args.latitude,
-                            transitions=transitions)
+                            transitions=transitions, **mapping)
     result = calibrate_windows(windows, opts)
     result.calibration.fit['inputs'] = [os.path.basename(os.path.normpath(p))
                                         for p in args.inputs]
@@ -213,6 +232,38 @@ def _motion_text(collected):
                         for why, n in collected.motion['dropped'].items() if n)
     return f', {len(collected.transitions)} pose changes' + (
         f' ({dropped} dropped)' if dropped else '')
+
+
+def _thermal_inputs(args, topics):
+    """Return the TemperatureInputs (with units) and the axis-mapping options of calibrate."""
+    try:
+        units = parse_unit_map(args.input_unit, topics)
+    except ValueError as e:
+        raise UserError(str(e)) from None
+    inputs = [TemperatureInput(t.strip('/').replace('/', '_') or f't{i}', t, u)
+              for i, (t, u) in enumerate(zip(topics, units))]
+    margins = {}
+    for item in args.input_margin:
+        unit, sep, value = item.partition('=')
+        try:
+            margins[unit] = float(value)
+        except ValueError:
+            sep = ''
+        if not sep or margins[unit] < 0:
+            raise UserError(f'--input-margin {item!r} is not UNIT=VALUE with VALUE >= 0 (e.g. '
+                            'Hz=1.5)')
+    mapping = {'unit_margins': margins or None}
+    bare = [t.lstrip('/') for t in topics]
+    for sensor in ('accel', 'gyro'):
+        spec = getattr(args, f'{sensor}_input')
+        if not spec:
+            continue
+        names = [n.strip().lstrip('/') for n in spec.split(',')]
+        if len(names) not in (1, 3) or any(n not in bare for n in names):
+            raise UserError(f'--{sensor}-input {spec!r} must name one or three of the thermal '
+                            f'inputs ({", ".join(topics) or "none"}), comma-separated')
+        mapping[f'{sensor}_input'] = [bare.index(n) for n in names] * (3 // len(names))
+    return inputs, mapping
 
 
 def cmd_compensate(args):
@@ -295,7 +346,11 @@ def cmd_simulate(args):
                         f'{", ".join(sim.SCENARIOS)}')
     if os.path.exists(args.output):
         raise UserError(f'{args.output} exists; remove it or choose another OUTPUT')
-    info = sim.write_scenario(args.output, args.scenario, args.seed, storage=args.storage)
+    if args.gyro_proxy:
+        from .sim_proxy import write_proxy_scenario
+        info = write_proxy_scenario(args.output, args.scenario, args.seed, storage=args.storage)
+    else:
+        info = sim.write_scenario(args.output, args.scenario, args.seed, storage=args.storage)
     print(f'wrote {args.output} (scenario {args.scenario}, seed {args.seed})')
     for k, v in info.items():
         if isinstance(v, (str, int, float)):
@@ -326,8 +381,10 @@ def format_calibration(cal):
     if cal.inputs:
         vr = cal.valid_range
         out.append('temperature inputs: ' + ', '.join(
-            f'{i.topic} [{vr[j, 0]:.2f}..{vr[j, 1]:.2f} degC]' for j, i in enumerate(cal.inputs))
-            + f'; outside: {cal.out_of_range}')
+            f'{i.topic} [{vr[j, 0]:.2f}..{vr[j, 1]:.2f} {i.unit}]'
+            for j, i in enumerate(cal.inputs)) + f'; outside: {cal.out_of_range}')
+        out.append(f'mapping: accel axes <- inputs {cal.accel_input}, gyro axes <- inputs '
+                   f'{cal.gyro_input}')
     else:
         out.append('temperature inputs: none (temperature-independent)')
     for name, model in (('accel', cal.accel), ('gyro', cal.gyro)):

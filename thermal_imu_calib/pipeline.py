@@ -15,7 +15,7 @@ import numpy as np
 from .io import cdr
 from .io.align import StreamAligner
 from .io.bag import copy_and_stream, LogError, LogWriter, open_log
-from .io.cdr import IMU_MSGTYPE, TEMPERATURE_MSGTYPE
+from .io.cdr import IMU_MSGTYPE, SCALAR_MSGTYPES, TEMPERATURE_MSGTYPE
 from .io.columns import TemperatureColumns
 from .estimation.outliers import ImuSpikeFilter
 from .estimation.evaluate import static_metrics, WindowAccumulator, with_signals
@@ -56,7 +56,9 @@ def _progress(total, desc, enabled):
 def resolve_topics(reader, imu_topic, temperature_topics):
     """Check the IMU topic and pick temperature topics (all Temperature topics when None).
 
-    Returns the temperature topic list; raises LogError naming the topics present.
+    Named thermal-input topics may be any header-stamped scalar of ``SCALAR_MSGTYPES``
+    (e.g. a proxy on sensor_msgs/Temperature or FluidPressure). Returns the temperature
+    topic list; raises LogError naming the topics present.
     """
     types = reader.topic_types()
     if imu_topic is None:
@@ -69,7 +71,7 @@ def resolve_topics(reader, imu_topic, temperature_topics):
     if temperature_topics is None:
         temperature_topics = sorted(t for t, ty in types.items() if ty == TEMPERATURE_MSGTYPE)
     else:
-        reader.check_topics(temperature_topics, TEMPERATURE_MSGTYPE)
+        reader.check_topics(temperature_topics, SCALAR_MSGTYPES)
     return imu_topic, list(temperature_topics)
 
 
@@ -296,7 +298,8 @@ def evaluate_log(path, calibrations, imu_topic=None, temperature_topics=None, de
     col = collect_windows(path, imu_topic, temperature_topics, detector, chunk_size,
                           max_gap_s, progress)
     w = col.windows
-    results = {'raw': static_metrics(w, gravity, average_s)}
+    tcol = _temperature_column(calibrations, col.temperature_topics)
+    results = {'raw': static_metrics(w, gravity, average_s, tcol)}
     if len(w) and calibrations:
         acc = WindowAccumulator(w.t0, w.t1)
         streams = {label: cal.stream() for label, cal in calibrations.items()}
@@ -307,7 +310,8 @@ def evaluate_log(path, calibrations, imu_topic=None, temperature_topics=None, de
                 for label, cal in calibrations.items():
                     t = np.where(np.isfinite(ch.temps), ch.temps, np.nan)
                     if t.shape[1] and np.any(~np.isfinite(t)):
-                        t = np.nan_to_num(t, nan=float(np.nanmean(w.temp)))
+                        # per input: the columns may be in different units (degC, Hz)
+                        t = np.where(np.isfinite(t), t, np.nanmean(w.temp, axis=0))
                     sel = _select_inputs(cal, temps, t)
                     res = streams[label].apply(ch.imu.t, ch.imu.accel, ch.imu.gyro, sel)
                     sig[f'{label}/a'] = res.accel
@@ -315,9 +319,19 @@ def evaluate_log(path, calibrations, imu_topic=None, temperature_topics=None, de
                 acc.add(ch.imu.t, sig)
         for label in calibrations:
             cw = with_signals(w, acc.means(f'{label}/a'), acc.means(f'{label}/g'))
-            results[label] = static_metrics(cw, gravity, average_s)
+            results[label] = static_metrics(cw, gravity, average_s, tcol)
     return {'path': str(path), 'windows': len(w), 'holds': len(np.unique(w.hold)),
             'temperature_topics': col.temperature_topics, 'results': results}
+
+
+def _temperature_column(calibrations, topics):
+    """Return the first topic column the calibrations declare degC (0 if none says).
+
+    None when every input they name is a non-degC proxy (no drift per degC then).
+    """
+    units = {i.topic.lstrip('/'): i.unit for cal in calibrations.values() for i in cal.inputs}
+    cols = [j for j, t in enumerate(topics) if units.get(t.lstrip('/'), 'degC') == 'degC']
+    return cols[0] if cols else None
 
 
 def _select_inputs(cal, topics, temps):

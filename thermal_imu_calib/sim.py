@@ -925,26 +925,32 @@ def _sidecar(output, kind):
 
 
 def write_scenario(output, name, seed=0, storage='mcap', overwrite=False, compression='none',
-                   **overrides):
+                   transform=None, **overrides):
     """Simulate ``name`` and write the bag plus truth, prior and schedule files.
 
     ``output`` ending in ``.mcap`` becomes a bare MCAP file, anything else a rosbag2
     directory with the given storage ('mcap' or 'sqlite3'); the side files are
     ``<output>.truth.yaml``, ``<output>.prior.yaml`` and ``<output>.schedule.yaml``.
     ``compression='zstd'`` shrinks the log ~8x for ~50% more write time; ``overrides`` are
-    passed to ``simulate``. Returns the paths and a summary dict.
+    passed to ``simulate``; ``transform`` (SimRecording -> SimRecording, e.g.
+    ``sim_proxy.with_resonance_proxy``) edits the recording before it is written. Returns
+    the paths and a summary dict.
     """
     from .io.bag import write_columns   # imported here: the simulator works without it
 
     t_start = time.perf_counter()
     rec = simulate(name, seed, **overrides)
+    if transform is not None:
+        rec = transform(rec)
     out = os.fspath(output).rstrip(os.sep)
     parent = os.path.dirname(os.path.abspath(out))
     os.makedirs(parent, exist_ok=True)
     cfg = rec.config
+    var = cfg.temp_noise ** 2 + cfg.temp_lsb ** 2 / 12
+    var = {t: rec.meta.get('temperature_variance', {}).get(t, var) for t in rec.temperatures}
     counts = write_columns(out, rec.imu_topic, rec.imu_chunks(), rec.temperatures,
                            storage=storage, overwrite=overwrite, compression=compression,
-                           temperature_variance=cfg.temp_noise ** 2 + cfg.temp_lsb ** 2 / 12)
+                           temperature_variance=var)
     paths = {'bag': out, 'truth': _sidecar(out, 'truth'), 'prior': _sidecar(out, 'prior'),
              'schedule': _sidecar(out, 'schedule')}
     rec.truth.save(paths['truth'])

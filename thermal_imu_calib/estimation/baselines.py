@@ -174,4 +174,12 @@ def estimate_px4(ctx):
 @register_estimator('ardupilot')
 def estimate_ardupilot(ctx):
     """Estimate ArduPilot-style cubic offsets of accelerometer and gyroscope (comparison)."""
+    units = {getattr(ctx.options.inputs[i], 'unit', 'degC')
+             for i in list(ctx.accel_input) + list(ctx.gyro_input)
+             if i < len(ctx.options.inputs)}
+    if units - {'degC'}:
+        raise CalibrationRefused(
+            f'the ArduPilot-style fit works in degC (0.5-degC bins, TREF 35 degC) but an '
+            f'input is in {", ".join(sorted(units - {"degC"}))}',
+            'use --model px4 (bins over the collected range) or auto for a thermal proxy')
     return _baseline_estimate(ctx, ardupilot_fit, 'ArduPilot-style')

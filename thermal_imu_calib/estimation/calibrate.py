@@ -11,6 +11,7 @@ import numpy as np
 
 from ..calibration import Calibration, TemperatureInput
 from ..gravity import STANDARD_GRAVITY
+from ..input_units import DEGC, is_temperature
 from ..models.base import SensorModel
 from ..models.field import FieldPolynomialModel
 from ..thermal_input import ThermalFilter
@@ -22,6 +23,10 @@ from .segments import coverage, distinct_orientations, FACE_NAMES, Windows
 ORDER_SPAN = {1: 1.0, 2: 3.0}
 #: warn when an axis was never vertical within this many degC of the collected range's ends
 EXTRAPOLATION_WARN_DEGC = 2.0
+#: valid-range margin of a proxy input (e.g. Hz) when no degC input is there to scale the
+#: degC margin by: this fraction of the collected span on both sides (1 degC of a 17-degC
+#: warm-up is 6 %)
+PROXY_MARGIN_FRACTION = 0.05
 
 
 class CalibrationRefused(Exception):
@@ -53,6 +58,10 @@ class CalibrateOptions:
     #: a low-order polynomial is trustworthy just past its data, a clamp at the exact data
     #: edge is not (the next warm-up often ends a little higher)
     range_margin: float = 1.0
+    #: margins by unit, {unit: margin in that unit} (e.g. {'Hz': 2.0}); a proxy unit not
+    #: named here gets ``range_margin`` scaled by the ratio of its collected span to the
+    #: degC inputs' (see ``input_margins``)
+    unit_margins: Optional[dict] = None
     #: geodetic latitude (deg) when known: the gyro fit removes earth rotation with it
     latitude: Optional[float] = None
     #: pose changes between holds (``gyro_fit.Transition``, e.g. from
@@ -81,6 +90,88 @@ def _default_axis_inputs(k):
     return [0, 1, 2] if k == 3 else [0, 0, 0]
 
 
+def input_units(options, k):
+    """Return the unit of each of the k inputs (degC when the options name none)."""
+    units = [getattr(i, 'unit', DEGC) for i in options.inputs]
+    return units if len(units) == k else [DEGC] * k
+
+
+def default_input_map(units):
+    """Return the default (accel_input, gyro_input) axis mapping for inputs of ``units``.
+
+    The accelerometer follows the degC inputs: three of them drive the x, y, z axes, else
+    the first drives all three. The gyro follows the one non-degC input (a thermal proxy
+    such as its resonance frequency) when there is exactly one, else input 0. With only
+    degC inputs this is the mapping of files written before proxies.
+    """
+    k = len(units)
+    temps = [j for j, u in enumerate(units) if is_temperature(u)]
+    proxies = [j for j, u in enumerate(units) if not is_temperature(u)]
+    if len(temps) == k:
+        accel = _default_axis_inputs(k)
+    elif len(temps) == 3:
+        accel = temps
+    else:
+        accel = [temps[0] if temps else 0] * 3
+    gyro = [proxies[0]] * 3 if len(proxies) == 1 else [0, 0, 0]
+    return accel, gyro
+
+
+def gyro_reference(units, gyro_input, tg, t0):
+    """Return the gyro models' (3,) reference input: ``t0`` for degC, else mid-range of tg.
+
+    A proxy has no relation to the accelerometer's reference temperature; its reference
+    is the middle of its collected range (rounded to 0.01 of its unit).
+    """
+    if not units or all(is_temperature(units[i]) for i in gyro_input):
+        return t0
+    return np.round((tg.min(0) + tg.max(0)) / 2.0, 2)
+
+
+def input_margins(windows, options):
+    """Return the (k,) valid-range margin of each input, in its unit.
+
+    An input whose unit is in ``unit_margins`` gets that; other degC inputs get
+    ``range_margin``; other proxies ``range_margin`` degC expressed in their unit through
+    the ratio of their collected span to the median span of the degC inputs (exact for a
+    proxy linear in the same temperature), else, without a degC input,
+    ``PROXY_MARGIN_FRACTION`` of their span.
+    """
+    k = windows.n_inputs
+    units = input_units(options, k)
+    explicit = options.unit_margins or {}
+    span = np.ptp(windows.temp, axis=0) if len(windows) else np.zeros(k)
+    t_span = [span[j] for j, u in enumerate(units) if is_temperature(u) and span[j] > 0]
+    out = np.full(k, float(options.range_margin))
+    for j, u in enumerate(units):
+        if u in explicit:
+            out[j] = float(explicit[u])
+        elif is_temperature(u):
+            continue
+        elif t_span:
+            out[j] = options.range_margin * span[j] / float(np.median(t_span))
+        else:
+            out[j] = PROXY_MARGIN_FRACTION * span[j]
+    return out
+
+
+def valid_range(windows, options):
+    """Return the (k, 2) valid range: the collected range widened by ``input_margins``."""
+    if not windows.n_inputs:
+        return None
+    m = input_margins(windows, options)
+    return np.stack([windows.temp.min(0) - m, windows.temp.max(0) + m], 1)
+
+
+def _margin_report(windows, options):
+    units = input_units(options, windows.n_inputs)
+    if all(map(is_temperature, units)) and not options.unit_margins:
+        return {'value': options.range_margin, 'unit': DEGC}
+    return {'value': input_margins(windows, options).tolist(), 'unit': units,
+            'note': 'per input; a proxy without an explicit margin gets range_margin degC '
+                    'scaled by its span relative to the degC inputs\''}
+
+
 def _face_text(cov):
     parts = []
     for f in FACE_NAMES:
@@ -92,11 +183,12 @@ def _face_text(cov):
     return ' '.join(parts) or 'none'
 
 
-def _span_text(cov):
+def _span_text(cov, units=None):
     span = cov['temperature_span']
     if not span:
         return 'no temperature'
-    return ', '.join(f'{lo:.1f}-{hi:.1f} degC' for lo, hi in span)
+    units = units if units and len(units) == len(span) else [DEGC] * len(span)
+    return ', '.join(f'{lo:.1f}-{hi:.1f} {u}' for (lo, hi), u in zip(span, units))
 
 
 def readiness(windows, model='auto', min_holds=1):
@@ -130,14 +222,21 @@ class Context:
     windows: Windows
     options: CalibrateOptions
     k: int                      # number of temperature inputs
-    ta: np.ndarray              # (m, 3) per-axis accel temperature of each window, degC
-    tg: np.ndarray              # (m, 3) per-axis gyro temperature of each window, degC
-    t0: np.ndarray              # (3,) reference temperature, degC
+    ta: np.ndarray              # (m, 3) per-axis accel thermal input of each window
+    tg: np.ndarray              # (m, 3) per-axis gyro thermal input (degC or a proxy's unit)
+    t0: np.ndarray              # (3,) reference temperature of the accel axes
     accel_input: List[int]
     gyro_input: List[int]
     coverage: dict
     n_orientations: int
     prior_model: Optional[FieldPolynomialModel]
+    #: (3,) reference of the gyro axes in their input's unit (None: ``t0``, a degC input)
+    t0g: Optional[np.ndarray] = None
+
+    @property
+    def gyro_t0(self):
+        """Return the gyro reference input (t0g, or t0 when the gyro input is degC)."""
+        return self.t0 if self.t0g is None else self.t0g
 
 
 @dataclass
@@ -213,8 +312,10 @@ def calibrate_windows(windows, options=None):
     k = windows.n_inputs
     if len(o.inputs) != k:
         raise ValueError(f'{len(o.inputs)} temperature inputs named but windows carry {k}')
-    accel_input = o.accel_input or _default_axis_inputs(k)
-    gyro_input = o.gyro_input or [0, 0, 0]
+    units = input_units(o, k)
+    default_accel, default_gyro = default_input_map(units)
+    accel_input = o.accel_input or default_accel
+    gyro_input = o.gyro_input or default_gyro
     ta = windows.temp[:, accel_input] if k else np.zeros((len(windows), 3))
     tg = windows.temp[:, gyro_input] if k else np.zeros((len(windows), 3))
     # reference temperature: the prior's, else the middle of the collected range
@@ -228,7 +329,8 @@ def calibrate_windows(windows, options=None):
     else:
         t0 = np.zeros(3) if prior_model is None else prior_model.t0.copy()
     ctx = Context(windows, o, k, ta, tg, t0, accel_input, gyro_input, coverage(windows),
-                  distinct_orientations(windows), prior_model)
+                  distinct_orientations(windows), prior_model,
+                  gyro_reference(units, gyro_input, tg, t0) if k else None)
     name, why = (o.model, 'requested') if o.model != 'auto' else AUTO_POLICY[0](ctx)
     est = ESTIMATORS[name](ctx)
     notes = list(est.notes)
@@ -243,8 +345,7 @@ def calibrate_windows(windows, options=None):
     g = o.gravity
     cal = Calibration(
         accel=est.accel, gyro=gyro_model, inputs=list(o.inputs),
-        valid_range=(np.stack([windows.temp.min(0) - o.range_margin,
-                               windows.temp.max(0) + o.range_margin], 1) if k else None),
+        valid_range=valid_range(windows, o),
         out_of_range=o.out_of_range, accel_input=accel_input, gyro_input=gyro_input,
         frame_id=o.frame_id, gravity=g, gravity_source=o.gravity_source,
         accel_noise_std=np.sqrt(np.median(windows.accel_var, axis=0)),
@@ -258,7 +359,7 @@ def calibrate_windows(windows, options=None):
         'faces': {f: cov['faces'][f]['holds'] for f in FACE_NAMES},
         'tilted_holds': cov['tilted_holds'],
         'temperature_span': cov['temperature_span'],
-        'valid_range_margin': {'value': o.range_margin, 'unit': 'degC'},
+        'valid_range_margin': _margin_report(windows, o),
         'gravity_residual_ug': {'before_rms': _rms(before), 'after_rms': _rms(after),
                                 'before_max': _amax(before), 'after_max': _amax(after),
                                 'note': 'per hold, |mean f| - g in micro-g, on the fit data'},
@@ -269,7 +370,7 @@ def calibrate_windows(windows, options=None):
     cal.fit = fit_stats
     kind = est.accel.kind if est.accel is not None else 'gyro bias only'
     summary = (f'{kind}: {cov["holds"]} holds ({cov["windows"]} windows), faces '
-               f'{_face_text(cov)}, {_span_text(cov)}, gravity residual '
+               f'{_face_text(cov)}, {_span_text(cov, units)}, gravity residual '
                f'{_amax(before):.0f} -> {_amax(after):.1f} ug max')
     if 'residual_rms' in fit_stats:
         summary += f', fit residual {fit_stats["residual_rms"]["value"] * 1e6 / g:.1f} ug RMS'
@@ -296,7 +397,7 @@ def _gyro_bias(ctx):
     w = ctx.windows
     groups = w.hold if len(np.unique(w.hold)) >= 3 else time_groups(w.t0)
     orders = (0, 1, 2, 3) if ctx.k else (0,)
-    return fit_offset_model(w, ctx.tg, ctx.t0 if ctx.k else np.zeros(3), 'gyro', 'gyro',
+    return fit_offset_model(w, ctx.tg, ctx.gyro_t0 if ctx.k else np.zeros(3), 'gyro', 'gyro',
                             include_constant=True, orders=orders, groups=groups)
 
 
@@ -346,10 +447,11 @@ def estimate_field(ctx):
     w, o, k, ta = ctx.windows, ctx.options, ctx.k, ctx.ta
     check_faces_up_and_down(ctx)
     notes = []
+    u = input_units(o, k)[ctx.accel_input[0]] if k else DEGC   # span rules: in this unit
     order = o.order if k else 0
     span = float(np.max(np.ptp(ta, axis=0))) if k else 0.0
     while order > 0 and span < ORDER_SPAN[order]:
-        notes.append(f'temperature span {span:.2f} degC is below {ORDER_SPAN[order]} degC: '
+        notes.append(f'temperature span {span:.2f} {u} is below {ORDER_SPAN[order]} {u}: '
                      f'polynomial order reduced from {order} to {order - 1}; collect during a '
                      'warm-up for temperature coefficients')
         order -= 1
@@ -371,7 +473,7 @@ def estimate_field(ctx):
     axis_span = np.nan_to_num(vert[:, 1] - vert[:, 0])
     for i, a in enumerate('xyz'):
         if order >= 1 and axis_span[i] < ORDER_SPAN[1]:
-            notes.append(f'axis {a} was near vertical over only {axis_span[i]:.2f} degC: its '
+            notes.append(f'axis {a} was near vertical over only {axis_span[i]:.2f} {u}: its '
                          'scale temperature coefficients are poorly determined (see their std)')
         if k:
             lo, hi = ta[:, i].min(), ta[:, i].max()
@@ -379,14 +481,14 @@ def estimate_field(ctx):
             if max(gap_lo, gap_hi) > EXTRAPOLATION_WARN_DEGC:
                 notes.append(
                     f'axis {a} was held vertical only between {vert[i, 0]:.1f} and '
-                    f'{vert[i, 1]:.1f} degC of the {lo:.1f}-{hi:.1f} degC collected: its '
+                    f'{vert[i, 1]:.1f} {u} of the {lo:.1f}-{hi:.1f} {u} collected: its '
                     'temperature terms are extrapolated outside that; next time hold every '
                     'face once early in the warm-up (a quick first pass of ~1 min per face)')
     stats = {'iterations': fit.iterations, 'converged': bool(fit.converged),
              'joint_refinement': bool(fit.refined), 'order': order,
              'residual_rms': {'value': fit.residual_rms, 'unit': 'm/s^2'},
              'chi2_per_dof': fit.chi2_dof,
-             'axis_vertical_temperature_range': {'value': vert.tolist(), 'unit': 'degC'}}
+             'axis_vertical_temperature_range': {'value': vert.tolist(), 'unit': u}}
     return Estimate(accel=fit.model, notes=notes, fit=stats)
 
 

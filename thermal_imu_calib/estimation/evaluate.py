@@ -59,7 +59,11 @@ def with_signals(windows, accel, gyro):
 
 
 def static_metrics(windows, gravity, average_s=300.0, axis_temp_input=0):
-    """Compute the metrics above for one label; returns a plain dict (micro-g, rad/s)."""
+    """Compute the metrics above for one label; returns a plain dict (micro-g, rad/s).
+
+    ``axis_temp_input``: the temperature column (degC) the drift slope is taken against;
+    None (e.g. only proxy inputs) skips the drift.
+    """
     g = gravity
     holds = []
     avg_res = []
@@ -73,7 +77,7 @@ def static_metrics(windows, gravity, average_s=300.0, axis_temp_input=0):
                't_end': float(windows.t1[m][-1]),
                'gravity_residual_ug': float((np.linalg.norm(mean) - g) / g * 1e6),
                'gyro_mean': np.average(windows.gyro[m], 0, w).tolist()}
-        if windows.n_inputs:
+        if windows.n_inputs and axis_temp_input is not None:
             temp = windows.temp[m, axis_temp_input]
             rec['temp_range'] = [float(temp.min()), float(temp.max())]
             if np.ptp(temp) >= MIN_DRIFT_SPAN and m.sum() >= 3:

@@ -37,11 +37,13 @@ from typing import Dict, Optional
 
 import numpy as np
 
+from ..input_units import is_temperature
 from ..thermal_input import ThermalFilter
 from ..calibration import Calibration
-from .calibrate import (_default_axis_inputs, AUTO_POLICY, CalibrateOptions, CalibrationRefused,
-                        check_faces_up_and_down, Context, Estimate, estimate_field, ORDER_SPAN,
-                        register_estimator)
+from .calibrate import (AUTO_POLICY, CalibrateOptions, CalibrationRefused,
+                        check_faces_up_and_down, Context, default_input_map, Estimate,
+                        estimate_field, gyro_reference, input_margins, input_units, ORDER_SPAN,
+                        register_estimator, valid_range)
 from .field_estimator import fit_field_model
 from .offset_fit import fit_offset_model
 from .segments import coverage, distinct_orientations, face_of
@@ -105,8 +107,10 @@ def make_context(windows, options=None):
     """Build the estimators' Context for windows, as ``calibrate_windows`` does."""
     o = options or CalibrateOptions()
     k = windows.n_inputs
-    accel_input = o.accel_input or _default_axis_inputs(k)
-    gyro_input = o.gyro_input or [0, 0, 0]
+    units = input_units(o, k)
+    default_accel, default_gyro = default_input_map(units)
+    accel_input = o.accel_input or default_accel
+    gyro_input = o.gyro_input or default_gyro
     ta = windows.temp[:, accel_input] if k else np.zeros((len(windows), 3))
     tg = windows.temp[:, gyro_input] if k else np.zeros((len(windows), 3))
     prior = o.prior.accel if o.prior is not None else None
@@ -115,16 +119,15 @@ def make_context(windows, options=None):
     else:
         t0 = np.round((ta.min(0) + ta.max(0)) / 2.0, 2) if k else np.zeros(3)
     return Context(windows, o, k, ta, tg, t0, accel_input, gyro_input, coverage(windows),
-                   distinct_orientations(windows), prior)
+                   distinct_orientations(windows), prior,
+                   gyro_reference(units, gyro_input, tg, t0) if k else None)
 
 
 def calibration_from(ctx, est):
     """Return the Calibration an Estimate makes (models, filter, inputs, range, noise)."""
     o, w = ctx.options, ctx.windows
     return Calibration(
-        accel=est.accel, gyro=est.gyro, inputs=list(o.inputs),
-        valid_range=(np.stack([w.temp.min(0) - o.range_margin, w.temp.max(0) + o.range_margin],
-                              1) if ctx.k else None),
+        accel=est.accel, gyro=est.gyro, inputs=list(o.inputs), valid_range=valid_range(w, o),
         out_of_range=o.out_of_range, accel_input=ctx.accel_input, gyro_input=ctx.gyro_input,
         frame_id=o.frame_id, gravity=o.gravity, gravity_source=o.gravity_source,
         accel_noise_std=np.sqrt(np.median(w.accel_var, axis=0)),
@@ -152,26 +155,28 @@ def fit_single(ctx, family, tau, windows=None, groups=None, kernels=None, rvm_se
             continue
         temps = lagged_axis_temperatures(w, tau, idx)
         single_accel = sig == 'accel'    # one pose: the constant is gravity, not bias
+        ref = ctx.t0 if single_accel else ctx.gyro_t0
         if family == 'poly':
-            out[sig], rep[sig] = fit_offset_model(w, temps, ctx.t0, sig, sig,
+            out[sig], rep[sig] = fit_offset_model(w, temps, ref, sig, sig,
                                                   include_constant=not single_accel,
                                                   groups=groups)
         else:
             out[sig], rep[sig] = fit_rvm_offset(w, temps, sig, sig, groups,
-                                                offset_only=single_accel, t_ref=ctx.t0,
+                                                offset_only=single_accel, t_ref=ref,
                                                 settings=rvm_settings,
                                                 kernels=kernels.get(sig))
     return out['accel'], out['gyro'], rep
 
 
 def clamp_to_training(temps, windows, train, axis_input, margin):
-    """Clamp model-input temperatures to the training readings' range +- margin (degC).
+    """Clamp model inputs to the training readings' range +- margin (each input's unit).
 
     What ``Calibration.apply`` does with the default ``clamp`` policy and the valid range
-    of a calibration made from the training windows.
+    of a calibration made from the training windows. ``margin``: scalar or (k,) per input.
     """
     if windows.n_inputs == 0:
         return temps
+    margin = np.broadcast_to(np.asarray(margin, float), (windows.n_inputs,))[axis_input]
     lo = windows.temp[train].min(0)[axis_input] - margin
     hi = windows.temp[train].max(0)[axis_input] + margin
     return np.clip(temps, lo, hi)
@@ -188,7 +193,7 @@ def heldout_single(ctx, family, tau, groups, kernels=None, rvm_settings=None,
     w = ctx.windows
     ta = lagged_axis_temperatures(w, tau, ctx.accel_input)
     tg = lagged_axis_temperatures(w, tau, ctx.gyro_input)
-    margin = ctx.options.range_margin
+    margin = input_margins(w, ctx.options) if ctx.k else ctx.options.range_margin
     sse = {s: np.zeros(3) for s in signals}
     for g in np.unique(groups):
         test = groups == g
@@ -226,9 +231,9 @@ def select_single(ctx, rvm_settings=None, candidates=SINGLE_CANDIDATES,
         return Selection('offset', 'too few windows for held-out validation: offset '
                          'polynomial', groups=kind)
     lag = estimate_tau(w, ctx.accel_input, ctx.gyro_input, groups, group_kind=kind,
-                       signals=signals)
+                       signals=signals, lagged=_lagged_inputs(ctx))
     tau = tau_or_none(lag, LAG_MIN_IMPROVEMENT)
-    lag_note = (f'lag search: tau {lag.tau_s[0]:.0f} s cuts the held-out error of a '
+    lag_note = (f'lag search: tau {np.max(lag.tau_s):.0f} s cuts the held-out error of a '
                 f'quadratic by {100 * lag.improvement:.0f} % (used above '
                 f'{100 * LAG_MIN_IMPROVEMENT:.0f} %)')
     if tau is not None and not _filter_ok(ctx):
@@ -363,7 +368,8 @@ def heldout_multi(ctx, up, tau, kernels=None, rvm_settings=None):
         test = folds == f
         train = ~test
         # evaluated as a calibration from the training holds would be: clamped to its range
-        tc = clamp_to_training(ta, w, train, ctx.accel_input, ctx.options.range_margin)
+        tc = clamp_to_training(ta, w, train, ctx.accel_input,
+                               input_margins(w, ctx.options) if ctx.k else 0.0)
         for a in range(3):
             v = _field_design(ta[:, a] - ctx.t0[a], sf[:, a], order)
             vt = _field_design(tc[:, a] - ctx.t0[a], sf[:, a], order)
@@ -396,9 +402,9 @@ def select_multi(ctx, rvm_settings=None):
     lag_note = 'no temperature input'
     if ctx.k:
         lag = estimate_tau(w, ctx.accel_input, ctx.gyro_input, signals=('gyro',),
-                           groups=w.hold, group_kind='holds')
+                           groups=w.hold, group_kind='holds', lagged=_lagged_inputs(ctx))
         tau = tau_or_none(lag, MULTI_LAG_IMPROVEMENT) if _filter_ok(ctx) else None
-        lag_note = (f'gyro-bias lag search: tau {lag.tau_s[0]:.0f} s, '
+        lag_note = (f'gyro-bias lag search: tau {np.max(lag.tau_s):.0f} s, '
                     f'{100 * lag.improvement:.0f} % better held out')
         model, _ = fit_rvm_multi(ctx, rvm_settings=rvm_settings, up=up)
         kernels['rvm'] = model.kernel_list
@@ -498,6 +504,11 @@ def auto_policy(ctx):
     return sel.model, sel.reason
 
 
+def _lagged_inputs(ctx):
+    """Return the inputs a thermal lag applies to: the degC ones (a proxy has none)."""
+    return [is_temperature(u) for u in input_units(ctx.options, ctx.k)]
+
+
 def _selection(ctx, name):
     sel = getattr(ctx, 'thermal_selection', None)
     return sel if sel is not None and sel.model == name else None
@@ -521,10 +532,12 @@ def _lag_for(ctx, name, sel):
         raise CalibrationRefused(f'the {name} model needs a temperature input',
                                  'record the IMU temperature topic')
     if ctx.n_orientations == 1:
-        est = estimate_tau(ctx.windows, ctx.accel_input, ctx.gyro_input)
+        est = estimate_tau(ctx.windows, ctx.accel_input, ctx.gyro_input,
+                           lagged=_lagged_inputs(ctx))
     else:
         est = estimate_tau(ctx.windows, ctx.accel_input, ctx.gyro_input, signals=('gyro',),
-                           groups=ctx.windows.hold, group_kind='holds')
+                           groups=ctx.windows.hold, group_kind='holds',
+                           lagged=_lagged_inputs(ctx))
     return est.tau_s, est.report()
 
 
@@ -565,9 +578,9 @@ def _estimate(ctx, name, family, lagged):
         groups, _ = cv_groups(ctx.windows)
         if family == 'rvm':
             gyr, report['gyro_offset'] = fit_rvm_offset(ctx.windows, tg, 'gyro', 'gyro',
-                                                        groups, t_ref=ctx.t0)
+                                                        groups, t_ref=ctx.gyro_t0)
         else:
-            gyr, report['gyro_offset'] = fit_offset_model(ctx.windows, tg, ctx.t0, 'gyro',
+            gyr, report['gyro_offset'] = fit_offset_model(ctx.windows, tg, ctx.gyro_t0, 'gyro',
                                                           'gyro', include_constant=True,
                                                           groups=groups)
         notes.append('gyroscope: bias vs temperature from stationary windows; earth rotation '

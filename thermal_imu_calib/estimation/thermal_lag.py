@@ -138,24 +138,31 @@ class LagEstimate:
 
 
 def estimate_tau(windows, accel_input, gyro_input, groups=None, order=2, grid=TAU_GRID,
-                 signals=('accel', 'gyro'), group_kind=''):
+                 signals=('accel', 'gyro'), group_kind='', lagged=None):
     """Estimate one first-order lag time constant (s) for the temperature inputs.
 
     Score(tau) = sum over the axes of ``signals`` of the held-out RMS (in units of each
     window's noise) of an order-``order`` offset polynomial in the lagged temperature,
     normalised per axis by its value at tau = 0 so that every axis counts alike.
-    Returns a ``LagEstimate``.
+    ``lagged``: (k,) bool, the inputs the lag applies to (default all); the others keep
+    tau 0, e.g. a thermal proxy measured on the sensing element itself (a gyro's
+    resonance frequency) does not lag the error it follows. Returns a ``LagEstimate``.
     """
     if windows.n_inputs == 0:
         raise ValueError('a thermal lag needs a temperature input')
     if groups is None:
         groups, group_kind = cv_groups(windows)
     k = windows.n_inputs
+    mask = np.ones(k, bool) if lagged is None else np.asarray(lagged, bool).reshape(k)
+    # a sensor on unlagged inputs only would add a constant to the score: left out
     ys = [(getattr(windows, s), _weights(windows, s), idx)
-          for s, idx in zip(('accel', 'gyro'), (accel_input, gyro_input)) if s in signals]
+          for s, idx in zip(('accel', 'gyro'), (accel_input, gyro_input))
+          if s in signals and np.any(mask[list(idx)])]
+    if not ys:
+        return LagEstimate(np.zeros(k), 1.0, 1.0, order, group_kind, {0.0: 1.0})
 
     def raw_errors(tau):
-        lag = lag_windows(windows.t0, windows.t1, windows.temp, np.full(k, tau))
+        lag = lag_windows(windows.t0, windows.t1, windows.temp, np.where(mask, tau, 0.0))
         out = []
         for y, w, idx in ys:
             x = lag[:, idx]
@@ -180,7 +187,8 @@ def estimate_tau(windows, accel_input, gyro_input, groups=None, order=2, grid=TA
                               method='bounded', options={'xatol': 0.02})
         if res.fun < best:
             best_tau, best = float(np.exp(res.x)), float(res.fun)
-    return LagEstimate(np.full(k, round(best_tau, 1)), best, 1.0, order, group_kind, curve)
+    return LagEstimate(np.where(mask, round(best_tau, 1), 0.0), best, 1.0, order, group_kind,
+                       curve)
 
 
 def rate_fit(windows, axis_temps, signal, order=2, groups=None):

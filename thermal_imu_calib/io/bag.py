@@ -20,8 +20,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from ..input_units import TEMPERATURE_BOUNDS
 from . import cdr
-from .cdr import IMU_MSGTYPE, TEMPERATURE_MSGTYPE
+from .cdr import IMU_MSGTYPE, SCALAR_MSGTYPES, TEMPERATURE_MSGTYPE
 from .columns import ImuColumns, TemperatureColumns
 
 _IDL_PREFIX = '=' * 80 + '\nIDL: '
@@ -110,7 +111,12 @@ class LogInfo:
             if t.stamps_backwards:
                 line += f'  {t.stamps_backwards} stamps backwards'
             if t.temperature_min is not None:
-                line += f'  {t.temperature_min:.2f}..{t.temperature_max:.2f} degC'
+                lo, hi = TEMPERATURE_BOUNDS
+                plausible = lo <= t.temperature_min and t.temperature_max <= hi
+                unit = (' degC' if t.msgtype == TEMPERATURE_MSGTYPE and plausible else
+                        ' (not degC: a thermal proxy? declare its unit with --input-unit)'
+                        if t.msgtype == TEMPERATURE_MSGTYPE else '')
+                line += f'  {t.temperature_min:.2f}..{t.temperature_max:.2f}{unit}'
             lines.append(line)
         return '\n'.join(lines)
 
@@ -342,10 +348,24 @@ class LogReader:
         items = [f'{c.topic} [{c.msgtype}]' for c in self._src.conns]
         return ', '.join(items) if items else '(none)'
 
-    def check_topics(self, topics: Iterable[str], expected: str | None = None) -> None:
-        """Raise LogError unless every topic exists (and has type ``expected`` if given)."""
+    def check_topics(self, topics: Iterable[str],
+                     expected: str | Iterable[str] | None = None) -> None:
+        """Raise LogError unless every topic exists (and has type ``expected`` if given).
+
+        ``expected`` is one message type or several accepted ones.
+        """
         topics = [topics] if isinstance(topics, str) else topics
         types = self.topic_types()
+        if expected is not None and not isinstance(expected, str):
+            accepted = tuple(expected)
+            for topic in topics:
+                if topic in types and types[topic] not in accepted:
+                    raise LogError(f'topic {topic!r} in {self.path} has type {types[topic]}, '
+                                   f'expected {accepted[0]}'
+                                   + (f' (or {", ".join(accepted[1:])})' if accepted[1:]
+                                      else '')
+                                   + f'; pick such a topic from: {self._describe_topics()}.')
+            expected = None
         for topic in topics:
             if topic not in types:
                 raise LogError(f'topic {topic!r} is not in {self.path}; it has: '
@@ -410,7 +430,7 @@ class _StatsBuilder:
 
     def __init__(self, name: str, msgtype: str):
         self.stats = TopicStats(name, msgtype)
-        self.stamped = msgtype in (IMU_MSGTYPE, TEMPERATURE_MSGTYPE)
+        self.stamped = msgtype == IMU_MSGTYPE or msgtype in SCALAR_MSGTYPES
         self.times: list[int] = []
         self.raws: list[bytes] = []
         self.medians: list[float] = []
@@ -491,7 +511,7 @@ class _Chunker:
             raise LogError(f'topics must be distinct: IMU {imu_topic!r}, temperature '
                            f'{temperature_topics}; list each topic once.')
         reader.check_topics([imu_topic], IMU_MSGTYPE)
-        reader.check_topics(temperature_topics, TEMPERATURE_MSGTYPE)
+        reader.check_topics(temperature_topics, SCALAR_MSGTYPES)
         self.imu_topic = imu_topic
         self.temperature_topics = temperature_topics
         self.topics = {imu_topic, *temperature_topics}
@@ -773,22 +793,32 @@ def _as_chunks(value) -> Iterator:
 
 def write_columns(path, imu_topic: str, imu_chunks, temperature: Mapping | None = None,
                   storage: str = 'mcap', *, accel_cov=None, gyro_cov=None,
-                  temperature_variance: float = 0.0, compression: str = 'none',
-                  overwrite: bool = False) -> dict[str, int]:
+                  temperature_variance: float | Mapping = 0.0, compression: str = 'none',
+                  overwrite: bool = False, msgtypes: Mapping | None = None) -> dict[str, int]:
     """Write IMU and temperature columns as a log, with log time = header stamp.
 
     ``imu_chunks`` is an ImuColumns or an iterable of them; ``temperature`` maps topic to
     TemperatureColumns or an iterable of them (each stamp-sorted).  Messages are written
-    interleaved in stamp order while streaming.  Returns the message count per topic.
+    interleaved in stamp order while streaming.  ``temperature_variance`` is one value or
+    topic -> value; ``msgtypes`` maps a temperature topic to another type of
+    ``SCALAR_MSGTYPES`` (default sensor_msgs/msg/Temperature).  Returns the message count
+    per topic.
     """
     temperature = dict(temperature or {})
+    msgtypes = dict(msgtypes or {})
+    bad = {t: m for t, m in msgtypes.items() if m not in SCALAR_MSGTYPES}
+    if bad:
+        raise LogError(f'msgtypes {bad} are not header-stamped scalars; use one of '
+                       f'{", ".join(SCALAR_MSGTYPES)}.')
+    variance = (dict(temperature_variance) if isinstance(temperature_variance, Mapping)
+                else {t: temperature_variance for t in temperature})
     its = {topic: _as_chunks(v) for topic, v in temperature.items()}
     pending: dict[str, TemperatureColumns] = {t: TemperatureColumns.empty() for t in its}
     counts = {imu_topic: 0, **{t: 0 for t in its}}
     with LogWriter(path, storage, compression=compression, overwrite=overwrite) as w:
         w.add_topic(imu_topic, IMU_MSGTYPE)
         for t in its:
-            w.add_topic(t, TEMPERATURE_MSGTYPE)
+            w.add_topic(t, msgtypes.get(t, TEMPERATURE_MSGTYPE))
 
         def take_temps(until: int | None) -> list:
             parts = []
@@ -807,7 +837,7 @@ def write_columns(path, imu_topic: str, imu_chunks, temperature: Mapping | None 
                                                     buf.frame_id)
                 if len(now):
                     parts.append((topic, now.stamp_ns,
-                                  cdr.encode_temperature(now, temperature_variance)))
+                                  cdr.encode_temperature(now, variance.get(topic, 0.0))))
             return parts
 
         def emit(parts: list) -> None:

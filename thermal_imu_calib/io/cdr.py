@@ -29,6 +29,13 @@ from .columns import ImuColumns, TemperatureColumns
 
 IMU_MSGTYPE = 'sensor_msgs/msg/Imu'
 TEMPERATURE_MSGTYPE = 'sensor_msgs/msg/Temperature'
+#: header-stamped scalars with the Temperature layout (header, float64 value, float64
+#: variance): any of them can carry a thermal input (a proxy's unit is declared by the
+#: user); message type -> name of the value field
+SCALAR_MSGTYPES = {TEMPERATURE_MSGTYPE: 'temperature',
+                   'sensor_msgs/msg/FluidPressure': 'fluid_pressure',
+                   'sensor_msgs/msg/Illuminance': 'illuminance',
+                   'sensor_msgs/msg/RelativeHumidity': 'relative_humidity'}
 
 CDR_LE_HEADER = b'\x00\x01\x00\x00'
 _HDR = 4  # encapsulation header bytes; payload offsets below are relative to its end
@@ -282,7 +289,11 @@ def encode_imu(cols: ImuColumns, orientation_covariance0: float = -1.0, accel_co
 
 
 def decode_temperature(raws: Sequence[bytes]) -> TemperatureColumns:
-    """Decode serialized ``sensor_msgs/msg/Temperature`` messages (degC) into columns."""
+    """Decode serialized ``sensor_msgs/msg/Temperature`` messages into columns.
+
+    The value is degC for a temperature, or a proxy in its declared unit; any type of
+    ``SCALAR_MSGTYPES`` has the same layout and decodes the same way.
+    """
     n = len(raws)
     stamp = np.empty(n, np.int64)
     temp = np.empty(n)
@@ -297,7 +308,8 @@ def decode_temperature(raws: Sequence[bytes]) -> TemperatureColumns:
 def encode_temperature(cols: TemperatureColumns, variance=0.0) -> list[bytes]:
     """Serialize temperature columns as ``sensor_msgs/msg/Temperature`` CDR messages.
 
-    ``variance`` is a scalar or one value per sample (0 means unknown).
+    ``variance`` is a scalar or one value per sample (0 means unknown). The bytes are also
+    valid messages of every other type of ``SCALAR_MSGTYPES``.
     """
     n = len(cols)
     return _encode(cols.stamp_ns, cols.frame_id, {

@@ -51,18 +51,23 @@ class Param:
 class SensorModel(ABC):
     """Raw triad output -> corrected triad output, as a function of per-axis temperature.
 
-    ``temps`` is always (n, 3) in degC, already mapped to axes and clamped by the
-    Calibration; ``aux`` carries other corrected signals a family may need (e.g. the
-    corrected specific force for a gyro g-sensitivity term), keyed by name.
+    ``temps`` is always (n, 3) in the input unit (degC, or a thermal proxy's unit such as
+    Hz: ``input_unit``), already mapped to axes and clamped by the Calibration; ``aux``
+    carries other corrected signals a family may need (e.g. the corrected specific force
+    for a gyro g-sensitivity term), keyed by name.
     """
 
     kind: ClassVar[str] = ''
     #: 'accel' (m/s^2) or 'gyro' (rad/s)
     sensor: str = 'accel'
+    #: unit of the thermal input the model is a function of: degC, or a proxy's unit (Hz);
+    #: reference values and temperature coefficients are in it (``Calibration`` sets it
+    #: from the inputs the model is mapped to)
+    input_unit: str = 'degC'
 
     @abstractmethod
     def correct(self, raw, temps, aux=None):
-        """Return the corrected (n, 3) signal for raw (n, 3) at temps (n, 3) degC."""
+        """Return the corrected (n, 3) signal for raw (n, 3) at thermal inputs (n, 3)."""
 
     def forward(self, true, temps, aux=None):
         """Return the raw (n, 3) output this model predicts for a true input (the inverse)."""
@@ -110,6 +115,24 @@ def model_from_dict(d, where='model'):
     model = MODEL_KINDS[kind].from_params(params, d.get('meta') or {})
     model.sensor = d.get('sensor', model.sensor)
     return model
+
+
+def input_unit_of(params, meta, ref='T0'):
+    """Return the input unit a model section was written in.
+
+    That is ``meta.input_unit``, else the unit of its reference value ``ref``, else degC
+    (files written before proxy inputs).
+    """
+    if meta.get('input_unit'):
+        return str(meta['input_unit'])
+    if ref in params and params[ref].unit:
+        return params[ref].unit
+    return 'degC'
+
+
+def with_input_unit(meta, unit):
+    """Return ``meta`` plus ``input_unit`` when it is not degC (degC files stay as before)."""
+    return meta if unit == 'degC' else {**meta, 'input_unit': unit}
 
 
 def require(params, name, shape, where):

@@ -15,7 +15,8 @@ Correction inverts the model: f = S^-1 ((raw - b(T)) / k(T)).
 
 import numpy as np
 
-from .base import Param, register, require, SensorModel
+from ..input_units import coefficient_unit, reference_description
+from .base import input_unit_of, Param, register, require, SensorModel, with_input_unit
 
 #: thermal vector layout per axis, paper eq. (9)
 THERMAL_NAMES = ('dk0', 'k1', 'k2', 'db0', 'b1', 'b2')
@@ -28,6 +29,11 @@ THERMAL_DESC = ('scale-factor change at T0 relative to the prior',
                 'bias temperature coefficient, 2nd order')
 
 
+def thermal_units(input_unit='degC'):
+    """Return the units of THERMAL_NAMES for a thermal input in ``input_unit``."""
+    return tuple(coefficient_unit(u, input_unit, j) for u in ('1', 'm/s^2') for j in range(3))
+
+
 @register
 class FieldPolynomialModel(SensorModel):
     """Per-axis 2nd-order scale factor and bias in dT with prior k0, b0, S (seed 000)."""
@@ -35,7 +41,9 @@ class FieldPolynomialModel(SensorModel):
     kind = 'field_polynomial'
     sensor = 'accel'
 
-    def __init__(self, t0, thermal, k0=None, b0=None, s=None, thermal_std=None):
+    def __init__(self, t0, thermal, k0=None, b0=None, s=None, thermal_std=None,
+                 input_unit='degC'):
+        self.input_unit = str(input_unit)
         self.t0 = np.asarray(t0, float).reshape(3)
         #: (3, 6) rows x, y, z; columns THERMAL_NAMES
         self.thermal = np.asarray(thermal, float).reshape(3, 6)
@@ -51,7 +59,7 @@ class FieldPolynomialModel(SensorModel):
         self._s_inv = np.linalg.inv(self.s)
 
     def scale_bias(self, temps):
-        """Return (k, b), each (n, 3), at per-axis temps (n, 3) degC."""
+        """Return (k, b), each (n, 3), at per-axis thermal inputs (n, 3) in ``input_unit``."""
         dt = np.asarray(temps, float) - self.t0
         th = self.thermal
         k = self.k0 + th[:, 0] + th[:, 1] * dt + th[:, 2] * dt * dt
@@ -81,11 +89,13 @@ class FieldPolynomialModel(SensorModel):
 
     def params(self):
         """Return prior and thermal parameters with units and stds."""
-        out = {'T0': Param(self.t0, 'degC', description='reference temperature per axis'),
+        out = {'T0': Param(self.t0, self.input_unit,
+                           description=reference_description(self.input_unit)),
                'k0': Param(self.k0, '1', description='prior (lab) scale factor at T0'),
                'b0': Param(self.b0, 'm/s^2', description='prior (lab) bias at T0'),
                'S': Param(self.s, '1', description='prior non-orthogonality, lower-triangular')}
-        for j, (name, unit, desc) in enumerate(zip(THERMAL_NAMES, THERMAL_UNITS, THERMAL_DESC)):
+        units = thermal_units(self.input_unit)
+        for j, (name, unit, desc) in enumerate(zip(THERMAL_NAMES, units, THERMAL_DESC)):
             std = None if self.thermal_std is None else self.thermal_std[:, j]
             out[name] = Param(self.thermal[:, j], unit, std, desc)
         return out
@@ -98,8 +108,10 @@ class FieldPolynomialModel(SensorModel):
         stds = [params[n].std for n in THERMAL_NAMES]
         std = None if any(s is None for s in stds) else np.stack(stds, axis=1)
         return cls(require(params, 'T0', (3,), w), th, require(params, 'k0', (3,), w),
-                   require(params, 'b0', (3,), w), require(params, 'S', (3, 3), w), std)
+                   require(params, 'b0', (3,), w), require(params, 'S', (3, 3), w), std,
+                   input_unit=input_unit_of(params, meta))
 
     def meta(self):
         """Return the polynomial order (2 as in the paper)."""
-        return {'order': 2, 'paper': 'seed 000, eqs. (3)-(5), (8)'}
+        return with_input_unit({'order': 2, 'paper': 'seed 000, eqs. (3)-(5), (8)'},
+                               self.input_unit)

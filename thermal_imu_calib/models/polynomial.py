@@ -2,6 +2,9 @@
 
     corrected_i = raw_i - sum_{j=j0..order} c_j,i * (T_i - T0_i)^j
 
+T is the model's thermal input: a temperature in degC or a proxy in its own unit
+(``input_unit``, e.g. Hz); T0 and the coefficients are in that unit.
+
 With ``include_constant`` (j0 = 0) the constant bias is removed too (gyro bias from static
 segments). Without it (j0 = 1) the model removes only the *drift relative to the reference
 temperature T0*: the single-orientation warm-up case, where a constant accelerometer bias
@@ -10,7 +13,8 @@ cannot be told apart from the projection of gravity.
 
 import numpy as np
 
-from .base import Param, register, require, SensorModel
+from ..input_units import coefficient_unit, reference_description
+from .base import input_unit_of, Param, register, require, SensorModel, with_input_unit
 
 
 @register
@@ -19,7 +23,9 @@ class OffsetPolynomialModel(SensorModel):
 
     kind = 'offset_polynomial'
 
-    def __init__(self, t0, coeffs, sensor='accel', include_constant=True, coeff_std=None):
+    def __init__(self, t0, coeffs, sensor='accel', include_constant=True, coeff_std=None,
+                 input_unit='degC'):
+        self.input_unit = str(input_unit)
         self.t0 = np.asarray(t0, float).reshape(3)
         self.coeffs = np.asarray(coeffs, float)  # (order+1, 3): row j multiplies dT^j
         if self.coeffs.ndim != 2 or self.coeffs.shape[1] != 3:
@@ -36,7 +42,7 @@ class OffsetPolynomialModel(SensorModel):
         return self.coeffs.shape[0] - 1
 
     def offset(self, temps):
-        """Return the modelled (n, 3) offset at per-axis temps (n, 3) degC."""
+        """Return the modelled (n, 3) offset at per-axis thermal inputs (n, 3), ``input_unit``."""
         dt = np.asarray(temps, float) - self.t0
         out = np.zeros_like(dt)
         for c in self.coeffs[::-1]:  # Horner
@@ -63,19 +69,19 @@ class OffsetPolynomialModel(SensorModel):
 
     def params(self):
         """Return T0 and one parameter per power, c0..cN, each per axis."""
-        u = self.unit
-        out = {'T0': Param(self.t0, 'degC', description='reference temperature per axis')}
+        u, iu = self.unit, self.input_unit
+        out = {'T0': Param(self.t0, iu, description=reference_description(iu))}
         for j, c in enumerate(self.coeffs):
             std = None if self.coeff_std is None else self.coeff_std[j]
-            unit = u if j == 0 else (f'{u}/degC' if j == 1 else f'{u}/degC^{j}')
+            unit = coefficient_unit(u, iu, j)
             desc = 'constant offset' if j == 0 else f'offset coefficient of (T-T0)^{j}'
             out[f'c{j}'] = Param(c, unit, std, desc)
         return out
 
     def meta(self):
         """Return order and whether the constant term is modelled."""
-        return {'order': self.order, 'include_constant': self.include_constant,
-                'offset_only': not self.include_constant}
+        return with_input_unit({'order': self.order, 'include_constant': self.include_constant,
+                                'offset_only': not self.include_constant}, self.input_unit)
 
     @classmethod
     def from_params(cls, params, meta):
@@ -87,4 +93,4 @@ class OffsetPolynomialModel(SensorModel):
         stds = [params[f'c{j}'].std for j in range(order + 1)]
         std = None if any(s is None for s in stds) else np.stack(stds)
         return cls(t0, coeffs, include_constant=bool(meta.get('include_constant', True)),
-                   coeff_std=std)
+                   coeff_std=std, input_unit=input_unit_of(params, meta))

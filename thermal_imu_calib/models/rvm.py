@@ -6,7 +6,8 @@ Per axis i with normalised input ``x = 2 (T_i - x_min_i) / (x_max_i - x_min_i) -
     y_n = w0 + sum_j w_j K(x, rv_j)  +  u (v0 + sum_j v_j K(x, rs_j))
 
 (eqs. 7, 30) where ``rv``/``rs`` are the relevance vectors of the bias- and scale-type
-parts (degC) and ``u`` the axis' share of gravity; ``y = y_min + (y_n + 1) (y_max - y_min)/2``.
+parts (in the input unit: degC, or a proxy's unit such as Hz) and ``u`` the axis' share
+of gravity; ``y = y_min + (y_n + 1) (y_max - y_min)/2``.
 Two modes:
 
 * ``offset`` (single orientation, gyro bias): only the bias part; ``corrected = raw -
@@ -22,18 +23,22 @@ columns ``[w0, w_j..., v0, v_j...]``; the predictive variance of the mean functi
 ``h^2 phi^T cov phi`` (eq. 31 without the noise term, which ``noise_std`` holds).
 ``predict_std`` adds ``misfit_std``, the part of the training residual that white noise
 does not explain. Evaluated vectorised at IMU rate: on the distinct temperatures of a
-chunk, or on a 0.001-degC grid with linear interpolation when that is fewer points.
+chunk, or on a 0.001-degC grid (a proxy: 5e-5 of its normalisation range) with linear
+interpolation when that is fewer points.
 """
 
 import numpy as np
 
-from .base import Param, register, require, SensorModel
+from ..input_units import is_temperature
+from .base import input_unit_of, Param, register, require, SensorModel, with_input_unit
 
 AXES = 'xyz'
 KERNEL_TEXT = 'lambda exp(-|x - xi|^2 / (2 sigma2)) + (1 - lambda) (x xi + 1)^d, x in [-1, 1]'
 MODES = ('offset', 'bias_scale')
 #: long chunks are evaluated on this temperature grid and interpolated (see _per_axis)
 GRID_STEP_DEGC = 1e-3
+#: the same for a proxy input, as a fraction of the axis' normalisation range x_max - x_min
+GRID_STEP_FRACTION = 5e-5
 
 
 def kernel(x, c, sigma2, d, lam):
@@ -54,7 +59,7 @@ def kernel(x, c, sigma2, d, lam):
 
 
 class RvmAxis:
-    """One axis: relevance vectors (degC), normalised weights and their covariance."""
+    """One axis: relevance vectors (input unit), normalised weights and their covariance."""
 
     def __init__(self, rv_bias, w_bias, rv_scale=None, w_scale=None, cov=None):
         self.rv_bias = np.asarray(rv_bias, float).reshape(-1)
@@ -89,13 +94,14 @@ class RvmModel(SensorModel):
 
     def __init__(self, axes, x_range, y_range, kernels, mode='offset', sensor='accel',
                  offset_only=False, t_ref=None, k0=None, b0=None, s=None, noise_std=None,
-                 misfit_std=None, gravity=9.80665):
+                 misfit_std=None, gravity=9.80665, input_unit='degC'):
+        self.input_unit = str(input_unit)
         if mode not in MODES:
             raise ValueError(f'RVM mode {mode!r} is not one of {MODES}')
         if len(axes) != 3:
             raise ValueError('an RVM model needs three axes')
         self.axes = list(axes)
-        self.x_range = np.asarray(x_range, float).reshape(3, 2)    # degC
+        self.x_range = np.asarray(x_range, float).reshape(3, 2)    # input unit
         self.y_range = np.asarray(y_range, float).reshape(3, 2)    # sensor unit
         self.kernels = np.asarray(kernels, float).reshape(3, 3)     # sigma2, d, lambda
         if np.any(self.kernels[:, 0] <= 0) or np.any((self.kernels[:, 2] < 0)
@@ -161,9 +167,11 @@ class RvmModel(SensorModel):
         for a in range(3):
             col = temps[:, a]
             lo, hi = (float(col.min()), float(col.max())) if len(col) else (0.0, 0.0)
-            m = int((hi - lo) / GRID_STEP_DEGC) + 2
+            step = (GRID_STEP_DEGC if is_temperature(self.input_unit) else
+                    max(GRID_STEP_FRACTION * float(np.ptp(self.x_range[a])), 1e-12))
+            m = int((hi - lo) / step) + 2
             if m < len(col) // 2:
-                grid = lo + np.arange(m) * GRID_STEP_DEGC
+                grid = lo + np.arange(m) * step
                 out.append(tuple(np.interp(col, grid, r) for r in fn(a, grid)))
                 continue
             uniq, inv = np.unique(col, return_inverse=True)
@@ -172,7 +180,7 @@ class RvmModel(SensorModel):
         return out
 
     def bias_scale(self, temps):
-        """Return (bias (n, 3) in the sensor unit, scale change dk (n, 3)) at temps degC."""
+        """Return (bias (n, 3) in the sensor unit, scale change dk (n, 3)) at inputs (n, 3)."""
         res = self._per_axis(temps, lambda a, t: self._axis_eval(a, t)[:2])
         bias = np.stack([r[0] for r in res], 1)
         dk = np.stack([r[1] for r in res], 1)
@@ -182,7 +190,7 @@ class RvmModel(SensorModel):
         return bias, dk
 
     def correct(self, raw, temps, aux=None):
-        """Return the corrected (n, 3) signal for raw (n, 3) at per-axis temps (n, 3) degC."""
+        """Return the corrected (n, 3) signal for raw (n, 3) at per-axis thermal inputs (n, 3)."""
         bias, dk = self.bias_scale(temps)
         raw = np.asarray(raw, float)
         if self.mode == 'offset':
@@ -230,11 +238,11 @@ class RvmModel(SensorModel):
     # ------------------------------------------------------------------ file
     def params(self):
         """Return normalisation, kernel, relevance vectors, weights and covariances."""
-        u = self.unit
+        u, iu = self.unit, self.input_unit
         out = {
-            'x_min': Param(self.x_range[:, 0], 'degC', description='input normalisation '
+            'x_min': Param(self.x_range[:, 0], iu, description='input normalisation '
                            'minimum per axis (eq. 34)'),
-            'x_max': Param(self.x_range[:, 1], 'degC', description='input normalisation '
+            'x_max': Param(self.x_range[:, 1], iu, description='input normalisation '
                            'maximum per axis (eq. 34)'),
             'y_min': Param(self.y_range[:, 0], u, description='target normalisation minimum'),
             'y_max': Param(self.y_range[:, 1], u, description='target normalisation maximum'),
@@ -246,8 +254,9 @@ class RvmModel(SensorModel):
                                'training point (eq. 27)'),
             'misfit_std': Param(self.misfit_std, u, description='training residual not '
                                 'explained by white noise (model error)'),
-            'T_ref': Param(self.t_ref, 'degC', description='reference temperature (offset '
-                           'only: the drift is relative to the output here)'),
+            'T_ref': Param(self.t_ref, iu, description=('reference temperature' if iu == 'degC'
+                                                        else f'reference input ({iu})')
+                           + ' (offset only: the drift is relative to the output here)'),
         }
         if self.mode == 'bias_scale':
             out['k0'] = Param(self.k0, '1', description='prior scale factor')
@@ -256,12 +265,12 @@ class RvmModel(SensorModel):
         for a, ax in zip(AXES, self.axes):
             nb = ax.w_bias.shape[0]
             std = np.sqrt(np.maximum(np.diag(ax.cov), 0.0))
-            out[f'rv_bias_{a}'] = Param(ax.rv_bias, 'degC',
+            out[f'rv_bias_{a}'] = Param(ax.rv_bias, iu,
                                         description=f'bias relevance vectors, axis {a}')
             out[f'w_bias_{a}'] = Param(ax.w_bias, '1', std[:nb], description=f'normalised '
                                        f'bias weights [w0, w_j], axis {a}')
             if ax.has_scale:
-                out[f'rv_scale_{a}'] = Param(ax.rv_scale, 'degC',
+                out[f'rv_scale_{a}'] = Param(ax.rv_scale, iu,
                                              description=f'scale relevance vectors, axis {a}')
                 out[f'w_scale_{a}'] = Param(ax.w_scale, '1', std[nb:], description=f'normalised'
                                             f' scale weights [v0, v_j], axis {a}')
@@ -271,8 +280,9 @@ class RvmModel(SensorModel):
 
     def meta(self):
         """Return the mode, the kernel formula and the paper reference."""
-        return {'mode': self.mode, 'offset_only': self.offset_only, 'kernel': KERNEL_TEXT,
-                'gravity': self.gravity, 'paper': 'seed 003 eqs. (7), (16), (30)-(34)'}
+        return with_input_unit({'mode': self.mode, 'offset_only': self.offset_only,
+                                'kernel': KERNEL_TEXT, 'gravity': self.gravity,
+                                'paper': 'seed 003 eqs. (7), (16), (30)-(34)'}, self.input_unit)
 
     @classmethod
     def from_params(cls, params, meta):
@@ -308,4 +318,5 @@ class RvmModel(SensorModel):
         t_ref = require(params, 'T_ref', (3,), w) if 'T_ref' in params else None
         return cls(axes, x_range, y_range, kern, mode=mode,
                    offset_only=bool(meta.get('offset_only', False)), t_ref=t_ref,
-                   gravity=float(meta.get('gravity', 9.80665)), **opt)
+                   gravity=float(meta.get('gravity', 9.80665)),
+                   input_unit=input_unit_of(params, meta, 'x_min'), **opt)

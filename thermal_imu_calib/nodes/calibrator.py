@@ -1,7 +1,9 @@
 """Live field calibration: collect stationary segments, estimate on request, publish.
 
-Subscribes ``imu/data_raw`` and ``temperature_topics``; aligns temperature to IMU header
-stamps (``io.align.StreamAligner``), runs the stationary detector online
+Subscribes ``imu/data_raw`` and ``temperature_topics`` (each in its ``temperature_units``
+entry, degC or a thermal proxy's unit such as Hz, written into the calibration; the gyro
+follows the one non-degC input by default); aligns them to IMU header stamps
+(``io.align.StreamAligner``), runs the stationary detector online
 (``gyro_fit.MotionCollector``) and keeps only the closed holds' window statistics
 (``Windows``), appending each to ``collection_file`` (JSON lines), and the raw samples of the
 pose changes between consecutive holds (what ``whole_unit`` fits gyro scale and misalignment
@@ -27,7 +29,7 @@ import numpy as np
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.task import Future
-from sensor_msgs.msg import Imu, Temperature
+from sensor_msgs.msg import Imu
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
@@ -79,8 +81,12 @@ class CalibratorNode(Node):
             '(empty: keep them in memory only).', **ro)
         self.temperature_topics = list(p.declare(
             'temperature_topics', ['imu/temperature'],
-            'sensor_msgs/Temperature topics, one model input each, in this order; they are '
-            'written into the calibration as the inputs\' topics.', **ro))
+            'Thermal input topics (sensor_msgs/Temperature unless temperature_types says '
+            'otherwise), one model input each, in this order; they are written into the '
+            'calibration as the inputs\' topics.', **ro))
+        self.temperature_units, scalar_types = common.declare_thermal_inputs(
+            p, self.temperature_topics, ' Written into the calibration; by default the gyro '
+            'follows the one non-degC input and the accelerometer the degC ones.')
         self.temperature_timeout = p.declare(
             'temperature_timeout', 2.0,
             'Seconds (header stamps) a reading may be interpolated over or held; IMU samples '
@@ -126,7 +132,8 @@ class CalibratorNode(Node):
         period = p.declare('progress_period', 1.0, 'Seconds between ~/progress and '
                            '/diagnostics messages.', lo=0.05, hi=60.0, **ro)
         self.k = len(self.temperature_topics)
-        self.inputs = [TemperatureInput(f't{i}', t) for i, t in enumerate(self.temperature_topics)]
+        self.inputs = [TemperatureInput(f't{i}', t, u) for i, (t, u) in enumerate(
+            zip(self.temperature_topics, self.temperature_units))]
 
         self._lock = threading.Lock()    # detector, aligner, windows, pending data
         self._busy = threading.Lock()    # held while an estimation runs
@@ -146,9 +153,10 @@ class CalibratorNode(Node):
         self.imu_sub = self.create_subscription(Imu, 'imu/data_raw', self._on_imu,
                                                 common.sensor_qos(in_depth), callback_group=data)
         self.temp_subs = [
-            self.create_subscription(Temperature, topic, self._temperature_cb(i),
+            self.create_subscription(cls, topic, self._temperature_cb(i, value),
                                      common.sensor_qos(in_depth), callback_group=data)
-            for i, topic in enumerate(self.temperature_topics)]
+            for i, (topic, (cls, value)) in enumerate(zip(self.temperature_topics,
+                                                          scalar_types))]
         self.create_timer(0.1, self._process, callback_group=data)
         services = ReentrantCallbackGroup()
         self.create_service(Trigger, '~/calibrate', self._on_calibrate, callback_group=services)
@@ -287,17 +295,17 @@ class CalibratorNode(Node):
             self.transitions = self.transitions + new[:room]
 
     # ------------------------------------------------------------------ data
-    def _temperature_cb(self, index):
+    def _temperature_cb(self, index, value='temperature'):
         def cb(msg):
             # drained too, so temperature keeps pace with batched IMU data under load
             for m in [msg] + common.drain(self.temp_subs[index], 100, self):
-                if not np.isfinite(m.temperature):
+                v = getattr(m, value)
+                if not np.isfinite(v):
                     self.counts['temperature_invalid'] += 1
                     continue
                 self.counts['temperature_readings'] += 1
                 with self._lock:
-                    self._pending_temp[index].append((common.stamp_to_ns(m.header.stamp),
-                                                      m.temperature))
+                    self._pending_temp[index].append((common.stamp_to_ns(m.header.stamp), v))
         return cb
 
     def _on_imu(self, msg):

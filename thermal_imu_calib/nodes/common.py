@@ -13,8 +13,11 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
                                 SetParametersResult)
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import FluidPressure, Illuminance, RelativeHumidity, Temperature
 
+from ..input_units import broadcast_units
 from ..io.align import TemperatureTrack
+from ..io.cdr import SCALAR_MSGTYPES
 
 NS = 1_000_000_000
 OK, WARN, ERROR = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR
@@ -193,6 +196,37 @@ def drain(subscription, limit, node=None):
 
 #: header stamps stepping back by more than this (s) start a new timeline
 JUMP_S = 10.0
+#: header-stamped scalars a thermal input may arrive as: type name -> (class, value field)
+SCALAR_TYPES = {name: (cls, SCALAR_MSGTYPES[name]) for name, cls in (
+    ('sensor_msgs/msg/Temperature', Temperature),
+    ('sensor_msgs/msg/FluidPressure', FluidPressure),
+    ('sensor_msgs/msg/Illuminance', Illuminance),
+    ('sensor_msgs/msg/RelativeHumidity', RelativeHumidity))}
+
+
+def declare_thermal_inputs(p, topics, description_suffix='', read_only=True):
+    """Declare ``temperature_units`` and ``temperature_types`` next to ``temperature_topics``.
+
+    Returns (units, [(message class, value field)]) aligned with ``topics``; a single entry
+    applies to every topic. Raises ValueError with what to change.
+    """
+    units = list(p.declare(
+        'temperature_units', ['degC'],
+        'Unit of each temperature_topics entry, same order (one entry: all): degC for a '
+        'temperature, or a thermal proxy\'s unit such as Hz (a gyro resonance frequency '
+        'published in the temperature field). Kelvin/Fahrenheit are refused: publish degC.'
+        + description_suffix, read_only=read_only))
+    types = list(p.declare(
+        'temperature_types', ['sensor_msgs/msg/Temperature'],
+        'Message type of each temperature_topics entry (one entry: all): a header-stamped '
+        'scalar, one of ' + ', '.join(SCALAR_TYPES) + '.', read_only=read_only))
+    units = broadcast_units(units, topics)
+    if len(types) == 1:
+        types = types * len(topics)
+    if len(types) != len(topics) or any(t not in SCALAR_TYPES for t in types):
+        raise ValueError(f'temperature_types {types} must give one of {list(SCALAR_TYPES)} '
+                         f'per temperature_topics entry ({len(topics)}), or one for all')
+    return units, [SCALAR_TYPES[t] for t in types]
 
 
 class TemperatureInputs:

@@ -1,12 +1,14 @@
 """Live thermal compensation: imu/data_raw + temperature -> imu/data_compensated.
 
 Subscribes ``imu/data_raw`` (sensor_msgs/Imu) and every topic of ``temperature_topics``
-(sensor_msgs/Temperature), resolves each calibration input's temperature at the IMU header
-stamp (interpolated between readings, else the nearest reading held) and publishes the
-``Calibration.apply`` result on ``imu/data_compensated`` with the same header and
-orientation. The calibration comes from ``calibration_file`` (at start and on
-``~/reload``) or from the latched ``imu/calibration`` topic; a bad one is rejected with
-its reason and the previous one stays active.
+(sensor_msgs/Temperature, or another stamped scalar per ``temperature_types``; each in its
+``temperature_units`` entry: degC or a thermal proxy's unit such as Hz), resolves each
+calibration input's value at the IMU header stamp (interpolated between readings, else
+the nearest reading held) and publishes the ``Calibration.apply`` result on
+``imu/data_compensated`` with the same header and orientation. The calibration comes
+from ``calibration_file`` (at start and on ``~/reload``) or from the latched
+``imu/calibration`` topic; a bad one is rejected with its reason and the previous one stays
+active, also when its input units differ from ``temperature_units``.
 """
 
 from dataclasses import dataclass
@@ -16,7 +18,7 @@ import time
 
 import numpy as np
 from rclpy.node import Node
-from sensor_msgs.msg import Imu, Temperature
+from sensor_msgs.msg import Imu
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
@@ -54,8 +56,9 @@ class CompensatorNode(Node):
             'Calibration YAML loaded at start and on ~/reload (~ is expanded; empty: none).')
         self.temperature_topics = list(p.declare(
             'temperature_topics', ['imu/temperature'],
-            'sensor_msgs/Temperature topics to subscribe; the calibration file maps its '
-            'inputs to them by name (relative names follow namespaces and remaps).',
+            'Thermal input topics to subscribe (sensor_msgs/Temperature unless '
+            'temperature_types says otherwise); the calibration file maps its inputs to them '
+            'by name (relative names follow namespaces and remaps).',
             read_only=True))
         self.temperature_timeout = p.declare(
             'temperature_timeout', 2.0,
@@ -95,6 +98,9 @@ class CompensatorNode(Node):
                            lo=0.05, hi=60.0, read_only=True)
         if len(set(self.temperature_topics)) != len(self.temperature_topics):
             raise ValueError(f'temperature_topics has duplicates: {self.temperature_topics}')
+        self.temperature_units, scalar_types = common.declare_thermal_inputs(
+            p, self.temperature_topics, ' A calibration whose inputs are in other units is '
+            'refused.')
 
         self.temps = common.TemperatureInputs(self.temperature_topics,
                                               max(60.0, 4 * self.temperature_timeout))
@@ -113,9 +119,10 @@ class CompensatorNode(Node):
         self.imu_sub = self.create_subscription(Imu, 'imu/data_raw', self._on_imu,
                                                 common.sensor_qos(in_depth))
         self.temp_subs = [
-            self.create_subscription(Temperature, topic, self._temperature_cb(i),
+            self.create_subscription(cls, topic, self._temperature_cb(i, value),
                                      common.sensor_qos(in_depth))
-            for i, topic in enumerate(self.temperature_topics)]
+            for i, (topic, (cls, value)) in enumerate(zip(self.temperature_topics,
+                                                          scalar_types))]
         self.cal_sub = self.create_subscription(String, 'imu/calibration', self._on_calibration,
                                                 common.CALIBRATION_QOS)
         self.reload_srv = self.create_service(Trigger, '~/reload', self._on_reload)
@@ -145,6 +152,9 @@ class CompensatorNode(Node):
                                               self.temperature_topics)
         if reason:
             return self._reject(source, reason)
+        reason = self._unit_mismatch(cal, columns)
+        if reason:
+            return self._reject(source, reason)
         reason = _probe(cal)
         if reason:
             return self._reject(source, reason)
@@ -156,6 +166,17 @@ class CompensatorNode(Node):
                       f'{cal.accel.kind if cal.accel else "none"}, gyro '
                       f'{cal.gyro.kind if cal.gyro else "none"}, inputs '
                       f'{cal.temperature_topics or "none"}')
+
+    def _unit_mismatch(self, cal, columns):
+        """Return why the calibration's input units differ from ``temperature_units``, or None."""
+        bad = [f'{inp.topic} is in {inp.unit} in the calibration but '
+               f'{self.temperature_units[c]} here'
+               for inp, c in zip(cal.inputs, columns) if inp.unit != self.temperature_units[c]]
+        if not bad:
+            return None
+        return (f'input units differ: {"; ".join(bad)}; set temperature_units (aligned with '
+                f'temperature_topics {self.temperature_topics}) to the units the topics carry, '
+                'or use a calibration made for them')
 
     def _reject(self, source, reason):
         self.counts['calibrations_rejected'] += 1
@@ -207,11 +228,11 @@ class CompensatorNode(Node):
                 self.fill_covariance = value
 
     # ------------------------------------------------------------------ data
-    def _temperature_cb(self, index):
+    def _temperature_cb(self, index, value='temperature'):
         def cb(msg):
             # drained too, so temperature keeps pace with batched IMU data under load
             for m in [msg] + common.drain(self.temp_subs[index], 100, self):
-                self.temps.add(index, common.stamp_to_ns(m.header.stamp), m.temperature)
+                self.temps.add(index, common.stamp_to_ns(m.header.stamp), getattr(m, value))
         return cb
 
     def _on_imu(self, msg):
@@ -321,7 +342,8 @@ class CompensatorNode(Node):
                   'model_id': active.id if active else '',
                   'model_source': active.source if active else '',
                   'input_rate_hz': rate,
-                  'on_missing_temperature': self.on_missing}
+                  'on_missing_temperature': self.on_missing,
+                  'temperature_units': ','.join(self.temperature_units)}
         ages = (self.temps.age_at(self._last_stamp_ns) if self._last_stamp_ns is not None
                 else {t: math.inf for t in self.temperature_topics})
         for topic, age in ages.items():
