@@ -29,6 +29,7 @@ from . import sim
 from .calibration import TemperatureInput
 from .io.columns import TemperatureColumns
 from .models.polynomial import OffsetPolynomialModel
+from .models.whole_unit import WholeUnitGyroModel
 from .thermal_input import ThermalFilter
 
 
@@ -95,9 +96,16 @@ def proxy_truth(rec, proxy=ResonanceProxy()):
     k = len(t.inputs)
     g = t.gyro
     kf = proxy.kf_hz_per_degc
-    power = np.arange(g.coeffs.shape[0])[:, None]
-    gyro = OffsetPolynomialModel(proxy.frequency(g.t0), g.coeffs / kf ** power, sensor='gyro',
-                                 include_constant=g.include_constant, input_unit='Hz')
+    if isinstance(g, WholeUnitGyroModel):       # devices with scale/misalignment/g-sensitivity
+        power = np.arange(g.offset.shape[0])[:, None]
+        gyro = WholeUnitGyroModel(proxy.frequency(g.t0), g.offset / kf ** power,
+                                  g.scale / kf ** (power[1:g.scale.shape[0] + 1]), g.m0, g.m1,
+                                  g.m2, g.m3, g.coupling, input_unit='Hz')
+    else:
+        power = np.arange(g.coeffs.shape[0])[:, None]
+        gyro = OffsetPolynomialModel(proxy.frequency(g.t0), g.coeffs / kf ** power,
+                                     sensor='gyro', include_constant=g.include_constant,
+                                     input_unit='Hz')
     f = rec.temperatures[proxy.topic].temperature
     inputs = list(t.inputs) + [TemperatureInput('gyro_resonance', proxy.topic, 'Hz')]
     filt = t.temperature_filter

@@ -17,13 +17,16 @@ temperature (when the gyro-bias lag search finds one) and the bias/scale RVM are
 with holds left out (at most one per face) and scored by the held-out raw-output residual.
 The field model stays unless the lagged one is 10 % and the RVM 50 % better.
 
-Whole-unit (seed 002): when the field model was chosen and at least
-``WHOLE_UNIT_MIN_TILTED`` holds lie off the six faces (what misalignment needs), the field
-and whole-unit accelerometer fits are repeated with the same hold folds and scored by the
-held-out gravity-norm residual |a| - g (inputs clamped to the training range; the only
-comparison both models admit without knowing the tilts of the held-out holds). The
-whole-unit model is chosen when it is ``WHOLE_UNIT_MARGIN`` better: it then also fits the
-gyro's g-sensitivity and, with pose changes, its scale and misalignment.
+Whole-unit (seed 002): when the field model was chosen, the field calibration (field model
++ gyro bias polynomial) and the whole-unit one are refitted with the same hold folds and
+scored on the held-out holds by the gravity-norm residual |a| - g (the one accelerometer
+score both admit without the held-out tilts) and by the still gyro's |w| (the earth rate
+at most; a pose-dependent bias such as g-sensitivity makes it larger). This runs only with
+``WHOLE_UNIT_MIN_TILTED`` holds off the six faces (misalignment is what the field model
+lacks without a lab prior) and ``WHOLE_UNIT_MIN_FOLDS`` folds. The whole-unit model is
+chosen when it is ``WHOLE_UNIT_MARGIN`` better on |a| - g and no more than
+``WHOLE_UNIT_GYRO_SLACK`` worse on |w|. It then also fits the gyro's scale and
+misalignment from the pose changes.
 
 ``auto_policy`` is installed as ``calibrate.AUTO_POLICY[0]``; its decision and the table of
 held-out errors go to ``ctx.thermal_selection`` so that the estimators registered here
@@ -70,8 +73,14 @@ MULTI_FOLDS = 5
 #: several orientations with tilted holds: the whole-unit model must beat the field model's
 #: held-out gravity-norm residual by this much (relative) to be chosen
 WHOLE_UNIT_MARGIN = 0.25
+#: ... while its still-gyro residual is at most this much worse
+WHOLE_UNIT_GYRO_SLACK = 0.05
 #: holds off the six faces needed before the whole-unit model is tried (misalignment)
 WHOLE_UNIT_MIN_TILTED = 3
+#: hold folds needed (every face held this often): with two folds a fit sees one hold
+#: per face and the held-out score is dominated by extrapolation (simulated demo: field
+#: 16 mg vs whole_unit 1.1 mg held out, but on the next cold start 117 vs 453 ug)
+WHOLE_UNIT_MIN_FOLDS = 3
 #: Estimate carries a temperature filter into the Calibration (calibrate.py support)
 FILTER_SUPPORTED = 'temperature_filter' in {f.name for f in dataclasses.fields(Estimate)}
 
@@ -433,56 +442,70 @@ def _weighted_rms(x, n):
     return float(np.sqrt(np.sum(n * x * x) / np.sum(n)))
 
 
-def heldout_norm(ctx):
-    """Return held-out |a| - g per window {'field': (m,), 'whole_unit': (m,)} and the folds.
+def heldout_whole_unit(ctx):
+    """Held-out static residuals of the field and whole-unit calibrations; (dict, folds).
 
-    Both accelerometer fits are repeated on the training holds of each fold (``_hold_folds``)
-    and evaluated on the held-out holds' raw means, inputs clamped to the training range.
+    Both are refitted on the training holds of each fold (``_hold_folds``) and applied to
+    the held-out windows, inputs clamped to the training range. Returns per window
+    ``{'accel': {'field': |a| - g, 'whole_unit': ...}, 'gyro': {...: |w_corrected|}}``:
+    the gyro of a still IMU should read the earth rate (<= 7.3e-5 rad/s) in every pose,
+    so a pose-dependent bias (g-sensitivity) shows as a larger held-out |w|. The field
+    calibration's gyro is the default bias polynomial (``calibrate._gyro_bias``).
     """
-    from .whole_unit_fit import fit_whole_unit_accel, Priors, prior_from_field_model
+    from .calibrate import _gyro_bias
+    from .whole_unit_fit import fit_whole_unit_context
     w, o = ctx.windows, ctx.options
     folds, n = _hold_folds(w)
-    priors = o.whole_unit_priors or Priors()
-    if ctx.prior_model is not None:
-        priors.accel_mean = prior_from_field_model(ctx.prior_model)
-    out = {'field': np.zeros(len(w)), 'whole_unit': np.zeros(len(w))}
+    out = {s: {'field': np.zeros(len(w)), 'whole_unit': np.zeros(len(w))}
+           for s in ('accel', 'gyro')}
     for f in range(n):
         test = folds == f
         train = ~test
-        tc = clamp_to_training(ctx.ta, w, train, ctx.accel_input, o.range_margin)
-        fm = _field_fit(ctx, w.select(train), ctx.ta[train], refine=False).model
-        wm = fit_whole_unit_accel(w.select(train), ctx.ta[train] if ctx.k else None,
-                                  o.gravity, ctx.t0, priors, order=o.order if ctx.k else 0,
-                                  residual=o.whole_unit_residual).model
-        for name, model in (('field', fm), ('whole_unit', wm)):
-            a = model.correct(w.accel[test], tc[test])
-            out[name][test] = np.linalg.norm(a, axis=1) - o.gravity
+        ta = clamp_to_training(ctx.ta, w, train, ctx.accel_input, o.range_margin)
+        tg = clamp_to_training(ctx.tg, w, train, ctx.gyro_input, o.range_margin)
+        sub = dataclasses.replace(ctx, windows=w.select(train), ta=ctx.ta[train],
+                                  tg=ctx.tg[train])
+        fm = _field_fit(ctx, sub.windows, sub.ta, refine=False).model
+        gm, _ = _gyro_bias(sub)
+        wu = fit_whole_unit_context(ctx, train)
+        for name, am, gmod in (('field', fm, gm),
+                               ('whole_unit', wu.accel.model, wu.gyro.model)):
+            a = am.correct(w.accel[test], ta[test])
+            out['accel'][name][test] = np.linalg.norm(a, axis=1) - o.gravity
+            g = gmod.correct(w.gyro[test], tg[test], aux={'accel': a})
+            out['gyro'][name][test] = np.linalg.norm(g, axis=1)
     return out, n
 
 
 def select_whole_unit(ctx, sel):
     """Return ``sel`` or a whole-unit Selection when it wins held out (see the docstring)."""
+    if sel.model != 'field' or sel.groups != 'holds':
+        return sel
     ids, means = ctx.windows.hold_means()
     tilted = sum(face_of(m) == 'tilted' for m in means)
-    if sel.model != 'field' or tilted < WHOLE_UNIT_MIN_TILTED or sel.groups != 'holds':
-        return sel
-    if _hold_folds(ctx.windows)[1] < 2:
+    if tilted < WHOLE_UNIT_MIN_TILTED or _hold_folds(ctx.windows)[1] < WHOLE_UNIT_MIN_FOLDS:
         return sel
     t_start = time.perf_counter()
-    res, n_folds = heldout_norm(ctx)
+    res, n_folds = heldout_whole_unit(ctx)
     g, n = ctx.options.gravity, ctx.windows.n
-    scores = {k: _weighted_rms(v, n) / g * 1e6 for k, v in res.items()}
-    sel.table.update({f'{k} (|a|-g)': {'residual_ug': v} for k, v in scores.items()})
+    acc = {k: _weighted_rms(v, n) / g * 1e6 for k, v in res['accel'].items()}
+    gyr = {k: _weighted_rms(v, n) for k, v in res['gyro'].items()}
+    for k in acc:
+        sel.table[f'{k} |a|-g'] = {'residual_ug': acc[k]}
+        sel.table[f'{k} |w| still'] = {'residual_rad_s': gyr[k]}
     sel.seconds += time.perf_counter() - t_start
-    better = scores['whole_unit'] < scores['field'] * (1 - WHOLE_UNIT_MARGIN)
-    text = (f'; {tilted} holds off the six faces: held-out |a|-g RMS field '
-            f'{scores["field"]:.1f} ug, whole_unit {scores["whole_unit"]:.1f} ug '
-            f'({n_folds} folds); ')
-    if better:
+    wins = (acc['whole_unit'] < (1 - WHOLE_UNIT_MARGIN) * acc['field']
+            and gyr['whole_unit'] <= (1 + WHOLE_UNIT_GYRO_SLACK) * gyr['field'])
+    text = (f'; whole-unit check ({tilted} of {len(ids)} holds off the six faces, '
+            f'{n_folds} folds): held-out |a|-g RMS field {acc["field"]:.1f} ug, whole_unit '
+            f'{acc["whole_unit"]:.1f} ug; still-gyro |w| RMS field {gyr["field"]:.2e}, '
+            f'whole_unit {gyr["whole_unit"]:.2e} rad/s; ')
+    if wins:
         sel.model = 'whole_unit'
         sel.reason += text + 'chose whole_unit (seed 002)'
     else:
-        sel.reason += text + f'whole_unit not {100 * WHOLE_UNIT_MARGIN:.0f} % better: field'
+        sel.reason += text + (f'whole_unit not {100 * WHOLE_UNIT_MARGIN:.0f} % better on '
+                              '|a|-g with the gyro no worse: field')
     return sel
 
 

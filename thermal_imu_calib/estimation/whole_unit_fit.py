@@ -28,6 +28,7 @@ Register: ``--model whole_unit`` (estimator ``whole_unit``); the gyroscope part 
 ``gyro_fit``.
 """
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional
 
@@ -639,6 +640,30 @@ def fit_whole_unit(windows, gravity, axis_temps=None, t0=None, gyro_inputs=None,
     return WholeUnitFit(fit, gfit, notes, stats)
 
 
+def fit_whole_unit_context(ctx, rows=None, transitions=None):
+    """Run ``fit_whole_unit`` with the settings of a ``calibrate.Context``.
+
+    ``rows``: bool mask of the windows to fit (default all; e.g. the training holds of a
+    held-out comparison); ``transitions``: pose changes (None: static only). The options'
+    ``whole_unit_priors`` are copied, never modified; a lab prior (seed 000 field model)
+    sets the accelerometer prior means.
+    """
+    w, o, k = ctx.windows, ctx.options, ctx.k
+    rows = np.ones(len(w), bool) if rows is None else np.asarray(rows, bool)
+    user = o.whole_unit_priors
+    priors = dataclasses.replace(user) if user is not None else Priors()
+    if ctx.prior_model is not None:
+        priors.accel_mean = prior_from_field_model(ctx.prior_model)
+    t0g = ctx.t0 if k and list(ctx.gyro_input) == list(ctx.accel_input) else None
+    unit = 'degC'
+    if k and o.inputs:
+        unit = getattr(o.inputs[ctx.gyro_input[0]], 'unit', 'degC')
+    return fit_whole_unit(w.select(rows), o.gravity, ctx.ta[rows] if k else None, ctx.t0,
+                          ctx.tg[rows] if k else None, t0g, o.latitude,
+                          transitions, priors, o.order if k else 0, ctx.accel_input,
+                          ctx.gyro_input, o.whole_unit_residual, unit)
+
+
 # ------------------------------------------------------------------------ estimator
 def _register():
     """Register the ``whole_unit`` estimator (imported by calibrate.ESTIMATOR_MODULES)."""
@@ -652,26 +677,14 @@ def _register():
         from gyro_fit.MotionCollector), ``whole_unit_priors`` (Priors) and
         ``whole_unit_residual`` ('norm' or 'vector').
         """
-        w, o, k = ctx.windows, ctx.options, ctx.k
-        priors = o.whole_unit_priors or Priors()
-        if ctx.prior_model is not None:
-            priors.accel_mean = prior_from_field_model(ctx.prior_model)
+        o = ctx.options
         if ctx.n_orientations < 4:
             raise CalibrationRefused(
                 f'only {ctx.n_orientations} distinct orientations were held',
                 'the whole-unit model needs at least the six faces (+x -x +y -y +z -z up), '
                 'plus tilted poses for misalignment, each still for '
                 f'{o.min_hold_s:.0f} s or more')
-        t0g = None
-        if k and list(ctx.gyro_input) == list(ctx.accel_input):
-            t0g = ctx.t0
-        unit = 'degC'
-        if k and o.inputs:
-            unit = getattr(o.inputs[ctx.gyro_input[0]], 'unit', 'degC')
-        res = fit_whole_unit(w, o.gravity, ctx.ta if k else None, ctx.t0,
-                             ctx.tg if k else None, t0g, o.latitude, o.transitions, priors,
-                             o.order if k else 0, ctx.accel_input, ctx.gyro_input,
-                             o.whole_unit_residual, unit)
+        res = fit_whole_unit_context(ctx, transitions=o.transitions)
         am = res.accel.model
         weak = [f'{a}' for i, a in enumerate('xyz')
                 if not (am.estimated_mask('ct0')[i] and am.estimated_mask('A1')[i, i])]
