@@ -248,7 +248,8 @@ ESTIMATORS = {}
 #: modules that register further estimators when imported (one line per model family)
 ESTIMATOR_MODULES = ['thermal_imu_calib.estimation.whole_unit_fit',
                      'thermal_imu_calib.estimation.baselines',
-                     'thermal_imu_calib.estimation.select']
+                     'thermal_imu_calib.estimation.select',
+                     'thermal_imu_calib.estimation.gyro_select']
 
 
 def register_estimator(name):
@@ -325,9 +326,9 @@ def calibrate_windows(windows, options=None):
               'model_choice': {'model': name, 'reason': why}, **est.report}
     gyro_model = est.gyro
     if gyro_model is None:
-        gyro_model, report['gyro_offset'] = _gyro_bias(ctx)
-        notes.append('gyroscope: bias polynomial from stationary windows; earth rotation is '
-                     'not removed (up to 7.3e-5 rad/s)')
+        gyro_model, gyro_report, gyro_notes = DEFAULT_GYRO[0](ctx, est)
+        report.update(gyro_report)
+        notes += gyro_notes
     cov = ctx.coverage
     g = o.gravity
     cal = Calibration(
@@ -359,6 +360,17 @@ def calibrate_windows(windows, options=None):
     if 'residual_rms' in fit_stats:
         summary += f', fit residual {fit_stats["residual_rms"]["value"] * 1e6 / g:.1f} ug RMS'
     return CalibrationResult(cal, summary, report)
+
+
+def _default_gyro(ctx, est):
+    """Return (bias polynomial, report, notes); replaced by ``gyro_select.default_gyro``."""
+    model, rep = _gyro_bias(ctx)
+    return model, {'gyro_offset': rep}, ['gyroscope: bias polynomial from stationary windows; '
+                                         'earth rotation is not removed (up to 7.3e-5 rad/s)']
+
+
+#: the gyro model of an Estimate without one: ``fn(ctx, estimate) -> (model, report, notes)``
+DEFAULT_GYRO = [_default_gyro]
 
 
 def _gyro_bias(ctx):
