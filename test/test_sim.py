@@ -41,7 +41,7 @@ def demo():
 def test_scenario_names():
     assert set(sim.SCENARIOS) == {'nav-coldstart', 'nav-validation', 'nav-coldstart-short',
                                   'nav-coldstart-uniform',
-                                  'nav-validation-short', 'mems-coldstart',
+                                  'nav-validation-short', 'mems-coldstart', 'mems-coldstart-poses',
                                   'mems-validation', 'single-warmup', 'demo', 'demo-validation',
                                   'chamber-cycle', 'lag-warmup'}
     for name, cfg in sim.SCENARIOS.items():

@@ -261,7 +261,8 @@ MOTION_MODELS = ('auto', 'whole_unit')
 #: modules that register further estimators when imported (one line per model family)
 ESTIMATOR_MODULES = ['thermal_imu_calib.estimation.whole_unit_fit',
                      'thermal_imu_calib.estimation.baselines',
-                     'thermal_imu_calib.estimation.select']
+                     'thermal_imu_calib.estimation.select',
+                     'thermal_imu_calib.estimation.gyro_select']
 
 
 def register_estimator(name):
@@ -338,9 +339,9 @@ def calibrate_windows(windows, options=None):
               'model_choice': {'model': name, 'reason': why}, **est.report}
     gyro_model = est.gyro
     if gyro_model is None:
-        gyro_model, report['gyro_offset'] = _gyro_bias(ctx)
-        notes.append('gyroscope: bias polynomial from stationary windows; earth rotation is '
-                     'not removed (up to 7.3e-5 rad/s)')
+        gyro_model, gyro_report, gyro_notes = DEFAULT_GYRO[0](ctx, est)
+        report.update(gyro_report)
+        notes += gyro_notes
     cov = ctx.coverage
     g = o.gravity
     cal = Calibration(
@@ -390,6 +391,17 @@ def _pose_change_text(fit, collected):
                 'gyro scale and misalignment from them)')
     return (f', {fit["rotations_used"]} of {collected} pose changes used for gyro scale and '
             'misalignment')
+
+
+def _default_gyro(ctx, est):
+    """Return (bias polynomial, report, notes); replaced by ``gyro_select.default_gyro``."""
+    model, rep = _gyro_bias(ctx)
+    return model, {'gyro_offset': rep}, ['gyroscope: bias polynomial from stationary windows; '
+                                         'earth rotation is not removed (up to 7.3e-5 rad/s)']
+
+
+#: the gyro model of an Estimate without one: ``fn(ctx, estimate) -> (model, report, notes)``
+DEFAULT_GYRO = [_default_gyro]
 
 
 def _gyro_bias(ctx):
