@@ -1,10 +1,10 @@
 """Pose changes between holds through the offline pipeline and the CLI (whole_unit gyro).
 
-``--model whole_unit`` fits the gyro scale and misalignment (Omega1) from the rotations
-between static holds. Checked here: the pipeline collects them (MotionCollector) without
-changing the windows, keeps each on its own holds when logs are merged, ``--save-windows``
-writes them, and the CLI estimate is real: much closer to the true Omega1 than the prior.
-"""
+The seed 002 gyro (``--model whole_unit``, or chosen for an accelerometer-only model) fits
+the gyro scale and misalignment (Omega1) from the rotations between static holds. Checked
+here: the pipeline collects them (MotionCollector) without changing the windows, keeps each
+on its own holds when logs are merged, ``--save-windows`` writes them, and the CLI estimate
+is real: much closer to the true Omega1 than the prior."""
 
 import io
 
@@ -83,11 +83,22 @@ def test_cli_whole_unit_fits_gyro_scale_and_misalignment_from_pose_changes(colds
     assert_on_their_holds(windows, trs)
 
 
-def test_cli_other_models_skip_the_pose_changes(coldstart, tmp_path, capsys):
-    _, bag = coldstart
-    assert main(['calibrate', bag, '--model', 'field', '-o', str(tmp_path / 'f.yaml')]) == 0
+def test_cli_field_model_gyro_uses_the_pose_changes_too(coldstart, tmp_path, capsys):
+    rec, bag = coldstart
+    out = str(tmp_path / 'f.yaml')
+    assert main(['calibrate', bag, '--model', 'field', '--latitude', '45', '-o', out]) == 0
     cap = capsys.readouterr()
-    assert 'pose changes' not in cap.err + cap.out
+    n = len(rec.schedule) - 1
+    assert f'stationary holds, {n} pose changes' in cap.err, cap.err
+    cal = Calibration.load(out)
+    assert cal.accel.kind == 'field_polynomial'
+    if cal.gyro.kind == 'whole_unit_gyro':     # gyro_select chose the seed 002 gyro
+        assert cal.fit['pose_changes'] == {'collected': n, 'used': n}
+        assert f'{n} of {n} pose changes used' in cap.out, cap.out
+        assert np.all(cal.gyro.meta()['estimated']['Omega1'])
+    else:
+        assert cal.fit['pose_changes'] == {'collected': n, 'used': 0}
+        assert f'{n} pose changes collected but not used' in cap.out, cap.out
 
 
 def test_transitions_file_round_trip_and_bad_files():

@@ -15,7 +15,7 @@ import numpy as np
 from . import __version__
 from .calibration import Calibration, CalibrationError, TemperatureInput
 from .estimation.calibrate import (CalibrateOptions, calibrate_windows, CalibrationRefused,
-                                   model_choices, MOTION_MODELS)
+                                   model_choices)
 from .estimation.stationary import DetectorConfig
 from .gravity import resolve_gravity
 from .input_units import parse_unit_map
@@ -170,19 +170,19 @@ def build_parser():
 def cmd_calibrate(args):
     """Run the calibrate subcommand.
 
-    The pose changes between holds (raw samples, bounded memory) are collected for the
-    models that may fit them (``MOTION_MODELS``: whole_unit, and auto, which may choose it)
-    and for ``--save-windows``; elsewhere they would cost ~4 % more CPU for nothing.
+    The pose changes between holds (raw samples, bounded memory) are always collected: the
+    seed 002 gyro fits its scale and misalignment from them, whether ``whole_unit`` (or
+    ``auto``) chose it or an accelerometer-only model did (``gyro_select``); the collector
+    costs ~0.09 s CPU per 375k messages, not measurable in a calibrate run.
     """
     from .estimation.gyro_fit import save_transitions
     from .pipeline import collect_windows, merge_transitions, merge_windows
     g, g_src = _gravity(args)
     prior = Calibration.load(args.prior) if args.prior else None
-    motion = args.model in MOTION_MODELS or bool(args.save_windows)
     collected = []
     for path in args.inputs:
         c = collect_windows(path, args.imu_topic, args.temperature_topic, _detector(args),
-                            args.chunk_size, args.max_gap, args.progress, motion=motion)
+                            args.chunk_size, args.max_gap, args.progress, motion=True)
         print(f'{path}: {c.imu_messages} Imu messages in {c.seconds:.1f} s '
               f'({c.imu_messages / max(c.seconds, 1e-9):,.0f} msgs/s), '
               f'{len(np.unique(c.windows.hold))} stationary holds' + _motion_text(c),

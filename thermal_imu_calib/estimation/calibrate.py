@@ -254,10 +254,6 @@ class Estimate:
 
 #: model name -> estimator(Context) -> Estimate; see ``register_estimator``
 ESTIMATORS = {}
-#: ``--model`` names whose estimate may fit the pose changes between holds
-#: (``CalibrateOptions.transitions``; auto may choose whole_unit): callers collect them
-#: (raw samples between holds) only for these
-MOTION_MODELS = ('auto', 'whole_unit')
 #: modules that register further estimators when imported (one line per model family)
 ESTIMATOR_MODULES = ['thermal_imu_calib.estimation.whole_unit_fit',
                      'thermal_imu_calib.estimation.baselines',
@@ -365,9 +361,12 @@ def calibrate_windows(windows, options=None):
                                 'before_max': _amax(before), 'after_max': _amax(after),
                                 'note': 'per hold, |mean f| - g in micro-g, on the fit data'},
     })
-    if o.transitions:
+    rot = _rotation_stats(est.fit, report)
+    if o.transitions or rot:
         fit_stats['pose_changes'] = report['pose_changes'] = {
-            'collected': len(o.transitions), 'used': int(est.fit.get('rotations_used', 0))}
+            'collected': len(o.transitions), 'used': int(rot.get('rotations_used', 0))}
+    if 'rotation_direction_error_deg' in rot:
+        fit_stats['rotation_direction_error_deg'] = rot['rotation_direction_error_deg']
     cal.fit = fit_stats
     kind = est.accel.kind if est.accel is not None else 'gyro bias only'
     summary = (f'{kind}: {cov["holds"]} holds ({cov["windows"]} windows), faces '
@@ -375,21 +374,33 @@ def calibrate_windows(windows, options=None):
                f'{_amax(before):.0f} -> {_amax(after):.1f} ug max')
     if 'residual_rms' in fit_stats:
         summary += f', fit residual {fit_stats["residual_rms"]["value"] * 1e6 / g:.1f} ug RMS'
-    return CalibrationResult(cal, summary + _pose_change_text(est.fit, len(o.transitions)),
+    return CalibrationResult(cal, summary + _pose_change_text(rot, len(o.transitions)),
                              report)
 
 
-def _pose_change_text(fit, collected):
+def _rotation_stats(fit, report):
+    """Return the stats of the gyro fit that could use pose changes ({} if none ran).
+
+    The estimator's own gyro (``whole_unit``) reports them in its fit, the seed 002 gyro
+    chosen for an accelerometer-only estimator in ``report['gyro_whole_unit']``.
+    """
+    for stats in (fit, report.get('gyro_whole_unit') or {}):
+        if 'rotations_used' in stats:
+            return stats
+    return {}
+
+
+def _pose_change_text(rot, collected):
     """Return the summary's clause on the pose changes between holds."""
-    if 'rotations_used' in fit and not collected:
+    if rot and not collected:
         return (', no pose changes between holds: gyro scale and misalignment stay at their '
                 'prior')
     if not collected:
         return ''
-    if 'rotations_used' not in fit:
-        return (f', {collected} pose changes collected but not used (--model whole_unit fits '
-                'gyro scale and misalignment from them)')
-    return (f', {fit["rotations_used"]} of {collected} pose changes used for gyro scale and '
+    if not rot:
+        return (f', {collected} pose changes collected but not used (the gyro model chosen has '
+                'no scale or misalignment terms)')
+    return (f', {rot["rotations_used"]} of {collected} pose changes used for gyro scale and '
             'misalignment')
 
 

@@ -94,7 +94,8 @@ class CalibratorNode(Node):
         self.model = p.declare('model', 'auto', 'Model to estimate: auto picks offset for a '
                                'single orientation, else field; whole_unit (seed 002) also '
                                'fits gyro scale and misalignment from the pose changes '
-                               'between holds.', choices=_model_choices())
+                               'between holds (as does any seed 002 gyro chosen).',
+                               choices=_model_choices())
         self.order = p.declare('order', 2, 'Highest polynomial order in temperature (reduced '
                                'automatically when the span is small).', lo=0, hi=2)
         self.out_of_range = p.declare('out_of_range', 'clamp',
