@@ -38,15 +38,17 @@ def main():
     run('simulate', 'coldstart.mcap', '--scenario', 'demo', '--seed', '1')
     run('simulate', 'validation.mcap', '--scenario', 'demo-validation', '--seed', '1')
     run('info', 'coldstart.mcap')
+    # the simulated site is at 45 deg latitude: WGS84 gravity there, and earth rotation removed
+    # from the gyro
     run('calibrate', 'coldstart.mcap', '--imu-topic', '/imu/data_raw',
-        '--temperature-topic', '/imu/temperature', '-o', 'calibration.yaml')
+        '--temperature-topic', '/imu/temperature', '--latitude', '45', '-o', 'calibration.yaml')
     run('compensate', 'validation.mcap', '--calibration', 'calibration.yaml',
         '--imu-topic', '/imu/data_raw', '--output-topic', '/imu/data_compensated',
         '-o', 'validation_compensated.mcap')
     print('\nBefore/after on the validation recording (raw, our estimate, and the simulator\'s '
           'true parameters for reference):')
     run('evaluate', 'validation.mcap', '--calibration', 'calibration.yaml',
-        '--calibration', 'validation.mcap.truth.yaml', '--average', '30')
+        '--calibration', 'validation.mcap.truth.yaml', '--latitude', '45', '--average', '30')
     print('\nThe compensated stream itself, as written to validation_compensated.mcap:')
     run('evaluate', 'validation_compensated.mcap', '--imu-topic', '/imu/data_compensated',
         '--average', '30')

@@ -183,7 +183,12 @@ def test_calibrate_evaluate_info_report_commands(tmp_path, capsys):
     after = res['results']['c']['gravity_residual_ug']['max']
     assert after < before / 20
     assert main(['report', cal]) == 0
-    assert 'field_polynomial' in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert 'field_polynomial' in out
+    # small standard deviations keep their significant digits (not printed as '0.')
+    std_b1 = Calibration.load(cal).accel.params()['b1'].std
+    line = next(x for x in out.splitlines() if x.strip().startswith('b1 '))
+    assert f'{std_b1[0]:.2g}' in line and '[0. ' not in line
 
 
 @pytest.fixture(scope='module')

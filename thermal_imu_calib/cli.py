@@ -393,9 +393,11 @@ def format_calibration(cal):
         out.append(f'{name}: {model.kind} {model.meta()}')
         for pname, p in model.params().items():
             v = np.asarray(p.value)
-            val = np.array2string(v.ravel(), precision=4, max_line_width=200)
+            val = np.array2string(v.ravel(), max_line_width=200,
+                                  formatter={'float_kind': lambda x: f'{x:.5g}'})
             sd = '' if p.std is None else '  std ' + np.array2string(
-                np.asarray(p.std).ravel(), precision=2, max_line_width=200)
+                np.asarray(p.std, float).ravel(), max_line_width=200,
+                formatter={'float_kind': lambda x: f'{x:.2g}'})
             out.append(f'  {pname:4s} [{p.unit}] {val}{sd}')
     fit = cal.fit or {}
     for key in ('holds', 'windows', 'faces', 'temperature_span', 'residual_rms',
