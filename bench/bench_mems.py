@@ -101,11 +101,9 @@ def calibrate(recs, model='whole_unit'):
     windows = Windows.concat(parts)
     t_collect = time.perf_counter() - t0
     rec = recs[0]
-    opts = CalibrateOptions(model=model, gravity=rec.gravity, inputs=list(rec.truth.inputs))
-    # the two settings calibrate_windows has no field for yet (see docs/whole_unit.md)
-    opts.latitude = LATITUDE
-    opts.transitions = transitions
-    opts.whole_unit_residual = RESIDUAL
+    opts = CalibrateOptions(model=model, gravity=rec.gravity, inputs=list(rec.truth.inputs),
+                            latitude=LATITUDE, transitions=transitions,
+                            whole_unit_residual=RESIDUAL)
     t1 = time.perf_counter()
     res = calibrate_windows(windows, opts)
     minutes = round(float(sum(r.duration for r in recs)) / 60, 1)

@@ -46,10 +46,10 @@ def _whole_unit_gyro(ctx, rows, acc, accel_model, transitions=None):
     w = ctx.windows.select(rows)
     unit = getattr(o.inputs[ctx.gyro_input[0]], 'unit', 'degC') if k and o.inputs else 'degC'
     return fit_gyro(w, ctx.tg[rows] if k else None, acc[rows],
-                    ctx.gyro_t0 if k else np.zeros(3), latitude=getattr(o, 'latitude', None),
+                    ctx.gyro_t0 if k else np.zeros(3), latitude=o.latitude,
                     transitions=transitions, accel_model=accel_model,
                     accel_input=ctx.accel_input, gyro_input=ctx.gyro_input,
-                    priors=getattr(o, 'whole_unit_priors', None) or Priors(),
+                    priors=o.whole_unit_priors or Priors(),
                     order=o.order if k else 0, input_unit=unit)
 
 
@@ -98,7 +98,7 @@ def default_gyro(ctx, est):
         return poly, report, [POLYNOMIAL_NOTE + f'; {text}']
     acc = est.accel.correct(ctx.windows.accel, ctx.ta)
     fit = _whole_unit_gyro(ctx, np.ones(len(ctx.windows), bool), acc, est.accel,
-                           getattr(ctx.options, 'transitions', None))
+                           ctx.options.transitions or None)
     report['gyro_choice']['model'] = 'whole_unit_gyro'
     report['gyro_whole_unit'] = fit.stats
     notes = [f'gyroscope: seed 002 static model (thermal bias + g-sensitivity C) chosen over '
