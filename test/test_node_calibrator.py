@@ -29,6 +29,7 @@ from thermal_imu_calib.estimation.gyro_fit import (load_transitions,  # noqa: E4
 from thermal_imu_calib.estimation.segments import Windows  # noqa: E402
 from thermal_imu_calib.nodes import common  # noqa: E402
 from thermal_imu_calib.nodes.calibrator import CalibratorNode  # noqa: E402
+from thermal_imu_calib.pipeline import windows_from_columns  # noqa: E402
 
 sim = pytest.importorskip('thermal_imu_calib.sim')
 
@@ -365,3 +366,29 @@ def test_pose_changes_resume_after_restart_and_restart_with_the_timeline(ros, tm
     resp = player.call('calibrate')
     assert resp.success, resp.message
     assert '8 of 8 pose changes used' in resp.message, resp.message
+
+
+def test_collection_of_other_thermal_inputs_is_not_resumed(ros, tmp_path):
+    # windows collected with the die temperature (degC) must not be mixed with windows whose
+    # thermal column is a resonance-frequency proxy (Hz) after a reconfiguration
+    rec = recording(repetitions=1)
+    win = windows_from_columns(rec.imu_chunks(), rec.temperatures.values())
+    assert len(win) > 0
+    node = calibrator(ros, tmp_path)
+    assert json.loads((tmp_path / 'collection.jsonl.inputs.json').read_text()) == {
+        'temperature_topics': ['imu/temperature'], 'temperature_units': ['degC']}
+    ros.remove(node)
+    (tmp_path / 'collection.jsonl').write_text(win.to_jsonl())
+    # same topic count, same unit: resumed
+    node = calibrator(ros, tmp_path)
+    assert len(node.windows) == len(win)
+    ros.remove(node)
+    # same topic count, other unit: set aside with the reason, a new collection
+    node = calibrator(ros, tmp_path, temperature_units=['Hz'])
+    assert len(node.windows) == 0
+    aside = [p for p in os.listdir(tmp_path) if p.startswith('collection.jsonl.incompatible-')]
+    assert any(p.endswith('.inputs.json') for p in aside)
+    assert any(not p.endswith('.inputs.json') and not p.endswith('.transitions') for p in aside)
+    assert json.loads((tmp_path / 'collection.jsonl.inputs.json').read_text())[
+        'temperature_units'] == ['Hz']
+    ros.remove(node)

@@ -192,9 +192,38 @@ class CalibratorNode(Node):
         path = self._collection_path()
         return path + '.transitions' if path else ''
 
+    def _inputs_signature(self):
+        """Return what the collected windows' thermal columns mean (topics and units)."""
+        return {'temperature_topics': list(self.temperature_topics),
+                'temperature_units': list(self.temperature_units)}
+
+    def _write_inputs_signature(self):
+        path = self._collection_path()
+        if path:
+            os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+            _atomic_write(path + '.inputs.json',
+                          json.dumps(self._inputs_signature(), indent=1) + '\n')
+
+    def _signature_mismatch(self, path):
+        """Return why the collection at ``path`` has other thermal inputs (None: same)."""
+        try:
+            with open(path + '.inputs.json') as f:
+                old = json.load(f)
+        except FileNotFoundError:
+            return None                  # written by an older version: only k is checked
+        except (OSError, ValueError) as e:
+            return f'its {path}.inputs.json is unreadable ({e})'
+        new = self._inputs_signature()
+        if old != new:
+            return (f'it was collected with temperature inputs {old.get("temperature_topics")} '
+                    f'in {old.get("temperature_units")}, this node has '
+                    f'{new["temperature_topics"]} in {new["temperature_units"]}')
+        return None
+
     def _resume(self):
         path = self._collection_path()
         if not path or not os.path.exists(path):
+            self._write_inputs_signature()
             return
         with open(path) as f:
             text = f.read()
@@ -205,12 +234,16 @@ class CalibratorNode(Node):
         else:
             why = (None if len(win) == 0 or win.n_inputs == self.k else
                    f'it has {win.n_inputs} temperature inputs, this node {self.k}')
+            why = why or self._signature_mismatch(path)
         if why:
             aside = f'{path}.incompatible-{int(time.time())}'
             os.replace(path, aside)
             tdir = self._transitions_dir()
             if os.path.isdir(tdir):
                 os.replace(tdir, aside + '.transitions')
+            if os.path.exists(path + '.inputs.json'):
+                os.replace(path + '.inputs.json', aside + '.inputs.json')
+            self._write_inputs_signature()
             self.get_logger().error(f'collection file {path} not resumed: {why}; moved to '
                                     f'{aside}, starting a new collection')
             return
@@ -218,6 +251,7 @@ class CalibratorNode(Node):
         self._hold_offset = int(win.hold.max()) + 1 if len(win) else 0
         # rewrite only the complete records, so appends never follow a torn last line
         _atomic_write(path, win.to_jsonl())
+        self._write_inputs_signature()
         self.get_logger().info(f'resumed {len(win)} windows ({len(win.hold_ids)} holds) from '
                                f'{path}')
 
@@ -498,6 +532,7 @@ class CalibratorNode(Node):
             tdir = self._transitions_dir()
             if tdir and os.path.isdir(tdir):
                 shutil.rmtree(tdir)
+            self._write_inputs_signature()
         response.success = True
         response.message = f'cleared {n} windows ({h} holds) and {t} pose changes' + (
             f'; removed {path} and {tdir}/' if path else '')
