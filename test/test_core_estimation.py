@@ -139,6 +139,10 @@ def test_calibrate_refuses_missing_faces_and_names_them(six_face_recording):
     assert 'hold each missing face' in e.value.advice
     r = readiness(w.select(keep))
     assert not r['ready'] and r['next_pose'] == '-x'
+    # six faces, no corner-up holds: the whole-unit model asks for tilted poses
+    r = readiness(w, model='whole_unit')
+    assert r['ready'] and r['mode'] == 'whole_unit' and r['next_pose'] == 'tilted'
+    assert 'misalignment' in r['reason']
     with pytest.raises(CalibrationRefused, match='no stationary segments'):
         calibrate_windows(Windows.empty(1), opts)
 

@@ -191,6 +191,10 @@ def _span_text(cov, units=None):
     return ', '.join(f'{lo:.1f}-{hi:.1f} {u}' for (lo, hi), u in zip(span, units))
 
 
+#: tilted holds the whole-unit model asks for before it calls the collection complete
+WHOLE_UNIT_TILTED = 3
+
+
 def readiness(windows, model='auto', min_holds=1):
     """Say whether ``calibrate_windows`` would succeed now and what to hold next.
 
@@ -211,6 +215,16 @@ def readiness(windows, model='auto', min_holds=1):
                 'next_pose': missing[0], 'coverage': cov}
     # all faces held: suggest the face seen at the fewest temperatures to repeat
     least = min(FACE_NAMES, key=lambda f: cov['faces'][f]['holds'])
+    if model == 'whole_unit':
+        tilted = cov['tilted_holds']
+        if tilted < WHOLE_UNIT_TILTED:
+            return {'ready': True, 'mode': 'whole_unit',
+                    'reason': f'all six faces held; {tilted} of {WHOLE_UNIT_TILTED} corner-up '
+                              '(tilted) holds for the misalignment (it stays at its prior '
+                              'until then)', 'next_pose': 'tilted', 'coverage': cov}
+        return {'ready': True, 'mode': 'whole_unit',
+                'reason': f'all six faces and {tilted} tilted holds', 'next_pose': least,
+                'coverage': cov}
     return {'ready': True, 'mode': 'field', 'reason': 'all six faces held',
             'next_pose': least, 'coverage': cov}
 
