@@ -4,6 +4,7 @@ This is the one estimation entry point used by the CLI (offline logs) and the ca
 node (live segment statistics).
 """
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import List, Optional
 
@@ -248,6 +249,22 @@ class Context:
     t0g: Optional[np.ndarray] = None
 
     @property
+    def gyro_unit(self):
+        """Return the unit of the gyro axes' thermal input ('degC' without inputs)."""
+        if not self.k or not self.options.inputs:
+            return 'degC'
+        return getattr(self.options.inputs[self.gyro_input[0]], 'unit', 'degC')
+
+    def subset(self, rows):
+        """Return the Context of the windows ``rows`` (bool mask).
+
+        Input mapping and references are kept, so a fit on training holds is comparable
+        with the one on all windows.
+        """
+        return dataclasses.replace(self, windows=self.windows.select(rows), ta=self.ta[rows],
+                                   tg=self.tg[rows])
+
+    @property
     def gyro_t0(self):
         """Return the gyro reference input (t0g, or t0 when the gyro input is degC)."""
         return self.t0 if self.t0g is None else self.t0g
@@ -309,6 +326,33 @@ def auto_choice(ctx):
 AUTO_POLICY = [auto_choice]
 
 
+def make_context(windows, options=None):
+    """Build the estimators' Context: input mapping, per-axis inputs, reference, coverage.
+
+    The reference temperature is the prior's, else the middle of the collected range;
+    a prior must be a seed 000 field calibration (CalibrationRefused otherwise).
+    """
+    o = options or CalibrateOptions()
+    k = windows.n_inputs
+    units = input_units(o, k)
+    default_accel, default_gyro = default_input_map(units)
+    accel_input = o.accel_input or default_accel
+    gyro_input = o.gyro_input or default_gyro
+    ta = windows.temp[:, accel_input] if k else np.zeros((len(windows), 3))
+    tg = windows.temp[:, gyro_input] if k else np.zeros((len(windows), 3))
+    prior_model = o.prior.accel if o.prior is not None else None
+    if prior_model is not None and not isinstance(prior_model, FieldPolynomialModel):
+        raise CalibrationRefused('the prior calibration has no seed 000 accelerometer model',
+                                 'pass a field_polynomial calibration as --prior')
+    if prior_model is not None:
+        t0 = prior_model.t0.copy()
+    else:
+        t0 = np.round((ta.min(0) + ta.max(0)) / 2.0, 2) if k else np.zeros(3)
+    return Context(windows, o, k, ta, tg, t0, accel_input, gyro_input, coverage(windows),
+                   distinct_orientations(windows), prior_model,
+                   gyro_reference(units, gyro_input, tg, t0) if k else None)
+
+
 def calibrate_windows(windows, options=None):
     """Estimate a Calibration from stationary windows; raise CalibrationRefused if impossible."""
     o = options or CalibrateOptions()
@@ -320,28 +364,11 @@ def calibrate_windows(windows, options=None):
             'no stationary segments were found',
             f'hold the IMU still for at least {o.min_hold_s:.0f} s in each pose (check the '
             'IMU topic, and that the log contains still periods)')
-    k = windows.n_inputs
-    if len(o.inputs) != k:
-        raise ValueError(f'{len(o.inputs)} temperature inputs named but windows carry {k}')
-    units = input_units(o, k)
-    default_accel, default_gyro = default_input_map(units)
-    accel_input = o.accel_input or default_accel
-    gyro_input = o.gyro_input or default_gyro
-    ta = windows.temp[:, accel_input] if k else np.zeros((len(windows), 3))
-    tg = windows.temp[:, gyro_input] if k else np.zeros((len(windows), 3))
-    # reference temperature: the prior's, else the middle of the collected range
-    prior_model = o.prior.accel if o.prior is not None else None
-    if prior_model is not None and not isinstance(prior_model, FieldPolynomialModel):
-        raise CalibrationRefused('the prior calibration has no seed 000 accelerometer model',
-                                 'pass a field_polynomial calibration as --prior')
-    if k:
-        t0 = (prior_model.t0.copy() if prior_model is not None
-              else np.round((ta.min(0) + ta.max(0)) / 2.0, 2))
-    else:
-        t0 = np.zeros(3) if prior_model is None else prior_model.t0.copy()
-    ctx = Context(windows, o, k, ta, tg, t0, accel_input, gyro_input, coverage(windows),
-                  distinct_orientations(windows), prior_model,
-                  gyro_reference(units, gyro_input, tg, t0) if k else None)
+    if len(o.inputs) != windows.n_inputs:
+        raise ValueError(f'{len(o.inputs)} temperature inputs named but windows carry '
+                         f'{windows.n_inputs}')
+    ctx = make_context(windows, o)
+    accel_input, gyro_input, units = ctx.accel_input, ctx.gyro_input, input_units(o, ctx.k)
     name, why = (o.model, 'requested') if o.model != 'auto' else AUTO_POLICY[0](ctx)
     est = ESTIMATORS[name](ctx)
     notes = list(est.notes)

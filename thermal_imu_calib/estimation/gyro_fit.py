@@ -562,10 +562,7 @@ def fit_gyro_static(windows, axis_inputs, acc, t0, latitude=None, omega1=None, p
         sd = np.sqrt(np.maximum(np.diag(cov), 0))
     except np.linalg.LinAlgError:
         sd = np.full(len(idx), np.nan)
-    std = np.where(free, 0.0, lay.std)
-    std[idx] = sd
-    conv = np.array([rr is not None and rr.startswith(CONVENTION) for rr in lay.reason])
-    std[conv] = 0.0
+    std = lay.posterior_std(free, idx, sd)
     offset = np.stack([lay.get(p, f'cw{j}') for j in range(no + 1)])
     rw = r * sig
     holds_bad = []

@@ -18,8 +18,6 @@ With pose changes (the CLI and the calibrator node collect them) the seed 002 fi
 estimates the gyro scale and misalignment from the rotations.
 """
 
-import dataclasses
-
 import numpy as np
 
 #: WGS84 earth rotation rate, rad/s
@@ -44,30 +42,29 @@ def _whole_unit_gyro(ctx, rows, acc, accel_model, transitions=None):
     from .whole_unit_fit import Priors
     o, k = ctx.options, ctx.k
     w = ctx.windows.select(rows)
-    unit = getattr(o.inputs[ctx.gyro_input[0]], 'unit', 'degC') if k and o.inputs else 'degC'
     return fit_gyro(w, ctx.tg[rows] if k else None, acc[rows],
                     ctx.gyro_t0 if k else np.zeros(3), latitude=o.latitude,
                     transitions=transitions, accel_model=accel_model,
                     accel_input=ctx.accel_input, gyro_input=ctx.gyro_input,
                     priors=o.whole_unit_priors or Priors(),
-                    order=o.order if k else 0, input_unit=unit)
+                    order=o.order if k else 0, input_unit=ctx.gyro_unit)
 
 
-def heldout_gyro(ctx, accel_model):
-    """Return ({'polynomial': (m,), 'whole_unit': (m,)} held-out still errors, folds)."""
+def heldout_gyro(ctx, accel_model, acc):
+    """Return ({'polynomial': (m,), 'whole_unit': (m,)} held-out still errors, folds).
+
+    ``acc``: (m, 3) specific force per window corrected by ``accel_model``.
+    """
     from .calibrate import _gyro_bias
     from .select import _hold_folds, clamp_to_training
     w, o = ctx.windows, ctx.options
     folds, n = _hold_folds(w)
-    acc = accel_model.correct(w.accel, ctx.ta)
     out = {'polynomial': np.zeros(len(w)), 'whole_unit': np.zeros(len(w))}
     for f in range(n):
         test = folds == f
         train = ~test
         tg = clamp_to_training(ctx.tg, w, train, ctx.gyro_input, o.range_margin)
-        sub = dataclasses.replace(ctx, windows=w.select(train), ta=ctx.ta[train],
-                                  tg=ctx.tg[train])
-        poly, _ = _gyro_bias(sub)
+        poly, _ = _gyro_bias(ctx.subset(train))
         wu = _whole_unit_gyro(ctx, train, acc, accel_model).model
         out['polynomial'][test] = still_rate_error(poly.correct(w.gyro[test], tg[test]))
         out['whole_unit'][test] = still_rate_error(
@@ -78,16 +75,16 @@ def heldout_gyro(ctx, accel_model):
 def default_gyro(ctx, est):
     """Return (gyro model, report, notes) for an Estimate without a gyro model."""
     from .calibrate import _gyro_bias
-    from .select import _hold_folds
+    from .select import _hold_folds, _weighted_rms
     poly, rep = _gyro_bias(ctx)
     usable = (est.accel is not None and est.temperature_filter is None
               and ctx.n_orientations >= MIN_ORIENTATIONS
               and not ctx.coverage.get('missing') and _hold_folds(ctx.windows)[1] >= 2)
     if not usable:
         return poly, {'gyro_offset': rep}, [POLYNOMIAL_NOTE]
-    res, n_folds = heldout_gyro(ctx, est.accel)
-    wt = ctx.windows.n
-    score = {k: float(np.sqrt(np.sum(wt * v * v) / np.sum(wt))) for k, v in res.items()}
+    acc = est.accel.correct(ctx.windows.accel, ctx.ta)
+    res, n_folds = heldout_gyro(ctx, est.accel, acc)
+    score = {k: _weighted_rms(v, ctx.windows.n) for k, v in res.items()}
     report = {'gyro_offset': rep, 'gyro_choice': {
         'heldout_still_error_rad_s': score, 'folds': n_folds, 'margin': GYRO_MARGIN}}
     text = (f'held-out still-gyro error | |w| - earth rate | RMS: bias polynomial '
@@ -96,7 +93,6 @@ def default_gyro(ctx, est):
     if score['whole_unit'] >= (1 - GYRO_MARGIN) * score['polynomial']:
         report['gyro_choice']['model'] = 'polynomial'
         return poly, report, [POLYNOMIAL_NOTE + f'; {text}']
-    acc = est.accel.correct(ctx.windows.accel, ctx.ta)
     fit = _whole_unit_gyro(ctx, np.ones(len(ctx.windows), bool), acc, est.accel,
                            ctx.options.transitions or None)
     report['gyro_choice']['model'] = 'whole_unit_gyro'

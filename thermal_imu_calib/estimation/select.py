@@ -44,12 +44,11 @@ from ..input_units import is_temperature
 from ..thermal_input import ThermalFilter
 from ..calibration import Calibration
 from .calibrate import (AUTO_POLICY, CalibrateOptions, CalibrationRefused,
-                        check_faces_up_and_down, Context, default_input_map, Estimate,
-                        estimate_field, gyro_reference, input_margins, input_units, ORDER_SPAN,
-                        register_estimator, valid_range)
+                        check_faces_up_and_down, Estimate, estimate_field, input_margins,
+                        input_units, make_context, ORDER_SPAN, register_estimator, valid_range)
 from .field_estimator import fit_field_model
 from .offset_fit import fit_offset_model
-from .segments import coverage, distinct_orientations, face_of
+from .segments import face_of
 from .rvm_fit import fit_rvm_bias_scale, fit_rvm_offset
 from .thermal_lag import cv_groups, estimate_tau, lagged_axis_temperatures, tau_or_none
 
@@ -110,26 +109,6 @@ def _weighted_mean(x, n):
 
 def _rms(x):
     return float(np.sqrt(np.mean(np.square(x)))) if np.size(x) else float('nan')
-
-
-def make_context(windows, options=None):
-    """Build the estimators' Context for windows, as ``calibrate_windows`` does."""
-    o = options or CalibrateOptions()
-    k = windows.n_inputs
-    units = input_units(o, k)
-    default_accel, default_gyro = default_input_map(units)
-    accel_input = o.accel_input or default_accel
-    gyro_input = o.gyro_input or default_gyro
-    ta = windows.temp[:, accel_input] if k else np.zeros((len(windows), 3))
-    tg = windows.temp[:, gyro_input] if k else np.zeros((len(windows), 3))
-    prior = o.prior.accel if o.prior is not None else None
-    if prior is not None:
-        t0 = prior.t0.copy()
-    else:
-        t0 = np.round((ta.min(0) + ta.max(0)) / 2.0, 2) if k else np.zeros(3)
-    return Context(windows, o, k, ta, tg, t0, accel_input, gyro_input, coverage(windows),
-                   distinct_orientations(windows), prior,
-                   gyro_reference(units, gyro_input, tg, t0) if k else None)
 
 
 def calibration_from(ctx, est):
@@ -463,8 +442,7 @@ def heldout_whole_unit(ctx):
         train = ~test
         ta = clamp_to_training(ctx.ta, w, train, ctx.accel_input, o.range_margin)
         tg = clamp_to_training(ctx.tg, w, train, ctx.gyro_input, o.range_margin)
-        sub = dataclasses.replace(ctx, windows=w.select(train), ta=ctx.ta[train],
-                                  tg=ctx.tg[train])
+        sub = ctx.subset(train)
         fm = _field_fit(ctx, sub.windows, sub.ta, refine=False).model
         gm, _ = _gyro_bias(sub)
         wu = fit_whole_unit_context(ctx, train)

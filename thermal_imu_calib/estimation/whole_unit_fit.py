@@ -153,6 +153,18 @@ class Layout:
                 return name, i - sl.start
         raise IndexError(i)
 
+    def posterior_std(self, free, idx, sd):
+        """Return the per-element standard deviation of a fit over the ``free`` elements.
+
+        ``sd`` at the indices ``idx``, the prior std where fixed, 0 for the other free
+        elements and for convention entries.
+        """
+        std = np.where(free, 0.0, self.std)
+        std[idx] = sd
+        conv = np.array([r is not None and r.startswith(CONVENTION) for r in self.reason])
+        std[conv] = 0.0
+        return std
+
     def masks(self, free):
         """Return name -> per-element 'estimated' bool array for a free mask."""
         return {n: free[self.slices[n]].reshape(self.shapes[n]).copy() for n in self.names}
@@ -467,10 +479,7 @@ def fit_whole_unit_accel(windows, axis_temps, gravity, t0, priors=None, order=2,
         sd = np.sqrt(np.maximum(np.diag(cov), 0))
     except np.linalg.LinAlgError:
         sd = np.full(len(idx), np.nan)
-    std = np.where(free, 0.0, lay.std)
-    std[idx] = sd
-    conv = np.array([rr is not None and rr.startswith(CONVENTION) for rr in lay.reason])
-    std[conv] = 0.0
+    std = lay.posterior_std(free, idx, sd)
     offset, scl, m0, m1, m2, m3 = _unpack(lay, p, no, ns)
     est = lay.masks(free)
     fixed = lay.reasons(free)
@@ -655,13 +664,10 @@ def fit_whole_unit_context(ctx, rows=None, transitions=None):
     if ctx.prior_model is not None:
         priors.accel_mean = prior_from_field_model(ctx.prior_model)
     t0g = ctx.t0 if k and list(ctx.gyro_input) == list(ctx.accel_input) else None
-    unit = 'degC'
-    if k and o.inputs:
-        unit = getattr(o.inputs[ctx.gyro_input[0]], 'unit', 'degC')
     return fit_whole_unit(w.select(rows), o.gravity, ctx.ta[rows] if k else None, ctx.t0,
                           ctx.tg[rows] if k else None, t0g, o.latitude,
                           transitions, priors, o.order if k else 0, ctx.accel_input,
-                          ctx.gyro_input, o.whole_unit_residual, unit)
+                          ctx.gyro_input, o.whole_unit_residual, ctx.gyro_unit)
 
 
 # ------------------------------------------------------------------------ estimator
