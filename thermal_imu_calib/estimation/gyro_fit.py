@@ -222,9 +222,6 @@ class MotionCollector:
         if len(t) > 1 and self._dt is None:
             self._dt = float(np.median(np.diff(t)))
         self._ring.append(t, gyro, accel, temps)
-        if self.lookback_s is None and self.det.config is not None:
-            c = self.det.config
-            self.lookback_s = c.min_hold_s + 2 * c.guard_s + 6 * c.block_s + 2.0
         if len(t) and self.lookback_s is not None:
             self._ring.trim_before(t[-1] - self.lookback_s - (t[-1] - t[0]))
         if self._tape is not None and not self._frozen:
@@ -292,6 +289,9 @@ class MotionCollector:
                                            tm.mean(0) if len(tm) else np.zeros(self.k)))
 
     def _after_chunk(self):
+        if self.lookback_s is None and self.det.config is not None:
+            c = self.det.config
+            self.lookback_s = c.min_hold_s + 2 * c.guard_s + 6 * c.block_s + 2.0
         if self._tape is None:
             return
         st = self.det.status()
