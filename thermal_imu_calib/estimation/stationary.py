@@ -426,3 +426,36 @@ def detect(chunks, config=None, n_inputs=0):
         parts.append(det.update(ch.imu.t, ch.imu.accel, ch.imu.gyro, ch.temps))
     parts.append(det.finish())
     return Windows.concat(parts) if any(len(p) for p in parts) else Windows.empty(n_inputs)
+
+
+def format_settings(settings):
+    """Render derived detector settings (``StationaryDetector.settings``) in one line."""
+    if not settings:
+        return 'detector: no data'
+    s = settings
+    given = set(s.get('given', []))
+
+    def mark(k):
+        return '' if k in given else '*'
+
+    lsb = ', '.join(f'{name} LSB {s[k]:.3g}' for name, k in (('accel', 'accel_lsb'),
+                                                            ('gyro', 'gyro_lsb')) if s.get(k))
+    noise = ''
+    if 'accel_noise_std' in s:
+        noise = (f', noise floor {s["accel_noise_std"]:.3g} m/s^2 / '
+                 f'{s["gyro_noise_std"]:.3g} rad/s')
+    return (f'detector ({s["rate_hz"]:.4g} Hz{", " + lsb if lsb else ""}{noise}): block '
+            f'{s["block_samples"]} samples = {s["block_s"]:.3g} s{mark("block_s")}, min hold '
+            f'{s["min_hold_s"]:.3g} s{mark("min_hold_s")}, guard {s["guard_s"]:.3g} s'
+            f'{mark("guard_s")}, window {s["window_s"]:.3g} s{mark("window_s")}, variance '
+            f'factors {s["accel_factor"]:.3g}{mark("accel_factor")}/{s["gyro_factor"]:.3g}'
+            f'{mark("gyro_factor")}, rotation {s["rotation_dps"]:g} deg/s  (* derived)')
+
+
+def format_holds(holds):
+    """Render hold records (``StationaryDetector.holds``) as a table for people."""
+    out = ['  hold   start [s]  duration [s]  face     tilt [deg]  stillness']
+    for h in holds:
+        out.append(f'  {h["hold"]:4d}  {h["start"]:10.2f}  {h["duration"]:12.2f}  '
+                   f'{h["face"]:7s}  {h["tilt_deg"]:10.1f}  {h["stillness"]:9.2f}')
+    return '\n'.join(out)
