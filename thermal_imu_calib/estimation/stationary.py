@@ -49,6 +49,11 @@ MIN_BLOCK_N = 5
 #: times VARIANCE_MARGIN (non-white noise, tremor) times the noise floor
 BLOCK_FALSE_ALARM = 1e-3
 VARIANCE_MARGIN = 3.0
+#: until this many blocks were seen, the open blocks are re-scored on every update
+MATURE_BLOCKS = 200
+#: isolated false alarms: runs this short and this marginal between still blocks are still
+BRIDGE_BLOCKS = 2
+BRIDGE_SCORE = 4.0
 #: quiet-block gyro means kept for the bias reference
 BIAS_BLOCKS = 2000
 #: block variances kept for the noise floor
@@ -254,7 +259,7 @@ class StationaryDetector:
     def status(self):
         """Return a dict for progress reporting: still now, open-hold seconds, noise floor."""
         ob = self._open
-        still = self._score < 1.0 if len(ob) else np.zeros(0, bool)
+        still = _bridge(self._score) if len(ob) else np.zeros(0, bool)
         run = 0.0
         if len(still) and still[-1]:
             i = len(still) - 1
@@ -340,11 +345,15 @@ class StationaryDetector:
         b = self._open
         if len(b) == 0:
             return Windows.empty(self.k)
+        if len(self._var_a) < MATURE_BLOCKS:
+            # the noise floor is still settling: score the whole open pool again
+            self._score = np.zeros(0)
+            self._bias.clear()
         if len(self._score) < len(b):
             start = len(self._score)
             self._score = np.r_[self._score, np.zeros(len(b) - start)]
             self._scores(b, start)
-        still = self._score < 1.0
+        still = _bridge(self._score)
         edges = np.diff(np.r_[0, still.astype(int), 0])
         run_starts = np.flatnonzero(edges == 1)
         run_ends = np.flatnonzero(edges == -1)
@@ -410,6 +419,22 @@ class StationaryDetector:
             t0=b.t0[starts], t1=b.t1[np.r_[starts[1:], len(b)] - 1], n=n.astype(int),
             accel=wmean(b.am), gyro=wmean(b.gm),
             accel_var=wmean(b.av), gyro_var=wmean(b.gv), temp=temp, temp_rate=rate)
+
+
+def _bridge(score):
+    """Return still = score < 1, with short marginal runs between still blocks bridged.
+
+    A run of at most ``BRIDGE_BLOCKS`` blocks scoring below ``BRIDGE_SCORE`` with still
+    blocks on both sides is a false alarm of the block test (heavy-tailed or coarsely
+    quantised noise; over an hour of blocks a few are expected), not motion.
+    """
+    still = score < 1.0
+    edges = np.diff(np.r_[0, (~still).astype(int), 0])
+    for s, e in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)):
+        if (s > 0 and e < len(score) and e - s <= BRIDGE_BLOCKS
+                and np.max(score[s:e]) < BRIDGE_SCORE):
+            still[s:e] = True
+    return still
 
 
 def tilt_deg(accel_mean):
