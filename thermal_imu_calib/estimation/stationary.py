@@ -5,7 +5,8 @@ sample rate and the quantisation step (LSB) of each sensor, and derives
 
 * the *block*: ``block_n`` samples (about ``BLOCK_TARGET_S``, at least ``MIN_BLOCK_N``), so
   a 1 Hz chamber log and a 2 kHz IMU both get blocks with a defined variance;
-* minimum hold, guard and window lengths from the block length (a 1 s hold at >= 50 Hz);
+* minimum hold, guard and window lengths from the block length (a 1 s hold at >= 50 Hz;
+  the guard grows to GUARD_FRACTION of a long still run, at most GUARD_MAX_S);
 * variance thresholds from the chi-square spread of a block variance with that many
   samples, relative to the noise floor (the ``noise_quantile`` of all block variances seen
   so far, corrected for the chi-square bias, never below the quantisation noise LSB^2/12),
@@ -51,6 +52,9 @@ BLOCK_FALSE_ALARM = 1e-3
 VARIANCE_MARGIN = 3.0
 #: until this many blocks were seen, the open blocks are re-scored on every update
 MATURE_BLOCKS = 200
+#: a derived guard is this fraction of the still run, between guard_s and GUARD_MAX_S
+GUARD_FRACTION = 0.1
+GUARD_MAX_S = 1.0
 #: isolated false alarms: runs this short and this marginal between still blocks are still
 BRIDGE_BLOCKS = 2
 BRIDGE_SCORE = 4.0
@@ -380,8 +384,13 @@ class StationaryDetector:
         c = self.config
         if len(b) == 0:
             return None
-        t_lo = b.t0[0] + c.guard_s
-        t_hi = b.t1[-1] - c.guard_s
+        guard = c.guard_s
+        if 'guard_s' not in self.derived['given']:
+            # derived guard: grows with the hold (slow tails of a pose change) up to GUARD_MAX_S
+            guard = min(max(guard, GUARD_FRACTION * (b.t1[-1] - b.t0[0])),
+                        max(guard, GUARD_MAX_S))
+        t_lo = b.t0[0] + guard
+        t_hi = b.t1[-1] - guard
         keep = (b.t0 >= t_lo - 1e-9) & (b.t1 <= t_hi + 1e-9)
         b = b.take(keep)
         score = score[keep]
