@@ -110,7 +110,7 @@ class DetectorConfig:
         dof = 3 * (block_n - 1)
         factor = VARIANCE_MARGIN * float(chi2.ppf(1 - BLOCK_FALSE_ALARM, dof)
                                          / chi2.ppf(self.noise_quantile, dof))
-        auto = {'block_s': block_s, 'min_hold_s': max(1.0, 8 * block_s),
+        auto = {'block_s': block_s, 'min_hold_s': max(0.5, 5 * block_s),
                 'guard_s': max(0.2, 2 * block_s), 'window_s': max(5.0, 2 * block_s),
                 'accel_factor': factor, 'gyro_factor': factor}
         auto.update({k: v for k, v in given.items() if k in DERIVED})
