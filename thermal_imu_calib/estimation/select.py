@@ -488,8 +488,8 @@ def heldout_whole_unit(ctx):
 def select_whole_unit(ctx, sel):
     """Return ``sel`` or a whole-unit Selection when it wins held out (see the docstring).
 
-    Whatever the margins, a candidate whose held-out |a| - g is more than ``KEEP_RATIO``
-    times the other's is never kept.
+    Whatever the margins, a candidate whose held-out |a| - g or still-gyro |w| is more than
+    ``KEEP_RATIO`` times the other's is never kept.
     """
     if sel.model != 'field' or sel.groups != 'holds':
         return sel
@@ -510,11 +510,12 @@ def select_whole_unit(ctx, sel):
         sel.table[f'{k} |a|-g'] = {'residual_ug': acc[k]}
         sel.table[f'{k} |w| still'] = {'residual_rad_s': gyr[k]}
     sel.seconds += time.perf_counter() - t_start
-    best = min(acc.values())
-    kept = [k for k in acc if acc[k] <= KEEP_RATIO * best]
+    kept = [k for k in acc if acc[k] <= KEEP_RATIO * min(acc.values())
+            and gyr[k] <= KEEP_RATIO * min(gyr.values())]
     if len(kept) == 1:
         wins = kept[0] == 'whole_unit'
-        why = f'the other is more than {KEEP_RATIO:g}x worse held out'
+        why = (f'{"field" if wins else "whole_unit"} is more than {KEEP_RATIO:g}x worse held '
+               'out on |a|-g or |w|')
     else:
         wins = (tilted >= WHOLE_UNIT_MIN_TILTED
                 and acc['whole_unit'] < (1 - WHOLE_UNIT_MARGIN) * acc['field']
