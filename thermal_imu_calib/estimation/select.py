@@ -427,14 +427,16 @@ def _weighted_rms(x, n):
 def _whole_unit_folds(windows):
     """Return (fold per window, number of folds) for the whole-unit check.
 
-    ``_hold_folds`` when every face was held at least ``WHOLE_UNIT_MIN_FOLDS`` times; else
+    ``_hold_folds`` when every face was held at least twice; else (a face held once)
     each hold that can leave without taking a face's last hold away (a repeated face, or a
     tilted pose) is a fold of its own (at most ``MULTI_FOLDS``, round robin), and the other
     holds (fold -1) always train. A short hand-held session (six faces once, a few repeats
     and tilts) is then still compared held out.
     """
     folds, n = _hold_folds(windows)
-    if n >= WHOLE_UNIT_MIN_FOLDS:
+    if n >= 2:
+        # every face twice or more: the face folds (fewer than WHOLE_UNIT_MIN_FOLDS of them
+        # skip the check, see there)
         return folds, n
     ids, means = windows.hold_means()
     faces = [face_of(m) for m in means]
@@ -488,16 +490,17 @@ def heldout_whole_unit(ctx):
 def select_whole_unit(ctx, sel):
     """Return ``sel`` or a whole-unit Selection when it wins held out (see the docstring).
 
-    Whatever the margins, a candidate whose held-out |a| - g or still-gyro |w| is more than
-    ``KEEP_RATIO`` times the other's is never kept.
+    Whatever the margins, a candidate whose held-out |a| - g is more than ``KEEP_RATIO``
+    times the other's is never kept. Without a temperature input the margin is 0.
     """
     if sel.model != 'field' or sel.groups != 'holds':
         return sel
     ids, means = ctx.windows.hold_means()
     tilted = sum(face_of(m) == 'tilted' for m in means)
-    if _whole_unit_folds(ctx.windows)[1] < 2:
-        sel.reason += ('; whole-unit check skipped: no hold can be left out without losing '
-                       'a face')
+    folds, n_folds = _whole_unit_folds(ctx.windows)
+    if n_folds < 2 or (folds.min() >= 0 and n_folds < WHOLE_UNIT_MIN_FOLDS):
+        sel.reason += (f'; whole-unit check skipped: {n_folds} hold folds (the held-out score '
+                       'would be dominated by extrapolation)')
         return sel
     t_start = time.perf_counter()
     res, n_folds = heldout_whole_unit(ctx)
@@ -510,19 +513,21 @@ def select_whole_unit(ctx, sel):
         sel.table[f'{k} |a|-g'] = {'residual_ug': acc[k]}
         sel.table[f'{k} |w| still'] = {'residual_rad_s': gyr[k]}
     sel.seconds += time.perf_counter() - t_start
-    kept = [k for k in acc if acc[k] <= KEEP_RATIO * min(acc.values())
-            and gyr[k] <= KEEP_RATIO * min(gyr.values())]
+    kept = [k for k in acc if acc[k] <= KEEP_RATIO * min(acc.values())]
+    # no temperature input: both models are constant, whole_unit only adds the
+    # misalignment the tilted holds observe, so it needs no margin
+    margin = WHOLE_UNIT_MARGIN if ctx.k else 0.0
     if len(kept) == 1:
         wins = kept[0] == 'whole_unit'
         why = (f'{"field" if wins else "whole_unit"} is more than {KEEP_RATIO:g}x worse held '
-               'out on |a|-g or |w|')
+               'out on |a|-g')
     else:
         wins = (tilted >= WHOLE_UNIT_MIN_TILTED
-                and acc['whole_unit'] < (1 - WHOLE_UNIT_MARGIN) * acc['field']
+                and acc['whole_unit'] < (1 - margin) * acc['field']
                 and gyr['whole_unit'] <= (1 + WHOLE_UNIT_GYRO_SLACK) * gyr['field'])
-        why = (f'whole_unit {100 * WHOLE_UNIT_MARGIN:.0f} % better on |a|-g with the gyro no '
+        why = (f'whole_unit {100 * margin:.0f} % better on |a|-g with the gyro no '
                f'worse and >= {WHOLE_UNIT_MIN_TILTED} tilted holds' if wins else
-               f'whole_unit not {100 * WHOLE_UNIT_MARGIN:.0f} % better on |a|-g with the gyro '
+               f'whole_unit not {100 * margin:.0f} % better on |a|-g with the gyro '
                f'no worse, or fewer than {WHOLE_UNIT_MIN_TILTED} tilted holds')
     text = (f'; candidates compared held out: field, whole_unit ({tilted} of {len(ids)} '
             f'holds off the six faces, {n_folds} folds): |a|-g RMS field {acc["field"]:.1f} '

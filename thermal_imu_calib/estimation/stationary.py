@@ -472,8 +472,8 @@ def format_settings(settings):
     def mark(k):
         return '' if k in given else '*'
 
-    lsb = ', '.join(f'{name} LSB {s[k]:.3g}' for name, k in (('accel', 'accel_lsb'),
-                                                            ('gyro', 'gyro_lsb')) if s.get(k))
+    pairs = (('accel', 'accel_lsb'), ('gyro', 'gyro_lsb'))
+    lsb = ', '.join(f'{name} LSB {s[k]:.3g}' for name, k in pairs if s.get(k))
     noise = ''
     if 'accel_noise_std' in s:
         noise = (f', noise floor {s["accel_noise_std"]:.3g} m/s^2 / '
