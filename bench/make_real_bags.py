@@ -39,9 +39,9 @@ def bmi270_rows(path):
 def main(out):
     """Write the logs into ``out``."""
     os.makedirs(out, exist_ok=True)
-    s = read_imucal_session(os.path.join(FIX, 'imucal_ferraris', 'example_ferraris_session.csv.gz'),
-                            os.path.join(FIX, 'imucal_ferraris',
-                                         'example_ferraris_session_list.json'))
+    fer = os.path.join(FIX, 'imucal_ferraris')
+    s = read_imucal_session(os.path.join(fer, 'example_ferraris_session.csv.gz'),
+                            os.path.join(fer, 'example_ferraris_session_list.json'))
     write_columns(os.path.join(out, 'ferraris.mcap'), '/imu', s.imu, overwrite=True)
     m = read_mpu6050_csv(os.path.join(FIX, 'mpu6050_tomisuarez',
                                       'example_data_calibration.csv.gz'))

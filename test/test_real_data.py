@@ -16,6 +16,7 @@ from thermal_imu_calib.io.csv_logs import (read_imucal_annotated, read_imucal_se
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, 'bench'))
 import bench_real_data as R  # noqa: E402
+from make_real_bags import bmi270_rows  # noqa: E402
 
 FER = R.FERRARIS
 MPU = R.MPU
@@ -189,17 +190,7 @@ def test_default_detector_finds_the_mpu6050_static_intervals():
 
 
 def _bmi270(name):
-    rows = []
-    with open(os.path.join(ROOT, 'test', 'fixtures', 'real', 'bmi270', name),
-              errors='replace') as f:
-        for line in f:
-            vals = line.strip().split(',')
-            if len(vals) == 7:
-                try:
-                    rows.append([float(v) for v in vals])
-                except ValueError:
-                    pass
-    return np.asarray(rows)
+    return bmi270_rows(os.path.join(ROOT, 'test', 'fixtures', 'real', 'bmi270', name))
 
 
 @pytest.mark.parametrize('name', ['BMI_270_cold_test_.csv', 'BMI_270_hot_test.csv'])

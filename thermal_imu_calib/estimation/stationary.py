@@ -422,7 +422,7 @@ class StationaryDetector:
         self.holds.append({'hold': hold, 'start': float(b.t0[0]),
                            'duration': float(b.t1[-1] - b.t0[0]), 'face': face_of(mean_a),
                            'tilt_deg': tilt_deg(mean_a),
-                           'stillness': float(1.0 - np.quantile(score, 0.95))})
+                           'stillness': float(np.clip(1.0 - np.quantile(score, 0.95), 0, 1))})
         return Windows(
             hold=np.full(m, hold, int),
             t0=b.t0[starts], t1=b.t1[np.r_[starts[1:], len(b)] - 1], n=n.astype(int),
