@@ -497,6 +497,8 @@ def select_whole_unit(ctx, sel):
         return sel
     ids, means = ctx.windows.hold_means()
     tilted = sum(face_of(m) == 'tilted' for m in means)
+    if ctx.k and tilted < WHOLE_UNIT_MIN_TILTED:
+        return sel          # misalignment unobservable: whole_unit is not a candidate
     folds, n_folds = _whole_unit_folds(ctx.windows)
     if n_folds < 2 or (folds.min() >= 0 and n_folds < WHOLE_UNIT_MIN_FOLDS):
         sel.reason += (f'; whole-unit check skipped: {n_folds} hold folds (the held-out score '
