@@ -24,7 +24,8 @@ A block is *moving* when any of these holds:
   *and* by more than gravity turned at ``rotation_dps`` over one block (a slow tilt).
 
 Thermal drift inside a hold moves the means by far less than either bound, so only motion
-splits a hold. Runs of still blocks become *holds*; ``guard_s`` is trimmed from both ends,
+splits a hold. Runs of still blocks become *holds*; ``guard_s`` is trimmed from both ends
+(not where the log itself starts or ends),
 shorter ones than ``min_hold_s`` are dropped, and each hold is cut into windows of
 ``window_s`` (estimation.segments.Windows). ``holds`` keeps one record per hold (start,
 duration, stillness score). Memory stays small for hours of data, and the same class runs
@@ -53,7 +54,7 @@ VARIANCE_MARGIN = 3.0
 #: until this many blocks were seen, the open blocks are re-scored on every update
 MATURE_BLOCKS = 200
 #: a derived guard is this fraction of the still run, between guard_s and GUARD_MAX_S
-GUARD_FRACTION = 0.1
+GUARD_FRACTION = 0.02
 GUARD_MAX_S = 1.0
 #: isolated false alarms: runs this short and this marginal between still blocks are still
 BRIDGE_BLOCKS = 2
@@ -186,6 +187,7 @@ class StationaryDetector:
         self._bias = deque(maxlen=BIAS_BLOCKS)
         self._lsb_var = (0.0, 0.0)
         self._open = _Blocks(n_inputs)
+        self._log_t0 = None         # start of the first block (no guard at the log start)
         self._score = np.zeros(0)   # motion score of the open blocks (cached)
         self._next_hold = 0
         self.holds = []             # one record per emitted hold
@@ -308,6 +310,8 @@ class StationaryDetector:
         blk.tm = temps.reshape(m, n, self.k).mean(1)
         self._var_a.extend(blk.av.sum(1).tolist())
         self._var_g.extend(blk.gv.sum(1).tolist())
+        if self._log_t0 is None:
+            self._log_t0 = blk.t0[0]
         self._open.append(blk)
 
     def _scores(self, b, start):
@@ -366,7 +370,9 @@ class StationaryDetector:
         for s, e in zip(run_starts, run_ends):
             if not (e < len(b) or final):
                 break
-            out.append(self._make_hold(b.take(slice(s, e)), self._score[s:e]))
+            # no guard where the log starts or ends: no pose change borders the run there
+            edge = (s == 0 and b.t0[0] == self._log_t0, final and e == len(b))
+            out.append(self._make_hold(b.take(slice(s, e)), self._score[s:e], edge))
             consumed = e
         if final:
             consumed = len(b)
@@ -380,7 +386,7 @@ class StationaryDetector:
         parts = [w for w in out if w is not None]
         return Windows.concat(parts) if parts else Windows.empty(self.k)
 
-    def _make_hold(self, b, score):
+    def _make_hold(self, b, score, edge=(False, False)):
         c = self.config
         if len(b) == 0:
             return None
@@ -389,8 +395,8 @@ class StationaryDetector:
             # derived guard: grows with the hold (slow tails of a pose change) up to GUARD_MAX_S
             guard = min(max(guard, GUARD_FRACTION * (b.t1[-1] - b.t0[0])),
                         max(guard, GUARD_MAX_S))
-        t_lo = b.t0[0] + guard
-        t_hi = b.t1[-1] - guard
+        t_lo = b.t0[0] + (0.0 if edge[0] else guard)
+        t_hi = b.t1[-1] - (0.0 if edge[1] else guard)
         keep = (b.t0 >= t_lo - 1e-9) & (b.t1 <= t_hi + 1e-9)
         b = b.take(keep)
         score = score[keep]
