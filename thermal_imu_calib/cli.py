@@ -1,6 +1,6 @@
 """``thermal-imu-calib``: the library on recorded logs.
 
-Subcommands: calibrate, compensate, evaluate, simulate, info, report. Bad input gets one
+Subcommands: calibrate, compensate, evaluate, simulate, info, report, noise. Bad input gets one
 line on stderr saying what was wrong and what to do, and exit status 2; ``--debug`` shows
 the traceback instead.
 """
@@ -20,6 +20,7 @@ from .estimation.stationary import DetectorConfig
 from .gravity import resolve_gravity
 from .input_units import parse_unit_map
 from .io.bag import LogError
+from .report import cli as report_cli
 
 EXIT_USAGE = 2
 
@@ -162,8 +163,11 @@ def build_parser():
     p = sub.add_parser('info', help='topics, counts, rates, span, temperature range')
     p.add_argument('input', metavar='INPUT')
 
-    p = sub.add_parser('report', help='print a calibration file for people')
+    p = sub.add_parser('report', help='print a calibration file for people; --html/--png-dir '
+                                      'plot it')
     p.add_argument('calibration', metavar='CALIB.yaml')
+    report_cli.add_report_args(p)
+    report_cli.add_noise_parser(sub)
     return ap
 
 
@@ -367,10 +371,8 @@ def cmd_info(args):
 
 
 def cmd_report(args):
-    """Run the report subcommand."""
-    cal = Calibration.load(args.calibration)
-    print(format_calibration(cal))
-    return 0
+    """Run the report subcommand (text; HTML/PNG with --html/--png-dir)."""
+    return report_cli.cmd_report(args, format_calibration, UserError)
 
 
 def format_calibration(cal):
@@ -411,7 +413,7 @@ def format_calibration(cal):
 
 COMMANDS = {'calibrate': cmd_calibrate, 'compensate': cmd_compensate,
             'evaluate': cmd_evaluate, 'simulate': cmd_simulate, 'info': cmd_info,
-            'report': cmd_report}
+            'report': cmd_report, 'noise': lambda a: report_cli.cmd_noise(a, UserError)}
 
 
 def main(argv=None):
