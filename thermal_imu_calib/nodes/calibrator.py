@@ -128,6 +128,10 @@ class CalibratorNode(Node):
             'max_transition_s', 30.0, 'Longest pose change kept (s, end of one hold to the '
             'start of the next); longer ones are dropped and counted.', lo=1.0, hi=600.0,
             **ro)
+        p.declare(
+            'report', True, 'After each successful ~/calibrate also write an HTML report '
+            '(<calibration_file>.report.html, figures embedded) next to the calibration file, '
+            'on a background thread.')
         in_depth = p.declare('input_depth', 1000, 'QoS history depth (best effort) of the '
                              'input subscriptions.', lo=1, hi=100000, **ro)
         period = p.declare('progress_period', 1.0, 'Seconds between ~/progress and '
@@ -140,6 +144,7 @@ class CalibratorNode(Node):
         self._busy = threading.Lock()    # held while an estimation runs
         self._busy_since = 0.0
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix='estimation')
+        self._reporter = ThreadPoolExecutor(max_workers=1, thread_name_prefix='report')
         self._result = None              # last CalibrationResult
         self._last_message = ''
         self._seen_frame = ''
@@ -496,6 +501,8 @@ class CalibratorNode(Node):
             return False, f'failed: estimation error {e.__class__.__name__}: {e}'
         self._result = result
         ok, where = self._write(result.calibration)
+        if ok and self.get_parameter('report').value:
+            self._reporter.submit(self._report_file, result.calibration, windows)
         self.cal_pub.publish(String(data=result.calibration.to_yaml()))
         return True, f'{result.summary}; id {result.calibration.id}; {where}'
 
@@ -510,6 +517,18 @@ class CalibratorNode(Node):
         except OSError as e:
             return False, f'NOT written to {path}: {e}'
         return True, f'written to {path}'
+
+    def _report_file(self, cal, windows):
+        """Write <calibration_file>.report.html (background thread; failures are logged)."""
+        from ..report.cli import write_report
+        path = os.path.expanduser(self.get_parameter('calibration_file').value)
+        out = os.path.splitext(path)[0] + '.report.html'
+        try:
+            write_report(cal, out, windows=windows, source='live collection')
+        except Exception as e:  # noqa: B902 - a report never takes the node down
+            self.get_logger().error(f'report {out} not written: {e!r}')
+            return
+        self.get_logger().info(f'wrote report {out}')
 
     def _on_save(self, request, response):
         result = self._result

@@ -26,8 +26,9 @@ def cmd_report(args, format_calibration, user_error):
         return 0
     windows, series, source = load_windows(args, cal, user_error)
     paths = write_report(cal, args.html, args.png_dir, windows, series, source)
-    print('wrote ' + ', '.join(paths[:1] + ([f'{len(paths) - 1} PNG files in {args.png_dir}']
-                                            if args.png_dir else [])))
+    pngs = [p for p in paths if p.endswith('.png')]
+    print('wrote ' + ', '.join(([args.html] if args.html else [])
+                               + ([f'{len(pngs)} PNG files in {args.png_dir}'] if pngs else [])))
     return 0
 
 

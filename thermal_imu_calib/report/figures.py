@@ -1,20 +1,26 @@
-"""Report figures (matplotlib, Agg backend): data in, ``Figure`` out; SI units on the axes.
+"""Report figures (matplotlib ``Figure`` objects, no pyplot: thread-safe, no display needed).
+
+Data in, ``Figure`` out; SI units on the axes (accelerometer errors in micro-g, gyro in deg/h).
 
 Calibration figures work on a ``Calibration`` and, when available, the stationary windows
 (``Windows``: from ``--log``, ``calibrate --save-windows`` or the calibrator node); the
 Allan figure on an ``estimation.allan`` result.
 """
 
-import matplotlib
-matplotlib.use('Agg')
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+from matplotlib.figure import Figure
+import numpy as np
 
-from ..estimation.segments import face_of  # noqa: E402
+from ..estimation.segments import face_of
 
 UG = 1e6 / 9.80665          # micro-g per m/s^2
 AXES = 'xyz'
 COLORS = ('tab:red', 'tab:green', 'tab:blue')
+
+
+def _subplots(nrows=1, ncols=1, figsize=(8, 4), **kw):
+    """Return (fig, axes) like ``pyplot.subplots`` without pyplot's global state."""
+    fig = Figure(figsize=figsize)
+    return fig, fig.subplots(nrows, ncols, **kw)
 
 
 def _hold_table(windows):
@@ -34,7 +40,7 @@ def timeline(windows, series=None, units=None):
     ``series``: optional list of (t [s], value) per input over the whole log; else the
     window means are drawn.
     """
-    fig, ax = plt.subplots(figsize=(11, 3.4), layout='constrained')
+    fig, ax = _subplots(figsize=(11, 3.4))
     t_ref = float(windows.t0.min())
     k = windows.n_inputs
     units = units or ['degC'] * k
@@ -85,7 +91,7 @@ def sensor_vs_temperature(cal, windows, which):
     model = cal.accel if which == 'accel' else cal.gyro
     a_c, g_c = _compensate(cal, windows)
     idx = cal.accel_input if which == 'accel' else cal.gyro_input
-    fig, axs = plt.subplots(1, 3, figsize=(11, 3.3), layout='constrained', sharey=False)
+    fig, grid = _subplots(2, 3, figsize=(11, 5.6), sharex='col')
     scale, unit = (UG, 'ug') if which == 'accel' else (180 / np.pi * 3600, 'deg/h')
     if which == 'accel':
         u = a_c / np.linalg.norm(a_c, axis=1, keepdims=True)
@@ -94,13 +100,18 @@ def sensor_vs_temperature(cal, windows, which):
     else:
         raw_err, comp_err = windows.gyro, g_c
     tg = _grid(cal, which) if cal.inputs else None
-    for i, ax in enumerate(axs):
+    std = model.predict_std(tg) if tg is not None else None
+    for i in range(3):
+        ax, axc = grid[0, i], grid[1, i]
         temp = windows.temp[:, idx[i]] if cal.inputs else np.zeros(len(windows))
-        ax.plot(temp, raw_err[:, i] * scale, 'o', ms=3, color='0.55', label='raw')
-        ax.plot(temp, comp_err[:, i] * scale, 'o', ms=3, color=COLORS[i], label='compensated')
+        ax.plot(temp, raw_err[:, i] * scale, 'o', ms=3, color='0.45', label='raw, per window')
+        axc.plot(temp, comp_err[:, i] * scale, 'o', ms=3, color=COLORS[i],
+                 label='compensated, per window')
         if tg is not None:
-            std = model.predict_std(tg)
-            for sign, ls in ((+1, '-'), (-1, '--')) if which == 'accel' else ((0, '-'),):
+            signs = (((+1, '-', 'model, axis up'), (0, ':', 'model, axis level'),
+                      (-1, '--', 'model, axis down')) if which == 'accel'
+                     else ((0, '-', 'model (zero rate)'),))
+            for sign, ls, lab in signs:
                 true = np.zeros_like(tg)
                 if which == 'accel':
                     true[:, i] = sign * cal.gravity
@@ -108,25 +119,34 @@ def sensor_vs_temperature(cal, windows, which):
                 else:
                     aux = {'accel': np.tile([0, 0, cal.gravity], (len(tg), 1))}
                     removed = true - model.correct(true, tg, aux=aux)
-                lab = {1: 'model, axis up', -1: 'model, axis down', 0: 'model'}[sign]
                 ax.plot(tg[:, i], removed[:, i] * scale, ls, color='k', lw=1, label=lab)
                 if std is not None:
                     ax.fill_between(tg[:, i], (removed[:, i] - std[:, i]) * scale,
-                                    (removed[:, i] + std[:, i]) * scale, color='k', alpha=0.15,
-                                    lw=0, label='+-1 sigma' if sign >= 0 else None)
+                                    (removed[:, i] + std[:, i]) * scale, color='k',
+                                    alpha=0.15, lw=0,
+                                    label='+-1 sigma' if sign == signs[0][0] else None)
+            if std is not None:
+                axc.fill_between(tg[:, i], -std[:, i] * scale, std[:, i] * scale,
+                                 color=COLORS[i], alpha=0.2, lw=0, label='model +-1 sigma')
             lo, hi = tg[0, i], tg[-1, i]
             pad = 0.05 * max(hi - lo, 1e-6)
-            ax.axvspan(lo - 3 * pad, lo, color='0.85', hatch='//', lw=0)
-            ax.axvspan(hi, hi + 3 * pad, color='0.85', hatch='//', lw=0)
-            ax.set_xlim(lo - 3 * pad, hi + 3 * pad)
+            for a in (ax, axc):
+                a.axvspan(lo - 3 * pad, lo, color='0.85', hatch='//', lw=0)
+                a.axvspan(hi, hi + 3 * pad, color='0.85', hatch='//', lw=0)
+                a.set_xlim(lo - 3 * pad, hi + 3 * pad)
+        axc.axhline(0, color='k', lw=0.5)
         ax.set_title(f'{which} {AXES[i]}', fontsize=10)
-        ax.set_xlabel(f'input [{cal.inputs[idx[i]].unit if cal.inputs else "-"}]')
-        ax.grid(alpha=0.3)
+        axc.set_xlabel(f'input [{cal.inputs[idx[i]].unit if cal.inputs else "-"}]')
+        for a in (ax, axc):
+            a.grid(alpha=0.3)
         if i == 0:
-            ax.set_ylabel(f'error [{unit}]')
-            ax.legend(fontsize=7)
-    fig.suptitle(f'{which}: output error against temperature, every hold window '
-                 '(hatched: outside the valid range)', fontsize=10)
+            ax.set_ylabel(f'raw error [{unit}]')
+            axc.set_ylabel(f'compensated error [{unit}]')
+            ax.legend(fontsize=6)
+            axc.legend(fontsize=6)
+    fig.suptitle(f'{which}: output error against temperature, every hold window; top raw '
+                 'with the fitted model, bottom compensated (hatched: outside the valid '
+                 'range)', fontsize=10)
     return fig
 
 
@@ -155,7 +175,7 @@ def gravity_residual(cal, windows):
     after = (np.array(after) - cal.gravity) * UG
     x = np.arange(len(rows))
     labels = [f'{i}\n{r[4]}' for i, r in enumerate(rows)]
-    fig, axs = plt.subplots(2, 1, figsize=(11, 4.6), layout='constrained', sharex=True)
+    fig, axs = _subplots(2, 1, figsize=(11, 4.6), sharex=True)
     for ax, v, name, c in ((axs[0], before, 'raw', '0.5'), (axs[1], after, 'compensated',
                                                              'tab:blue')):
         ax.bar(x, v, color=c)
@@ -173,7 +193,7 @@ def gravity_residual(cal, windows):
 def coverage_map(windows):
     """Gravity directions of the holds on an azimuth/elevation map, faces marked."""
     rows = _hold_table(windows)
-    fig, ax = plt.subplots(figsize=(8, 4.2), layout='constrained')
+    fig, ax = _subplots(figsize=(8, 4.2))
     for name, v in (('+x', (1, 0, 0)), ('-x', (-1, 0, 0)), ('+y', (0, 1, 0)),
                     ('-y', (0, -1, 0)), ('+z', (0, 0, 1)), ('-z', (0, 0, -1))):
         az, el = _azel(np.array(v, float))
@@ -225,7 +245,7 @@ def model_curves(cal, which):
         removed = true - model.correct(true, tg, aux={'accel': np.tile([0, 0, cal.gravity],
                                                                         (len(tg), 1))})
         scale, unit = 180 / np.pi * 3600, 'deg/h'
-    fig, axs = plt.subplots(1, 3, figsize=(11, 3.0), layout='constrained')
+    fig, axs = _subplots(1, 3, figsize=(11, 3.0))
     idx = cal.accel_input if which == 'accel' else cal.gyro_input
     for i, ax in enumerate(axs):
         ax.plot(tg[:, i], removed[:, i] * scale, color=COLORS[i], label='model (zero input)')
@@ -248,7 +268,7 @@ def allan_figure(result, sensor):
     """Allan deviation per axis of one sensor with the fitted -1/2 and +1/2 lines."""
     from ..estimation.allan import UNITS
     axes = result['axes'][sensor]
-    fig, ax = plt.subplots(figsize=(9, 5), layout='constrained')
+    fig, ax = _subplots(figsize=(9, 5))
     for i, a in enumerate(axes):
         c = a.curve
         ax.loglog(c.tau, c.adev, 'o-', ms=3, lw=1, color=COLORS[i], label=f'{AXES[i]}')

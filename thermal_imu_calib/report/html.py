@@ -21,11 +21,11 @@ img{max-width:100%;display:block;margin:6px 0}
 
 
 def png_bytes(fig, dpi=90):
-    """Return the PNG bytes of a matplotlib figure (and close it)."""
-    import matplotlib.pyplot as plt
+    """Return the PNG bytes of a matplotlib ``Figure`` (Agg canvas, no pyplot)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    FigureCanvasAgg(fig)
     buf = io.BytesIO()
     fig.savefig(buf, format='png', dpi=dpi)
-    plt.close(fig)
     return buf.getvalue()
 
 
