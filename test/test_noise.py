@@ -97,8 +97,8 @@ def test_noise_cli_writes_a_kalibr_yaml_from_the_worst_axis_and_html(tmp_path, c
     assert extra['accel']['units']['random_walk'] == 'm/s^3/sqrt(Hz)'
     ids, images = parse_report(html.read_text())
     assert {'noise', 'allan-accel', 'allan-gyro'} <= set(ids) and len(images) == 2
-    assert sorted(p.name for p in (tmp_path / 'png').iterdir()) == ['allan_accel.png',
-                                                                   'allan_gyro.png']
+    pngs = sorted(p.name for p in (tmp_path / 'png').iterdir())
+    assert pngs == ['allan_accel.png', 'allan_gyro.png']
 
 
 def test_noise_of_a_calibration_log_uses_its_holds(tmp_path, capsys):
@@ -113,3 +113,46 @@ def test_noise_of_a_calibration_log_uses_its_holds(tmp_path, capsys):
         np.testing.assert_array_less(np.abs(n / dens - 1), 0.25)   # quantised, short holds
     assert main(['noise', str(tmp_path / 'missing.mcap')]) == 2
     assert 'no such file' in capsys.readouterr().err
+
+
+def test_calibrate_stores_n_and_the_compensator_covariance_uses_n_and_k(tmp_path):
+    from thermal_imu_calib.calibration import Calibration
+    log = str(tmp_path / 'demo.mcap')
+    sim.write_scenario(log, 'demo', 4)
+    cal_path = str(tmp_path / 'cal.yaml')
+    assert main(['calibrate', log, '-o', cal_path]) == 0
+    cal = Calibration.load(cal_path)
+    spec = sim.DEVICES['mems']
+    nm = cal.noise_model
+    assert nm['rate_hz'] == pytest.approx(100.0, rel=1e-3)
+    np.testing.assert_allclose(nm['accel_noise_density'], spec.accel_noise_density, rtol=0.1)
+    np.testing.assert_allclose(nm['gyro_noise_density'], spec.gyro_noise_density, rtol=0.1)
+    assert 'accel_random_walk' not in nm          # 15-20 s holds: no random walk claimed
+    # the covariance: white from N sqrt(rate), plus K^2 horizon / 3 when K is known
+    cal.accel_noise_std = cal.gyro_noise_std = None
+    cal.noise_model.update(accel_random_walk=np.full(3, 1e-3), gyro_random_walk=np.full(3, 1e-5),
+                           horizon_s=600.0)
+    cal2 = Calibration.from_yaml(cal.to_yaml())
+    assert set(cal2.noise_model) == set(cal.noise_model)
+    temps = np.full((5, 1), 28.0)
+    res = cal2.apply(np.tile([0, 0, 9.8], (5, 1)), np.zeros((5, 3)), temps)
+    model_std = cal2.accel.predict_std(np.full((5, 3), 28.0))
+    expect = np.sqrt(model_std ** 2 + nm['accel_noise_density'] ** 2 * nm['rate_hz']
+                     + 1e-6 * 600.0 / 3)
+    np.testing.assert_allclose(res.accel_std, expect, rtol=1e-9)
+
+
+def test_add_random_walk_from_the_holds_of_a_long_log(tmp_path):
+    from thermal_imu_calib.calibration import Calibration
+    from thermal_imu_calib.pipeline import collect_windows
+    log = str(tmp_path / 'still.mcap')
+    _write_still_bag(log, 0.5, 11)
+    windows = collect_windows(log).windows
+    cal = Calibration.__new__(Calibration)
+    cal.noise_model = {}
+    note = noise.add_random_walk(cal, [log], windows)
+    assert 'random walk' in note
+    for sensor in ('accel', 'gyro'):
+        k = cal.noise_model[f'{sensor}_random_walk']
+        np.testing.assert_array_less(np.abs(k / K_TRUE[sensor] - 1), 0.3)   # 30 min only
+    assert cal.noise_model['horizon_s'] > 1500

@@ -216,6 +216,9 @@ def cmd_calibrate(args):
     result = calibrate_windows(windows, opts)
     result.calibration.fit['inputs'] = [os.path.basename(os.path.normpath(p))
                                         for p in args.inputs]
+    from .noise import add_random_walk
+    note = add_random_walk(result.calibration, args.inputs, windows, args.imu_topic)
+    result.calibration.notes += [note] if note else []
     result.calibration.save(args.output)
     if args.json:
         print(json.dumps({'summary': result.summary, 'output': args.output,

@@ -21,8 +21,11 @@ STILL_ANGLE_DEG = 2.0
 MIN_SEGMENT_S = 5.0
 
 
-def read_imu(path, imu_topic=None, chunk_size=50000):
-    """Return (imu_topic, t [s], accel (n,3) m/s^2, gyro (n,3) rad/s) of a log, stamp-sorted."""
+def read_imu(path, imu_topic=None, chunk_size=50000, relative=True):
+    """Return (imu_topic, t [s], accel (n,3) m/s^2, gyro (n,3) rad/s) of a log, stamp-sorted.
+
+    ``t`` starts at 0 with ``relative``, else it is the header stamp in seconds.
+    """
     ts, acc, gyr = [], [], []
     with open_log(path) as reader:
         imu_topic, _ = resolve_topics(reader, imu_topic, [])
@@ -34,7 +37,8 @@ def read_imu(path, imu_topic=None, chunk_size=50000):
         raise LogError(f'{path}: no messages on {imu_topic}')
     stamp = np.concatenate(ts)
     order = np.argsort(stamp, kind='stable')
-    return (imu_topic, (stamp[order] - stamp[order][0]) * 1e-9, np.concatenate(acc)[order],
+    t0 = stamp[order][0] if relative else 0
+    return (imu_topic, (stamp[order] - t0) * 1e-9, np.concatenate(acc)[order],
             np.concatenate(gyr)[order])
 
 
@@ -181,3 +185,42 @@ def format_noise(result, topic):
         out.append('  <: the record is too short to see the +1/2 slope; K is an upper bound '
                    '(the steepest +1/2 line under the curve). Record >= 1-2 h still for K.')
     return '\n'.join(out)
+
+
+#: ``calibrate`` looks for the random walk K only when a hold is at least this long (s)
+K_MIN_HOLD_S = 1200.0
+
+
+def add_random_walk(cal, paths, windows, imu_topic=None):
+    """Add K (and the horizon) to ``cal.noise_model`` from the raw holds of long logs.
+
+    Only when the longest hold lasts ``K_MIN_HOLD_S``; per sensor only when all three axes
+    show the +1/2 slope. Returns a note for people, or '' when nothing was looked for.
+    """
+    if not len(windows):
+        return ''
+    spans = [(windows.t0[windows.hold == h].min(), windows.t1[windows.hold == h].max())
+             for h in windows.hold_ids]
+    if max(b - a for a, b in spans) < K_MIN_HOLD_S:
+        return ''
+    acc_segs, gyr_segs, rate = [], [], None
+    for path in paths:
+        _, t, acc, gyr = read_imu(path, imu_topic, relative=False)
+        rate = rate or sample_rate(t)
+        for a, b in spans:
+            i0, i1 = np.searchsorted(t, a), np.searchsorted(t, b, 'right')
+            if (i1 - i0) / rate >= MIN_SEGMENT_S:
+                acc_segs.append(acc[i0:i1])
+                gyr_segs.append(gyr[i0:i1])
+    model = allan.noise_model(acc_segs, gyr_segs, rate)
+    found = []
+    for sensor, axes in model.items():
+        if all(a.k_observable for a in axes):
+            cal.noise_model[f'{sensor}_random_walk'] = np.array([a.K for a in axes])
+            found.append(sensor)
+    if not found:
+        return ('noise: the holds are long but show no random-walk slope; no random walk '
+                'stored (see `thermal-imu-calib noise`)')
+    cal.noise_model['horizon_s'] = round(float(windows.t1.max() - windows.t0.min()), 1)
+    return (f'noise: {" and ".join(found)} random walk K from the Allan deviation of the '
+            'holds stored; the covariance adds K^2 horizon_s / 3')

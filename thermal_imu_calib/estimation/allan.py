@@ -162,3 +162,22 @@ def worst(axes, key):
 def white_density(var, rate_hz):
     """Return the white-noise density N (unit/sqrt(Hz)) of a per-sample variance at a rate."""
     return np.sqrt(np.asarray(var, float) / float(rate_hz))
+
+
+def window_noise(windows):
+    """Return the white-noise part of the noise model from window statistics.
+
+    N per axis = sqrt(median within-window variance) / sqrt(rate), rate from the windows'
+    sample counts; ``rate_hz`` is stored with it. No random walk: windows are too short to
+    show it (``noise.add_random_walk`` adds K from the raw holds of a long log).
+    """
+    if not len(windows):
+        return {}
+    dur = windows.t1 - windows.t0
+    ok = (dur > 0) & (windows.n > 1)
+    if not ok.any():
+        return {}
+    rate = float(np.median((windows.n[ok] - 1) / dur[ok]))
+    return {'accel_noise_density': white_density(np.median(windows.accel_var, axis=0), rate),
+            'gyro_noise_density': white_density(np.median(windows.gyro_var, axis=0), rate),
+            'rate_hz': round(rate, 3)}

@@ -95,8 +95,8 @@ def add_noise_parser(sub):
 def cmd_noise(args, user_error):
     """Run ``noise``."""
     from ..noise import format_noise, kalibr_yaml, noise_from_log
-    if args.output and os.path.exists(args.output) and os.path.samefile(args.output,
-                                                                       args.input):
+    if (args.output and os.path.exists(args.output)
+            and os.path.samefile(args.output, args.input)):
         raise user_error('-o would overwrite the input log; choose another file')
     topic, result = noise_from_log(args.input, args.imu_topic)
     print(format_noise(result, topic))

@@ -176,8 +176,8 @@ def gravity_residual(cal, windows):
     x = np.arange(len(rows))
     labels = [f'{i}\n{r[4]}' for i, r in enumerate(rows)]
     fig, axs = _subplots(2, 1, figsize=(11, 4.6), sharex=True)
-    for ax, v, name, c in ((axs[0], before, 'raw', '0.5'), (axs[1], after, 'compensated',
-                                                             'tab:blue')):
+    panels = ((axs[0], before, 'raw', '0.5'), (axs[1], after, 'compensated', 'tab:blue'))
+    for ax, v, name, c in panels:
         ax.bar(x, v, color=c)
         ax.axhline(0, color='k', lw=0.6)
         ax.set_ylabel(f'{name} [ug]')
@@ -242,8 +242,8 @@ def model_curves(cal, which):
         removed = _forward(model, true, tg) - true
         scale, unit = UG, 'ug'
     else:
-        removed = true - model.correct(true, tg, aux={'accel': np.tile([0, 0, cal.gravity],
-                                                                        (len(tg), 1))})
+        aux = {'accel': np.tile([0, 0, cal.gravity], (len(tg), 1))}
+        removed = true - model.correct(true, tg, aux=aux)
         scale, unit = 180 / np.pi * 3600, 'deg/h'
     fig, axs = _subplots(1, 3, figsize=(11, 3.0))
     idx = cal.accel_input if which == 'accel' else cal.gyro_input
