@@ -19,6 +19,11 @@ STILL_COVERAGE = 0.9
 STILL_ANGLE_DEG = 2.0
 #: segments shorter than this (s) are left out (their Allan deviation says nothing new)
 MIN_SEGMENT_S = 5.0
+#: a log is one still recording when every 1-s mean stays this close to the log's median:
+#: accel (m/s^2, ~50 mg: ~3 deg of tilt, far from a pose change) and gyro (rad/s, ~1.1 deg/s); this test needs no noise floor, so it
+#: also holds for coarsely quantised outputs where the stationary detector's floor is 0
+STILL_ACCEL_BAND = 0.5
+STILL_GYRO_BAND = 0.02
 
 
 def read_imu(path, imu_topic=None, chunk_size=50000, relative=True):
@@ -45,10 +50,13 @@ def read_imu(path, imu_topic=None, chunk_size=50000, relative=True):
 def still_segments(t, accel, gyro, detector=None):
     """Return (segments [(i0, i1)], kind) of the still parts of (n,) stamps and (n,3) data.
 
-    ``kind`` is 'still recording' when the stationary holds cover most of the log in one
-    orientation (the whole log is then one segment, so the longest taus are kept), else
-    'holds'. Segments are split at stamp gaps (> 3 sample periods).
+    ``kind`` is 'still recording' when every 1-s mean stays in the still bands of the
+    log's median, or the stationary holds cover most of the log in one orientation (the
+    whole log is then one segment, so the longest taus are kept), else 'holds'. Segments are split at stamp gaps (> 3 sample periods).
     """
+    if _is_still(t, accel, gyro):
+        spans, kind = [(t[0], t[-1])], 'still recording'
+        return _cut(t, spans), kind
     det = StationaryDetector(detector or DetectorConfig(), 0)
     win = det.update(t, accel, gyro, np.zeros((len(t), 0)))
     win = win.concat([win, det.finish()])
@@ -64,6 +72,25 @@ def still_segments(t, accel, gyro, detector=None):
         spans, kind = [(t[0], t[-1])], 'still recording'
     else:
         kind = 'holds'
+    return _cut(t, spans), kind
+
+
+def _is_still(t, accel, gyro):
+    """Return True when every 1-s block mean stays within the still bands of the median."""
+    rate = sample_rate(t)
+    m = max(int(round(rate)), 1)
+    nb = len(t) // m
+    if nb < 2:
+        return False
+    for x, band in ((accel, STILL_ACCEL_BAND), (gyro, STILL_GYRO_BAND)):
+        means = x[:nb * m].reshape(nb, m, 3).mean(1)
+        if np.abs(means - np.median(means, axis=0)).max() > band:
+            return False
+    return True
+
+
+def _cut(t, spans):
+    """Return (i0, i1) index ranges of the spans, split at stamp gaps, long enough."""
     dt = np.median(np.diff(t))
     gaps = np.flatnonzero(np.diff(t) > 3 * dt) + 1
     out = []
@@ -72,7 +99,7 @@ def still_segments(t, accel, gyro, detector=None):
         cuts = [i0] + [g for g in gaps if i0 < g < i1] + [i1]
         out.extend((c0, c1) for c0, c1 in zip(cuts[:-1], cuts[1:])
                    if (c1 - c0) * dt >= MIN_SEGMENT_S)
-    return out, kind
+    return out
 
 
 def sample_rate(t):
