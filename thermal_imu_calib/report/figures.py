@@ -40,7 +40,7 @@ def timeline(windows, series=None, units=None):
     ``series``: optional list of (t [s], value) per input over the whole log; else the
     window means are drawn.
     """
-    fig, ax = _subplots(figsize=(11, 3.4))
+    fig, ax = _subplots(figsize=(11, 3.8))
     t_ref = float(windows.t0.min())
     k = windows.n_inputs
     units = units or ['degC'] * k
@@ -50,12 +50,12 @@ def timeline(windows, series=None, units=None):
         else:
             ax.plot((0.5 * (windows.t0 + windows.t1) - t_ref) / 60, windows.temp[:, j], '.',
                     ms=3, label=f'input {j} (window means)')
-    ymax = ax.get_ylim()[1]
+    top = ax.get_xaxis_transform()       # x in data, y in axes fraction
     for i, (_, a, b, _, face) in enumerate(_hold_table(windows)):
         ax.axvspan((a - t_ref) / 60, (b - t_ref) / 60, color='tab:orange' if face == 'tilted'
                    else 'tab:blue', alpha=0.15, lw=0)
-        ax.text((0.5 * (a + b) - t_ref) / 60, ymax, face, ha='center', va='bottom',
-                fontsize=7, rotation=90 if len(windows.hold_ids) > 16 else 0)
+        ax.text((0.5 * (a + b) - t_ref) / 60, 1.01, face, ha='center', va='bottom',
+                fontsize=7, rotation=90 if len(windows.hold_ids) > 16 else 0, transform=top)
     ax.set_xlabel('time since the first hold [min]')
     ax.set_ylabel(f'thermal input [{"/".join(sorted(set(units)))}]')
     ax.set_title('Temperature timeline (shaded: stationary holds; blue face, orange tilted)',
@@ -194,12 +194,14 @@ def coverage_map(windows):
     """Gravity directions of the holds on an azimuth/elevation map, faces marked."""
     rows = _hold_table(windows)
     fig, ax = _subplots(figsize=(8, 4.2))
-    for name, v in (('+x', (1, 0, 0)), ('-x', (-1, 0, 0)), ('+y', (0, 1, 0)),
-                    ('-y', (0, -1, 0)), ('+z', (0, 0, 1)), ('-z', (0, 0, -1))):
-        az, el = _azel(np.array(v, float))
-        ax.plot(az, el, 's', ms=14, mfc='none', mec='0.6')
-        ax.annotate(name, (az, el), textcoords='offset points', xytext=(9, 7), fontsize=8,
+    for name, az in (('+x', 0), ('-x', 180), ('-x', -180), ('+y', 90), ('-y', -90)):
+        ax.plot(az, 0, 's', ms=14, mfc='none', mec='0.6')
+        ax.annotate(name, (az, 0), textcoords='offset points', xytext=(9, 7), fontsize=8,
                     color='0.4')
+    for name, el in (('+z (any azimuth)', 90), ('-z (any azimuth)', -90)):
+        ax.axhline(el, color='0.6', ls='--', lw=0.8)
+        ax.annotate(name, (-178, el), textcoords='offset points', fontsize=8, color='0.4',
+                    xytext=(0, -11 if el > 0 else 4))
     if rows:
         dirs = np.array([r[3] / np.linalg.norm(r[3]) for r in rows])
         az, el = _azel(dirs)
@@ -214,7 +216,7 @@ def coverage_map(windows):
                        cmap='coolwarm', label='tilted hold', vmin=min(temps), vmax=max(temps))
         if windows.n_inputs:
             fig.colorbar(sc, ax=ax, label='mean temperature of the hold')
-        ax.legend(fontsize=8, loc='lower left')
+        ax.legend(fontsize=8, loc='lower center')
     ax.set_xlim(-185, 185)
     ax.set_ylim(-95, 95)
     ax.set_xlabel('azimuth of gravity-up in the sensor frame [deg] (atan2(y, x))')

@@ -25,7 +25,7 @@ def png_bytes(fig, dpi=90):
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     FigureCanvasAgg(fig)
     buf = io.BytesIO()
-    fig.savefig(buf, format='png', dpi=dpi)
+    fig.savefig(buf, format='png', dpi=dpi, bbox_inches='tight', pad_inches=0.12)
     return buf.getvalue()
 
 
