@@ -20,8 +20,9 @@ STILL_ANGLE_DEG = 2.0
 #: segments shorter than this (s) are left out (their Allan deviation says nothing new)
 MIN_SEGMENT_S = 5.0
 #: a log is one still recording when every 1-s mean stays this close to the log's median:
-#: accel (m/s^2, ~50 mg: ~3 deg of tilt, far from a pose change) and gyro (rad/s, ~1.1 deg/s); this test needs no noise floor, so it
-#: also holds for coarsely quantised outputs where the stationary detector's floor is 0
+#: accel (m/s^2, ~50 mg: ~3 deg of tilt, far from a pose change) and gyro (rad/s,
+#: ~1.1 deg/s); this test needs no noise floor, so it also holds for coarsely quantised
+#: outputs where the stationary detector's floor is 0
 STILL_ACCEL_BAND = 0.5
 STILL_GYRO_BAND = 0.02
 
@@ -52,7 +53,8 @@ def still_segments(t, accel, gyro, detector=None):
 
     ``kind`` is 'still recording' when every 1-s mean stays in the still bands of the
     log's median, or the stationary holds cover most of the log in one orientation (the
-    whole log is then one segment, so the longest taus are kept), else 'holds'. Segments are split at stamp gaps (> 3 sample periods).
+    whole log is then one segment, so the longest taus are kept), else 'holds'. Segments
+    are split at stamp gaps (> 3 sample periods).
     """
     if _is_still(t, accel, gyro):
         spans, kind = [(t[0], t[-1])], 'still recording'
