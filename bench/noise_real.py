@@ -21,7 +21,7 @@ import yaml
 
 from thermal_imu_calib.io.bag import write_columns
 from thermal_imu_calib.io.columns import ImuColumns
-from thermal_imu_calib.io.csv_logs import read_mpu6050_csv
+from thermal_imu_calib.io.csv_logs import read_bmi270_rows, read_mpu6050_csv
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 G = 9.80665
@@ -35,18 +35,7 @@ DATASHEET = {
 
 def bmi270(path):
     """Return (rate estimate Hz, accel m/s^2, gyro rad/s, temperature degC) of a soak CSV."""
-    rows, nbytes, nlines = [], 0, 0
-    with open(path, errors='replace') as f:
-        for line in f:
-            nbytes += len(line) + 1          # PuTTY log lines end in CR LF
-            nlines += 1
-            vals = line.strip().split(',')
-            if len(vals) == 7:
-                try:
-                    rows.append([float(v) for v in vals])
-                except ValueError:
-                    pass
-    a = np.asarray(rows)
+    a, nbytes, nlines = read_bmi270_rows(path)
     rate = 38400.0 / (10.0 * nbytes / nlines)
     return rate, a[:, 1:4] * 4.0 * G, np.radians(a[:, 4:7]), a[:, 0]
 
