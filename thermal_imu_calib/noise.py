@@ -216,15 +216,40 @@ def format_noise(result, topic):
     return '\n'.join(out)
 
 
+def _compensated(path, imu_topic, cal, chunk_size=50000):
+    """Return (t [s], accel, gyro) of a log compensated with ``cal`` (its thermal inputs)."""
+    from .pipeline import _aligned, DEFAULT_MAX_GAP_S
+    ts, acc, gyr = [], [], []
+    stream = cal.stream()
+    with open_log(path) as reader:
+        imu_topic, temps = resolve_topics(reader, imu_topic, cal.temperature_topics or None)
+        for ch in _aligned(reader, imu_topic, temps, chunk_size, DEFAULT_MAX_GAP_S):
+            ok = np.all(np.isfinite(ch.temps), axis=1) if ch.temps.size else np.ones(
+                len(ch), bool)
+            if not ok.any():
+                continue
+            t = ch.imu.t[ok]
+            res = stream.apply(t, ch.imu.accel[ok], ch.imu.gyro[ok],
+                               ch.temps[ok] if cal.inputs else None)
+            ts.append(t)
+            acc.append(res.accel)
+            gyr.append(res.gyro)
+    if not ts:
+        raise LogError(f'{path}: no IMU samples with a temperature to compensate')
+    return np.concatenate(ts), np.concatenate(acc), np.concatenate(gyr)
+
+
 #: ``calibrate`` looks for the random walk K only when a hold is at least this long (s)
 K_MIN_HOLD_S = 1200.0
 
 
 def add_random_walk(cal, paths, windows, imu_topic=None):
-    """Add K (and the horizon) to ``cal.noise_model`` from the raw holds of long logs.
+    """Add K (and the horizon) to ``cal.noise_model`` from the holds of long logs.
 
-    Only when the longest hold lasts ``K_MIN_HOLD_S``; per sensor only when all three axes
-    show the +1/2 slope. Returns a note for people, or '' when nothing was looked for.
+    Only when the longest hold lasts ``K_MIN_HOLD_S``; the samples are compensated with
+    ``cal`` first, so the thermal drift of a warm-up is not taken for a random walk; per
+    sensor only when all three axes show the +1/2 slope. Returns a note for people, or ''
+    when nothing was looked for.
     """
     if not len(windows):
         return ''
@@ -234,7 +259,7 @@ def add_random_walk(cal, paths, windows, imu_topic=None):
         return ''
     acc_segs, gyr_segs, rate = [], [], None
     for path in paths:
-        _, t, acc, gyr = read_imu(path, imu_topic, relative=False)
+        t, acc, gyr = _compensated(path, imu_topic, cal)
         rate = rate or sample_rate(t)
         for a, b in spans:
             i0, i1 = np.searchsorted(t, a), np.searchsorted(t, b, 'right')
