@@ -90,8 +90,8 @@ def build_parser():
                         'offset: single-orientation drift only; whole_unit: seed 002, gyro '
                         'scale and misalignment from the pose changes between holds')
     p.add_argument('--prior', help='lab calibration (k0, b0, S at T0) the field model refines: a '
-                        'thermal_imu_calib YAML, imu_tk *_acc.calib, imucal .json, PX4 .params, '
-                        'ArduPilot .parm or Kalibr imu.yaml')
+                   'thermal_imu_calib YAML, imu_tk *_acc.calib, imucal .json, PX4 .params, '
+                   'ArduPilot .parm or Kalibr imu.yaml')
     p.add_argument('--order', type=int, default=2, choices=(0, 1, 2),
                    help='temperature polynomial order of the field model (default 2)')
     p.add_argument('--no-refine', action='store_true', help='skip the joint refinement')

@@ -41,6 +41,14 @@ def reexpand(coeffs, from_ref, to_ref):
     return out
 
 
+def _snap(c, span):
+    """Zero the coefficients whose term stays below 1e-12 (SI) over +-span (rounding noise)."""
+    c = np.array(c, float)
+    terms = np.abs(c) * span ** np.arange(c.shape[0])[:, None]
+    c[terms < 1e-12] = 0.0
+    return c
+
+
 def _exact(cal, which):
     m = cal.accel if which == 'accel' else cal.gyro
     if (not isinstance(m, OffsetPolynomialModel) or m.order > 3
@@ -61,6 +69,9 @@ def sensor_params(cal, which, smp, imu=1):
     if ex is not None:
         tcal, c = ex
         loss = exact_loss(which)
+        if not lo <= tcal <= hi:
+            notes.append(f'{which}: T0 {tcal:g} degC is outside TMIN..TMAX, where ArduPilot '
+                         'clamps CALTEMP: exact up to a constant, which its own offsets hold')
         if model.include_constant and np.any(model.coeffs[0]):
             notes.append(f'{which}: the constant offset c0 at T0 is not thermal; ArduPilot\'s '
                          'own offsets (taken at CALTEMP) hold it')
@@ -79,6 +90,7 @@ def sensor_params(cal, which, smp, imu=1):
             notes.append(f'{which}: the scale factor and non-orthogonality at T0 are not '
                          'thermal; ArduPilot\'s own accelerometer calibration must hold them')
         loss = summarize_loss(which, resid, f'cubic refit of {model.kind} on {smp.what}')
+    c = _snap(c, max(abs(lo - TEMP_REFERENCE), abs(hi - TEMP_REFERENCE), 1.0))
     rows = [(f'INS_TCAL{imu}_{STEM[which]}{k}_{"XYZ"[a]}', c[k, a] * SCALE)
             for k in (1, 2, 3) for a in range(3)]
     rows.append((CALTEMP[which].format(n=imu), tcal))

@@ -18,6 +18,8 @@ from ..calibration import Calibration
 from ..models.whole_unit import WholeUnitAccelModel, WholeUnitGyroModel
 from .common import affine_map, Exported, ExportRefused, num, rounded, summarize_loss
 
+#: significant digits written (round trips stay identical; 1e-12 is far below 1 ug)
+DIGITS = 12
 SUFFIX = {'accel': '_acc.calib', 'gyro': '_gyro.calib'}
 #: reference temperature given to imported static calibrations, degC (no temperature there)
 STATIC_T0 = 25.0
@@ -27,11 +29,11 @@ def triad_text(m, b):
     """Return the imu_tk text of M = T K and bias B (T with a unit diagonal)."""
     k = np.diag(np.diag(m))
     t = m @ np.diag(1.0 / np.diag(m))
-    t, k, b = rounded(t), rounded(k), rounded(b)
+    t, k, b = rounded(t, DIGITS), rounded(k, DIGITS), rounded(b, DIGITS)
 
     def mat(x):
-        return '\n'.join(' '.join(num(v) for v in row) for row in x)
-    return f'{mat(t)}\n\n{mat(k)}\n\n' + '\n'.join(num(v) for v in b) + '\n'
+        return '\n'.join(' '.join(num(v, DIGITS) for v in row) for row in x)
+    return f'{mat(t)}\n\n{mat(k)}\n\n' + '\n'.join(num(v, DIGITS) for v in b) + '\n'
 
 
 def parse_triad(text, source='imu_tk file'):

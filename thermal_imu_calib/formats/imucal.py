@@ -19,7 +19,7 @@ import numpy as np
 from ..calibration import Calibration
 from ..models.whole_unit import WholeUnitAccelModel, WholeUnitGyroModel
 from .common import affine_map, Exported, rounded, summarize_loss
-from .imu_tk import STATIC_T0
+from .imu_tk import DIGITS, STATIC_T0
 
 SI = {'acc': 'm/s^2', 'gyr': 'rad/s'}
 
@@ -58,9 +58,10 @@ def export(cal, smp, temperature=None):
                                      f'{smp.what}')
     d = {'acc_unit': SI['acc'], 'gyr_unit': SI['gyr'], 'from_acc_unit': SI['acc'],
          'from_gyr_unit': SI['gyr'], 'comment': 'thermal_imu_calib export',
-         'K_a': rounded(ka).tolist(), 'R_a': rounded(ra).tolist(), 'b_a': rounded(ba).tolist(),
-         'K_g': rounded(kg).tolist(), 'R_g': rounded(rg).tolist(),
-         'K_ga': rounded(kga).tolist(), 'b_g': rounded(bg).tolist(), 'cal_type': 'Ferraris'}
+         **{k: rounded(v, DIGITS).tolist() for k, v in (('K_a', ka), ('R_a', ra), ('b_a', ba),
+                                                         ('K_g', kg), ('R_g', rg),
+                                                         ('K_ga', kga), ('b_g', bg))},
+         'cal_type': 'Ferraris'}
     return Exported({'': json.dumps(d, indent=4) + '\n'}, notes, loss)
 
 

@@ -36,6 +36,15 @@ ALIASES = {'accelerometer_noise_density': ('accel_noise_density', ('accel', 'noi
            'gyroscope_random_walk': ('gyro_random_walk', ('gyro', 'random_walk'))}
 
 
+def yaml_float(x):
+    """Return a float as YAML 1.1 reads it (PyYAML needs a dot in 2.0e-05, not 2e-05)."""
+    s = num(x, 10)
+    mant, e, exp = s.partition('e')
+    if '.' not in mant and mant not in ('inf', 'nan'):
+        mant += '.0'
+    return mant + e + exp
+
+
 def _value(v):
     """Return the worst-axis float of a scalar, list or {'value': ...}; None if absent."""
     if isinstance(v, dict):
@@ -104,12 +113,12 @@ def export(cal, raw_dict=None, noise_file_text=None, rostopic=None, update_rate=
     lines = ['# Kalibr IMU configuration (imu.yaml), written by thermal_imu_calib export',
              '#Accelerometers']
     for key in KEYS[:2]:
-        lines.append(f'{key}: {num(figs[key], 10)}  # [{UNITS[key]}]')
+        lines.append(f'{key}: {yaml_float(figs[key])}  # [{UNITS[key]}]')
     lines.append('#Gyroscopes')
     for key in KEYS[2:]:
-        lines.append(f'{key}: {num(figs[key], 10)}  # [{UNITS[key]}]')
+        lines.append(f'{key}: {yaml_float(figs[key])}  # [{UNITS[key]}]')
     lines.append(f'rostopic: {topic}')
-    lines.append(f'update_rate: {num(rate, 10)}  # [Hz]')
+    lines.append(f'update_rate: {yaml_float(rate)}  # [Hz]')
     return Exported({'': '\n'.join(lines) + '\n'}, [f'noise figures from {where}'], {})
 
 
