@@ -58,9 +58,9 @@ def export(cal, smp, temperature=None):
                                      f'{smp.what}')
     d = {'acc_unit': SI['acc'], 'gyr_unit': SI['gyr'], 'from_acc_unit': SI['acc'],
          'from_gyr_unit': SI['gyr'], 'comment': 'thermal_imu_calib export',
-         **{k: rounded(v, DIGITS).tolist() for k, v in (('K_a', ka), ('R_a', ra), ('b_a', ba),
-                                                         ('K_g', kg), ('R_g', rg),
-                                                         ('K_ga', kga), ('b_g', bg))},
+         **{k: rounded(v, DIGITS).tolist() for k, v in (
+             ('K_a', ka), ('R_a', ra), ('b_a', ba), ('K_g', kg), ('R_g', rg), ('K_ga', kga),
+             ('b_g', bg))},
          'cal_type': 'Ferraris'}
     return Exported({'': json.dumps(d, indent=4) + '\n'}, notes, loss)
 

@@ -34,7 +34,7 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from . import common
-from ..calibration import Calibration, CalibrationError, TemperatureInput
+from ..calibration import CalibrationError, TemperatureInput
 from ..estimation import calibrate as estimation
 from ..estimation.calibrate import (CalibrateOptions, CalibrationRefused, calibrate_windows,
                                     readiness)
