@@ -38,8 +38,9 @@ def add_parser(sub):
                    help='kalibr: IMU rate (default: from the noise figures)')
     p.add_argument('--kalibr-model', default='calibrated',
                    choices=('calibrated', 'scale-misalignment'),
-                   help='kalibr: imu.yaml holds the noise model only (scale-misalignment is '
-                        'refused: Kalibr estimates those intrinsics itself)')
+                   help='kalibr: calibrated (noise model only) or scale-misalignment (also '
+                        'M, A, C_gyro_i in Kalibr\'s results layout, and our biases, at '
+                        '--temperature or T0)')
     p.add_argument('--instance', type=int,
                    help='px4: TC_A<n>/TC_G<n> (default 0); ardupilot: INS_TCAL<n> (default 1)')
     p.add_argument('--accel-id', type=int, default=0, help='px4: TC_An_ID (CAL_ACC0_ID)')

@@ -14,7 +14,7 @@ import yaml
 from ..calibration import Calibration, CalibrationError, FORMAT
 from ..models.field import FieldPolynomialModel
 from . import ardupilot, imu_tk, imucal, kalibr, px4
-from .common import affine_map, Exported, ExportRefused, samples  # noqa: F401
+from .common import affine_map, Exported, ExportRefused, lq, samples  # noqa: F401
 
 FORMATS = ('kalibr', 'imu_tk', 'px4', 'ardupilot', 'json')
 #: default file name suffix per format (imu_tk: the triad suffixes are added to the stem)
@@ -28,7 +28,9 @@ def export_calibration(cal, fmt, raw_dict=None, windows=None, temperature=None,
     """Return ``Exported`` for format ``fmt`` (see FORMATS); raises ExportRefused with why."""
     if fmt == 'kalibr':
         return kalibr.export(cal, raw_dict, noise_text, rostopic, update_rate,
-                             kalibr_model or 'calibrated')
+                             kalibr_model or 'calibrated', temperature,
+                             samples(cal, windows) if kalibr_model == 'scale-misalignment'
+                             else None)
     if fmt == 'imu_tk':
         return imu_tk.export(cal, samples(cal, windows), temperature)
     if fmt == 'json':
@@ -108,13 +110,9 @@ def as_prior(cal):
         return cal, notes
     t0 = np.asarray(model.t0, float)
     m, b, _, dropped = affine_map(model, t0, 'accel')
-    q, r = np.linalg.qr(np.linalg.inv(m).T)     # M^-T = Q R  ->  M^-1 = R^T Q^T
-    sign = np.sign(np.diag(r))
-    lower = (r * sign[:, None]).T
-    rot = (q * sign[None, :]).T
+    lower, rot = lq(np.linalg.inv(m))
     k0 = np.diag(lower).copy()
     s = lower / k0[:, None]
-    s[np.triu_indices(3, 1)] = 0.0
     angle = np.degrees(np.arccos(np.clip((np.trace(rot) - 1) / 2, -1, 1)))
     if angle > 1e-9:
         notes.append(f'the prior\'s frame is rotated by {angle:.4g} deg into the seed 000 '

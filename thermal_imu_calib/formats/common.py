@@ -42,8 +42,18 @@ def num(x, digits=15):
 
 
 def rounded(a, digits=15):
-    """Return an array rounded to ``digits`` significant digits (stable round trips)."""
-    return np.vectorize(lambda v: float(num(v, digits)))(np.asarray(a, float))
+    """Return an array rounded to ``digits`` significant digits of its largest element.
+
+    Small elements (off-diagonal terms) are rounded at the same decimal as the largest, so
+    an export -> import -> export round trip, whose arithmetic moves every element by a few
+    ulp of the largest, writes the same text.
+    """
+    a = np.asarray(a, float)
+    top = float(num(np.max(np.abs(a)) if a.size else 0.0, 6))
+    if top == 0.0:
+        return np.zeros_like(a)
+    decimals = int(digits - 1 - np.floor(np.log10(top)))
+    return np.round(a, decimals) + 0.0
 
 
 def loss_unit(which):
@@ -225,6 +235,16 @@ def offset_refit(cal, which, smp, columns, fmt):
     design = columns(t)
     coef, *_ = np.linalg.lstsq(design, y, rcond=None)
     return coef, lin, y - design @ coef
+
+
+def lq(m):
+    """Return (L, Q) with m = L Q, L lower-triangular with a positive diagonal, Q orthogonal."""
+    q, r = np.linalg.qr(np.asarray(m, float).T)     # m^T = Q R  ->  m = R^T Q^T
+    sign = np.sign(np.diag(r))
+    sign[sign == 0] = 1.0
+    lower = (r * sign[:, None]).T
+    lower[np.triu_indices(3, 1)] = 0.0
+    return lower, (q * sign[None, :]).T
 
 
 def is_identity(m, tol=1e-12):

@@ -7,9 +7,10 @@ imucal (``imucal/ferraris_calibration_info.py``, ``FerrarisCalibrationInfo``) ap
 
 and stores K_a, R_a, b_a, K_g, R_g, K_ga, b_g with ``acc_unit``, ``gyr_unit``,
 ``from_acc_unit``, ``from_gyr_unit``, ``comment`` and ``cal_type`` "Ferraris" in JSON
-(``CalibrationInfo.to_json``). K is diagonal and R has unit rows, as imucal's own
-results have. We export SI in and out (m/s^2, rad/s). imucal has no temperature: the model
-is evaluated at T0 (or ``--temperature``) and the loss over the valid range is reported.
+(``CalibrationInfo.to_json``). K is diagonal and R has a unit diagonal (imucal's own
+results have unit rows; the formula is the same). We export SI in and out (m/s^2,
+rad/s). imucal has no temperature: the model is evaluated at T0 (or ``--temperature``)
+and the loss over the valid range is reported.
 """
 
 import json
@@ -25,9 +26,13 @@ SI = {'acc': 'm/s^2', 'gyr': 'rad/s'}
 
 
 def _split(m):
-    """Return (K diagonal, R with unit rows) with M = R^-1 K^-1."""
+    """Return (K diagonal, R with a unit diagonal) with M = R^-1 K^-1.
+
+    imucal's own fits give R unit rows; its formula takes any R. A unit diagonal (as
+    imu_tk's T) survives rounding exactly, so export -> import -> export is identical.
+    """
     kr = np.linalg.inv(m)
-    k = np.linalg.norm(kr, axis=1)
+    k = np.diag(kr).copy()
     return np.diag(k), kr / k[:, None]
 
 
