@@ -347,3 +347,47 @@ def test_cli_export(cold, tmp_path, capsys):
     jl = tmp_path / 'w.jsonl'
     jl.write_text(cold['windows'].to_jsonl())
     assert cli.main(['export', str(src), '--format', 'ardupilot', '--windows', str(jl)]) == 0
+
+
+# -------------------------------------------------------------- real data, default options
+def test_real_mpu6050_whole_unit_exports():
+    """A seed 002 calibration fitted on the real MPU-6050 session, in imucal, imu_tk, Kalibr."""
+    import sys
+    import yaml
+    sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(
+        __file__))), 'bench'))
+    import bench_real_data as R
+    from thermal_imu_calib.calibration import Calibration
+    from thermal_imu_calib.estimation.gyro_fit import collect_motion
+    from thermal_imu_calib.estimation.whole_unit_fit import fit_whole_unit
+    from thermal_imu_calib.io.csv_logs import read_mpu6050_csv
+    s = read_mpu6050_csv(os.path.join(R.MPU, 'example_data_calibration.csv.gz'))
+    windows, transitions, _ = collect_motion(s.aligned(), R.HAND_HELD, 0)
+    fit = fit_whole_unit(windows, R.G, transitions=transitions)
+    cal = Calibration(accel=fit.accel.model, gyro=fit.gyro.model)
+    assert np.abs(cal.gyro.coupling).max() > 1e-5          # a real g-sensitivity
+    acc, gyr = s.imu.accel, s.imu.gyro
+    ours = cal.apply(acc, gyr)
+    a, g = imucal_correct(json.loads(export_calibration(cal, 'json').files['']), acc, gyr)
+    assert np.abs(a - ours.accel).max() < 1 * UG
+    assert np.abs(g - ours.gyro).max() < 0.01 * DPH
+    out = export_calibration(cal, 'imu_tk', windows=windows)
+    assert np.abs(imu_tk_correct(out.files['_acc.calib'], acc) - ours.accel).max() < 1 * UG
+    dev = np.abs(imu_tk_correct(out.files['_gyro.calib'], gyr) - ours.gyro).max() / DPH
+    assert any('no g-sensitivity' in n for n in out.notes) and out.loss['gyro']['max'] > 10
+    assert dev > 10
+    kal = export_calibration(cal, 'kalibr', rostopic='/imu', update_rate=100.0,
+                             kalibr_model='scale-misalignment',
+                             noise_text='accelerometer_noise_density: 1.0e-3\n'
+                                        'accelerometer_random_walk: 1.0e-4\n'
+                                        'gyroscope_noise_density: 1.0e-4\n'
+                                        'gyroscope_random_walk: 1.0e-5\n')
+    d = yaml.safe_load(kal.files[''])
+    a_i, w_i = kalibr_correct(d, acc, gyr)
+    # Kalibr's IMU frame is ours rotated so that M_a is lower-triangular: compare invariants
+    np.testing.assert_allclose(np.linalg.norm(a_i, axis=1), np.linalg.norm(ours.accel, axis=1),
+                               rtol=0, atol=1 * UG)
+    np.testing.assert_allclose(np.linalg.norm(w_i, axis=1), np.linalg.norm(ours.gyro, axis=1),
+                               rtol=0, atol=0.01 * DPH)
+    np.testing.assert_allclose(np.sum(a_i * w_i, 1), np.sum(ours.accel * ours.gyro, 1),
+                               rtol=0, atol=1e-9)

@@ -81,6 +81,8 @@ def loss_text(which, loss):
     if loss['what'] == 'exact':
         return f'{which}: written exactly (no refit)'
     verb = 'the static file loses' if loss['what'].startswith('static') else 'refit loses'
+    if loss['max'] < 1e-6:
+        return f'{which}: {verb} nothing measurable (< 1e-6 {loss["unit"]}; {loss["what"]})'
     return (f'{which}: {verb} {loss["rms"]:.3g} {loss["unit"]} RMS, {loss["max"]:.3g} '
             f'{loss["unit"]} max over {loss["samples"]} samples ({loss["what"]})')
 
