@@ -70,8 +70,8 @@ def export(cal, smp, temperature=None):
         raw = smp.accel_raw if which == 'accel' else smp.gyro_raw
         ours = smp.accel_ours if which == 'accel' else smp.gyro_ours
         theirs = (raw - b) @ m.T
-        loss[which] = summarize_loss(which, theirs - ours,
-                                     f'static at {np.mean(t):.2f} vs ours on {smp.what}')
+        at = f'at {np.mean(t):.2f} degC' if cal.inputs else '(no temperature)'
+        loss[which] = summarize_loss(which, theirs - ours, f'static {at} vs ours on {smp.what}')
     return Exported(files, notes, loss)
 
 

@@ -59,8 +59,8 @@ def export(cal, smp, temperature=None):
     for which, theirs, ours in (('accel', acc, smp.accel_ours), ('gyro', gyr, smp.gyro_ours)):
         model = getattr(cal, which)
         t = temperature if temperature is not None else float(np.mean(model.t0))
-        loss[which] = summarize_loss(which, theirs - ours, f'static at {t:.2f} vs ours on '
-                                     f'{smp.what}')
+        at = f'at {t:.2f} degC' if cal.inputs else '(no temperature)'
+        loss[which] = summarize_loss(which, theirs - ours, f'static {at} vs ours on {smp.what}')
     d = {'acc_unit': SI['acc'], 'gyr_unit': SI['gyr'], 'from_acc_unit': SI['acc'],
          'from_gyr_unit': SI['gyr'], 'comment': 'thermal_imu_calib export',
          **{k: rounded(v, DIGITS).tolist() for k, v in (
