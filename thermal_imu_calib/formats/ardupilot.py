@@ -21,8 +21,8 @@ from numpy.polynomial import Polynomial
 
 from ..calibration import Calibration, TemperatureInput
 from ..models.polynomial import OffsetPolynomialModel
-from .common import (check_out, exact_loss, Exported, ExportRefused, lag_note, num,
-                     offset_refit, single_input, summarize_loss)
+from .common import (check_out, cubic_offset, exact_loss, Exported, ExportRefused, lag_note, num,
+                     offset_refit, parse_params, single_input, summarize_loss)
 
 TEMP_REFERENCE = 35.0
 SCALE = 1e6
@@ -49,25 +49,16 @@ def _snap(c, span):
     return c
 
 
-def _exact(cal, which):
-    m = cal.accel if which == 'accel' else cal.gyro
-    if (not isinstance(m, OffsetPolynomialModel) or m.order > 3
-            or not np.all(m.t0 == m.t0[0])):
-        return None
-    c = np.zeros((4, 3))
-    c[:m.order + 1] = m.coeffs
-    return float(m.t0[0]), reexpand(c, float(m.t0[0]), TEMP_REFERENCE)
-
-
 def sensor_params(cal, which, smp, imu=1):
     """Return (rows [(name, value)], TMIN, TMAX, notes, loss) for 'accel' or 'gyro'."""
     i = single_input(cal, which, 'ArduPilot')
     lo, hi = (float(v) for v in cal.valid_range[i])
     model = cal.accel if which == 'accel' else cal.gyro
     notes = [n for n in [check_out(cal, which, 'ArduPilot')] if n]
-    ex = _exact(cal, which)
+    ex = cubic_offset(cal, which)
     if ex is not None:
-        tcal, c = ex
+        tcal = ex[0]
+        c = reexpand(ex[1], tcal, TEMP_REFERENCE)
         loss = exact_loss(which)
         if not lo <= tcal <= hi:
             notes.append(f'{which}: T0 {tcal:g} degC is outside TMIN..TMAX, where ArduPilot '
@@ -127,16 +118,7 @@ def export(cal, smp, imu=1, header=''):
 
 def parse(text):
     """Return {name: float} of a .parm file (``NAME,VALUE`` or ``NAME VALUE`` lines)."""
-    out = {}
-    for ln, line in enumerate(text.splitlines(), 1):
-        line = line.split('#', 1)[0].strip()
-        if not line:
-            continue
-        parts = line.replace(',', ' ').split()
-        if len(parts) < 2:
-            raise ValueError(f'line {ln} is not NAME,VALUE')
-        out[parts[0]] = float(parts[1])
-    return out
+    return parse_params(text, lambda line: line.replace(',', ' ').split(), 0, 1, 'NAME,VALUE')
 
 
 def read(text, source='ArduPilot parameters'):

@@ -70,6 +70,43 @@ def summarize_loss(which, diff, what):
             'what': what}
 
 
+def parse_params(text, columns, name_col, value_col, form):
+    """Return {name: float} of a parameter file; ``columns(line)`` splits a line (no comment).
+
+    Lines that are empty or start with '#' are skipped; a line with fewer than
+    ``max(name_col, value_col) + 1`` fields raises ValueError quoting ``form``.
+    """
+    out = {}
+    need = max(name_col, value_col) + 1
+    for ln, line in enumerate(text.splitlines(), 1):
+        line = line.split('#', 1)[0].strip()
+        if not line:
+            continue
+        parts = columns(line)
+        if len(parts) < need:
+            raise ValueError(f'line {ln} is not {form}')
+        try:
+            out[parts[name_col]] = float(parts[value_col])
+        except ValueError:
+            raise ValueError(f'line {ln}: {parts[value_col]!r} is not a number') from None
+    return out
+
+
+def cubic_offset(cal, which):
+    """Return (T0, coefficients (4, 3) of dT^0..3) when the model is a cubic offset, else None.
+
+    That is an ``offset_polynomial`` of order <= 3 with one reference for its three axes:
+    what PX4 and ArduPilot hold exactly.
+    """
+    m = cal.accel if which == 'accel' else cal.gyro
+    if (not isinstance(m, OffsetPolynomialModel) or m.order > 3
+            or not np.all(m.t0 == m.t0[0])):
+        return None
+    c = np.zeros((4, 3))
+    c[:m.order + 1] = m.coeffs
+    return float(m.t0[0]), c
+
+
 def exact_loss(which):
     """Return the loss dict of a model written exactly (nothing refitted)."""
     return {'rms': 0.0, 'max': 0.0, 'unit': loss_unit(which)[1], 'samples': 0,

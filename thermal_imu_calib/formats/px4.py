@@ -22,22 +22,11 @@ import numpy as np
 
 from ..calibration import Calibration, TemperatureInput
 from ..models.polynomial import OffsetPolynomialModel
-from .common import (check_out, Exported, ExportRefused, exact_loss, lag_note, num,
-                     offset_refit, single_input, summarize_loss)
+from .common import (check_out, cubic_offset, Exported, ExportRefused, exact_loss, lag_note, num,
+                     offset_refit, parse_params, single_input, summarize_loss)
 
 INT32, REAL32 = 6, 9
 PREFIX = {'accel': 'TC_A', 'gyro': 'TC_G'}
-
-
-def _exact(cal, which):
-    """Return (TREF, X (4, 3)) when the model is written exactly, else None."""
-    m = cal.accel if which == 'accel' else cal.gyro
-    if (not isinstance(m, OffsetPolynomialModel) or m.order > 3
-            or not np.all(m.t0 == m.t0[0])):
-        return None
-    x = np.zeros((4, 3))
-    x[:m.order + 1] = m.coeffs
-    return float(m.t0[0]), x
 
 
 def _design(tref):
@@ -49,7 +38,7 @@ def sensor_params(cal, which, smp, instance=0, device_id=0):
     i = single_input(cal, which, 'PX4')
     lo, hi = (float(v) for v in cal.valid_range[i])
     notes = [n for n in [check_out(cal, which, 'PX4')] if n]
-    ex = _exact(cal, which)
+    ex = cubic_offset(cal, which)
     if ex is not None:
         tref, x = ex
         loss = exact_loss(which)
@@ -101,16 +90,8 @@ def export(cal, smp, instance=0, accel_id=0, gyro_id=0, header=''):
 
 def parse(text):
     """Return {name: float} of a QGroundControl .params file (comments skipped)."""
-    out = {}
-    for ln, line in enumerate(text.splitlines(), 1):
-        line = line.strip()
-        if not line or line.startswith('#'):
-            continue
-        parts = line.split('\t') if '\t' in line else line.split()
-        if len(parts) < 4:
-            raise ValueError(f'line {ln} is not "vehicle component name value type"')
-        out[parts[2]] = float(parts[3])
-    return out
+    return parse_params(text, lambda line: line.split('\t') if '\t' in line else line.split(),
+                        2, 3, '"vehicle component name value type"')
 
 
 def read(text, source='PX4 parameters'):
