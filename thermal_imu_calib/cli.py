@@ -1,8 +1,8 @@
 """``thermal-imu-calib``: the library on recorded logs.
 
-Subcommands: calibrate, compensate, evaluate, simulate, info, report, noise, export. Bad input gets one
-line on stderr saying what was wrong and what to do, and exit status 2; ``--debug`` shows
-the traceback instead.
+Subcommands: calibrate, compensate, evaluate, simulate, info, report, noise, export. Bad
+input gets one line on stderr saying what was wrong and what to do, and exit status 2;
+``--debug`` shows the traceback instead.
 """
 
 import argparse
