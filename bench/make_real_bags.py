@@ -16,24 +16,16 @@ sys.path.insert(0, ROOT)
 
 from thermal_imu_calib.io.bag import write_columns  # noqa: E402
 from thermal_imu_calib.io.columns import ImuColumns, TemperatureColumns  # noqa: E402
-from thermal_imu_calib.io.csv_logs import read_imucal_session, read_mpu6050_csv  # noqa: E402
+from thermal_imu_calib.io.csv_logs import (read_bmi270_rows, read_imucal_session,  # noqa: E402
+                                           read_mpu6050_csv)
 
 FIX = os.path.join(ROOT, 'test', 'fixtures', 'real')
 BMI_RATE_HZ = 80.0
 
 
 def bmi270_rows(path):
-    """Return the (n, 7) rows of a BMI270 soak (lines that are not 7 floats skipped)."""
-    rows = []
-    with open(path, errors='replace') as f:
-        for line in f:
-            vals = line.strip().split(',')
-            if len(vals) == 7:
-                try:
-                    rows.append([float(v) for v in vals])
-                except ValueError:
-                    pass
-    return np.asarray(rows)
+    """Return the (n, 7) rows of a BMI270 soak (csv_logs.read_bmi270_rows)."""
+    return read_bmi270_rows(path)[0]
 
 
 def main(out):
