@@ -186,6 +186,8 @@ class StationaryDetector:
         self._var_g = deque(maxlen=FLOOR_BLOCKS)
         self._bias = deque(maxlen=BIAS_BLOCKS)
         self._lsb_var = (0.0, 0.0)
+        self._floor = None          # (blocks seen, (accel, gyro) floor), see noise_floor
+        self._n_blocks = 0
         self._open = _Blocks(n_inputs)
         self._log_t0 = None         # start of the first block (no guard at the log start)
         self._score = np.zeros(0)   # motion score of the open blocks (cached)
@@ -242,6 +244,8 @@ class StationaryDetector:
         """Return (accel, gyro) per-sample variance floors summed over axes, or None."""
         if len(self._var_a) < 4 or self.config is None:
             return None
+        if self._floor is not None and self._floor[0] == len(self._var_a) == self._n_blocks:
+            return self._floor[1]
         q = self.config.noise_quantile
         dof = 3 * (self.block_n - 1)
         bias = float(chi2.ppf(q, dof) / dof)
@@ -249,6 +253,9 @@ class StationaryDetector:
                  self.config.min_accel_var)
         fg = max(float(np.quantile(self._var_g, q)), bias * self._lsb_var[1],
                  self.config.min_gyro_var)
+        # cached until new blocks arrive (the node calls this on every message batch)
+        self._floor = (len(self._var_a), (fa, fg))
+        self._n_blocks = len(self._var_a)
         return fa, fg
 
     def settings(self):
@@ -308,6 +315,7 @@ class StationaryDetector:
         blk.am, blk.av = a.mean(1), a.var(1, ddof=1)
         blk.gm, blk.gv = g.mean(1), g.var(1, ddof=1)
         blk.tm = temps.reshape(m, n, self.k).mean(1)
+        self._floor = None
         self._var_a.extend(blk.av.sum(1).tolist())
         self._var_g.extend(blk.gv.sum(1).tolist())
         if self._log_t0 is None:
