@@ -1,0 +1,150 @@
+"""Bulk MCAP message source for :class:`thermal_imu_calib.io.bag.LogReader`.
+
+Wraps :mod:`.mcap_read` for the log reader: per-message tuples for callers that want
+them, and :func:`chunk_stream`, which turns batches straight into IMU/temperature
+columns (``cdr.decode_imu_packed``) without one Python object per message.  Errors are
+``ValueError`` (damaged file, malformed payload) with a message that names the topic or
+the chunk and offset; the log reader turns them into LogError.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator, Sequence
+
+import numpy as np
+
+from . import cdr
+from .columns import ImuColumns, TemperatureColumns
+from .mcap_read import Batch, iter_batches, McapBulkReader
+
+
+class McapBulkSource:
+    """Messages of one indexed MCAP file, read chunk by chunk.
+
+    ``base`` is the source that parsed the log's topics (rosbags or the mcap library);
+    its ``conns``/``mixed``/counts/times are reused so both report the same metadata.
+    """
+
+    def __init__(self, reader: McapBulkReader, base):
+        """Use ``reader`` (summary parsed) for messages and ``base`` for metadata."""
+        self._reader = reader
+        self._base = base
+        self.conns = base.conns
+        self.mixed = base.mixed
+        self.message_count = base.message_count
+        self.start_ns = base.start_ns
+        self.end_ns = base.end_ns
+        known = {c.topic for c in base.conns}
+        s = reader.summary
+        self._topic = {cid: ch.topic for cid, ch in s.channels.items() if ch.topic in known}
+        base_types = {c.topic: c.msgtype for c in base.conns}
+        self._type = {cid: s.schemas[ch.schema_id].name if ch.schema_id in s.schemas
+                      else base_types.get(ch.topic, '') for cid, ch in s.channels.items()}
+
+    @classmethod
+    def open(cls, path, base) -> McapBulkSource | None:
+        """Return a bulk source for ``path``, or None when it has no usable index."""
+        reader = McapBulkReader(path)
+        if reader.summary is None:
+            reader.close()
+            return None
+        return cls(reader, base)
+
+    def channel_ids(self, topics) -> np.ndarray:
+        """Channel ids of ``topics`` (all known topics when None)."""
+        return np.array(sorted(cid for cid, t in self._topic.items()
+                               if topics is None or t in topics), np.uint16)
+
+    def topic_of(self, cid: int) -> str:
+        """Topic name of a channel id."""
+        return self._topic[cid]
+
+    def batches(self, topics=None) -> Iterator[Batch]:
+        """Yield log-time ordered batches of the messages on ``topics`` (None: all)."""
+        yield from iter_batches(self._reader, self.channel_ids(topics))
+
+    def messages(self, topics) -> Iterator[tuple[str, str, int, bytes]]:
+        """Yield ``(topic, msgtype, log_time_ns, raw)`` one by one (rosbags' order)."""
+        ids = self.channel_ids(topics)
+        if not len(ids):
+            return
+        topic, typ = self._topic, self._type
+        for b in self.batches(topics):
+            for cid, t, raw in zip(b.channel.tolist(), b.log_time.tolist(), b.payloads()):
+                yield topic[cid], typ[cid], t, raw
+
+    def close(self) -> None:
+        """Close the file and the metadata source."""
+        self._reader.close()
+        self._base.close()
+
+
+def chunk_stream(batches, imu_topic: str, imu_ids, temp_topics: Sequence[str],
+                 temp_ids: Sequence, chunk_size: int, keep_raw: bool,
+                 on_batch: Callable[[Batch], None] | None = None
+                 ) -> Iterator[tuple[ImuColumns, np.ndarray, dict, list | None]]:
+    """Group batches into ``(imu, imu_log_time_ns, {topic: temps}, imu_raw)`` chunks.
+
+    The cut points are those of a per-message chunker: a chunk closes when it holds
+    ``chunk_size`` IMU messages or ``chunk_size`` temperature messages (the temperature
+    messages logged meanwhile go with it).  ``on_batch`` sees every batch first (used to
+    copy all messages to an output).
+    """
+    pend: list = []
+    n_imu = n_temp = 0
+
+    def build():
+        imu = [p[0] for p in pend]
+        frames = {c.frame_id for c in imu if len(c)}
+        cols = ImuColumns.concat(imu)
+        cols.frame_id = frames.pop() if len(frames) == 1 else ''
+        times = (np.concatenate([p[1] for p in pend]) if pend else np.zeros(0, np.int64))
+        temps = {}
+        for j, topic in enumerate(temp_topics):
+            parts = [p[2][j] for p in pend if len(p[2][j])]
+            frames = {c.frame_id for c in parts}
+            temps[topic] = (TemperatureColumns(np.concatenate([c.stamp_ns for c in parts]),
+                                               np.concatenate([c.temperature for c in parts]),
+                                               frames.pop() if len(frames) == 1 else '')
+                            if parts else TemperatureColumns.empty())
+        raws = [r for p in pend for r in p[3]] if keep_raw else None
+        return cols, times, temps, raws
+
+    def decode(b: Batch, is_imu, is_temp):
+        sub = b.take(is_imu)
+        try:
+            imu = cdr.decode_imu_packed(sub.buf, sub.data_start, sub.data_len)
+        except ValueError as err:
+            raise ValueError(f'topic {imu_topic!r}: {err}') from err
+        temps = []
+        for topic, mask in zip(temp_topics, is_temp):
+            t = b.take(mask)
+            try:
+                temps.append(cdr.decode_temperature_packed(t.buf, t.data_start, t.data_len))
+            except ValueError as err:
+                raise ValueError(f'topic {topic!r}: {err}') from err
+        return imu, sub.log_time, temps, sub.payloads() if keep_raw else None
+
+    for b in batches:
+        if on_batch is not None:
+            on_batch(b)
+        is_imu = np.isin(b.channel, imu_ids)
+        is_temp = [np.isin(b.channel, ids) for ids in temp_ids]
+        any_temp = np.logical_or.reduce(is_temp) if is_temp else np.zeros(len(b), bool)
+        rows = np.flatnonzero(is_imu | any_temp)
+        while len(rows):
+            ci = n_imu + np.cumsum(is_imu[rows])
+            ct = n_temp + np.cumsum(any_temp[rows])
+            full = np.flatnonzero((is_imu[rows] & (ci >= chunk_size))
+                                  | (any_temp[rows] & (ct >= chunk_size)))
+            cut = int(full[0]) + 1 if len(full) else len(rows)
+            part = np.zeros(len(b), bool)
+            part[rows[:cut]] = True
+            pend.append(decode(b, is_imu & part, [m & part for m in is_temp]))
+            n_imu, n_temp = int(ci[cut - 1]), int(ct[cut - 1])
+            rows = rows[cut:]
+            if len(full):
+                yield build()
+                pend, n_imu, n_temp = [], 0, 0
+    if n_imu or n_temp:
+        yield build()
