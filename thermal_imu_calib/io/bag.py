@@ -250,7 +250,7 @@ def _bulk_source(p: Path, src):
     if len(paths) != 1 or paths[0].suffix != '.mcap':
         return src
     try:
-        return McapBulkSource.open(paths[0], src) or src
+        return McapBulkSource.open(paths[0], src, LogError) or src
     except ValueError as err:
         src.close()
         raise LogError(f'{err}') from err

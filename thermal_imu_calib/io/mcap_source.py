@@ -15,7 +15,7 @@ import numpy as np
 
 from . import cdr
 from .columns import ImuColumns, TemperatureColumns
-from .mcap_read import Batch, iter_batches, McapBulkReader
+from .mcap_read import Batch, iter_batches, McapBulkReader, McapFormatError
 
 
 class McapBulkSource:
@@ -25,9 +25,13 @@ class McapBulkSource:
     its ``conns``/``mixed``/counts/times are reused so both report the same metadata.
     """
 
-    def __init__(self, reader: McapBulkReader, base):
-        """Use ``reader`` (summary parsed) for messages and ``base`` for metadata."""
+    def __init__(self, reader: McapBulkReader, base, error=ValueError):
+        """Use ``reader`` (summary parsed) for messages and ``base`` for metadata.
+
+        A damaged chunk found while iterating raises ``error`` (the caller's error type).
+        """
         self._reader = reader
+        self._error = error
         self._base = base
         self.conns = base.conns
         self.mixed = base.mixed
@@ -42,13 +46,13 @@ class McapBulkSource:
                       else base_types.get(ch.topic, '') for cid, ch in s.channels.items()}
 
     @classmethod
-    def open(cls, path, base) -> McapBulkSource | None:
+    def open(cls, path, base, error=ValueError) -> McapBulkSource | None:
         """Return a bulk source for ``path``, or None when it has no usable index."""
         reader = McapBulkReader(path)
         if reader.summary is None:
             reader.close()
             return None
-        return cls(reader, base)
+        return cls(reader, base, error)
 
     def channel_ids(self, topics) -> np.ndarray:
         """Channel ids of ``topics`` (all known topics when None)."""
@@ -61,7 +65,10 @@ class McapBulkSource:
 
     def batches(self, topics=None) -> Iterator[Batch]:
         """Yield log-time ordered batches of the messages on ``topics`` (None: all)."""
-        yield from iter_batches(self._reader, self.channel_ids(topics))
+        try:
+            yield from iter_batches(self._reader, self.channel_ids(topics))
+        except McapFormatError as err:
+            raise self._error(f'{err}') from err
 
     def messages(self, topics) -> Iterator[tuple[str, str, int, bytes]]:
         """Yield ``(topic, msgtype, log_time_ns, raw)`` one by one (rosbags' order)."""
