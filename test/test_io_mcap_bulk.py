@@ -274,3 +274,16 @@ def test_records_that_overrun_the_chunk_are_refused(tmp_path):
     path.write_bytes(bytes(raw))
     with pytest.raises(LogError, match=rf'chunk 0 at byte {off}:'):
         _read_all(path)
+
+
+@pytest.mark.parametrize('compression', ['none', 'zstd'])
+def test_rosbag2_directory_with_mcap_storage_reads_in_bulk(tmp_path, compression):
+    content = _content(800)
+    path = tmp_path / 'bag'
+    with LogWriter(path, storage='mcap', compression=compression) as w:
+        for topic, (msgtype, _, _) in content.items():
+            w.add_topic(topic, msgtype)
+        for t, topic, raw in _events(content):
+            w.write(topic, t, raw)
+    assert _bulk(path) == _rosbags(path) == [(topic, t, raw)
+                                             for t, topic, raw in _events(content)]

@@ -245,8 +245,12 @@ def _bulk_source(p: Path, src):
     """Read messages with the bulk MCAP reader when the log is one indexed .mcap file."""
     from .mcap_source import McapBulkSource
 
-    paths = ([p] if p.suffix == '.mcap'
-             else [Path(x) for x in getattr(getattr(src, '_reader', None), 'paths', [])])
+    paths = [p]
+    if p.is_dir():  # rosbag2 directory: rosbags' storage files (decompressed if 'file' mode)
+        bag = getattr(src, '_reader', None)
+        if bag is None or getattr(bag, 'compression_mode', None) == 'message':
+            return src
+        paths = [Path(s.path) for s in getattr(bag.storage, 'storages', [])]
     if len(paths) != 1 or paths[0].suffix != '.mcap':
         return src
     try:
