@@ -150,6 +150,7 @@ def test_bulk_reader_matches_rosbags_on_mcap_library_files(tmp_path, compression
 
 def test_overlapping_chunks_ties_and_no_message_index_match_rosbags(tmp_path):
     content = _content(2000, seed=1)
+
     def shuffle_locally(ev):
         rng = np.random.default_rng(3)
         # messages out of order within +-50 places: chunks overlap in time; equal times
