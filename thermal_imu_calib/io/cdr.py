@@ -115,9 +115,10 @@ def _packed_groups(buf: np.ndarray, starts, lengths, fields, what):
 def _sized_groups(sizes, rows_u8, fields, what):
     """Yield ``(rows, records, u8, body)`` per layout group; ``rows_u8(rows, size)`` gathers."""
     floats = _payload_size(fields)
-    for size in np.unique(sizes):
+    one = sizes.min() == sizes.max()
+    for size in (sizes[:1] if one else np.unique(sizes)):
         size = int(size)
-        rows = np.flatnonzero(sizes == size)
+        rows = np.arange(len(sizes)) if one else np.flatnonzero(sizes == size)
         if size < _HDR + 12 + floats:
             raise ValueError(
                 f'{what} message {int(rows[0])} is only {size} bytes, too short to be a '
@@ -137,9 +138,10 @@ def _sized_groups(sizes, rows_u8, fields, what):
             raise ValueError(
                 f'{what} message {int(rows[np.flatnonzero(bad)[0]])} has a frame_id length field '
                 f'that does not fit in its {size} bytes; the data is corrupt or not a {what}.')
-        for b in np.unique(body):
-            sel = body == b
-            sub = u8 if sel.all() else u8[sel]
+        same = body.min() == body.max()
+        for b in (body[:1] if same else np.unique(body)):
+            sel = slice(None) if same else body == b
+            sub = u8 if same else u8[sel]
             records = sub.view(_layout(fields, int(b), size)).reshape(-1)
             yield rows[sel], records, sub, int(b)
 

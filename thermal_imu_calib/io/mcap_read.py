@@ -401,7 +401,9 @@ class McapBulkReader:
 
 
 def _u64_at(u8: np.ndarray, pos: np.ndarray) -> np.ndarray:
-    return u8[pos[:, None] + np.arange(8)].copy().view('<u8')[:, 0]
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    return np.ascontiguousarray(sliding_window_view(u8, 8)[pos]).view('<u8')[:, 0]
 
 
 def _walk(raw: bytes, where: str) -> np.ndarray:
@@ -447,26 +449,27 @@ def _parse_messages(raw: bytes, starts: np.ndarray, where: str) -> Batch:
                  length - (MESSAGE_HEADER - 9))
 
 
-def _concat(batches: list[Batch]) -> tuple[Batch, np.ndarray]:
-    """Concatenate batches into one buffer; also return each row's source batch number."""
+def concat_batches(batches: list[Batch]) -> Batch:
+    """Concatenate batches into one (their buffers are copied into one, unless only one)."""
+    batches = [b for b in batches if len(b)] or batches[:1]
+    if not batches:
+        z = np.zeros(0, np.int64)
+        return Batch(np.zeros(0, np.uint8), z, z.astype(np.uint16), z.astype(np.uint32), z,
+                     z, z)
     if len(batches) == 1:
-        b = batches[0]
-        return b, np.zeros(len(b), np.int64)
-    bufs, shift = [], 0
-    starts = []
+        return batches[0]
+    bufs, starts, shift = [], [], 0
     for b in batches:
         bufs.append(b.buf)
         starts.append(b.start + shift)
         shift += len(b.buf)
     cat = np.concatenate
-    src = np.repeat(np.arange(len(batches)), [len(b) for b in batches])
     return Batch(cat(bufs), cat(starts), cat([b.channel for b in batches]),
                  cat([b.sequence for b in batches]), cat([b.log_time for b in batches]),
-                 cat([b.publish_time for b in batches]),
-                 cat([b.data_len for b in batches])), src
+                 cat([b.publish_time for b in batches]), cat([b.data_len for b in batches]))
 
 
-def _compact(batch: Batch) -> Batch:
+def compact(batch: Batch) -> Batch:
     """Copy the records of ``batch`` into a fresh buffer of just them."""
     length = batch.data_len + MESSAGE_HEADER
     buf = gather(batch.buf, batch.start, length)
@@ -496,11 +499,13 @@ def iter_batches(reader: McapBulkReader, channels: Iterable[int] | None = None
             continue
         _, batch = reader.read_chunk(i, index)
         if wanted is not None:
-            batch = batch.take(np.isin(batch.channel, wanted))
+            keep = np.zeros(1 << 16, bool)
+            keep[wanted] = True
+            batch = batch.take(keep[batch.channel])
         parts = ([pool] if pool is not None and len(pool) else []) + [batch]
         keys = ([pool_key] if pool is not None and len(pool) else []) + [
             np.full(len(batch), index.chunk_start_offset, np.int64)]
-        pool, _ = _concat(parts)
+        pool = concat_batches(parts)
         pool_key = np.concatenate(keys)
         # stable: record order within a chunk (and the pool's own order) is kept
         srt = np.lexsort((pool_key, pool.log_time))
@@ -514,7 +519,7 @@ def iter_batches(reader: McapBulkReader, channels: Iterable[int] | None = None
         if cut:
             yield pool.take(slice(0, cut))
             rest = pool.take(slice(cut, None))
-            pool = _compact(rest) if len(rest) else None
+            pool = compact(rest) if len(rest) else None
             pool_key = pool_key[cut:]
     if pool is not None and len(pool):
         yield pool

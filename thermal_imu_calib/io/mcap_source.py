@@ -14,8 +14,9 @@ from collections.abc import Callable, Iterator, Sequence
 import numpy as np
 
 from . import cdr
-from .columns import ImuColumns, TemperatureColumns
-from .mcap_read import Batch, iter_batches, McapBulkReader, McapFormatError
+from .columns import ImuColumns
+from .mcap_read import (Batch, compact, concat_batches, iter_batches, McapBulkReader,
+                        McapFormatError)
 
 
 class McapBulkSource:
@@ -100,43 +101,40 @@ def chunk_stream(batches, imu_topic: str, imu_ids, temp_topics: Sequence[str],
     pend: list = []
     n_imu = n_temp = 0
 
-    def build():
-        imu = [p[0] for p in pend]
-        frames = {c.frame_id for c in imu if len(c)}
-        cols = ImuColumns.concat(imu)
-        cols.frame_id = frames.pop() if len(frames) == 1 else ''
-        times = (np.concatenate([p[1] for p in pend]) if pend else np.zeros(0, np.int64))
-        temps = {}
-        for j, topic in enumerate(temp_topics):
-            parts = [p[2][j] for p in pend if len(p[2][j])]
-            frames = {c.frame_id for c in parts}
-            temps[topic] = (TemperatureColumns(np.concatenate([c.stamp_ns for c in parts]),
-                                               np.concatenate([c.temperature for c in parts]),
-                                               frames.pop() if len(frames) == 1 else '')
-                            if parts else TemperatureColumns.empty())
-        raws = [r for p in pend for r in p[3]] if keep_raw else None
-        return cols, times, temps, raws
+    def lut(ids):
+        table = np.zeros(1 << 16, bool)
+        table[np.asarray(ids, np.int64)] = True
+        return table
+    imu_lut = lut(imu_ids)
+    temp_luts = [lut(ids) for ids in temp_ids]
 
-    def decode(b: Batch, is_imu, is_temp):
-        sub = b.take(is_imu)
+    def decode_imu(b: Batch):
         try:
-            imu = cdr.decode_imu_packed(sub.buf, sub.data_start, sub.data_len)
+            cols = cdr.decode_imu_packed(b.buf, b.data_start, b.data_len)
         except ValueError as err:
             raise ValueError(f'topic {imu_topic!r}: {err}') from err
-        temps = []
-        for topic, mask in zip(temp_topics, is_temp):
-            t = b.take(mask)
+        return cols, b.log_time, b.payloads() if keep_raw else None
+
+    def build():
+        parts = [p[0] for p in pend]
+        cols = ImuColumns.concat([c for c, _, _ in parts])
+        frames = {c.frame_id for c, _, _ in parts if len(c)}
+        cols.frame_id = frames.pop() if len(frames) == 1 else ''
+        times = np.concatenate([t for _, t, _ in parts])
+        temps = {}
+        for j, topic in enumerate(temp_topics):
+            t = concat_batches([p[1][j] for p in pend])
             try:
-                temps.append(cdr.decode_temperature_packed(t.buf, t.data_start, t.data_len))
+                temps[topic] = cdr.decode_temperature_packed(t.buf, t.data_start, t.data_len)
             except ValueError as err:
                 raise ValueError(f'topic {topic!r}: {err}') from err
-        return imu, sub.log_time, temps, sub.payloads() if keep_raw else None
+        return cols, times, temps, [r for _, _, raws in parts for r in raws] if keep_raw else None
 
     for b in batches:
         if on_batch is not None:
             on_batch(b)
-        is_imu = np.isin(b.channel, imu_ids)
-        is_temp = [np.isin(b.channel, ids) for ids in temp_ids]
+        is_imu = imu_lut[b.channel]
+        is_temp = [t[b.channel] for t in temp_luts]
         any_temp = np.logical_or.reduce(is_temp) if is_temp else np.zeros(len(b), bool)
         rows = np.flatnonzero(is_imu | any_temp)
         while len(rows):
@@ -145,9 +143,9 @@ def chunk_stream(batches, imu_topic: str, imu_ids, temp_topics: Sequence[str],
             full = np.flatnonzero((is_imu[rows] & (ci >= chunk_size))
                                   | (any_temp[rows] & (ct >= chunk_size)))
             cut = int(full[0]) + 1 if len(full) else len(rows)
-            part = np.zeros(len(b), bool)
-            part[rows[:cut]] = True
-            pend.append(decode(b, is_imu & part, [m & part for m in is_temp]))
+            part = rows[:cut]
+            pend.append((decode_imu(b.take(part[is_imu[part]])),
+                         [compact(b.take(part[m[part]])) for m in is_temp]))
             n_imu, n_temp = int(ci[cut - 1]), int(ct[cut - 1])
             rows = rows[cut:]
             if len(full):
