@@ -473,7 +473,7 @@ def compact(batch: Batch) -> Batch:
     """Copy the records of ``batch`` into a fresh buffer of just them."""
     length = batch.data_len + MESSAGE_HEADER
     buf = gather(batch.buf, batch.start, length)
-    start = np.concatenate([[0], np.cumsum(length)[:-1]]).astype(np.int64)
+    start = (np.cumsum(length) - length).astype(np.int64)
     return Batch(buf, start, batch.channel, batch.sequence, batch.log_time,
                  batch.publish_time, batch.data_len)
 
