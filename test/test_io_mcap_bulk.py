@@ -288,3 +288,28 @@ def test_rosbag2_directory_with_mcap_storage_reads_in_bulk(tmp_path, compression
             w.write(topic, t, raw)
     assert _bulk(path) == _rosbags(path) == [(topic, t, raw)
                                              for t, topic, raw in _events(content)]
+
+
+def test_data_section_crc_when_asked_validates_with_the_mcap_library(tmp_path):
+    from thermal_imu_calib.io.mcap_write import McapBulkWriter
+    content = _content(500)
+    path = tmp_path / 'crc.mcap'
+    with open(path, 'wb') as f:
+        w = McapBulkWriter(f, compression='lz4', chunk_size=5000, data_crc=True)
+        sid = w.add_schema('sensor_msgs/msg/Imu', 'ros2msg', b'')
+        cid = w.add_channel('/imu', 'cdr', sid)
+        _, st, raws = content['/imu']
+        w.add_messages(cid, st, raws)
+        w.finish()
+    with open(path, 'rb') as f:
+        data_end = [r for r in StreamReader(f, validate_crcs=True).records
+                    if type(r).__name__ == 'DataEnd']
+    assert data_end[0].data_section_crc != 0
+    assert [m[2] for m in _mcap_lib(path)] == raws
+    with open(path, 'rb') as f:  # a flipped byte inside a chunk fails the library's check
+        raw = bytearray(f.read())
+    raw[200] ^= 0xFF
+    bad = tmp_path / 'bad.mcap'
+    bad.write_bytes(bytes(raw))
+    with open(bad, 'rb') as f, pytest.raises(Exception):
+        list(StreamReader(f, validate_crcs=True).records)

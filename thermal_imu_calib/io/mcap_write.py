@@ -3,7 +3,7 @@
 Messages are appended as packed record bytes (copied verbatim from a bulk read, or built
 from payloads with one vectorised scatter); when the pending chunk reaches
 ``chunk_size`` bytes it is compressed (zstd, lz4 or none), CRC'd and written with its
-message indexes.  ``finish`` writes DataEnd (with the data section CRC), then the summary
+message indexes.  ``finish`` writes DataEnd (data section CRC if asked), then the summary
 section (schemas, channels, statistics, chunk indexes, summary offsets) and the footer
 with its CRC: the same layout the ``mcap`` library's ``Writer`` produces, checked in
 ``test/test_io_mcap_bulk.py`` with the mcap library's reader (CRCs validated) and rosbags.
@@ -93,8 +93,13 @@ class McapBulkWriter:
     """
 
     def __init__(self, f, *, profile: str = 'ros2', library: str = 'thermal_imu_calib',
-                 compression: str = '', chunk_size: int = 1 << 20, zstd_level: int = 1):
-        """Write the magic and header record."""
+                 compression: str = '', chunk_size: int = 1 << 20, zstd_level: int = 1,
+                 data_crc: bool = False):
+        """Write the magic and header record.
+
+        Every chunk gets the CRC of its records; ``data_crc`` also computes the CRC of
+        the whole data section (DataEnd; 0 = not computed, as the mcap library's default).
+        """
         if compression not in COMPRESSIONS:
             raise ValueError(f'unknown MCAP compression {compression!r}; use one of '
                              f'{COMPRESSIONS}.')
@@ -103,6 +108,7 @@ class McapBulkWriter:
         self._chunk_size = int(chunk_size)
         self._compress = self._compressor(compression, zstd_level)
         self._crc = 0
+        self._data_crc = data_crc
         self._pos = 0
         self.schemas: dict[int, bytes] = {}
         self.channels: dict[int, bytes] = {}
@@ -132,7 +138,8 @@ class McapBulkWriter:
 
     def _emit(self, data) -> None:
         self._f.write(data)
-        self._crc = zlib.crc32(data, self._crc)
+        if self._data_crc:
+            self._crc = zlib.crc32(data, self._crc)
         self._pos += len(data)
 
     def add_schema(self, name: str, encoding: str, data: bytes, schema_id: int | None = None
@@ -211,8 +218,7 @@ class McapBulkWriter:
         """Write the pending messages as one chunk plus its message indexes."""
         if not self._pieces:
             return
-        data = (self._pieces[0] if len(self._pieces) == 1
-                else np.concatenate(self._pieces)).tobytes()
+        data = self._pieces[0] if len(self._pieces) == 1 else np.concatenate(self._pieces)
         starts = np.concatenate([i[0] for i in self._idx])
         channel = np.concatenate([i[1] for i in self._idx])
         log_time = np.concatenate([i[2] for i in self._idx])
@@ -221,9 +227,11 @@ class McapBulkWriter:
         crc = zlib.crc32(data)
         body = data if self._compress is None else self._compress(data)
         chunk_start = self._pos
-        chunk = _record(OP_CHUNK, struct.pack('<QQQI', t0, t1, len(data), crc)
-                        + _string(self._compression) + struct.pack('<Q', len(body)) + body)
-        self._emit(chunk)
+        head = struct.pack('<QQQI', t0, t1, len(data), crc) + _string(self._compression) \
+            + struct.pack('<Q', len(body))
+        self._emit(struct.pack('<BQ', OP_CHUNK, len(head) + len(body)) + head)
+        self._emit(body)
+        chunk_len = self._pos - chunk_start
         offsets = {}
         index_start = self._pos
         order = np.lexsort((starts, log_time, channel))
@@ -248,7 +256,7 @@ class McapBulkWriter:
         self._t0 = t0 if self._t0 is None else min(self._t0, t0)
         self._t1 = t1 if self._t1 is None else max(self._t1, t1)
         self._chunk_indexes.append(_record(OP_CHUNK_INDEX, struct.pack(
-            '<QQQQ', t0, t1, chunk_start, len(chunk)) + _u16_u64_map(offsets)
+            '<QQQQ', t0, t1, chunk_start, chunk_len) + _u16_u64_map(offsets)
             + struct.pack('<Q', len(index)) + _string(self._compression)
             + struct.pack('<QQ', len(body), len(data))))
 
