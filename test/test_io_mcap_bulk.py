@@ -313,3 +313,30 @@ def test_data_section_crc_when_asked_validates_with_the_mcap_library(tmp_path):
     bad.write_bytes(bytes(raw))
     with open(bad, 'rb') as f, pytest.raises(Exception):
         list(StreamReader(f, validate_crcs=True).records)
+
+
+@pytest.mark.parametrize('compression', ['none', 'zstd'])
+def test_sqlite3_write_many_equals_per_message_writes(tmp_path, compression):
+    content = _content(600)
+    logs = {}
+    for how in ('many', 'single'):
+        path = tmp_path / how
+        with LogWriter(path, storage='sqlite3', compression=compression) as w:
+            for topic, (msgtype, _, _) in content.items():
+                w.add_topic(topic, msgtype)
+            for topic, (_, ts, raws) in content.items():
+                if how == 'many':
+                    w.write_many(topic, ts, raws)
+                else:
+                    for t, raw in zip(ts, raws):
+                        w.write(topic, int(t), raw)
+        logs[how] = path
+    expected = [(topic, t, raw) for t, topic, raw in _events(content)]
+    for path in logs.values():
+        got = _rosbags(path)
+        assert sorted(got, key=lambda e: e[1]) == sorted(expected, key=lambda e: e[1])
+        with Reader(path) as r:
+            assert r.message_count == len(expected)
+            assert {c.topic: c.msgcount for c in r.connections} == {
+                t: len(v[1]) for t, v in content.items()}
+            assert r.start_time == T0

@@ -777,6 +777,9 @@ class LogWriter:
             self._mcap.add_messages(handle, log_times, raws,
                                     sequence=np.arange(seq + 1, seq + 1 + len(raws)))
             self._seq[topic] = seq + len(raws)
+        elif self.storage == 'sqlite3' and hasattr(getattr(self._bag, 'storage', None),
+                                                   'cursor') and log_times:
+            _sqlite_write_many(self._bag, handle, log_times, raws)
         else:
             write = self._bag.write
             for t, raw in zip(log_times, raws):
@@ -818,6 +821,21 @@ class LogWriter:
             self._file.close()
         else:
             self._bag.abort()
+
+
+def _sqlite_write_many(bag, conn, log_times: list, raws: list) -> None:
+    """One ``executemany`` into rosbags' open sqlite3 transaction (what ``write`` does)."""
+    from rosbags.rosbag2.enums import CompressionMode
+
+    if bag.compression_mode == CompressionMode.MESSAGE:
+        from rosbags.rosbag2.writer import zstd
+        raws = [zstd.compress(r) for r in raws]
+    bag.storage.cursor.executemany(
+        'INSERT INTO messages (topic_id, timestamp, data) VALUES(?, ?, ?)',
+        zip([conn.id] * len(raws), log_times, raws))
+    bag.counts[conn.id] += len(raws)
+    bag.min_timestamp = min(min(log_times), bag.min_timestamp)
+    bag.max_timestamp = max(max(log_times), bag.max_timestamp)
 
 
 def _remove_log(p: Path) -> None:
