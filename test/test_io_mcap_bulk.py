@@ -340,3 +340,34 @@ def test_sqlite3_write_many_equals_per_message_writes(tmp_path, compression):
             assert {c.topic: c.msgcount for c in r.connections} == {
                 t: len(v[1]) for t, v in content.items()}
             assert r.start_time == T0
+
+
+def test_compensate_bulk_path_gives_the_per_message_path_bytes(tmp_path):
+    from thermal_imu_calib import sim
+    from thermal_imu_calib.calibration import Calibration
+    from thermal_imu_calib.pipeline import compensate_log
+    src = tmp_path / 'demo.mcap'
+    sim.write_scenario(str(src), 'demo', 0)
+    cal = Calibration.load(str(src) + '.truth.yaml')
+    db = tmp_path / 'demo_db'  # the same log in sqlite3: read message by message (rosbags)
+    with open_log(src) as log, LogWriter(db, storage='sqlite3') as w:
+        for topic, msgtype in log.topic_types().items():
+            w.add_topic(topic, msgtype)
+        for topic, _, t, raw in log.iter_raw():
+            w.write(topic, t, raw)
+    outs = {}
+    for name, path in (('bulk', src), ('per_message', db)):
+        with open_log(path) as log:
+            assert isinstance(log._src, McapBulkSource) == (name == 'bulk')
+        out = tmp_path / f'{name}.mcap'
+        stats = compensate_log(path, out, cal, chunk_size=3000, progress=False)
+        assert stats['imu_out'] == stats['imu_in'] > 20000
+        outs[name] = _mcap_lib(out)
+    assert [m[:3] for m in outs['bulk']] == [m[:3] for m in outs['per_message']]
+    comp = [m for m in outs['bulk'] if m[0] == '/imu/data_compensated']
+    raw = [m for m in outs['bulk'] if m[0] == '/imu/data_raw']
+    assert len(comp) == len(raw) and comp[0][2] != raw[0][2]
+    a = cdr.decode_imu([m[2] for m in comp])
+    b = cdr.decode_imu([m[2] for m in raw])
+    np.testing.assert_array_equal(a.stamp_ns, b.stamp_ns)
+    assert np.max(np.abs(a.accel - b.accel)) > 0

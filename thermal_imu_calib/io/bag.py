@@ -128,7 +128,9 @@ class RawChunk:
     imu: ImuColumns
     imu_log_time_ns: np.ndarray
     temps: dict[str, TemperatureColumns]
-    imu_raw: list[bytes] | None = None
+    #: the Imu payloads when asked for: a list of bytes, or from the bulk MCAP reader an
+    #: (n, size) uint8 array when every payload of the chunk has one size
+    imu_raw: list[bytes] | np.ndarray | None = None
 
     def __len__(self):
         return len(self.imu)
@@ -764,9 +766,14 @@ class LogWriter:
             self._bag.write(handle, t, raw)
 
     def write_many(self, topic: str, log_times: Iterable[int], raws: Iterable[bytes]) -> None:
-        """Write messages pairwise from ``log_times`` and ``raws``."""
+        """Write messages pairwise from ``log_times`` and ``raws``.
+
+        ``raws`` is a sequence of bytes or an (n, size) uint8 array of equal-size payloads.
+        """
         log_times = np.asarray(log_times, dtype=np.int64).tolist()
-        raws = list(raws)
+        packed = isinstance(raws, np.ndarray) and raws.ndim == 2  # (n, size) uint8 payloads
+        raws = raws if packed and self.bare else [r.tobytes() for r in raws] if packed \
+            else list(raws)
         if len(log_times) != len(raws):
             raise LogError(f'write_many got {len(log_times)} log times for {len(raws)} '
                            'messages; pass one log time per message.')

@@ -248,6 +248,25 @@ def patch_imu(raws: Sequence[bytes], accel, gyro) -> list[bytes]:
                          'angular_velocity': _as_rows(gyro, n, 3, 'gyro')}, 'Imu')
 
 
+def patch_imu_rows(u8: np.ndarray, accel, gyro) -> np.ndarray:
+    """:func:`patch_imu` for payloads of one size given as an (n, size) uint8 array.
+
+    Returns a new (n, size) array; the input is not modified.
+    """
+    n, size = u8.shape
+    accel = _as_rows(accel, n, 3, 'accel')
+    gyro = _as_rows(gyro, n, 3, 'gyro')
+    out = np.array(u8)
+    for rows, _, sub, body in _sized_groups(np.full(n, size), lambda r, s: u8 if len(r) == n
+                                            else u8[r], _IMU_FIELDS, 'Imu'):
+        work = np.array(sub)
+        rec = work.view(_layout(_IMU_FIELDS, body, size)).reshape(-1)
+        rec['linear_acceleration'] = accel[rows]
+        rec['angular_velocity'] = gyro[rows]
+        out[rows] = work
+    return out
+
+
 def covariance9(cov, n: int, name: str = 'covariance') -> np.ndarray:
     """Expand a covariance spec to (n, 9) row-major 3x3 matrices.
 

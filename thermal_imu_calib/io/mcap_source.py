@@ -87,6 +87,14 @@ class McapBulkSource:
         self._base.close()
 
 
+def _payload_rows(b: Batch):
+    """Payloads as an (n, size) uint8 array when all have one size, else a list of bytes."""
+    if len(b) and b.data_len.min() == b.data_len.max():
+        from numpy.lib.stride_tricks import sliding_window_view
+        return sliding_window_view(b.buf, int(b.data_len[0]))[b.data_start]
+    return b.payloads()
+
+
 def chunk_stream(batches, imu_topic: str, imu_ids, temp_topics: Sequence[str],
                  temp_ids: Sequence, chunk_size: int, keep_raw: bool,
                  on_batch: Callable[[Batch], None] | None = None
@@ -96,7 +104,8 @@ def chunk_stream(batches, imu_topic: str, imu_ids, temp_topics: Sequence[str],
     The cut points are those of a per-message chunker: a chunk closes when it holds
     ``chunk_size`` IMU messages or ``chunk_size`` temperature messages (the temperature
     messages logged meanwhile go with it).  ``on_batch`` sees every batch first (used to
-    copy all messages to an output).
+    copy all messages to an output).  ``imu_raw`` (with ``keep_raw``) is an (n, size)
+    uint8 array when every payload of the chunk has one size, else a list of bytes.
     """
     pend: list = []
     n_imu = n_temp = 0
@@ -113,7 +122,7 @@ def chunk_stream(batches, imu_topic: str, imu_ids, temp_topics: Sequence[str],
             cols = cdr.decode_imu_packed(b.buf, b.data_start, b.data_len)
         except ValueError as err:
             raise ValueError(f'topic {imu_topic!r}: {err}') from err
-        return cols, b.log_time, b.payloads() if keep_raw else None
+        return cols, b.log_time, _payload_rows(b) if keep_raw else None
 
     def build():
         parts = [p[0] for p in pend]
@@ -128,7 +137,15 @@ def chunk_stream(batches, imu_topic: str, imu_ids, temp_topics: Sequence[str],
                 temps[topic] = cdr.decode_temperature_packed(t.buf, t.data_start, t.data_len)
             except ValueError as err:
                 raise ValueError(f'topic {topic!r}: {err}') from err
-        return cols, times, temps, [r for _, _, raws in parts for r in raws] if keep_raw else None
+        raws = None
+        if keep_raw:
+            raws = [r for _, _, r in parts if len(r)]
+            if raws and all(isinstance(r, np.ndarray) for r in raws) and len(
+                    {r.shape[1] for r in raws}) == 1:
+                raws = raws[0] if len(raws) == 1 else np.concatenate(raws)
+            else:
+                raws = [bytes(x) for r in raws for x in r]
+        return cols, times, temps, raws
 
     for b in batches:
         if on_batch is not None:

@@ -48,12 +48,15 @@ def message_records(channel_id: int, sequence, log_time, publish_time,
                     payloads: Sequence[bytes]) -> tuple[np.ndarray, np.ndarray]:
     """Build MCAP message records for ``payloads`` in one pass.
 
+    ``payloads`` is a sequence of bytes-like objects or an (n, size) uint8 array;
     ``channel_id`` is one id or one per message.  Returns ``(records, starts)``: the
     records concatenated as uint8 and each record's
     offset in it.  ``sequence``/``log_time``/``publish_time`` are one value per message.
     """
+    packed = isinstance(payloads, np.ndarray) and payloads.ndim == 2
     n = len(payloads)
-    lens = np.fromiter(map(len, payloads), np.int64, n)
+    lens = (np.full(n, payloads.shape[1], np.int64) if packed
+            else np.fromiter(map(len, payloads), np.int64, n))
     rec_len = lens + MESSAGE_HEADER
     starts = np.zeros(n, np.int64)
     np.cumsum(rec_len[:-1], out=starts[1:])
@@ -73,7 +76,8 @@ def message_records(channel_id: int, sequence, log_time, publish_time,
     if n and np.all(lens == lens[0]):
         rows = out.reshape(n, MESSAGE_HEADER + int(lens[0]))
         rows[:, :MESSAGE_HEADER] = hb
-        rows[:, MESSAGE_HEADER:] = np.frombuffer(b''.join(payloads), np.uint8).reshape(n, -1)
+        rows[:, MESSAGE_HEADER:] = (payloads if packed else np.frombuffer(
+            b''.join(payloads), np.uint8).reshape(n, -1))
         return out, starts
     hidx = (starts[:, None] + np.arange(MESSAGE_HEADER)).reshape(-1)
     out[hidx] = hb.reshape(-1)
