@@ -133,7 +133,7 @@ class Batch:
         return [raw[a:b] for a, b in zip(s, e)]
 
     def records(self) -> np.ndarray:
-        """Return the message records (header + payload) concatenated, verbatim, as uint8."""
+        """Return every message record (header and payload) verbatim, as one uint8 array."""
         return gather(self.buf, self.start, self.data_len + MESSAGE_HEADER)
 
 
