@@ -371,3 +371,21 @@ def test_compensate_bulk_path_gives_the_per_message_path_bytes(tmp_path):
     b = cdr.decode_imu([m[2] for m in raw])
     np.testing.assert_array_equal(a.stamp_ns, b.stamp_ns)
     assert np.max(np.abs(a.accel - b.accel)) > 0
+
+
+def test_one_large_write_is_cut_into_chunks_of_about_chunk_size(tmp_path):
+    from thermal_imu_calib.io.mcap_write import McapBulkWriter
+    content = _content(5000)
+    _, st, raws = content['/imu']
+    path = tmp_path / 'cut.mcap'
+    with open(path, 'wb') as f:
+        w = McapBulkWriter(f, chunk_size=100_000)
+        cid = w.add_channel('/imu', 'cdr', w.add_schema('sensor_msgs/msg/Imu', 'ros2msg', b''))
+        w.add_messages(cid, st, raws)
+        w.finish()
+    with McapBulkReader(path) as r:
+        sizes = [c.uncompressed_size for c in r.summary.chunk_indexes]
+    record = len(raws[0]) + 31
+    assert len(sizes) == -(-5000 * record // 100_000) or len(sizes) == 5000 * record // 100_000 + 1
+    assert max(sizes) < 100_000 + record
+    assert [m[2] for m in _mcap_lib(path)] == raws

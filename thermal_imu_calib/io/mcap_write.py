@@ -212,11 +212,18 @@ class McapBulkWriter:
         if len(unknown):
             raise ValueError(f'channel id {int(unknown[0])} was not added; call add_channel '
                              'first.')
-        self._pieces.append(recs)
-        self._idx.append((starts + self._pending, channel, log_time))
-        self._pending += len(recs)
-        if self._pending >= self._chunk_size:
-            self.flush_chunk()
+        n, i = len(starts), 0
+        while i < n:  # cut at record boundaries so chunks stay near chunk_size
+            base = int(starts[i])
+            room = max(self._chunk_size - self._pending, 1)
+            j = max(int(np.searchsorted(starts, base + room, side='left')), i + 1)
+            end = int(starts[j]) if j < n else len(recs)
+            self._pieces.append(recs[base:end])
+            self._idx.append((starts[i:j] - base + self._pending, channel[i:j], log_time[i:j]))
+            self._pending += end - base
+            i = j
+            if self._pending >= self._chunk_size:
+                self.flush_chunk()
 
     def flush_chunk(self) -> None:
         """Write the pending messages as one chunk plus its message indexes."""
