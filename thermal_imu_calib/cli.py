@@ -460,7 +460,10 @@ def main(argv=None):
     """Entry point of ``thermal-imu-calib``."""
     args = build_parser().parse_args(argv)
     try:
-        return COMMANDS[args.cmd](args)
+        from threadpoolctl import threadpool_limits
+        # the fits are small dense problems: BLAS threads only contend (docs/speed.md)
+        with threadpool_limits(limits=1, user_api='blas'):
+            return COMMANDS[args.cmd](args)
     except (UserError, LogError, CalibrationError, CalibrationRefused, FileNotFoundError,
             ValueError) as e:
         if args.debug:
