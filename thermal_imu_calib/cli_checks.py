@@ -11,6 +11,7 @@ import math
 import os
 import re
 import signal
+import tempfile
 
 from .calibration import Calibration, CalibrationError, FORMAT
 
@@ -106,9 +107,12 @@ def check_writable_dir(path, what):
         probe = parent
     if not os.path.isdir(probe):
         raise UserError(f'{what} {path}: {probe} is not a directory; choose another path')
-    if not os.access(probe, os.W_OK | os.X_OK):
-        raise UserError(f'{what} {path}: directory {probe} is not writable; choose another '
-                        'path or fix its permissions')
+    try:
+        with tempfile.TemporaryFile(dir=probe):
+            pass
+    except OSError as e:
+        raise UserError(f'{what} {path}: directory {probe} is not writable ({e.strerror or e}); '
+                        'choose another path or fix its permissions') from None
 
 
 def check_calibration_output(output, inputs, prior=None, force=False,

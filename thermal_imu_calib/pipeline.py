@@ -98,7 +98,8 @@ def collect_windows(path, imu_topic=None, temperature_topics=None, detector=None
 
     Samples no sensor gives (non-finite, beyond any range, degC inputs outside -80..200,
     IMU stamps that do not increase) are dropped and counted first (``io.gate``,
-    ``Collected.gate``); ``input_units`` are ``TOPIC=UNIT`` items (unnamed inputs: degC).
+    ``Collected.gate``); ``input_units`` are ``TOPIC=UNIT`` items (unnamed inputs: degC;
+    None: no input is bounded, only finite).
 
     With ``motion`` a ``gyro_fit.MotionCollector`` also keeps the raw samples of the pose
     changes between holds (``Collected.transitions``; what the ``whole_unit`` gyro rotation
@@ -107,7 +108,8 @@ def collect_windows(path, imu_topic=None, temperature_topics=None, detector=None
     with open_log(path) as reader:
         imu_topic, temps = resolve_topics(reader, imu_topic, temperature_topics)
         try:
-            units = parse_unit_map(input_units, temps)
+            units = (['unbounded'] * len(temps) if input_units is None
+                     else parse_unit_map(input_units, temps))
         except ValueError:
             units = [DEGC] * len(temps)  # the caller reports a bad --input-unit itself
         gate = InputGate(dict(zip(temps, units)))
@@ -158,7 +160,7 @@ def check_collected(path, collected, max_gap_s=DEFAULT_MAX_GAP_S):
     if r.imu_dropped == r.imu_in:
         raise LogError(f'{path}: every IMU sample was dropped ({r.dropped_text()}); the log '
                        'has no usable IMU data')
-    problems = thermal_problems(r, 1.0 if collected.imu_messages else 0.0, max_gap_s)
+    problems = thermal_problems(r, max_gap_s)
     if problems:
         raise LogError(f'{path}: the thermal inputs cannot support a thermal fit: '
                        + '; '.join(problems))

@@ -241,6 +241,40 @@ class _McapLibSource:
         self._file.close()
 
 
+_MCAP_MAGIC = b'\x89MCAP0\r\n'
+
+
+def _explain_unreadable(p: Path, kind: str, err: Exception) -> None:
+    """Raise a LogError naming the cause when a log is unreadable for a known reason.
+
+    Known: a non-UTF-8 metadata.yaml, and an MCAP file cut short (no end magic). Returns
+    without raising otherwise.
+    """
+    if isinstance(err, UnicodeDecodeError) or 'codec can\'t decode' in str(err):
+        name = p / 'metadata.yaml' if p.is_dir() else p
+        raise LogError(f'{name}: not UTF-8 text ({err}); the {kind} is damaged: restore '
+                       'metadata.yaml, or regenerate it with `ros2 bag reindex`.') from None
+    mcaps = ([p] if p.suffix == '.mcap' else
+             sorted(p.glob('*.mcap')) if p.is_dir() else [])
+    for f in mcaps:
+        try:
+            with open(f, 'rb') as fh:
+                head = fh.read(8)
+                size = fh.seek(0, 2)
+                fh.seek(max(size - 8, 0))
+                tail = fh.read(8)
+        except OSError:
+            continue
+        if head != _MCAP_MAGIC:
+            raise LogError(f'{f}: not an MCAP file (it does not start with the MCAP magic '
+                           'bytes); is it the right file?') from None
+        if tail != _MCAP_MAGIC:
+            raise LogError(f'{f}: the MCAP file is truncated ({size} bytes, no end magic: '
+                           'the recording was cut short or the copy is incomplete); recover '
+                           f'the complete messages with `mcap recover {f} -o recovered.mcap` '
+                           '(mcap CLI) and use recovered.mcap.') from None
+
+
 def open_log(path) -> LogReader:
     """Open a rosbag2 directory, a bare ``.mcap`` or a bare ``.db3`` file for reading."""
     return LogReader(path)
@@ -279,6 +313,7 @@ class LogReader:
         except LogError:
             raise
         except Exception as err:  # rosbags raises ReaderError, KeyError, OSError, ...
+            _explain_unreadable(p, kind, err)
             if p.suffix != '.mcap':
                 raise LogError(f'{p}: cannot read this {kind}: {err}; check that it is a '
                                'complete ROS 2 bag (try `ros2 bag info`).') from err

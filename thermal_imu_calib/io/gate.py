@@ -33,6 +33,9 @@ class GateReport:
     imu_zero: int = 0
     imu_stamp_not_increasing: int = 0
     imu_stamp_zero: int = 0
+    #: first and last kept IMU header stamp, ns (None before any)
+    imu_first_ns: int = None
+    imu_last_ns: int = None
     temp_in: dict = field(default_factory=dict)
     temp_nonfinite: dict = field(default_factory=dict)
     temp_out_of_range: dict = field(default_factory=dict)
@@ -107,6 +110,9 @@ class InputGate:
             ok &= inc
             if ok.any():
                 self._last_ns = int(st[ok].max())
+                r.imu_last_ns = self._last_ns
+                if r.imu_first_ns is None:
+                    r.imu_first_ns = int(st[ok].min())
         temps = {}
         for topic, tc in raw.temps.items():
             v = np.asarray(tc.temperature, float)
@@ -134,7 +140,7 @@ class InputGate:
                        temps=temps)
 
 
-def thermal_problems(report, imu_seconds, max_gap_s):
+def thermal_problems(report, max_gap_s):
     """Return reasons the thermal inputs cannot support a thermal fit (empty: fine).
 
     Each reason says what was found and what to do: temperature stamps that are all 0
@@ -142,6 +148,8 @@ def thermal_problems(report, imu_seconds, max_gap_s):
     would see a held reading: the fit follows the sampling, not the temperature).
     """
     out = []
+    imu_seconds = (0.0 if report.imu_first_ns is None
+                   else (report.imu_last_ns - report.imu_first_ns) * 1e-9)
     for topic, parts in report.temp_stamps.items():
         st = np.concatenate(parts) if parts else np.zeros(0, np.int64)
         n = report.temp_in.get(topic, 0)
@@ -161,7 +169,11 @@ def thermal_problems(report, imu_seconds, max_gap_s):
             out.append(f'every reading of {topic} has the same header stamp; fix the driver to '
                        'stamp its readings, then record again')
             continue
-        if len(st) >= 3 and imu_seconds > 0:
+        if len(st) == 1 and imu_seconds > max_gap_s:
+            out.append(f'{topic} has a single reading in {imu_seconds:.0f} s of IMU data: a '
+                       'thermal fit needs the temperature through the log; record it at >= 1 Hz')
+            continue
+        if len(st) >= 2 and imu_seconds > 0:
             dt = np.diff(np.sort(st)) * 1e-9
             med = float(np.median(dt))
             if med > max_gap_s:

@@ -1,0 +1,71 @@
+"""Hostile inputs shared by the hostile-input tests: bags with edited columns, bad calibrations.
+
+``write_bag`` writes a real log (io.bag.LogWriter) from a simulated recording whose IMU and
+temperature columns an ``edit`` callable may change; log times stay the original, increasing
+stamps, so header stamps may be broken (all 0, running backwards) as a real driver might.
+"""
+
+import copy
+
+import numpy as np
+
+from thermal_imu_calib import sim
+from thermal_imu_calib.io import cdr
+from thermal_imu_calib.io.bag import LogWriter
+from thermal_imu_calib.io.cdr import IMU_MSGTYPE, TEMPERATURE_MSGTYPE
+from thermal_imu_calib.io.columns import ImuColumns, TemperatureColumns
+
+IMU_TOPIC, TEMP_TOPIC = '/imu/data_raw', '/imu/temperature'
+
+
+def recording(seed=3):
+    """Return (imu ImuColumns, temperature TemperatureColumns) of the short demo scenario."""
+    rec = sim.simulate('demo', seed, repetitions=1)
+    return rec.imu(), rec.temperatures[TEMP_TOPIC]
+
+
+def write_bag(path, imu, temp, edit=None, storage='mcap'):
+    """Write ``imu``/``temp`` (copied, then ``edit(arrays)`` in place) to a log at ``path``.
+
+    ``arrays`` is a dict with stamp_ns, accel, gyro, temp_stamp_ns, temperature; ``edit``
+    may also replace them by arrays of other lengths.
+    """
+    a = {'stamp_ns': imu.stamp_ns.copy(), 'accel': imu.accel.copy(), 'gyro': imu.gyro.copy(),
+         'temp_stamp_ns': temp.stamp_ns.copy(), 'temperature': temp.temperature.copy()}
+    log_imu, log_temp = imu.stamp_ns.copy(), temp.stamp_ns.copy()
+    if edit is not None:
+        edit(a)
+    n, m = len(a['stamp_ns']), len(a['temp_stamp_ns'])
+    if len(log_imu) != n:
+        log_imu = np.arange(n, dtype=np.int64) * 10_000_000 + 1
+    if len(log_temp) != m:
+        log_temp = np.arange(m, dtype=np.int64) * 100_000_000 + 1
+    imu_raw = cdr.encode_imu(ImuColumns(a['stamp_ns'], a['accel'], a['gyro'], 'imu_link'))
+    temp_raw = cdr.encode_temperature(TemperatureColumns(a['temp_stamp_ns'], a['temperature']))
+    msgs = sorted([(int(t), 0, i) for i, t in enumerate(log_imu)]
+                  + [(int(t), 1, i) for i, t in enumerate(log_temp)])
+    with LogWriter(path, storage) as w:
+        w.add_topic(IMU_TOPIC, IMU_MSGTYPE)
+        w.add_topic(TEMP_TOPIC, TEMPERATURE_MSGTYPE)
+        for t, kind, i in msgs:
+            if kind == 0:
+                w.write(IMU_TOPIC, t, imu_raw[i])
+            else:
+                w.write(TEMP_TOPIC, t, temp_raw[i])
+    return path
+
+
+def edited(d, *path_value):
+    """Return a deep copy of the mapping ``d`` with ``path -> value`` set (path: tuple of keys)."""
+    d = copy.deepcopy(d)
+    for path, value in zip(path_value[::2], path_value[1::2]):
+        x = d
+        for key in path[:-1]:
+            x = x[key]
+        x[path[-1]] = value
+    return d
+
+
+ALIAS_BOMB = '\n'.join(
+    ['a0: &a0 [x, x, x, x, x, x, x, x, x, x]']
+    + [f'a{i}: &a{i} [' + ', '.join([f'*a{i - 1}'] * 10) + ']' for i in range(1, 10)])
