@@ -69,3 +69,60 @@ def edited(d, *path_value):
 ALIAS_BOMB = '\n'.join(
     ['a0: &a0 [x, x, x, x, x, x, x, x, x, x]']
     + [f'a{i}: &a{i} [' + ', '.join([f'*a{i - 1}'] * 10) + ']' for i in range(1, 10)])
+
+
+def good_calibration():
+    """Return a small valid field + offset calibration on imu/temperature (20..40 degC)."""
+    from thermal_imu_calib.calibration import Calibration, TemperatureInput
+    from thermal_imu_calib.models.field import FieldPolynomialModel
+    from thermal_imu_calib.models.polynomial import OffsetPolynomialModel
+    th = np.zeros((3, 6))
+    th[:, 0], th[:, 1], th[:, 3], th[:, 4] = 2e-3, -5e-5, 0.05, 2e-3
+    return Calibration(
+        accel=FieldPolynomialModel([30.0] * 3, th, thermal_std=np.full((3, 6), 1e-6)),
+        gyro=OffsetPolynomialModel([30.0] * 3, np.array([[1e-3, 1e-4, 0.0]] * 3), 'gyro'),
+        inputs=[TemperatureInput('t0', 'imu/temperature')],
+        valid_range=np.array([[20.0, 40.0]]), frame_id='imu_link',
+        accel_noise_std=np.array([1e-3, 2e-3, 3e-3]), gyro_noise_std=np.array([1e-4] * 3),
+        notes=['a note'], fit={'holds': 3})
+
+
+def bad_calibrations():
+    """Return {case: (text or bytes, the field the rejection must name)} of the probe."""
+    import yaml
+    good = good_calibration().to_dict()
+
+    def dump(d):
+        return yaml.safe_dump(d, sort_keys=False)
+    text = dump(good)
+    k2 = len(good['accel']['parameters']['k2']['value'])
+    return {
+        'temperature_garbage': (dump(edited(good, ('temperature',), 'garbage')),
+                                'temperature'),
+        'meta_garbage': (dump(edited(good, ('accel', 'meta'), 'garbage')), 'accel.meta'),
+        'non_utf8': (text.encode() + b'\nnotes: [caf\xe9]\n', 'UTF-8'),
+        'nested_100000': (text + 'fit: ' + '[' * 100_000 + ']' * 100_000 + '\n', 'nested'),
+        'alias_bomb_fit': (text.replace('fit:', 'fit_old:') + 'fit:\n'
+                           + '\n'.join('  ' + ln for ln in ALIAS_BOMB.splitlines()) + '\n',
+                           'expands'),
+        'alias_bomb_notes': (text.replace('notes:', 'notes_old:') + 'notes:\n- &n0 [x, x]\n'
+                             + ''.join(f'- &n{i} [' + ', '.join([f'*n{i - 1}'] * 10) + ']\n'
+                                       for i in range(1, 10)), 'expands'),
+        'k2_1e300': (dump(edited(good, ('accel', 'parameters', 'k2', 'value'), [1e300] * k2)),
+                     'valid range'),
+        'gravity_nan': (dump(edited(good, ('gravity', 'value'), float('nan'))), 'gravity'),
+        'noise_std_nan': (dump(edited(good, ('noise', 'accel_std', 'value'),
+                                      [float('nan')] * 3)), 'noise.accel_std'),
+        'param_std_nan': (dump(edited(good, ('accel', 'parameters', 'k1', 'std'),
+                                      [float('nan')] * 3)), 'k1.std'),
+        'temperature_input_garbage': (dump(edited(good, ('gyro', 'temperature_input'), 'x')),
+                                      'gyro.temperature_input'),
+        'inputs_not_a_list': (dump(edited(good, ('temperature', 'inputs'), 7)),
+                              'temperature.inputs'),
+        'parameters_list': (dump(edited(good, ('gyro', 'parameters'), [1, 2])),
+                            'gyro.parameters'),
+        'value_strings': (dump(edited(good, ('accel', 'parameters', 'b1', 'value'),
+                                      ['a', 'b', 'c'])), 'accel.parameters.b1'),
+        'top_level_list': ('[1, 2, 3]\n', 'mapping'),
+        'too_large': ('# ' + 'x' * (5 * 2 ** 20) + '\n' + text, 'too large'),
+    }

@@ -560,6 +560,10 @@ def _check_yaml_shape(text, source):
             elif isinstance(ev, yaml.AliasEvent):
                 done(None, sizes.get(ev.anchor, 1))
     except yaml.YAMLError as e:
+        if 'flow level' in str(e) or 'nesting' in str(e):   # libyaml's own depth limit
+            raise CalibrationError(f'{source}: YAML nested deeper than libyaml accepts; a '
+                                   'calibration file nests a few levels: is it the right '
+                                   'file?') from None
         raise CalibrationError(f'{source}: not valid YAML ({e.__class__.__name__}: '
                                f'{str(e).splitlines()[0]})') from None
 
