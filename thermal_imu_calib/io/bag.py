@@ -422,7 +422,7 @@ class LogReader:
         if topics is not None:
             wanted = set([topics] if isinstance(topics, str) else topics)
             self.check_topics(wanted)
-        return self._src.messages(wanted)
+        return _guarded(self.path, self._src.messages(wanted))
 
     def stream(self, imu_topic: str, temperature_topics: Sequence[str] = (),
                chunk_size: int = 20000, keep_raw: bool = False) -> Iterator[RawChunk]:
@@ -432,7 +432,7 @@ class LogReader:
         since the previous chunk; memory stays bounded by ``chunk_size``.
         """
         chunker = _Chunker(self, imu_topic, temperature_topics, chunk_size, keep_raw)
-        yield from _chunked(chunker, self._src.messages(chunker.topics))
+        yield from _chunked(chunker, _guarded(self.path, self._src.messages(chunker.topics)))
 
     def info(self, topics: Iterable[str] | None = None) -> LogInfo:
         """Scan the log once and summarise it (counts, log times, header-stamp rates, degC).
@@ -449,10 +449,16 @@ class LogReader:
         for c in self._src.conns:
             if wanted is not None and c.topic not in wanted:
                 stats[c.topic].stats.count = c.count
-        for topic, _, t, raw in self._src.messages(wanted):
-            stats[topic].add(t, raw)
-        result = LogInfo(str(self.path), self.storage, self.message_count, self.start_ns,
-                         self.end_ns, {k: v.finish() for k, v in stats.items()})
+        try:
+            for topic, _, t, raw in _guarded(self.path, self._src.messages(wanted)):
+                stats[topic].add(t, raw)
+            result = LogInfo(str(self.path), self.storage, self.message_count, self.start_ns,
+                             self.end_ns, {k: v.finish() for k, v in stats.items()})
+        except LogError:
+            raise
+        except Exception as err:  # a damaged message body (CDR decode of stamps)
+            raise LogError(f'{self.path}: a message cannot be decoded ({err.__class__.__name__}: '
+                           f'{err}); the log is damaged.') from err
         if wanted is None:
             self._scan_cache = result
         return result
@@ -936,7 +942,23 @@ def copy_and_stream(reader: LogReader, writer: LogWriter, imu_topic: str,
                 write(msg[0], msg[2], msg[3])
             yield msg
 
-    yield from _chunked(chunker, copy(reader._src.messages(None)))
+    yield from _chunked(chunker, copy(_guarded(reader.path, reader._src.messages(None))))
+
+
+def _guarded(path, messages):
+    """Yield from a source's message iterator, turning its failures into LogError.
+
+    A damaged chunk (checksum, compression, sqlite page) shows only when it is read.
+    """
+    try:
+        yield from messages
+    except LogError:
+        raise
+    except Exception as err:  # rosbags ReaderError, mcap errors, sqlite3.DatabaseError, ...
+        raise LogError(f'{path}: the log is damaged: reading its messages failed '
+                       f'({err.__class__.__name__}: {str(err)[:200]}); recover what is '
+                       'readable (`mcap recover` for MCAP, `ros2 bag reindex` for a bag) '
+                       'and try again.') from err
 
 
 def _chunked(chunker, messages):
