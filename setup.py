@@ -26,7 +26,7 @@ setup(
         'scikit-learn>=1.3',
     ],
     extras_require={
-        'test': ['pytest>=7', 'flake8>=6', 'pydocstyle>=6'],
+        'test': ['pytest>=7', 'flake8>=6', 'pydocstyle>=6', 'hypothesis>=6.80'],
     },
     zip_safe=True,
     maintainer='thermal_imu_calib maintainers',

@@ -264,8 +264,8 @@ def nodes(tmp_path_factory):
     ctx = Context()
     rclpy.init(context=ctx, domain_id=int(os.environ.get('ROS_DOMAIN_ID', '0')))
     comp = CompensatorNode(context=ctx, parameter_overrides=[
-        Parameter('calibration_file', value=str(d / 'cal.yaml')), Parameter('despike',
-                                                                             value=True)])
+        Parameter('calibration_file', value=str(d / 'cal.yaml')),
+        Parameter('despike', value=True)])
     calib = CalibratorNode(context=ctx, parameter_overrides=[
         Parameter('collection_file', value=str(d / 'collection.jsonl')),
         Parameter('calibration_file', value=str(d / 'out.yaml'))])

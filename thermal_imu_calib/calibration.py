@@ -636,7 +636,8 @@ def _numbers(v, what, shape=None):
     if a.ndim > 4:
         raise ValueError(f'{what} has {a.ndim} dimensions')
     if not np.all(np.isfinite(a)):
-        raise ValueError(f'{what} {_short(a.tolist())} is not finite (non-finite values are refused)')
+        raise ValueError(f'{what} {_short(a.tolist())} is not finite (non-finite values are '
+                         'refused)')
     if shape is not None and a.shape != shape:
         raise ValueError(f'{what} has shape {a.shape}, expected {shape}')
     return a

@@ -252,8 +252,9 @@ def _explain_unreadable(p: Path, kind: str, err: Exception) -> None:
     """
     if isinstance(err, UnicodeDecodeError) or 'codec can\'t decode' in str(err):
         name = p / 'metadata.yaml' if p.is_dir() else p
-        raise LogError(f'{name}: not UTF-8 text ({err}); the {kind} is damaged: restore '
-                       'metadata.yaml, or regenerate it with `ros2 bag reindex`.') from None
+        raise LogError(f'{name}: cannot read it: not UTF-8 text ({err}); the {kind} is '
+                       'damaged: restore metadata.yaml, or regenerate it with '
+                       '`ros2 bag reindex`.') from None
     mcaps = ([p] if p.suffix == '.mcap' else
              sorted(p.glob('*.mcap')) if p.is_dir() else [])
     for f in mcaps:
@@ -266,11 +267,12 @@ def _explain_unreadable(p: Path, kind: str, err: Exception) -> None:
         except OSError:
             continue
         if head != _MCAP_MAGIC:
-            raise LogError(f'{f}: not an MCAP file (it does not start with the MCAP magic '
-                           'bytes); is it the right file?') from None
+            raise LogError(f'{f}: cannot read it: not an MCAP file (it does not start with the '
+                           'MCAP magic bytes); is it the right file?') from None
         if tail != _MCAP_MAGIC:
-            raise LogError(f'{f}: the MCAP file is truncated ({size} bytes, no end magic: '
-                           'the recording was cut short or the copy is incomplete); recover '
+            raise LogError(f'{f}: cannot read it: the MCAP file is truncated ({size} bytes, '
+                           'no end magic: the recording was cut short or the copy is '
+                           'incomplete); recover '
                            f'the complete messages with `mcap recover {f} -o recovered.mcap` '
                            '(mcap CLI) and use recovered.mcap.') from None
 
