@@ -135,6 +135,17 @@ def test_evaluate_without_holds_is_an_error_not_a_nan_table(rec, clean, tmp_path
     assert 'nan' not in out
 
 
+def test_evaluate_drops_bad_samples_and_refuses_unusable_temperature(rec, clean, tmp_path,
+                                                                     capfd):
+    bag = write_bag(str(tmp_path / 'nan.mcap'), *rec, DROPPED['nan_imu'][0])
+    code, out, _ = _run(['evaluate', bag, '--calibration', clean[1], '--average', '10'], capfd)
+    assert code == 0 and 'nan' not in out.lower()
+    bag = write_bag(str(tmp_path / 'tnan.mcap'), *rec, REFUSED['temperature_all_nan'][0])
+    code, out, err = _run(['evaluate', bag, '--calibration', clean[1]], capfd)
+    assert code == 2 and 'no usable reading' in _one_error_line(err, 'evaluate')
+    assert 'Warning' not in err
+
+
 # ------------------------------------------------------------------ 3: -o never destroys
 def test_output_equal_to_an_input_is_refused_and_the_input_kept(clean, tmp_path, capfd):
     bag, cal = clean

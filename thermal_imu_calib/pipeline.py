@@ -405,6 +405,13 @@ def evaluate_log(path, calibrations, imu_topic=None, temperature_topics=None, de
     col = collect_windows(path, imu_topic, temperature_topics, detector, chunk_size,
                           max_gap_s, progress)
     w = col.windows
+    if len(w) and any(cal.inputs for cal in calibrations.values()):
+        empty = [t for t, bad in zip(col.temperature_topics, np.isnan(w.temp).all(axis=0))
+                 if bad]
+        if empty:
+            raise LogError(f'{path}: {", ".join(empty)} has no usable reading (NaN/Inf or '
+                           'none), so no calibration can be applied; check the sensor and its '
+                           'driver')
     tcol = _temperature_column(calibrations, col.temperature_topics)
     results = {'raw': static_metrics(w, gravity, average_s, tcol)}
     if len(w) and calibrations:
@@ -412,7 +419,8 @@ def evaluate_log(path, calibrations, imu_topic=None, temperature_topics=None, de
         streams = {label: cal.stream() for label, cal in calibrations.items()}
         with open_log(path) as reader:
             imu_topic, temps = resolve_topics(reader, imu_topic, col.temperature_topics)
-            for ch in _aligned(reader, imu_topic, temps, chunk_size, max_gap_s):
+            for ch in _aligned(reader, imu_topic, temps, chunk_size, max_gap_s,
+                               gate=InputGate()):
                 sig = {}
                 for label, cal in calibrations.items():
                     t = np.where(np.isfinite(ch.temps), ch.temps, np.nan)
