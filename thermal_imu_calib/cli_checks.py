@@ -128,7 +128,8 @@ def check_calibration_output(output, inputs, prior=None, force=False,
         for src in list(inputs) + ([prior] if prior else []):
             if not os.path.exists(out):
                 break
-            bag_dir = src if os.path.isdir(src) else None
+            bag_dir = (src if os.path.isdir(src) else os.path.dirname(os.path.abspath(src))
+                       if os.path.basename(src) == 'metadata.yaml' else None)
             if same_file(out, src) or (bag_dir and _inside(out, bag_dir)):
                 raise UserError(f'{what} {out} is one of the inputs ({src}); writing it would '
                                 'destroy it: choose another output file')

@@ -108,7 +108,7 @@ def collect_windows(path, imu_topic=None, temperature_topics=None, detector=None
     with open_log(path) as reader:
         imu_topic, temps = resolve_topics(reader, imu_topic, temperature_topics)
         try:
-            units = (['unbounded'] * len(temps) if input_units is None
+            units = ([''] * len(temps) if input_units is None
                      else parse_unit_map(input_units, temps))
         except ValueError:
             units = [DEGC] * len(temps)  # the caller reports a bad --input-unit itself

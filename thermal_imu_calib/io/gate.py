@@ -72,8 +72,8 @@ class GateReport:
 class InputGate:
     """Drop and count invalid samples of RawChunks (``io.bag.RawChunk``), in stream order.
 
-    ``units`` maps temperature topic -> unit; degC topics are bounded, proxies need only
-    be finite. Chunks without raw buffers only (the collect path, not compensate).
+    ``units`` maps temperature topic -> unit; degC topics are bounded, proxies and topics
+    not named need only be finite. Raw buffers, if any, are filtered along.
     """
 
     def __init__(self, units=None, keep_stamps=20000):
@@ -120,7 +120,7 @@ class InputGate:
             keep = fin.copy()
             r.temp_in[topic] = r.temp_in.get(topic, 0) + len(v)
             r.temp_nonfinite[topic] = r.temp_nonfinite.get(topic, 0) + int((~fin).sum())
-            if is_temperature(self.units.get(topic, 'degC')):
+            if is_temperature(self.units.get(topic, '')):
                 with np.errstate(invalid='ignore'):
                     oor = fin & ((v < TEMPERATURE_BOUNDS[0]) | (v > TEMPERATURE_BOUNDS[1]))
                 r.temp_out_of_range[topic] = r.temp_out_of_range.get(topic, 0) + int(oor.sum())
