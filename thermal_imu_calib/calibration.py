@@ -429,6 +429,7 @@ def _build(d, where):
             continue
         _check_model_section(sec, name)
         models[name] = model_from_dict(sec, name)
+        models[name].sensor = name       # the section says which sensor (sensor: optional)
         where[0] = f'{name}.temperature_input'
         raw_idx = sec.get('temperature_input', [0, 0, 0])
         if not isinstance(raw_idx, list) or not all(
