@@ -119,6 +119,10 @@ class Calibration:
     software_version: str = __version__
     #: optional lag of the temperature inputs (thermal_input); None: the reading is the input
     temperature_filter: Optional[ThermalFilter] = None
+    #: Allan noise model (``estimation.allan``): per axis ``{accel,gyro}_noise_density`` N
+    #: (unit/sqrt(Hz)) and ``{accel,gyro}_random_walk`` K (unit/s/sqrt(Hz)), plus
+    #: ``rate_hz`` and ``horizon_s``; see ``noise_std``
+    noise_model: dict = field(default_factory=dict)
 
     def __post_init__(self):
         for which in ('accel', 'gyro'):
@@ -203,13 +207,32 @@ class Calibration:
             ta, o = self.axis_temperatures(temps, 'accel')
             oor |= o
             a_out = self.accel.correct(accel, ta)
-            a_std = _combine_std(self.accel.predict_std(ta), self.accel_noise_std, n)
+            a_std = _combine_std(self.accel.predict_std(ta), self.noise_std('accel'), n)
         if self.gyro is not None:
             tg, o = self.axis_temperatures(temps, 'gyro')
             oor |= o
             g_out = self.gyro.correct(gyro, tg, aux={'accel': a_out})
-            g_std = _combine_std(self.gyro.predict_std(tg), self.gyro_noise_std, n)
+            g_std = _combine_std(self.gyro.predict_std(tg), self.noise_std('gyro'), n)
         return Compensated(a_out, g_out, oor, a_std, g_std)
+
+    def noise_std(self, which):
+        """Return the (3,) per-sample noise std of 'accel'/'gyro' the covariance uses, or None.
+
+        White part: ``noise.<which>_std``, else N sqrt(rate_hz). With a random walk K the
+        bias wander over ``horizon_s`` (the span of the calibration data: what the thermal
+        model could not follow) is added: sqrt(white^2 + K^2 horizon_s / 3), the Allan
+        variance of a random walk at that tau.
+        """
+        white = self.accel_noise_std if which == 'accel' else self.gyro_noise_std
+        nm = self.noise_model or {}
+        dens = nm.get(f'{which}_noise_density')
+        if white is None and dens is not None and nm.get('rate_hz'):
+            white = np.asarray(dens, float) * np.sqrt(float(nm['rate_hz']))
+        walk = nm.get(f'{which}_random_walk')
+        if walk is None or not nm.get('horizon_s'):
+            return white
+        var = np.asarray(walk, float) ** 2 * float(nm['horizon_s']) / 3.0
+        return np.sqrt(var + (0.0 if white is None else np.asarray(white, float) ** 2))
 
     def stream(self):
         """Return a ``CalibrationStream``: ``apply`` batch after batch with the filter state."""
@@ -266,6 +289,8 @@ class Calibration:
         if self.gyro_noise_std is not None:
             noise['gyro_std'] = {'value': np.asarray(self.gyro_noise_std).tolist(),
                                  'unit': 'rad/s', 'description': 'white noise 1-sigma per sample'}
+        for key, value in (self.noise_model or {}).items():
+            noise[key] = {'value': _plain(value), 'unit': NOISE_UNITS.get(key, '')}
         if noise:
             d['noise'] = noise
         return d
@@ -312,8 +337,8 @@ class Calibration:
         Size, nesting depth and alias expansion are limited (``MAX_FILE_BYTES``,
         ``MAX_DEPTH``, ``MAX_NODES``) before anything walks the document.
         """
-        text = _decode(text, source)
-        _check_yaml_shape(text, source)
+        text = decode_text(text, source)
+        check_yaml_shape(text, source)
         try:
             d = yaml.load(text, Loader=_SAFE_LOADER)
         except yaml.YAMLError as e:
@@ -472,6 +497,8 @@ def _build(d, where):
     for key in ('accel_std', 'gyro_std'):
         where[0] = f'noise.{key}'
         noise_std[key] = _opt_vec(noise.get(key))
+    where[0] = 'noise (Allan model)'
+    noise_model = _noise_model(noise)
     where[0] = 'fit'
     fit = _free_form(d.get('fit') or {}, 'fit', dict)
     where[0] = 'notes'
@@ -489,7 +516,8 @@ def _build(d, where):
         frame_id=frame_id, gravity=gravity,
         gravity_source=_text(g, 'source', '', 'gravity'),
         accel_noise_std=noise_std['accel_std'], gyro_noise_std=noise_std['gyro_std'],
-        fit=fit, notes=notes, created=_text(d, 'created', '', 'the file'),
+        noise_model=noise_model, fit=fit, notes=notes,
+        created=_text(d, 'created', '', 'the file'),
         software_version=version, temperature_filter=filt)
     where[0] = 'the model output over the valid range'
     _check_output(cal)
@@ -507,7 +535,7 @@ GRAVITY_BOUNDS = (9.7, 9.9)
 _SAFE_LOADER = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)
 
 
-def _decode(text, source):
+def decode_text(text, source):
     """Return ``text`` as str: UTF-8 bytes decoded, size checked; CalibrationError otherwise."""
     if isinstance(text, (bytes, bytearray, memoryview)):
         text = bytes(text)
@@ -528,7 +556,7 @@ def _decode(text, source):
     return text
 
 
-def _check_yaml_shape(text, source):
+def check_yaml_shape(text, source):
     """Refuse YAML nested deeper than MAX_DEPTH or expanding to more than MAX_NODES nodes.
 
     Walks the parser's event stream (no recursion, no objects built), so a deeply nested
@@ -795,6 +823,30 @@ def _check_range_units(unit, inputs):
         if u != inp.unit:
             raise ValueError(f'valid_range of input {inp.name!r} is in {u} but the input is in '
                              f'{inp.unit}; give the range in the input\'s unit')
+
+
+#: units of the Allan noise-model entries of the ``noise`` section
+NOISE_UNITS = {'accel_noise_density': 'm/s^2/sqrt(Hz)', 'gyro_noise_density': 'rad/s/sqrt(Hz)',
+               'accel_random_walk': 'm/s^3/sqrt(Hz)', 'gyro_random_walk': 'rad/s^2/sqrt(Hz)',
+               'rate_hz': 'Hz', 'horizon_s': 's'}
+
+
+def _noise_model(noise):
+    """Return the Allan noise-model entries of a ``noise`` section (validated)."""
+    out = {}
+    for key in NOISE_UNITS:
+        if noise.get(key) is None:
+            continue
+        sec = noise[key]
+        v = sec['value'] if isinstance(sec, dict) else sec
+        if key in ('rate_hz', 'horizon_s'):
+            v = float(v)
+            if not v > 0:
+                raise ValueError(f'noise.{key} must be > 0')
+        else:
+            v = _opt_vec(v)
+        out[key] = v
+    return out
 
 
 def _opt_vec(sec):

@@ -1,8 +1,8 @@
 """``thermal-imu-calib``: the library on recorded logs.
 
-Subcommands: calibrate, compensate, evaluate, simulate, info, report. Bad input gets one
-line on stderr saying what was wrong and what to do, and exit status 2; ``--debug`` shows
-the traceback instead.
+Subcommands: calibrate, compensate, evaluate, simulate, info, report, noise, export. Bad
+input gets one line on stderr saying what was wrong and what to do, and exit status 2;
+``--debug`` shows the traceback instead.
 """
 
 import argparse
@@ -12,16 +12,17 @@ import sys
 
 import numpy as np
 
-from . import __version__
-from . import cli_checks
+from . import __version__, cli_checks, cli_export
 from .calibration import Calibration, CalibrationError, TemperatureInput
 from .cli_checks import UserError
 from .estimation.calibrate import (CalibrateOptions, calibrate_windows, CalibrationRefused,
                                    model_choices)
 from .estimation.stationary import DetectorConfig
+from .formats import load_prior
 from .gravity import resolve_gravity
 from .input_units import parse_unit_map
 from .io.bag import LogError
+from .report import cli as report_cli
 
 EXIT_USAGE = 2
 
@@ -90,7 +91,9 @@ def build_parser():
                    help='auto: chosen from the data (see the summary); field: seed 000; '
                         'offset: single-orientation drift only; whole_unit: seed 002, gyro '
                         'scale and misalignment from the pose changes between holds')
-    p.add_argument('--prior', help='lab calibration (k0, b0, S at T0) the field model refines')
+    p.add_argument('--prior', help='lab calibration (k0, b0, S at T0) the field model refines: a '
+                   'thermal_imu_calib YAML, imu_tk *_acc.calib, imucal .json, PX4 .params, '
+                   'ArduPilot .parm or Kalibr imu.yaml')
     p.add_argument('--order', type=int, default=2, choices=(0, 1, 2),
                    help='temperature polynomial order of the field model (default 2)')
     p.add_argument('--no-refine', action='store_true', help='skip the joint refinement')
@@ -167,8 +170,12 @@ def build_parser():
     p = sub.add_parser('info', help='topics, counts, rates, span, temperature range')
     p.add_argument('input', metavar='INPUT')
 
-    p = sub.add_parser('report', help='print a calibration file for people')
+    p = sub.add_parser('report', help='print a calibration file for people; --html/--png-dir '
+                                      'plot it')
     p.add_argument('calibration', metavar='CALIB.yaml')
+    report_cli.add_report_args(p)
+    report_cli.add_noise_parser(sub)
+    cli_export.add_parser(sub)
     return ap
 
 
@@ -188,7 +195,7 @@ def cmd_calibrate(args):
                                         [(args.save_windows, '--save-windows')])
     if args.save_windows:
         cli_checks.check_writable_dir(args.save_windows, '--save-windows')
-    prior = Calibration.load(args.prior) if args.prior else None
+    prior = load_prior(args.prior) if args.prior else None
     collected = []
     for path in args.inputs:
         c = collect_windows(path, args.imu_topic, args.temperature_topic, _detector(args),
@@ -225,6 +232,9 @@ def cmd_calibrate(args):
     result = calibrate_windows(windows, opts)
     result.calibration.fit['inputs'] = [os.path.basename(os.path.normpath(p))
                                         for p in args.inputs]
+    from .noise import add_random_walk
+    note = add_random_walk(result.calibration, args.inputs, windows, args.imu_topic)
+    result.calibration.notes += [note] if note else []
     cli_checks.validated(result.calibration, args.output).save(args.output)
     if args.json:
         print(json.dumps({'summary': result.summary, 'output': args.output,
@@ -386,10 +396,8 @@ def cmd_info(args):
 
 
 def cmd_report(args):
-    """Run the report subcommand."""
-    cal = Calibration.load(args.calibration)
-    print(format_calibration(cal))
-    return 0
+    """Run the report subcommand (text; HTML/PNG with --html/--png-dir)."""
+    return report_cli.cmd_report(args, format_calibration, UserError)
 
 
 def format_calibration(cal):
@@ -430,7 +438,8 @@ def format_calibration(cal):
 
 COMMANDS = {'calibrate': cmd_calibrate, 'compensate': cmd_compensate,
             'evaluate': cmd_evaluate, 'simulate': cmd_simulate, 'info': cmd_info,
-            'report': cmd_report}
+            'report': cmd_report, 'noise': lambda a: report_cli.cmd_noise(a, UserError),
+            'export': cli_export.cmd_export}
 
 
 def main(argv=None):
