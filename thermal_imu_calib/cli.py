@@ -448,7 +448,10 @@ def main(argv=None):
     cli_checks.install_sigterm()
     try:
         cli_checks.check_options(args)
-        return COMMANDS[args.cmd](args)
+        from threadpoolctl import threadpool_limits
+        # the fits are small dense problems: BLAS threads only contend (docs/speed.md)
+        with threadpool_limits(limits=1, user_api='blas'):
+            return COMMANDS[args.cmd](args)
     except (UserError, LogError, CalibrationError, CalibrationRefused, FileNotFoundError,
             ValueError, OSError) as e:
         if args.debug:
