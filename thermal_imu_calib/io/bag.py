@@ -1022,7 +1022,8 @@ def copy_and_stream(reader: LogReader, writer: LogWriter, imu_topic: str,
 
         def copy_batch(batch):
             writer.copy_batch(batch.take(np.isin(batch.channel, ids)), cmap)
-        yield from _bulk_chunks(reader, chunker, _guarded(reader.path, src.batches(None)), copy_batch)
+        yield from _bulk_chunks(reader, chunker, _guarded(reader.path, src.batches(None)),
+                                copy_batch)
         return
     write = writer.write
 
