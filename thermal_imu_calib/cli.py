@@ -12,8 +12,9 @@ import sys
 
 import numpy as np
 
-from . import __version__, cli_export
+from . import __version__, cli_checks, cli_export
 from .calibration import Calibration, CalibrationError, TemperatureInput
+from .cli_checks import UserError
 from .estimation.calibrate import (CalibrateOptions, calibrate_windows, CalibrationRefused,
                                    model_choices)
 from .estimation.stationary import DetectorConfig, format_holds, format_settings
@@ -24,10 +25,6 @@ from .io.bag import LogError
 from .report import cli as report_cli
 
 EXIT_USAGE = 2
-
-
-class UserError(Exception):
-    """Bad input from the command line; printed as one line."""
 
 
 def _add_topics(p, imu_required=False):
@@ -79,9 +76,13 @@ def _detector(args):
 
 def _gravity(args):
     try:
-        return resolve_gravity(args.gravity, args.latitude, args.altitude)
+        g, src = resolve_gravity(args.gravity, args.latitude, args.altitude)
     except ValueError as e:
         raise UserError(str(e)) from None
+    if not 9.7 <= g <= 9.9:
+        raise UserError(f'gravity {g:.6g} m/s^2 from --latitude/--altitude is not a '
+                        'terrestrial value (9.7..9.9); check --altitude (metres)')
+    return g, src
 
 
 def build_parser():
@@ -131,6 +132,9 @@ def build_parser():
                    help='write the window statistics (JSONL) and the pose changes between '
                         'holds (FILE.transitions.npz, gyro_fit.load_transitions)')
     p.add_argument('-o', '--output', required=True, help='calibration YAML to write')
+    p.add_argument('--force', action='store_true',
+                   help='overwrite an existing -o that is not a calibration file (never an '
+                        'input)')
     p.add_argument('--json', action='store_true', help='print the report as JSON')
     _add_detector(p)
 
@@ -200,13 +204,19 @@ def cmd_calibrate(args):
     costs ~0.09 s CPU per 375k messages, not measurable in a calibrate run.
     """
     from .estimation.gyro_fit import save_transitions
-    from .pipeline import collect_windows, merge_transitions, merge_windows
+    from .pipeline import check_collected, collect_windows, merge_transitions, merge_windows
     g, g_src = _gravity(args)
+    cli_checks.check_distinct_inputs(args.inputs)
+    cli_checks.check_calibration_output(args.output, args.inputs, args.prior, args.force,
+                                        [(args.save_windows, '--save-windows')])
+    if args.save_windows:
+        cli_checks.check_writable_dir(args.save_windows, '--save-windows')
     prior = load_prior(args.prior) if args.prior else None
     collected = []
     for path in args.inputs:
         c = collect_windows(path, args.imu_topic, args.temperature_topic, _detector(args),
-                            args.chunk_size, args.max_gap, args.progress, motion=True)
+                            args.chunk_size, args.max_gap, args.progress, motion=True,
+                            input_units=args.input_unit)
         print(f'{path}: {c.imu_messages} Imu messages in {c.seconds:.1f} s '
               f'({c.imu_messages / max(c.seconds, 1e-9):,.0f} msgs/s), '
               f'{len(np.unique(c.windows.hold))} stationary holds' + _motion_text(c),
@@ -214,6 +224,8 @@ def cmd_calibrate(args):
         print('  ' + format_settings(c.detector), file=sys.stderr)
         if args.save_windows:
             print(format_holds(c.holds), file=sys.stderr)
+        for warning in check_collected(path, c, args.max_gap):
+            print(f'  warning: {warning}', file=sys.stderr)
         collected.append(c)
     topics = collected[0].temperature_topics
     for c in collected[1:]:
@@ -246,7 +258,7 @@ def cmd_calibrate(args):
     from .noise import add_random_walk
     note = add_random_walk(result.calibration, args.inputs, windows, args.imu_topic)
     result.calibration.notes += [note] if note else []
-    result.calibration.save(args.output)
+    cli_checks.validated(result.calibration, args.output).save(args.output)
     if args.json:
         print(json.dumps({'summary': result.summary, 'output': args.output,
                           'calibration': result.calibration.to_dict()}, indent=1, default=str))
@@ -306,6 +318,7 @@ def cmd_compensate(args):
     cal = Calibration.load(args.calibration)
     if os.path.exists(args.output):
         raise UserError(f'{args.output} exists; remove it or choose another -o')
+    cli_checks.check_writable_dir(args.output, '-o')
     st = compensate_log(args.input, args.output, cal, args.imu_topic, args.temperature_topic,
                         args.output_topic, args.storage, args.chunk_size, args.max_gap,
                         args.temperature_timeout, args.on_missing_temperature, args.progress,
@@ -331,6 +344,10 @@ def cmd_evaluate(args):
     res = evaluate_log(args.input, cals, args.imu_topic, args.temperature_topic,
                        _detector(args), g, args.average, args.chunk_size, args.max_gap,
                        args.progress)
+    if res['holds'] == 0:
+        raise UserError(f'{args.input}: no stationary holds found, so there is nothing to '
+                        'evaluate; evaluate needs a log with the IMU held still in several '
+                        f'poses for at least --min-hold {args.min_hold:g} s each')
     if args.json:
         print(json.dumps(res, indent=1))
         return 0
@@ -382,6 +399,7 @@ def cmd_simulate(args):
                         f'{", ".join(sim.SCENARIOS)}')
     if os.path.exists(args.output):
         raise UserError(f'{args.output} exists; remove it or choose another OUTPUT')
+    cli_checks.check_writable_dir(args.output, 'OUTPUT')
     if args.gyro_proxy:
         from .sim_proxy import write_proxy_scenario
         info = write_proxy_scenario(args.output, args.scenario, args.seed, storage=args.storage)
@@ -459,21 +477,34 @@ COMMANDS = {'calibrate': cmd_calibrate, 'compensate': cmd_compensate,
 def main(argv=None):
     """Entry point of ``thermal-imu-calib``."""
     args = build_parser().parse_args(argv)
+    cli_checks.install_sigterm()
     try:
+        cli_checks.check_options(args)
         from threadpoolctl import threadpool_limits
         # the fits are small dense problems: BLAS threads only contend (docs/speed.md)
         with threadpool_limits(limits=1, user_api='blas'):
             return COMMANDS[args.cmd](args)
     except (UserError, LogError, CalibrationError, CalibrationRefused, FileNotFoundError,
-            ValueError) as e:
+            ValueError, OSError) as e:
         if args.debug:
             raise
-        msg = str(e).strip().replace('\n', ' ')
+        msg = _os_error_text(e) if isinstance(e, OSError) else str(e)
+        msg = msg.strip().replace('\n', ' ')
         print(f'thermal-imu-calib {args.cmd}: error: {msg}', file=sys.stderr)
         return EXIT_USAGE
-    except KeyboardInterrupt:
-        print('interrupted', file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as e:
+        print('terminated' if isinstance(e, cli_checks.Terminated) else 'interrupted',
+              file=sys.stderr)
+        return 143 if isinstance(e, cli_checks.Terminated) else 130
+
+
+def _os_error_text(e):
+    """Return 'cannot access FILE: reason; what to do' for an OSError."""
+    if e.filename is None:
+        return str(e)
+    what = 'write' if isinstance(e, (PermissionError, IsADirectoryError)) else 'access'
+    return (f'cannot {what} {e.filename}: {e.strerror or e}; check the path and its '
+            'permissions')
 
 
 if __name__ == '__main__':

@@ -11,7 +11,8 @@ import os
 import numpy as np
 import yaml
 
-from ..calibration import Calibration, CalibrationError, FORMAT
+from ..calibration import (Calibration, CalibrationError, check_yaml_shape, decode_text,
+                           FORMAT, MAX_FILE_BYTES)
 from ..models.field import FieldPolynomialModel
 from . import ardupilot, imu_tk, imucal, kalibr, px4
 from .common import affine_map, Exported, ExportRefused, lq, samples  # noqa: F401
@@ -44,8 +45,8 @@ def export_calibration(cal, fmt, raw_dict=None, windows=None, temperature=None,
 
 
 def _read_text(path):
-    with open(path) as f:
-        return f.read()
+    with open(path, 'rb') as f:
+        return decode_text(f.read(MAX_FILE_BYTES + 1), path)   # names the file if not UTF-8
 
 
 def read_calibration(path):
@@ -76,6 +77,7 @@ def read_calibration(path):
             return ardupilot.read(text, name)
         if name.endswith('.calib'):
             return imu_tk.read({'accel': text}, name)
+        check_yaml_shape(text, path)      # size, depth, alias limits before parsing
         try:
             d = yaml.safe_load(text)
         except yaml.YAMLError:

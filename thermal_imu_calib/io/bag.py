@@ -243,6 +243,42 @@ class _McapLibSource:
         self._file.close()
 
 
+_MCAP_MAGIC = b'\x89MCAP0\r\n'
+
+
+def _explain_unreadable(p: Path, kind: str, err: Exception) -> None:
+    """Raise a LogError naming the cause when a log is unreadable for a known reason.
+
+    Known: a non-UTF-8 metadata.yaml, and an MCAP file cut short (no end magic). Returns
+    without raising otherwise.
+    """
+    if isinstance(err, UnicodeDecodeError) or 'codec can\'t decode' in str(err):
+        name = p / 'metadata.yaml' if p.is_dir() else p
+        raise LogError(f'{name}: cannot read it: not UTF-8 text ({err}); the {kind} is '
+                       'damaged: restore metadata.yaml, or regenerate it with '
+                       '`ros2 bag reindex`.') from None
+    mcaps = ([p] if p.suffix == '.mcap' else
+             sorted(p.glob('*.mcap')) if p.is_dir() else [])
+    for f in mcaps:
+        try:
+            with open(f, 'rb') as fh:
+                head = fh.read(8)
+                size = fh.seek(0, 2)
+                fh.seek(max(size - 8, 0))
+                tail = fh.read(8)
+        except OSError:
+            continue
+        if head != _MCAP_MAGIC:
+            raise LogError(f'{f}: cannot read it: not an MCAP file (it does not start with the '
+                           'MCAP magic bytes); is it the right file?') from None
+        if tail != _MCAP_MAGIC:
+            raise LogError(f'{f}: cannot read it: the MCAP file is truncated ({size} bytes, '
+                           'no end magic: the recording was cut short or the copy is '
+                           'incomplete); recover '
+                           f'the complete messages with `mcap recover {f} -o recovered.mcap` '
+                           '(mcap CLI) and use recovered.mcap.') from None
+
+
 def _bulk_source(p: Path, src):
     """Read messages with the bulk MCAP reader when the log is one indexed .mcap file."""
     from .mcap_source import McapBulkSource
@@ -316,6 +352,7 @@ class LogReader:
         except LogError:
             raise
         except Exception as err:  # rosbags raises ReaderError, KeyError, OSError, ...
+            _explain_unreadable(p, kind, err)
             if p.suffix != '.mcap':
                 raise LogError(f'{p}: cannot read this {kind}: {err}; check that it is a '
                                'complete ROS 2 bag (try `ros2 bag info`).') from err
@@ -425,7 +462,7 @@ class LogReader:
         if topics is not None:
             wanted = set([topics] if isinstance(topics, str) else topics)
             self.check_topics(wanted)
-        return self._src.messages(wanted)
+        return _guarded(self.path, self._src.messages(wanted))
 
     def stream(self, imu_topic: str, temperature_topics: Sequence[str] = (),
                chunk_size: int = 20000, keep_raw: bool = False) -> Iterator[RawChunk]:
@@ -436,9 +473,10 @@ class LogReader:
         """
         chunker = _Chunker(self, imu_topic, temperature_topics, chunk_size, keep_raw)
         if hasattr(self._src, 'batches'):
-            yield from _bulk_chunks(self, chunker, self._src.batches(chunker.topics))
+            yield from _bulk_chunks(self, chunker,
+                                    _guarded(self.path, self._src.batches(chunker.topics)))
             return
-        yield from _chunked(chunker, self._src.messages(chunker.topics))
+        yield from _chunked(chunker, _guarded(self.path, self._src.messages(chunker.topics)))
 
     def info(self, topics: Iterable[str] | None = None) -> LogInfo:
         """Scan the log once and summarise it (counts, log times, header-stamp rates, degC).
@@ -455,10 +493,16 @@ class LogReader:
         for c in self._src.conns:
             if wanted is not None and c.topic not in wanted:
                 stats[c.topic].stats.count = c.count
-        for topic, _, t, raw in self._src.messages(wanted):
-            stats[topic].add(t, raw)
-        result = LogInfo(str(self.path), self.storage, self.message_count, self.start_ns,
-                         self.end_ns, {k: v.finish() for k, v in stats.items()})
+        try:
+            for topic, _, t, raw in _guarded(self.path, self._src.messages(wanted)):
+                stats[topic].add(t, raw)
+            result = LogInfo(str(self.path), self.storage, self.message_count, self.start_ns,
+                             self.end_ns, {k: v.finish() for k, v in stats.items()})
+        except LogError:
+            raise
+        except Exception as err:  # a damaged message body (CDR decode of stamps)
+            raise LogError(f'{self.path}: a message cannot be decoded ({err.__class__.__name__}: '
+                           f'{err}); the log is damaged.') from err
         if wanted is None:
             self._scan_cache = result
         return result
@@ -978,7 +1022,8 @@ def copy_and_stream(reader: LogReader, writer: LogWriter, imu_topic: str,
 
         def copy_batch(batch):
             writer.copy_batch(batch.take(np.isin(batch.channel, ids)), cmap)
-        yield from _bulk_chunks(reader, chunker, src.batches(None), copy_batch)
+        yield from _bulk_chunks(reader, chunker, _guarded(reader.path, src.batches(None)),
+                                copy_batch)
         return
     write = writer.write
 
@@ -988,7 +1033,23 @@ def copy_and_stream(reader: LogReader, writer: LogWriter, imu_topic: str,
                 write(msg[0], msg[2], msg[3])
             yield msg
 
-    yield from _chunked(chunker, copy(reader._src.messages(None)))
+    yield from _chunked(chunker, copy(_guarded(reader.path, reader._src.messages(None))))
+
+
+def _guarded(path, messages):
+    """Yield from a source's message iterator, turning its failures into LogError.
+
+    A damaged chunk (checksum, compression, sqlite page) shows only when it is read.
+    """
+    try:
+        yield from messages
+    except LogError:
+        raise
+    except Exception as err:  # rosbags ReaderError, mcap errors, sqlite3.DatabaseError, ...
+        raise LogError(f'{path}: the log is damaged: reading its messages failed '
+                       f'({err.__class__.__name__}: {str(err)[:200]}); recover what is '
+                       'readable (`mcap recover` for MCAP, `ros2 bag reindex` for a bag) '
+                       'and try again.') from err
 
 
 def _chunked(chunker, messages):

@@ -36,7 +36,7 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from . import common
-from ..calibration import CalibrationError, TemperatureInput
+from ..calibration import Calibration, CalibrationError, TemperatureInput
 from ..estimation import calibrate as estimation
 from ..estimation.calibrate import (CalibrateOptions, CalibrationRefused, calibrate_windows,
                                     readiness)
@@ -159,9 +159,13 @@ class CalibratorNode(Node):
         self._rate = common.RateMeter()
         self.counts = {'samples': 0, 'stale_temperature': 0, 'invalid': 0,
                        'temperature_readings': 0, 'temperature_invalid': 0}
+        self._collection_error = ''
         self._new_collection()
         self._resume()
-        self._resume_transitions()
+        try:
+            self._resume_transitions()
+        except OSError as e:
+            self._degrade(e)
 
         data = MutuallyExclusiveCallbackGroup()
         self.imu_sub = self.create_subscription(Imu, 'imu/data_raw', self._on_imu,
@@ -204,6 +208,8 @@ class CalibratorNode(Node):
                                max_transition_s=self.max_transition_s)
 
     def _collection_path(self):
+        if getattr(self, '_collection_error', None):
+            return ''
         return os.path.expanduser(self.collection_file) if self.collection_file else ''
 
     def _transitions_dir(self):
@@ -239,17 +245,40 @@ class CalibratorNode(Node):
         return None
 
     def _resume(self):
+        try:
+            self._resume_file()
+        except OSError as e:
+            self._degrade(e)
+
+    def _degrade(self, err):
+        """Collect in memory only when the collection file cannot be read or written."""
+        path = self._collection_path()
+        self._collection_error = f'{err.__class__.__name__}: {err}'
+        self.get_logger().error(f'collection file {path} cannot be used ({err}); collecting '
+                                'in memory only (set collection_file to a writable path to '
+                                'keep the collection across restarts)')
+
+    def _resume_file(self):
         path = self._collection_path()
         if not path or not os.path.exists(path):
             self._write_inputs_signature()
             return
-        with open(path) as f:
-            text = f.read()
+        with open(path, 'rb') as f:
+            data = f.read()
+        text, skipped, total = _good_records(data, self.k)
         try:
             win = Windows.from_jsonl(text, self.k)
-        except (KeyError, TypeError, ValueError) as e:
+            if total and not skipped and len(win) == 0:
+                raise ValueError('no record could be read')
+            if total and skipped == total:
+                raise ValueError(f'none of its {total} records could be read')
+        except (KeyError, TypeError, ValueError, IndexError) as e:
             win, why = None, f'unreadable ({e.__class__.__name__}: {e})'
         else:
+            if skipped:
+                self.get_logger().warning(f'collection file {path}: skipped {skipped} of '
+                                          f'{total} records that could not be read (not '
+                                          'UTF-8, not JSON, or missing a field)')
             why = (None if len(win) == 0 or win.n_inputs == self.k else
                    f'it has {win.n_inputs} temperature inputs, this node {self.k}')
             why = why or self._signature_mismatch(path)
@@ -313,21 +342,27 @@ class CalibratorNode(Node):
         path = self._collection_path()
         if not path:
             return
-        os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-        with open(path, 'a') as f:
-            f.write(win.to_jsonl())
-            f.flush()
-            os.fsync(f.fileno())
+        try:
+            os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+            with open(path, 'a') as f:
+                f.write(win.to_jsonl())
+                f.flush()
+                os.fsync(f.fileno())
+        except OSError as e:
+            self._degrade(e)
 
     def _persist_transition(self, tr):
         tdir = self._transitions_dir()
         if not tdir:
             return
-        os.makedirs(tdir, exist_ok=True)
-        buf = io.BytesIO()
-        save_transitions(buf, [tr])
-        _atomic_write(os.path.join(tdir, f'{tr.hold_from:06d}-{tr.hold_to:06d}.npz'),
-                      buf.getvalue())
+        try:
+            os.makedirs(tdir, exist_ok=True)
+            buf = io.BytesIO()
+            save_transitions(buf, [tr])
+            _atomic_write(os.path.join(tdir, f'{tr.hold_from:06d}-{tr.hold_to:06d}.npz'),
+                          buf.getvalue())
+        except OSError as e:
+            self._degrade(e)
 
     def _store(self, win, detector, offset):
         """Add closed holds and the pose changes ``detector`` made, with ids offset; persist.
@@ -506,6 +541,8 @@ class CalibratorNode(Node):
                                                            offset)[:room]
             result = calibrate_windows(windows, self.options(transitions))
             result.calibration.fit['detector'] = detector.det.settings()
+            # the loader the compensator uses: never publish a calibration it would refuse
+            Calibration.from_yaml(result.calibration.to_yaml(), 'the new calibration')
         except CalibrationRefused as e:
             return False, f'refused: {e}'
         except (CalibrationError, ValueError) as e:
@@ -639,6 +676,29 @@ class CalibratorNode(Node):
         """Stop the estimation worker, then destroy the node."""
         self._worker.shutdown(wait=False, cancel_futures=True)
         return super().destroy_node()
+
+
+def _good_records(data, k):
+    """Return (text of the readable records, records skipped, records seen) of a collection.
+
+    A record (one line) is skipped when it is not UTF-8, not JSON or lacks a field the
+    windows table needs; the others are kept (one bad line no longer loses the collection).
+    """
+    good, skipped, total = [], 0, 0
+    for line in data.splitlines():
+        if not line.strip():
+            continue
+        total += 1
+        try:
+            text = line.decode('utf-8')
+            win = Windows.from_jsonl(text, k)
+            if len(win) != 1 or win.n_inputs != k:
+                raise ValueError('not one record of this node\'s inputs')
+        except Exception:  # noqa: B902 - any bad record is skipped and counted
+            skipped += 1
+            continue
+        good.append(text)
+    return '\n'.join(good) + ('\n' if good else ''), skipped, total
 
 
 def _usable(chunk, k, timeout):

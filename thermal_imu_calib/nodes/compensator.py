@@ -194,6 +194,8 @@ class CompensatorNode(Node):
             cal = Calibration.load(path)
         except CalibrationError as e:
             return self._reject(path, str(e))
+        except Exception as e:  # noqa: B902 - never die on a file: reject it, keep the old one
+            return self._reject(path, f'unreadable ({e.__class__.__name__}: {e})')
         return self.activate(cal, path)
 
     def _on_reload(self, request, response):
@@ -205,13 +207,14 @@ class CompensatorNode(Node):
         active = self._active
         try:
             cal = Calibration.from_yaml(msg.data, 'imu/calibration')
+            if active is not None and cal.id == active.id:
+                return
+            ok, text = self.activate(cal, 'imu/calibration topic')
         except CalibrationError as e:
             ok, text = self._reject('imu/calibration', str(e))
-            self.get_logger().error(text)
-            return
-        if active is not None and cal.id == active.id:
-            return
-        ok, text = self.activate(cal, 'imu/calibration topic')
+        except Exception as e:  # noqa: B902 - a latched bad message must never kill the node
+            ok, text = self._reject('imu/calibration', f'unusable ({e.__class__.__name__}: '
+                                                       f'{str(e)[:300]})')
         common.log(self, ok, text)
 
     def _on_params(self, changed):
