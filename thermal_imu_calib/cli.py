@@ -347,7 +347,9 @@ def cmd_evaluate(args):
     if res['holds'] == 0:
         raise UserError(f'{args.input}: no stationary holds found, so there is nothing to '
                         'evaluate; evaluate needs a log with the IMU held still in several '
-                        f'poses for at least --min-hold {args.min_hold:g} s each')
+                        'poses, each for at least the minimum hold (derived from the log; '
+                        f'`thermal-imu-calib info {args.input} --holds` shows it and what the '
+                        'detector finds, --min-hold S overrides it)')
     if args.json:
         print(json.dumps(res, indent=1))
         return 0
