@@ -24,6 +24,7 @@ setup(
         'mcap-ros2-support>=0.5',
         'tqdm>=4.60',
         'scikit-learn>=1.3',
+        'dask[distributed]>=2024.1',
     ],
     extras_require={
         'test': ['pytest>=7', 'flake8>=6', 'pydocstyle>=6'],

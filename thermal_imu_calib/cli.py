@@ -164,6 +164,8 @@ def build_parser():
 
     p = sub.add_parser('report', help='print a calibration file for people')
     p.add_argument('calibration', metavar='CALIB.yaml')
+    from .cli_fleet import add_fleet_parsers   # fleet calibrate/compensate, history, ...
+    add_fleet_parsers(sub, COMMANDS)
     return ap
 
 
@@ -175,10 +177,8 @@ def cmd_calibrate(args):
     ``auto``) chose it or an accelerometer-only model did (``gyro_select``); the collector
     costs ~0.09 s CPU per 375k messages, not measurable in a calibrate run.
     """
-    from .estimation.gyro_fit import save_transitions
-    from .pipeline import collect_windows, merge_transitions, merge_windows
-    g, g_src = _gravity(args)
-    prior = Calibration.load(args.prior) if args.prior else None
+    from .pipeline import collect_windows
+    _gravity(args)   # a bad --gravity/--latitude is refused before reading any log
     collected = []
     for path in args.inputs:
         c = collect_windows(path, args.imu_topic, args.temperature_topic, _detector(args),
@@ -188,6 +188,31 @@ def cmd_calibrate(args):
               f'{len(np.unique(c.windows.hold))} stationary holds' + _motion_text(c),
               file=sys.stderr)
         collected.append(c)
+    result = calibrate_collected(args, collected, [os.path.basename(os.path.normpath(p))
+                                                   for p in args.inputs])
+    result.calibration.save(args.output)
+    if args.json:
+        print(json.dumps({'summary': result.summary, 'output': args.output,
+                          'calibration': result.calibration.to_dict()}, indent=1, default=str))
+    else:
+        print(result.summary)
+        for note in result.calibration.notes:
+            print(f'  note: {note}')
+        print(f'wrote {args.output}')
+    return 0
+
+
+def calibrate_collected(args, collected, names):
+    """Merge the Collected of several logs and estimate as ``calibrate`` does.
+
+    ``args`` holds the calibrate options (the Namespace of its parser); ``names`` are
+    recorded as ``fit.inputs``. Returns the CalibrationResult (not saved). Shared by
+    ``fleet calibrate`` (cli_fleet), whose reduce step must equal ``calibrate``.
+    """
+    from .estimation.gyro_fit import save_transitions
+    from .pipeline import merge_transitions, merge_windows
+    g, g_src = _gravity(args)
+    prior = Calibration.load(args.prior) if args.prior else None
     topics = collected[0].temperature_topics
     for c in collected[1:]:
         if c.temperature_topics != topics:
@@ -210,18 +235,8 @@ def cmd_calibrate(args):
                             range_margin=args.range_margin, latitude=args.latitude,
                             transitions=transitions, **mapping)
     result = calibrate_windows(windows, opts)
-    result.calibration.fit['inputs'] = [os.path.basename(os.path.normpath(p))
-                                        for p in args.inputs]
-    result.calibration.save(args.output)
-    if args.json:
-        print(json.dumps({'summary': result.summary, 'output': args.output,
-                          'calibration': result.calibration.to_dict()}, indent=1, default=str))
-    else:
-        print(result.summary)
-        for note in result.calibration.notes:
-            print(f'  note: {note}')
-        print(f'wrote {args.output}')
-    return 0
+    result.calibration.fit['inputs'] = list(names)
+    return result
 
 
 def _motion_text(collected):
