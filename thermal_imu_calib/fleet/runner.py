@@ -19,7 +19,6 @@ from dataclasses import dataclass, field
 import os
 import sys
 import time
-from typing import Optional
 
 NS_PER_DAY = 86400 * 10 ** 9
 
@@ -110,13 +109,14 @@ def reduce_unit(sensor, reduce_fn, heads, *results):
 
 
 @contextmanager
-def fleet_client(scheduler=None, workers=None, out=sys.stderr):
+def fleet_client(scheduler=None, workers=None, out=None):
     """Yield a ``distributed.Client``: on ``scheduler`` (an address) or a new LocalCluster.
 
     The LocalCluster has ``workers`` single-threaded worker processes (default: one per
     core) and its dashboard on a free port; the dashboard address is printed to ``out``.
     """
     from distributed import Client, LocalCluster
+    out = sys.stderr if out is None else out
     if scheduler:
         with Client(scheduler, timeout='30s') as client:
             print(f'dask: scheduler {scheduler}, {len(client.scheduler_info()["workers"])} '
