@@ -76,8 +76,8 @@ def speed(args):
                'speed_up': round(runs[0]['wall_s'] / runs[1]['wall_s'], 2)}
     finally:
         shutil.rmtree(d, ignore_errors=True)
-    print(f'| workers | wall [s] | worker CPU [s] | CPU utilisation | peak RSS/worker [MB] |\n'
-          f'|---|---|---|---|---|')
+    print('| workers | wall [s] | worker CPU [s] | CPU utilisation | peak RSS/worker [MB] |\n'
+          '|---|---|---|---|---|')
     for r in out['runs']:
         print(f'| {r["workers"]} | {r["wall_s"]} | {r["worker_cpu_s"]} | '
               f'{100 * r["cpu_utilisation"]:.0f} % | {r["peak_rss_mb_per_worker"]} |')
@@ -88,31 +88,36 @@ def speed(args):
 
 def alarms(args):
     """Alarm rates over seeds: false alarms on stable units, detection of the others."""
+    from distributed import Client, LocalCluster
     rows_out = []
-    for seed in range(args.seeds):
-        d = tempfile.mkdtemp(prefix='bench_fleet_alarm_')
-        try:
-            design = FleetDesign(units=args.units, logs_per_unit=args.logs_per_unit,
-                                 seed=seed)
-            simulate_fleet(os.path.join(d, 'logs'), design)
-            paths = expand_inputs([os.path.join(d, 'logs')])
-            units, failed, _ = _calibrate(paths, args.workers, period=design.spacing_days
-                                          * 2 / 3)
-            reg.add(os.path.join(d, 'reg'), [
-                (u.sensor, u.result.calibration, u.end_ns, u.start_ns, u.logs)
-                for u in units if not u.error])
-            flagged = {s for s, a in reg.alarms(reg.read_index(os.path.join(d, 'reg'))).items()
-                       if a}
-            truth = read_truth(os.path.join(d, 'logs'))
-            stable = {u for u, t in truth.items() if t['kind'] == 'stable'}
-            row = {'seed': seed, 'stable': len(stable), 'false_alarms': len(flagged & stable),
-                   'special': len(truth) - len(stable),
-                   'detected': len(flagged - stable),
-                   'refused': sum(bool(u.error) for u in units) + len(failed)}
-            rows_out.append(row)
-            print(row, flush=True)
-        finally:
-            shutil.rmtree(d, ignore_errors=True)
+    cargs = cli.build_parser().parse_args(['fleet', 'calibrate', '-', '-o', '-'])
+    reduce_fn = functools.partial(cli.calibrate_collected, calibrate_args(cargs))
+    with LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True,
+                      dashboard_address=':0') as cluster, Client(cluster) as client:
+        for seed in range(args.seeds):
+            d = tempfile.mkdtemp(prefix='bench_fleet_alarm_')
+            try:
+                design = FleetDesign(units=args.units, logs_per_unit=args.logs_per_unit,
+                                     seed=seed)
+                simulate_fleet(os.path.join(d, 'logs'), design, client)
+                paths = expand_inputs([os.path.join(d, 'logs')])
+                units, failed = run_fleet(client, paths, GroupBy('frame_id'), reduce_fn, {},
+                                          design.spacing_days * 2 / 3, progress=False)
+                reg.add(os.path.join(d, 'reg'), [
+                    (u.sensor, u.result.calibration, u.end_ns, u.start_ns, u.logs)
+                    for u in units if not u.error])
+                flagged = {s for s, a in reg.alarms(reg.read_index(os.path.join(d, 'reg')))
+                           .items() if a}
+                truth = read_truth(os.path.join(d, 'logs'))
+                stable = {u for u, t in truth.items() if t['kind'] == 'stable'}
+                row = {'seed': seed, 'stable': len(stable),
+                       'false_alarms': len(flagged & stable),
+                       'special': len(truth) - len(stable), 'detected': len(flagged - stable),
+                       'refused': sum(bool(u.error) for u in units) + len(failed)}
+                rows_out.append(row)
+                print(row, flush=True)
+            finally:
+                shutil.rmtree(d, ignore_errors=True)
     fa = sum(r['false_alarms'] for r in rows_out)
     st = sum(r['stable'] for r in rows_out)
     det = sum(r['detected'] for r in rows_out)
