@@ -64,7 +64,10 @@ def speed(args):
     d = tempfile.mkdtemp(prefix='bench_fleet_')
     try:
         design = FleetDesign(units=args.units, logs_per_unit=args.logs_per_unit, seed=0)
-        simulate_fleet(os.path.join(d, 'logs'), design)
+        from distributed import Client, LocalCluster
+        with LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=':0') as c, \
+                Client(c) as client:
+            simulate_fleet(os.path.join(d, 'logs'), design, client)
         paths = expand_inputs([os.path.join(d, 'logs')])
         runs = []
         for n in (1, 2):
