@@ -51,11 +51,14 @@ def format_history(rows, alarms):
 
 
 def _svg(rs, col, scale, unit, w=360, h=120):
-    """Return an inline SVG: value +-1 sigma per axis against calibration number."""
+    """Return an inline SVG: change since the first calibration +-1 sigma, per axis."""
     colors = ('#d62728', '#2ca02c', '#1f77b4')
     v = np.array([[_f(r, f'{col}.{a}') for a in AXES] for r in rs]) * scale
     s = np.array([[_f(r, f'{col}.{a}_std') for a in AXES] for r in rs]) * scale
     s = np.where(np.isfinite(s), s, 0.0)
+    first = np.array([col_v[np.isfinite(col_v)][0] if np.any(np.isfinite(col_v)) else 0.0
+                      for col_v in v.T])
+    v = v - first   # change since the unit's first calibration: drifts and steps show
     lo, hi = np.nanmin(v - s), np.nanmax(v + s)
     if not np.isfinite(lo) or hi <= lo:
         lo, hi = (lo if np.isfinite(lo) else 0) - 1, (hi if np.isfinite(hi) else 0) + 1
@@ -66,7 +69,8 @@ def _svg(rs, col, scale, unit, w=360, h=120):
         y = 10 + (h - 30) * (1 - (val - lo) / (hi - lo))
         return x, y
     parts = [f'<svg width="{w}" height="{h}" xmlns="http://www.w3.org/2000/svg">',
-             f'<text x="2" y="12" font-size="10">{html.escape(col)} [{unit}]</text>',
+             f'<text x="2" y="12" font-size="10">{html.escape(col)}: change since the first '
+             f'[{unit}]</text>',
              f'<text x="2" y="{h - 4}" font-size="9">{lo:.3g} .. {hi:.3g}</text>']
     for a in range(3):
         for i in range(n):
