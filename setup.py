@@ -24,10 +24,12 @@ setup(
         'mcap-ros2-support>=0.5',
         'tqdm>=4.60',
         'scikit-learn>=1.3',
+        'matplotlib>=3.7',
+        'allantools>=2019.9',
         'dask[distributed]>=2024.1',
     ],
     extras_require={
-        'test': ['pytest>=7', 'flake8>=6', 'pydocstyle>=6'],
+        'test': ['pytest>=7', 'flake8>=6', 'pydocstyle>=6', 'hypothesis>=6.80'],
     },
     zip_safe=True,
     maintainer='thermal_imu_calib maintainers',

@@ -12,11 +12,12 @@ import sys
 
 import numpy as np
 
-from . import __version__
+from . import __version__, cli_export
 from .calibration import Calibration, CalibrationError, TemperatureInput
 from .estimation.calibrate import (CalibrateOptions, calibrate_windows, CalibrationRefused,
                                    model_choices)
 from .estimation.stationary import DetectorConfig
+from .formats import load_prior
 from .gravity import resolve_gravity
 from .input_units import parse_unit_map
 from .io.bag import LogError
@@ -88,7 +89,9 @@ def build_parser():
                    help='auto: chosen from the data (see the summary); field: seed 000; '
                         'offset: single-orientation drift only; whole_unit: seed 002, gyro '
                         'scale and misalignment from the pose changes between holds')
-    p.add_argument('--prior', help='lab calibration (k0, b0, S at T0) the field model refines')
+    p.add_argument('--prior', help='lab calibration (k0, b0, S at T0) the field model refines: a '
+                   'thermal_imu_calib YAML, imu_tk *_acc.calib, imucal .json, PX4 .params, '
+                   'ArduPilot .parm or Kalibr imu.yaml')
     p.add_argument('--order', type=int, default=2, choices=(0, 1, 2),
                    help='temperature polynomial order of the field model (default 2)')
     p.add_argument('--no-refine', action='store_true', help='skip the joint refinement')
@@ -164,6 +167,7 @@ def build_parser():
 
     p = sub.add_parser('report', help='print a calibration file for people')
     p.add_argument('calibration', metavar='CALIB.yaml')
+    cli_export.add_parser(sub)
     from .cli_fleet import add_fleet_parsers   # fleet calibrate/compensate, history, ...
     add_fleet_parsers(sub, COMMANDS)
     return ap
@@ -212,7 +216,7 @@ def calibrate_collected(args, collected, names):
     from .estimation.gyro_fit import save_transitions
     from .pipeline import merge_transitions, merge_windows
     g, g_src = _gravity(args)
-    prior = Calibration.load(args.prior) if args.prior else None
+    prior = load_prior(args.prior) if args.prior else None
     topics = collected[0].temperature_topics
     for c in collected[1:]:
         if c.temperature_topics != topics:
@@ -426,7 +430,7 @@ def format_calibration(cal):
 
 COMMANDS = {'calibrate': cmd_calibrate, 'compensate': cmd_compensate,
             'evaluate': cmd_evaluate, 'simulate': cmd_simulate, 'info': cmd_info,
-            'report': cmd_report}
+            'report': cmd_report, 'export': cli_export.cmd_export}
 
 
 def main(argv=None):

@@ -57,53 +57,101 @@ def kkt_unit_tilt_batch(m_mat, v, c0, max_iter=50, tol=1e-14):
 
     m_mat: (h, 3, 3) = sum A' W^2 A, v: (h, 3) = sum A' W^2 y, c0: (h, 3) starts.
     Newton steps on the Lagrangian L = f(c) + u (c'c - 1) with the bordered KKT system of
-    eq. (24): gradient eq. (26), Hessian eq. (27), constraint gradient eq. (25). The
-    global minimiser is the stationary point where the Hessian of L is positive
-    semi-definite (u >= -lambda_min(M)); a hold where Newton lands elsewhere (a start far
-    from the data) is solved through the secular equation instead.
+    eq. (24): gradient eq. (26), Hessian eq. (27), constraint gradient eq. (25).
+
+    A Newton point is accepted only where it has converged: its KKT residual (gradient of
+    L and |c|^2 - 1, relative to the scale of M and v) is below ``tol_kkt`` and the Hessian
+    of L is positive semi-definite (u >= -lambda_min(M)), which makes it the global
+    minimiser. Every other hold (Newton stopped at ``max_iter``, landed on a saddle or a
+    maximum, or produced non-finite values) is solved through the secular equation
+    (``_secular``), which always gives the global minimiser.
     Returns (c (h, 3), u (h,), iterations).
     """
+    m_mat = np.asarray(m_mat, float)
+    v = np.asarray(v, float)
     h = m_mat.shape[0]
     c = c0 / np.linalg.norm(c0, axis=1, keepdims=True)
     u = -np.einsum('hi,hi->h', c, np.einsum('hij,hj->hi', m_mat, c) - v)
     kkt = np.zeros((h, 4, 4))
     eye = np.eye(3)
     it = 0
-    for it in range(1, max_iter + 1):
-        grad = 2.0 * (np.einsum('hij,hj->hi', m_mat, c) - v) + 2.0 * u[:, None] * c
-        hc = np.einsum('hi,hi->h', c, c) - 1.0
-        kkt[:, :3, :3] = 2.0 * m_mat + 2.0 * u[:, None, None] * eye
-        kkt[:, :3, 3] = kkt[:, 3, :3] = 2.0 * c
-        step = np.linalg.solve(kkt, -np.concatenate([grad, hc[:, None]], 1)[..., None])[..., 0]
-        c = c + step[:, :3]
-        u = u + step[:, 3]
-        if np.max(np.linalg.norm(step[:, :3], axis=1)) < tol:
-            break
-    lam = np.linalg.eigvalsh(m_mat)
-    bad = (u < -lam[:, 0] - 1e-9 * np.maximum(np.abs(lam[:, -1]), 1.0)) | \
-        ~np.all(np.isfinite(c), axis=1)
-    for j in np.flatnonzero(bad):
+    with np.errstate(all='ignore'):
+        for it in range(1, max_iter + 1):
+            grad = 2.0 * (np.einsum('hij,hj->hi', m_mat, c) - v) + 2.0 * u[:, None] * c
+            hc = np.einsum('hi,hi->h', c, c) - 1.0
+            kkt[:, :3, :3] = 2.0 * m_mat + 2.0 * u[:, None, None] * eye
+            kkt[:, :3, 3] = kkt[:, 3, :3] = 2.0 * c
+            rhs = -np.concatenate([grad, hc[:, None]], 1)[..., None]
+            try:
+                step = np.linalg.solve(kkt, rhs)[..., 0]
+            except np.linalg.LinAlgError:       # a singular bordered system: let the
+                step = (np.linalg.pinv(kkt) @ rhs)[..., 0]   # acceptance test decide
+            c = c + step[:, :3]
+            u = u + step[:, 3]
+            if not np.all(np.isfinite(step)) or \
+                    np.max(np.linalg.norm(step[:, :3], axis=1)) < tol:
+                break
+        ok = _kkt_converged(m_mat, v, c, u)
+    for j in np.flatnonzero(~ok):
         c[j], u[j] = _secular(m_mat[j], v[j])
     return c / np.linalg.norm(c, axis=1, keepdims=True), u, it
 
 
+def _kkt_converged(m_mat, v, c, u, tol_kkt=1e-10):
+    """Per hold, whether (c, u) is a converged global minimiser of c'Mc - 2v'c on |c| = 1.
+
+    True where c and u are finite, the KKT residual |Mc - v + uc| is below ``tol_kkt``
+    times the problem's scale (|M| + |v|), |c|^2 - 1 is below ``tol_kkt``, and
+    u >= -lambda_min(M) to within 1e-12 of the scale (second-order condition of the
+    trust-region subproblem).
+    """
+    finite = np.all(np.isfinite(c), axis=1) & np.isfinite(u)
+    c0 = np.where(finite[:, None], c, 0.0)
+    u0 = np.where(finite, u, 0.0)
+    lam = np.linalg.eigvalsh(m_mat)
+    scale = np.abs(lam).max(axis=1) + np.linalg.norm(v, axis=1) + 1e-300
+    res = np.linalg.norm(np.einsum('hij,hj->hi', m_mat, c0) - v + u0[:, None] * c0, axis=1)
+    unit = np.abs(np.einsum('hi,hi->h', c0, c0) - 1.0)
+    psd = u0 >= -lam[:, 0] - 1e-12 * scale     # eigvalsh is good to ~eps |M|
+    return finite & (res <= tol_kkt * scale) & (unit <= tol_kkt) & psd
+
+
 def _secular(m_mat, v):
-    """Global minimiser of c'Mc - 2v'c on |c| = 1 via the secular equation in u."""
+    """Global minimiser of c'Mc - 2v'c on |c| = 1 via the secular equation in u.
+
+    With M = Q diag(lam) Q' and w = Q'v, the minimiser is c = Q (w / (lam + u)) with the
+    unique u > -lam_min solving sum w_i^2 / (lam_i + u)^2 = 1. In the "hard case" (w has
+    no component on the eigenvectors of lam_min and the sum stays below 1 at u = -lam_min),
+    u = -lam_min and the remainder of the unit norm is put along that eigenvector.
+    """
     lam, q = np.linalg.eigh(m_mat)
     vq = q.T @ v
+    scale = max(abs(lam[-1]), abs(lam[0]), float(np.linalg.norm(v)), 1e-300)
+    low = lam - lam[0] <= 1e-12 * scale          # the eigenspace of lam_min
 
     def norm2(u):
         return float(np.sum((vq / (lam + u)) ** 2)) - 1.0
 
-    lo = -lam[0] + 1e-12 * max(abs(lam[-1]), 1.0)
-    if norm2(lo) <= 0:  # the "hard case": v has no component on the smallest eigenvector
-        c = q[:, 0]
-        return c, -lam[0]
-    hi = max(lo + 1.0, -lam[0] + np.linalg.norm(v) + 1.0)
+    lo = max(-lam[0] + 1e-15 * scale, float(np.nextafter(-lam[0], np.inf)))
+    if norm2(lo) <= 0:                           # the hard case (or numerically so)
+        c = np.zeros(3)
+        c[~low] = vq[~low] / (lam[~low] - lam[0])
+        j = np.flatnonzero(low)[0]
+        c[j] = np.copysign(np.sqrt(max(0.0, 1.0 - float(c @ c))), vq[j])
+        return q @ c, -lam[0]
+    hi = -lam[0] + float(np.linalg.norm(v)) + scale * 1e-12   # norm2(hi) <= 0 here
     while norm2(hi) > 0:
-        hi = lo + 2.0 * (hi - lo)
-    u = brentq(norm2, lo, hi, xtol=1e-14 * max(abs(hi), 1.0), maxiter=500)
-    return q @ (vq / (lam + u)), u
+        hi = -lam[0] + 2.0 * (hi + lam[0])
+    u = brentq(norm2, lo, hi, xtol=1e-15 * max(abs(hi), 1.0), rtol=4 * np.finfo(float).eps,
+               maxiter=500)
+    c = vq / (lam + u)
+    # Near the pole lam_min + u -> 0 the lam_min components lose their precision; they
+    # follow from the well-conditioned others through |c| = 1 (their sign is that of w).
+    r2 = float(np.sum(c[~low] ** 2))
+    wl = float(np.linalg.norm(vq[low]))
+    if r2 <= 1.0 and wl > 0:
+        c[low] = vq[low] / wl * np.sqrt(1.0 - r2)
+    return q @ (c / np.linalg.norm(c)), u
 
 
 def _design(f, dt, order):

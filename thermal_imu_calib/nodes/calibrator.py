@@ -34,7 +34,7 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from . import common
-from ..calibration import Calibration, CalibrationError, TemperatureInput
+from ..calibration import CalibrationError, TemperatureInput
 from ..estimation import calibrate as estimation
 from ..estimation.calibrate import (CalibrateOptions, CalibrationRefused, calibrate_windows,
                                     readiness)
@@ -42,6 +42,7 @@ from ..estimation.gyro_fit import (load_transitions, MotionCollector, offset_hol
                                    save_transitions)
 from ..estimation.segments import FACE_NAMES, Windows
 from ..estimation.stationary import DetectorConfig
+from ..formats import load_prior
 from ..gravity import resolve_gravity
 from ..io.align import StreamAligner
 from ..io.columns import ImuColumns, TemperatureColumns
@@ -421,7 +422,7 @@ class CalibratorNode(Node):
         prior = None
         prior_file = self.get_parameter('prior_file').value
         if prior_file:
-            prior = Calibration.load(os.path.expanduser(prior_file))
+            prior = load_prior(os.path.expanduser(prior_file))
         return CalibrateOptions(
             model=self.get_parameter('model').value, gravity=value, gravity_source=source,
             prior=prior, inputs=list(self.inputs),
