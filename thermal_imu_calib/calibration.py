@@ -119,6 +119,10 @@ class Calibration:
     software_version: str = __version__
     #: optional lag of the temperature inputs (thermal_input); None: the reading is the input
     temperature_filter: Optional[ThermalFilter] = None
+    #: Allan noise model (``estimation.allan``): per axis ``{accel,gyro}_noise_density`` N
+    #: (unit/sqrt(Hz)) and ``{accel,gyro}_random_walk`` K (unit/s/sqrt(Hz)), plus
+    #: ``rate_hz`` and ``horizon_s``; see ``noise_std``
+    noise_model: dict = field(default_factory=dict)
 
     def __post_init__(self):
         for which in ('accel', 'gyro'):
@@ -203,13 +207,32 @@ class Calibration:
             ta, o = self.axis_temperatures(temps, 'accel')
             oor |= o
             a_out = self.accel.correct(accel, ta)
-            a_std = _combine_std(self.accel.predict_std(ta), self.accel_noise_std, n)
+            a_std = _combine_std(self.accel.predict_std(ta), self.noise_std('accel'), n)
         if self.gyro is not None:
             tg, o = self.axis_temperatures(temps, 'gyro')
             oor |= o
             g_out = self.gyro.correct(gyro, tg, aux={'accel': a_out})
-            g_std = _combine_std(self.gyro.predict_std(tg), self.gyro_noise_std, n)
+            g_std = _combine_std(self.gyro.predict_std(tg), self.noise_std('gyro'), n)
         return Compensated(a_out, g_out, oor, a_std, g_std)
+
+    def noise_std(self, which):
+        """Return the (3,) per-sample noise std of 'accel'/'gyro' the covariance uses, or None.
+
+        White part: ``noise.<which>_std``, else N sqrt(rate_hz). With a random walk K the
+        bias wander over ``horizon_s`` (the span of the calibration data: what the thermal
+        model could not follow) is added: sqrt(white^2 + K^2 horizon_s / 3), the Allan
+        variance of a random walk at that tau.
+        """
+        white = self.accel_noise_std if which == 'accel' else self.gyro_noise_std
+        nm = self.noise_model or {}
+        dens = nm.get(f'{which}_noise_density')
+        if white is None and dens is not None and nm.get('rate_hz'):
+            white = np.asarray(dens, float) * np.sqrt(float(nm['rate_hz']))
+        walk = nm.get(f'{which}_random_walk')
+        if walk is None or not nm.get('horizon_s'):
+            return white
+        var = np.asarray(walk, float) ** 2 * float(nm['horizon_s']) / 3.0
+        return np.sqrt(var + (0.0 if white is None else np.asarray(white, float) ** 2))
 
     def stream(self):
         """Return a ``CalibrationStream``: ``apply`` batch after batch with the filter state."""
@@ -259,6 +282,8 @@ class Calibration:
         if self.gyro_noise_std is not None:
             noise['gyro_std'] = {'value': np.asarray(self.gyro_noise_std).tolist(),
                                  'unit': 'rad/s', 'description': 'white noise 1-sigma per sample'}
+        for key, value in (self.noise_model or {}).items():
+            noise[key] = {'value': _plain(value), 'unit': NOISE_UNITS.get(key, '')}
         if noise:
             d['noise'] = noise
         d['fit'] = _plain(self.fit)
@@ -391,6 +416,7 @@ class Calibration:
                 gravity_source=str(g.get('source', '')),
                 accel_noise_std=_opt_vec(noise.get('accel_std')),
                 gyro_noise_std=_opt_vec(noise.get('gyro_std')),
+                noise_model=_noise_model(noise),
                 fit=d.get('fit') or {}, notes=list(d.get('notes') or []),
                 created=str(d.get('created', '')),
                 software_version=str((d.get('software') or {}).get('version', '')),
@@ -434,6 +460,30 @@ def _check_range_units(unit, inputs):
         if u != inp.unit:
             raise ValueError(f'valid_range of input {inp.name!r} is in {u} but the input is in '
                              f'{inp.unit}; give the range in the input\'s unit')
+
+
+#: units of the Allan noise-model entries of the ``noise`` section
+NOISE_UNITS = {'accel_noise_density': 'm/s^2/sqrt(Hz)', 'gyro_noise_density': 'rad/s/sqrt(Hz)',
+               'accel_random_walk': 'm/s^3/sqrt(Hz)', 'gyro_random_walk': 'rad/s^2/sqrt(Hz)',
+               'rate_hz': 'Hz', 'horizon_s': 's'}
+
+
+def _noise_model(noise):
+    """Return the Allan noise-model entries of a ``noise`` section (validated)."""
+    out = {}
+    for key in NOISE_UNITS:
+        if noise.get(key) is None:
+            continue
+        sec = noise[key]
+        v = sec['value'] if isinstance(sec, dict) else sec
+        if key in ('rate_hz', 'horizon_s'):
+            v = float(v)
+            if not v > 0:
+                raise ValueError(f'noise.{key} must be > 0')
+        else:
+            v = _opt_vec(v)
+        out[key] = v
+    return out
 
 
 def _opt_vec(sec):

@@ -1,8 +1,8 @@
 """``thermal-imu-calib``: the library on recorded logs.
 
-Subcommands: calibrate, compensate, evaluate, simulate, info, report. Bad input gets one
-line on stderr saying what was wrong and what to do, and exit status 2; ``--debug`` shows
-the traceback instead.
+Subcommands: calibrate, compensate, evaluate, simulate, info, report, noise, export. Bad
+input gets one line on stderr saying what was wrong and what to do, and exit status 2;
+``--debug`` shows the traceback instead.
 """
 
 import argparse
@@ -21,6 +21,7 @@ from .formats import load_prior
 from .gravity import resolve_gravity
 from .input_units import parse_unit_map
 from .io.bag import LogError
+from .report import cli as report_cli
 
 EXIT_USAGE = 2
 
@@ -165,8 +166,11 @@ def build_parser():
     p = sub.add_parser('info', help='topics, counts, rates, span, temperature range')
     p.add_argument('input', metavar='INPUT')
 
-    p = sub.add_parser('report', help='print a calibration file for people')
+    p = sub.add_parser('report', help='print a calibration file for people; --html/--png-dir '
+                                      'plot it')
     p.add_argument('calibration', metavar='CALIB.yaml')
+    report_cli.add_report_args(p)
+    report_cli.add_noise_parser(sub)
     cli_export.add_parser(sub)
     from .cli_fleet import add_fleet_parsers   # fleet calibrate/compensate, history, ...
     add_fleet_parsers(sub, COMMANDS)
@@ -192,8 +196,7 @@ def cmd_calibrate(args):
               f'{len(np.unique(c.windows.hold))} stationary holds' + _motion_text(c),
               file=sys.stderr)
         collected.append(c)
-    result = calibrate_collected(args, collected, [os.path.basename(os.path.normpath(p))
-                                                   for p in args.inputs])
+    result = calibrate_collected(args, collected, args.inputs)
     result.calibration.save(args.output)
     if args.json:
         print(json.dumps({'summary': result.summary, 'output': args.output,
@@ -206,11 +209,12 @@ def cmd_calibrate(args):
     return 0
 
 
-def calibrate_collected(args, collected, names):
+def calibrate_collected(args, collected, paths):
     """Merge the Collected of several logs and estimate as ``calibrate`` does.
 
-    ``args`` holds the calibrate options (the Namespace of its parser); ``names`` are
-    recorded as ``fit.inputs``. Returns the CalibrationResult (not saved). Shared by
+    ``args`` holds the calibrate options (the Namespace of its parser); ``paths`` are the
+    logs (their names go to ``fit.inputs``; long holds are re-read for the random walk,
+    ``noise.add_random_walk``). Returns the CalibrationResult (not saved). Shared by
     ``fleet calibrate`` (cli_fleet), whose reduce step must equal ``calibrate``.
     """
     from .estimation.gyro_fit import save_transitions
@@ -239,7 +243,10 @@ def calibrate_collected(args, collected, names):
                             range_margin=args.range_margin, latitude=args.latitude,
                             transitions=transitions, **mapping)
     result = calibrate_windows(windows, opts)
-    result.calibration.fit['inputs'] = list(names)
+    result.calibration.fit['inputs'] = [os.path.basename(os.path.normpath(p)) for p in paths]
+    from .noise import add_random_walk
+    note = add_random_walk(result.calibration, paths, windows, args.imu_topic)
+    result.calibration.notes += [note] if note else []
     return result
 
 
@@ -386,10 +393,8 @@ def cmd_info(args):
 
 
 def cmd_report(args):
-    """Run the report subcommand."""
-    cal = Calibration.load(args.calibration)
-    print(format_calibration(cal))
-    return 0
+    """Run the report subcommand (text; HTML/PNG with --html/--png-dir)."""
+    return report_cli.cmd_report(args, format_calibration, UserError)
 
 
 def format_calibration(cal):
@@ -430,14 +435,18 @@ def format_calibration(cal):
 
 COMMANDS = {'calibrate': cmd_calibrate, 'compensate': cmd_compensate,
             'evaluate': cmd_evaluate, 'simulate': cmd_simulate, 'info': cmd_info,
-            'report': cmd_report, 'export': cli_export.cmd_export}
+            'report': cmd_report, 'noise': lambda a: report_cli.cmd_noise(a, UserError),
+            'export': cli_export.cmd_export}
 
 
 def main(argv=None):
     """Entry point of ``thermal-imu-calib``."""
     args = build_parser().parse_args(argv)
     try:
-        return COMMANDS[args.cmd](args)
+        from threadpoolctl import threadpool_limits
+        # the fits are small dense problems: BLAS threads only contend (docs/speed.md)
+        with threadpool_limits(limits=1, user_api='blas'):
+            return COMMANDS[args.cmd](args)
     except (UserError, LogError, CalibrationError, CalibrationRefused, FileNotFoundError,
             ValueError) as e:
         if args.debug:

@@ -232,6 +232,7 @@ def compensate_log(src, dst, calibration, imu_topic=None, temperature_topics=Non
                 yield gate.push(ch) if gate is not None else ch
         bar = _progress(reader.topics()[imu_topic].count, 'compensating', progress)
         t_start = time.perf_counter()
+        payloads = _PayloadStore()
         with LogWriter(dst, storage=storage) as writer:
             writer.add_topic(output_topic, IMU_MSGTYPE)
             for raw in copy_and_stream(reader, writer, imu_topic, temps,
@@ -239,15 +240,19 @@ def compensate_log(src, dst, calibration, imu_topic=None, temperature_topics=Non
                 stats['imu_in'] += len(raw.imu)
                 if bar is not None:
                     bar.update(len(raw.imu))
-                for ch in gated(aligner.push(raw)):
+                # the payloads wait in the store; the aligner carries their row numbers
+                extra = {'imu_log_time_ns': raw.imu_log_time_ns,
+                         'imu_row': payloads.add(raw.imu_raw)}
+                for ch in gated(aligner.push_columns(raw.imu, [raw.temps[t] for t in temps],
+                                                     extra)):
                     _write_compensated(writer, output_topic, ch, stream, timeout,
-                                       on_missing, stats)
+                                       on_missing, stats, payloads)
             tail = list(gated(aligner.finish()))
             if gate is not None:
                 tail.append(gate.flush())
             for ch in tail:
                 _write_compensated(writer, output_topic, ch, stream, timeout, on_missing,
-                                   stats)
+                                   stats, payloads)
         if bar is not None:
             bar.close()
     stats['seconds'] = time.perf_counter() - t_start
@@ -258,12 +263,52 @@ def compensate_log(src, dst, calibration, imu_topic=None, temperature_topics=Non
     return stats
 
 
-def _write_compensated(writer, topic, ch, stream, timeout, policy, stats):
+class _PayloadStore:
+    """Imu payloads read but not yet written, addressed by a running row number.
+
+    Blocks are what the reader gave: an (n, size) uint8 array or a list of bytes.  Rows
+    are taken in increasing order, so blocks wholly before a request are dropped.
+    """
+
+    def __init__(self):
+        self._blocks = []
+        self._next = 0
+
+    def add(self, rows) -> np.ndarray:
+        """Keep ``rows``; return their row numbers."""
+        first = self._next
+        self._next += len(rows)
+        if len(rows):
+            self._blocks.append((first, rows))
+        return np.arange(first, self._next, dtype=np.int64)
+
+    def take(self, idx):
+        """Return the payloads of row numbers ``idx`` (increasing): array or list."""
+        idx = np.asarray(idx, dtype=np.int64)
+        if not len(idx):
+            return []
+        while self._blocks and self._blocks[0][0] + len(self._blocks[0][1]) <= idx[0]:
+            self._blocks.pop(0)
+        parts = []
+        for first, rows in self._blocks:
+            if first > idx[-1]:
+                break
+            sel = idx[(idx >= first) & (idx < first + len(rows))] - first
+            if len(sel):
+                parts.append(rows[sel] if isinstance(rows, np.ndarray)
+                             else [rows[i] for i in sel.tolist()])
+        if all(isinstance(p, np.ndarray) for p in parts) and len(
+                {p.shape[1] for p in parts}) == 1:
+            return parts[0] if len(parts) == 1 else np.concatenate(parts)
+        return [bytes(x) for p in parts for x in p]
+
+
+def _write_compensated(writer, topic, ch, stream, timeout, policy, stats, payloads):
     n = len(ch)
     if n == 0:
         return
     temps, keep, comp = _resolve_missing(ch.temps, ch.temp_age, timeout, policy, None)
-    raws = ch.extra['imu_raw']
+    raws = payloads.take(ch.extra['imu_row'])
     accel = ch.imu.accel.copy()
     gyro = ch.imu.gyro.copy()
     if np.any(comp):
@@ -275,10 +320,13 @@ def _write_compensated(writer, topic, ch, stream, timeout, policy, stats):
     keep &= finite
     stats['passthrough'] += int(np.sum(keep & ~comp))
     stats['dropped'] += int(np.sum(~keep))
-    patched = cdr.patch_imu(raws, accel, gyro)
     times = ch.extra['imu_log_time_ns']
     idx = np.flatnonzero(keep)
-    writer.write_many(topic, times[idx], [patched[i] for i in idx])
+    if isinstance(raws, np.ndarray):
+        writer.write_many(topic, times[idx], cdr.patch_imu_rows(raws, accel, gyro)[idx])
+    else:
+        patched = cdr.patch_imu(raws, accel, gyro)
+        writer.write_many(topic, times[idx], [patched[i] for i in idx])
     stats['imu_out'] += len(idx)
 
 

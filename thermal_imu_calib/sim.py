@@ -962,3 +962,19 @@ def write_scenario(output, name, seed=0, storage='mcap', overwrite=False, compre
     summary['messages'] = counts
     summary['seconds'] = round(time.perf_counter() - t_start, 3)
     return {**paths, 'summary': summary}
+
+
+def still_noise(n, rate_hz, density, random_walk=0.0, seed=0):
+    """Return (n, 3) white noise plus a random-walk bias, as a still sensor's error.
+
+    ``density`` N is the one-sided white-noise density (unit/sqrt(Hz): per-sample std
+    N sqrt(rate)); ``random_walk`` K is the bias random walk (unit/s/sqrt(Hz): the bias
+    moves by K sqrt(dt) per sample). Scalars or per-axis (3,) values. The Allan variance
+    of the result is N^2/tau + K^2 tau/3 (IEEE 952), what ``estimation.allan`` reads back.
+    """
+    rng = np.random.default_rng(seed)
+    dt = 1.0 / float(rate_hz)
+    white = rng.standard_normal((n, 3)) * (np.asarray(density, float) / np.sqrt(dt))
+    walk = np.cumsum(rng.standard_normal((n, 3)), axis=0) * (
+        np.asarray(random_walk, float) * np.sqrt(dt))
+    return white + walk

@@ -495,6 +495,7 @@ def fit_gyro_static(windows, axis_inputs, acc, t0, latitude=None, omega1=None, p
     def solve(free_lin, theta0, with_prior, weights_kind):
         """Alternate linear LS and closed-form headings; return (theta, psi, mh, r, w)."""
         idx = np.flatnonzero(free_lin)
+        x_free, x_fixed = x[:, :, idx], x[:, :, ~free_lin]  # loop invariants
         theta = theta0.copy()
         psi = np.zeros(nh)
         mh = c_lat if lat_known else 0.5
@@ -508,14 +509,14 @@ def fit_gyro_static(windows, axis_inputs, acc, t0, latitude=None, omega1=None, p
                 c = k_robust * max(robust_scale(r_all), 1.0)
             for _ in range(60):
                 we, hdir = earth(psi, mh)
-                yy = y - we - np.einsum('nik,k->ni', x[:, :, ~free_lin], theta[~free_lin])
-                r = (yy - np.einsum('nik,k->ni', x[:, :, idx], theta[idx])) / sig
+                yy = y - we - np.einsum('nik,k->ni', x_fixed, theta[~free_lin])
+                r = (yy - np.einsum('nik,k->ni', x_free, theta[idx])) / sig
                 if stage == 'soft_l1':
                     wts = 1.0 / np.sqrt(1.0 + (r / c) ** 2)
                 elif stage == 'cauchy':
                     wts = 1.0 / (1.0 + (r / c) ** 2)
                 sw = np.sqrt(wts) / sig
-                a = (x[:, :, idx] * sw[:, :, None]).reshape(3 * m, len(idx))
+                a = (x_free * sw[:, :, None]).reshape(3 * m, len(idx))
                 b = (yy * sw).ravel()
                 if with_prior:
                     sd = lay.std[idx]

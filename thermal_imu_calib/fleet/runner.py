@@ -5,7 +5,7 @@ statistics and pose changes (``pipeline.Collected``: kilobytes; samples never tr
 the sensor id and the log's time span. A log that cannot be read is a ``LogResult`` with
 ``error`` set, never an exception, so it cannot stop the job.
 
-Reduce: the caller's ``reduce_fn(collected_list, names) -> CalibrationResult`` runs once per
+Reduce: the caller's ``reduce_fn(collected_list, paths) -> CalibrationResult`` runs once per
 sensor (and ``period``) on a worker, with the map results passed as futures (they move
 worker to worker, not through the client). ``cli_fleet`` passes ``cli.calibrate_collected``:
 the very code of ``calibrate``.
@@ -101,8 +101,7 @@ def reduce_unit(sensor, reduce_fn, heads, *results):
         out.error = 'no readable log'
         return out
     try:
-        out.result = reduce_fn([r.collected for r in good],
-                               [os.path.basename(os.path.normpath(r.path)) for r in good])
+        out.result = reduce_fn([r.collected for r in good], [r.path for r in good])
     except Exception as e:   # noqa: B902 - a refused unit is reported, the others go on
         out.error = _reason(e)
     return out

@@ -128,7 +128,9 @@ class RawChunk:
     imu: ImuColumns
     imu_log_time_ns: np.ndarray
     temps: dict[str, TemperatureColumns]
-    imu_raw: list[bytes] | None = None
+    #: the Imu payloads when asked for: a list of bytes, or from the bulk MCAP reader an
+    #: (n, size) uint8 array when every payload of the chunk has one size
+    imu_raw: list[bytes] | np.ndarray | None = None
 
     def __len__(self):
         return len(self.imu)
@@ -241,6 +243,41 @@ class _McapLibSource:
         self._file.close()
 
 
+def _bulk_source(p: Path, src):
+    """Read messages with the bulk MCAP reader when the log is one indexed .mcap file."""
+    from .mcap_source import McapBulkSource
+
+    paths = [p]
+    if p.is_dir():  # rosbag2 directory: rosbags' storage files (decompressed if 'file' mode)
+        bag = getattr(src, '_reader', None)
+        if bag is None or getattr(bag, 'compression_mode', None) == 'message':
+            return src
+        paths = [Path(s.path) for s in getattr(bag.storage, 'storages', [])]
+    if len(paths) != 1 or paths[0].suffix != '.mcap':
+        return src
+    try:
+        return McapBulkSource.open(paths[0], src, LogError) or src
+    except ValueError as err:
+        src.close()
+        raise LogError(f'{err}') from err
+
+
+def _bulk_chunks(reader, chunker, batches, on_batch=None) -> Iterator[RawChunk]:
+    """Turn bulk MCAP batches into RawChunks (the cut points of ``_Chunker``)."""
+    from .mcap_source import chunk_stream
+
+    src = reader._src
+    try:
+        for imu, times, temps, raws in chunk_stream(
+                batches, chunker.imu_topic, src.channel_ids({chunker.imu_topic}),
+                chunker.temperature_topics,
+                [src.channel_ids({t}) for t in chunker.temperature_topics],
+                chunker.chunk_size, chunker.keep_raw, on_batch):
+            yield RawChunk(imu, times, temps, raws)
+    except ValueError as err:
+        raise LogError(f'{err}') from err
+
+
 def open_log(path) -> LogReader:
     """Open a rosbag2 directory, a bare ``.mcap`` or a bare ``.db3`` file for reading."""
     return LogReader(path)
@@ -289,6 +326,7 @@ class LogReader:
             except Exception as err2:
                 raise LogError(f'{p}: cannot read this MCAP file: {err}; {err2}; check that '
                                'it is a complete ROS 2 MCAP file (try `mcap info`).') from err2
+        self._src = _bulk_source(p, self._src)
         if kind == 'rosbag2 directory':
             try:
                 meta = yaml.safe_load((p / 'metadata.yaml').read_text())
@@ -397,6 +435,9 @@ class LogReader:
         since the previous chunk; memory stays bounded by ``chunk_size``.
         """
         chunker = _Chunker(self, imu_topic, temperature_topics, chunk_size, keep_raw)
+        if hasattr(self._src, 'batches'):
+            yield from _bulk_chunks(self, chunker, self._src.batches(chunker.topics))
+            return
         yield from _chunked(chunker, self._src.messages(chunker.topics))
 
     def info(self, topics: Iterable[str] | None = None) -> LogInfo:
@@ -630,14 +671,14 @@ class LogWriter:
         self._types: dict[str, str] = {}
         self._closed = False
         if self.bare:
-            from mcap.writer import CompressionType, Writer
+            from .mcap_write import McapBulkWriter
 
             self._file = open(p, 'xb')
-            comp = CompressionType.ZSTD if compression == 'zstd' else CompressionType.NONE
-            self._mcap = Writer(self._file, compression=comp)
-            self._mcap.start(profile='ros2', library='thermal_imu_calib')
+            self._mcap = McapBulkWriter(self._file, profile='ros2', library='thermal_imu_calib',
+                                        compression='zstd' if compression == 'zstd' else '')
             self._schemas: dict[str, int] = {}
             self._seq: dict[str, int] = {}
+            self._pending: list = []
         else:
             from rosbags.rosbag2 import Writer
             from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
@@ -695,11 +736,10 @@ class LogWriter:
         if self.bare:
             if msgtype not in self._schemas:
                 enc = 'ros2idl' if msgdef.startswith(_IDL_PREFIX) else 'ros2msg'
-                self._schemas[msgtype] = self._mcap.register_schema(msgtype, enc,
-                                                                    msgdef.encode())
+                self._schemas[msgtype] = self._mcap.add_schema(msgtype, enc, msgdef.encode())
             meta = {'offered_qos_profiles': _qos_text(qos), 'topic_type_hash': type_hash}
-            self._topics[name] = self._mcap.register_channel(name, 'cdr',
-                                                             self._schemas[msgtype], meta)
+            self._topics[name] = self._mcap.add_channel(name, 'cdr', self._schemas[msgtype],
+                                                        meta)
             self._seq[name] = 0
         else:
             self._topics[name] = self._bag.add_connection(
@@ -719,29 +759,51 @@ class LogWriter:
         t = int(log_time_ns)
         if self.bare:
             self._seq[topic] += 1
-            self._mcap.add_message(handle, log_time=t, data=raw, publish_time=t,
-                                   sequence=self._seq[topic] & 0xFFFFFFFF)
+            self._pending.append((handle, t, raw, self._seq[topic]))
+            if len(self._pending) >= 4096:
+                self._flush_pending()
         else:
             self._bag.write(handle, t, raw)
 
     def write_many(self, topic: str, log_times: Iterable[int], raws: Iterable[bytes]) -> None:
-        """Write messages pairwise from ``log_times`` and ``raws``."""
+        """Write messages pairwise from ``log_times`` and ``raws``.
+
+        ``raws`` is a sequence of bytes or an (n, size) uint8 array of equal-size payloads.
+        """
         log_times = np.asarray(log_times, dtype=np.int64).tolist()
-        raws = list(raws)
+        packed = isinstance(raws, np.ndarray) and raws.ndim == 2  # (n, size) uint8 payloads
+        raws = raws if packed and self.bare else [r.tobytes() for r in raws] if packed \
+            else list(raws)
         if len(log_times) != len(raws):
             raise LogError(f'write_many got {len(log_times)} log times for {len(raws)} '
                            'messages; pass one log time per message.')
         handle = self._handle(topic)
         if self.bare:
-            add, seq = self._mcap.add_message, self._seq[topic]
-            for t, raw in zip(log_times, raws):
-                seq += 1
-                add(handle, log_time=t, data=raw, publish_time=t, sequence=seq & 0xFFFFFFFF)
-            self._seq[topic] = seq
+            self._flush_pending()
+            seq = self._seq[topic]
+            self._mcap.add_messages(handle, log_times, raws,
+                                    sequence=np.arange(seq + 1, seq + 1 + len(raws)))
+            self._seq[topic] = seq + len(raws)
+        elif self.storage == 'sqlite3' and hasattr(getattr(self._bag, 'storage', None),
+                                                   'cursor') and log_times:
+            _sqlite_write_many(self._bag, handle, log_times, raws)
         else:
             write = self._bag.write
             for t, raw in zip(log_times, raws):
                 write(handle, t, raw)
+
+    def _flush_pending(self) -> None:
+        """Hand messages buffered by ``write`` to the bulk writer, in the order written."""
+        if self._pending:
+            cid, t, raw, seq = zip(*self._pending)
+            self._pending = []
+            self._mcap.add_messages(np.array(cid), np.array(t, np.int64), raw,
+                                    sequence=np.array(seq, np.int64))
+
+    def copy_batch(self, batch, channel_map) -> None:
+        """Copy bulk-read MCAP records verbatim (bare .mcap output; input -> output ids)."""
+        self._flush_pending()
+        self._mcap.copy_batch(batch, channel_map)
 
     def close(self) -> None:
         """Finalise the output (index, summary, metadata.yaml)."""
@@ -750,6 +812,7 @@ class LogWriter:
         self._closed = True
         if self.bare:
             try:
+                self._flush_pending()
                 self._mcap.finish()
             finally:
                 self._file.close()
@@ -765,6 +828,21 @@ class LogWriter:
             self._file.close()
         else:
             self._bag.abort()
+
+
+def _sqlite_write_many(bag, conn, log_times: list, raws: list) -> None:
+    """One ``executemany`` into rosbags' open sqlite3 transaction (what ``write`` does)."""
+    from rosbags.rosbag2.enums import CompressionMode
+
+    if bag.compression_mode == CompressionMode.MESSAGE:
+        from rosbags.rosbag2.writer import zstd
+        raws = [zstd.compress(r) for r in raws]
+    bag.storage.cursor.executemany(
+        'INSERT INTO messages (topic_id, timestamp, data) VALUES(?, ?, ?)',
+        zip([conn.id] * len(raws), log_times, raws))
+    bag.counts[conn.id] += len(raws)
+    bag.min_timestamp = min(min(log_times), bag.min_timestamp)
+    bag.max_timestamp = max(max(log_times), bag.max_timestamp)
 
 
 def _remove_log(p: Path) -> None:
@@ -893,6 +971,15 @@ def copy_and_stream(reader: LogReader, writer: LogWriter, imu_topic: str,
         writer.add_topic(c.topic, c.msgtype, msgdef=c.msgdef or None,
                          type_hash=c.type_hash or None, qos=c.qos)
         copied.add(c.topic)
+    src = reader._src
+    if hasattr(src, 'batches') and writer.bare:
+        ids = src.channel_ids(copied)
+        cmap = {int(i): writer._topics[src.topic_of(int(i))] for i in ids}
+
+        def copy_batch(batch):
+            writer.copy_batch(batch.take(np.isin(batch.channel, ids)), cmap)
+        yield from _bulk_chunks(reader, chunker, src.batches(None), copy_batch)
+        return
     write = writer.write
 
     def copy(messages):

@@ -21,6 +21,8 @@ import io
 import json
 import os
 import shutil
+import subprocess
+import sys
 import tempfile
 import threading
 import time
@@ -129,6 +131,10 @@ class CalibratorNode(Node):
             'max_transition_s', 30.0, 'Longest pose change kept (s, end of one hold to the '
             'start of the next); longer ones are dropped and counted.', lo=1.0, hi=600.0,
             **ro)
+        p.declare(
+            'report', True, 'After each successful ~/calibrate also write an HTML report '
+            '(<calibration_file>.report.html, figures embedded) next to the calibration file, '
+            'on a background thread.')
         in_depth = p.declare('input_depth', 1000, 'QoS history depth (best effort) of the '
                              'input subscriptions.', lo=1, hi=100000, **ro)
         period = p.declare('progress_period', 1.0, 'Seconds between ~/progress and '
@@ -141,6 +147,7 @@ class CalibratorNode(Node):
         self._busy = threading.Lock()    # held while an estimation runs
         self._busy_since = 0.0
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix='estimation')
+        self._reporter = ThreadPoolExecutor(max_workers=1, thread_name_prefix='report')
         self._result = None              # last CalibrationResult
         self._last_message = ''
         self._seen_frame = ''
@@ -497,6 +504,8 @@ class CalibratorNode(Node):
             return False, f'failed: estimation error {e.__class__.__name__}: {e}'
         self._result = result
         ok, where = self._write(result.calibration)
+        if ok and self.get_parameter('report').value:
+            self._reporter.submit(self._report_file, result.calibration, windows)
         self.cal_pub.publish(String(data=result.calibration.to_yaml()))
         return True, f'{result.summary}; id {result.calibration.id}; {where}'
 
@@ -511,6 +520,33 @@ class CalibratorNode(Node):
         except OSError as e:
             return False, f'NOT written to {path}: {e}'
         return True, f'written to {path}'
+
+    def _report_file(self, cal, windows):
+        """Write <calibration_file>.report.html; runs on the report thread, failures logged.
+
+        The page is drawn by ``thermal-imu-calib report`` in a child process at lower
+        priority (from snapshots of the calibration and the windows), so plotting never
+        holds this process's GIL while data keep arriving.
+        """
+        path = os.path.expanduser(self.get_parameter('calibration_file').value)
+        out = os.path.splitext(path)[0] + '.report.html'
+        with tempfile.TemporaryDirectory(prefix='thermal-imu-report-') as tmp:
+            cal.save(os.path.join(tmp, 'cal.yaml'))
+            with open(os.path.join(tmp, 'windows.jsonl'), 'w') as f:
+                f.write(windows.to_jsonl())
+            cmd = [sys.executable, '-m', 'thermal_imu_calib.cli', 'report',
+                   os.path.join(tmp, 'cal.yaml'), '--windows', os.path.join(tmp, 'windows.jsonl'),
+                   '--html', out]
+            try:
+                r = subprocess.run(cmd, capture_output=True, text=True, timeout=600,
+                                   preexec_fn=lambda: os.nice(10))
+            except (OSError, subprocess.SubprocessError) as e:
+                self.get_logger().error(f'report {out} not written: {e!r}')
+                return
+        if r.returncode:
+            self.get_logger().error(f'report {out} not written: {r.stderr.strip()[-500:]}')
+        else:
+            self.get_logger().info(f'wrote report {out}')
 
     def _on_save(self, request, response):
         result = self._result
