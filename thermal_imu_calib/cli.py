@@ -16,7 +16,7 @@ from . import __version__, cli_export
 from .calibration import Calibration, CalibrationError, TemperatureInput
 from .estimation.calibrate import (CalibrateOptions, calibrate_windows, CalibrationRefused,
                                    model_choices)
-from .estimation.stationary import DetectorConfig
+from .estimation.stationary import DetectorConfig, format_holds, format_settings
 from .formats import load_prior
 from .gravity import resolve_gravity
 from .input_units import parse_unit_map
@@ -48,21 +48,33 @@ def _add_topics(p, imu_required=False):
 
 def _add_detector(p):
     d = DetectorConfig()
-    g = p.add_argument_group('stationary detector')
-    g.add_argument('--min-hold', type=float, default=d.min_hold_s, metavar='S',
-                   help=f'minimum stationary segment (s, default {d.min_hold_s})')
-    g.add_argument('--window', type=float, default=d.window_s, metavar='S',
-                   help=f'sub-window length within a hold (s, default {d.window_s})')
-    g.add_argument('--guard', type=float, default=d.guard_s, metavar='S',
-                   help=f'trimmed from both ends of a hold (s, default {d.guard_s})')
-    g.add_argument('--still-factor', type=float, default=d.accel_factor, metavar='X',
-                   help='variance threshold as a multiple of the noise floor (default '
-                        f'{d.accel_factor})')
+    g = p.add_argument_group('stationary detector (default: every setting derived from the '
+                             'log\'s rate, noise floor and LSB)')
+    g.add_argument('--block', type=float, default=None, metavar='S',
+                   help='block length of the stillness test (s; default ~0.1 s, >= 5 samples)')
+    g.add_argument('--min-hold', type=float, default=None, metavar='S',
+                   help='minimum stationary segment (s; default max(1 s, 8 blocks))')
+    g.add_argument('--window', type=float, default=None, metavar='S',
+                   help='sub-window length within a hold (s; default max(5 s, 2 blocks))')
+    g.add_argument('--guard', type=float, default=None, metavar='S',
+                   help='trimmed from both ends of a hold (s; default max(0.2 s, 2 blocks))')
+    g.add_argument('--still-factor', type=float, default=None, metavar='X',
+                   help='variance threshold as a multiple of the noise floor (default: from '
+                        'the chi-square spread of a block variance)')
+    g.add_argument('--rotation-dps', type=float, default=d.rotation_dps, metavar='DPS',
+                   help='rotation rate still counted as held (hand tremor; deg/s, default '
+                        f'{d.rotation_dps:g})')
 
 
 def _detector(args):
-    return DetectorConfig(min_hold_s=args.min_hold, window_s=args.window, guard_s=args.guard,
-                          accel_factor=args.still_factor, gyro_factor=args.still_factor)
+    c = DetectorConfig(block_s=args.block, min_hold_s=args.min_hold, window_s=args.window,
+                       guard_s=args.guard, accel_factor=args.still_factor,
+                       gyro_factor=args.still_factor, rotation_dps=args.rotation_dps)
+    try:
+        c.validate()
+    except ValueError as e:
+        raise UserError(f'{e}; leave it out to derive it from the log') from None
+    return c
 
 
 def _gravity(args):
@@ -165,6 +177,10 @@ def build_parser():
 
     p = sub.add_parser('info', help='topics, counts, rates, span, temperature range')
     p.add_argument('input', metavar='INPUT')
+    p.add_argument('--holds', action='store_true',
+                   help='also run the stationary detector and list the holds it finds')
+    _add_topics(p)
+    _add_detector(p)
 
     p = sub.add_parser('report', help='print a calibration file for people; --html/--png-dir '
                                       'plot it')
@@ -195,6 +211,9 @@ def cmd_calibrate(args):
               f'({c.imu_messages / max(c.seconds, 1e-9):,.0f} msgs/s), '
               f'{len(np.unique(c.windows.hold))} stationary holds' + _motion_text(c),
               file=sys.stderr)
+        print('  ' + format_settings(c.detector), file=sys.stderr)
+        if args.save_windows:
+            print(format_holds(c.holds), file=sys.stderr)
         collected.append(c)
     result = calibrate_collected(args, collected, args.inputs)
     result.calibration.save(args.output)
@@ -239,11 +258,15 @@ def calibrate_collected(args, collected, paths):
     opts = CalibrateOptions(model=args.model, gravity=g, gravity_source=g_src, prior=prior,
                             inputs=inputs, frame_id=args.frame_id or collected[0].frame_id,
                             out_of_range=args.out_of_range, order=args.order,
-                            refine=not args.no_refine, min_hold_s=args.min_hold,
+                            refine=not args.no_refine,
+                            min_hold_s=args.min_hold or collected[0].detector["min_hold_s"]
+                            if collected[0].detector else 10.0,
                             range_margin=args.range_margin, latitude=args.latitude,
                             transitions=transitions, **mapping)
     result = calibrate_windows(windows, opts)
     result.calibration.fit['inputs'] = [os.path.basename(os.path.normpath(p)) for p in paths]
+    result.calibration.fit['detector'] = (collected[0].detector if len(collected) == 1
+                                          else [c.detector for c in collected])
     from .noise import add_random_walk
     note = add_random_walk(result.calibration, paths, windows, args.imu_topic)
     result.calibration.notes += [note] if note else []
@@ -327,6 +350,8 @@ def cmd_evaluate(args):
         print(json.dumps(res, indent=1))
         return 0
     print(format_evaluation(res))
+    print(format_settings(res['detector']))
+    print(format_holds(res['hold_list']))
     return 0
 
 
@@ -389,6 +414,13 @@ def cmd_info(args):
     from .io.bag import open_log
     with open_log(args.input) as reader:
         print(reader.info().format())
+    if args.holds:
+        from .pipeline import collect_windows
+        c = collect_windows(args.input, args.imu_topic, args.temperature_topic, _detector(args),
+                            args.chunk_size, args.max_gap, args.progress)
+        print(f'{len(c.holds)} stationary holds')
+        print(format_settings(c.detector))
+        print(format_holds(c.holds))
     return 0
 
 

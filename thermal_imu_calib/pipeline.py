@@ -41,6 +41,9 @@ class Collected:
     transitions: list = field(default_factory=list)
     #: with ``motion=True``: pose changes dropped by reason and the collector's peak bytes
     motion: Optional[dict] = None
+    #: the detector's derived settings (StationaryDetector.settings) and hold records
+    detector: Optional[dict] = None
+    holds: list = field(default_factory=list)
 
 
 def _progress(total, desc, enabled):
@@ -110,11 +113,13 @@ def collect_windows(path, imu_topic=None, temperature_topics=None, detector=None
         parts.append(det.finish())
         if bar is not None:
             bar.close()
+    sd = det.det if motion else det
     return Collected(Windows.concat(parts) if any(len(p) for p in parts)
                      else Windows.empty(len(temps)), frame, n,
                      time.perf_counter() - t_start, temps,
                      det.transitions if motion else [],
-                     {'dropped': dict(det.dropped), 'peak_bytes': peak} if motion else None)
+                     {'dropped': dict(det.dropped), 'peak_bytes': peak} if motion else None,
+                     sd.settings(), list(sd.holds))
 
 
 def windows_from_columns(imu_chunks, temperatures=(), detector=None,
@@ -369,7 +374,8 @@ def evaluate_log(path, calibrations, imu_topic=None, temperature_topics=None, de
             cw = with_signals(w, acc.means(f'{label}/a'), acc.means(f'{label}/g'))
             results[label] = static_metrics(cw, gravity, average_s, tcol)
     return {'path': str(path), 'windows': len(w), 'holds': len(np.unique(w.hold)),
-            'temperature_topics': col.temperature_topics, 'results': results}
+            'temperature_topics': col.temperature_topics, 'results': results,
+            'detector': col.detector, 'hold_list': col.holds}
 
 
 def _temperature_column(calibrations, topics):

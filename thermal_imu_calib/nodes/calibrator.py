@@ -53,17 +53,19 @@ NODE_NAME = 'thermal_imu_calibrator'
 
 #: DetectorConfig fields exposed as parameters: (default, lo, hi, description)
 DETECTOR_PARAMS = {
-    'block_s': (0.5, 0.01, 10.0, 'Block length (s) of the stillness test.'),
-    'window_s': (5.0, 0.05, 600.0, 'Length (s) of the windows a hold is cut into.'),
-    'min_hold_s': (10.0, 0.1, 36000.0, 'Minimum segment length (s): shorter holds (after the '
-                                       'guards) are discarded.'),
-    'guard_s': (1.0, 0.0, 60.0, 'Seconds trimmed from both ends of each hold.'),
-    'accel_factor': (4.0, 1.0, 1000.0, 'A block is still when its accel variance is below this '
-                                       'factor times the noise floor.'),
-    'gyro_factor': (4.0, 1.0, 1000.0, 'Same for the gyro variance.'),
+    'block_s': (0.0, 0.0, 60.0, 'Block length (s) of the stillness test; 0: derived from the '
+                                'rate (~0.1 s, >= 5 samples).'),
+    'window_s': (0.0, 0.0, 3600.0, 'Length (s) of the windows a hold is cut into; 0: derived.'),
+    'min_hold_s': (0.0, 0.0, 36000.0, 'Minimum segment length (s): shorter holds (after the '
+                                      'guards) are discarded; 0: derived (>= 1 s).'),
+    'guard_s': (-1.0, -1.0, 600.0, 'Seconds trimmed from both ends of each hold; -1: derived.'),
+    'accel_factor': (0.0, 0.0, 1e4, 'A block is still when its accel variance is below this '
+                                    'factor times the noise floor; 0: derived (chi-square).'),
+    'gyro_factor': (0.0, 0.0, 1e4, 'Same for the gyro variance; 0: derived.'),
     'mean_sigmas': (6.0, 1.0, 1000.0, 'Neighbouring block means may differ by this many '
                                       'standard errors in a hold.'),
     'noise_quantile': (0.05, 0.001, 0.9, 'Quantile of block variances taken as noise floor.'),
+    'rotation_dps': (3.0, 0.001, 100.0, 'Rotation rate (deg/s) still counted as held (tremor).'),
 }
 
 
@@ -121,6 +123,9 @@ class CalibratorNode(Node):
                                     'T0) the field estimate refines; empty: none.')
         det = {name: p.declare(name, d, desc, lo=lo, hi=hi, **ro)
                for name, (d, lo, hi, desc) in DETECTOR_PARAMS.items()}
+        # 0 (-1 for the guard) means: derived by the detector from the first samples
+        det = {k: (None if v == (-1.0 if k == 'guard_s' else 0.0) else v)
+               for k, v in det.items()}
         self.detector_config = DetectorConfig(**det)
         self.detector_config.validate()
         self.max_transitions = p.declare(
@@ -187,6 +192,11 @@ class CalibratorNode(Node):
         self._newest_ns = None
         self._pending_imu = []
         self._pending_temp = [[] for _ in range(self.k)]
+
+    def _min_hold_s(self):
+        """Return the minimum hold (s): as set, else as the live detector derived it."""
+        derived = self.detector.det.config if getattr(self, 'detector', None) else None
+        return self.detector_config.min_hold_s or (derived.min_hold_s if derived else 1.0)
 
     def _collector(self):
         """Return a new stationary detector that also keeps the pose changes between holds."""
@@ -436,7 +446,7 @@ class CalibratorNode(Node):
             frame_id=self.get_parameter('frame_id').value or self._seen_frame,
             out_of_range=self.get_parameter('out_of_range').value,
             order=self.get_parameter('order').value,
-            min_hold_s=self.detector_config.min_hold_s, latitude=latitude,
+            min_hold_s=self._min_hold_s(), latitude=latitude,
             transitions=list(transitions))
 
     async def _on_calibrate(self, request, response):
@@ -495,6 +505,7 @@ class CalibratorNode(Node):
             transitions = list(transitions) + offset_holds(detector.pop_transitions(),
                                                            offset)[:room]
             result = calibrate_windows(windows, self.options(transitions))
+            result.calibration.fit['detector'] = detector.det.settings()
         except CalibrationRefused as e:
             return False, f'refused: {e}'
         except (CalibrationError, ValueError) as e:
