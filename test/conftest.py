@@ -7,6 +7,7 @@ of one test ever sees another's. Subprocesses started by tests inherit the same 
 """
 
 import os
+import sys
 import threading
 import time
 import traceback
@@ -19,6 +20,28 @@ from thermal_imu_calib.nodes.player import (imu_msg, Pacer, replay,  # noqa: F40
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.setdefault('ROS_DOMAIN_ID', str(1 + os.getpid() % 101))
 DOMAIN_ID = int(os.environ['ROS_DOMAIN_ID'])
+
+
+BIN = os.path.dirname(sys.executable)
+
+
+def venv_exe(name):
+    """Return the path of console script ``name`` installed next to the running interpreter.
+
+    Tests run as ``.venv/bin/python -m pytest`` need not have the venv on PATH; a missing
+    script is a failed install, so this fails rather than skips.
+    """
+    path = os.path.join(BIN, name)
+    if not os.access(path, os.X_OK):
+        pytest.fail(f'{name} is not installed next to {sys.executable} (run make install)')
+    return path
+
+
+def venv_env(**extra):
+    """Return os.environ with the interpreter's bin directory first on PATH, plus ``extra``."""
+    env = dict(os.environ, PATH=BIN + os.pathsep + os.environ.get('PATH', ''))
+    env.update({k: str(v) for k, v in extra.items()})
+    return env
 
 
 def wait_for(predicate, timeout, what, poll=0.01):

@@ -6,32 +6,28 @@ Also the pose changes between holds (whole_unit gyro scale/misalignment): used b
 
 import json
 import os
-import shutil
 import signal
 import subprocess
 import threading
 
 import _motion_data
-from conftest import DOMAIN_ID, replay, wait_for
+from conftest import DOMAIN_ID, replay, venv_exe, wait_for
 import numpy as np
-import pytest
 
-pytest.importorskip('rclpy')
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import Imu, Temperature
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
 
-from rclpy.parameter import Parameter  # noqa: E402
-from sensor_msgs.msg import Imu, Temperature  # noqa: E402
-from std_msgs.msg import String  # noqa: E402
-from std_srvs.srv import Trigger  # noqa: E402
-
-from thermal_imu_calib.calibration import Calibration  # noqa: E402
-from thermal_imu_calib.estimation.gyro_fit import (load_transitions,  # noqa: E402
+from thermal_imu_calib import sim
+from thermal_imu_calib.calibration import Calibration
+from thermal_imu_calib.estimation.gyro_fit import (load_transitions,
                                                    save_transitions)
-from thermal_imu_calib.estimation.segments import Windows  # noqa: E402
-from thermal_imu_calib.nodes import common  # noqa: E402
-from thermal_imu_calib.nodes.calibrator import CalibratorNode  # noqa: E402
-from thermal_imu_calib.pipeline import windows_from_columns  # noqa: E402
+from thermal_imu_calib.estimation.segments import Windows
+from thermal_imu_calib.nodes import common
+from thermal_imu_calib.nodes.calibrator import CalibratorNode
+from thermal_imu_calib.pipeline import windows_from_columns
 
-sim = pytest.importorskip('thermal_imu_calib.sim')
 
 RATE = 2000.0     # IMU messages per second (20x the 100 Hz recordings)
 SHORT = {'hold_s': (14.0, 15.0), 'transition_s': (1.5, 2.0)}
@@ -219,8 +215,7 @@ def test_calibrate_writes_bak_save_and_reset(ros, tmp_path):
 
 
 def _calibrator_process(tmp_path, log):
-    exe = shutil.which('calibrator_node')
-    assert exe, 'the calibrator_node console script is not installed (pip install -e .)'
+    exe = venv_exe('calibrator_node')
     env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID),
                ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
     return subprocess.Popen(

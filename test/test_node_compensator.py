@@ -6,19 +6,17 @@ from conftest import imu_msg, temperature_msg, wait_for
 import numpy as np
 import pytest
 
-pytest.importorskip('rclpy')
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import Imu, Temperature
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
 
-from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
-from rclpy.parameter import Parameter  # noqa: E402
-from sensor_msgs.msg import Imu, Temperature  # noqa: E402
-from std_msgs.msg import String  # noqa: E402
-from std_srvs.srv import Trigger  # noqa: E402
-
-from thermal_imu_calib.calibration import Calibration, TemperatureInput  # noqa: E402
-from thermal_imu_calib.models.field import FieldPolynomialModel  # noqa: E402
-from thermal_imu_calib.models.polynomial import OffsetPolynomialModel  # noqa: E402
-from thermal_imu_calib.nodes import common  # noqa: E402
-from thermal_imu_calib.nodes.compensator import CompensatorNode  # noqa: E402
+from thermal_imu_calib.calibration import Calibration, TemperatureInput
+from thermal_imu_calib.models.field import FieldPolynomialModel
+from thermal_imu_calib.models.polynomial import OffsetPolynomialModel
+from thermal_imu_calib.nodes import common
+from thermal_imu_calib.nodes.compensator import CompensatorNode
 
 S = 1_000_000_000
 T0_NS = 1_700_000_000 * S

@@ -11,20 +11,17 @@ import dataclasses
 
 from conftest import replay, wait_for
 import numpy as np
-import pytest
 
-pytest.importorskip('rclpy')
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import Imu, Temperature
+from std_srvs.srv import Trigger
 
-from rclpy.parameter import Parameter  # noqa: E402
-from sensor_msgs.msg import Imu, Temperature  # noqa: E402
-from std_srvs.srv import Trigger  # noqa: E402
+from thermal_imu_calib import sim
+from thermal_imu_calib.calibration import Calibration
+from thermal_imu_calib.nodes import common
+from thermal_imu_calib.nodes.calibrator import CalibratorNode
+from thermal_imu_calib.nodes.compensator import CompensatorNode
 
-from thermal_imu_calib.calibration import Calibration  # noqa: E402
-from thermal_imu_calib.nodes import common  # noqa: E402
-from thermal_imu_calib.nodes.calibrator import CalibratorNode  # noqa: E402
-from thermal_imu_calib.nodes.compensator import CompensatorNode  # noqa: E402
-
-sim = pytest.importorskip('thermal_imu_calib.sim')
 
 SEED = 3
 RATE = 1000.0   # IMU messages per second: 10x the recording's 100 Hz
