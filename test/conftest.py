@@ -12,6 +12,7 @@ import threading
 import time
 import traceback
 
+import numpy as np
 import pytest
 
 from thermal_imu_calib.nodes.player import (imu_msg, Pacer, replay,  # noqa: F401
@@ -58,6 +59,59 @@ def wait_for(predicate, timeout, what, poll=0.01):
             pytest.fail(f'timed out after {timeout:.1f} s waiting for '
                         f'{what() if callable(what) else what}')
         time.sleep(poll)
+
+
+def wait_count(count, target, what, stall=60.0, settle=5.0, loss=0.01):
+    """Wait until ``count()`` reaches ``target``; return the count reached.
+
+    Bounded by progress, not by a total time: it fails only when the count has not grown
+    for ``stall`` seconds (a loaded machine is slow, a broken path does not move). The
+    inputs of the nodes are best effort, which promises no delivery: once the count has
+    stood still for ``settle`` seconds at ``(1 - loss) * target`` or more, that is accepted
+    (the callers then assert what came through, not that everything did).
+    """
+    last, moved = count(), time.monotonic()
+    while True:
+        now = count()
+        if now >= target:
+            return now
+        t = time.monotonic()
+        if now != last:
+            last, moved = now, t
+        elif t - moved > settle and now >= (1.0 - loss) * target:
+            return now
+        elif t - moved > stall:
+            pytest.fail(f'{what() if callable(what) else what}: stuck at {now} of {target} '
+                        f'for {stall:.0f} s')
+        time.sleep(0.01)
+
+
+def replay_flow(imu_pub, imu, temperatures, rate, delivered, window=500, what='delivery'):
+    """Replay like ``replay`` with back-pressure: at most ``window`` IMU messages in flight.
+
+    The IMU columns are published in chunks of ``window // 2`` at ``rate``; before each
+    chunk, ``delivered()`` (the receiver's count of IMU messages, cumulative over this
+    call) must have caught up to within one chunk of what was sent. ``window`` stays below
+    the subscribers' queue depth (1000), so a slow (loaded) receiver slows the replay
+    instead of losing messages. Returns the number of IMU messages published.
+    """
+    chunk = max(window // 2, 1)
+    base = delivered()
+    n = len(imu.stamp_ns)
+    sent = 0
+    for i0 in range(0, n, chunk):
+        i1 = min(i0 + chunk, n)
+        lo = -np.inf if i0 == 0 else imu.stamp_ns[i0]
+        hi = np.inf if i1 == n else imu.stamp_ns[i1]
+        temps = []
+        for pub, stamps, values in temperatures:
+            stamps, values = np.asarray(stamps), np.asarray(values)
+            m = (stamps >= lo) & (stamps < hi)
+            temps.append((pub, stamps[m], values[m]))
+        if sent:
+            wait_count(lambda: delivered() - base, sent - chunk, what)
+        sent += replay(imu_pub, imu.slice(slice(i0, i1)), temps, rate)
+    return sent
 
 
 class RosHarness:

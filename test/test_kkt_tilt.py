@@ -9,8 +9,8 @@ several starts is a second, slower reference.
 import numpy as np
 from scipy.optimize import minimize
 
-from thermal_imu_calib.estimation.field_estimator import (_secular, kkt_unit_tilt,
-                                                           kkt_unit_tilt_batch)
+from thermal_imu_calib.estimation.field_estimator import (
+    _secular, kkt_unit_tilt, kkt_unit_tilt_batch)
 
 
 def _cost(m_mat, v, c):
