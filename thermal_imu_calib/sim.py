@@ -687,6 +687,9 @@ class SimRecording:
     frame_id: str = 'imu_link'
     _segments: Optional[_Segments] = field(default=None, repr=False)
     _thermal: Optional[_ThermalTrack] = field(default=None, repr=False)
+    #: errors outside the model families (``sim_unmodelled``): ``fn(TruthChunk)`` returns
+    #: (accel (n, 3) m/s^2, gyro (n, 3) rad/s) added to the raw output before quantisation
+    extra_error: Optional[object] = field(default=None, repr=False)
 
     @property
     def name(self):
@@ -756,6 +759,9 @@ class SimRecording:
                                 dev.thermal) + sig_a * noise[:, :3]
             gyr = gyro_forward(tc.angular_rate, tg, dev.t0, dev.gyro_coeffs, dev.gyro_m,
                                dev.gyro_g, tc.specific_force) + sig_g * noise[:, 3:]
+            if self.extra_error is not None:
+                da, dg = self.extra_error(tc)
+                acc, gyr = acc + da, gyr + dg
             if spec.accel_lsb > 0:
                 acc = np.round(acc / spec.accel_lsb) * spec.accel_lsb
             if spec.gyro_lsb > 0:
