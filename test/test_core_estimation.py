@@ -37,6 +37,33 @@ def six_face_recording():
     return model, t, a, g, temps, holds, np.array(dirs)
 
 
+def _six_faces(seed):
+    rng = np.random.default_rng(seed)
+    model = truth_model(rng)
+    dirs = []
+    for rep in range(3):
+        for f in FACES:
+            d = f + rng.normal(0, 0.04, 3)
+            dirs.append(d / np.linalg.norm(d))
+    t, a, g, temps, holds = recording(rng, model, dirs, hold_s=40.0)
+    return model, t, a, g, temps
+
+
+def test_field_stds_are_calibrated_pooled_over_seeds():
+    # issue 15: |z| < 5 alone is blind to 4-5x inflated stds; the pooled z-RMS of the 18
+    # thermal parameters over 4 independent devices must be near 1
+    z = []
+    for seed in (11, 12, 13, 14):
+        model, t, a, g, temps = _six_faces(seed)
+        w = _detect(t, a, g, temps)
+        fit = fit_field_model(w, np.repeat(w.temp, 3, 1), G, model.t0)
+        assert fit.converged
+        z.append(((fit.model.thermal - model.thermal) / fit.model.thermal_std).ravel())
+    z_rms = float(np.sqrt(np.mean(np.square(np.concatenate(z)))))
+    print(f'field thermal parameters: pooled z-RMS {z_rms:.2f} over {len(z) * 18}')
+    assert 0.6 <= z_rms <= 1.5, z_rms
+
+
 def test_detector_finds_every_hold_and_never_leaks_motion(six_face_recording):
     model, t, a, g, temps, holds, dirs = six_face_recording
     w = _detect(t, a, g, temps)
