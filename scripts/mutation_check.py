@@ -66,7 +66,7 @@ BREAKS = {
         [(f'{PKG}/calibration.py',
           "            g_out = self.gyro.correct(gyro, tg, aux={'accel': a_out})\n",
           '            g_out = gyro  # MUTANT: gyro correction skipped\n')],
-        ['test/test_core_models.py', 'test/test_node_compensator.py']),
+        ['test/test_core_models.py', 'test/test_covariance.py', 'test/test_node_compensator.py']),
 }
 
 
