@@ -402,3 +402,60 @@ def test_collection_of_other_thermal_inputs_is_not_resumed(ros, tmp_path):
     assert json.loads((tmp_path / 'collection.jsonl.inputs.json').read_text())[
         'temperature_units'] == ['Hz']
     ros.remove(node)
+
+
+def test_bringup_process_calibrates_over_dds_and_compensates(ros, tmp_path):
+    # the `bringup` console script: both nodes in one process, driven only over DDS
+    rec = recording(repetitions=1)
+    cal_file = tmp_path / 'calibration.yaml'
+    env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID),
+               ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
+    log = open(tmp_path / 'bringup.log', 'w')
+    proc = subprocess.Popen(
+        [venv_exe('bringup'), '--ros-args', '-p', f'calibration_file:={cal_file}',
+         '-p', f'collection_file:={tmp_path / "collection.jsonl"}',
+         '-p', 'progress_period:=0.2'], env=env, stdout=log, stderr=subprocess.STDOUT)
+    try:
+        player = Player(ros, n_subscribers=2)          # the compensator and the calibrator
+        out = ros.collect(player.node, Imu, 'imu/data_compensated', 1000)
+        player.play(rec)
+        player.wait_received()
+        resp = player.call('calibrate')
+        assert resp.success, (resp.message, (tmp_path / 'bringup.log').read_text()[-2000:])
+        cal = Calibration.load(cal_file)
+        assert cal.id in resp.message
+        # the compensator in the same process applies it: the newest messages come out
+        # as the core computes them with that file
+        tail = rec.imu().slice(slice(-50, None))
+        tail.stamp_ns = tail.stamp_ns + 10 ** 9 * 5
+        (_, tc), = rec.temperatures.items()
+
+        def applied():
+            out.clear()
+            replay(player.imu_pub, tail, [(player.temp_pub, tc.stamp_ns[-1:] + 5 * 10 ** 9,
+                                           tc.temperature[-1:])])
+            wait_count(lambda: len(out), len(tail), 'compensated messages', settle=1.0,
+                       loss=0.1)
+            return _applied(out, tail, cal, tc)
+        wait_for(applied, WAIT, 'the compensator to apply the new calibration')
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(5)
+        log.close()
+
+
+def _applied(out, tail, cal, tc):
+    """Return True when the messages in ``out`` are ``cal`` applied to ``tail``."""
+    stamps, accel, gyro = common.imu_to_arrays(list(out))
+    idx = np.searchsorted(tail.stamp_ns, stamps)
+    if len(stamps) == 0 or not np.array_equal(tail.stamp_ns[idx], stamps):
+        return False
+    ref = cal.apply(tail.accel[idx], tail.gyro[idx],
+                    np.full((len(idx), 1), tc.temperature[-1]))
+    return (np.allclose(accel, ref.accel, rtol=0, atol=1e-9)
+            and np.allclose(gyro, ref.gyro, rtol=0, atol=1e-12))
