@@ -18,10 +18,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', 'test'))
 
-from test_rvm import _cycle_windows  # noqa: E402
-from thermal_imu_calib.calibration import Calibration, TemperatureInput  # noqa: E402
-from thermal_imu_calib.estimation.rvm_fit import fit_rvm_offset  # noqa: E402
-from thermal_imu_calib.estimation.thermal_lag import cv_groups  # noqa: E402
+from test_rvm import rvm_calibration  # noqa: E402
 
 TARGET = 60_000.0   # samples/s
 
@@ -31,13 +28,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--repeat', type=int, default=3)
     args = ap.parse_args(argv)
-    w = _cycle_windows(np.random.default_rng(4), n_legs=2)
-    groups, _ = cv_groups(w)
-    acc, _ = fit_rvm_offset(w, w.temp[:, [0, 0, 0]], 'accel', 'accel', groups, True, [30.0] * 3)
-    gyr, _ = fit_rvm_offset(w, w.temp[:, [0, 0, 0]], 'gyro', 'gyro', groups)
-    cal = Calibration(accel=acc, gyro=gyr, inputs=[TemperatureInput('t0')],
-                      valid_range=np.array([[10.0, 50.0]]), accel_noise_std=np.full(3, 5e-3),
-                      gyro_noise_std=np.full(3, 5e-4))
+    cal = rvm_calibration()
     rng = np.random.default_rng(5)
     n = 200_000
     temps = np.linspace(12, 48, n)[:, None] + rng.normal(0, 1e-3, (n, 1))

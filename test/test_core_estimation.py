@@ -26,15 +26,7 @@ def _detect(t, a, g, temps, chunk=7000, config=None):
 
 @pytest.fixture(scope='module')
 def six_face_recording():
-    rng = np.random.default_rng(7)
-    model = truth_model(rng)
-    dirs = []
-    for rep in range(3):
-        for f in FACES:
-            d = f + rng.normal(0, 0.04, 3)
-            dirs.append(d / np.linalg.norm(d))
-    t, a, g, temps, holds = recording(rng, model, dirs, hold_s=40.0)
-    return model, t, a, g, temps, holds, np.array(dirs)
+    return _six_faces(7)
 
 
 def _six_faces(seed):
@@ -46,7 +38,7 @@ def _six_faces(seed):
             d = f + rng.normal(0, 0.04, 3)
             dirs.append(d / np.linalg.norm(d))
     t, a, g, temps, holds = recording(rng, model, dirs, hold_s=40.0)
-    return model, t, a, g, temps
+    return model, t, a, g, temps, holds, np.array(dirs)
 
 
 def test_field_stds_are_calibrated_pooled_over_seeds():
@@ -54,7 +46,7 @@ def test_field_stds_are_calibrated_pooled_over_seeds():
     # thermal parameters over 4 independent devices must be near 1
     z = []
     for seed in (11, 12, 13, 14):
-        model, t, a, g, temps = _six_faces(seed)
+        model, t, a, g, temps, _, _ = _six_faces(seed)
         w = _detect(t, a, g, temps)
         fit = fit_field_model(w, np.repeat(w.temp, 3, 1), G, model.t0)
         assert fit.converged

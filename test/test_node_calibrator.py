@@ -275,14 +275,19 @@ def test_kill_9_and_restart_resumes_from_collection_file(ros, tmp_path):
         assert len(np.unique(total.hold)) == len(total.hold_ids) >= len(rec.schedule) - 1
         assert np.all(total.hold[:len(saved)] == saved.hold)
     finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(5)
-        log.close()
+        _stop(proc, log)
+
+
+def _stop(proc, log):
+    """Stop a node process we started (SIGINT, then SIGKILL) and close its log."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5)
+    log.close()
 
 
 def _wait_processed(node, stamp_ns):
@@ -439,14 +444,7 @@ def test_bringup_process_calibrates_over_dds_and_compensates(ros, tmp_path):
             return _applied(out, tail, cal, tc)
         wait_for(applied, WAIT, 'the compensator to apply the new calibration')
     finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(5)
-        log.close()
+        _stop(proc, log)
 
 
 def _applied(out, tail, cal, tc):

@@ -31,6 +31,7 @@ from thermal_imu_calib.nodes.compensator import CompensatorNode
 
 SEED = 3
 RATE = 1000.0   # IMU messages per second: 10x the recording's 100 Hz
+FLOOR_FACTOR = 8.0   # the compensated static error may be this many times the truth's
 WAIT = 120.0    # bound of a wait on a condition (reached only when something is broken)
 
 
@@ -117,9 +118,16 @@ def test_live_calibration_then_compensation_of_a_new_cold_start(ros, tmp_path):
     assert np.isfinite(accel).all()
     raw_err = hold_gravity_error(val_run, vimu.stamp_ns, vimu.accel, shift)
     comp_err = hold_gravity_error(val_run, stamps, accel, shift)
-    ratio = np.sqrt(np.mean(raw_err ** 2)) / np.sqrt(np.mean(comp_err ** 2))
-    print(f'static gravity error RMS over {len(raw_err)} holds: raw '
-          f'{np.sqrt(np.mean(raw_err ** 2)) * 1e6 / 9.8:.0f} ug, compensated '
-          f'{np.sqrt(np.mean(comp_err ** 2)) * 1e6 / 9.8:.1f} ug, ratio {ratio:.0f}')
-    assert ratio >= 20, (raw_err, comp_err)
+    # the floor: the simulator's true parameters on the same samples, at the true reading
+    temps = val_run.temperature_at(vimu.stamp_ns - shift, 'read')[:, :1]
+    truth = val_run.truth.apply(vimu.accel, vimu.gyro, temps).accel
+    floor_err = hold_gravity_error(val_run, vimu.stamp_ns, truth, shift)
+
+    def rms(x):
+        return np.sqrt(np.mean(x ** 2)) * 1e6 / val_run.gravity
+    print(f'static gravity error RMS over {len(raw_err)} holds: raw {rms(raw_err):.0f} ug, '
+          f'compensated {rms(comp_err):.1f} ug, true parameters {rms(floor_err):.1f} ug')
+    # a live calibration from 2 x six 15-20 s holds: offline the same data give 185 ug
+    # against a floor of 38 ug (raw 21774 ug)
+    assert rms(comp_err) <= FLOOR_FACTOR * rms(floor_err), (comp_err, floor_err)
     assert comp_err.max() < raw_err.min()

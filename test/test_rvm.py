@@ -98,14 +98,20 @@ def test_rvm_offset_fit_beats_a_cubic_on_a_nonpolynomial_drift():
     assert np.all(model.noise_std == pytest.approx(noise / np.sqrt(per_point), rel=0.3))
 
 
-def test_rvm_model_file_round_trip_and_imu_rate():
+def rvm_calibration():
+    """Return an RVM accel + gyro calibration fitted on two simulated 10..50 degC legs."""
     w = _cycle_windows(np.random.default_rng(4), n_legs=2)
     groups, _ = cv_groups(w)
     acc, _ = fit_rvm_offset(w, w.temp[:, [0, 0, 0]], 'accel', 'accel', groups, True, [30.0] * 3)
     gyr, _ = fit_rvm_offset(w, w.temp[:, [0, 0, 0]], 'gyro', 'gyro', groups)
-    cal = Calibration(accel=acc, gyro=gyr, inputs=[TemperatureInput('t0')],
-                      valid_range=np.array([[10.0, 50.0]]), accel_noise_std=np.full(3, 5e-3),
-                      gyro_noise_std=np.full(3, 5e-4))
+    return Calibration(accel=acc, gyro=gyr, inputs=[TemperatureInput('t0')],
+                       valid_range=np.array([[10.0, 50.0]]), accel_noise_std=np.full(3, 5e-3),
+                       gyro_noise_std=np.full(3, 5e-4))
+
+
+def test_rvm_model_file_round_trip_and_imu_rate():
+    cal = rvm_calibration()
+    acc = cal.accel
     text = cal.to_yaml()
     back = Calibration.from_yaml(text)
     assert back.accel.kind == 'rvm' and back.accel.meta()['mode'] == 'offset'
