@@ -98,7 +98,7 @@ def kkt_unit_tilt_batch(m_mat, v, c0, max_iter=50, tol=1e-14):
 
 
 def _kkt_converged(m_mat, v, c, u, tol_kkt=1e-10):
-    """Per hold: is (c, u) a converged global minimiser of c'Mc - 2v'c on |c| = 1?
+    """Per hold, whether (c, u) is a converged global minimiser of c'Mc - 2v'c on |c| = 1.
 
     True where c and u are finite, the KKT residual |Mc - v + uc| is below ``tol_kkt``
     times the problem's scale (|M| + |v|), |c|^2 - 1 is below ``tol_kkt``, and
