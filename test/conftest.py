@@ -126,6 +126,9 @@ class RosHarness:
         self.executor = SingleThreadedExecutor(context=context)
         self.nodes = []
         self.errors = []
+        # held around each spin_once: a node is removed and destroyed between two spins,
+        # never while one of its callbacks runs (InvalidHandle otherwise)
+        self._lock = threading.Lock()
         self._thread = threading.Thread(target=self._spin, daemon=True)
         self._thread.start()
 
@@ -133,7 +136,8 @@ class RosHarness:
         from rclpy.executors import ExternalShutdownException
         while self.context.ok():
             try:
-                self.executor.spin_once(timeout_sec=0.05)
+                with self._lock:
+                    self.executor.spin_once(timeout_sec=0.05)
             except ExternalShutdownException:
                 break
             except Exception as e:  # noqa: B902 - a callback raised: keep it for the test
@@ -155,9 +159,10 @@ class RosHarness:
 
     def remove(self, node):
         """Stop spinning ``node`` and destroy it."""
-        self.executor.remove_node(node)
-        self.nodes.remove(node)
-        node.destroy_node()
+        with self._lock:
+            self.executor.remove_node(node)
+            self.nodes.remove(node)
+            node.destroy_node()
 
     def collect(self, node, msg_type, topic, qos=10):
         """Subscribe and return the list every received message is appended to."""
@@ -180,13 +185,14 @@ class RosHarness:
                  f'{count} subscriber(s) on {publisher.topic_name}')
 
     def shutdown(self):
-        for node in list(self.nodes):
-            try:
-                self.executor.remove_node(node)
-                node.destroy_node()
-            except Exception:  # noqa: B902 - best effort at teardown
-                pass
-        self.context.try_shutdown()
+        with self._lock:
+            for node in list(self.nodes):
+                try:
+                    self.executor.remove_node(node)
+                    node.destroy_node()
+                except Exception:  # noqa: B902 - best effort at teardown
+                    pass
+            self.context.try_shutdown()
         self._thread.join(timeout=5.0)
         self.executor.shutdown(timeout_sec=1.0)
 
