@@ -64,3 +64,11 @@ colcon-check: install
 
 clean:
 	rm -rf $(VENV) $(LATEST) build install log *.egg-info
+
+# Hypothesis fuzzing of hostile input (loader, bag readers, node callbacks): FUZZ_EXAMPLES
+# cases per target (>= 10,000 by default), each under a hard per-case time limit.
+FUZZ_EXAMPLES ?= 10000
+.PHONY: fuzz
+fuzz: install
+	@THERMAL_FUZZ_EXAMPLES=$(FUZZ_EXAMPLES) ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-$$(( 20 + $$$$ % 80 ))} \
+	  $(PY) -m pytest -q -p no:cacheprovider test/test_fuzz.py

@@ -27,6 +27,7 @@ setup(
         'matplotlib>=3.7',
         'allantools>=2019.9',
         'dask[distributed]>=2024.1',
+        'threadpoolctl>=3',
     ],
     extras_require={
         'test': ['pytest>=7', 'flake8>=6', 'pydocstyle>=6', 'hypothesis>=6.80'],

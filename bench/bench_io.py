@@ -1,13 +1,34 @@
-"""Benchmark log I/O: bulk CDR fast path vs rosbags' per-message deserializer.
+"""Benchmark log I/O: read, calibrate-read, compensate and write next to reference loops.
 
-Writes ~200k sensor_msgs/msg/Imu messages to a temporary bare MCAP file, reads the raw
-CDR back, then decodes it (a) with ``thermal_imu_calib.io.cdr.decode_imu`` in chunks and
-(b) with rosbags ``deserialize_cdr`` one message at a time, checking both agree.  Also
-times writing and streaming.  Run: ``python bench/bench_io.py [N]``.
+On one log (by default a simulated ``nav-coldstart``: 2.5 h of a 100 Hz IMU, 0.93 M Imu +
+0.28 M Temperature messages; or ``--log`` with ``--calibration``), measures in the same
+run, each stage with wall and CPU (process) time, messages/s and MB/s of the input file:
+
+* ``mcap library raw loop``: ``mcap.reader`` ``iter_messages`` over every message (the
+  practical limit of a per-message Python reader);
+* ``rosbags AnyReader + deserialize_cdr``: the plain rosbags loop every comparison is
+  made against;
+* ``bulk read (chunks)``: ``io.mcap_read`` decompress + CRC + parse every message record;
+* ``stream Imu+temperature``: ``LogReader.stream`` to IMU/temperature columns;
+* ``calibrate read+detect+collect``: ``pipeline.collect_windows(motion=True)``, what
+  ``calibrate`` does before fitting;
+* ``compensate end to end``: ``pipeline.compensate_log`` (read, copy every message,
+  compensate, write a bare .mcap);
+* ``write (LogWriter.write_many)`` vs ``mcap library add_message``: the Imu messages
+  written again.
+
+``--rss-messages N`` also writes an N-message log (1 kHz Imu + 10 Hz temperature) and
+reports the peak RSS of ``calibrate``-style reading and of ``compensate`` on it, each in a
+fresh process.  Run: ``python bench/bench_io.py [--json out.json] [--rss-messages 10000000]``.
 """
 
 from __future__ import annotations
 
+import argparse
+import json
+import os
+import resource
+import subprocess
 import sys
 import tempfile
 import time
@@ -15,92 +36,239 @@ from pathlib import Path
 
 import numpy as np
 
-from thermal_imu_calib.io import cdr
-from thermal_imu_calib.io.bag import LogWriter, open_log
-from thermal_imu_calib.io.columns import ImuColumns
-
-CHUNK = 20000
-
 
 def _timed(fn):
-    t0 = time.perf_counter()
+    w0, c0 = time.perf_counter(), time.process_time()
     out = fn()
-    return out, time.perf_counter() - t0
+    return out, time.perf_counter() - w0, time.process_time() - c0
 
 
-def run(n: int = 200_000, rosbags_n: int | None = None) -> dict[str, float]:
-    """Run the benchmark on ``n`` messages; returns msgs/s per stage."""
+def _rosbags_loop(path):
+    from rosbags.highlevel import AnyReader
     from rosbags.typesys import get_typestore, Stores
 
-    rng = np.random.default_rng(0)
-    stamps = 1_700_000_000_000_000_000 + np.arange(n, dtype=np.int64) * 1_000_000
-    cols = ImuColumns(stamps, rng.normal(size=(n, 3)), rng.normal(size=(n, 3)), 'imu_link')
-    rates: dict[str, float] = {}
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / 'bench.mcap'
-        raws, dt = _timed(lambda: cdr.encode_imu(cols))
-        rates['encode_imu (fast path)'] = n / dt
-
-        def write():
-            with LogWriter(path) as w:
-                w.add_topic('/imu', cdr.IMU_MSGTYPE)
-                w.write_many('/imu', stamps, raws)
-        _, dt = _timed(write)
-        rates['write bare mcap (LogWriter)'] = n / dt
-
-        with open_log(path) as log:
-            read, dt = _timed(lambda: [m[3] for m in log.iter_raw(['/imu'])])
-            rates['read raw (LogReader.iter_raw)'] = n / dt
-            count, dt = _timed(lambda: sum(len(c) for c in log.stream('/imu',
-                                                                      chunk_size=CHUNK)))
-            assert count == n
-            rates['stream + decode (LogReader.stream)'] = n / dt
-
-    def fast():
-        return ImuColumns.concat([cdr.decode_imu(read[i:i + CHUNK])
-                                  for i in range(0, n, CHUNK)])
-    dec, dt = _timed(fast)
-    rates['(a) decode_imu (fast path)'] = n / dt
-    np.testing.assert_array_equal(dec.accel, cols.accel)
-
     store = get_typestore(Stores.ROS2_JAZZY)
-    m = n if rosbags_n is None else min(n, rosbags_n)
+    n = 0
+    with AnyReader([Path(path)], default_typestore=store) as reader:
+        for conn, _, raw in reader.messages():
+            reader.deserialize(raw, conn.msgtype)
+            n += 1
+    return n
 
-    def slow():
-        acc = np.empty((m, 3))
-        for i, raw in enumerate(read[:m]):
-            a = store.deserialize_cdr(raw, cdr.IMU_MSGTYPE).linear_acceleration
-            acc[i] = (a.x, a.y, a.z)
-        return acc
-    acc, dt = _timed(slow)
-    rates['(b) rosbags deserialize_cdr'] = m / dt
-    np.testing.assert_array_equal(acc, cols.accel[:m])
 
-    (_, dt) = _timed(lambda: cdr.patch_imu(read, cols.accel * 2, cols.gyro))
-    rates['patch_imu (fast path)'] = n / dt
-    return rates
+def _mcap_loop(path):
+    from mcap.reader import make_reader
+
+    n = 0
+    with open(path, 'rb') as f:
+        for _ in make_reader(f).iter_messages(log_time_order=True):
+            n += 1
+    return n
+
+
+def _bulk_loop(path):
+    from thermal_imu_calib.io.mcap_read import iter_batches, McapBulkReader
+
+    with McapBulkReader(path) as r:
+        return sum(len(b) for b in iter_batches(r))
+
+
+def _stream(path, imu, temps):
+    from thermal_imu_calib.io.bag import open_log
+
+    with open_log(path) as log:
+        return sum(len(c) for c in log.stream(imu, temps))
+
+
+def _topics(path):
+    from thermal_imu_calib.io.bag import open_log
+
+    with open_log(path) as log:
+        types = log.topic_types()
+        count = log.message_count
+    imu = [t for t, ty in types.items() if ty == 'sensor_msgs/msg/Imu'][0]
+    temps = sorted(t for t, ty in types.items() if ty == 'sensor_msgs/msg/Temperature')
+    return imu, temps, count
+
+
+def run(path, calibration, tmp) -> dict:
+    """Measure every stage on ``path``; returns {stage: figures}."""
+    from thermal_imu_calib.calibration import Calibration
+    from thermal_imu_calib.io.bag import LogWriter, open_log
+    from thermal_imu_calib.pipeline import collect_windows, compensate_log
+
+    imu, temps, total = _topics(path)
+    size_mb = os.path.getsize(path) / 1e6
+    out: dict[str, dict] = {}
+
+    def record(name, n, wall, cpu, mb=size_mb):
+        out[name] = {'messages': n, 'wall_s': wall, 'cpu_s': cpu, 'msgs_per_s': n / wall,
+                     'msgs_per_cpu_s': n / max(cpu, 1e-9), 'MB_per_s': mb / wall}
+
+    n, w, c = _timed(lambda: _mcap_loop(path))
+    record('mcap library raw loop', n, w, c)
+    n, w, c = _timed(lambda: _rosbags_loop(path))
+    record('rosbags AnyReader + deserialize_cdr', n, w, c)
+    n, w, c = _timed(lambda: _bulk_loop(path))
+    record('bulk read (chunks, all messages)', n, w, c)
+    n, w, c = _timed(lambda: _stream(path, imu, temps))
+    record('stream Imu+temperature (Imu msgs)', n, w, c)
+    col, w, c = _timed(lambda: collect_windows(path, imu, temps, motion=True, progress=False))
+    record('calibrate read+detect+collect (Imu msgs)', col.imu_messages, w, c)
+    cal = Calibration.load(calibration)
+    dst = Path(tmp) / 'compensated.mcap'
+    _, w, c = _timed(lambda: compensate_log(path, dst, cal, imu, progress=False))
+    record('compensate end to end (all msgs)', total, w, c)
+    with open_log(path) as log:
+        raws = [(t, raw) for _, _, t, raw in log.iter_raw([imu])]
+    times = [t for t, _ in raws]
+    data = [r for _, r in raws]
+    mb = sum(map(len, data)) / 1e6
+
+    def ours():
+        with LogWriter(Path(tmp) / 'w1.mcap', overwrite=True) as wr:
+            wr.add_topic(imu, 'sensor_msgs/msg/Imu')
+            wr.write_many(imu, times, data)
+
+    def library():
+        from mcap.writer import CompressionType, Writer
+        with open(Path(tmp) / 'w2.mcap', 'wb') as f:
+            wr = Writer(f, compression=CompressionType.NONE)
+            wr.start(profile='ros2', library='bench')
+            sid = wr.register_schema('sensor_msgs/msg/Imu', 'ros2msg', b'')
+            cid = wr.register_channel(imu, 'cdr', sid)
+            for seq, (t, raw) in enumerate(zip(times, data)):
+                wr.add_message(cid, log_time=t, data=raw, publish_time=t, sequence=seq)
+            wr.finish()
+    _, w, c = _timed(ours)
+    record('write Imu (LogWriter.write_many)', len(data), w, c, mb)
+    _, w, c = _timed(library)
+    record('write Imu (mcap library add_message)', len(data), w, c, mb)
+    return out
+
+
+_RSS_CHILD = r'''
+import sys, time
+from thermal_imu_calib.calibration import Calibration
+from thermal_imu_calib.pipeline import collect_windows, compensate_log
+what, path, cal, dst = sys.argv[1:5]
+t = time.perf_counter()
+if what == 'calibrate':
+    c = collect_windows(path, '/imu', ['/temp'], motion=True, progress=False)
+    n = c.imu_messages
+else:
+    n = compensate_log(path, dst, Calibration.load(cal), '/imu', progress=False)['copied']
+hwm = [int(x.split()[1]) for x in open('/proc/self/status') if x.startswith('VmHWM')][0]
+print(n, time.perf_counter() - t, time.process_time(), hwm)
+'''
+
+
+def rss(n_messages: int, tmp: str, calibration: str) -> dict:
+    """Write an ``n_messages`` log (1 kHz Imu, 10 Hz temperature); peak RSS of each stage."""
+    from thermal_imu_calib.io.bag import write_columns
+    from thermal_imu_calib.io.columns import ImuColumns, TemperatureColumns
+
+    path = Path(tmp) / 'big.mcap'
+    n_imu = n_messages * 100 // 101
+    step = 200_000
+
+    def imu_chunks():
+        rng = np.random.default_rng(0)
+        for i in range(0, n_imu, step):
+            k = min(step, n_imu - i)
+            st = 1_700_000_000_000_000_000 + (i + np.arange(k, dtype=np.int64)) * 1_000_000
+            acc = np.tile([0.0, 0.0, 9.81], (k, 1)) + 1e-3 * rng.normal(size=(k, 3))
+            yield ImuColumns(st, acc, 1e-4 * rng.normal(size=(k, 3)), 'imu_link')
+
+    def temp_chunks():
+        for i in range(0, n_imu, step):
+            st = 1_700_000_000_000_000_000 + np.arange(i, min(i + step, n_imu), 100,
+                                                       dtype=np.int64) * 1_000_000
+            yield TemperatureColumns(st, 25.0 + 1e-9 * (st - st[0]), 'imu_link')
+    _, w, _ = _timed(lambda: write_columns(path, '/imu', imu_chunks(), {'/temp': temp_chunks()}))
+    out = {'messages': n_imu + (n_imu + 99) // 100, 'file_MB': os.path.getsize(path) / 1e6,
+           'write_wall_s': w}
+    for what in ('calibrate', 'compensate'):
+        res = subprocess.run([sys.executable, '-c', _RSS_CHILD, what, str(path), calibration,
+                              str(Path(tmp) / 'big_out.mcap')], capture_output=True, text=True,
+                             check=True)
+        n, wall, cpu, kb = res.stdout.split()
+        out[what] = {'messages': int(n), 'wall_s': float(wall), 'cpu_s': float(cpu),
+                     'peak_rss_MB': int(kb) / 1024}
+        if os.path.exists(Path(tmp) / 'big_out.mcap'):
+            os.unlink(Path(tmp) / 'big_out.mcap')
+    return out
+
+
+def _rss_calibration(tmp: str) -> str:
+    """A calibration for topic /temp (the field model of a simulated device)."""
+    from thermal_imu_calib import sim
+    from thermal_imu_calib.calibration import Calibration
+
+    log = os.path.join(tmp, 'rsscal.mcap')
+    sim.write_scenario(log, 'demo', 0)
+    cal = Calibration.load(log + '.truth.yaml')
+    for inp in cal.inputs:
+        inp.topic = '/temp'
+    path = os.path.join(tmp, 'rss_cal.yaml')
+    cal.save(path)
+    return path
 
 
 def main(argv=None) -> int:
-    """Print a msgs/s table."""
-    import argparse
-    import json
-    ap = argparse.ArgumentParser(description='io msgs/s benchmark')
-    ap.add_argument('n', type=int, nargs='?', default=200_000, help='Imu messages')
+    """Print the table (and write JSON)."""
+    ap = argparse.ArgumentParser(description='log I/O benchmark (docs/speed.md)')
+    ap.add_argument('--log', help='an existing log (default: simulate --scenario)')
+    ap.add_argument('--calibration', help='calibration for compensate (default: the '
+                    "simulation's truth)")
+    ap.add_argument('--scenario', default='nav-coldstart')
+    ap.add_argument('--seed', type=int, default=0)
+    ap.add_argument('--rss-messages', type=int, default=0,
+                    help='also measure peak RSS on a log of this many messages')
     ap.add_argument('--json', help='write the figures here')
     args = ap.parse_args(argv)
-    n = args.n
-    rates = run(n)
+    from threadpoolctl import threadpool_limits
+    threadpool_limits(1, 'blas')
+    with tempfile.TemporaryDirectory() as tmp:
+        path, cal = args.log, args.calibration
+        if path is None:
+            from thermal_imu_calib import sim
+            path = os.path.join(tmp, 'log.mcap')
+            sim.write_scenario(path, args.scenario, args.seed)
+            cal = cal or path + '.truth.yaml'
+        if cal is None:
+            ap.error('--calibration is needed with --log')
+        figures = {'log': str(args.log or f'{args.scenario} seed {args.seed}'),
+                   'file_MB': os.path.getsize(path) / 1e6, 'stages': run(path, cal, tmp)}
+        if args.rss_messages:
+            if args.log is None:
+                os.unlink(path)
+            figures['rss'] = rss(args.rss_messages, tmp, _rss_calibration(tmp))
+    st = figures['stages']
+    ref = st['rosbags AnyReader + deserialize_cdr']
+    comp = st['compensate end to end (all msgs)']
+    figures['ratios'] = {
+        'compensate / rosbags loop (wall)': comp['wall_s'] / ref['wall_s'],
+        'compensate / rosbags loop (cpu)': comp['cpu_s'] / ref['cpu_s'],
+    }
     if args.json:
         with open(args.json, 'w') as f:
-            json.dump({'messages': n, 'msgs_per_s': rates}, f, indent=1)
-    width = max(map(len, rates))
-    print(f'io benchmark, {n} sensor_msgs/msg/Imu messages')
-    print(f'{"stage":<{width}}  {"msgs/s":>12}')
-    for name, rate in rates.items():
-        print(f'{name:<{width}}  {rate:12,.0f}')
-    fast, slow = rates['(a) decode_imu (fast path)'], rates['(b) rosbags deserialize_cdr']
-    print(f'fast path speed-up over rosbags: {fast / slow:.0f}x')
+            json.dump(figures, f, indent=1)
+    print(f'log: {figures["log"]} ({figures["file_MB"]:.0f} MB)')
+    width = max(map(len, st))
+    print(f'{"stage":<{width}}  {"messages":>9} {"wall s":>7} {"cpu s":>7} {"msgs/s":>11} '
+          f'{"msgs/cpu-s":>11} {"MB/s":>7}')
+    for name, f in st.items():
+        print(f'{name:<{width}}  {f["messages"]:9d} {f["wall_s"]:7.2f} {f["cpu_s"]:7.2f} '
+              f'{f["msgs_per_s"]:11,.0f} {f["msgs_per_cpu_s"]:11,.0f} {f["MB_per_s"]:7.0f}')
+    for name, v in figures['ratios'].items():
+        print(f'{name}: {v:.2f}')
+    if 'rss' in figures:
+        r = figures['rss']
+        print(f'peak RSS on {r["messages"]:,} messages ({r["file_MB"]:.0f} MB): ' + ', '.join(
+            f'{k} {r[k]["peak_rss_MB"]:.0f} MB ({r[k]["cpu_s"]:.1f} cpu-s)'
+            for k in ('calibrate', 'compensate')))
+    print(f'bench peak RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB')
     return 0
 
 

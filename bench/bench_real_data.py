@@ -43,7 +43,6 @@ sys.path.insert(0, ROOT)
 from thermal_imu_calib.estimation.gyro_fit import (collect_motion,  # noqa: E402
                                                    integrate_rotation, quat_from_rotvec,
                                                    quat_rotate_inverse, Transition)
-from thermal_imu_calib.estimation.stationary import DetectorConfig  # noqa: E402
 from thermal_imu_calib.estimation.whole_unit_fit import fit_whole_unit  # noqa: E402
 from thermal_imu_calib.io.csv_logs import (read_imucal_annotated,  # noqa: E402
                                            read_imucal_session, read_mpu6050_csv)
@@ -54,15 +53,8 @@ MPU = os.path.join(FIX, 'mpu6050_tomisuarez')
 G = 9.80665
 FACES = ('x_p', 'x_a', 'y_p', 'y_a', 'z_p', 'z_a')
 ROTATIONS = ('x_rot', 'y_rot', 'z_rot')
-#: detector for hand-held sessions with 3-7 s holds
-SHORT_HOLDS = DetectorConfig(block_s=0.2, window_s=1.0, min_hold_s=2.0, guard_s=0.3)
-#: detector for the hand-held MPU-6050 poses: gyro tremor up to ~2 deg/s and slow drift in
-#: some poses, so variance thresholds 30x (accel) and 400x (gyro) the quietest blocks and a
-#: loose mean-continuity test; finds the ten still periods the source describes
-HAND_HELD = DetectorConfig(block_s=0.2, window_s=1.0, min_hold_s=1.5, guard_s=0.2,
-                           accel_factor=30.0, gyro_factor=400.0, mean_sigmas=100.0)
-#: detector for the ~1 s still ends of imucal's cut rotation sections
-END_HOLDS = DetectorConfig(block_s=0.1, window_s=0.5, min_hold_s=0.6, guard_s=0.15)
+#: the default detector (every setting derived from the log); no hand-tuned configs
+DEFAULT = None
 #: still time added around a labelled rotation before integrating it, s
 ROTATION_MARGIN_S = 0.4
 
@@ -188,7 +180,7 @@ def imucal_example_session():
     """Evaluate the continuous imucal session (see the module docstring)."""
     s = read_imucal_session(os.path.join(FERRARIS, 'example_ferraris_session.csv.gz'),
                             os.path.join(FERRARIS, 'example_ferraris_session_list.json'))
-    windows, transitions, _ = collect_motion(s.aligned(), SHORT_HOLDS, 0)
+    windows, transitions, _ = collect_motion(s.aligned(), DEFAULT, 0)
     labels = label_holds(windows, s.imu, s.sections)
     face_holds = [h for h, lab in labels.items() if lab in FACES]
     other_holds = [h for h, lab in labels.items() if lab == '']
@@ -277,7 +269,7 @@ def imucal_annotated_session(snapshot=None):
     parts = []
     for name, (a, b) in s.sections.items():
         imu = s.imu.slice(slice(a, b))
-        w, _, _ = collect_motion(_single(imu), SHORT_HOLDS if name in FACES else END_HOLDS, 0)
+        w, _, _ = collect_motion(_single(imu), DEFAULT, 0)
         w.hold = w.hold + 1000 * len(parts)
         parts.append((name, w))
     from thermal_imu_calib.estimation.segments import Windows
@@ -345,7 +337,7 @@ def tedaldi_gyro(params, counts):
 def mpu6050_session():
     """Evaluate the MPU-6050 session: faces fit, tilted holds and pose changes held out."""
     s = read_mpu6050_csv(os.path.join(MPU, 'example_data_calibration.csv.gz'))
-    windows, transitions, _ = collect_motion(s.aligned(), HAND_HELD, 0)
+    windows, transitions, _ = collect_motion(s.aligned(), DEFAULT, 0)
     ids, raw_means = hold_means(windows)
     t = s.imu.t
     faces = {}

@@ -1,20 +1,87 @@
-"""Start the compensator and the calibrator with the package defaults (like ``bringup``)."""
+"""Start the compensator and/or the calibrator; every setting a user reaches for is an argument.
+
+    ros2 launch thermal_imu_calib thermal_imu_calib.launch.py imu_topic:=/my_imu/data_raw
+    ros2 launch thermal_imu_calib thermal_imu_calib.launch.py nodes:=compensator \\
+        namespace:=left temperature_topics:='[/left/temp]' calibration_file:=~/cal.yaml
+
+Arguments: namespace, imu_topic (remapped onto the nodes' ``imu/data_raw``),
+temperature_topics (YAML list), params_file (default: the package's config/<node>.yaml),
+calibration_file (default: the one in the params file), use_sim_time, and nodes (comma
+list of compensator, calibrator).
+"""
 
 import os
 
-from ament_index_python.packages import get_package_share_directory
+import yaml
 from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
+
+PACKAGE = 'thermal_imu_calib'
+NODES = {'compensator': ('compensator_node', 'thermal_imu_compensator'),
+         'calibrator': ('calibrator_node', 'thermal_imu_calibrator')}
+ARGUMENTS = (
+    ('namespace', '', 'namespace of the nodes (and of their relative topics)'),
+    ('imu_topic', 'imu/data_raw', 'sensor_msgs/Imu input, remapped onto imu/data_raw'),
+    ('temperature_topics', '', 'YAML list of thermal input topics, e.g. [imu/temperature] '
+                               '(empty: the params file\'s)'),
+    ('params_file', '', 'parameters file for the nodes (empty: config/<node>.yaml of the '
+                        'package)'),
+    ('calibration_file', '', 'calibration YAML the compensator loads and the calibrator writes '
+                             '(empty: the params file\'s)'),
+    ('use_sim_time', 'false', 'use /clock (true when playing a bag with --clock)'),
+    ('nodes', 'compensator,calibrator',
+     'comma list of the nodes to start: compensator, calibrator'),
+)
+
+
+def _config_dir():
+    try:
+        from ament_index_python.packages import get_package_share_directory
+        return os.path.join(get_package_share_directory(PACKAGE), 'config')
+    except Exception:   # noqa: B902 - not installed (source tree): the repository's config/
+        return os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+                            'config')
+
+
+def _bool(text, name):
+    t = str(text).strip().lower()
+    if t not in ('true', 'false', '1', '0', 'yes', 'no'):
+        raise ValueError(f'{name}:={text} is not true or false')
+    return t in ('true', '1', 'yes')
+
+
+def make_nodes(context):
+    """Return the Node actions for the resolved launch arguments (OpaqueFunction body)."""
+    v = {name: LaunchConfiguration(name).perform(context) for name, _, _ in ARGUMENTS}
+    wanted = [n.strip() for n in v['nodes'].split(',') if n.strip()]
+    unknown = [n for n in wanted if n not in NODES]
+    if unknown or not wanted:
+        raise ValueError(f'nodes:={v["nodes"]} must name some of {", ".join(NODES)}')
+    overrides = {'use_sim_time': _bool(v['use_sim_time'], 'use_sim_time')}
+    if v['temperature_topics'].strip():
+        topics = yaml.safe_load(v['temperature_topics'])
+        topics = [topics] if isinstance(topics, str) else topics
+        if not isinstance(topics, list) or not all(isinstance(t, str) for t in topics):
+            raise ValueError(f'temperature_topics:={v["temperature_topics"]} is not a list of '
+                             'topics, e.g. "[imu/temperature]"')
+        overrides['temperature_topics'] = topics
+    if v['calibration_file'].strip():
+        overrides['calibration_file'] = os.path.expanduser(v['calibration_file'])
+    actions = []
+    for which in wanted:
+        executable, name = NODES[which]
+        params = v['params_file'] or os.path.join(_config_dir(), f'{which}.yaml')
+        actions.append(Node(package=PACKAGE, executable=executable, name=name,
+                            namespace=v['namespace'], output='screen',
+                            parameters=[params, overrides],
+                            remappings=[('imu/data_raw', v['imu_topic'])]))
+    return actions
 
 
 def generate_launch_description():
-    """Return both nodes, each with its config/*.yaml."""
-    config = os.path.join(get_package_share_directory('thermal_imu_calib'), 'config')
-    return LaunchDescription([
-        Node(package='thermal_imu_calib', executable='compensator_node',
-             name='thermal_imu_compensator', output='screen',
-             parameters=[os.path.join(config, 'compensator.yaml')]),
-        Node(package='thermal_imu_calib', executable='calibrator_node',
-             name='thermal_imu_calibrator', output='screen',
-             parameters=[os.path.join(config, 'calibrator.yaml')]),
-    ])
+    """Return the argument declarations and the nodes built from them."""
+    return LaunchDescription(
+        [DeclareLaunchArgument(name, default_value=default, description=desc)
+         for name, default, desc in ARGUMENTS] + [OpaqueFunction(function=make_nodes)])

@@ -7,6 +7,7 @@ import numpy as np
 from thermal_imu_calib.calibration import TemperatureInput
 from thermal_imu_calib.estimation.calibrate import CalibrateOptions
 from thermal_imu_calib.estimation.segments import Windows
+from thermal_imu_calib.io.csv_logs import read_bmi270_rows
 from thermal_imu_calib.pipeline import windows_from_columns
 
 G = 9.80665
@@ -53,16 +54,7 @@ def bmi270_windows(directory=BMI270, window=64, rate_hz=100.0):
     """
     parts, t_off = [], 0.0
     for hold, name in enumerate(('BMI_270_cold_test_.csv', 'BMI_270_hot_test.csv')):
-        rows = []
-        with open(os.path.join(directory, name), errors='replace') as f:
-            for line in f:
-                vals = line.strip().split(',')
-                if len(vals) == 7:
-                    try:
-                        rows.append([float(v) for v in vals])
-                    except ValueError:
-                        pass
-        a = np.asarray(rows)
+        a, _, _ = read_bmi270_rows(os.path.join(directory, name))
         m = len(a) // window
         blocks = a[:m * window].reshape(m, window, 7)
         acc = blocks[:, :, 1:4] * 4.0 * G

@@ -93,18 +93,21 @@ def test_detector_thresholds_follow_the_data_noise():
         assert len(np.unique(w.hold)) == len(holds), (sa, len(np.unique(w.hold)))
 
 
-def test_slow_rotation_is_not_stationary():
-    # a hold, then a slow 20 deg tilt over 40 s (variance stays low), then a hold
+@pytest.mark.parametrize('rate_dps, config', [
+    (0.5, DetectorConfig(rotation_dps=0.3)),   # below the default hand-tremor allowance
+    (5.0, None)])                              # the default detector
+def test_slow_rotation_is_not_stationary(rate_dps, config):
+    # a hold, then a slow tilt over 40 s (variance stays low), then a hold
     rng = np.random.default_rng(5)
     rate = 100.0
     t = np.arange(0, 120, 1 / rate)
-    ang = np.radians(np.clip((t - 40) / 40, 0, 1) * 20)
+    ang = np.radians(np.clip((t - 40) / 40, 0, 1) * 40 * rate_dps)
     f = np.stack([G * np.sin(ang), np.zeros_like(t), G * np.cos(ang)], 1)
     gyro = np.zeros_like(f)
     gyro[:, 1] = np.gradient(ang, 1 / rate)
     a = f + rng.normal(0, 0.005, f.shape)
     g = gyro + rng.normal(0, 0.001, f.shape)
-    w = _detect(t, a, g, np.full_like(t, 25.0))
+    w = _detect(t, a, g, np.full_like(t, 25.0), config=config)
     assert np.all((w.t1 <= 40.0) | (w.t0 >= 80.0))
     assert len(np.unique(w.hold)) == 2
 

@@ -43,7 +43,8 @@ def test_scenario_names():
                                   'nav-coldstart-uniform',
                                   'nav-validation-short', 'mems-coldstart', 'mems-coldstart-poses',
                                   'mems-validation', 'single-warmup', 'demo', 'demo-validation',
-                                  'chamber-cycle', 'lag-warmup'}
+                                  'chamber-cycle', 'lag-warmup',
+                                  'hand-held', 'imutk-procedure', 'chamber-2hz'}
     for name, cfg in sim.SCENARIOS.items():
         assert cfg.name == name
     with pytest.raises(KeyError, match='unknown scenario'):

@@ -1,8 +1,8 @@
 """``thermal-imu-calib``: the library on recorded logs.
 
-Subcommands: calibrate, compensate, evaluate, simulate, info, report. Bad input gets one
-line on stderr saying what was wrong and what to do, and exit status 2; ``--debug`` shows
-the traceback instead.
+Subcommands: calibrate, compensate, evaluate, simulate, info, report, noise, export. Bad
+input gets one line on stderr saying what was wrong and what to do, and exit status 2;
+``--debug`` shows the traceback instead.
 """
 
 import argparse
@@ -12,20 +12,19 @@ import sys
 
 import numpy as np
 
-from . import __version__
+from . import __version__, cli_checks, cli_export
 from .calibration import Calibration, CalibrationError, TemperatureInput
+from .cli_checks import UserError
 from .estimation.calibrate import (CalibrateOptions, calibrate_windows, CalibrationRefused,
                                    model_choices)
-from .estimation.stationary import DetectorConfig
+from .estimation.stationary import DetectorConfig, format_holds, format_settings
+from .formats import load_prior
 from .gravity import resolve_gravity
 from .input_units import parse_unit_map
 from .io.bag import LogError
+from .report import cli as report_cli
 
 EXIT_USAGE = 2
-
-
-class UserError(Exception):
-    """Bad input from the command line; printed as one line."""
 
 
 def _add_topics(p, imu_required=False):
@@ -46,28 +45,44 @@ def _add_topics(p, imu_required=False):
 
 def _add_detector(p):
     d = DetectorConfig()
-    g = p.add_argument_group('stationary detector')
-    g.add_argument('--min-hold', type=float, default=d.min_hold_s, metavar='S',
-                   help=f'minimum stationary segment (s, default {d.min_hold_s})')
-    g.add_argument('--window', type=float, default=d.window_s, metavar='S',
-                   help=f'sub-window length within a hold (s, default {d.window_s})')
-    g.add_argument('--guard', type=float, default=d.guard_s, metavar='S',
-                   help=f'trimmed from both ends of a hold (s, default {d.guard_s})')
-    g.add_argument('--still-factor', type=float, default=d.accel_factor, metavar='X',
-                   help='variance threshold as a multiple of the noise floor (default '
-                        f'{d.accel_factor})')
+    g = p.add_argument_group('stationary detector (default: every setting derived from the '
+                             'log\'s rate, noise floor and LSB)')
+    g.add_argument('--block', type=float, default=None, metavar='S',
+                   help='block length of the stillness test (s; default ~0.1 s, >= 5 samples)')
+    g.add_argument('--min-hold', type=float, default=None, metavar='S',
+                   help='minimum stationary segment (s; default max(1 s, 8 blocks))')
+    g.add_argument('--window', type=float, default=None, metavar='S',
+                   help='sub-window length within a hold (s; default max(5 s, 2 blocks))')
+    g.add_argument('--guard', type=float, default=None, metavar='S',
+                   help='trimmed from both ends of a hold (s; default max(0.2 s, 2 blocks))')
+    g.add_argument('--still-factor', type=float, default=None, metavar='X',
+                   help='variance threshold as a multiple of the noise floor (default: from '
+                        'the chi-square spread of a block variance)')
+    g.add_argument('--rotation-dps', type=float, default=d.rotation_dps, metavar='DPS',
+                   help='rotation rate still counted as held (hand tremor; deg/s, default '
+                        f'{d.rotation_dps:g})')
 
 
 def _detector(args):
-    return DetectorConfig(min_hold_s=args.min_hold, window_s=args.window, guard_s=args.guard,
-                          accel_factor=args.still_factor, gyro_factor=args.still_factor)
+    c = DetectorConfig(block_s=args.block, min_hold_s=args.min_hold, window_s=args.window,
+                       guard_s=args.guard, accel_factor=args.still_factor,
+                       gyro_factor=args.still_factor, rotation_dps=args.rotation_dps)
+    try:
+        c.validate()
+    except ValueError as e:
+        raise UserError(f'{e}; leave it out to derive it from the log') from None
+    return c
 
 
 def _gravity(args):
     try:
-        return resolve_gravity(args.gravity, args.latitude, args.altitude)
+        g, src = resolve_gravity(args.gravity, args.latitude, args.altitude)
     except ValueError as e:
         raise UserError(str(e)) from None
+    if not 9.7 <= g <= 9.9:
+        raise UserError(f'gravity {g:.6g} m/s^2 from --latitude/--altitude is not a '
+                        'terrestrial value (9.7..9.9); check --altitude (metres)')
+    return g, src
 
 
 def build_parser():
@@ -88,7 +103,9 @@ def build_parser():
                    help='auto: chosen from the data (see the summary); field: seed 000; '
                         'offset: single-orientation drift only; whole_unit: seed 002, gyro '
                         'scale and misalignment from the pose changes between holds')
-    p.add_argument('--prior', help='lab calibration (k0, b0, S at T0) the field model refines')
+    p.add_argument('--prior', help='lab calibration (k0, b0, S at T0) the field model refines: a '
+                   'thermal_imu_calib YAML, imu_tk *_acc.calib, imucal .json, PX4 .params, '
+                   'ArduPilot .parm or Kalibr imu.yaml')
     p.add_argument('--order', type=int, default=2, choices=(0, 1, 2),
                    help='temperature polynomial order of the field model (default 2)')
     p.add_argument('--no-refine', action='store_true', help='skip the joint refinement')
@@ -115,6 +132,9 @@ def build_parser():
                    help='write the window statistics (JSONL) and the pose changes between '
                         'holds (FILE.transitions.npz, gyro_fit.load_transitions)')
     p.add_argument('-o', '--output', required=True, help='calibration YAML to write')
+    p.add_argument('--force', action='store_true',
+                   help='overwrite an existing -o that is not a calibration file (never an '
+                        'input)')
     p.add_argument('--json', action='store_true', help='print the report as JSON')
     _add_detector(p)
 
@@ -161,9 +181,19 @@ def build_parser():
 
     p = sub.add_parser('info', help='topics, counts, rates, span, temperature range')
     p.add_argument('input', metavar='INPUT')
+    p.add_argument('--holds', action='store_true',
+                   help='also run the stationary detector and list the holds it finds')
+    _add_topics(p)
+    _add_detector(p)
 
-    p = sub.add_parser('report', help='print a calibration file for people')
+    p = sub.add_parser('report', help='print a calibration file for people; --html/--png-dir '
+                                      'plot it')
     p.add_argument('calibration', metavar='CALIB.yaml')
+    report_cli.add_report_args(p)
+    report_cli.add_noise_parser(sub)
+    cli_export.add_parser(sub)
+    from .cli_fleet import add_fleet_parsers   # fleet calibrate/compensate, history, ...
+    add_fleet_parsers(sub, COMMANDS)
     return ap
 
 
@@ -175,19 +205,56 @@ def cmd_calibrate(args):
     ``auto``) chose it or an accelerometer-only model did (``gyro_select``); the collector
     costs ~0.09 s CPU per 375k messages, not measurable in a calibrate run.
     """
-    from .estimation.gyro_fit import save_transitions
-    from .pipeline import collect_windows, merge_transitions, merge_windows
-    g, g_src = _gravity(args)
-    prior = Calibration.load(args.prior) if args.prior else None
+    from .pipeline import check_collected, collect_windows
+    _gravity(args)   # a bad --gravity/--latitude is refused before reading any log
+    cli_checks.check_distinct_inputs(args.inputs)
+    cli_checks.check_calibration_output(args.output, args.inputs, args.prior, args.force,
+                                        [(args.save_windows, '--save-windows')])
+    if args.save_windows:
+        cli_checks.check_writable_dir(args.save_windows, '--save-windows')
+    if args.prior:
+        load_prior(args.prior)   # a bad prior is refused before reading any log
     collected = []
     for path in args.inputs:
         c = collect_windows(path, args.imu_topic, args.temperature_topic, _detector(args),
-                            args.chunk_size, args.max_gap, args.progress, motion=True)
+                            args.chunk_size, args.max_gap, args.progress, motion=True,
+                            input_units=args.input_unit)
         print(f'{path}: {c.imu_messages} Imu messages in {c.seconds:.1f} s '
               f'({c.imu_messages / max(c.seconds, 1e-9):,.0f} msgs/s), '
               f'{len(np.unique(c.windows.hold))} stationary holds' + _motion_text(c),
               file=sys.stderr)
+        print('  ' + format_settings(c.detector), file=sys.stderr)
+        if args.save_windows:
+            print(format_holds(c.holds), file=sys.stderr)
+        for warning in check_collected(path, c, args.max_gap):
+            print(f'  warning: {warning}', file=sys.stderr)
         collected.append(c)
+    result = calibrate_collected(args, collected, args.inputs)
+    result.calibration.save(args.output)
+    if args.json:
+        print(json.dumps({'summary': result.summary, 'output': args.output,
+                          'calibration': result.calibration.to_dict()}, indent=1, default=str))
+    else:
+        print(result.summary)
+        for note in result.calibration.notes:
+            print(f'  note: {note}')
+        print(f'wrote {args.output}')
+    return 0
+
+
+def calibrate_collected(args, collected, paths):
+    """Merge the Collected of several logs and estimate as ``calibrate`` does.
+
+    ``args`` holds the calibrate options (the Namespace of its parser); ``paths`` are the
+    logs (their names go to ``fit.inputs``; long holds are re-read for the random walk,
+    ``noise.add_random_walk``). Returns the CalibrationResult (not saved), re-read by the
+    nodes' loader first (``cli_checks.validated``: UserError if it would be refused). Shared by
+    ``fleet calibrate`` (cli_fleet), whose reduce step must equal ``calibrate``.
+    """
+    from .estimation.gyro_fit import save_transitions
+    from .pipeline import merge_transitions, merge_windows
+    g, g_src = _gravity(args)
+    prior = load_prior(args.prior) if args.prior else None
     topics = collected[0].temperature_topics
     for c in collected[1:]:
         if c.temperature_topics != topics:
@@ -206,22 +273,21 @@ def cmd_calibrate(args):
     opts = CalibrateOptions(model=args.model, gravity=g, gravity_source=g_src, prior=prior,
                             inputs=inputs, frame_id=args.frame_id or collected[0].frame_id,
                             out_of_range=args.out_of_range, order=args.order,
-                            refine=not args.no_refine, min_hold_s=args.min_hold,
+                            refine=not args.no_refine,
+                            min_hold_s=args.min_hold or collected[0].detector["min_hold_s"]
+                            if collected[0].detector else 10.0,
                             range_margin=args.range_margin, latitude=args.latitude,
                             transitions=transitions, **mapping)
     result = calibrate_windows(windows, opts)
-    result.calibration.fit['inputs'] = [os.path.basename(os.path.normpath(p))
-                                        for p in args.inputs]
-    result.calibration.save(args.output)
-    if args.json:
-        print(json.dumps({'summary': result.summary, 'output': args.output,
-                          'calibration': result.calibration.to_dict()}, indent=1, default=str))
-    else:
-        print(result.summary)
-        for note in result.calibration.notes:
-            print(f'  note: {note}')
-        print(f'wrote {args.output}')
-    return 0
+    result.calibration.fit['inputs'] = [os.path.basename(os.path.normpath(p)) for p in paths]
+    result.calibration.fit['detector'] = (collected[0].detector if len(collected) == 1
+                                          else [c.detector for c in collected])
+    from .noise import add_random_walk
+    note = add_random_walk(result.calibration, paths, windows, args.imu_topic)
+    result.calibration.notes += [note] if note else []
+    # never hand on a calibration the nodes' loader would refuse (calibrate and fleet alike)
+    cli_checks.validated(result.calibration, getattr(args, 'output', None) or 'the output')
+    return result
 
 
 def _motion_text(collected):
@@ -272,6 +338,7 @@ def cmd_compensate(args):
     cal = Calibration.load(args.calibration)
     if os.path.exists(args.output):
         raise UserError(f'{args.output} exists; remove it or choose another -o')
+    cli_checks.check_writable_dir(args.output, '-o')
     st = compensate_log(args.input, args.output, cal, args.imu_topic, args.temperature_topic,
                         args.output_topic, args.storage, args.chunk_size, args.max_gap,
                         args.temperature_timeout, args.on_missing_temperature, args.progress,
@@ -297,10 +364,18 @@ def cmd_evaluate(args):
     res = evaluate_log(args.input, cals, args.imu_topic, args.temperature_topic,
                        _detector(args), g, args.average, args.chunk_size, args.max_gap,
                        args.progress)
+    if res['holds'] == 0:
+        raise UserError(f'{args.input}: no stationary holds found, so there is nothing to '
+                        'evaluate; evaluate needs a log with the IMU held still in several '
+                        'poses, each for at least the minimum hold (derived from the log; '
+                        f'`thermal-imu-calib info {args.input} --holds` shows it and what the '
+                        'detector finds, --min-hold S overrides it)')
     if args.json:
         print(json.dumps(res, indent=1))
         return 0
     print(format_evaluation(res))
+    print(format_settings(res['detector']))
+    print(format_holds(res['hold_list']))
     return 0
 
 
@@ -346,6 +421,7 @@ def cmd_simulate(args):
                         f'{", ".join(sim.SCENARIOS)}')
     if os.path.exists(args.output):
         raise UserError(f'{args.output} exists; remove it or choose another OUTPUT')
+    cli_checks.check_writable_dir(args.output, 'OUTPUT')
     if args.gyro_proxy:
         from .sim_proxy import write_proxy_scenario
         info = write_proxy_scenario(args.output, args.scenario, args.seed, storage=args.storage)
@@ -363,14 +439,19 @@ def cmd_info(args):
     from .io.bag import open_log
     with open_log(args.input) as reader:
         print(reader.info().format())
+    if args.holds:
+        from .pipeline import collect_windows
+        c = collect_windows(args.input, args.imu_topic, args.temperature_topic, _detector(args),
+                            args.chunk_size, args.max_gap, args.progress)
+        print(f'{len(c.holds)} stationary holds')
+        print(format_settings(c.detector))
+        print(format_holds(c.holds))
     return 0
 
 
 def cmd_report(args):
-    """Run the report subcommand."""
-    cal = Calibration.load(args.calibration)
-    print(format_calibration(cal))
-    return 0
+    """Run the report subcommand (text; HTML/PNG with --html/--png-dir)."""
+    return report_cli.cmd_report(args, format_calibration, UserError)
 
 
 def format_calibration(cal):
@@ -411,24 +492,41 @@ def format_calibration(cal):
 
 COMMANDS = {'calibrate': cmd_calibrate, 'compensate': cmd_compensate,
             'evaluate': cmd_evaluate, 'simulate': cmd_simulate, 'info': cmd_info,
-            'report': cmd_report}
+            'report': cmd_report, 'noise': lambda a: report_cli.cmd_noise(a, UserError),
+            'export': cli_export.cmd_export}
 
 
 def main(argv=None):
     """Entry point of ``thermal-imu-calib``."""
     args = build_parser().parse_args(argv)
+    cli_checks.install_sigterm()
     try:
-        return COMMANDS[args.cmd](args)
+        cli_checks.check_options(args)
+        from threadpoolctl import threadpool_limits
+        # the fits are small dense problems: BLAS threads only contend (docs/speed.md)
+        with threadpool_limits(limits=1, user_api='blas'):
+            return COMMANDS[args.cmd](args)
     except (UserError, LogError, CalibrationError, CalibrationRefused, FileNotFoundError,
-            ValueError) as e:
+            ValueError, OSError) as e:
         if args.debug:
             raise
-        msg = str(e).strip().replace('\n', ' ')
+        msg = _os_error_text(e) if isinstance(e, OSError) else str(e)
+        msg = msg.strip().replace('\n', ' ')
         print(f'thermal-imu-calib {args.cmd}: error: {msg}', file=sys.stderr)
         return EXIT_USAGE
-    except KeyboardInterrupt:
-        print('interrupted', file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as e:
+        print('terminated' if isinstance(e, cli_checks.Terminated) else 'interrupted',
+              file=sys.stderr)
+        return 143 if isinstance(e, cli_checks.Terminated) else 130
+
+
+def _os_error_text(e):
+    """Return 'cannot access FILE: reason; what to do' for an OSError."""
+    if e.filename is None:
+        return str(e)
+    what = 'write' if isinstance(e, (PermissionError, IsADirectoryError)) else 'access'
+    return (f'cannot {what} {e.filename}: {e.strerror or e}; check the path and its '
+            'permissions')
 
 
 if __name__ == '__main__':

@@ -6,6 +6,8 @@ prints what these return. Everything streams in column chunks, so memory is boun
 """
 
 from dataclasses import dataclass, field
+import os
+import shutil
 import sys
 import time
 from typing import Optional
@@ -15,8 +17,10 @@ import numpy as np
 from .io import cdr
 from .io.align import StreamAligner
 from .io.bag import copy_and_stream, LogError, LogWriter, open_log
+from .input_units import DEGC, parse_unit_map
 from .io.cdr import IMU_MSGTYPE, SCALAR_MSGTYPES, TEMPERATURE_MSGTYPE
 from .io.columns import TemperatureColumns
+from .io.gate import InputGate, thermal_problems
 from .estimation.outliers import ImuSpikeFilter
 from .estimation.evaluate import static_metrics, WindowAccumulator, with_signals
 from .estimation.gyro_fit import MotionCollector, offset_holds
@@ -41,6 +45,11 @@ class Collected:
     transitions: list = field(default_factory=list)
     #: with ``motion=True``: pose changes dropped by reason and the collector's peak bytes
     motion: Optional[dict] = None
+    #: the detector's derived settings (StationaryDetector.settings) and hold records
+    detector: Optional[dict] = None
+    holds: list = field(default_factory=list)
+    #: what the input gate dropped and saw (io.gate.GateReport)
+    gate: Optional[object] = None
 
 
 def _progress(total, desc, enabled):
@@ -75,19 +84,25 @@ def resolve_topics(reader, imu_topic, temperature_topics):
     return imu_topic, list(temperature_topics)
 
 
-def _aligned(reader, imu_topic, temp_topics, chunk_size, max_gap_s, keep_raw=False, bar=None):
+def _aligned(reader, imu_topic, temp_topics, chunk_size, max_gap_s, keep_raw=False, bar=None,
+             gate=None):
     aligner = StreamAligner(temp_topics, max_gap_s)
     for raw in reader.stream(imu_topic, temp_topics, chunk_size, keep_raw=keep_raw):
         if bar is not None:
             bar.update(len(raw.imu))
-        yield from aligner.push(raw)
+        yield from aligner.push(raw if gate is None else gate.push(raw))
     yield from aligner.finish()
 
 
 def collect_windows(path, imu_topic=None, temperature_topics=None, detector=None,
                     chunk_size=20000, max_gap_s=DEFAULT_MAX_GAP_S, progress=None,
-                    motion=False):
+                    motion=False, input_units=None):
     """Run the stationary detector over a log; returns Collected.
+
+    Samples no sensor gives (non-finite, beyond any range, degC inputs outside -80..200,
+    IMU stamps that do not increase) are dropped and counted first (``io.gate``,
+    ``Collected.gate``); ``input_units`` are ``TOPIC=UNIT`` items (unnamed inputs: degC;
+    None: no input is bounded, only finite).
 
     With ``motion`` a ``gyro_fit.MotionCollector`` also keeps the raw samples of the pose
     changes between holds (``Collected.transitions``; what the ``whole_unit`` gyro rotation
@@ -95,13 +110,19 @@ def collect_windows(path, imu_topic=None, temperature_topics=None, detector=None
     """
     with open_log(path) as reader:
         imu_topic, temps = resolve_topics(reader, imu_topic, temperature_topics)
+        try:
+            units = ([''] * len(temps) if input_units is None
+                     else parse_unit_map(input_units, temps))
+        except ValueError:
+            units = [DEGC] * len(temps)  # the caller reports a bad --input-unit itself
+        gate = InputGate(dict(zip(temps, units)))
         total = reader.topic_types() and reader.topics()[imu_topic].count
         det = (MotionCollector(detector, len(temps)) if motion
                else StationaryDetector(detector, len(temps)))
         parts, n, frame, peak = [], 0, '', 0
         bar = _progress(total, 'reading', progress)
         t_start = time.perf_counter()
-        for ch in _aligned(reader, imu_topic, temps, chunk_size, max_gap_s, bar=bar):
+        for ch in _aligned(reader, imu_topic, temps, chunk_size, max_gap_s, bar=bar, gate=gate):
             n += len(ch)
             frame = frame or ch.imu.frame_id
             parts.append(det.update(ch.imu.t, ch.imu.accel, ch.imu.gyro, ch.temps))
@@ -110,11 +131,46 @@ def collect_windows(path, imu_topic=None, temperature_topics=None, detector=None
         parts.append(det.finish())
         if bar is not None:
             bar.close()
+    sd = det.det if motion else det
     return Collected(Windows.concat(parts) if any(len(p) for p in parts)
                      else Windows.empty(len(temps)), frame, n,
                      time.perf_counter() - t_start, temps,
                      det.transitions if motion else [],
-                     {'dropped': dict(det.dropped), 'peak_bytes': peak} if motion else None)
+                     {'dropped': dict(det.dropped), 'peak_bytes': peak} if motion else None,
+                     sd.settings(), list(sd.holds),
+                     gate.report)
+
+
+def check_collected(path, collected, max_gap_s=DEFAULT_MAX_GAP_S):
+    """Refuse a collected log no calibration can come from; return warnings to print.
+
+    Refused (LogError, saying what to do): no IMU message, IMU stamps all 0 or mostly not
+    increasing, every sample dropped, and thermal inputs that cannot support a thermal fit
+    (``io.gate.thermal_problems``). Warned: what the input gate dropped and counted.
+    """
+    r = collected.gate
+    if r is None:
+        return []
+    if r.imu_in == 0:
+        raise LogError(f'{path}: the IMU topic has 0 messages, so there is nothing to '
+                       f'calibrate; check --imu-topic (`thermal-imu-calib info {path}` lists '
+                       'the topics and counts)')
+    if r.imu_stamp_zero == r.imu_in:
+        raise LogError(f'{path}: every IMU header stamp is 0, so holds cannot be timed; fix the '
+                       'driver to stamp its messages (header.stamp), then record again')
+    if r.imu_stamp_not_increasing > 0.1 * r.imu_in:
+        raise LogError(f'{path}: {r.imu_stamp_not_increasing} of {r.imu_in} IMU header stamps '
+                       'do not increase (duplicated or running backwards); the stamps are '
+                       'broken: fix the driver\'s clock or re-record')
+    if r.imu_dropped == r.imu_in:
+        raise LogError(f'{path}: every IMU sample was dropped ({r.dropped_text()}); the log '
+                       'has no usable IMU data')
+    problems = thermal_problems(r, max_gap_s)
+    if problems:
+        raise LogError(f'{path}: the thermal inputs cannot support a thermal fit: '
+                       + '; '.join(problems))
+    dropped = r.dropped_text()
+    return [f'dropped and counted: {dropped}'] if dropped else []
 
 
 def windows_from_columns(imu_chunks, temperatures=(), detector=None,
@@ -199,9 +255,65 @@ def compensate_log(src, dst, calibration, imu_topic=None, temperature_topics=Non
     nothing else). With ``despike`` a median/MAD gate (estimation.outliers, seed 002 §3.2)
     replaces isolated spikes by the local median before compensation and counts them.
     Returns a stats dict (counts, msgs/s, out-of-range rows, spikes).
+
+    The output is written under a temporary name next to ``dst`` and renamed at the end;
+    on any error or interruption (SIGINT, or SIGTERM raised as KeyboardInterrupt by the CLI)
+    the temporary is removed, so ``dst`` is either complete or absent.
     """
     if on_missing not in MISSING_POLICIES:
         raise ValueError(f'on_missing must be one of {MISSING_POLICIES}, not {on_missing!r}')
+    dst = os.path.abspath(os.fspath(dst))
+    if os.path.exists(dst):
+        raise LogError(f'{dst} exists; remove it or choose another output')
+    base = os.path.basename(dst.rstrip('/'))
+    tmp = os.path.join(os.path.dirname(dst), f'.{base}.partial-{os.getpid()}'
+                       + ('.mcap' if base.endswith('.mcap') else ''))
+    try:
+        stats = _compensate(src, tmp, calibration, imu_topic, temperature_topics, output_topic,
+                            storage, chunk_size, max_gap_s, temperature_timeout, on_missing,
+                            progress, despike)
+        if os.path.exists(dst):
+            raise LogError(f'{dst} appeared while compensating; the result is left in {tmp}')
+        os.rename(tmp, dst)
+        if os.path.isdir(dst):
+            _rename_bag_files(tmp, dst)
+    except BaseException:
+        _remove_partial(tmp)
+        raise
+    return stats
+
+
+def _rename_bag_files(old, new):
+    """Rename the storage files of a rosbag2 directory moved from ``old`` to ``new``.
+
+    rosbag2 names them after the directory (``NAME_0.mcap``); metadata.yaml lists them.
+    """
+    old_stem, new_stem = os.path.basename(old), os.path.basename(new)
+    meta = os.path.join(new, 'metadata.yaml')
+    names = [n for n in os.listdir(new) if n.startswith(old_stem)]
+    for n in names:
+        os.rename(os.path.join(new, n), os.path.join(new, new_stem + n[len(old_stem):]))
+    if names and os.path.isfile(meta):
+        with open(meta) as f:
+            text = f.read()
+        with open(meta, 'w') as f:
+            f.write(text.replace(old_stem, new_stem))
+
+
+def _remove_partial(tmp):
+    """Remove a temporary output (file or bag directory) left by an interrupted write."""
+    try:
+        if os.path.isdir(tmp):
+            shutil.rmtree(tmp, ignore_errors=True)
+        elif os.path.exists(tmp):
+            os.unlink(tmp)
+    except OSError:
+        pass
+
+
+def _compensate(src, dst, calibration, imu_topic, temperature_topics, output_topic, storage,
+                chunk_size, max_gap_s, temperature_timeout, on_missing, progress, despike):
+    """Do compensate_log's work into ``dst`` (a temporary name)."""
     timeout = max_gap_s if temperature_timeout is None else temperature_timeout
     with open_log(src) as reader:
         if temperature_topics is None and calibration.inputs:
@@ -232,6 +344,7 @@ def compensate_log(src, dst, calibration, imu_topic=None, temperature_topics=Non
                 yield gate.push(ch) if gate is not None else ch
         bar = _progress(reader.topics()[imu_topic].count, 'compensating', progress)
         t_start = time.perf_counter()
+        payloads = _PayloadStore()
         with LogWriter(dst, storage=storage) as writer:
             writer.add_topic(output_topic, IMU_MSGTYPE)
             for raw in copy_and_stream(reader, writer, imu_topic, temps,
@@ -239,15 +352,19 @@ def compensate_log(src, dst, calibration, imu_topic=None, temperature_topics=Non
                 stats['imu_in'] += len(raw.imu)
                 if bar is not None:
                     bar.update(len(raw.imu))
-                for ch in gated(aligner.push(raw)):
+                # the payloads wait in the store; the aligner carries their row numbers
+                extra = {'imu_log_time_ns': raw.imu_log_time_ns,
+                         'imu_row': payloads.add(raw.imu_raw)}
+                for ch in gated(aligner.push_columns(raw.imu, [raw.temps[t] for t in temps],
+                                                     extra)):
                     _write_compensated(writer, output_topic, ch, stream, timeout,
-                                       on_missing, stats)
+                                       on_missing, stats, payloads)
             tail = list(gated(aligner.finish()))
             if gate is not None:
                 tail.append(gate.flush())
             for ch in tail:
                 _write_compensated(writer, output_topic, ch, stream, timeout, on_missing,
-                                   stats)
+                                   stats, payloads)
         if bar is not None:
             bar.close()
     stats['seconds'] = time.perf_counter() - t_start
@@ -258,12 +375,52 @@ def compensate_log(src, dst, calibration, imu_topic=None, temperature_topics=Non
     return stats
 
 
-def _write_compensated(writer, topic, ch, stream, timeout, policy, stats):
+class _PayloadStore:
+    """Imu payloads read but not yet written, addressed by a running row number.
+
+    Blocks are what the reader gave: an (n, size) uint8 array or a list of bytes.  Rows
+    are taken in increasing order, so blocks wholly before a request are dropped.
+    """
+
+    def __init__(self):
+        self._blocks = []
+        self._next = 0
+
+    def add(self, rows) -> np.ndarray:
+        """Keep ``rows``; return their row numbers."""
+        first = self._next
+        self._next += len(rows)
+        if len(rows):
+            self._blocks.append((first, rows))
+        return np.arange(first, self._next, dtype=np.int64)
+
+    def take(self, idx):
+        """Return the payloads of row numbers ``idx`` (increasing): array or list."""
+        idx = np.asarray(idx, dtype=np.int64)
+        if not len(idx):
+            return []
+        while self._blocks and self._blocks[0][0] + len(self._blocks[0][1]) <= idx[0]:
+            self._blocks.pop(0)
+        parts = []
+        for first, rows in self._blocks:
+            if first > idx[-1]:
+                break
+            sel = idx[(idx >= first) & (idx < first + len(rows))] - first
+            if len(sel):
+                parts.append(rows[sel] if isinstance(rows, np.ndarray)
+                             else [rows[i] for i in sel.tolist()])
+        if all(isinstance(p, np.ndarray) for p in parts) and len(
+                {p.shape[1] for p in parts}) == 1:
+            return parts[0] if len(parts) == 1 else np.concatenate(parts)
+        return [bytes(x) for p in parts for x in p]
+
+
+def _write_compensated(writer, topic, ch, stream, timeout, policy, stats, payloads):
     n = len(ch)
     if n == 0:
         return
     temps, keep, comp = _resolve_missing(ch.temps, ch.temp_age, timeout, policy, None)
-    raws = ch.extra['imu_raw']
+    raws = payloads.take(ch.extra['imu_row'])
     accel = ch.imu.accel.copy()
     gyro = ch.imu.gyro.copy()
     if np.any(comp):
@@ -275,10 +432,13 @@ def _write_compensated(writer, topic, ch, stream, timeout, policy, stats):
     keep &= finite
     stats['passthrough'] += int(np.sum(keep & ~comp))
     stats['dropped'] += int(np.sum(~keep))
-    patched = cdr.patch_imu(raws, accel, gyro)
     times = ch.extra['imu_log_time_ns']
     idx = np.flatnonzero(keep)
-    writer.write_many(topic, times[idx], [patched[i] for i in idx])
+    if isinstance(raws, np.ndarray):
+        writer.write_many(topic, times[idx], cdr.patch_imu_rows(raws, accel, gyro)[idx])
+    else:
+        patched = cdr.patch_imu(raws, accel, gyro)
+        writer.write_many(topic, times[idx], [patched[i] for i in idx])
     stats['imu_out'] += len(idx)
 
 
@@ -298,6 +458,13 @@ def evaluate_log(path, calibrations, imu_topic=None, temperature_topics=None, de
     col = collect_windows(path, imu_topic, temperature_topics, detector, chunk_size,
                           max_gap_s, progress)
     w = col.windows
+    if len(w) and any(cal.inputs for cal in calibrations.values()):
+        empty = [t for t, bad in zip(col.temperature_topics, np.isnan(w.temp).all(axis=0))
+                 if bad]
+        if empty:
+            raise LogError(f'{path}: {", ".join(empty)} has no usable reading (NaN/Inf or '
+                           'none), so no calibration can be applied; check the sensor and its '
+                           'driver')
     tcol = _temperature_column(calibrations, col.temperature_topics)
     results = {'raw': static_metrics(w, gravity, average_s, tcol)}
     if len(w) and calibrations:
@@ -305,7 +472,8 @@ def evaluate_log(path, calibrations, imu_topic=None, temperature_topics=None, de
         streams = {label: cal.stream() for label, cal in calibrations.items()}
         with open_log(path) as reader:
             imu_topic, temps = resolve_topics(reader, imu_topic, col.temperature_topics)
-            for ch in _aligned(reader, imu_topic, temps, chunk_size, max_gap_s):
+            for ch in _aligned(reader, imu_topic, temps, chunk_size, max_gap_s,
+                               gate=InputGate()):
                 sig = {}
                 for label, cal in calibrations.items():
                     t = np.where(np.isfinite(ch.temps), ch.temps, np.nan)
@@ -321,7 +489,8 @@ def evaluate_log(path, calibrations, imu_topic=None, temperature_topics=None, de
             cw = with_signals(w, acc.means(f'{label}/a'), acc.means(f'{label}/g'))
             results[label] = static_metrics(cw, gravity, average_s, tcol)
     return {'path': str(path), 'windows': len(w), 'holds': len(np.unique(w.hold)),
-            'temperature_topics': col.temperature_topics, 'results': results}
+            'temperature_topics': col.temperature_topics, 'results': results,
+            'detector': col.detector, 'hold_list': col.holds}
 
 
 def _temperature_column(calibrations, topics):

@@ -198,6 +198,10 @@ class ScenarioConfig:
     temp_noise: float = 0.03
     latitude: float = 45.0
     chunk_size: int = 60_000
+    #: > 0: the first hold lasts this long (s; an imu_tk-style initial rest)
+    initial_hold_s: float = 0.0
+    #: > 0: hand tremor, rotation-rate RMS in deg/s (sim_scenarios.tremor)
+    tremor_dps: float = 0.0
 
 
 SCENARIOS = {
@@ -540,6 +544,8 @@ def _build_schedule(cfg, rng):
         if cfg.first_hold_s is not None:
             n_first = len(cfg.faces) * cfg.first_repetitions
             holds_s[:n_first] = rng.uniform(*cfg.first_hold_s, min(n_first, len(poses)))
+        if cfg.initial_hold_s > 0:
+            holds_s[0] = cfg.initial_hold_s
     trans_s = rng.uniform(*cfg.transition_s, max(len(poses) - 1, 0))
     nj = 3
     rows, t, hold_info = [], 0.0, []
@@ -759,6 +765,9 @@ class SimRecording:
                                 dev.thermal) + sig_a * noise[:, :3]
             gyr = gyro_forward(tc.angular_rate, tg, dev.t0, dev.gyro_coeffs, dev.gyro_m,
                                dev.gyro_g, tc.specific_force) + sig_g * noise[:, 3:]
+            if self.config.tremor_dps > 0:
+                from .sim_scenarios import tremor
+                acc, gyr = tremor(self, tc, acc, gyr)
             if self.extra_error is not None:
                 da, dg = self.extra_error(tc)
                 acc, gyr = acc + da, gyr + dg
@@ -968,3 +977,23 @@ def write_scenario(output, name, seed=0, storage='mcap', overwrite=False, compre
     summary['messages'] = counts
     summary['seconds'] = round(time.perf_counter() - t_start, 3)
     return {**paths, 'summary': summary}
+
+
+def still_noise(n, rate_hz, density, random_walk=0.0, seed=0):
+    """Return (n, 3) white noise plus a random-walk bias, as a still sensor's error.
+
+    ``density`` N is the one-sided white-noise density (unit/sqrt(Hz): per-sample std
+    N sqrt(rate)); ``random_walk`` K is the bias random walk (unit/s/sqrt(Hz): the bias
+    moves by K sqrt(dt) per sample). Scalars or per-axis (3,) values. The Allan variance
+    of the result is N^2/tau + K^2 tau/3 (IEEE 952), what ``estimation.allan`` reads back.
+    """
+    rng = np.random.default_rng(seed)
+    dt = 1.0 / float(rate_hz)
+    white = rng.standard_normal((n, 3)) * (np.asarray(density, float) / np.sqrt(dt))
+    walk = np.cumsum(rng.standard_normal((n, 3)), axis=0) * (
+        np.asarray(random_walk, float) * np.sqrt(dt))
+    return white + walk
+
+
+from .sim_scenarios import SCENARIOS as _MORE  # noqa: E402 (needs ScenarioConfig above)
+SCENARIOS.update(_MORE)

@@ -18,6 +18,7 @@ from ..models.field import FieldPolynomialModel
 from ..thermal_input import ThermalFilter
 from .field_estimator import fit_field_model, per_axis_vertical_range
 from .offset_fit import fit_offset_model, time_groups
+from .allan import window_noise
 from .segments import coverage, distinct_orientations, FACE_NAMES, Windows
 
 #: temperature span (degC) needed for each polynomial order of the field model
@@ -388,7 +389,7 @@ def calibrate_windows(windows, options=None):
         frame_id=o.frame_id, gravity=g, gravity_source=o.gravity_source,
         accel_noise_std=np.sqrt(np.median(windows.accel_var, axis=0)),
         gyro_noise_std=np.sqrt(np.median(windows.gyro_var, axis=0)), notes=notes,
-        temperature_filter=est.temperature_filter)
+        temperature_filter=est.temperature_filter, noise_model=window_noise(windows))
     before, after = gravity_residuals(windows, cal, g)
     fit_stats = dict(est.fit)
     fit_stats.update({

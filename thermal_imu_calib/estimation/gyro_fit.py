@@ -194,9 +194,8 @@ class MotionCollector:
         self.config = config or DetectorConfig()
         self.det = StationaryDetector(self.config, n_inputs)
         self.k = n_inputs
-        c = self.config
-        self.lookback_s = (c.min_hold_s + 2 * c.guard_s + 6 * c.block_s + 2.0
-                           if lookback_s is None else float(lookback_s))
+        # with derived detector settings: set once the detector has derived them
+        self.lookback_s = None if lookback_s is None else float(lookback_s)
         self.max_transition_s = float(max_transition_s)
         self.max_transitions = int(max_transitions)
         self.transitions: List[Transition] = []
@@ -223,7 +222,7 @@ class MotionCollector:
         if len(t) > 1 and self._dt is None:
             self._dt = float(np.median(np.diff(t)))
         self._ring.append(t, gyro, accel, temps)
-        if len(t):
+        if len(t) and self.lookback_s is not None:
             self._ring.trim_before(t[-1] - self.lookback_s - (t[-1] - t[0]))
         if self._tape is not None and not self._frozen:
             self._tape.append(t, gyro, accel, temps)
@@ -290,10 +289,13 @@ class MotionCollector:
                                            tm.mean(0) if len(tm) else np.zeros(self.k)))
 
     def _after_chunk(self):
+        if self.lookback_s is None and self.det.config is not None:
+            c = self.det.config
+            self.lookback_s = c.min_hold_s + 2 * c.guard_s + 6 * c.block_s + 2.0
         if self._tape is None:
             return
         st = self.det.status()
-        c = self.config
+        c = self.det.config
         margin = c.guard_s + 2 * c.block_s + 1.0
         if st['stationary'] and st['hold_seconds'] >= margin:
             self._frozen = True
@@ -495,6 +497,7 @@ def fit_gyro_static(windows, axis_inputs, acc, t0, latitude=None, omega1=None, p
     def solve(free_lin, theta0, with_prior, weights_kind):
         """Alternate linear LS and closed-form headings; return (theta, psi, mh, r, w)."""
         idx = np.flatnonzero(free_lin)
+        x_free, x_fixed = x[:, :, idx], x[:, :, ~free_lin]  # loop invariants
         theta = theta0.copy()
         psi = np.zeros(nh)
         mh = c_lat if lat_known else 0.5
@@ -508,14 +511,14 @@ def fit_gyro_static(windows, axis_inputs, acc, t0, latitude=None, omega1=None, p
                 c = k_robust * max(robust_scale(r_all), 1.0)
             for _ in range(60):
                 we, hdir = earth(psi, mh)
-                yy = y - we - np.einsum('nik,k->ni', x[:, :, ~free_lin], theta[~free_lin])
-                r = (yy - np.einsum('nik,k->ni', x[:, :, idx], theta[idx])) / sig
+                yy = y - we - np.einsum('nik,k->ni', x_fixed, theta[~free_lin])
+                r = (yy - np.einsum('nik,k->ni', x_free, theta[idx])) / sig
                 if stage == 'soft_l1':
                     wts = 1.0 / np.sqrt(1.0 + (r / c) ** 2)
                 elif stage == 'cauchy':
                     wts = 1.0 / (1.0 + (r / c) ** 2)
                 sw = np.sqrt(wts) / sig
-                a = (x[:, :, idx] * sw[:, :, None]).reshape(3 * m, len(idx))
+                a = (x_free * sw[:, :, None]).reshape(3 * m, len(idx))
                 b = (yy * sw).ravel()
                 if with_prior:
                     sd = lay.std[idx]

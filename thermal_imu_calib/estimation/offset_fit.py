@@ -13,10 +13,15 @@ def _vander(dt, order):
     return np.stack([dt ** j for j in range(order + 1)], axis=1)
 
 
+def _polyfit_coef(dt, y, w, order):
+    """Coefficients of the weighted LS polynomial (what ``weighted_polyfit`` returns first)."""
+    a = _vander(dt, order) * w[:, None]
+    return np.linalg.lstsq(a, y * w, rcond=None)[0], a
+
+
 def weighted_polyfit(dt, y, w, order):
     """Return (coeffs (order+1,), std (order+1,)) of a weighted LS polynomial in dt."""
-    a = _vander(dt, order) * w[:, None]
-    coef, *_ = np.linalg.lstsq(a, y * w, rcond=None)
+    coef, a = _polyfit_coef(dt, y, w, order)
     r = (y - _vander(dt, order) @ coef) * w
     dof = max(len(y) - order - 1, 1)
     s2 = max(float(r @ r) / dof, 1.0)
@@ -43,7 +48,7 @@ def cv_order(dt, y, w, groups, orders):
             if np.sum(train) <= order + 1 or np.ptp(dt[train]) <= 0:
                 err = np.inf
                 break
-            coef, _ = weighted_polyfit(dt[train], y[train], w[train], order)
+            coef, _ = _polyfit_coef(dt[train], y[train], w[train], order)  # no std needed
             r = y[test] - _vander(dt[test], order) @ coef
             err += float(np.sum((r * w[test]) ** 2))
             wsum += float(np.sum(w[test] ** 2))

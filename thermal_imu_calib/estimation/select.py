@@ -80,6 +80,9 @@ WHOLE_UNIT_MIN_TILTED = 3
 #: per face and the held-out score is dominated by extrapolation (simulated demo: field
 #: 16 mg vs whole_unit 1.1 mg held out, but on the next cold start 117 vs 453 ug)
 WHOLE_UNIT_MIN_FOLDS = 3
+#: a candidate whose held-out residual is more than this many times the best one's is
+#: never kept, whatever the margins above
+KEEP_RATIO = 1.5
 #: Estimate carries a temperature filter into the Calibration (calibrate.py support)
 FILTER_SUPPORTED = 'temperature_filter' in {f.name for f in dataclasses.fields(Estimate)}
 
@@ -421,6 +424,33 @@ def _weighted_rms(x, n):
     return float(np.sqrt(np.sum(n * x * x) / np.sum(n)))
 
 
+def _whole_unit_folds(windows):
+    """Return (fold per window, number of folds) for the whole-unit check.
+
+    ``_hold_folds`` when every face was held at least twice; else (a face held once)
+    each hold that can leave without taking a face's last hold away (a repeated face, or a
+    tilted pose) is a fold of its own (at most ``MULTI_FOLDS``, round robin), and the other
+    holds (fold -1) always train. A short hand-held session (six faces once, a few repeats
+    and tilts) is then still compared held out.
+    """
+    folds, n = _hold_folds(windows)
+    if n >= 2:
+        # every face twice or more: the face folds (fewer than WHOLE_UNIT_MIN_FOLDS of them
+        # skip the check, see there)
+        return folds, n
+    ids, means = windows.hold_means()
+    faces = [face_of(m) for m in means]
+    seen, fold_of, k = {}, {}, 0
+    for h, f in zip(ids, faces):
+        seen[f] = seen.get(f, 0) + 1
+        if f == 'tilted' or seen[f] > 1:
+            fold_of[int(h)] = k % MULTI_FOLDS
+            k += 1
+        else:
+            fold_of[int(h)] = -1
+    return np.array([fold_of[int(h)] for h in windows.hold]), min(k, MULTI_FOLDS)
+
+
 def heldout_whole_unit(ctx):
     """Held-out static residuals of the field and whole-unit calibrations; (dict, folds).
 
@@ -434,12 +464,14 @@ def heldout_whole_unit(ctx):
     from .calibrate import _gyro_bias
     from .whole_unit_fit import fit_whole_unit_context
     w, o = ctx.windows, ctx.options
-    folds, n = _hold_folds(w)
-    out = {s: {'field': np.zeros(len(w)), 'whole_unit': np.zeros(len(w))}
+    folds, n = _whole_unit_folds(w)
+    out = {s: {'field': np.full(len(w), np.nan), 'whole_unit': np.full(len(w), np.nan)}
            for s in ('accel', 'gyro')}
     for f in range(n):
         test = folds == f
         train = ~test
+        if not test.any():
+            continue
         ta = clamp_to_training(ctx.ta, w, train, ctx.accel_input, o.range_margin)
         tg = clamp_to_training(ctx.tg, w, train, ctx.gyro_input, o.range_margin)
         sub = ctx.subset(train)
@@ -456,34 +488,58 @@ def heldout_whole_unit(ctx):
 
 
 def select_whole_unit(ctx, sel):
-    """Return ``sel`` or a whole-unit Selection when it wins held out (see the docstring)."""
+    """Return ``sel`` or a whole-unit Selection when it wins held out (see the docstring).
+
+    Whatever the margins, a candidate whose held-out |a| - g is more than ``KEEP_RATIO``
+    times the other's is never kept. Without a temperature input the margin is 0.
+    """
     if sel.model != 'field' or sel.groups != 'holds':
         return sel
     ids, means = ctx.windows.hold_means()
     tilted = sum(face_of(m) == 'tilted' for m in means)
-    if tilted < WHOLE_UNIT_MIN_TILTED or _hold_folds(ctx.windows)[1] < WHOLE_UNIT_MIN_FOLDS:
+    if ctx.k and tilted < WHOLE_UNIT_MIN_TILTED:
+        return sel          # misalignment unobservable: whole_unit is not a candidate
+    folds, n_folds = _whole_unit_folds(ctx.windows)
+    if n_folds < 2 or (folds.min() >= 0 and n_folds < WHOLE_UNIT_MIN_FOLDS):
+        sel.reason += (f'; whole-unit check skipped: {n_folds} hold folds (the held-out score '
+                       'would be dominated by extrapolation)')
         return sel
     t_start = time.perf_counter()
     res, n_folds = heldout_whole_unit(ctx)
-    g, n = ctx.options.gravity, ctx.windows.n
-    acc = {k: _weighted_rms(v, n) / g * 1e6 for k, v in res['accel'].items()}
-    gyr = {k: _weighted_rms(v, n) for k, v in res['gyro'].items()}
+    g = ctx.options.gravity
+    held = np.isfinite(res['accel']['field'])
+    n = ctx.windows.n[held]
+    acc = {k: _weighted_rms(v[held], n) / g * 1e6 for k, v in res['accel'].items()}
+    gyr = {k: _weighted_rms(v[held], n) for k, v in res['gyro'].items()}
     for k in acc:
         sel.table[f'{k} |a|-g'] = {'residual_ug': acc[k]}
         sel.table[f'{k} |w| still'] = {'residual_rad_s': gyr[k]}
     sel.seconds += time.perf_counter() - t_start
-    wins = (acc['whole_unit'] < (1 - WHOLE_UNIT_MARGIN) * acc['field']
-            and gyr['whole_unit'] <= (1 + WHOLE_UNIT_GYRO_SLACK) * gyr['field'])
-    text = (f'; whole-unit check ({tilted} of {len(ids)} holds off the six faces, '
-            f'{n_folds} folds): held-out |a|-g RMS field {acc["field"]:.1f} ug, whole_unit '
-            f'{acc["whole_unit"]:.1f} ug; still-gyro |w| RMS field {gyr["field"]:.2e}, '
-            f'whole_unit {gyr["whole_unit"]:.2e} rad/s; ')
+    kept = [k for k in acc if acc[k] <= KEEP_RATIO * min(acc.values())]
+    # no temperature input: both models are constant, whole_unit only adds the
+    # misalignment the tilted holds observe, so it needs no margin
+    margin = WHOLE_UNIT_MARGIN if ctx.k else 0.0
+    if len(kept) == 1:
+        wins = kept[0] == 'whole_unit'
+        why = (f'{"field" if wins else "whole_unit"} is more than {KEEP_RATIO:g}x worse held '
+               'out on |a|-g')
+    else:
+        wins = (tilted >= WHOLE_UNIT_MIN_TILTED
+                and acc['whole_unit'] < (1 - margin) * acc['field']
+                and gyr['whole_unit'] <= (1 + WHOLE_UNIT_GYRO_SLACK) * gyr['field'])
+        why = (f'whole_unit {100 * margin:.0f} % better on |a|-g with the gyro no '
+               f'worse and >= {WHOLE_UNIT_MIN_TILTED} tilted holds' if wins else
+               f'whole_unit not {100 * margin:.0f} % better on |a|-g with the gyro '
+               f'no worse, or fewer than {WHOLE_UNIT_MIN_TILTED} tilted holds')
+    text = (f'; candidates compared held out: field, whole_unit ({tilted} of {len(ids)} '
+            f'holds off the six faces, {n_folds} folds): |a|-g RMS field {acc["field"]:.1f} '
+            f'ug, whole_unit {acc["whole_unit"]:.1f} ug; still-gyro |w| RMS field '
+            f'{gyr["field"]:.2e}, whole_unit {gyr["whole_unit"]:.2e} rad/s; {why}: ')
     if wins:
         sel.model = 'whole_unit'
         sel.reason += text + 'chose whole_unit (seed 002)'
     else:
-        sel.reason += text + (f'whole_unit not {100 * WHOLE_UNIT_MARGIN:.0f} % better on '
-                              '|a|-g with the gyro no worse: field')
+        sel.reason += text + 'field'
     return sel
 
 

@@ -1,55 +1,138 @@
-"""Streaming stationary detection with thresholds derived from the data's own noise.
+"""Streaming stationary detection whose settings are derived from the log itself.
 
-Samples are reduced to fixed-duration *blocks* (``block_s``): mean and variance of accel
-and gyro, mean temperature. A block is still when
+Nothing needs tuning: from the first ``DERIVE_SAMPLES`` samples the detector measures the
+sample rate and the quantisation step (LSB) of each sensor, and derives
 
-* its accel and gyro variances (summed over axes) are below ``accel_factor`` /
-  ``gyro_factor`` times the noise floor, the ``noise_quantile`` of all block variances
-  seen so far (so the same code serves a navigation-grade triad and a hobby MEMS chip);
-* its means differ from the previous block's by less than ``mean_sigmas`` standard errors
-  (a slow rotation has a small variance but a moving mean).
+* the *block*: ``block_n`` samples (about ``BLOCK_TARGET_S``, at least ``MIN_BLOCK_N``), so
+  a 1 Hz chamber log and a 2 kHz IMU both get blocks with a defined variance;
+* minimum hold, guard and window lengths from the block length (a 1 s hold at >= 50 Hz;
+  the guard grows to GUARD_FRACTION of a long still run, at most GUARD_MAX_S);
+* variance thresholds from the chi-square spread of a block variance with that many
+  samples, relative to the noise floor (the ``noise_quantile`` of all block variances seen
+  so far, corrected for the chi-square bias, never below the quantisation noise LSB^2/12),
+  so a navigation-grade triad and a hobby MEMS chip run the same code; the floor keeps
+  adapting as the log goes on.
 
-Runs of still blocks become *holds*; ``guard_s`` is trimmed from both ends so motion
-between poses never leaks in, holds shorter than ``min_hold_s`` are dropped, and each hold
-is cut into windows of ``window_s`` (estimation.segments.Windows). The detector keeps only
-block statistics of the open hold plus two floats per block for the noise floor, so memory
-stays small for hours of data, and the same class runs offline (CLI) and live (node).
+A block is *moving* when any of these holds:
+
+* its accel or gyro variance (summed over axes) is above the threshold, or the gyro
+  variance is above ``rotation_dps`` squared (hand tremor below that is tolerated);
+* its mean gyro differs from the gyro bias (the median of recent quiet blocks, so thermal
+  bias drift is followed) by more than ``rotation_dps``: a rotation about gravity, which
+  leaves the accelerometer unchanged, is seen here;
+* its mean accel differs from a neighbour's by more than ``mean_sigmas`` standard errors
+  *and* by more than gravity turned at ``rotation_dps`` over one block (a slow tilt).
+
+Thermal drift inside a hold moves the means by far less than either bound, so only motion
+splits a hold. Runs of still blocks become *holds*; ``guard_s`` is trimmed from both ends
+(not where the log itself starts or ends),
+shorter ones than ``min_hold_s`` are dropped, and each hold is cut into windows of
+``window_s`` (estimation.segments.Windows). ``holds`` keeps one record per hold (start,
+duration, stillness score). Memory stays small for hours of data, and the same class runs
+offline (CLI) and live (node). Settings given explicitly (not None / 0) are kept.
 """
 
+from collections import deque
+import dataclasses
 from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
+from scipy.stats import chi2
 
-from .segments import Windows
+from .segments import face_of, Windows
+
+#: samples used to measure the rate and the quantisation step before detection starts
+DERIVE_SAMPLES = 200
+#: target block duration (s) and fewest samples per block
+BLOCK_TARGET_S = 0.1
+MIN_BLOCK_N = 5
+#: a still block's variance stays below its chi-square quantile (1 - BLOCK_FALSE_ALARM)
+#: times VARIANCE_MARGIN (non-white noise, tremor) times the noise floor
+BLOCK_FALSE_ALARM = 1e-3
+VARIANCE_MARGIN = 3.0
+#: until this many blocks were seen, the open blocks are re-scored on every update
+MATURE_BLOCKS = 200
+#: a derived guard is this fraction of the still run, between guard_s and GUARD_MAX_S
+GUARD_FRACTION = 0.02
+GUARD_MAX_S = 1.0
+#: isolated false alarms: runs this short and this marginal between still blocks are still
+BRIDGE_BLOCKS = 2
+BRIDGE_SCORE = 4.0
+#: quiet-block gyro means kept for the bias reference
+BIAS_BLOCKS = 2000
+#: block variances kept for the noise floor
+FLOOR_BLOCKS = 200_000
+DERIVED = ('block_s', 'window_s', 'min_hold_s', 'guard_s', 'accel_factor', 'gyro_factor')
 
 
 @dataclass
 class DetectorConfig:
-    """Stationary detector settings (seconds, dimensionless factors)."""
+    """Stationary detector settings (seconds, dimensionless factors); None or 0: derived."""
 
-    block_s: float = 0.5
-    window_s: float = 5.0
-    min_hold_s: float = 10.0
-    guard_s: float = 1.0
-    accel_factor: float = 4.0
-    gyro_factor: float = 4.0
+    block_s: Optional[float] = None
+    window_s: Optional[float] = None
+    min_hold_s: Optional[float] = None
+    guard_s: Optional[float] = None
+    accel_factor: Optional[float] = None
+    gyro_factor: Optional[float] = None
     mean_sigmas: float = 6.0
     noise_quantile: float = 0.05
+    #: rotation rate (deg/s) below which the unit counts as held (hand tremor, slow drift)
+    rotation_dps: float = 3.0
     #: absolute floors for the noise estimate (quantised sensors can read exactly constant)
     min_accel_var: float = 1e-10
     min_gyro_var: float = 1e-12
 
     def validate(self):
         """Raise ValueError with the offending field when a setting is out of range."""
-        checks = [('block_s', 0.01, 10), ('window_s', 0.05, 600), ('min_hold_s', 0.1, 36000),
-                  ('guard_s', 0.0, 60), ('accel_factor', 1.0, 1000), ('gyro_factor', 1.0, 1000),
-                  ('mean_sigmas', 1.0, 1000), ('noise_quantile', 0.001, 0.9)]
+        checks = [('block_s', 0.001, 60), ('window_s', 0.01, 3600), ('min_hold_s', 0.05, 36000),
+                  ('guard_s', 0.0, 600), ('accel_factor', 1.0, 1e4), ('gyro_factor', 1.0, 1e4),
+                  ('mean_sigmas', 1.0, 1000), ('noise_quantile', 0.001, 0.9),
+                  ('rotation_dps', 0.001, 100)]
         for name, lo, hi in checks:
             v = getattr(self, name)
+            if v is None or (name in DERIVED and v == 0 and name != 'guard_s'):
+                continue
             if not lo <= v <= hi:
                 raise ValueError(f'detector {name}={v} is outside [{lo}, {hi}]')
-        if self.window_s < self.block_s:
+        if self.window_s and self.block_s and self.window_s < self.block_s:
             raise ValueError(f'window_s ({self.window_s}) must be >= block_s ({self.block_s})')
+
+    def derive(self, rate_hz, accel_lsb=0.0, gyro_lsb=0.0):
+        """Return (resolved DetectorConfig, block_n) for a log at ``rate_hz``."""
+        given = {k: v for k, v in vars(self).items() if v is not None and
+                 not (k in DERIVED and k != 'guard_s' and v == 0)}
+        if 'block_s' in given:
+            block_n = max(3, int(round(given['block_s'] * rate_hz)))
+        else:
+            block_n = max(MIN_BLOCK_N, int(round(BLOCK_TARGET_S * rate_hz)))
+        block_s = block_n / rate_hz
+        dof = 3 * (block_n - 1)
+        factor = VARIANCE_MARGIN * float(chi2.ppf(1 - BLOCK_FALSE_ALARM, dof)
+                                         / chi2.ppf(self.noise_quantile, dof))
+        auto = {'block_s': block_s, 'min_hold_s': max(0.5, 5 * block_s),
+                'guard_s': max(0.2, 2 * block_s), 'window_s': max(5.0, 2 * block_s),
+                'accel_factor': factor, 'gyro_factor': factor}
+        auto.update({k: v for k, v in given.items() if k in DERIVED})
+        auto['window_s'] = max(auto['window_s'], block_s)
+        return dataclasses.replace(self, **auto), block_n
+
+
+def quantisation_step(x):
+    """Return the LSB of each column (0 when the values are not on a regular grid)."""
+    x = np.asarray(x, float)
+    out = np.zeros(x.shape[1])
+    for i in range(x.shape[1]):
+        d = np.abs(np.diff(x[:, i]))
+        d = d[d > 1e-12 * max(1.0, float(np.max(np.abs(x[:, i]))))]
+        if len(d) < 3:
+            continue
+        q = float(np.min(d))
+        ratio = d / q
+        if np.median(np.abs(ratio - np.round(ratio))) < 0.02:
+            out[i] = q
+    return out
 
 
 class _Blocks:
@@ -90,16 +173,26 @@ class StationaryDetector:
     """Feed aligned chunks with ``update``; collect closed holds as Windows tables."""
 
     def __init__(self, config=None, n_inputs=0):
-        self.config = config or DetectorConfig()
-        self.config.validate()
+        self.requested = config or DetectorConfig()
+        self.requested.validate()
+        self.config = None          # resolved settings, once the rate is known
+        self.block_n = None
+        self.derived = None         # what was measured and derived (summary, fit.detector)
         self.k = n_inputs
-        self._origin = None
-        self._carry = None  # rows of the last, unfinished block
-        self._var_a = []    # per-block summed variances, for the noise floor
-        self._var_g = []
-        self._open = _Blocks(n_inputs)  # unclassified / open-hold blocks
-        self._prev_still_mean = None
+        self._pending = []          # samples before the settings are derived
+        self._pending_n = 0
+        self._carry = None          # rows of the last, unfinished block
+        self._var_a = deque(maxlen=FLOOR_BLOCKS)
+        self._var_g = deque(maxlen=FLOOR_BLOCKS)
+        self._bias = deque(maxlen=BIAS_BLOCKS)
+        self._lsb_var = (0.0, 0.0)
+        self._floor = None          # (blocks seen, (accel, gyro) floor), see noise_floor
+        self._n_blocks = 0
+        self._open = _Blocks(n_inputs)
+        self._log_t0 = None         # start of the first block (no guard at the log start)
+        self._score = np.zeros(0)   # motion score of the open blocks (cached)
         self._next_hold = 0
+        self.holds = []             # one record per emitted hold
         self.samples = 0
 
     # ----------------------------------------------------------------- public
@@ -114,46 +207,72 @@ class StationaryDetector:
         temps = np.zeros((len(t), self.k)) if temps is None else np.asarray(temps, float)
         temps = temps.reshape(len(t), self.k)
         self.samples += len(t)
+        if self.config is None:
+            self._pending.append((t, accel, gyro, temps))
+            self._pending_n += len(t)
+            if self._pending_n < DERIVE_SAMPLES:
+                return Windows.empty(self.k)
+            t, accel, gyro, temps = (np.concatenate(c) for c in zip(*self._pending))
+            self._pending = []
+            self._derive(t, accel, gyro)
         if self._carry is not None:
-            ct, ca, cg, ctm = self._carry
-            t, accel, gyro, temps = (np.concatenate([ct, t]), np.concatenate([ca, accel]),
-                                     np.concatenate([cg, gyro]), np.concatenate([ctm, temps]))
+            t, accel, gyro, temps = (np.concatenate([c, x]) for c, x in
+                                     zip(self._carry, (t, accel, gyro, temps)))
             self._carry = None
-        if len(t) == 0:
-            return Windows.empty(self.k)
-        if self._origin is None:
-            self._origin = t[0]
-        bid = np.floor((t - self._origin) / self.config.block_s).astype(np.int64)
-        last = bid[-1]
-        keep = bid == last
-        self._carry = (t[keep], accel[keep], gyro[keep], temps[keep])
-        done = ~keep
-        if np.any(done):
-            self._add_blocks(t[done], accel[done], gyro[done], temps[done], bid[done])
+        full = len(t) // self.block_n * self.block_n
+        self._carry = (t[full:], accel[full:], gyro[full:], temps[full:])
+        if full:
+            self._add_blocks(t[:full], accel[:full], gyro[:full], temps[:full])
         return self._classify(final=False)
 
     def finish(self):
         """Flush: the unfinished block and the open hold are closed (end of a log)."""
-        if self._carry is not None and len(self._carry[0]):
+        if self.config is None:
+            if self._pending_n < 2:
+                return Windows.empty(self.k)
+            t, a, g, tm = (np.concatenate(c) for c in zip(*self._pending))
+            self._pending = []
+            self._derive(t, a, g)
+            self._carry = (t, a, g, tm)
+        if self._carry is not None and len(self._carry[0]) >= max(3, self.block_n // 2):
             t, a, g, tm = self._carry
-            self._carry = None
-            bid = np.zeros(len(t), np.int64)
-            self._add_blocks(t, a, g, tm, bid)
+            self._add_blocks(t, a, g, tm, n=len(t))
+        self._carry = None
         return self._classify(final=True)
 
     def noise_floor(self):
         """Return (accel, gyro) per-sample variance floors summed over axes, or None."""
-        if len(self._var_a) < 4:
+        if len(self._var_a) < 4 or self.config is None:
             return None
+        if self._floor is not None and self._floor[0] == len(self._var_a) == self._n_blocks:
+            return self._floor[1]
         q = self.config.noise_quantile
-        fa = max(float(np.quantile(self._var_a, q)), self.config.min_accel_var)
-        fg = max(float(np.quantile(self._var_g, q)), self.config.min_gyro_var)
+        dof = 3 * (self.block_n - 1)
+        bias = float(chi2.ppf(q, dof) / dof)
+        fa = max(float(np.quantile(self._var_a, q)), bias * self._lsb_var[0],
+                 self.config.min_accel_var)
+        fg = max(float(np.quantile(self._var_g, q)), bias * self._lsb_var[1],
+                 self.config.min_gyro_var)
+        # cached until new blocks arrive (the node calls this on every message batch)
+        self._floor = (len(self._var_a), (fa, fg))
+        self._n_blocks = len(self._var_a)
         return fa, fg
+
+    def settings(self):
+        """Return the derived settings and measurements as a plain dict (or None)."""
+        if self.derived is None:
+            return None
+        out = dict(self.derived)
+        nf = self.noise_floor()
+        if nf is not None:
+            out['accel_noise_std'] = float(np.sqrt(nf[0] / 3))
+            out['gyro_noise_std'] = float(np.sqrt(nf[1] / 3))
+        return out
 
     def status(self):
         """Return a dict for progress reporting: still now, open-hold seconds, noise floor."""
         ob = self._open
-        still = self._still_mask(ob) if len(ob) else np.zeros(0, bool)
+        still = _bridge(self._score) if len(ob) else np.zeros(0, bool)
         run = 0.0
         if len(still) and still[-1]:
             i = len(still) - 1
@@ -166,90 +285,130 @@ class StationaryDetector:
                 'samples': self.samples}
 
     # ---------------------------------------------------------------- internal
-    def _add_blocks(self, t, accel, gyro, temps, bid):
-        starts = np.flatnonzero(np.r_[True, bid[1:] != bid[:-1]])
-        n = np.diff(np.r_[starts, len(t)])
+    def _derive(self, t, accel, gyro):
+        dt = np.diff(t)
+        dt = dt[dt > 0]
+        rate = 1.0 / float(np.median(dt)) if len(dt) else 1.0
+        qa, qg = quantisation_step(accel), quantisation_step(gyro)
+        self.config, self.block_n = self.requested.derive(rate, float(qa.max()),
+                                                          float(qg.max()))
+        self.config.validate()
+        self._lsb_var = (float(np.sum(qa ** 2)) / 12.0, float(np.sum(qg ** 2)) / 12.0)
+        c = self.config
+        self.derived = {'rate_hz': rate, 'block_samples': self.block_n,
+                        'accel_lsb': float(qa.max()), 'gyro_lsb': float(qg.max()),
+                        **{k: float(getattr(c, k)) for k in DERIVED},
+                        'mean_sigmas': c.mean_sigmas, 'rotation_dps': c.rotation_dps,
+                        'noise_quantile': c.noise_quantile,
+                        'given': sorted(k for k in DERIVED
+                                        if getattr(self.requested, k) not in (None, 0)
+                                        or (k == 'guard_s' and self.requested.guard_s == 0))}
+
+    def _add_blocks(self, t, accel, gyro, temps, n=None):
+        n = n or self.block_n
+        m = len(t) // n
         blk = _Blocks(self.k)
-        blk.t0 = t[starts]
-        blk.t1 = t[np.r_[starts[1:], len(t)] - 1]
-        blk.n = n
-        idx = np.repeat(np.arange(len(starts)), n)
-
-        def mean_var(x):
-            m = np.add.reduceat(x, starts, axis=0) / n[:, None]
-            v = np.add.reduceat((x - m[idx]) ** 2, starts, axis=0) / np.maximum(n - 1, 1)[:, None]
-            return m, v
-
-        blk.am, blk.av = mean_var(accel)
-        blk.gm, blk.gv = mean_var(gyro)
-        blk.tm = (np.add.reduceat(temps, starts, axis=0) / n[:, None] if self.k
-                  else np.zeros((len(starts), 0)))
-        blk.tt = np.add.reduceat(t, starts) / n
-        ok = n >= 3
-        blk = blk.take(ok)
+        tt = t.reshape(m, n)
+        blk.t0, blk.t1, blk.tt = tt[:, 0], tt[:, -1], tt.mean(1)
+        blk.n = np.full(m, n)
+        a, g = accel.reshape(m, n, 3), gyro.reshape(m, n, 3)
+        blk.am, blk.av = a.mean(1), a.var(1, ddof=1)
+        blk.gm, blk.gv = g.mean(1), g.var(1, ddof=1)
+        blk.tm = temps.reshape(m, n, self.k).mean(1)
+        self._floor = None
         self._var_a.extend(blk.av.sum(1).tolist())
         self._var_g.extend(blk.gv.sum(1).tolist())
+        if self._log_t0 is None:
+            self._log_t0 = blk.t0[0]
         self._open.append(blk)
 
-    def _still_mask(self, b):
+    def _scores(self, b, start):
+        """Motion scores (< 1: still) of blocks ``start:`` of ``b`` (see the module doc).
+
+        The jump test of block ``start - 1`` (cached) against the first new one is folded in.
+        """
         nf = self.noise_floor()
         if nf is None:
-            return np.zeros(len(b), bool)
-        fa, fg = nf
+            self._score[start:] = np.inf
+            return
         c = self.config
-        va, vg = b.av.sum(1), b.gv.sum(1)
-        still = (va < c.accel_factor * fa) & (vg < c.gyro_factor * fg)
-        # mean continuity between neighbouring blocks: squared difference against its
-        # standard error (2 sigma^2 / n per axis, summed)
-        n = np.maximum(b.n, 1)
-        da = np.sum(np.diff(b.am, axis=0) ** 2, axis=1)
-        dg = np.sum(np.diff(b.gm, axis=0) ** 2, axis=1)
-        se_a = c.accel_factor * fa * (1.0 / n[1:] + 1.0 / n[:-1])
-        se_g = c.gyro_factor * fg * (1.0 / n[1:] + 1.0 / n[:-1])
-        jump = (da > c.mean_sigmas ** 2 * se_a) | (dg > c.mean_sigmas ** 2 * se_g)
-        # a jump breaks stillness on both sides of it
-        still[1:] &= ~jump
-        still[:-1] &= ~jump
-        return still
+        fa, fg = nf
+        w_rot = np.radians(c.rotation_dps)
+        thr_a, thr_g = c.accel_factor * fa, max(c.gyro_factor * fg, w_rot ** 2)
+        sl = slice(start, None)
+        va, vg = b.av[sl].sum(1), b.gv[sl].sum(1)
+        quiet = (va < thr_a) & (vg < thr_g)
+        self._bias.extend(b.gm[sl][quiet])
+        bias = np.median(np.asarray(self._bias), 0) if len(self._bias) else np.zeros(3)
+        rot = np.sum((b.gm[sl] - bias) ** 2, 1) / w_rot ** 2
+        self._score[sl] = np.maximum.reduce([va / thr_a, vg / thr_g, rot])
+        # mean continuity between neighbours: a jump marks both blocks as moving
+        lo = max(start - 1, 0)
+        if len(b) - lo < 2:
+            return
+        n = np.maximum(b.n[lo:], 1)
+        da = np.sum(np.diff(b.am[lo:], axis=0) ** 2, axis=1)
+        g = float(np.median(np.linalg.norm(b.am[lo:], axis=1)))
+        dtb = np.diff(b.tt[lo:])
+        se = c.mean_sigmas ** 2 * thr_a * (1.0 / n[1:] + 1.0 / n[:-1])
+        jump = da / np.maximum(se, (g * w_rot * dtb) ** 2)
+        jump[dtb > 3.0 * self.block_n / self.derived['rate_hz']] = np.inf   # a gap
+        idx = lo + np.arange(len(jump))
+        self._score[idx] = np.maximum(self._score[idx], jump)
+        self._score[idx + 1] = np.maximum(self._score[idx + 1], jump)
 
     def _classify(self, final):
         b = self._open
         if len(b) == 0:
             return Windows.empty(self.k)
-        still = self._still_mask(b)
-        # runs of still blocks: [start, end)
+        if len(self._var_a) < MATURE_BLOCKS:
+            # the noise floor is still settling: score the whole open pool again
+            self._score = np.zeros(0)
+            self._bias.clear()
+        if len(self._score) < len(b):
+            start = len(self._score)
+            self._score = np.r_[self._score, np.zeros(len(b) - start)]
+            self._scores(b, start)
+        still = _bridge(self._score)
         edges = np.diff(np.r_[0, still.astype(int), 0])
         run_starts = np.flatnonzero(edges == 1)
         run_ends = np.flatnonzero(edges == -1)
         out = []
         consumed = 0
         for s, e in zip(run_starts, run_ends):
-            closed = e < len(b) or final
-            if not closed:
+            if not (e < len(b) or final):
                 break
-            out.append(self._make_hold(b.take(slice(s, e))))
+            # no guard where the log starts or ends: no pose change borders the run there
+            edge = (s == 0 and b.t0[0] == self._log_t0, final and e == len(b))
+            out.append(self._make_hold(b.take(slice(s, e)), self._score[s:e], edge))
             consumed = e
         if final:
             consumed = len(b)
         elif not (len(run_starts) and run_ends[-1] == len(b)):
-            # nothing open: drop everything classified (keep the last block for continuity)
-            consumed = max(consumed, len(b) - 1)
+            consumed = max(consumed, len(b) - 1)   # keep the last block for continuity
         else:
             consumed = max(consumed, run_starts[-1])
         if consumed:
             self._open = b.take(slice(consumed, None))
+            self._score = self._score[consumed:]
         parts = [w for w in out if w is not None]
         return Windows.concat(parts) if parts else Windows.empty(self.k)
 
-    def _make_hold(self, b):
+    def _make_hold(self, b, score, edge=(False, False)):
         c = self.config
         if len(b) == 0:
             return None
-        t_lo = b.t0[0] + c.guard_s
-        t_hi = b.t1[-1] - c.guard_s
-        keep = (b.t0 >= t_lo) & (b.t1 <= t_hi)
+        guard = c.guard_s
+        if 'guard_s' not in self.derived['given']:
+            # derived guard: grows with the hold (slow tails of a pose change) up to GUARD_MAX_S
+            guard = min(max(guard, GUARD_FRACTION * (b.t1[-1] - b.t0[0])),
+                        max(guard, GUARD_MAX_S))
+        t_lo = b.t0[0] + (0.0 if edge[0] else guard)
+        t_hi = b.t1[-1] - (0.0 if edge[1] else guard)
+        keep = (b.t0 >= t_lo - 1e-9) & (b.t1 <= t_hi + 1e-9)
         b = b.take(keep)
-        if len(b) == 0 or b.t1[-1] - b.t0[0] < c.min_hold_s:
+        score = score[keep]
+        if len(b) == 0 or b.t1[-1] - b.t0[0] < c.min_hold_s - 1e-9:
             return None
         hold = self._next_hold
         self._next_hold += 1
@@ -273,11 +432,38 @@ class StationaryDetector:
                 if e - s >= 2:
                     tt = b.tt[s:e] - b.tt[s:e].mean()
                     rate[j] = (tt @ (b.tm[s:e] - b.tm[s:e].mean(0))) / max(tt @ tt, 1e-12)
+        mean_a = np.average(b.am, 0, b.n)
+        self.holds.append({'hold': hold, 'start': float(b.t0[0]),
+                           'duration': float(b.t1[-1] - b.t0[0]), 'face': face_of(mean_a),
+                           'tilt_deg': tilt_deg(mean_a),
+                           'stillness': float(np.clip(1.0 - np.quantile(score, 0.95), 0, 1))})
         return Windows(
             hold=np.full(m, hold, int),
             t0=b.t0[starts], t1=b.t1[np.r_[starts[1:], len(b)] - 1], n=n.astype(int),
             accel=wmean(b.am), gyro=wmean(b.gm),
             accel_var=wmean(b.av), gyro_var=wmean(b.gv), temp=temp, temp_rate=rate)
+
+
+def _bridge(score):
+    """Return still = score < 1, with short marginal runs between still blocks bridged.
+
+    A run of at most ``BRIDGE_BLOCKS`` blocks scoring below ``BRIDGE_SCORE`` with still
+    blocks on both sides is a false alarm of the block test (heavy-tailed or coarsely
+    quantised noise; over an hour of blocks a few are expected), not motion.
+    """
+    still = score < 1.0
+    edges = np.diff(np.r_[0, (~still).astype(int), 0])
+    for s, e in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)):
+        if (s > 0 and e < len(score) and e - s <= BRIDGE_BLOCKS
+                and np.max(score[s:e]) < BRIDGE_SCORE):
+            still[s:e] = True
+    return still
+
+
+def tilt_deg(accel_mean):
+    """Return the angle (deg) between the gravity-up direction and the nearest sensor axis."""
+    u = np.abs(np.asarray(accel_mean, float))
+    return float(np.degrees(np.arccos(np.clip(u.max() / np.linalg.norm(u), -1.0, 1.0))))
 
 
 def detect(chunks, config=None, n_inputs=0):
@@ -288,3 +474,36 @@ def detect(chunks, config=None, n_inputs=0):
         parts.append(det.update(ch.imu.t, ch.imu.accel, ch.imu.gyro, ch.temps))
     parts.append(det.finish())
     return Windows.concat(parts) if any(len(p) for p in parts) else Windows.empty(n_inputs)
+
+
+def format_settings(settings):
+    """Render derived detector settings (``StationaryDetector.settings``) in one line."""
+    if not settings:
+        return 'detector: no data'
+    s = settings
+    given = set(s.get('given', []))
+
+    def mark(k):
+        return '' if k in given else '*'
+
+    pairs = (('accel', 'accel_lsb'), ('gyro', 'gyro_lsb'))
+    lsb = ', '.join(f'{name} LSB {s[k]:.3g}' for name, k in pairs if s.get(k))
+    noise = ''
+    if 'accel_noise_std' in s:
+        noise = (f', noise floor {s["accel_noise_std"]:.3g} m/s^2 / '
+                 f'{s["gyro_noise_std"]:.3g} rad/s')
+    return (f'detector ({s["rate_hz"]:.4g} Hz{", " + lsb if lsb else ""}{noise}): block '
+            f'{s["block_samples"]} samples = {s["block_s"]:.3g} s{mark("block_s")}, min hold '
+            f'{s["min_hold_s"]:.3g} s{mark("min_hold_s")}, guard {s["guard_s"]:.3g} s'
+            f'{mark("guard_s")}, window {s["window_s"]:.3g} s{mark("window_s")}, variance '
+            f'factors {s["accel_factor"]:.3g}{mark("accel_factor")}/{s["gyro_factor"]:.3g}'
+            f'{mark("gyro_factor")}, rotation {s["rotation_dps"]:g} deg/s  (* derived)')
+
+
+def format_holds(holds):
+    """Render hold records (``StationaryDetector.holds``) as a table for people."""
+    out = ['  hold   start [s]  duration [s]  face     tilt [deg]  stillness']
+    for h in holds:
+        out.append(f'  {h["hold"]:4d}  {h["start"]:10.2f}  {h["duration"]:12.2f}  '
+                   f'{h["face"]:7s}  {h["tilt_deg"]:10.1f}  {h["stillness"]:9.2f}')
+    return '\n'.join(out)

@@ -128,7 +128,9 @@ class RawChunk:
     imu: ImuColumns
     imu_log_time_ns: np.ndarray
     temps: dict[str, TemperatureColumns]
-    imu_raw: list[bytes] | None = None
+    #: the Imu payloads when asked for: a list of bytes, or from the bulk MCAP reader an
+    #: (n, size) uint8 array when every payload of the chunk has one size
+    imu_raw: list[bytes] | np.ndarray | None = None
 
     def __len__(self):
         return len(self.imu)
@@ -241,6 +243,77 @@ class _McapLibSource:
         self._file.close()
 
 
+_MCAP_MAGIC = b'\x89MCAP0\r\n'
+
+
+def _explain_unreadable(p: Path, kind: str, err: Exception) -> None:
+    """Raise a LogError naming the cause when a log is unreadable for a known reason.
+
+    Known: a non-UTF-8 metadata.yaml, and an MCAP file cut short (no end magic). Returns
+    without raising otherwise.
+    """
+    if isinstance(err, UnicodeDecodeError) or 'codec can\'t decode' in str(err):
+        name = p / 'metadata.yaml' if p.is_dir() else p
+        raise LogError(f'{name}: cannot read it: not UTF-8 text ({err}); the {kind} is '
+                       'damaged: restore metadata.yaml, or regenerate it with '
+                       '`ros2 bag reindex`.') from None
+    mcaps = ([p] if p.suffix == '.mcap' else
+             sorted(p.glob('*.mcap')) if p.is_dir() else [])
+    for f in mcaps:
+        try:
+            with open(f, 'rb') as fh:
+                head = fh.read(8)
+                size = fh.seek(0, 2)
+                fh.seek(max(size - 8, 0))
+                tail = fh.read(8)
+        except OSError:
+            continue
+        if head != _MCAP_MAGIC:
+            raise LogError(f'{f}: cannot read it: not an MCAP file (it does not start with the '
+                           'MCAP magic bytes); is it the right file?') from None
+        if tail != _MCAP_MAGIC:
+            raise LogError(f'{f}: cannot read it: the MCAP file is truncated ({size} bytes, '
+                           'no end magic: the recording was cut short or the copy is '
+                           'incomplete); recover '
+                           f'the complete messages with `mcap recover {f} -o recovered.mcap` '
+                           '(mcap CLI) and use recovered.mcap.') from None
+
+
+def _bulk_source(p: Path, src):
+    """Read messages with the bulk MCAP reader when the log is one indexed .mcap file."""
+    from .mcap_source import McapBulkSource
+
+    paths = [p]
+    if p.is_dir():  # rosbag2 directory: rosbags' storage files (decompressed if 'file' mode)
+        bag = getattr(src, '_reader', None)
+        if bag is None or getattr(bag, 'compression_mode', None) == 'message':
+            return src
+        paths = [Path(s.path) for s in getattr(bag.storage, 'storages', [])]
+    if len(paths) != 1 or paths[0].suffix != '.mcap':
+        return src
+    try:
+        return McapBulkSource.open(paths[0], src, LogError) or src
+    except ValueError as err:
+        src.close()
+        raise LogError(f'{err}') from err
+
+
+def _bulk_chunks(reader, chunker, batches, on_batch=None) -> Iterator[RawChunk]:
+    """Turn bulk MCAP batches into RawChunks (the cut points of ``_Chunker``)."""
+    from .mcap_source import chunk_stream
+
+    src = reader._src
+    try:
+        for imu, times, temps, raws in chunk_stream(
+                batches, chunker.imu_topic, src.channel_ids({chunker.imu_topic}),
+                chunker.temperature_topics,
+                [src.channel_ids({t}) for t in chunker.temperature_topics],
+                chunker.chunk_size, chunker.keep_raw, on_batch):
+            yield RawChunk(imu, times, temps, raws)
+    except ValueError as err:
+        raise LogError(f'{err}') from err
+
+
 def open_log(path) -> LogReader:
     """Open a rosbag2 directory, a bare ``.mcap`` or a bare ``.db3`` file for reading."""
     return LogReader(path)
@@ -279,6 +352,7 @@ class LogReader:
         except LogError:
             raise
         except Exception as err:  # rosbags raises ReaderError, KeyError, OSError, ...
+            _explain_unreadable(p, kind, err)
             if p.suffix != '.mcap':
                 raise LogError(f'{p}: cannot read this {kind}: {err}; check that it is a '
                                'complete ROS 2 bag (try `ros2 bag info`).') from err
@@ -289,6 +363,7 @@ class LogReader:
             except Exception as err2:
                 raise LogError(f'{p}: cannot read this MCAP file: {err}; {err2}; check that '
                                'it is a complete ROS 2 MCAP file (try `mcap info`).') from err2
+        self._src = _bulk_source(p, self._src)
         if kind == 'rosbag2 directory':
             try:
                 meta = yaml.safe_load((p / 'metadata.yaml').read_text())
@@ -387,7 +462,7 @@ class LogReader:
         if topics is not None:
             wanted = set([topics] if isinstance(topics, str) else topics)
             self.check_topics(wanted)
-        return self._src.messages(wanted)
+        return _guarded(self.path, self._src.messages(wanted))
 
     def stream(self, imu_topic: str, temperature_topics: Sequence[str] = (),
                chunk_size: int = 20000, keep_raw: bool = False) -> Iterator[RawChunk]:
@@ -397,7 +472,11 @@ class LogReader:
         since the previous chunk; memory stays bounded by ``chunk_size``.
         """
         chunker = _Chunker(self, imu_topic, temperature_topics, chunk_size, keep_raw)
-        yield from _chunked(chunker, self._src.messages(chunker.topics))
+        if hasattr(self._src, 'batches'):
+            yield from _bulk_chunks(self, chunker,
+                                    _guarded(self.path, self._src.batches(chunker.topics)))
+            return
+        yield from _chunked(chunker, _guarded(self.path, self._src.messages(chunker.topics)))
 
     def info(self, topics: Iterable[str] | None = None) -> LogInfo:
         """Scan the log once and summarise it (counts, log times, header-stamp rates, degC).
@@ -414,10 +493,16 @@ class LogReader:
         for c in self._src.conns:
             if wanted is not None and c.topic not in wanted:
                 stats[c.topic].stats.count = c.count
-        for topic, _, t, raw in self._src.messages(wanted):
-            stats[topic].add(t, raw)
-        result = LogInfo(str(self.path), self.storage, self.message_count, self.start_ns,
-                         self.end_ns, {k: v.finish() for k, v in stats.items()})
+        try:
+            for topic, _, t, raw in _guarded(self.path, self._src.messages(wanted)):
+                stats[topic].add(t, raw)
+            result = LogInfo(str(self.path), self.storage, self.message_count, self.start_ns,
+                             self.end_ns, {k: v.finish() for k, v in stats.items()})
+        except LogError:
+            raise
+        except Exception as err:  # a damaged message body (CDR decode of stamps)
+            raise LogError(f'{self.path}: a message cannot be decoded ({err.__class__.__name__}: '
+                           f'{err}); the log is damaged.') from err
         if wanted is None:
             self._scan_cache = result
         return result
@@ -630,14 +715,14 @@ class LogWriter:
         self._types: dict[str, str] = {}
         self._closed = False
         if self.bare:
-            from mcap.writer import CompressionType, Writer
+            from .mcap_write import McapBulkWriter
 
             self._file = open(p, 'xb')
-            comp = CompressionType.ZSTD if compression == 'zstd' else CompressionType.NONE
-            self._mcap = Writer(self._file, compression=comp)
-            self._mcap.start(profile='ros2', library='thermal_imu_calib')
+            self._mcap = McapBulkWriter(self._file, profile='ros2', library='thermal_imu_calib',
+                                        compression='zstd' if compression == 'zstd' else '')
             self._schemas: dict[str, int] = {}
             self._seq: dict[str, int] = {}
+            self._pending: list = []
         else:
             from rosbags.rosbag2 import Writer
             from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
@@ -695,11 +780,10 @@ class LogWriter:
         if self.bare:
             if msgtype not in self._schemas:
                 enc = 'ros2idl' if msgdef.startswith(_IDL_PREFIX) else 'ros2msg'
-                self._schemas[msgtype] = self._mcap.register_schema(msgtype, enc,
-                                                                    msgdef.encode())
+                self._schemas[msgtype] = self._mcap.add_schema(msgtype, enc, msgdef.encode())
             meta = {'offered_qos_profiles': _qos_text(qos), 'topic_type_hash': type_hash}
-            self._topics[name] = self._mcap.register_channel(name, 'cdr',
-                                                             self._schemas[msgtype], meta)
+            self._topics[name] = self._mcap.add_channel(name, 'cdr', self._schemas[msgtype],
+                                                        meta)
             self._seq[name] = 0
         else:
             self._topics[name] = self._bag.add_connection(
@@ -719,29 +803,51 @@ class LogWriter:
         t = int(log_time_ns)
         if self.bare:
             self._seq[topic] += 1
-            self._mcap.add_message(handle, log_time=t, data=raw, publish_time=t,
-                                   sequence=self._seq[topic] & 0xFFFFFFFF)
+            self._pending.append((handle, t, raw, self._seq[topic]))
+            if len(self._pending) >= 4096:
+                self._flush_pending()
         else:
             self._bag.write(handle, t, raw)
 
     def write_many(self, topic: str, log_times: Iterable[int], raws: Iterable[bytes]) -> None:
-        """Write messages pairwise from ``log_times`` and ``raws``."""
+        """Write messages pairwise from ``log_times`` and ``raws``.
+
+        ``raws`` is a sequence of bytes or an (n, size) uint8 array of equal-size payloads.
+        """
         log_times = np.asarray(log_times, dtype=np.int64).tolist()
-        raws = list(raws)
+        packed = isinstance(raws, np.ndarray) and raws.ndim == 2  # (n, size) uint8 payloads
+        raws = raws if packed and self.bare else [r.tobytes() for r in raws] if packed \
+            else list(raws)
         if len(log_times) != len(raws):
             raise LogError(f'write_many got {len(log_times)} log times for {len(raws)} '
                            'messages; pass one log time per message.')
         handle = self._handle(topic)
         if self.bare:
-            add, seq = self._mcap.add_message, self._seq[topic]
-            for t, raw in zip(log_times, raws):
-                seq += 1
-                add(handle, log_time=t, data=raw, publish_time=t, sequence=seq & 0xFFFFFFFF)
-            self._seq[topic] = seq
+            self._flush_pending()
+            seq = self._seq[topic]
+            self._mcap.add_messages(handle, log_times, raws,
+                                    sequence=np.arange(seq + 1, seq + 1 + len(raws)))
+            self._seq[topic] = seq + len(raws)
+        elif self.storage == 'sqlite3' and hasattr(getattr(self._bag, 'storage', None),
+                                                   'cursor') and log_times:
+            _sqlite_write_many(self._bag, handle, log_times, raws)
         else:
             write = self._bag.write
             for t, raw in zip(log_times, raws):
                 write(handle, t, raw)
+
+    def _flush_pending(self) -> None:
+        """Hand messages buffered by ``write`` to the bulk writer, in the order written."""
+        if self._pending:
+            cid, t, raw, seq = zip(*self._pending)
+            self._pending = []
+            self._mcap.add_messages(np.array(cid), np.array(t, np.int64), raw,
+                                    sequence=np.array(seq, np.int64))
+
+    def copy_batch(self, batch, channel_map) -> None:
+        """Copy bulk-read MCAP records verbatim (bare .mcap output; input -> output ids)."""
+        self._flush_pending()
+        self._mcap.copy_batch(batch, channel_map)
 
     def close(self) -> None:
         """Finalise the output (index, summary, metadata.yaml)."""
@@ -750,6 +856,7 @@ class LogWriter:
         self._closed = True
         if self.bare:
             try:
+                self._flush_pending()
                 self._mcap.finish()
             finally:
                 self._file.close()
@@ -765,6 +872,21 @@ class LogWriter:
             self._file.close()
         else:
             self._bag.abort()
+
+
+def _sqlite_write_many(bag, conn, log_times: list, raws: list) -> None:
+    """One ``executemany`` into rosbags' open sqlite3 transaction (what ``write`` does)."""
+    from rosbags.rosbag2.enums import CompressionMode
+
+    if bag.compression_mode == CompressionMode.MESSAGE:
+        from rosbags.rosbag2.writer import zstd
+        raws = [zstd.compress(r) for r in raws]
+    bag.storage.cursor.executemany(
+        'INSERT INTO messages (topic_id, timestamp, data) VALUES(?, ?, ?)',
+        zip([conn.id] * len(raws), log_times, raws))
+    bag.counts[conn.id] += len(raws)
+    bag.min_timestamp = min(min(log_times), bag.min_timestamp)
+    bag.max_timestamp = max(max(log_times), bag.max_timestamp)
 
 
 def _remove_log(p: Path) -> None:
@@ -893,6 +1015,16 @@ def copy_and_stream(reader: LogReader, writer: LogWriter, imu_topic: str,
         writer.add_topic(c.topic, c.msgtype, msgdef=c.msgdef or None,
                          type_hash=c.type_hash or None, qos=c.qos)
         copied.add(c.topic)
+    src = reader._src
+    if hasattr(src, 'batches') and writer.bare:
+        ids = src.channel_ids(copied)
+        cmap = {int(i): writer._topics[src.topic_of(int(i))] for i in ids}
+
+        def copy_batch(batch):
+            writer.copy_batch(batch.take(np.isin(batch.channel, ids)), cmap)
+        yield from _bulk_chunks(reader, chunker, _guarded(reader.path, src.batches(None)),
+                                copy_batch)
+        return
     write = writer.write
 
     def copy(messages):
@@ -901,7 +1033,23 @@ def copy_and_stream(reader: LogReader, writer: LogWriter, imu_topic: str,
                 write(msg[0], msg[2], msg[3])
             yield msg
 
-    yield from _chunked(chunker, copy(reader._src.messages(None)))
+    yield from _chunked(chunker, copy(_guarded(reader.path, reader._src.messages(None))))
+
+
+def _guarded(path, messages):
+    """Yield from a source's message iterator, turning its failures into LogError.
+
+    A damaged chunk (checksum, compression, sqlite page) shows only when it is read.
+    """
+    try:
+        yield from messages
+    except LogError:
+        raise
+    except Exception as err:  # rosbags ReaderError, mcap errors, sqlite3.DatabaseError, ...
+        raise LogError(f'{path}: the log is damaged: reading its messages failed '
+                       f'({err.__class__.__name__}: {str(err)[:200]}); recover what is '
+                       'readable (`mcap recover` for MCAP, `ros2 bag reindex` for a bag) '
+                       'and try again.') from err
 
 
 def _chunked(chunker, messages):

@@ -24,6 +24,7 @@ from __future__ import annotations
 from collections.abc import Iterator, Sequence
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
 from .columns import ImuColumns, TemperatureColumns
 
@@ -86,16 +87,43 @@ def _groups(raws: Sequence[bytes], fields: Sequence[tuple[str, int]], what: str
     if n == 0:
         return
     sizes = np.fromiter(map(len, raws), np.int64, n)
+
+    def rows_u8(rows, size):
+        buf = b''.join([raws[i] for i in rows]) if len(rows) < n else b''.join(raws)
+        return np.frombuffer(buf, np.uint8).reshape(len(rows), size)
+    yield from _sized_groups(sizes, rows_u8, fields, what)
+
+
+def _packed_groups(buf: np.ndarray, starts, lengths, fields, what):
+    """Like :func:`_groups` for payloads packed in one uint8 buffer (no bytes objects).
+
+    Payload ``i`` is ``buf[starts[i]:starts[i] + lengths[i]]``; rows of equal size are
+    gathered with one fancy index over a sliding-window view (a copy of just those bytes).
+    """
+    starts = np.asarray(starts, dtype=np.int64)
+    sizes = np.asarray(lengths, dtype=np.int64)
+    if len(sizes) == 0:
+        return
+
+    def rows_u8(rows, size):
+        if size == 0 or len(buf) < size:
+            return np.zeros((len(rows), size), np.uint8)
+        return sliding_window_view(buf, size)[starts[rows]]
+    yield from _sized_groups(sizes, rows_u8, fields, what)
+
+
+def _sized_groups(sizes, rows_u8, fields, what):
+    """Yield ``(rows, records, u8, body)`` per layout group; ``rows_u8(rows, size)`` gathers."""
     floats = _payload_size(fields)
-    for size in np.unique(sizes):
+    one = sizes.min() == sizes.max()
+    for size in (sizes[:1] if one else np.unique(sizes)):
         size = int(size)
-        rows = np.flatnonzero(sizes == size)
+        rows = np.arange(len(sizes)) if one else np.flatnonzero(sizes == size)
         if size < _HDR + 12 + floats:
             raise ValueError(
                 f'{what} message {int(rows[0])} is only {size} bytes, too short to be a '
                 f'{what}; check that the topic really carries {what} messages.')
-        buf = b''.join([raws[i] for i in rows]) if len(rows) < n else b''.join(raws)
-        u8 = np.frombuffer(buf, np.uint8).reshape(len(rows), size)
+        u8 = rows_u8(rows, size)
         encap = u8[:, 1].astype(np.uint16) | (u8[:, 0].astype(np.uint16) << 8)
         if np.any(encap != 1):
             bad = int(encap[np.flatnonzero(encap != 1)[0]])
@@ -110,9 +138,10 @@ def _groups(raws: Sequence[bytes], fields: Sequence[tuple[str, int]], what: str
             raise ValueError(
                 f'{what} message {int(rows[np.flatnonzero(bad)[0]])} has a frame_id length field '
                 f'that does not fit in its {size} bytes; the data is corrupt or not a {what}.')
-        for b in np.unique(body):
-            sel = body == b
-            sub = u8 if sel.all() else u8[sel]
+        same = body.min() == body.max()
+        for b in (body[:1] if same else np.unique(body)):
+            sel = slice(None) if same else body == b
+            sub = u8 if same else u8[sel]
             records = sub.view(_layout(fields, int(b), size)).reshape(-1)
             yield rows[sel], records, sub, int(b)
 
@@ -144,12 +173,24 @@ def decode_imu(raws: Sequence[bytes]) -> ImuColumns:
     ``frame_id`` is the common frame of all messages, or '' when they differ.
     Raises ValueError for big-endian or malformed payloads.
     """
-    n = len(raws)
+    return _imu_columns(len(raws), _groups(raws, _IMU_FIELDS, 'Imu'))
+
+
+def decode_imu_packed(buf: np.ndarray, starts, lengths) -> ImuColumns:
+    """Decode Imu payloads packed in the uint8 array ``buf`` (``buf[starts[i]:+lengths[i]]``).
+
+    Same result and checks as :func:`decode_imu`, without one bytes object per message
+    (what the bulk MCAP reader hands over).
+    """
+    return _imu_columns(len(lengths), _packed_groups(buf, starts, lengths, _IMU_FIELDS, 'Imu'))
+
+
+def _imu_columns(n: int, groups) -> ImuColumns:
     stamp = np.empty(n, np.int64)
     accel = np.empty((n, 3))
     gyro = np.empty((n, 3))
     frame = False
-    for rows, rec, u8, _ in _groups(raws, _IMU_FIELDS, 'Imu'):
+    for rows, rec, u8, _ in groups:
         stamp[rows] = _stamps(rec)
         accel[rows] = rec['linear_acceleration']
         gyro[rows] = rec['angular_velocity']
@@ -205,6 +246,25 @@ def patch_imu(raws: Sequence[bytes], accel, gyro) -> list[bytes]:
     n = len(raws)
     return _patch(raws, {'linear_acceleration': _as_rows(accel, n, 3, 'accel'),
                          'angular_velocity': _as_rows(gyro, n, 3, 'gyro')}, 'Imu')
+
+
+def patch_imu_rows(u8: np.ndarray, accel, gyro) -> np.ndarray:
+    """:func:`patch_imu` for payloads of one size given as an (n, size) uint8 array.
+
+    Returns a new (n, size) array; the input is not modified.
+    """
+    n, size = u8.shape
+    accel = _as_rows(accel, n, 3, 'accel')
+    gyro = _as_rows(gyro, n, 3, 'gyro')
+    out = np.array(u8)
+    for rows, _, sub, body in _sized_groups(np.full(n, size), lambda r, s: u8 if len(r) == n
+                                            else u8[r], _IMU_FIELDS, 'Imu'):
+        work = np.array(sub)
+        rec = work.view(_layout(_IMU_FIELDS, body, size)).reshape(-1)
+        rec['linear_acceleration'] = accel[rows]
+        rec['angular_velocity'] = gyro[rows]
+        out[rows] = work
+    return out
 
 
 def covariance9(cov, n: int, name: str = 'covariance') -> np.ndarray:
@@ -294,11 +354,20 @@ def decode_temperature(raws: Sequence[bytes]) -> TemperatureColumns:
     The value is degC for a temperature, or a proxy in its declared unit; any type of
     ``SCALAR_MSGTYPES`` has the same layout and decodes the same way.
     """
-    n = len(raws)
+    return _temperature_columns(len(raws), _groups(raws, _TEMPERATURE_FIELDS, 'Temperature'))
+
+
+def decode_temperature_packed(buf: np.ndarray, starts, lengths) -> TemperatureColumns:
+    """Decode packed Temperature payloads (see :func:`decode_imu_packed`)."""
+    return _temperature_columns(len(lengths), _packed_groups(
+        buf, starts, lengths, _TEMPERATURE_FIELDS, 'Temperature'))
+
+
+def _temperature_columns(n: int, groups) -> TemperatureColumns:
     stamp = np.empty(n, np.int64)
     temp = np.empty(n)
     frame = False
-    for rows, rec, u8, _ in _groups(raws, _TEMPERATURE_FIELDS, 'Temperature'):
+    for rows, rec, u8, _ in groups:
         stamp[rows] = _stamps(rec)
         temp[rows] = rec['temperature']
         frame = _merge_frame(frame, _frame_id(u8, rec['frame_len']))

@@ -192,3 +192,24 @@ def read_static_intervals(path):
     if arr.shape[0] != 2:
         raise CsvFormatError(f'{path}: expected two rows (starts, ends), got {arr.shape[0]}')
     return np.stack([arr[0], arr[1]], axis=1).astype(np.int64)
+
+
+def read_bmi270_rows(path):
+    """Return the (n, 7) rows of a BMI270 soak log (Ganesh999-tech, PuTTY capture).
+
+    Columns: die temperature degC, accel x, y, z in g/4, gyro x, y, z deg/s (see the
+    fixture's SOURCE.md); lines that are not 7 floats (banner, serial garbage) are skipped.
+    Returns (rows, bytes, lines) so a caller can estimate the UART-limited line rate.
+    """
+    rows, nbytes, nlines = [], 0, 0
+    with open(os.fspath(path), errors='replace') as f:   # serial garbage is not UTF-8
+        for line in f:
+            nbytes += len(line) + 1          # PuTTY lines end in CR LF
+            nlines += 1
+            vals = line.strip().split(',')
+            if len(vals) == 7:
+                try:
+                    rows.append([float(v) for v in vals])
+                except ValueError:
+                    pass
+    return np.asarray(rows).reshape(-1, 7), nbytes, nlines

@@ -21,6 +21,8 @@ import io
 import json
 import os
 import shutil
+import subprocess
+import sys
 import tempfile
 import threading
 import time
@@ -42,6 +44,7 @@ from ..estimation.gyro_fit import (load_transitions, MotionCollector, offset_hol
                                    save_transitions)
 from ..estimation.segments import FACE_NAMES, Windows
 from ..estimation.stationary import DetectorConfig
+from ..formats import load_prior
 from ..gravity import resolve_gravity
 from ..io.align import StreamAligner
 from ..io.columns import ImuColumns, TemperatureColumns
@@ -50,17 +53,19 @@ NODE_NAME = 'thermal_imu_calibrator'
 
 #: DetectorConfig fields exposed as parameters: (default, lo, hi, description)
 DETECTOR_PARAMS = {
-    'block_s': (0.5, 0.01, 10.0, 'Block length (s) of the stillness test.'),
-    'window_s': (5.0, 0.05, 600.0, 'Length (s) of the windows a hold is cut into.'),
-    'min_hold_s': (10.0, 0.1, 36000.0, 'Minimum segment length (s): shorter holds (after the '
-                                       'guards) are discarded.'),
-    'guard_s': (1.0, 0.0, 60.0, 'Seconds trimmed from both ends of each hold.'),
-    'accel_factor': (4.0, 1.0, 1000.0, 'A block is still when its accel variance is below this '
-                                       'factor times the noise floor.'),
-    'gyro_factor': (4.0, 1.0, 1000.0, 'Same for the gyro variance.'),
+    'block_s': (0.0, 0.0, 60.0, 'Block length (s) of the stillness test; 0: derived from the '
+                                'rate (~0.1 s, >= 5 samples).'),
+    'window_s': (0.0, 0.0, 3600.0, 'Length (s) of the windows a hold is cut into; 0: derived.'),
+    'min_hold_s': (0.0, 0.0, 36000.0, 'Minimum segment length (s): shorter holds (after the '
+                                      'guards) are discarded; 0: derived (>= 1 s).'),
+    'guard_s': (-1.0, -1.0, 600.0, 'Seconds trimmed from both ends of each hold; -1: derived.'),
+    'accel_factor': (0.0, 0.0, 1e4, 'A block is still when its accel variance is below this '
+                                    'factor times the noise floor; 0: derived (chi-square).'),
+    'gyro_factor': (0.0, 0.0, 1e4, 'Same for the gyro variance; 0: derived.'),
     'mean_sigmas': (6.0, 1.0, 1000.0, 'Neighbouring block means may differ by this many '
                                       'standard errors in a hold.'),
     'noise_quantile': (0.05, 0.001, 0.9, 'Quantile of block variances taken as noise floor.'),
+    'rotation_dps': (3.0, 0.001, 100.0, 'Rotation rate (deg/s) still counted as held (tremor).'),
 }
 
 
@@ -118,6 +123,9 @@ class CalibratorNode(Node):
                                     'T0) the field estimate refines; empty: none.')
         det = {name: p.declare(name, d, desc, lo=lo, hi=hi, **ro)
                for name, (d, lo, hi, desc) in DETECTOR_PARAMS.items()}
+        # 0 (-1 for the guard) means: derived by the detector from the first samples
+        det = {k: (None if v == (-1.0 if k == 'guard_s' else 0.0) else v)
+               for k, v in det.items()}
         self.detector_config = DetectorConfig(**det)
         self.detector_config.validate()
         self.max_transitions = p.declare(
@@ -128,6 +136,10 @@ class CalibratorNode(Node):
             'max_transition_s', 30.0, 'Longest pose change kept (s, end of one hold to the '
             'start of the next); longer ones are dropped and counted.', lo=1.0, hi=600.0,
             **ro)
+        p.declare(
+            'report', True, 'After each successful ~/calibrate also write an HTML report '
+            '(<calibration_file>.report.html, figures embedded) next to the calibration file, '
+            'on a background thread.')
         in_depth = p.declare('input_depth', 1000, 'QoS history depth (best effort) of the '
                              'input subscriptions.', lo=1, hi=100000, **ro)
         period = p.declare('progress_period', 1.0, 'Seconds between ~/progress and '
@@ -140,15 +152,20 @@ class CalibratorNode(Node):
         self._busy = threading.Lock()    # held while an estimation runs
         self._busy_since = 0.0
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix='estimation')
+        self._reporter = ThreadPoolExecutor(max_workers=1, thread_name_prefix='report')
         self._result = None              # last CalibrationResult
         self._last_message = ''
         self._seen_frame = ''
         self._rate = common.RateMeter()
         self.counts = {'samples': 0, 'stale_temperature': 0, 'invalid': 0,
                        'temperature_readings': 0, 'temperature_invalid': 0}
+        self._collection_error = ''
         self._new_collection()
         self._resume()
-        self._resume_transitions()
+        try:
+            self._resume_transitions()
+        except OSError as e:
+            self._degrade(e)
 
         data = MutuallyExclusiveCallbackGroup()
         self.imu_sub = self.create_subscription(Imu, 'imu/data_raw', self._on_imu,
@@ -180,12 +197,19 @@ class CalibratorNode(Node):
         self._pending_imu = []
         self._pending_temp = [[] for _ in range(self.k)]
 
+    def _min_hold_s(self):
+        """Return the minimum hold (s): as set, else as the live detector derived it."""
+        derived = self.detector.det.config if getattr(self, 'detector', None) else None
+        return self.detector_config.min_hold_s or (derived.min_hold_s if derived else 1.0)
+
     def _collector(self):
         """Return a new stationary detector that also keeps the pose changes between holds."""
         return MotionCollector(DetectorConfig(**vars(self.detector_config)), self.k,
                                max_transition_s=self.max_transition_s)
 
     def _collection_path(self):
+        if getattr(self, '_collection_error', None):
+            return ''
         return os.path.expanduser(self.collection_file) if self.collection_file else ''
 
     def _transitions_dir(self):
@@ -221,17 +245,40 @@ class CalibratorNode(Node):
         return None
 
     def _resume(self):
+        try:
+            self._resume_file()
+        except OSError as e:
+            self._degrade(e)
+
+    def _degrade(self, err):
+        """Collect in memory only when the collection file cannot be read or written."""
+        path = self._collection_path()
+        self._collection_error = f'{err.__class__.__name__}: {err}'
+        self.get_logger().error(f'collection file {path} cannot be used ({err}); collecting '
+                                'in memory only (set collection_file to a writable path to '
+                                'keep the collection across restarts)')
+
+    def _resume_file(self):
         path = self._collection_path()
         if not path or not os.path.exists(path):
             self._write_inputs_signature()
             return
-        with open(path) as f:
-            text = f.read()
+        with open(path, 'rb') as f:
+            data = f.read()
+        text, skipped, total = _good_records(data, self.k)
         try:
             win = Windows.from_jsonl(text, self.k)
-        except (KeyError, TypeError, ValueError) as e:
+            if total and not skipped and len(win) == 0:
+                raise ValueError('no record could be read')
+            if total and skipped == total:
+                raise ValueError(f'none of its {total} records could be read')
+        except (KeyError, TypeError, ValueError, IndexError) as e:
             win, why = None, f'unreadable ({e.__class__.__name__}: {e})'
         else:
+            if skipped:
+                self.get_logger().warning(f'collection file {path}: skipped {skipped} of '
+                                          f'{total} records that could not be read (not '
+                                          'UTF-8, not JSON, or missing a field)')
             why = (None if len(win) == 0 or win.n_inputs == self.k else
                    f'it has {win.n_inputs} temperature inputs, this node {self.k}')
             why = why or self._signature_mismatch(path)
@@ -295,21 +342,27 @@ class CalibratorNode(Node):
         path = self._collection_path()
         if not path:
             return
-        os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-        with open(path, 'a') as f:
-            f.write(win.to_jsonl())
-            f.flush()
-            os.fsync(f.fileno())
+        try:
+            os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+            with open(path, 'a') as f:
+                f.write(win.to_jsonl())
+                f.flush()
+                os.fsync(f.fileno())
+        except OSError as e:
+            self._degrade(e)
 
     def _persist_transition(self, tr):
         tdir = self._transitions_dir()
         if not tdir:
             return
-        os.makedirs(tdir, exist_ok=True)
-        buf = io.BytesIO()
-        save_transitions(buf, [tr])
-        _atomic_write(os.path.join(tdir, f'{tr.hold_from:06d}-{tr.hold_to:06d}.npz'),
-                      buf.getvalue())
+        try:
+            os.makedirs(tdir, exist_ok=True)
+            buf = io.BytesIO()
+            save_transitions(buf, [tr])
+            _atomic_write(os.path.join(tdir, f'{tr.hold_from:06d}-{tr.hold_to:06d}.npz'),
+                          buf.getvalue())
+        except OSError as e:
+            self._degrade(e)
 
     def _store(self, win, detector, offset):
         """Add closed holds and the pose changes ``detector`` made, with ids offset; persist.
@@ -421,14 +474,14 @@ class CalibratorNode(Node):
         prior = None
         prior_file = self.get_parameter('prior_file').value
         if prior_file:
-            prior = Calibration.load(os.path.expanduser(prior_file))
+            prior = load_prior(os.path.expanduser(prior_file))
         return CalibrateOptions(
             model=self.get_parameter('model').value, gravity=value, gravity_source=source,
             prior=prior, inputs=list(self.inputs),
             frame_id=self.get_parameter('frame_id').value or self._seen_frame,
             out_of_range=self.get_parameter('out_of_range').value,
             order=self.get_parameter('order').value,
-            min_hold_s=self.detector_config.min_hold_s, latitude=latitude,
+            min_hold_s=self._min_hold_s(), latitude=latitude,
             transitions=list(transitions))
 
     async def _on_calibrate(self, request, response):
@@ -487,6 +540,9 @@ class CalibratorNode(Node):
             transitions = list(transitions) + offset_holds(detector.pop_transitions(),
                                                            offset)[:room]
             result = calibrate_windows(windows, self.options(transitions))
+            result.calibration.fit['detector'] = detector.det.settings()
+            # the loader the compensator uses: never publish a calibration it would refuse
+            Calibration.from_yaml(result.calibration.to_yaml(), 'the new calibration')
         except CalibrationRefused as e:
             return False, f'refused: {e}'
         except (CalibrationError, ValueError) as e:
@@ -496,6 +552,8 @@ class CalibratorNode(Node):
             return False, f'failed: estimation error {e.__class__.__name__}: {e}'
         self._result = result
         ok, where = self._write(result.calibration)
+        if ok and self.get_parameter('report').value:
+            self._reporter.submit(self._report_file, result.calibration, windows)
         self.cal_pub.publish(String(data=result.calibration.to_yaml()))
         return True, f'{result.summary}; id {result.calibration.id}; {where}'
 
@@ -510,6 +568,33 @@ class CalibratorNode(Node):
         except OSError as e:
             return False, f'NOT written to {path}: {e}'
         return True, f'written to {path}'
+
+    def _report_file(self, cal, windows):
+        """Write <calibration_file>.report.html; runs on the report thread, failures logged.
+
+        The page is drawn by ``thermal-imu-calib report`` in a child process at lower
+        priority (from snapshots of the calibration and the windows), so plotting never
+        holds this process's GIL while data keep arriving.
+        """
+        path = os.path.expanduser(self.get_parameter('calibration_file').value)
+        out = os.path.splitext(path)[0] + '.report.html'
+        with tempfile.TemporaryDirectory(prefix='thermal-imu-report-') as tmp:
+            cal.save(os.path.join(tmp, 'cal.yaml'))
+            with open(os.path.join(tmp, 'windows.jsonl'), 'w') as f:
+                f.write(windows.to_jsonl())
+            cmd = [sys.executable, '-m', 'thermal_imu_calib.cli', 'report',
+                   os.path.join(tmp, 'cal.yaml'), '--windows', os.path.join(tmp, 'windows.jsonl'),
+                   '--html', out]
+            try:
+                r = subprocess.run(cmd, capture_output=True, text=True, timeout=600,
+                                   preexec_fn=lambda: os.nice(10))
+            except (OSError, subprocess.SubprocessError) as e:
+                self.get_logger().error(f'report {out} not written: {e!r}')
+                return
+        if r.returncode:
+            self.get_logger().error(f'report {out} not written: {r.stderr.strip()[-500:]}')
+        else:
+            self.get_logger().info(f'wrote report {out}')
 
     def _on_save(self, request, response):
         result = self._result
@@ -591,6 +676,29 @@ class CalibratorNode(Node):
         """Stop the estimation worker, then destroy the node."""
         self._worker.shutdown(wait=False, cancel_futures=True)
         return super().destroy_node()
+
+
+def _good_records(data, k):
+    """Return (text of the readable records, records skipped, records seen) of a collection.
+
+    A record (one line) is skipped when it is not UTF-8, not JSON or lacks a field the
+    windows table needs; the others are kept (one bad line no longer loses the collection).
+    """
+    good, skipped, total = [], 0, 0
+    for line in data.splitlines():
+        if not line.strip():
+            continue
+        total += 1
+        try:
+            text = line.decode('utf-8')
+            win = Windows.from_jsonl(text, k)
+            if len(win) != 1 or win.n_inputs != k:
+                raise ValueError('not one record of this node\'s inputs')
+        except Exception:  # noqa: B902 - any bad record is skipped and counted
+            skipped += 1
+            continue
+        good.append(text)
+    return '\n'.join(good) + ('\n' if good else ''), skipped, total
 
 
 def _usable(chunk, k, timeout):

@@ -1,0 +1,91 @@
+"""The default detector on the simulated sessions that fail like real data (sim_scenarios).
+
+Holds are scored against the simulator's schedule (precision and recall >= 0.95), and the
+calibration from the detected holds against the true parameters on the same holds.
+"""
+
+import numpy as np
+import pytest
+
+from thermal_imu_calib import sim
+from thermal_imu_calib.estimation.calibrate import CalibrateOptions, calibrate_windows
+from thermal_imu_calib.estimation.gyro_fit import MotionCollector
+from thermal_imu_calib.estimation.segments import Windows
+from thermal_imu_calib.io.align import StreamAligner
+
+
+def run(rec):
+    """Return (Windows, hold records, transitions, detector settings) with default settings."""
+    temps = list(rec.temperatures.values())
+    aligner = StreamAligner(len(temps), 5.0)
+    col = MotionCollector(None, len(temps))
+    parts, pending = [], temps
+    for ch in rec.imu_chunks():
+        for a in aligner.push_columns(ch, pending):
+            parts.append(col.update(a.imu.t, a.imu.accel, a.imu.gyro, a.temps))
+        pending = [t.empty() for t in temps]
+    for a in aligner.finish():
+        parts.append(col.update(a.imu.t, a.imu.accel, a.imu.gyro, a.temps))
+    parts.append(col.finish())
+    return Windows.concat(parts), col.det.holds, col.transitions, col.det.settings()
+
+
+def match(rec, holds):
+    """Return (precision, recall): a detected hold is right when >= 90 % of it is in one
+    scheduled hold; a scheduled hold is found when a right detection lies in it."""
+    true = [(h.stamp_start_ns * 1e-9, h.stamp_end_ns * 1e-9) for h in rec.schedule]
+    found = set()
+    right = 0
+    for d in holds:
+        lo, hi = d['start'], d['start'] + d['duration']
+        for j, (a, b) in enumerate(true):
+            if min(hi, b) - max(lo, a) >= 0.9 * (hi - lo):
+                right += 1
+                found.add(j)
+                break
+    return right / max(len(holds), 1), len(found) / len(true)
+
+
+@pytest.mark.parametrize('name', ['hand-held', 'imutk-procedure', 'chamber-2hz'])
+@pytest.mark.parametrize('seed', [0, 1])
+def test_default_detector_finds_the_scheduled_holds(name, seed):
+    rec = sim.simulate(name, seed)
+    windows, holds, _, settings = run(rec)
+    precision, recall = match(rec, holds)
+    assert precision >= 0.95 and recall >= 0.95, (precision, recall, len(holds), settings)
+    # blocks by sample count: the 2 Hz log still gets a defined variance per block
+    assert settings['block_samples'] >= 5
+
+
+@pytest.mark.parametrize('name', ['hand-held', 'imutk-procedure'])
+def test_calibration_from_detected_holds_is_close_to_the_truth(name):
+    rec = sim.simulate(name, 0)
+    windows, _, transitions, _ = run(rec)
+    opts = CalibrateOptions(model='auto', gravity=rec.gravity, transitions=transitions,
+                            inputs=list(rec.truth.inputs))
+    res = calibrate_windows(windows, opts)
+    g = rec.gravity
+
+    def norm_err(cal):
+        temps = windows.temp[:, cal.accel_input] if windows.n_inputs else None
+        a = cal.accel.correct(windows.accel, temps)
+        return np.sqrt(np.average((np.linalg.norm(a, axis=1) - g) ** 2, weights=windows.n))
+
+    est, truth = norm_err(res.calibration), norm_err(rec.truth)
+    raw = np.sqrt(np.average((np.linalg.norm(windows.accel, axis=1) - g) ** 2,
+                             weights=windows.n))
+    assert est <= 1.5 * truth, (est, truth, raw, res.summary)
+    assert raw > 5 * truth
+
+
+@pytest.mark.parametrize('seed', [0, 1])
+def test_auto_ends_at_whole_unit_for_the_imutk_procedure_without_temperature(seed):
+    rec = sim.simulate('imutk-procedure', seed)
+    windows, _, transitions, _ = run(rec)
+    m = len(windows)
+    windows.temp, windows.temp_rate = np.zeros((m, 0)), np.zeros((m, 0))
+    res = calibrate_windows(windows, CalibrateOptions(model='auto', gravity=rec.gravity,
+                                                      transitions=transitions))
+    choice = res.calibration.fit['model_choice']
+    assert choice['model'] == 'whole_unit', choice
+    assert 'candidates compared held out' in choice['reason']

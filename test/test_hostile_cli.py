@@ -1,0 +1,310 @@
+"""Issue 9 section 2 on the real CLI: every hostile input gets exit 2 and one clear line.
+
+Each test is one defect of the probe: bad samples are dropped and counted (exit 0, a file
+the loader accepts), unusable logs are refused saying what to do, outputs never destroy an
+input, and no user error shows a traceback.
+"""
+
+import hashlib
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from _hostile import recording, write_bag
+from thermal_imu_calib.calibration import Calibration
+from thermal_imu_calib.cli import main
+from thermal_imu_calib.cli_checks import UserError, validated
+from thermal_imu_calib.io.bag import write_columns
+
+CLI = [sys.executable, '-m', 'thermal_imu_calib.cli']
+
+
+@pytest.fixture(scope='module')
+def rec():
+    return recording()
+
+
+@pytest.fixture(scope='module')
+def clean(rec, tmp_path_factory):
+    d = tmp_path_factory.mktemp('clean')
+    bag = write_bag(str(d / 'clean.mcap'), *rec)
+    cal = str(d / 'clean.yaml')
+    assert main(['calibrate', bag, '-o', cal]) == 0
+    return bag, cal
+
+
+def _digest(path):
+    if os.path.isdir(path):
+        return {n: _digest(os.path.join(path, n)) for n in sorted(os.listdir(path))}
+    with open(path, 'rb') as f:
+        return hashlib.sha256(f.read()).hexdigest()
+
+
+def _run(argv, capfd):
+    code = main(argv)
+    out, err = capfd.readouterr()
+    assert 'Traceback' not in out + err
+    return code, out, err
+
+
+def _one_error_line(err, cmd):
+    lines = [ln for ln in err.splitlines() if ln.startswith(f'thermal-imu-calib {cmd}: error')]
+    assert len(lines) == 1, err
+    return lines[0]
+
+
+# ------------------------------------------------------------------ 4, 5, 6: samples at the door
+DROPPED = {
+    'nan_imu': (lambda a: a['accel'].__setitem__((5000, 1), np.nan), '1 non-finite IMU'),
+    'inf_imu': (lambda a: a['gyro'].__setitem__((7000, 2), np.inf), '1 non-finite IMU'),
+    'imu_1e30': (lambda a: a['accel'].__setitem__(slice(100, 200), 1e30),
+                 "100 IMU samples beyond any sensor's range"),
+    'minus_300_degC': (lambda a: a['temperature'].__setitem__(500, -300.0),
+                       '1 readings of /imu/temperature outside -80..200 degC'),
+}
+
+
+@pytest.mark.parametrize('case', sorted(DROPPED))
+def test_bad_samples_are_dropped_counted_and_the_result_loads(case, rec, clean, tmp_path,
+                                                              capfd):
+    edit, counted = DROPPED[case]
+    bag = write_bag(str(tmp_path / 'in.mcap'), *rec, edit)
+    out = str(tmp_path / 'cal.yaml')
+    code, _, err = _run(['calibrate', bag, '-o', out], capfd)
+    assert code == 0 and counted in err
+    cal, ref = Calibration.load(out), Calibration.load(clean[1])
+    # the valid range and T0 stay where the clean log puts them (defect 5: one -300 degC
+    # reading used to stretch the range to -300); dropping ~1 s of IMU moves a window edge
+    np.testing.assert_allclose(cal.valid_range, ref.valid_range, atol=0.5)
+    np.testing.assert_allclose(cal.accel.params()['T0'].value, ref.accel.params()['T0'].value,
+                               atol=0.5)
+
+
+# ------------------------------------------------------------------ 4, 5, 7, 11: refused logs
+def _slow(a):
+    a['temp_stamp_ns'], a['temperature'] = a['temp_stamp_ns'][::1000], a['temperature'][::1000]
+
+
+def _no_imu(a):
+    a['stamp_ns'], a['accel'], a['gyro'] = a['stamp_ns'][:0], a['accel'][:0], a['gyro'][:0]
+
+
+def _dup(a):
+    a['stamp_ns'][1::2] = a['stamp_ns'][::2][:len(a['stamp_ns'][1::2])]
+
+
+REFUSED = {
+    'temperature_1e6_degC': (lambda a: a['temperature'].__setitem__(slice(None), 1e6),
+                             'no usable reading'),
+    'temperature_all_nan': (lambda a: a['temperature'].__setitem__(slice(None), np.nan),
+                            'no usable reading'),
+    'temperature_0.01_Hz': (_slow, '--max-gap'),
+    'temperature_stamps_0': (lambda a: a['temp_stamp_ns'].__setitem__(slice(None), 0),
+                             'header stamp 0'),
+    'imu_all_zero': (lambda a: (a['accel'].__setitem__(slice(None), 0.0),
+                                a['gyro'].__setitem__(slice(None), 0.0)), 'all-zero'),
+    'imu_stamps_duplicated': (_dup, 'do not increase'),
+    'imu_stamps_0': (lambda a: a['stamp_ns'].__setitem__(slice(None), 0), 'stamp is 0'),
+    'imu_stamps_backwards': (lambda a: a['stamp_ns'].__setitem__(slice(None),
+                                                                 a['stamp_ns'][::-1].copy()),
+                             'running backwards'),
+    'no_imu_messages': (_no_imu, '0 messages'),
+}
+
+
+@pytest.mark.parametrize('case', sorted(REFUSED))
+def test_unusable_logs_are_refused_with_the_real_cause(case, rec, tmp_path, capfd):
+    edit, cause = REFUSED[case]
+    bag = write_bag(str(tmp_path / 'in.mcap'), *rec, edit)
+    out = tmp_path / 'cal.yaml'
+    code, stdout, err = _run(['calibrate', bag, '-o', str(out)], capfd)
+    line = _one_error_line(err, 'calibrate')
+    assert code == 2 and cause in line and not out.exists()
+    assert 'hold the IMU still' not in line and 'DLASCL' not in stdout + err
+
+
+def test_evaluate_without_holds_is_an_error_not_a_nan_table(rec, clean, tmp_path, capfd):
+    bag = write_bag(str(tmp_path / 'in.mcap'), *rec, _no_imu)
+    code, out, err = _run(['evaluate', bag, '--calibration', clean[1]], capfd)
+    assert code == 2 and 'no stationary holds' in _one_error_line(err, 'evaluate')
+    assert 'nan' not in out
+
+
+def test_evaluate_drops_bad_samples_and_refuses_unusable_temperature(rec, clean, tmp_path,
+                                                                     capfd):
+    bag = write_bag(str(tmp_path / 'one_bad.mcap'), *rec, DROPPED['nan_imu'][0])
+    code, out, _ = _run(['evaluate', bag, '--calibration', clean[1], '--average', '10'], capfd)
+    assert code == 0 and ' nan' not in out.lower()
+    bag = write_bag(str(tmp_path / 'tnan.mcap'), *rec, REFUSED['temperature_all_nan'][0])
+    code, out, err = _run(['evaluate', bag, '--calibration', clean[1]], capfd)
+    assert code == 2 and 'no usable reading' in _one_error_line(err, 'evaluate')
+    assert 'Warning' not in err
+
+
+# ------------------------------------------------------------------ 3: -o never destroys
+def test_output_equal_to_an_input_is_refused_and_the_input_kept(clean, tmp_path, capfd):
+    bag, cal = clean
+    before = _digest(bag)
+    code, _, err = _run(['calibrate', bag, '-o', bag], capfd)
+    assert code == 2 and 'one of the inputs' in err and _digest(bag) == before
+    before = _digest(cal)
+    code, _, err = _run(['calibrate', bag, '--prior', cal, '-o', cal], capfd)
+    assert code == 2 and 'one of the inputs' in err and _digest(cal) == before
+
+
+def test_output_equal_to_a_bags_metadata_is_refused(tmp_path, capfd):
+    bag = str(tmp_path / 'bag')
+    assert main(['simulate', bag, '--scenario', 'demo', '--seed', '5']) == 0
+    before = _digest(bag)
+    code, _, err = _run(['calibrate', bag, '-o', os.path.join(bag, 'metadata.yaml')], capfd)
+    assert code == 2 and 'one of the inputs' in err and _digest(bag) == before
+
+
+def test_existing_output_needs_force_unless_it_is_a_calibration(clean, tmp_path, capfd):
+    bag, cal = clean
+    other = tmp_path / 'notes.txt'
+    other.write_text('my precious notes\n')
+    code, _, err = _run(['calibrate', bag, '-o', str(other)], capfd)
+    assert code == 2 and '--force' in err and other.read_text() == 'my precious notes\n'
+    assert main(['calibrate', bag, '-o', str(other), '--force']) == 0
+    Calibration.load(other)
+    old = tmp_path / 'old.yaml'
+    old.write_bytes(open(cal, 'rb').read())
+    assert main(['calibrate', bag, '-o', str(old)]) == 0   # a calibration is replaced
+
+
+def test_output_directory_is_refused_before_computing(clean, tmp_path, capfd):
+    code, _, err = _run(['calibrate', clean[0], '-o', str(tmp_path)], capfd)
+    assert code == 2 and 'is a directory' in err
+    assert 'Imu messages' not in err          # refused before reading the log
+
+
+def test_same_input_twice_is_refused(clean, tmp_path, capfd):
+    code, _, err = _run(['calibrate', clean[0], clean[0], '-o', str(tmp_path / 'c.yaml')],
+                        capfd)
+    assert code == 2 and 'given twice' in err
+
+
+@pytest.mark.parametrize('argv', [
+    ['calibrate', '{bag}', '-o', '/proc/thermal_imu_calib_test/c.yaml'],
+    ['calibrate', '{bag}', '-o', '{tmp}/c.yaml', '--save-windows', '/proc/w.jsonl'],
+    ['compensate', '{bag}', '--calibration', '{cal}', '-o', '/proc/out.mcap'],
+    ['simulate', '/proc/sim.mcap'],
+])
+def test_unwritable_output_is_one_line_not_a_traceback(argv, clean, tmp_path, capfd):
+    argv = [a.format(bag=clean[0], cal=clean[1], tmp=tmp_path) for a in argv]
+    code, _, err = _run(argv, capfd)
+    assert code == 2 and 'not writable' in _one_error_line(err, argv[0])
+    assert not os.path.exists(tmp_path / 'c.yaml')
+
+
+# ------------------------------------------------------------------ 4, 12: options
+@pytest.mark.parametrize('argv, option', [
+    (['calibrate', '{bag}', '-o', '{tmp}/c.yaml', '--range-margin', '-50'], '--range-margin'),
+    (['calibrate', '{bag}', '-o', '{tmp}/c.yaml', '--range-margin', 'nan'], '--range-margin'),
+    (['calibrate', '{bag}', '-o', '{tmp}/c.yaml', '--latitude', '45', '--altitude', '1e9'],
+     '--altitude'),
+    (['evaluate', '{bag}', '--average', '0'], '--average'),
+    (['evaluate', '{bag}', '--average', '-1'], '--average'),
+    (['compensate', '{bag}', '--calibration', '{cal}', '-o', '{tmp}/o.mcap',
+      '--temperature-timeout', '-1'], '--temperature-timeout'),
+    (['compensate', '{bag}', '--calibration', '{cal}', '-o', '{tmp}/o.mcap',
+      '--temperature-timeout', 'nan'], '--temperature-timeout'),
+    (['compensate', '{bag}', '--calibration', '{cal}', '-o', '{tmp}/o.mcap',
+      '--output-topic', 'not a topic'], '--output-topic'),
+    (['compensate', '{bag}', '--calibration', '{cal}', '-o', '{tmp}/o.mcap',
+      '--output-topic', '/imu/9bad'], '--output-topic'),
+])
+def test_unusable_options_are_refused(argv, option, clean, tmp_path, capfd):
+    argv = [a.format(bag=clean[0], cal=clean[1], tmp=tmp_path) for a in argv]
+    code, _, err = _run(argv, capfd)
+    assert code == 2 and option in _one_error_line(err, argv[0])
+    assert os.listdir(tmp_path) == []
+
+
+def test_a_calibration_the_loader_refuses_is_never_written(clean, tmp_path):
+    cal = Calibration.load(clean[1])
+    p = cal.accel.params()
+    key = next(k for k in ('k2', 'dk2', 'c2') if k in p) if any(
+        k in p for k in ('k2', 'dk2', 'c2')) else None
+    d = cal.to_dict()
+    params = d['accel']['parameters']
+    name = key or sorted(params)[-1]
+    params[name]['value'] = (np.full(np.shape(params[name]['value']), 1e300)).tolist()
+    import yaml
+    with pytest.raises(Exception):
+        Calibration.from_dict(yaml.safe_load(yaml.safe_dump(d)))
+    bad = Calibration.__new__(Calibration)
+    bad.__dict__.update(cal.__dict__)
+    bad.to_yaml = lambda: yaml.safe_dump(d)
+    with pytest.raises(UserError, match='nothing was written'):
+        validated(bad, str(tmp_path / 'x.yaml'))
+    assert validated(cal, 'x') is cal
+
+
+# ------------------------------------------------------------------ 11: messages
+def test_non_utf8_calibration_is_reported_with_its_name(clean, tmp_path, capfd):
+    bad = tmp_path / 'latin1.yaml'
+    bad.write_bytes(b'format: thermal_imu_calib/1\nnotes: [caf\xe9]\n')
+    for argv in (['report', str(bad)],
+                 ['compensate', clean[0], '--calibration', str(bad), '-o',
+                  str(tmp_path / 'o.mcap')],
+                 ['calibrate', clean[0], '--prior', str(bad), '-o', str(tmp_path / 'c.yaml')]):
+        code, _, err = _run(argv, capfd)
+        line = _one_error_line(err, argv[0])
+        assert code == 2 and str(bad) in line and 'UTF-8' in line
+
+
+def test_non_utf8_metadata_is_reported_with_its_name(tmp_path, capfd):
+    bag = str(tmp_path / 'bag')
+    assert main(['simulate', bag, '--scenario', 'demo', '--seed', '6']) == 0
+    with open(os.path.join(bag, 'metadata.yaml'), 'ab') as f:
+        f.write(b'\n# \xff\xfe\n')
+    code, _, err = _run(['info', bag], capfd)
+    line = _one_error_line(err, 'info')
+    assert code == 2 and 'metadata.yaml' in line and 'UTF-8' in line
+
+
+def test_truncated_mcap_says_truncated_and_how_to_recover(clean, tmp_path, capfd):
+    data = open(clean[0], 'rb').read()
+    cut = tmp_path / 'cut.mcap'
+    cut.write_bytes(data[:len(data) // 100])
+    code, _, err = _run(['info', str(cut)], capfd)
+    line = _one_error_line(err, 'info')
+    assert code == 2 and 'truncated' in line and 'mcap recover' in line
+    assert 'magic is invalid.; ;' not in line
+
+
+# ------------------------------------------------------------------ 10: interrupted compensate
+@pytest.fixture(scope='module')
+def long_bag(tmp_path_factory):
+    from thermal_imu_calib import sim
+    rec = sim.simulate('demo', 7, repetitions=8)
+    path = str(tmp_path_factory.mktemp('long') / 'long.mcap')
+    write_columns(path, rec.imu_topic, rec.imu_chunks(), rec.temperatures)
+    return path
+
+
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
+@pytest.mark.parametrize('out_name', ['out.mcap', 'outdir'])
+def test_interrupted_compensate_leaves_nothing(sig, out_name, long_bag, clean, tmp_path):
+    out = tmp_path / out_name
+    proc = subprocess.Popen(CLI + ['compensate', long_bag, '--calibration', clean[1],
+                                   '--chunk-size', '200', '--storage', 'sqlite3',
+                                   '-o', str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 60
+    while not any('.partial' in n for n in os.listdir(tmp_path)):
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline, 'no temporary output appeared'
+        time.sleep(0.005)
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode in (130, 143), err
+    assert b'Traceback' not in err
+    assert os.listdir(tmp_path) == []       # no partial file at the final name, no temporary

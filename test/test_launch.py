@@ -1,0 +1,155 @@
+"""The launch file's arguments, remappings and parameters, with plain pytest.
+
+``launch_ros`` has no PyPI wheel here, so a minimal fake ``launch_ros`` (and ``launch``
+where it is missing too) is injected into sys.modules: its Node records the keyword
+arguments. The real ``launch`` is used when it imports: DeclareLaunchArgument,
+OpaqueFunction and LaunchConfiguration are then the real ones.
+"""
+
+import importlib.util
+import os
+import sys
+import types
+
+import pytest
+
+LAUNCH = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'launch',
+                      'thermal_imu_calib.launch.py')
+
+
+class _Recorded:
+    def __init__(self, **kwargs):
+        self.kwargs = kwargs
+
+
+def _fake_launch():
+    launch = types.ModuleType('launch')
+    actions = types.ModuleType('launch.actions')
+    subs = types.ModuleType('launch.substitutions')
+
+    class LaunchDescription:
+        def __init__(self, entities):
+            self.entities = list(entities)
+
+    class DeclareLaunchArgument:
+        def __init__(self, name, default_value='', description=''):
+            self.name, self.default_value, self.description = name, default_value, description
+
+    class OpaqueFunction:
+        def __init__(self, function):
+            self.function = function
+
+    class LaunchConfiguration:
+        def __init__(self, name):
+            self.name = name
+
+        def perform(self, context):
+            return context.launch_configurations[self.name]
+
+    class LaunchContext:
+        def __init__(self):
+            self.launch_configurations = {}
+    launch.LaunchDescription, launch.LaunchContext = LaunchDescription, LaunchContext
+    actions.DeclareLaunchArgument, actions.OpaqueFunction = DeclareLaunchArgument, OpaqueFunction
+    subs.LaunchConfiguration = LaunchConfiguration
+    launch.actions, launch.substitutions = actions, subs
+    return {'launch': launch, 'launch.actions': actions, 'launch.substitutions': subs}
+
+
+@pytest.fixture
+def launch_module(monkeypatch):
+    """Import the launch file with a recording launch_ros.actions.Node."""
+    ros = types.ModuleType('launch_ros')
+    ros_actions = types.ModuleType('launch_ros.actions')
+    ros_actions.Node = _Recorded
+    ros.actions = ros_actions
+    monkeypatch.setitem(sys.modules, 'launch_ros', ros)
+    monkeypatch.setitem(sys.modules, 'launch_ros.actions', ros_actions)
+    try:
+        import launch
+        real = hasattr(launch, 'LaunchDescription')   # not the repository's launch/ folder
+    except ImportError:
+        real = False
+    if not real:
+        for name, mod in _fake_launch().items():
+            monkeypatch.setitem(sys.modules, name, mod)
+    spec = importlib.util.spec_from_file_location('thermal_imu_calib_launch', LAUNCH)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    mod.REAL_LAUNCH = real
+    return mod
+
+
+def _resolve(mod, **given):
+    """Build the description, apply ``name:=value`` arguments, return (declared, nodes)."""
+    import launch
+    desc = mod.generate_launch_description()
+    declared = {e.name: e for e in desc.entities if hasattr(e, 'default_value')}
+    context = launch.LaunchContext()
+    for name, arg in declared.items():
+        default = arg.default_value
+        if not isinstance(default, str):       # real launch: a list of substitutions
+            default = ''.join(s.perform(context) for s in default)
+        context.launch_configurations[name] = given.get(name, default)
+    opaque = [e for e in desc.entities if not hasattr(e, 'default_value')]
+    assert len(opaque) == 1
+    fn = getattr(opaque[0], 'function', None) or opaque[0]._OpaqueFunction__function
+    return declared, [n.kwargs for n in fn(context)]
+
+
+def test_arguments_declared(launch_module):
+    declared, nodes = _resolve(launch_module)
+    assert set(declared) == {'namespace', 'imu_topic', 'temperature_topics', 'params_file',
+                             'calibration_file', 'use_sim_time', 'nodes'}
+    assert [n['executable'] for n in nodes] == ['compensator_node', 'calibrator_node']
+    for n in nodes:
+        assert n['remappings'] == [('imu/data_raw', 'imu/data_raw')]
+        assert n['namespace'] == ''
+        params_file, overrides = n['parameters']
+        assert os.path.basename(params_file) in ('compensator.yaml', 'calibrator.yaml')
+        assert os.path.isfile(params_file)
+        assert overrides == {'use_sim_time': False}
+
+
+def test_imu_topic_and_overrides(launch_module):
+    _, nodes = _resolve(launch_module, imu_topic='/my_imu/data_raw', namespace='left',
+                        temperature_topics='[/left/temp, /left/gyro_resonance]',
+                        calibration_file='~/cal.yaml', use_sim_time='true',
+                        params_file='/tmp/p.yaml', nodes='compensator')
+    assert len(nodes) == 1
+    n = nodes[0]
+    assert n['name'] == 'thermal_imu_compensator' and n['namespace'] == 'left'
+    assert n['remappings'] == [('imu/data_raw', '/my_imu/data_raw')]
+    assert n['parameters'] == ['/tmp/p.yaml', {
+        'use_sim_time': True, 'temperature_topics': ['/left/temp', '/left/gyro_resonance'],
+        'calibration_file': os.path.expanduser('~/cal.yaml')}]
+
+
+def test_bad_arguments_say_what_is_wrong(launch_module):
+    with pytest.raises(ValueError, match='must name some of compensator, calibrator'):
+        _resolve(launch_module, nodes='compensater')
+    with pytest.raises(ValueError, match='not true or false'):
+        _resolve(launch_module, use_sim_time='maybe')
+    with pytest.raises(ValueError, match='not a list of topics'):
+        _resolve(launch_module, temperature_topics='{a: 1}')
+
+
+def test_package_xml_declares_every_runtime_dependency():
+    """Every install_requires entry has an exec_depend rosdep key or is listed as keyless."""
+    import re
+    import xml.etree.ElementTree as ET
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    deps = {e.text for e in ET.parse(os.path.join(root, 'package.xml')).getroot()
+            .iter('exec_depend')}
+    keys = {'numpy': 'python3-numpy', 'scipy': 'python3-scipy', 'PyYAML': 'python3-yaml',
+            'scikit-learn': 'python3-sklearn', 'tqdm': 'python3-tqdm',
+            'matplotlib': 'python3-matplotlib'}
+    keyless = {'rosbags', 'mcap', 'mcap-ros2-support', 'allantools', 'dask', 'setuptools'}
+    text = open(os.path.join(root, 'setup.py')).read()
+    block = text[text.index('install_requires=['):text.index(']', text.index('install_requires'))]
+    reqs = {re.split(r'[<>=\[ ]', r)[0] for r in re.findall(r"'([^']+)'", block)}
+    assert reqs - set(keys) - keyless == set(), 'a new dependency needs a rosdep key or a note'
+    assert set(keys.values()) <= deps
+    assert {'rclpy', 'launch', 'launch_ros', 'ament_index_python', 'sensor_msgs'} <= deps
+    notes = open(os.path.join(root, 'docs', 'export.md')).read()
+    assert all(k in notes for k in keyless - {'setuptools'})

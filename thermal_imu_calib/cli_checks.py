@@ -1,0 +1,180 @@
+"""What the CLI checks before it computes or writes: options, outputs, inputs, signals.
+
+Every refusal raises ``UserError`` (one line on stderr, exit 2) saying what was wrong and
+what to do. Outputs are checked BEFORE the computation (an existing directory, a file that
+is one of the inputs, an unwritable directory), and a calibration is re-read by the same
+loader the nodes use before it is written, so ``calibrate`` never exits 0 with a file
+``compensate`` or a node would refuse.
+"""
+
+import math
+import os
+import re
+import signal
+import tempfile
+
+from .calibration import Calibration, CalibrationError, FORMAT
+
+#: a ROS 2 topic name: absolute or relative tokens of [A-Za-z0-9_], not starting with a digit
+_TOPIC_RE = re.compile(r'^~?/?([A-Za-z_][A-Za-z0-9_]*)(/[A-Za-z_][A-Za-z0-9_]*)*$')
+#: --altitude accepted by calibrate/evaluate (m), as by calibrator_node
+ALTITUDE_RANGE = (-1000.0, 10000.0)
+#: --range-margin accepted (degC)
+RANGE_MARGIN_RANGE = (0.0, 50.0)
+
+
+class UserError(Exception):
+    """Bad input from the command line; printed as one line."""
+
+
+def check_number(value, option, lo=None, hi=None, lo_open=False):
+    """Refuse a non-finite option value or one outside [lo, hi] (``lo_open``: > lo)."""
+    if value is None:
+        return
+    if not math.isfinite(value):
+        raise UserError(f'{option} {value} is not a finite number')
+    low_bad = lo is not None and (value <= lo if lo_open else value < lo)
+    if low_bad or (hi is not None and value > hi):
+        rng = (f'> {lo:g}' if hi is None else f'in ({lo:g}, {hi:g}]') if lo_open else (
+            f'>= {lo:g}' if hi is None else f'in [{lo:g}, {hi:g}]')
+        raise UserError(f'{option} {value:g} is out of range; it must be {rng}')
+
+
+def check_options(args):
+    """Refuse option values no command can use (before any file is read)."""
+    for opt in ('max_gap', 'min_hold', 'window', 'still_factor', 'average',
+                'temperature_timeout'):
+        if getattr(args, opt, None) is not None:
+            check_number(getattr(args, opt), '--' + opt.replace('_', '-'), 0.0, lo_open=True)
+    if getattr(args, 'guard', None) is not None:
+        check_number(args.guard, '--guard', 0.0)
+    if getattr(args, 'chunk_size', None) is not None and args.chunk_size < 1:
+        raise UserError(f'--chunk-size {args.chunk_size} must be >= 1')
+    if getattr(args, 'range_margin', None) is not None:
+        check_number(args.range_margin, '--range-margin (degC)', *RANGE_MARGIN_RANGE)
+    if getattr(args, 'latitude', None) is not None:
+        check_number(args.latitude, '--latitude (deg)', -90.0, 90.0)
+    if getattr(args, 'altitude', None) is not None:
+        check_number(args.altitude, '--altitude (m)', *ALTITUDE_RANGE)
+    if getattr(args, 'gravity', None) is not None:
+        check_number(args.gravity, '--gravity (m/s^2)')
+    topic = getattr(args, 'output_topic', None)
+    if topic is not None and not _TOPIC_RE.match(topic):
+        raise UserError(f'--output-topic {topic!r} is not a valid ROS 2 topic name (letters, '
+                        'digits and _ in /-separated tokens, not starting with a digit), e.g. '
+                        '/imu/data_compensated')
+    for opt in ('imu_topic',):
+        t = getattr(args, opt, None)
+        if t is not None and not t.strip():
+            raise UserError(f'--{opt.replace("_", "-")} is empty; name a topic')
+
+
+def same_file(a, b):
+    """Return True when paths ``a`` and ``b`` are the same existing file or directory."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return os.path.abspath(a) == os.path.abspath(b)
+
+
+def _inside(path, directory):
+    """Return True when ``path`` lies inside ``directory`` (both resolved)."""
+    try:
+        p, d = os.path.realpath(path), os.path.realpath(directory)
+    except OSError:
+        return False
+    return os.path.commonpath([p, d]) == d and p != d
+
+
+def check_distinct_inputs(paths):
+    """Refuse the same log given twice (its windows would be merged twice)."""
+    for i, a in enumerate(paths):
+        for b in paths[:i]:
+            if os.path.exists(a) and same_file(a, b) or (
+                    os.path.basename(a) == 'metadata.yaml' and same_file(os.path.dirname(a), b)):
+                raise UserError(f'{a} is given twice (same log as {b}); its data would be '
+                                'counted twice: give each log once')
+
+
+def check_writable_dir(path, what):
+    """Refuse an output whose directory cannot be created or written (before computing)."""
+    d = os.path.dirname(os.path.abspath(path))
+    probe = d
+    while not os.path.exists(probe):
+        parent = os.path.dirname(probe)
+        if parent == probe:
+            break
+        probe = parent
+    if not os.path.isdir(probe):
+        raise UserError(f'{what} {path}: {probe} is not a directory; choose another path')
+    try:
+        with tempfile.TemporaryFile(dir=probe):
+            pass
+    except OSError as e:
+        raise UserError(f'{what} {path}: directory {probe} is not writable ({e.strerror or e}); '
+                        'choose another path or fix its permissions') from None
+
+
+def check_calibration_output(output, inputs, prior=None, force=False,
+                             extra_outputs=()):
+    """Refuse a calibrate ``-o`` that would destroy an input or an unrelated file.
+
+    Refused: any input log (.mcap, .db3, a bag directory or a file inside one, its
+    metadata.yaml), the ``--prior`` file, a directory, and an existing file that is not a
+    calibration file unless ``force``. ``extra_outputs`` (e.g. --save-windows) get the
+    same input check.
+    """
+    for out, what in [(output, '-o')] + [(p, o) for p, o in extra_outputs if p]:
+        for src in list(inputs) + ([prior] if prior else []):
+            if not os.path.exists(out):
+                break
+            bag_dir = (src if os.path.isdir(src) else os.path.dirname(os.path.abspath(src))
+                       if os.path.basename(src) == 'metadata.yaml' else None)
+            if same_file(out, src) or (bag_dir and _inside(out, bag_dir)):
+                raise UserError(f'{what} {out} is one of the inputs ({src}); writing it would '
+                                'destroy it: choose another output file')
+        if not os.path.exists(out):
+            for src in inputs:
+                if os.path.isdir(src) and _inside(out, src):
+                    raise UserError(f'{what} {out} is inside the input bag {src}; choose an '
+                                    'output outside it')
+        if os.path.isdir(out):
+            raise UserError(f'{what} {out} is a directory; give a file name (e.g. '
+                            f'{os.path.join(out, "calibration.yaml")})')
+        check_writable_dir(out, what)
+    if os.path.exists(output) and not force and not _is_calibration_file(output):
+        raise UserError(f'-o {output} exists and is not a calibration file; refusing to '
+                        'overwrite it: choose another output, or pass --force')
+
+
+def _is_calibration_file(path):
+    try:
+        with open(path, 'rb') as f:
+            head = f.read(4096)
+    except OSError:
+        return False
+    return FORMAT.encode() in head
+
+
+def validated(cal, output):
+    """Return ``cal`` re-read by the loader the nodes use; UserError when it would be refused."""
+    try:
+        Calibration.from_yaml(cal.to_yaml(), 'the new calibration')
+    except CalibrationError as e:
+        raise UserError(f'{e}; nothing was written to {output}: the input data cannot '
+                        'support a usable calibration (see the warnings above)') from None
+    return cal
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised like Ctrl-C so partial outputs are removed on the way out."""
+
+
+def install_sigterm():
+    """Make SIGTERM unwind like SIGINT (temporary outputs are removed); main thread only."""
+    def handler(signum, frame):
+        raise Terminated()
+    try:
+        signal.signal(signal.SIGTERM, handler)
+    except ValueError:      # not the main thread (e.g. called from a test thread)
+        pass

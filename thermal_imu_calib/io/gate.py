@@ -1,0 +1,185 @@
+"""Input validation at the door of the offline pipelines: drop and count what no sensor gives.
+
+The live nodes drop non-finite samples and implausible temperatures as they arrive; the
+offline ``calibrate`` does the same here, before the stationary detector, and also keeps
+what it needs to warn about inputs that would make a thermal fit unreliable (temperature
+gaps, stamps that never move, IMU stamps that run backwards).
+
+Limits (SI): accelerometer beyond ``ACCEL_LIMIT`` m/s^2 (about 200 g, the largest MEMS
+range) or gyro beyond ``GYRO_LIMIT`` rad/s (about 5700 deg/s) is no sensor's output; degC
+inputs outside ``input_units.TEMPERATURE_BOUNDS`` are garbage or the wrong unit.
+"""
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from .columns import TemperatureColumns
+from ..input_units import is_temperature, TEMPERATURE_BOUNDS
+
+#: largest specific force any accelerometer reports, m/s^2 (~200 g)
+ACCEL_LIMIT = 2000.0
+#: largest angular rate any gyro reports, rad/s (~5700 deg/s)
+GYRO_LIMIT = 100.0
+
+
+@dataclass
+class GateReport:
+    """What ``InputGate`` dropped and saw, for the summary and the warnings (counts)."""
+
+    imu_in: int = 0
+    imu_nonfinite: int = 0
+    imu_out_of_range: int = 0
+    imu_zero: int = 0
+    imu_stamp_not_increasing: int = 0
+    imu_stamp_zero: int = 0
+    #: first and last kept IMU header stamp, ns (None before any)
+    imu_first_ns: int = None
+    imu_last_ns: int = None
+    temp_in: dict = field(default_factory=dict)
+    temp_nonfinite: dict = field(default_factory=dict)
+    temp_out_of_range: dict = field(default_factory=dict)
+    temp_stamp_zero: dict = field(default_factory=dict)
+    #: per topic: kept stamps (int64 ns) to judge the sampling interval afterwards
+    temp_stamps: dict = field(default_factory=dict)
+
+    @property
+    def imu_dropped(self):
+        """Return the IMU samples dropped for any reason."""
+        return (self.imu_nonfinite + self.imu_out_of_range + self.imu_zero
+                + self.imu_stamp_not_increasing)
+
+    def dropped_text(self):
+        """Return e.g. '3 non-finite IMU samples, 1 -300 degC reading dropped' ('' if none)."""
+        parts = [f'{n} {what}' for n, what in (
+            (self.imu_nonfinite, 'non-finite IMU samples'),
+            (self.imu_out_of_range, f'IMU samples beyond any sensor\'s range (|a| > '
+                                    f'{ACCEL_LIMIT:g} m/s^2 or |w| > {GYRO_LIMIT:g} rad/s)'),
+            (self.imu_zero, 'IMU samples with an all-zero accelerometer vector'),
+            (self.imu_stamp_not_increasing, 'IMU samples whose header stamp does not '
+                                            'increase (duplicated or running backwards)')) if n]
+        for topic in self.temp_in:
+            bad = self.temp_nonfinite.get(topic, 0)
+            oor = self.temp_out_of_range.get(topic, 0)
+            if bad:
+                parts.append(f'{bad} non-finite readings of {topic}')
+            if oor:
+                parts.append(f'{oor} readings of {topic} outside {TEMPERATURE_BOUNDS[0]:g}..'
+                             f'{TEMPERATURE_BOUNDS[1]:g} degC')
+        return ', '.join(parts)
+
+
+class InputGate:
+    """Drop and count invalid samples of RawChunks (``io.bag.RawChunk``), in stream order.
+
+    ``units`` maps temperature topic -> unit; degC topics are bounded, proxies and topics
+    not named need only be finite. Raw buffers, if any, are filtered along.
+    """
+
+    def __init__(self, units=None, keep_stamps=20000):
+        self.units = dict(units or {})
+        self.report = GateReport()
+        self._last_ns = None
+        self._keep = keep_stamps
+
+    def push(self, raw):
+        """Return ``raw`` with invalid rows removed (a new RawChunk; counts in ``report``)."""
+        r = self.report
+        imu = raw.imu
+        n = len(imu)
+        r.imu_in += n
+        ok = np.ones(n, bool)
+        if n:
+            finite = np.isfinite(imu.accel).all(1) & np.isfinite(imu.gyro).all(1)
+            with np.errstate(invalid='ignore', over='ignore'):
+                big = ((np.abs(imu.accel) > ACCEL_LIMIT).any(1)
+                       | (np.abs(imu.gyro) > GYRO_LIMIT).any(1)) & finite
+            zero = finite & ~big & (imu.accel == 0).all(1)
+            r.imu_nonfinite += int((~finite).sum())
+            r.imu_out_of_range += int(big.sum())
+            r.imu_zero += int(zero.sum())
+            ok = finite & ~big & ~zero
+            r.imu_stamp_zero += int((imu.stamp_ns == 0).sum())
+            # keep strictly increasing stamps only (duplicates and jumps back are dropped)
+            st = imu.stamp_ns
+            prev = np.maximum.accumulate(np.concatenate(
+                [[np.iinfo(np.int64).min if self._last_ns is None else self._last_ns],
+                 np.where(ok, st, np.iinfo(np.int64).min)]))[:-1]
+            inc = st > prev
+            r.imu_stamp_not_increasing += int((ok & ~inc).sum())
+            ok &= inc
+            if ok.any():
+                self._last_ns = int(st[ok].max())
+                r.imu_last_ns = self._last_ns
+                if r.imu_first_ns is None:
+                    r.imu_first_ns = int(st[ok].min())
+        temps = {}
+        for topic, tc in raw.temps.items():
+            v = np.asarray(tc.temperature, float)
+            fin = np.isfinite(v)
+            keep = fin.copy()
+            r.temp_in[topic] = r.temp_in.get(topic, 0) + len(v)
+            r.temp_nonfinite[topic] = r.temp_nonfinite.get(topic, 0) + int((~fin).sum())
+            if is_temperature(self.units.get(topic, '')):
+                with np.errstate(invalid='ignore'):
+                    oor = fin & ((v < TEMPERATURE_BOUNDS[0]) | (v > TEMPERATURE_BOUNDS[1]))
+                r.temp_out_of_range[topic] = r.temp_out_of_range.get(topic, 0) + int(oor.sum())
+                keep &= ~oor
+            r.temp_stamp_zero[topic] = (r.temp_stamp_zero.get(topic, 0)
+                                        + int((tc.stamp_ns == 0).sum()))
+            kept = r.temp_stamps.setdefault(topic, [])
+            if sum(map(len, kept)) < self._keep:
+                kept.append(np.asarray(tc.stamp_ns[keep], np.int64))
+            temps[topic] = (tc if keep.all() else
+                            TemperatureColumns(tc.stamp_ns[keep], v[keep], tc.frame_id))
+        if ok.all():
+            return replace(raw, temps=temps)
+        return replace(raw, imu=imu.slice(ok), imu_log_time_ns=raw.imu_log_time_ns[ok],
+                       imu_raw=None if raw.imu_raw is None else
+                       [b for b, k in zip(raw.imu_raw, ok.tolist()) if k],
+                       temps=temps)
+
+
+def thermal_problems(report, max_gap_s):
+    """Return reasons the thermal inputs cannot support a thermal fit (empty: fine).
+
+    Each reason says what was found and what to do: temperature stamps that are all 0
+    (or never change), and a median interval longer than ``max_gap_s`` (most IMU samples
+    would see a held reading: the fit follows the sampling, not the temperature).
+    """
+    out = []
+    imu_seconds = (0.0 if report.imu_first_ns is None
+                   else (report.imu_last_ns - report.imu_first_ns) * 1e-9)
+    for topic, parts in report.temp_stamps.items():
+        st = np.concatenate(parts) if parts else np.zeros(0, np.int64)
+        n = report.temp_in.get(topic, 0)
+        if len(st) == 0:
+            out.append(f'{topic} has no usable reading ({n} read, '
+                       f'{report.temp_nonfinite.get(topic, 0)} NaN/Inf, '
+                       f'{report.temp_out_of_range.get(topic, 0)} outside '
+                       f'{TEMPERATURE_BOUNDS[0]:g}..{TEMPERATURE_BOUNDS[1]:g} degC); check the '
+                       'sensor and its driver, or leave the topic out (--temperature-topic)')
+            continue
+        if n and report.temp_stamp_zero.get(topic, 0) == n:
+            out.append(f'every reading of {topic} has header stamp 0, so none can be matched '
+                       'to the IMU samples in time and the thermal terms would be lost; fix the '
+                       'driver to stamp its readings (header.stamp), then record again')
+            continue
+        if len(st) >= 2 and np.unique(st).size == 1:
+            out.append(f'every reading of {topic} has the same header stamp; fix the driver to '
+                       'stamp its readings, then record again')
+            continue
+        if len(st) == 1 and imu_seconds > max_gap_s:
+            out.append(f'{topic} has a single reading in {imu_seconds:.0f} s of IMU data: a '
+                       'thermal fit needs the temperature through the log; record it at >= 1 Hz')
+            continue
+        if len(st) >= 2 and imu_seconds > 0:
+            dt = np.diff(np.sort(st)) * 1e-9
+            med = float(np.median(dt))
+            if med > max_gap_s:
+                out.append(f'{topic} is sampled every {med:.3g} s (median), longer than '
+                           f'--max-gap {max_gap_s:g} s: nearly every IMU sample would use a '
+                           'held reading and the fit would follow the sampling, not the '
+                           'temperature; record it at >= 1 Hz, or pass --max-gap '
+                           f'{med * 1.5:.3g} to interpolate between readings')
+    return out
