@@ -58,8 +58,8 @@ BREAKS = {
     'min-hold': (
         "make the detector's minimum hold 3x longer",
         [(f'{PKG}/estimation/stationary.py',
-          'b.t1[-1] - b.t0[0] < c.min_hold_s:',
-          'b.t1[-1] - b.t0[0] < 3 * c.min_hold_s:  # MUTANT')],
+          'b.t1[-1] - b.t0[0] < c.min_hold_s - 1e-9:',
+          'b.t1[-1] - b.t0[0] < 3 * c.min_hold_s - 1e-9:  # MUTANT')],
         ['test/test_core_estimation.py', 'test/test_cli_pipeline.py']),
     'skip-gyro': (
         'make the compensator skip the gyro correction',
