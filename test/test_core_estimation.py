@@ -228,3 +228,14 @@ def test_windows_jsonl_round_trip_and_truncated_line(six_face_recording):
     assert len(back) == len(w)
     np.testing.assert_allclose(back.accel, w.accel)
     assert coverage(back)['holds'] == coverage(w)['holds']
+
+
+def test_holds_just_above_the_minimum_hold_are_kept():
+    # 15-s holds with min_hold_s = 10: each one is a hold (a detector demanding 3x the
+    # minimum would drop all of them)
+    rng = np.random.default_rng(21)
+    model = truth_model(rng)
+    dirs = [d for d in FACES]
+    t, a, g, temps, holds = recording(rng, model, dirs, hold_s=15.0)
+    w = _detect(t, a, g, temps, config=DetectorConfig(min_hold_s=10.0))
+    assert len(np.unique(w.hold)) == len(holds), (np.unique(w.hold), len(holds))

@@ -10,7 +10,6 @@ have a pooled RMS near 1 over independent devices (stds neither inflated nor opt
 
 from _thermal_data import options, sim_windows
 import numpy as np
-import pytest
 
 from thermal_imu_calib import sim
 from thermal_imu_calib.calibration import Calibration, TemperatureInput
@@ -64,8 +63,6 @@ def test_field_model_std_covers_the_true_error():
     assert 0.6 <= z_rms <= 1.5, z_rms
 
 
-@pytest.mark.xfail(strict=True, reason='issue 15 finding: whole_unit accel stds are ~2.7x '
-                   'too small on the demo device (pooled z-RMS 2.7 over seeds 1-4)')
 def test_whole_unit_model_std_covers_the_true_error():
     z_rms = pooled_z('whole_unit')
     print(f'whole_unit: pooled z-RMS {z_rms:.2f}')
