@@ -10,8 +10,8 @@ from thermal_imu_calib.estimation.calibrate import (CalibrateOptions, calibrate_
                                                     CalibrationRefused, readiness)
 from thermal_imu_calib.estimation.field_estimator import fit_field_model, kkt_unit_tilt
 from thermal_imu_calib.estimation.offset_fit import weighted_polyfit
-from thermal_imu_calib.estimation.segments import coverage, Windows
-from thermal_imu_calib.estimation.stationary import DetectorConfig, StationaryDetector
+from thermal_imu_calib.collection.segments import coverage, Windows
+from thermal_imu_calib.collection.stationary import DetectorConfig, StationaryDetector
 
 
 def _detect(t, a, g, temps, chunk=7000, config=None):

@@ -7,8 +7,8 @@ import sys
 import numpy as np
 import pytest
 
-from thermal_imu_calib.estimation.gyro_fit import collect_motion
-from thermal_imu_calib.estimation.stationary import DetectorConfig, StationaryDetector
+from thermal_imu_calib.collection.motion import collect_motion
+from thermal_imu_calib.collection.stationary import DetectorConfig, StationaryDetector
 from thermal_imu_calib.estimation.whole_unit_fit import fit_whole_unit
 from thermal_imu_calib.io.csv_logs import (read_imucal_annotated, read_imucal_session,
                                            read_mpu6050_csv, read_static_intervals)

@@ -30,6 +30,9 @@ shorter ones than ``min_hold_s`` are dropped, and each hold is cut into windows 
 ``window_s`` (estimation.segments.Windows). ``holds`` keeps one record per hold (start,
 duration, stillness score). Memory stays small for hours of data, and the same class runs
 offline (CLI) and live (node). Settings given explicitly (not None / 0) are kept.
+
+Cohesive: one streaming algorithm (derive, score blocks, bridge, make holds and windows)
+whose state is shared by every step; split, its parts would pass that state around.
 """
 
 from collections import deque
