@@ -112,23 +112,6 @@ def test_slow_rotation_is_not_stationary(rate_dps, config):
     assert len(np.unique(w.hold)) == 2
 
 
-def test_kkt_tilt_matches_scipy_slsqp():
-    rng = np.random.default_rng(11)
-    for _ in range(20):
-        a_mats = rng.normal(size=(8, 3, 3))
-        y = rng.normal(size=(8, 3))
-        w = rng.uniform(0.5, 2.0, (8, 3))
-        c, _, _ = kkt_unit_tilt(a_mats, y, w, rng.normal(size=3))
-
-        def f(c):
-            return np.sum((w * (np.einsum('mij,j->mi', a_mats, c) - y)) ** 2)
-        best = min((minimize(f, x0, method='SLSQP', options={'ftol': 1e-15, 'maxiter': 500},
-                             constraints={'type': 'eq', 'fun': lambda c: c @ c - 1})
-                    for x0 in np.r_[np.eye(3), -np.eye(3)]), key=lambda r: r.fun)
-        assert abs(np.linalg.norm(c) - 1) < 1e-12
-        assert f(c) <= best.fun * (1 + 1e-9) + 1e-12
-
-
 def test_field_estimator_recovers_parameters(six_face_recording):
     model, t, a, g, temps, holds, dirs = six_face_recording
     w = _detect(t, a, g, temps)
