@@ -2,13 +2,12 @@
 
 import numpy as np
 import pytest
-from scipy.optimize import minimize
 
 from _synth import FACES, G, recording, truth_model
 from thermal_imu_calib.calibration import TemperatureInput
 from thermal_imu_calib.estimation.calibrate import (CalibrateOptions, calibrate_windows,
                                                     CalibrationRefused, readiness)
-from thermal_imu_calib.estimation.field_estimator import fit_field_model, kkt_unit_tilt
+from thermal_imu_calib.estimation.field_estimator import fit_field_model
 from thermal_imu_calib.estimation.offset_fit import weighted_polyfit
 from thermal_imu_calib.collection.segments import coverage, Windows
 from thermal_imu_calib.collection.stationary import DetectorConfig, StationaryDetector
