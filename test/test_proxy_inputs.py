@@ -352,4 +352,15 @@ def test_lag_applies_to_the_temperature_not_to_the_proxy():
         drift[label] = float(np.sqrt(np.mean((d - d.mean(0)) ** 2)))
     d = wv.gyro - rate
     raw = float(np.sqrt(np.mean((d - d.mean(0)) ** 2)))
-    assert drift['Hz'] < 1.25 * drift['degC'] and drift['Hz'] < raw / 4
+    # what the simulator's true calibration (die temperature through its 240-s lag) leaves on
+    # the same validation windows: the fitted models are 2.4-3.5x that on seeds 0-3 (seed 0:
+    # 2.5x degC, 2.6x Hz), both fitted out of sample on another run
+    truth = val_rec.truth
+    g = truth.stream().apply(0.5 * (wv.t0 + wv.t1), wv.accel, wv.gyro,
+                             wv.temp[:, :len(truth.temperature_topics)]).gyro
+    d = g - rate
+    true = float(np.sqrt(np.mean((d - d.mean(0)) ** 2)))
+    msg = (f'gyro drift RMS [rad/s]: degC input {drift["degC"]:.3g}, Hz proxy '
+           f'{drift["Hz"]:.3g}, true parameters {true:.3g}, raw {raw:.3g}')
+    assert drift['Hz'] < 1.25 * drift['degC'], msg
+    assert drift['Hz'] < 4 * true and drift['degC'] < 4 * true, msg
