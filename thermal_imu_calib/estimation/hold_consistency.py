@@ -1,0 +1,129 @@
+"""Repeated poses that disagree: holds taken in another sensor state (pose-repeat test).
+
+A still hold measures gravity, so two holds in the same pose (same gravity direction in
+the sensor frame) must read the same specific force, whatever the calibration: no model
+parameter can make them differ. A hold can be genuinely still (gyro at its bias, accel
+noise at its floor) and still disagree with an earlier visit of the same pose: the
+sensor's output changed while it was handled (package stress when clamped or held,
+a temperature step without a temperature input). The imucal Ferraris session is the
+example: the still periods around the 360 deg turns read |a| up to 0.86 mg lower than the
+face held in the same pose a minute earlier, with the same noise (12 sigma). Fitting
+such holds drags every face; a fit of all holds cannot tell which visit is wrong (the
+axis' bias and scale absorb either level), so the test is made before any fit.
+
+:func:`hold_consistency`:
+
+* pose clusters: holds whose mean accel directions are within ``CLUSTER_DEG``;
+* noise of a hold mean along gravity: ``sigma_h^2 = u' var u / N_h + (FLOOR_G g)^2``
+  (``var``: within-window variance plus the spread of the window means, at least
+  LSB^2/12; ``N_h`` samples; the floor is what averaging cannot remove);
+* two visits of a pose disagree when ``| |m_i| - |m_j| | > z sqrt(sigma_i^2 + sigma_j^2)``
+  with z the Bonferroni normal quantile at ``ALPHA`` over the pairs tested. With a
+  temperature input only visits within ``TEMP_MATCH`` of each other are compared (a
+  thermal model explains the rest);
+* which visit describes the calibrated state: an axis' bias and scale come from its up
+  and down poses, which must be read in the same state, so the reference of a cluster is
+  the visit closest in time to a hold of the opposite pose (the first visit when there is
+  none). Visits that disagree with the reference are left out of the accelerometer fit;
+  the reference itself is never left out, so no face is lost.
+
+The holds left out are still: the gyro bias and the pose changes around them use them.
+"""
+
+import numpy as np
+from scipy.stats import norm
+
+#: family error rate of the pairwise tests
+ALPHA = 1e-3
+#: noise floor of a hold mean that averaging cannot remove, as a fraction of g (10 ug)
+FLOOR_G = 10e-6
+#: holds within this angle are the same pose, deg
+CLUSTER_DEG = 5.0
+#: with a temperature input, visits are compared only within this difference (its unit)
+TEMP_MATCH = 0.5
+#: a hold of the opposite pose: direction within this angle of the reversed direction, deg
+OPPOSITE_DEG = 45.0
+
+
+def hold_table(windows, temps=None):
+    """Return ids, (h,3) mean accel, (h,3) variance of a sample, (h,) samples, (h,) t, (h,3) T.
+
+    The variance is the within-window variance plus the spread of the window means (so a
+    drift inside the hold counts as noise); t is the hold's mid time, s.
+    """
+    ids = windows.hold_ids
+    h = len(ids)
+    mean, var, n = np.zeros((h, 3)), np.zeros((h, 3)), np.zeros(h)
+    tmid, tm = np.zeros(h), np.full((h, 3), np.nan)
+    for j, i in enumerate(ids):
+        m = windows.hold == i
+        w = windows.n[m].astype(float)
+        mean[j] = np.average(windows.accel[m], axis=0, weights=w)
+        spread = np.average((windows.accel[m] - mean[j]) ** 2, axis=0, weights=w)
+        var[j] = np.average(windows.accel_var[m], axis=0, weights=w) + spread
+        n[j] = w.sum()
+        tmid[j] = 0.5 * (windows.t0[m].min() + windows.t1[m].max())
+        if temps is not None and len(temps):
+            tm[j] = np.average(temps[m], axis=0, weights=w)
+    return ids, mean, var, n, tmid, tm
+
+
+def hold_consistency(windows, gravity, temps=None, lsb=None):
+    """Return (bool mask over windows of the holds kept, report dict).
+
+    windows: segments.Windows; gravity m/s^2; temps: (m, 3) per-axis thermal input of the
+    accel axes per window (None without temperature); lsb: (3,) accel resolution, m/s^2
+    (None: not known). The report lists every hold left out with its pose reference, the
+    difference of |a| (ug) and its z-score.
+    """
+    ids, mean, var, n, tmid, tm = hold_table(windows, temps)
+    report = {'test': f'pose-repeat |a| test: visits within {CLUSTER_DEG:g} deg compared, '
+                      f'Bonferroni alpha {ALPHA:g}, floor {FLOOR_G * 1e6:.0f} ug',
+              'holds_tested': int(len(ids)), 'left_out': []}
+    if len(ids) < 2:
+        return np.ones(len(windows), bool), report
+    if lsb is not None:
+        var = np.maximum(var, np.asarray(lsb, float) ** 2 / 12.0)
+    mag = np.linalg.norm(mean, axis=1)
+    up = mean / mag[:, None]
+    sigma = np.sqrt(np.einsum('hi,hi->h', up ** 2, var) / n + (FLOOR_G * gravity) ** 2)
+    cos = up @ up.T
+    same = cos >= np.cos(np.radians(CLUSTER_DEG))
+    if temps is not None and len(temps):
+        dtemp = np.nanmax(np.abs(tm[:, None, :] - tm[None, :, :]), axis=2)
+        same &= dtemp <= TEMP_MATCH
+    opposite = cos <= -np.cos(np.radians(OPPOSITE_DEG))
+    z = np.abs(mag[:, None] - mag[None, :]) / np.hypot(sigma[:, None], sigma[None, :])
+    pairs = int(np.triu(same, 1).sum())
+    if pairs == 0:
+        return np.ones(len(windows), bool), report
+    limit = float(norm.isf(ALPHA / (2.0 * pairs)))
+    report['z_limit'] = limit
+    keep = np.ones(len(ids), bool)
+    done = np.zeros(len(ids), bool)
+    for j in np.argsort(tmid):
+        if done[j]:
+            continue
+        members = np.flatnonzero(same[j] & ~done)
+        done[members] = True
+        if len(members) < 2:
+            continue
+        opp = np.flatnonzero(opposite[members].any(axis=0))
+        if len(opp):
+            gap = np.abs(tmid[members][:, None] - tmid[opp][None, :]).min(axis=1)
+            ref = members[int(np.argmin(gap))]
+        else:
+            ref = members[int(np.argmin(tmid[members]))]
+        for i in members:
+            if i != ref and z[i, ref] > limit:
+                keep[i] = False
+                report['left_out'].append({
+                    'hold': int(ids[i]), 'reference_hold': int(ids[ref]),
+                    'difference_ug': float((mag[i] - mag[ref]) / gravity * 1e6),
+                    'sigma_ug': float(np.hypot(sigma[i], sigma[ref]) / gravity * 1e6),
+                    'z': float(z[i, ref])})
+    report['holds_kept'] = int(keep.sum())
+    return np.isin(windows.hold, ids[keep]), report
+
+
+__all__ = ['hold_consistency', 'hold_table', 'ALPHA', 'FLOOR_G', 'CLUSTER_DEG']
