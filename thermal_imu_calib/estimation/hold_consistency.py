@@ -17,6 +17,8 @@ axis' bias and scale absorb either level), so the test is made before any fit.
 * noise of a hold mean along gravity: ``sigma_h^2 = u' var u / N_h + (FLOOR_G g)^2``
   (``var``: within-window variance plus the spread of the window means, at least
   LSB^2/12; ``N_h`` samples; the floor is what averaging cannot remove);
+* |a| of each hold after a rough per-axis bias and scale fit to all holds (so the bias
+  does not turn the small tilt between two visits into a |a| difference);
 * two visits of a pose disagree when ``| |m_i| - |m_j| | > z sqrt(sigma_i^2 + sigma_j^2)``
   with z the Bonferroni normal quantile at ``ALPHA`` over the pairs tested. With a
   temperature input only visits within ``TEMP_MATCH`` of each other are compared (a
@@ -31,6 +33,7 @@ The holds left out are still: the gyro bias and the pose changes around them use
 """
 
 import numpy as np
+from scipy.optimize import least_squares
 from scipy.stats import norm
 
 #: family error rate of the pairwise tests
@@ -68,6 +71,32 @@ def hold_table(windows, temps=None):
     return ids, mean, var, n, tmid, tm
 
 
+def _has_faces(up):
+    """Return True when every axis has a pose within OPPOSITE_DEG of up and one of down."""
+    c = np.cos(np.radians(OPPOSITE_DEG))
+    return bool(np.all(np.any(up > c, axis=0) & np.any(up < -c, axis=0)))
+
+
+def rough_magnitudes(mean, gravity):
+    """Return |a| per hold after a rough bias + scale fit (raw |m| without the six faces).
+
+    Two visits of a pose are never exactly the same direction: with a bias b, a tilt
+    d_theta between them changes the raw |m| by about |b| d_theta (4 mg for 0.5 m/s^2 and
+    5 deg), far above the noise. A per-axis bias and scale fitted to every hold (Huber
+    loss) removes that; its errors enter the difference of two visits only times
+    d_theta.
+    """
+    mag = np.linalg.norm(mean, axis=1)
+    if len(mean) < 6 or not _has_faces(mean / mag[:, None]):
+        return mag
+
+    def fun(p):
+        return np.linalg.norm((mean - p[:3]) * (1.0 + p[3:]), axis=1) - gravity
+
+    p = least_squares(fun, np.zeros(6), loss='huber', f_scale=1e-3 * gravity).x
+    return np.linalg.norm((mean - p[:3]) * (1.0 + p[3:]), axis=1)
+
+
 def hold_consistency(windows, gravity, temps=None, lsb=None):
     """Return (bool mask over windows of the holds kept, report dict).
 
@@ -84,8 +113,8 @@ def hold_consistency(windows, gravity, temps=None, lsb=None):
         return np.ones(len(windows), bool), report
     if lsb is not None:
         var = np.maximum(var, np.asarray(lsb, float) ** 2 / 12.0)
-    mag = np.linalg.norm(mean, axis=1)
-    up = mean / mag[:, None]
+    up = mean / np.linalg.norm(mean, axis=1)[:, None]
+    mag = rough_magnitudes(mean, gravity)
     sigma = np.sqrt(np.einsum('hi,hi->h', up ** 2, var) / n + (FLOOR_G * gravity) ** 2)
     cos = up @ up.T
     same = cos >= np.cos(np.radians(CLUSTER_DEG))
