@@ -148,6 +148,8 @@ def hold_consistency(windows, gravity, temps=None, lsb=None):
                 keep[i] = False
                 report['left_out'].append({
                     'hold': int(ids[i]), 'reference_hold': int(ids[ref]),
+                    'start_s': float(windows.t0[windows.hold == ids[i]].min()),
+                    'end_s': float(windows.t1[windows.hold == ids[i]].max()),
                     'difference_ug': float((mag[i] - mag[ref]) / gravity * 1e6),
                     'sigma_ug': float(np.hypot(sigma[i], sigma[ref]) / gravity * 1e6),
                     'z': float(z[i, ref])})
