@@ -11,6 +11,8 @@ import pytest
 from thermal_imu_calib.calibration import Calibration
 from thermal_imu_calib.cli import main
 from thermal_imu_calib.estimation.gyro_fit import collect_motion
+from thermal_imu_calib.estimation.hold_consistency import hold_consistency
+from thermal_imu_calib.estimation.segments import Windows
 from thermal_imu_calib.estimation.stationary import DetectorConfig, StationaryDetector
 from thermal_imu_calib.estimation.whole_unit_fit import fit_whole_unit
 from thermal_imu_calib.io.bag import write_columns
@@ -253,3 +255,34 @@ def test_default_calibrate_leaves_out_the_disagreeing_ferraris_holds(tmp_path, s
     # fitted gave 167 ug
     assert rms < 1.5 * sig, (rms / 9.81e-6, sig / 9.81e-6)
     assert rms < 0.002 * np.sqrt(np.mean(raw ** 2))
+
+
+def _six_faces_and_repeat(step_g, seed=0):
+    """Windows of a biased, scaled sensor: six faces, then +x again 3 deg off, |a| stepped."""
+    rng = np.random.default_rng(seed)
+    bias, scale, g, n, sd = np.array([0.5, -0.4, 0.3]), np.array([1.02, 0.97, 1.01]), 9.81, \
+        500, 0.015
+    ups = [np.eye(3)[i] * s for i in range(3) for s in (1, -1)]
+    tilt = np.radians(3.0)
+    ups.append(np.array([np.cos(tilt), np.sin(tilt), 0.0]))
+    rows = []
+    for j, u in enumerate(ups):
+        f = g * u * (1.0 + (step_g if j == 6 else 0.0))
+        rows.append(f * scale + bias + rng.normal(0.0, sd / np.sqrt(n), 3))
+    m = len(rows)
+    return Windows(np.arange(m), 10.0 * np.arange(m), 10.0 * np.arange(m) + 5.0,
+                   np.full(m, n), np.array(rows), np.zeros((m, 3)), np.full((m, 3), sd ** 2),
+                   np.zeros((m, 3)), np.zeros((m, 0)), np.zeros((m, 0)))
+
+
+@pytest.mark.parametrize('step_g, left_out', [(0.0, []), (1e-3, [6])])
+def test_pose_repeat_test_leaves_out_only_a_visit_that_disagrees(step_g, left_out):
+    # a 3 deg tilt between two visits with a 0.5 m/s^2 bias changes the raw |m| by ~26 mg:
+    # that must not count; a 1 mg step (~10 sigma of the two hold means) must
+    w = _six_faces_and_repeat(step_g)
+    keep, rep = hold_consistency(w, 9.81)
+    assert [h['hold'] for h in rep['left_out']] == left_out
+    assert np.array_equal(~keep, np.isin(w.hold, left_out))
+    if left_out:
+        assert rep['left_out'][0]['reference_hold'] == 0                 # the face is kept
+        assert abs(rep['left_out'][0]['difference_ug'] - 1e3) < 300
