@@ -7,10 +7,12 @@ of one test ever sees another's. Subprocesses started by tests inherit the same 
 """
 
 import os
+import sys
 import threading
 import time
 import traceback
 
+import numpy as np
 import pytest
 
 from thermal_imu_calib.nodes.player import (imu_msg, Pacer, replay,  # noqa: F401
@@ -19,6 +21,28 @@ from thermal_imu_calib.nodes.player import (imu_msg, Pacer, replay,  # noqa: F40
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.setdefault('ROS_DOMAIN_ID', str(1 + os.getpid() % 101))
 DOMAIN_ID = int(os.environ['ROS_DOMAIN_ID'])
+
+
+BIN = os.path.dirname(sys.executable)
+
+
+def venv_exe(name):
+    """Return the path of console script ``name`` installed next to the running interpreter.
+
+    Tests run as ``.venv/bin/python -m pytest`` need not have the venv on PATH; a missing
+    script is a failed install, so this fails rather than skips.
+    """
+    path = os.path.join(BIN, name)
+    if not os.access(path, os.X_OK):
+        pytest.fail(f'{name} is not installed next to {sys.executable} (run make install)')
+    return path
+
+
+def venv_env(**extra):
+    """Return os.environ with the interpreter's bin directory first on PATH, plus ``extra``."""
+    env = dict(os.environ, PATH=BIN + os.pathsep + os.environ.get('PATH', ''))
+    env.update({k: str(v) for k, v in extra.items()})
+    return env
 
 
 def wait_for(predicate, timeout, what, poll=0.01):
@@ -37,6 +61,59 @@ def wait_for(predicate, timeout, what, poll=0.01):
         time.sleep(poll)
 
 
+def wait_count(count, target, what, stall=60.0, settle=5.0, loss=0.01):
+    """Wait until ``count()`` reaches ``target``; return the count reached.
+
+    Bounded by progress, not by a total time: it fails only when the count has not grown
+    for ``stall`` seconds (a loaded machine is slow, a broken path does not move). The
+    inputs of the nodes are best effort, which promises no delivery: once the count has
+    stood still for ``settle`` seconds at ``(1 - loss) * target`` or more, that is accepted
+    (the callers then assert what came through, not that everything did).
+    """
+    last, moved = count(), time.monotonic()
+    while True:
+        now = count()
+        if now >= target:
+            return now
+        t = time.monotonic()
+        if now != last:
+            last, moved = now, t
+        elif t - moved > settle and now >= (1.0 - loss) * target:
+            return now
+        elif t - moved > stall:
+            pytest.fail(f'{what() if callable(what) else what}: stuck at {now} of {target} '
+                        f'for {stall:.0f} s')
+        time.sleep(0.01)
+
+
+def replay_flow(imu_pub, imu, temperatures, rate, delivered, window=500, what='delivery'):
+    """Replay like ``replay`` with back-pressure: at most ``window`` IMU messages in flight.
+
+    The IMU columns are published in chunks of ``window // 2`` at ``rate``; before each
+    chunk, ``delivered()`` (the receiver's count of IMU messages, cumulative over this
+    call) must have caught up to within one chunk of what was sent. ``window`` stays below
+    the subscribers' queue depth (1000), so a slow (loaded) receiver slows the replay
+    instead of losing messages. Returns the number of IMU messages published.
+    """
+    chunk = max(window // 2, 1)
+    base = delivered()
+    n = len(imu.stamp_ns)
+    sent = 0
+    for i0 in range(0, n, chunk):
+        i1 = min(i0 + chunk, n)
+        lo = -np.inf if i0 == 0 else imu.stamp_ns[i0]
+        hi = np.inf if i1 == n else imu.stamp_ns[i1]
+        temps = []
+        for pub, stamps, values in temperatures:
+            stamps, values = np.asarray(stamps), np.asarray(values)
+            m = (stamps >= lo) & (stamps < hi)
+            temps.append((pub, stamps[m], values[m]))
+        if sent:
+            wait_count(lambda: delivered() - base, sent - chunk, what)
+        sent += replay(imu_pub, imu.slice(slice(i0, i1)), temps, rate)
+    return sent
+
+
 class RosHarness:
     """Nodes of one test in one context, spun by a SingleThreadedExecutor in a thread.
 
@@ -49,6 +126,9 @@ class RosHarness:
         self.executor = SingleThreadedExecutor(context=context)
         self.nodes = []
         self.errors = []
+        # held around each spin_once: a node is removed and destroyed between two spins,
+        # never while one of its callbacks runs (InvalidHandle otherwise)
+        self._lock = threading.Lock()
         self._thread = threading.Thread(target=self._spin, daemon=True)
         self._thread.start()
 
@@ -56,7 +136,8 @@ class RosHarness:
         from rclpy.executors import ExternalShutdownException
         while self.context.ok():
             try:
-                self.executor.spin_once(timeout_sec=0.05)
+                with self._lock:
+                    self.executor.spin_once(timeout_sec=0.05)
             except ExternalShutdownException:
                 break
             except Exception as e:  # noqa: B902 - a callback raised: keep it for the test
@@ -78,9 +159,10 @@ class RosHarness:
 
     def remove(self, node):
         """Stop spinning ``node`` and destroy it."""
-        self.executor.remove_node(node)
-        self.nodes.remove(node)
-        node.destroy_node()
+        with self._lock:
+            self.executor.remove_node(node)
+            self.nodes.remove(node)
+            node.destroy_node()
 
     def collect(self, node, msg_type, topic, qos=10):
         """Subscribe and return the list every received message is appended to."""
@@ -103,13 +185,14 @@ class RosHarness:
                  f'{count} subscriber(s) on {publisher.topic_name}')
 
     def shutdown(self):
-        for node in list(self.nodes):
-            try:
-                self.executor.remove_node(node)
-                node.destroy_node()
-            except Exception:  # noqa: B902 - best effort at teardown
-                pass
-        self.context.try_shutdown()
+        with self._lock:
+            for node in list(self.nodes):
+                try:
+                    self.executor.remove_node(node)
+                    node.destroy_node()
+                except Exception:  # noqa: B902 - best effort at teardown
+                    pass
+            self.context.try_shutdown()
         self._thread.join(timeout=5.0)
         self.executor.shutdown(timeout_sec=1.0)
 

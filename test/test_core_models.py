@@ -65,7 +65,16 @@ def test_file_round_trip_is_exact(tmp_path):
     np.testing.assert_array_equal(r1.accel, r2.accel)
     np.testing.assert_array_equal(r1.gyro, r2.gyro)
     np.testing.assert_array_equal(r1.out_of_range, (t[:, 0] < 15) | (t[:, 0] > 45))
-    assert r1.accel_std.shape == (50, 3) and np.all(r1.accel_std >= 0.01)
+    # docs/uncertainty.md by hand: accel_std = sqrt(model_std(T)^2 + noise^2), the field
+    # model_std the bias-equivalent error at 1 g, T clamped to the valid range [15, 45]
+    sd, g0 = np.abs(cal.accel.thermal) / 10, 9.80665
+    dt = np.clip(t, 15.0, 45.0) - np.array([25.0, 26.0, 27.0])
+    model_var = ((sd[:, 0] * g0) ** 2 + (sd[:, 1] * dt * g0) ** 2 + (sd[:, 2] * dt ** 2 * g0) ** 2
+                 + sd[:, 3] ** 2 + (sd[:, 4] * dt) ** 2 + (sd[:, 5] * dt ** 2) ** 2)
+    np.testing.assert_allclose(r1.accel_std, np.sqrt(model_var + 0.01 ** 2), rtol=1e-12)
+    assert np.all(r1.accel_std > 0.01)      # strictly: the model term is there
+    # offset polynomial gyro without coefficient std: noise only
+    np.testing.assert_allclose(r1.gyro_std, 0.001, rtol=1e-12)
 
 
 def test_clamp_and_extrapolate():

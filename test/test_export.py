@@ -362,7 +362,7 @@ def test_real_mpu6050_whole_unit_exports():
     from thermal_imu_calib.estimation.whole_unit_fit import fit_whole_unit
     from thermal_imu_calib.io.csv_logs import read_mpu6050_csv
     s = read_mpu6050_csv(os.path.join(R.MPU, 'example_data_calibration.csv.gz'))
-    windows, transitions, _ = collect_motion(s.aligned(), R.HAND_HELD, 0)
+    windows, transitions, _ = collect_motion(s.aligned(), None, 0)   # default detector
     fit = fit_whole_unit(windows, R.G, transitions=transitions)
     cal = Calibration(accel=fit.accel.model, gyro=fit.gyro.model)
     assert np.abs(cal.gyro.coupling).max() > 1e-5          # a real g-sensitivity

@@ -23,7 +23,8 @@ def _still_error(cal, w):
 
 
 def test_installed():
-    calibrate.model_choices()
+    choices = calibrate.model_choices()
+    assert choices[0] == 'auto' and {'field', 'whole_unit', 'offset'} <= set(choices)
     assert calibrate.DEFAULT_GYRO[0] is gyro_select.default_gyro
 
 

@@ -84,6 +84,16 @@ def test_noisy_lab_run_is_within_its_stated_uncertainty():
     assert np.allclose(res2.gyro.coupling, res.gyro.coupling, rtol=0, atol=1e-15)
 
 
+def test_lab_stds_are_calibrated_pooled_over_seeds():
+    # |z| < 5 and max |z| > 0.5 pass with stds inflated 4-5x; the pooled z-RMS over the
+    # 63 coefficients of 3 independent noisy runs must be near 1
+    z = np.concatenate([np.ravel(err / std) for seed in (2, 3, 4)
+                        for _, err, std, _ in coefficient_errors(*run(1.0, seed=seed))])
+    z_rms = float(np.sqrt(np.mean(z ** 2)))
+    print(f'lab coefficients: pooled z-RMS {z_rms:.2f} over {z.size}')
+    assert 0.6 <= z_rms <= 1.5, z_rms
+
+
 def test_schedule_files_round_trip_and_bad_input_is_refused(tmp_path):
     sched, _ = paper_schedule(G)
     for name in ('s.csv', 's.yaml'):

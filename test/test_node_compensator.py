@@ -6,21 +6,20 @@ from conftest import imu_msg, temperature_msg, wait_for
 import numpy as np
 import pytest
 
-pytest.importorskip('rclpy')
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import Imu, Temperature
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
 
-from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
-from rclpy.parameter import Parameter  # noqa: E402
-from sensor_msgs.msg import Imu, Temperature  # noqa: E402
-from std_msgs.msg import String  # noqa: E402
-from std_srvs.srv import Trigger  # noqa: E402
-
-from thermal_imu_calib.calibration import Calibration, TemperatureInput  # noqa: E402
-from thermal_imu_calib.models.field import FieldPolynomialModel  # noqa: E402
-from thermal_imu_calib.models.polynomial import OffsetPolynomialModel  # noqa: E402
-from thermal_imu_calib.nodes import common  # noqa: E402
-from thermal_imu_calib.nodes.compensator import CompensatorNode  # noqa: E402
+from thermal_imu_calib.calibration import Calibration, TemperatureInput
+from thermal_imu_calib.models.field import FieldPolynomialModel
+from thermal_imu_calib.models.polynomial import OffsetPolynomialModel
+from thermal_imu_calib.nodes import common
+from thermal_imu_calib.nodes.compensator import CompensatorNode
 
 S = 1_000_000_000
+WAIT = 60.0   # bound of a wait on a condition (reached only when something is broken)
 T0_NS = 1_700_000_000 * S
 ACCEL = (0.3, -0.2, 9.7)
 GYRO = (0.01, -0.02, 0.005)
@@ -69,14 +68,14 @@ class Rig:
         self.diag = ros.collect(self.driver, DiagnosticArray, '/diagnostics', 10)
         ros.wait_matched(self.imu_pub)
         ros.wait_matched(self.temp_pub)
-        wait_for(lambda: self.node.pub.get_subscription_count() >= 1, 10, 'output subscriber')
+        wait_for(lambda: self.node.pub.get_subscription_count() >= 1, WAIT, 'output subscriber')
         self.stamp = T0_NS
 
     def temperature(self, value, stamp=None):
         """Publish one temperature reading and wait until the node has it."""
         before = sum(self.node.temps.received)
         self.temp_pub.publish(temperature_msg(self.stamp if stamp is None else stamp, value))
-        wait_for(lambda: sum(self.node.temps.received) > before, 10, 'the temperature reading')
+        wait_for(lambda: sum(self.node.temps.received) > before, WAIT, 'the temperature reading')
 
     def send(self, n=1, dt=0.01, accel=ACCEL, gyro=GYRO):
         """Publish n IMU samples dt apart (stamps continue from the last ones)."""
@@ -86,7 +85,7 @@ class Rig:
 
     def receive(self, total, what='compensated messages'):
         """Wait until ``total`` IMU messages were received by the node; return the output."""
-        wait_for(lambda: self.node.counts['received'] >= total, 10, f'{total} inputs')
+        wait_for(lambda: self.node.counts['received'] >= total, WAIT, f'{total} inputs')
         return self.out
 
     def diagnostics(self):
@@ -102,7 +101,7 @@ class Rig:
 def test_no_calibration_passes_through_and_says_so(ros, tmp_path):
     rig = Rig(ros, calibration_file=str(tmp_path / 'none.yaml'))
     rig.send(5)
-    wait_for(lambda: len(rig.out) >= 5, 10, '5 passed-through messages')
+    wait_for(lambda: len(rig.out) >= 5, WAIT, '5 passed-through messages')
     for m in rig.out:
         a, w = vec(m)
         assert np.allclose(a, ACCEL) and np.allclose(w, GYRO)
@@ -120,7 +119,7 @@ def test_compensates_with_core_result_header_and_covariance(ros, tmp_path):
     assert rig.node.active.id == cal.id
     rig.temperature(25.0)
     rig.send(20)
-    wait_for(lambda: len(rig.out) >= 20, 10, '20 compensated messages')
+    wait_for(lambda: len(rig.out) >= 20, WAIT, '20 compensated messages')
     exp = expected(cal, 25.0)
     for i, m in enumerate(rig.out):
         a, w = vec(m)
@@ -147,7 +146,7 @@ def test_temperature_is_interpolated_by_header_stamp(ros, tmp_path):
     rig.temperature(26.0, T0_NS + S)
     rig.stamp = T0_NS + S // 2  # halfway between the readings
     rig.send(1)
-    wait_for(lambda: len(rig.out) >= 1, 10, 'the compensated message')
+    wait_for(lambda: len(rig.out) >= 1, WAIT, 'the compensated message')
     np.testing.assert_allclose(vec(rig.out[0])[0], expected(cal, 25.0).accel[0], atol=1e-12)
 
 
@@ -162,7 +161,7 @@ def test_reload_from_file_and_service(ros, tmp_path):
     assert resp.success, resp.message
     assert b.id in resp.message
     rig.send(3)
-    wait_for(lambda: len(rig.out) >= 3, 10, 'messages after reload')
+    wait_for(lambda: len(rig.out) >= 3, WAIT, 'messages after reload')
     np.testing.assert_allclose(vec(rig.out[-1])[0], expected(b, 30.0).accel[0], atol=1e-12)
     # a bad file is refused with its reason; the model in use stays
     path.write_text('format: thermal_imu_calib/1\naccel: {kind: nope}\n')
@@ -171,7 +170,7 @@ def test_reload_from_file_and_service(ros, tmp_path):
     assert 'rejected' in resp.message and f'keeping calibration {b.id}' in resp.message
     assert rig.node.active.id == b.id
     rig.send(2)
-    wait_for(lambda: len(rig.out) >= 5, 10, 'messages after the bad reload')
+    wait_for(lambda: len(rig.out) >= 5, WAIT, 'messages after the bad reload')
     np.testing.assert_allclose(vec(rig.out[-1])[0], expected(b, 30.0).accel[0], atol=1e-12)
 
 
@@ -180,7 +179,7 @@ def test_calibration_topic_applies_and_bad_ones_are_rejected(ros, tmp_path):
     rig = Rig(ros, calibration_file=str(a.save(tmp_path / 'cal.yaml')))
     rig.temperature(28.0)
     rig.cal_pub.publish(String(data=b.to_yaml()))
-    wait_for(lambda: rig.node.active.id == b.id, 10, 'the topic calibration to apply')
+    wait_for(lambda: rig.node.active.id == b.id, WAIT, 'the topic calibration to apply')
     assert rig.node.active.source == 'imu/calibration topic'
     bad = [
         ('not: [valid', 'not valid YAML'),
@@ -194,7 +193,7 @@ def test_calibration_topic_applies_and_bad_ones_are_rejected(ros, tmp_path):
         assert reason in rig.node.last_rejection
         assert rig.node.active.id == b.id
     rig.send(4)
-    wait_for(lambda: len(rig.out) >= 4, 10, 'messages after rejections')
+    wait_for(lambda: len(rig.out) >= 4, WAIT, 'messages after rejections')
     for m in rig.out:
         np.testing.assert_allclose(vec(m)[0], expected(b, 28.0).accel[0], atol=1e-12)
     _, values = rig.diagnostics()
@@ -227,7 +226,7 @@ def test_stale_and_missing_temperature_policies(ros, tmp_path, policy):
     rig.send(4)           # stale
     rig.receive(10)
     n_out = 3 if policy == 'drop' else 10
-    wait_for(lambda: len(rig.out) >= n_out, 10, f'{n_out} published messages')
+    wait_for(lambda: len(rig.out) >= n_out, WAIT, f'{n_out} published messages')
     comp = expected(cal, 25.0).accel[0]
     got = [vec(m)[0] for m in rig.out]
     is_comp = [bool(np.allclose(g, comp, atol=1e-12)) for g in got]
@@ -253,7 +252,7 @@ def test_out_of_range_is_clamped_and_counted(ros, tmp_path):
     rig = Rig(ros, calibration_file=str(cal.save(tmp_path / 'cal.yaml')))
     rig.temperature(55.0)
     rig.send(5)
-    wait_for(lambda: len(rig.out) >= 5, 10, 'compensated messages')
+    wait_for(lambda: len(rig.out) >= 5, WAIT, 'compensated messages')
     np.testing.assert_allclose(vec(rig.out[-1])[0], expected(cal, 40.0).accel[0], atol=1e-12)
     assert rig.node.counts['clamped'] == 5
     _, values = rig.diagnostics()
@@ -270,12 +269,12 @@ def test_non_finite_input_is_never_published(ros, tmp_path):
     rig.temp_pub.publish(temperature_msg(rig.stamp, float('nan')))
     rig.send(2)
     rig.receive(6)
-    wait_for(lambda: len(rig.out) >= 4, 10, 'the 4 finite messages')
+    wait_for(lambda: len(rig.out) >= 4, WAIT, 'the 4 finite messages')
     for m in rig.out:
         a, w = vec(m)
         assert np.all(np.isfinite(a)) and np.all(np.isfinite(w))
     assert rig.node.counts['invalid'] == 2
-    wait_for(lambda: rig.node.temps.invalid == 1, 5, 'the NaN temperature to be counted')
+    wait_for(lambda: rig.node.temps.invalid == 1, WAIT, 'the NaN temperature to be counted')
 
 
 def test_model_swap_never_mixes_parameters(ros, tmp_path):
@@ -302,7 +301,7 @@ def test_model_swap_never_mixes_parameters(ros, tmp_path):
     finally:
         stop.set()
         th.join()
-    wait_for(lambda: len(rig.out) >= 400, 10, '400 outputs')
+    wait_for(lambda: len(rig.out) >= 400, WAIT, '400 outputs')
     kinds = set()
     for m in rig.out:
         acc, gyr = vec(m)
@@ -330,12 +329,12 @@ def test_several_temperature_topics_map_by_name(ros, tmp_path):
     out = ros.collect(driver, Imu, 'imu/data_compensated', 10)
     for p in list(pubs.values()) + [imu_pub]:
         ros.wait_matched(p)
-    wait_for(lambda: rig_node.pub.get_subscription_count() >= 1, 10, 'output subscriber')
+    wait_for(lambda: rig_node.pub.get_subscription_count() >= 1, WAIT, 'output subscriber')
     for t, v in zip(topics, (22.0, 27.0, 35.0)):
         pubs[t].publish(temperature_msg(T0_NS, v))
-    wait_for(lambda: sum(rig_node.temps.received) >= 3, 10, 'three temperatures')
+    wait_for(lambda: sum(rig_node.temps.received) >= 3, WAIT, 'three temperatures')
     imu_pub.publish(imu_msg(T0_NS, ACCEL, GYRO))
-    wait_for(lambda: len(out) >= 1, 10, 'the compensated message')
+    wait_for(lambda: len(out) >= 1, WAIT, 'the compensated message')
     exp = cal.apply(np.array([ACCEL]), np.array([GYRO]), np.array([[22.0, 27.0, 35.0]]))
     np.testing.assert_allclose(vec(out[0])[0], exp.accel[0], atol=1e-12)
 
@@ -352,7 +351,7 @@ def test_stamps_jumping_back_start_a_new_temperature_timeline(ros, tmp_path):
     rig.temperature(25.0, stamp=rig.stamp)  # the new timeline's first reading
     rig.send(3)
     out = rig.receive(6)
-    wait_for(lambda: len(out) >= 6, 10, '6 outputs')
+    wait_for(lambda: len(out) >= 6, WAIT, '6 outputs')
     a_new, _ = vec(out[-1])
     np.testing.assert_allclose(a_new, expected(cal, 25.0).accel[0], atol=1e-9)
     assert rig.node.temps.time_resets == 1
@@ -375,7 +374,7 @@ def test_lagged_temperature_filter_runs_live(ros, tmp_path):
     rig.stamp += 60 * S            # a minute later: settled at 35
     rig.send(1)
     out = rig.receive(13)
-    wait_for(lambda: len(out) >= 13, 10, '13 outputs')
+    wait_for(lambda: len(out) >= 13, WAIT, '13 outputs')
     just_after, _ = vec(out[11])
     settled, _ = vec(out[12])
     np.testing.assert_allclose(just_after, expected(cal, 25.0).accel[0], atol=2e-4)
@@ -394,7 +393,7 @@ def test_despike_replaces_a_spike_before_compensation(ros, tmp_path):
             a[2] += 30.0                      # one ~3 g bump
         rig.send(1, accel=a)
     out = rig.receive(n - 3)     # the gate holds the last 3 samples back
-    wait_for(lambda: len(out) >= n - 3, 10, 'outputs')
+    wait_for(lambda: len(out) >= n - 3, WAIT, 'outputs')
     az = np.array([vec(m)[0][2] for m in out])
     ref = expected(cal, 30.0).accel[0][2]
     assert np.max(np.abs(az - ref)) < 0.05, az
@@ -408,10 +407,42 @@ def test_fill_covariance_can_be_switched_off_at_run_time(ros, tmp_path):
     rig.temperature(30.0)
     rig.send(1)
     out = rig.receive(1)
-    wait_for(lambda: len(out) >= 1, 10, 'one output')
+    wait_for(lambda: len(out) >= 1, WAIT, 'one output')
     assert out[0].linear_acceleration_covariance[0] == pytest.approx(1e-3 ** 2, rel=1e-6)
     rig.node.set_parameters([Parameter('fill_covariance', value=False)])
     rig.send(1)
     rig.receive(2)
-    wait_for(lambda: len(out) >= 2, 10, 'two outputs')
+    wait_for(lambda: len(out) >= 2, WAIT, 'two outputs')
     assert list(out[1].linear_acceleration_covariance) == [0.0] * 9   # as received
+
+
+def test_output_reliability_best_effort(ros, tmp_path):
+    # output_reliability: best_effort publishes with that QoS: a reliable subscriber is
+    # incompatible (never matched), a best-effort one gets the compensated messages
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    cal = make_cal()
+    node = ros.add(CompensatorNode(context=ros.context, parameter_overrides=[
+        Parameter('calibration_file', value=str(cal.save(tmp_path / 'cal.yaml'))),
+        Parameter('output_reliability', value='best_effort')]))
+    assert node.pub.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT
+    driver = ros.node('driver')
+    reliable = ros.collect(driver, Imu, 'imu/data_compensated', 10)
+    best = ros.collect(driver, Imu, 'imu/data_compensated', QoSProfile(
+        depth=100, reliability=ReliabilityPolicy.BEST_EFFORT))
+    imu_pub = driver.create_publisher(Imu, 'imu/data_raw', 100)
+    temp_pub = driver.create_publisher(Temperature, 'imu/temperature', 10)
+    ros.wait_matched(imu_pub)
+    ros.wait_matched(temp_pub)
+    wait_for(lambda: node.pub.get_subscription_count() >= 1, WAIT, 'the best-effort reader')
+    temp_pub.publish(temperature_msg(T0_NS, 30.0))
+    wait_for(lambda: sum(node.temps.received) >= 1, WAIT, 'the temperature reading')
+    for i in range(20):
+        imu_pub.publish(imu_msg(T0_NS + i * 10 ** 7, ACCEL, GYRO))
+    wait_for(lambda: len(best) >= 1, WAIT, 'compensated messages at the best-effort reader')
+    assert node.pub.get_subscription_count() == 1      # the reliable reader never matched
+    assert reliable == []
+    a, w = vec(best[0])
+    ref = expected(cal, 30.0)
+    np.testing.assert_allclose(a, ref.accel[0], rtol=1e-12)
+    np.testing.assert_allclose(w, ref.gyro[0], rtol=1e-12)
+    assert not np.allclose(w, GYRO)                   # the gyro correction is applied

@@ -3,31 +3,36 @@
 The simulated ``demo`` device (two rounds of six faces during a MEMS warm-up) is replayed
 evenly paced and faster than real time into the calibrator and the compensator;
 ``~/calibrate`` estimates and publishes the model, the compensator picks it up from the
-latched topic, and a second, independent cold start of the same device is replayed: every
-message must come out, with a static gravity error at least 20x smaller than the raw one.
+latched topic, and a second, independent cold start of the same device is replayed.
+
+Delivery: the nodes' inputs are best effort (sensor data QoS), which promises nothing, so
+the replay is back-pressured (``replay_flow``: never more in flight than the queues hold)
+and at most 1 % may be lost on that leg; the compensator's output is reliable, so every
+message it received must come out, compensated. Accuracy: the static gravity error after
+compensation is compared with what the simulator's true parameters achieve on the same
+data (the attainable floor), not with raw.
 """
 
 import dataclasses
 
-from conftest import replay, wait_for
+from conftest import replay_flow, wait_count, wait_for
 import numpy as np
-import pytest
 
-pytest.importorskip('rclpy')
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import Imu, Temperature
+from std_srvs.srv import Trigger
 
-from rclpy.parameter import Parameter  # noqa: E402
-from sensor_msgs.msg import Imu, Temperature  # noqa: E402
-from std_srvs.srv import Trigger  # noqa: E402
+from thermal_imu_calib import sim
+from thermal_imu_calib.calibration import Calibration
+from thermal_imu_calib.nodes import common
+from thermal_imu_calib.nodes.calibrator import CalibratorNode
+from thermal_imu_calib.nodes.compensator import CompensatorNode
 
-from thermal_imu_calib.calibration import Calibration  # noqa: E402
-from thermal_imu_calib.nodes import common  # noqa: E402
-from thermal_imu_calib.nodes.calibrator import CalibratorNode  # noqa: E402
-from thermal_imu_calib.nodes.compensator import CompensatorNode  # noqa: E402
-
-sim = pytest.importorskip('thermal_imu_calib.sim')
 
 SEED = 3
 RATE = 1000.0   # IMU messages per second: 10x the recording's 100 Hz
+FLOOR_FACTOR = 8.0   # the compensated static error may be this many times the truth's
+WAIT = 120.0    # bound of a wait on a condition (reached only when something is broken)
 
 
 def recordings():
@@ -71,27 +76,25 @@ def test_live_calibration_then_compensation_of_a_new_cold_start(ros, tmp_path):
     ros.wait_matched(temp_pub, 2)
     wait_for(lambda: compensator.pub.get_subscription_count() >= 1, 10, 'output subscriber')
 
-    # 1. calibration run
+    # 1. calibration run, back-pressured on both receivers
     imu = cal_run.imu()
-    n = replay(imu_pub, imu, [(temp_pub, temps.stamp_ns, temps.temperature)], RATE)
-    # generous waits: a loaded 2-core machine may take a while to drain the queues, but
-    # every message must still arrive
-    wait_for(lambda: compensator.counts['received'] >= n, 60,
-             lambda: f'compensator input {n} (got {compensator.counts["received"]})')
-    wait_for(lambda: calibrator.counts['samples'] >= n - 200, 60,
-             lambda: f'calibrator to collect ~{n} samples: {calibrator.counts}, '
-                     f'received {calibrator._rate.total}')
-    wait_for(lambda: len(out) >= n, 60, lambda: f'{n} passed-through messages (got {len(out)})')
-    assert compensator.counts['passthrough'] == n   # no model yet: passthrough, nothing lost
+    n = replay_flow(imu_pub, imu, [(temp_pub, temps.stamp_ns, temps.temperature)], RATE,
+                    lambda: min(compensator.counts['received'], calibrator._rate.total),
+                    what='the nodes\' input')
+    got = wait_count(lambda: compensator.counts['received'], n, 'compensator input')
+    wait_count(lambda: calibrator._rate.total, n, 'calibrator input')
+    wait_for(lambda: len(out) >= got, WAIT, lambda: f'{got} passed-through (got {len(out)})')
+    assert got >= 0.99 * n                                  # best effort leg
+    assert len(out) == compensator.counts['passthrough'] == got   # reliable leg: all out
     progress = calibrator.progress()
     assert progress['missing_faces'] == [] and progress['ready'], progress
 
-    resp = ros.call(driver, Trigger, '/thermal_imu_calibrator/calibrate', timeout=60)
+    resp = ros.call(driver, Trigger, '/thermal_imu_calibrator/calibrate', timeout=WAIT)
     assert resp.success, resp.message
     cal = Calibration.load(cal_file)
     assert cal.id in resp.message and 'field_polynomial' in resp.message
     assert cal.temperature_topics == ['imu/temperature'] and cal.frame_id == 'imu_link'
-    wait_for(lambda: compensator.active is not None and compensator.active.id == cal.id, 10,
+    wait_for(lambda: compensator.active is not None and compensator.active.id == cal.id, WAIT,
              'the compensator to apply the published calibration')
 
     # 2. validation run of the same device: count every message, compare static errors
@@ -102,20 +105,29 @@ def test_live_calibration_then_compensation_of_a_new_cold_start(ros, tmp_path):
     vimu = val_run.imu()
     vimu.stamp_ns = vimu.stamp_ns + shift
     (vtopic, vtemps), = val_run.temperatures.items()
-    n = replay(imu_pub, vimu, [(temp_pub, vtemps.stamp_ns + shift, vtemps.temperature)], RATE)
-    wait_for(lambda: len(out) >= n, 60, lambda: f'all {n} compensated messages (got {len(out)})')
-    assert len(out) == n
+    n = replay_flow(imu_pub, vimu, [(temp_pub, vtemps.stamp_ns + shift, vtemps.temperature)],
+                    RATE, lambda: compensator.counts['received'], what='the compensator input')
+    got = wait_count(lambda: compensator.counts['received'], n, 'compensator input')
+    wait_for(lambda: len(out) >= got, WAIT, lambda: f'{got} compensated (got {len(out)})')
+    assert got >= 0.99 * n
+    assert len(out) == compensator.counts['compensated'] == got, compensator.counts
     stamps, accel, _ = common.imu_to_arrays(out)
     order = np.argsort(stamps)
     stamps, accel = stamps[order], accel[order]
-    np.testing.assert_array_equal(stamps, vimu.stamp_ns)
-    assert compensator.counts['compensated'] == n, compensator.counts
+    assert np.isin(stamps, vimu.stamp_ns).all() and len(np.unique(stamps)) == len(stamps)
     assert np.isfinite(accel).all()
     raw_err = hold_gravity_error(val_run, vimu.stamp_ns, vimu.accel, shift)
     comp_err = hold_gravity_error(val_run, stamps, accel, shift)
-    ratio = np.sqrt(np.mean(raw_err ** 2)) / np.sqrt(np.mean(comp_err ** 2))
-    print(f'static gravity error RMS over {len(raw_err)} holds: raw '
-          f'{np.sqrt(np.mean(raw_err ** 2)) * 1e6 / 9.8:.0f} ug, compensated '
-          f'{np.sqrt(np.mean(comp_err ** 2)) * 1e6 / 9.8:.1f} ug, ratio {ratio:.0f}')
-    assert ratio >= 20, (raw_err, comp_err)
+    # the floor: the simulator's true parameters on the same samples, at the true reading
+    temps = val_run.temperature_at(vimu.stamp_ns - shift, 'read')[:, :1]
+    truth = val_run.truth.apply(vimu.accel, vimu.gyro, temps).accel
+    floor_err = hold_gravity_error(val_run, vimu.stamp_ns, truth, shift)
+
+    def rms(x):
+        return np.sqrt(np.mean(x ** 2)) * 1e6 / val_run.gravity
+    print(f'static gravity error RMS over {len(raw_err)} holds: raw {rms(raw_err):.0f} ug, '
+          f'compensated {rms(comp_err):.1f} ug, true parameters {rms(floor_err):.1f} ug')
+    # a live calibration from 2 x six 15-20 s holds: offline the same data give 185 ug
+    # against a floor of 38 ug (raw 21774 ug)
+    assert rms(comp_err) <= FLOOR_FACTOR * rms(floor_err), (comp_err, floor_err)
     assert comp_err.max() < raw_err.min()

@@ -10,19 +10,17 @@ from conftest import imu_msg, temperature_msg, wait_for
 import numpy as np
 import pytest
 
-pytest.importorskip('rclpy')
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import FluidPressure, Imu, Temperature
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
 
-from rclpy.parameter import Parameter  # noqa: E402
-from sensor_msgs.msg import FluidPressure, Imu, Temperature  # noqa: E402
-from std_msgs.msg import String  # noqa: E402
-from std_srvs.srv import Trigger  # noqa: E402
-
-from test_proxy_inputs import PROXY, proxy_cal  # noqa: E402
-from thermal_imu_calib.calibration import Calibration, TemperatureInput  # noqa: E402
-from thermal_imu_calib.models.polynomial import OffsetPolynomialModel  # noqa: E402
-from thermal_imu_calib.nodes import common  # noqa: E402
-from thermal_imu_calib.nodes.calibrator import CalibratorNode  # noqa: E402
-from thermal_imu_calib.nodes.compensator import CompensatorNode  # noqa: E402
+from test_proxy_inputs import PROXY, proxy_cal
+from thermal_imu_calib.calibration import Calibration, TemperatureInput
+from thermal_imu_calib.models.polynomial import OffsetPolynomialModel
+from thermal_imu_calib.nodes import common
+from thermal_imu_calib.nodes.calibrator import CalibratorNode
+from thermal_imu_calib.nodes.compensator import CompensatorNode
 
 S = 1_000_000_000
 T0_NS = 1_700_000_000 * S

@@ -1,6 +1,5 @@
 """RVM (seed 003): evidence updates vs scikit-learn, kernel, fits, file format, speed."""
 
-import time
 
 import numpy as np
 import pytest
@@ -99,14 +98,20 @@ def test_rvm_offset_fit_beats_a_cubic_on_a_nonpolynomial_drift():
     assert np.all(model.noise_std == pytest.approx(noise / np.sqrt(per_point), rel=0.3))
 
 
-def test_rvm_model_file_round_trip_and_imu_rate():
+def rvm_calibration():
+    """Return an RVM accel + gyro calibration fitted on two simulated 10..50 degC legs."""
     w = _cycle_windows(np.random.default_rng(4), n_legs=2)
     groups, _ = cv_groups(w)
     acc, _ = fit_rvm_offset(w, w.temp[:, [0, 0, 0]], 'accel', 'accel', groups, True, [30.0] * 3)
     gyr, _ = fit_rvm_offset(w, w.temp[:, [0, 0, 0]], 'gyro', 'gyro', groups)
-    cal = Calibration(accel=acc, gyro=gyr, inputs=[TemperatureInput('t0')],
-                      valid_range=np.array([[10.0, 50.0]]), accel_noise_std=np.full(3, 5e-3),
-                      gyro_noise_std=np.full(3, 5e-4))
+    return Calibration(accel=acc, gyro=gyr, inputs=[TemperatureInput('t0')],
+                       valid_range=np.array([[10.0, 50.0]]), accel_noise_std=np.full(3, 5e-3),
+                       gyro_noise_std=np.full(3, 5e-4))
+
+
+def test_rvm_model_file_round_trip_and_imu_rate():
+    cal = rvm_calibration()
+    acc = cal.accel
     text = cal.to_yaml()
     back = Calibration.from_yaml(text)
     assert back.accel.kind == 'rvm' and back.accel.meta()['mode'] == 'offset'
@@ -117,13 +122,10 @@ def test_rvm_model_file_round_trip_and_imu_rate():
     n = 200_000                                   # 1000 s at 200 Hz, distinct temperatures
     temps = np.linspace(12, 48, n)[:, None] + rng.normal(0, 1e-3, (n, 1))
     a = rng.normal(0, 1, (n, 3))
-    t0 = time.perf_counter()
     r1 = cal.apply(a, a, temps)
-    elapsed = time.perf_counter() - t0
     r2 = back.apply(a, a, temps)
     np.testing.assert_allclose(r1.accel, r2.accel, atol=1e-12)
     np.testing.assert_allclose(r1.gyro_std, r2.gyro_std, rtol=1e-9)
-    assert elapsed < 3.0                          # vectorised: > 60k samples/s (loaded CI)
     # the 0.001-degC grid used for long chunks = exact evaluation on distinct values
     exact = acc._per_axis(temps[:5000:7, [0, 0, 0]], lambda ax, t: acc._axis_eval(ax, t)[:1])
     grid = acc._per_axis(temps[:5000, [0, 0, 0]], lambda ax, t: acc._axis_eval(ax, t)[:1])
@@ -171,18 +173,6 @@ def test_bias_and_scale_separated_by_pose():
         valid_range=np.array([[10.0, 50.0]])).to_yaml())
     np.testing.assert_allclose(back.accel.forward(G * up[:9], w.temp[:9, [0, 0, 0]]),
                                model.forward(G * up[:9], w.temp[:9, [0, 0, 0]]), atol=1e-12)
-
-
-def test_rvm_training_time_on_3_hours():
-    """Issue 5: RVM training on 3 h of segment statistics under 10 s (grid search included)."""
-    w = sim_windows(sim.simulate('chamber-cycle', 1))
-    w = w.select(w.t0 - w.t0.min() <= 3 * 3600.0)
-    assert w.t1.max() - w.t0.min() == pytest.approx(3 * 3600.0, abs=10)
-    groups, _ = cv_groups(w)
-    t0 = time.perf_counter()
-    fit_rvm_offset(w, w.temp[:, [0, 0, 0]], 'accel', 'accel', groups, True, [30.0] * 3)
-    fit_rvm_offset(w, w.temp[:, [0, 0, 0]], 'gyro', 'gyro', groups)
-    assert time.perf_counter() - t0 < 10.0
 
 
 def test_rvm_through_calibrate_windows():

@@ -54,19 +54,13 @@ def test_chamber_cycle_picks_a_lag_model_and_says_why(chamber):
     assert np.std(out.accel, 0).max() < 0.1 * np.std(chamber.accel, 0).max()
 
 
-def test_calibrate_windows_auto_needs_filter_support(chamber):
-    """Through calibrate_windows (the CLI and node path) lag models need Estimate support."""
+def test_calibrate_windows_auto_picks_a_lag_model_with_its_filter(chamber):
+    """Through calibrate_windows (the CLI and node path) a lag model keeps its filter."""
     res = calibrate_windows(chamber, _opts())
     choice = res.report['model_choice']
-    if select.FILTER_SUPPORTED:
-        assert choice['model'] in ('lag', 'rvm-lag')
-        assert res.calibration.temperature_filter is not None
-    else:
-        assert choice['model'] in ('offset', 'rvm')
-        assert 'not used: this calibrate.py cannot store a temperature filter' in \
-            choice['reason']
-        with pytest.raises(CalibrationRefused, match='needs a temperature filter'):
-            calibrate_windows(chamber, _opts('lag'))
+    assert select.FILTER_SUPPORTED          # this calibrate.py stores the temperature filter
+    assert choice['model'] in ('lag', 'rvm-lag'), choice
+    assert res.calibration.temperature_filter is not None
 
 
 def test_no_lag_in_a_plain_warmup():

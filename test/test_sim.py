@@ -63,6 +63,15 @@ def test_accel_forward_matches_field_model():
     ref = FieldPolynomialModel(t0, thermal, k0, b0, s).forward(f, temps)
     ours = sim.accel_forward(f, temps, t0, k0, b0, s, thermal)
     assert np.max(np.abs(ours - ref)) < 1e-12
+    # both against seed 000 eq. (8) written out sample by sample (not from either code path)
+    for n in range(0, 500, 97):
+        for i in range(3):
+            d = temps[n, i] - t0[i]
+            dk0, k1, k2, db0, b1, b2 = thermal[i]
+            fa = sum(s[i, j] * f[n, j] for j in range(3))
+            by_hand = ((b0[i] + db0 + b1 * d + b2 * d * d)
+                       + (k0[i] + dk0 + k1 * d + k2 * d * d) * fa)
+            assert abs(ours[n, i] - by_hand) < 1e-12 * (1 + abs(by_hand))
     # and it is not trivially the identity
     assert np.max(np.abs(ours - f)) > 0.1
 

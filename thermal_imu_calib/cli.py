@@ -192,6 +192,8 @@ def build_parser():
     report_cli.add_report_args(p)
     report_cli.add_noise_parser(sub)
     cli_export.add_parser(sub)
+    from .cli_fleet import add_fleet_parsers   # fleet calibrate/compensate, history, ...
+    add_fleet_parsers(sub, COMMANDS)
     return ap
 
 
@@ -203,15 +205,15 @@ def cmd_calibrate(args):
     ``auto``) chose it or an accelerometer-only model did (``gyro_select``); the collector
     costs ~0.09 s CPU per 375k messages, not measurable in a calibrate run.
     """
-    from .estimation.gyro_fit import save_transitions
-    from .pipeline import check_collected, collect_windows, merge_transitions, merge_windows
-    g, g_src = _gravity(args)
+    from .pipeline import check_collected, collect_windows
+    _gravity(args)   # a bad --gravity/--latitude is refused before reading any log
     cli_checks.check_distinct_inputs(args.inputs)
     cli_checks.check_calibration_output(args.output, args.inputs, args.prior, args.force,
                                         [(args.save_windows, '--save-windows')])
     if args.save_windows:
         cli_checks.check_writable_dir(args.save_windows, '--save-windows')
-    prior = load_prior(args.prior) if args.prior else None
+    if args.prior:
+        load_prior(args.prior)   # a bad prior is refused before reading any log
     collected = []
     for path in args.inputs:
         c = collect_windows(path, args.imu_topic, args.temperature_topic, _detector(args),
@@ -227,6 +229,32 @@ def cmd_calibrate(args):
         for warning in check_collected(path, c, args.max_gap):
             print(f'  warning: {warning}', file=sys.stderr)
         collected.append(c)
+    result = calibrate_collected(args, collected, args.inputs)
+    result.calibration.save(args.output)
+    if args.json:
+        print(json.dumps({'summary': result.summary, 'output': args.output,
+                          'calibration': result.calibration.to_dict()}, indent=1, default=str))
+    else:
+        print(result.summary)
+        for note in result.calibration.notes:
+            print(f'  note: {note}')
+        print(f'wrote {args.output}')
+    return 0
+
+
+def calibrate_collected(args, collected, paths):
+    """Merge the Collected of several logs and estimate as ``calibrate`` does.
+
+    ``args`` holds the calibrate options (the Namespace of its parser); ``paths`` are the
+    logs (their names go to ``fit.inputs``; long holds are re-read for the random walk,
+    ``noise.add_random_walk``). Returns the CalibrationResult (not saved), re-read by the
+    nodes' loader first (``cli_checks.validated``: UserError if it would be refused). Shared by
+    ``fleet calibrate`` (cli_fleet), whose reduce step must equal ``calibrate``.
+    """
+    from .estimation.gyro_fit import save_transitions
+    from .pipeline import merge_transitions, merge_windows
+    g, g_src = _gravity(args)
+    prior = load_prior(args.prior) if args.prior else None
     topics = collected[0].temperature_topics
     for c in collected[1:]:
         if c.temperature_topics != topics:
@@ -251,23 +279,15 @@ def cmd_calibrate(args):
                             range_margin=args.range_margin, latitude=args.latitude,
                             transitions=transitions, **mapping)
     result = calibrate_windows(windows, opts)
-    result.calibration.fit['inputs'] = [os.path.basename(os.path.normpath(p))
-                                        for p in args.inputs]
+    result.calibration.fit['inputs'] = [os.path.basename(os.path.normpath(p)) for p in paths]
     result.calibration.fit['detector'] = (collected[0].detector if len(collected) == 1
                                           else [c.detector for c in collected])
     from .noise import add_random_walk
-    note = add_random_walk(result.calibration, args.inputs, windows, args.imu_topic)
+    note = add_random_walk(result.calibration, paths, windows, args.imu_topic)
     result.calibration.notes += [note] if note else []
-    cli_checks.validated(result.calibration, args.output).save(args.output)
-    if args.json:
-        print(json.dumps({'summary': result.summary, 'output': args.output,
-                          'calibration': result.calibration.to_dict()}, indent=1, default=str))
-    else:
-        print(result.summary)
-        for note in result.calibration.notes:
-            print(f'  note: {note}')
-        print(f'wrote {args.output}')
-    return 0
+    # never hand on a calibration the nodes' loader would refuse (calibrate and fleet alike)
+    cli_checks.validated(result.calibration, getattr(args, 'output', None) or 'the output')
+    return result
 
 
 def _motion_text(collected):
@@ -347,7 +367,9 @@ def cmd_evaluate(args):
     if res['holds'] == 0:
         raise UserError(f'{args.input}: no stationary holds found, so there is nothing to '
                         'evaluate; evaluate needs a log with the IMU held still in several '
-                        f'poses for at least --min-hold {args.min_hold:g} s each')
+                        'poses, each for at least the minimum hold (derived from the log; '
+                        f'`thermal-imu-calib info {args.input} --holds` shows it and what the '
+                        'detector finds, --min-hold S overrides it)')
     if args.json:
         print(json.dumps(res, indent=1))
         return 0

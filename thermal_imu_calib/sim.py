@@ -693,6 +693,9 @@ class SimRecording:
     frame_id: str = 'imu_link'
     _segments: Optional[_Segments] = field(default=None, repr=False)
     _thermal: Optional[_ThermalTrack] = field(default=None, repr=False)
+    #: errors outside the model families (``sim_unmodelled``): ``fn(TruthChunk)`` returns
+    #: (accel (n, 3) m/s^2, gyro (n, 3) rad/s) added to the raw output before quantisation
+    extra_error: Optional[object] = field(default=None, repr=False)
 
     @property
     def name(self):
@@ -765,6 +768,9 @@ class SimRecording:
             if self.config.tremor_dps > 0:
                 from .sim_scenarios import tremor
                 acc, gyr = tremor(self, tc, acc, gyr)
+            if self.extra_error is not None:
+                da, dg = self.extra_error(tc)
+                acc, gyr = acc + da, gyr + dg
             if spec.accel_lsb > 0:
                 acc = np.round(acc / spec.accel_lsb) * spec.accel_lsb
             if spec.gyro_lsb > 0:

@@ -430,6 +430,7 @@ def calibrate_windows(windows, options=None):
         fit_stats['rotation_direction_error_deg'] = rot['rotation_direction_error_deg']
     cal.fit = fit_stats
     kind = est.accel.kind if est.accel is not None else 'gyro bias only'
+    cal.notes = list(cal.notes) + _adequacy_notes(fit_stats, kind)
     summary = (f'{kind}: {cov["holds"]} holds ({cov["windows"]} windows), faces '
                f'{_face_text(cov)}, {_span_text(cov, units)}, gravity residual '
                f'{_amax(before):.0f} -> {_amax(after):.1f} ug max')
@@ -591,6 +592,24 @@ def estimate_field(ctx):
              'chi2_per_dof': fit.chi2_dof,
              'axis_vertical_temperature_range': {'value': vert.tolist(), 'unit': u}}
     return Estimate(accel=fit.model, notes=notes, fit=stats)
+
+
+#: chi2/dof of the accelerometer fit above which the notes say the model is inadequate
+#: (a device the model describes gives ~1-1.3; errors outside it, 3 and more)
+ADEQUACY_CHI2 = 2.5
+
+
+def _adequacy_notes(fit_stats, kind):
+    """Return a note when the fit residuals are well above what the sensor noise explains."""
+    chi2 = fit_stats.get('chi2_per_dof')
+    if chi2 is None or not np.isfinite(chi2) or chi2 <= ADEQUACY_CHI2:
+        return []
+    return [f'fit inadequate: the residuals are {np.sqrt(chi2):.1f}x what the sensor noise '
+            f'explains (chi2/dof {chi2:.1f} > {ADEQUACY_CHI2:g}); the device has errors the '
+            f'{kind} model does not describe (higher-order or lagged thermal response, '
+            'hysteresis, bias wander), so the error left after compensation can exceed the '
+            'reported std. Check it on an independent recording (thermal-imu-calib '
+            'evaluate), or record longer holds over a slower warm-up']
 
 
 def gravity_residuals(windows, cal, g):

@@ -54,6 +54,12 @@ class CompensatorNode(Node):
         self.calibration_file = p.declare(
             'calibration_file', '~/.ros/thermal_imu_calib/calibration.yaml',
             'Calibration YAML loaded at start and on ~/reload (~ is expanded; empty: none).')
+        self.registry_dir = p.declare(
+            'registry_dir', '',
+            'Fleet registry (thermal-imu-calib fleet calibrate -o DIR); when set, '
+            'calibration_file is ignored: the latest calibration of the IMU header frame_id '
+            'is loaded at the first message of each frame_id and on ~/reload.', read_only=True)
+        self._registry_frame = None
         self.temperature_topics = list(p.declare(
             'temperature_topics', ['imu/temperature'],
             'Thermal input topics to subscribe (sensor_msgs/Temperature unless '
@@ -128,7 +134,7 @@ class CompensatorNode(Node):
         self.reload_srv = self.create_service(Trigger, '~/reload', self._on_reload)
         self.diagnostics = common.Diagnostics(self)
         self.diag_timer = self.create_timer(period, self._publish_diagnostics)
-        if self.calibration_file:
+        if self.calibration_file and not self.registry_dir:
             ok, msg = self.load_file()
             common.log(self, ok, msg, failure='warning')
         if self._active is None:
@@ -186,7 +192,9 @@ class CompensatorNode(Node):
         return False, f'rejected calibration from {source}: {reason}{keep}'
 
     def load_file(self):
-        """(Re)load ``calibration_file``; returns (ok, message)."""
+        """(Re)load ``calibration_file`` (or from ``registry_dir``); returns (ok, message)."""
+        if self.registry_dir:
+            return self._load_registry()
         path = os.path.expanduser(self.get_parameter('calibration_file').value)
         if not path:
             return self._reject('calibration_file', 'the parameter is empty')
@@ -196,6 +204,20 @@ class CompensatorNode(Node):
             return self._reject(path, str(e))
         except Exception as e:  # noqa: B902 - never die on a file: reject it, keep the old one
             return self._reject(path, f'unreadable ({e.__class__.__name__}: {e})')
+        return self.activate(cal, path)
+
+    def _load_registry(self):
+        """Load the latest calibration of the last seen frame_id from ``registry_dir``."""
+        from ..fleet.registry import valid_at
+        from ..fleet.inputs import safe_id
+        if self._registry_frame is None:
+            return False, 'registry_dir: no IMU message yet (its frame_id picks the unit)'
+        root = os.path.expanduser(self.registry_dir)
+        try:
+            path = valid_at(root, safe_id(self._registry_frame))
+            cal = Calibration.load(path)
+        except (LookupError, CalibrationError, OSError) as e:
+            return self._reject(f'registry {root}', str(e))
         return self.activate(cal, path)
 
     def _on_reload(self, request, response):
@@ -239,6 +261,9 @@ class CompensatorNode(Node):
         return cb
 
     def _on_imu(self, msg):
+        if self.registry_dir and msg.header.frame_id != self._registry_frame:
+            self._registry_frame = msg.header.frame_id
+            common.log(self, *self.load_file(), failure='warning')
         msgs = [msg]
         msgs.extend(common.drain(self.imu_sub, self.batch_limit - 1, self))
         if self._gate is None:

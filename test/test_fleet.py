@@ -1,0 +1,273 @@
+"""Fleet on a real dask.distributed cluster: LocalCluster processes and a separate scheduler.
+
+One simulated fleet (8 units x 3 logs, 3 drifting, 1 step) is written once; every test
+runs the real CLI (``cli.main``) or ``fleet.runner`` on it.
+"""
+
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+import yaml
+
+from thermal_imu_calib import cli
+from thermal_imu_calib.calibration import Calibration
+from thermal_imu_calib.fleet import registry as reg
+from thermal_imu_calib.fleet.inputs import expand_inputs, GroupBy
+from thermal_imu_calib.fleet.simulate import FleetDesign, read_truth, simulate_fleet
+
+DESIGN = FleetDesign(units=8, logs_per_unit=3, seed=0)
+
+
+@pytest.fixture(scope='module')
+def fleet(tmp_path_factory):
+    d = tmp_path_factory.mktemp('fleet') / 'logs'
+    simulate_fleet(str(d), DESIGN)
+    return str(d)
+
+
+def _unit_logs(fleet, unit):
+    return sorted(os.path.join(fleet, unit, n) for n in os.listdir(os.path.join(fleet, unit))
+                  if n.endswith('.mcap'))
+
+
+def _plain(cal):
+    d = cal.to_dict()
+    d.pop('created', None)
+    return d
+
+
+#: Dask's nanny starts workers with one BLAS/OpenMP thread (distributed.nanny
+#: pre-spawn-environ); the reference runs the same way, so results agree bit for bit
+#: (with a multi-threaded BLAS they differ in the 12th digit: summation order).
+ONE_THREAD = {k: '1' for k in ('OMP_NUM_THREADS', 'MKL_NUM_THREADS', 'OPENBLAS_NUM_THREADS')}
+
+
+def _reference(fleet, unit, tmp):
+    """Calibrate one unit with the plain ``calibrate`` subcommand (a new process)."""
+    out = os.path.join(tmp, f'ref_{unit}.yaml')
+    subprocess.run([os.path.join(os.path.dirname(sys.executable), 'thermal-imu-calib'),
+                    'calibrate', *_unit_logs(fleet, unit), '-o', out], check=True,
+                   capture_output=True, env={**os.environ, **ONE_THREAD}, timeout=300)
+    return Calibration.load(out)
+
+
+def _latest(registry, unit):
+    return Calibration.load(reg.valid_at(registry, unit))
+
+
+def test_local_cluster_equals_calibrate(fleet, tmp_path, capsys):
+    registry = str(tmp_path / 'reg')
+    manifest = tmp_path / 'logs.txt'
+    manifest.write_text('# two units by glob, the rest by directory\n'
+                        f'{fleet}/u0[01]/*.mcap\n' + ''.join(
+                            f'{fleet}/u{i:02d}\n' for i in range(2, DESIGN.units)))
+    assert cli.main(['fleet', 'calibrate', str(manifest), '--workers', '2',
+                     '-o', registry]) == 0
+    out = capsys.readouterr()
+    assert 'dashboard http://' in out.err
+    rows = reg.read_index(registry)
+    assert sorted(r['sensor'] for r in rows) == [f'u{i:02d}' for i in range(DESIGN.units)]
+    for r in rows:
+        assert int(r['logs']) == DESIGN.logs_per_unit
+        assert float(r['accel.db0.x_std']) > 0 and float(r['temp_max']) > float(r['temp_min'])
+        assert r['time'] > r['valid_from']
+    for unit in ('u00', 'u03', 'u07'):
+        assert _plain(_latest(registry, unit)) == _plain(_reference(fleet, unit, tmp_path))
+
+
+def test_corrupt_log_reported_others_calibrated(fleet, tmp_path, capsys):
+    work = tmp_path / 'logs'
+    shutil.copytree(os.path.join(fleet, 'u01'), work / 'u01')
+    shutil.copytree(os.path.join(fleet, 'u02'), work / 'u02')
+    (work / 'u01' / 'broken.mcap').write_bytes(b'\x89MCAP0\r\n' + os.urandom(4000))
+    bad = work / 'u02' / 'u02_log1.mcap'
+    bad.write_bytes(bad.read_bytes()[:len(bad.read_bytes()) // 2])   # truncated copy
+    registry = str(tmp_path / 'reg')
+    code = cli.main(['fleet', 'calibrate', str(work), '--workers', '2',
+                     '--by', r'path:/(u\d+)/', '-o', registry])
+    cap = capsys.readouterr()
+    out = cap.out
+    assert code == 1, cap.err
+    assert f'FAILED {work / "u01" / "broken.mcap"}: ' in out
+    assert f'FAILED {bad}: ' in out
+    rows = {r['sensor']: r for r in reg.read_index(registry)}
+    assert sorted(rows) == ['u01', 'u02']
+    assert int(rows['u01']['logs']) == 3 and int(rows['u02']['logs']) == 2
+    cal = _latest(registry, 'u02')
+    assert any('u02_log1.mcap was not used' in n for n in cal.notes)
+    # the good logs of u01 give exactly what calibrate gives on them, plus one note
+    got, ref = _plain(_latest(registry, 'u01')), _plain(_reference(fleet, 'u01', tmp_path))
+    assert got.pop('notes')[:-1] == ref.pop('notes')
+    assert got == ref
+
+
+def _free_port():
+    with socket.socket() as s:
+        s.bind(('127.0.0.1', 0))
+        return s.getsockname()[1]
+
+
+def _wait(cond, timeout, what):
+    t_end = time.monotonic() + timeout
+    while time.monotonic() < t_end:
+        if cond():
+            return
+        time.sleep(0.2)
+    raise AssertionError(f'timed out after {timeout} s waiting for {what}')
+
+
+def test_separate_scheduler_and_two_workers(fleet, tmp_path, capsys):
+    from distributed import Client
+    port = _free_port()
+    addr = f'tcp://127.0.0.1:{port}'
+    dask = os.path.join(os.path.dirname(sys.executable), 'dask')
+    log = open(tmp_path / 'dask.log', 'w')
+    procs = [subprocess.Popen([dask, 'scheduler', '--host', '127.0.0.1', '--port', str(port),
+                               '--dashboard-address', '127.0.0.1:0'],
+                              stdout=log, stderr=subprocess.STDOUT)]
+    try:
+        for _ in range(2):
+            procs.append(subprocess.Popen([dask, 'worker', addr, '--nworkers', '1',
+                                           '--nthreads', '1', '--host', '127.0.0.1',
+                                           '--no-dashboard'],
+                                          stdout=log, stderr=subprocess.STDOUT))
+
+        def two_workers():
+            try:
+                with Client(addr, timeout='2s') as c:
+                    return len(c.scheduler_info()['workers']) == 2
+            except OSError:
+                return False
+        _wait(two_workers, 60, 'the scheduler and two workers')
+        registry = str(tmp_path / 'reg')
+        logs = [p for u in ('u02', 'u05') for p in _unit_logs(fleet, u)]
+        assert cli.main(['fleet', 'calibrate', *logs, '--scheduler', addr,
+                         '-o', registry]) == 0
+        assert f'scheduler {addr}, 2 workers' in capsys.readouterr().err
+        for unit in ('u02', 'u05'):
+            assert _plain(_latest(registry, unit)) == _plain(_reference(fleet, unit, tmp_path))
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+        for p in reversed(procs):
+            try:
+                p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+        log.close()
+
+
+def test_worker_killed_mid_job_loses_nothing(fleet, tmp_path):
+    from distributed import Client, LocalCluster
+    from thermal_imu_calib.fleet.runner import run_fleet
+    from thermal_imu_calib.cli_fleet import calibrate_args
+    import functools
+    units = ('u00', 'u04', 'u06')
+    logs = [p for u in units for p in _unit_logs(fleet, u)]
+    args = cli.build_parser().parse_args(['fleet', 'calibrate', *logs, '-o', '-'])
+    reduce_fn = functools.partial(cli.calibrate_collected, calibrate_args(args))
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                      dashboard_address=':0') as cluster, Client(cluster) as client:
+        pids = client.run(os.getpid)
+        box = {}
+        job = threading.Thread(target=lambda: box.update(out=run_fleet(
+            client, logs, GroupBy('frame_id'), reduce_fn, {})))
+        job.start()
+
+        def some_done():
+            return client.run_on_scheduler(
+                lambda dask_scheduler: sum(ts.state == 'memory'
+                                           for ts in dask_scheduler.tasks.values())) >= 2
+        _wait(some_done, 120, 'two finished tasks')
+        assert job.is_alive(), 'the job ended before a worker could be killed'
+        victim = sorted(pids.values())[0]
+        os.kill(victim, signal.SIGKILL)
+        job.join(timeout=300)
+        assert not job.is_alive()
+        assert victim not in client.run(os.getpid).values()
+    results, failed = box['out']
+    assert not failed
+    assert [u.sensor for u in results] == list(units)
+    for u in results:
+        assert not u.error and len(u.logs) == 3
+        assert _plain(u.result.calibration) == _plain(_reference(fleet, u.sensor, tmp_path))
+
+
+def test_alarms_history_and_compensate(fleet, tmp_path, capsys):
+    registry = str(tmp_path / 'reg')
+    assert cli.main(['fleet', 'calibrate', fleet, '--workers', '2', '--period', '20',
+                     '-o', registry]) == 0
+    rows = reg.read_index(registry)
+    assert len(rows) == DESIGN.units * DESIGN.logs_per_unit
+    truth = read_truth(fleet)
+    flagged = {s for s, a in reg.alarms(rows).items() if a}
+    assert flagged == {u for u, t in truth.items() if t['kind'] != 'stable'}
+    step = next(u for u, t in truth.items() if t['kind'] == 'step')
+    capsys.readouterr()
+    html = tmp_path / 'h.html'
+    assert cli.main(['history', registry, '--sensor', step, '--html', str(html)]) == 0
+    text = capsys.readouterr().out
+    assert f'{step}: {DESIGN.logs_per_unit} calibrations  ALARM' in text
+    assert 'db0 changed' in text and '<svg' in html.read_text()
+
+    # compensate: every log with the calibration of its own period, outputs mirror the tree
+    out_dir = tmp_path / 'out'
+    logs = _unit_logs(fleet, step)
+    assert cli.main(['fleet', 'compensate', *logs, os.path.join(fleet, 'u01'),
+                     '--registry', registry, '--workers', '2', '-o', str(out_dir)]) == 0
+    text = capsys.readouterr().out
+    times = sorted(r['time'] for r in rows if r['sensor'] == step)
+    for k, path in enumerate(logs):
+        dst = out_dir / step / os.path.basename(path)
+        assert dst.is_file()
+        assert f'{dst}: ' in text and f'{step}/{times[k]}.yaml' in text
+    assert len(list((out_dir / 'u01').glob('*.mcap'))) == DESIGN.logs_per_unit
+    assert not [p for p in out_dir.rglob('.tmp-*')]
+    # identical to the single-log compensate with that calibration
+    single = tmp_path / 'single.mcap'
+    cal = os.path.join(registry, step, times[-1] + '.yaml')
+    assert cli.main(['compensate', logs[-1], '--calibration', cal, '-o', str(single)]) == 0
+    assert _imu_values(single) == _imu_values(out_dir / step / os.path.basename(logs[-1]))
+    # a second run refuses to overwrite
+    assert cli.main(['fleet', 'compensate', logs[0], '--registry', registry,
+                     '-o', str(out_dir / step)]) == 2
+
+
+def _imu_values(path):
+    from thermal_imu_calib.io.bag import open_log
+    with open_log(path) as r:
+        chunks = list(r.stream('/imu/data_compensated', [], 100000))
+    a = np.concatenate([c.imu.accel for c in chunks])
+    return a.round(12).tolist()
+
+
+def test_inputs_and_registry_lookup(fleet, tmp_path):
+    paths = expand_inputs([os.path.join(fleet, 'u0[0-1]', '*.mcap'), os.path.join(fleet, 'u00')])
+    assert len(paths) == 2 * DESIGN.logs_per_unit
+    with pytest.raises(ValueError, match='matches nothing'):
+        expand_inputs([os.path.join(fleet, 'nope*', '*.mcap')])
+    with pytest.raises(ValueError, match='--by'):
+        GroupBy.parse('metadata')
+    assert GroupBy.parse(r'path:/(u\d+)/').sensor_id(paths[0]) == 'u00'
+    # registry lookup by time: oldest/newest and a time between
+    d = tmp_path / 'r'
+    cal = Calibration.load(os.path.join(fleet, 'u00', 'u00_log0.mcap.truth.yaml'))
+    day = 86400 * 10 ** 9
+    reg.add(str(d), [('u00', cal, 10 * day, 9 * day, ['a']),
+                     ('u00', cal, 40 * day, 39 * day, ['b'])])
+    assert reg.valid_at(str(d), 'u00', 5 * day).endswith(reg.iso(10 * day) + '.yaml')
+    assert reg.valid_at(str(d), 'u00', 39 * day + 1).endswith(reg.iso(40 * day) + '.yaml')
+    assert reg.valid_at(str(d), 'u00').endswith(reg.iso(40 * day) + '.yaml')
+    with pytest.raises(LookupError, match='no calibration'):
+        reg.valid_at(str(d), 'u99')
+    idx = yaml.safe_load(open(os.path.join(d, 'u00', reg.iso(10 * day) + '.yaml')))
+    assert idx['accel']['kind'] == cal.accel.kind

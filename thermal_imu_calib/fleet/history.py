@@ -1,0 +1,118 @@
+"""Render a registry's history: each unit's parameters over time with +-1 sigma, alarms.
+
+Text for the terminal and a self-contained HTML page (tables plus inline SVG error-bar
+plots; no plotting library needed). Values come from ``registry.read_index`` rows.
+"""
+
+import html
+
+import numpy as np
+
+from .registry import _f, AXES
+
+#: (index column, label, scale to display, display unit)
+SHOWN = (('accel.db0', 'db0', 1e3, 'mm/s^2'), ('accel.dk0', 'dk0', 1e6, 'ppm'),
+         ('accel.b1', 'b1', 1e3, 'mm/s^2/degC'), ('accel.k1', 'k1', 1e6, 'ppm/degC'),
+         ('gyro.c0', 'gyro c0', 1e3, 'mrad/s'), ('gyro.c1', 'gyro c1', 1e3, 'mrad/s/degC'))
+
+
+def _by_sensor(rows):
+    out = {}
+    for r in rows:
+        out.setdefault(r['sensor'], []).append(r)
+    return out
+
+
+def _cell(row, col, scale):
+    v, s = _f(row, col), _f(row, col + '_std')
+    if not np.isfinite(v):
+        return '-'
+    return f'{v * scale:.3g}' + (f'+-{s * scale:.2g}' if np.isfinite(s) else '')
+
+
+def format_history(rows, alarms):
+    """Return the text report: one block per unit, one line per calibration."""
+    out = []
+    for sensor, rs in _by_sensor(rows).items():
+        flag = alarms.get(sensor) or []
+        out.append(f'{sensor}: {len(rs)} calibrations' + ('  ALARM' if flag else '  ok'))
+        cols = [(c, lbl, sc, u) for c, lbl, sc, u in SHOWN
+                if any(np.isfinite(_f(r, f'{c}.x')) for r in rs)]
+        out.append('  ' + f'{"time":17s} {"model":17s} {"resid":>8s}  ' + '  '.join(
+            f'{lbl} x/y/z [{u}]' for _, lbl, _, u in cols))
+        for r in rs:
+            res = _f(r, 'residual_rms_mps2')
+            out.append(f'  {r["time"]:17s} {r["accel_model"][:17]:17s} {res:8.2e}  ' + '  '.join(
+                '/'.join(_cell(r, f'{c}.{a}', sc) for a in AXES) for c, _, sc, _ in cols))
+        out.extend(f'  ALARM {a}' for a in flag)
+    n = sum(bool(v) for s, v in alarms.items() if s in _by_sensor(rows))
+    out.append(f'{n} of {len(_by_sensor(rows))} units flagged')
+    return '\n'.join(out)
+
+
+def _svg(rs, col, scale, unit, w=360, h=120):
+    """Return an inline SVG: change since the first calibration +-1 sigma, per axis."""
+    colors = ('#d62728', '#2ca02c', '#1f77b4')
+    v = np.array([[_f(r, f'{col}.{a}') for a in AXES] for r in rs]) * scale
+    s = np.array([[_f(r, f'{col}.{a}_std') for a in AXES] for r in rs]) * scale
+    s = np.where(np.isfinite(s), s, 0.0)
+    first = np.array([col_v[np.isfinite(col_v)][0] if np.any(np.isfinite(col_v)) else 0.0
+                      for col_v in v.T])
+    v = v - first   # change since the unit's first calibration: drifts and steps show
+    lo, hi = np.nanmin(v - s), np.nanmax(v + s)
+    if not np.isfinite(lo) or hi <= lo:
+        lo, hi = (lo if np.isfinite(lo) else 0) - 1, (hi if np.isfinite(hi) else 0) + 1
+    n = len(rs)
+
+    def xy(i, val):
+        x = 40 + (w - 50) * ((i + 0.5) / n)
+        y = 10 + (h - 30) * (1 - (val - lo) / (hi - lo))
+        return x, y
+    parts = [f'<svg width="{w}" height="{h}" xmlns="http://www.w3.org/2000/svg">',
+             f'<text x="2" y="12" font-size="10">{html.escape(col)}: change since the first '
+             f'[{unit}]</text>',
+             f'<text x="2" y="{h - 4}" font-size="9">{lo:.3g} .. {hi:.3g}</text>']
+    for a in range(3):
+        for i in range(n):
+            if not np.isfinite(v[i, a]):
+                continue
+            x, y = xy(i, v[i, a])
+            x += (a - 1) * 4
+            _, y0 = xy(i, v[i, a] - s[i, a])
+            _, y1 = xy(i, v[i, a] + s[i, a])
+            parts.append(f'<line x1="{x:.1f}" y1="{y0:.1f}" x2="{x:.1f}" y2="{y1:.1f}" '
+                         f'stroke="{colors[a]}"/><circle cx="{x:.1f}" cy="{y:.1f}" r="2" '
+                         f'fill="{colors[a]}"/>')
+    parts.append('</svg>')
+    return ''.join(parts)
+
+
+def write_html(path, rows, alarms):
+    """Write the HTML history report (tables, +-1 sigma plots x red, y green, z blue)."""
+    body = ['<h1>thermal_imu_calib fleet history</h1>',
+            '<p>Per unit: parameters of each calibration with +-1 sigma (x red, y green, '
+            'z blue), oldest left. Alarms: consecutive change &gt; 3 sigma, or latest '
+            'residual out of family.</p>']
+    for sensor, rs in _by_sensor(rows).items():
+        flag = alarms.get(sensor) or []
+        body.append(f'<h2>{html.escape(sensor)} ' + ('<span style="color:#c00">ALARM</span>'
+                                                     if flag else 'ok') + '</h2>')
+        body.extend(f'<p style="color:#c00">{html.escape(a)}</p>' for a in flag)
+        body.append('<div>' + ''.join(_svg(rs, c, sc, u) for c, _, sc, u in SHOWN
+                                      if any(np.isfinite(_f(r, f'{c}.x')) for r in rs))
+                    + '</div>')
+        body.append('<table border="1" cellspacing="0"><tr><th>time</th><th>valid from'
+                    '</th><th>model</th><th>holds</th><th>residual m/s^2</th>' + ''.join(
+                        f'<th>{lbl} [{u}]</th>' for _, lbl, _, u in SHOWN) + '</tr>')
+        for r in rs:
+            body.append(f'<tr><td>{r["time"]}</td><td>{r["valid_from"]}</td>'
+                        f'<td>{html.escape(r["accel_model"])}</td><td>{r["holds"]}</td>'
+                        f'<td>{_f(r, "residual_rms_mps2"):.3g}</td>' + ''.join(
+                            '<td>' + '<br>'.join(_cell(r, f'{c}.{a}', sc) for a in AXES)
+                            + '</td>' for c, _, sc, _ in SHOWN) + '</tr>')
+        body.append('</table>')
+    with open(path, 'w') as f:
+        f.write('<!DOCTYPE html><html><head><meta charset="utf-8"><title>fleet history'
+                '</title></head><body style="font-family:sans-serif">' + '\n'.join(body)
+                + '</body></html>\n')
+    return path

@@ -1,0 +1,243 @@
+"""Calibration registry: REGISTRY_DIR/<sensor>/<ISO time>.yaml plus index.csv, and history.
+
+In the spirit of imucal's ``management.py``: every calibration is a file named by its
+sensor and time (the end of the newest log it used, UTC, ISO 8601 basic format
+``YYYYMMDDTHHMMSSZ``) and one row of ``index.csv``: sensor, time, valid_from (start of the
+oldest log), model, holds, temperature span, the key parameters with their 1-sigma
+standard deviations and the residual. The files are what ``calibrate`` writes.
+
+History and alarms: a unit's accelerometer bias and scale factor at T0 (db0, dk0) are
+compared between consecutive calibrations at a common temperature (the mean of the two
+T0; the polynomial terms carry them there, their stds propagated as independent). A change
+of more than ``SIGMA_ALARM`` standard deviations of the difference on any axis is a
+``step`` alarm; a latest residual more than ``RESIDUAL_MADS`` robust standard deviations
+above the fleet median is ``out of family``. No ROS import.
+"""
+
+import csv
+from datetime import datetime, timezone
+import io
+import os
+import tempfile
+
+import numpy as np
+
+from ..calibration import Calibration
+
+INDEX = 'index.csv'
+TIME_FORMAT = '%Y%m%dT%H%M%SZ'
+AXES = 'xyz'
+SIGMA_ALARM = 3.0
+RESIDUAL_MADS = 5.0
+#: parameters whose consecutive change raises an alarm: the bias at T0 ('b' -> db0). The
+#: scale factor's std from a short log is optimistic (a stable unit's dk0 moved 4.1 sigma
+#: in docs/fleet.md), so dk0 is shown but not alarmed on by default.
+ALARM_ON = ('b',)
+BASE_COLUMNS = ('sensor', 'time', 'valid_from', 'file', 'accel_model', 'gyro_model', 'logs',
+                'holds', 'windows', 'temp_min', 'temp_max', 'residual_rms_mps2')
+
+
+def iso(ns):
+    """Return the registry time string of an int ns UTC stamp."""
+    return datetime.fromtimestamp(ns // 10 ** 9, timezone.utc).strftime(TIME_FORMAT)
+
+
+def parse_time(text):
+    """Return int ns of a registry time string (raises ValueError when malformed)."""
+    dt = datetime.strptime(text, TIME_FORMAT).replace(tzinfo=timezone.utc)
+    return int(dt.timestamp()) * 10 ** 9
+
+
+def key_parameters(cal):
+    """Return the index columns of a calibration's per-axis parameters with stds.
+
+    Every (3,) parameter of the accel and gyro models that has a std, plus their T0:
+    ``accel.db0.x``, ``accel.db0.x_std``, ...
+    """
+    out = {}
+    for which in ('accel', 'gyro'):
+        model = getattr(cal, which)
+        if model is None:
+            continue
+        for name, p in model.params().items():
+            v = np.asarray(p.value, float)
+            if v.shape != (3,) or (p.std is None and name != 'T0'):
+                continue
+            for i, a in enumerate(AXES):
+                out[f'{which}.{name}.{a}'] = float(v[i])
+                if p.std is not None:
+                    out[f'{which}.{name}.{a}_std'] = float(np.asarray(p.std, float)[i])
+    return out
+
+
+def index_row(sensor, cal, time_ns, valid_from_ns, file, logs):
+    """Return the index.csv row (dict) of one calibration."""
+    fit = cal.fit or {}
+    span = np.asarray(fit.get('temperature_span', [[np.nan, np.nan]]), float).reshape(-1, 2)
+    res = fit.get('residual_rms', {})
+    row = {'sensor': sensor, 'time': iso(time_ns), 'valid_from': iso(valid_from_ns),
+           'file': file, 'accel_model': cal.accel.kind if cal.accel else '',
+           'gyro_model': cal.gyro.kind if cal.gyro else '', 'logs': len(logs),
+           'holds': fit.get('holds', ''), 'windows': fit.get('windows', ''),
+           'temp_min': float(span[0, 0]), 'temp_max': float(span[0, 1]),
+           'residual_rms_mps2': res.get('value', '') if isinstance(res, dict) else res}
+    row.update(key_parameters(cal))
+    return row
+
+
+def _atomic_write(path, text):
+    d = os.path.dirname(os.path.abspath(path))
+    os.makedirs(d, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix='.tmp-', dir=d)
+    try:
+        with os.fdopen(fd, 'w', newline='') as f:
+            f.write(text)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def read_index(registry):
+    """Return the index rows (dicts of str) sorted by sensor and time; [] when none."""
+    path = os.path.join(registry, INDEX)
+    if not os.path.isfile(path):
+        return []
+    with open(path, newline='') as f:
+        rows = list(csv.DictReader(f))
+    return sorted(rows, key=lambda r: (r['sensor'], r['time']))
+
+
+def add(registry, entries):
+    """Save calibrations and update index.csv atomically.
+
+    entries: (sensor, Calibration, time_ns, valid_from_ns, logs). A calibration of the
+    same sensor and time replaces the old one. Returns the written YAML paths.
+    """
+    rows = {(r['sensor'], r['time']): r for r in read_index(registry)}
+    paths = []
+    for sensor, cal, time_ns, valid_from_ns, logs in entries:
+        rel = os.path.join(sensor, iso(time_ns) + '.yaml')
+        paths.append(cal.save(os.path.join(registry, rel)))
+        row = index_row(sensor, cal, time_ns, valid_from_ns, rel, logs)
+        rows[(row['sensor'], row['time'])] = row
+    cols = list(BASE_COLUMNS)
+    for r in rows.values():
+        cols += [k for k in r if k not in cols]
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, cols, restval='')
+    w.writeheader()
+    for k in sorted(rows):
+        w.writerow(rows[k])
+    _atomic_write(os.path.join(registry, INDEX), buf.getvalue())
+    return paths
+
+
+def calibrations(registry, sensor):
+    """Return [(time_ns, path)] of one sensor's calibrations, oldest first (from the files)."""
+    d = os.path.join(registry, sensor)
+    out = []
+    if os.path.isdir(d):
+        for name in os.listdir(d):
+            stem = os.path.splitext(name)[0]
+            try:
+                out.append((parse_time(stem), os.path.join(d, name)))
+            except ValueError:
+                continue
+    return sorted(out)
+
+
+def valid_at(registry, sensor, t_ns=None):
+    """Return the path of the calibration of ``sensor`` valid at ``t_ns`` (None: latest).
+
+    Valid at t: the newest calibration whose data started at or before t (index
+    ``valid_from``); a log older than every calibration gets the oldest one. Raises
+    LookupError saying what is missing.
+    """
+    rows = [r for r in read_index(registry) if r['sensor'] == sensor]
+    if not rows:
+        files = calibrations(registry, sensor)
+        if not files:
+            raise LookupError(f'no calibration of sensor {sensor!r} in {registry}; run '
+                              '`thermal-imu-calib fleet calibrate` on its logs first')
+        rows = [{'valid_from': iso(t), 'time': iso(t), 'file': os.path.relpath(p, registry)}
+                for t, p in files]
+    if t_ns is None:
+        chosen = rows[-1]
+    else:
+        before = [r for r in rows if parse_time(r['valid_from']) <= t_ns]
+        chosen = before[-1] if before else rows[0]
+    return os.path.join(registry, chosen['file'])
+
+
+def load_valid(registry, sensor, t_ns=None):
+    """Return the Calibration of ``sensor`` valid at ``t_ns`` (see ``valid_at``)."""
+    return Calibration.load(valid_at(registry, sensor, t_ns))
+
+
+def _f(row, key):
+    try:
+        return float(row.get(key, ''))
+    except ValueError:
+        return np.nan
+
+
+def at_temperature(row, name, t_ref):
+    """Return (value, std) per axis of accel bias ('b') or scale ('k') at ``t_ref`` degC.
+
+    value = d{name}0 + {name}1 dT + {name}2 dT^2 with dT = t_ref - T0 (field polynomial
+    columns of the index); std from the three stds as independent.
+    """
+    val, var = np.zeros(3), np.zeros(3)
+    for i, a in enumerate(AXES):
+        dt = t_ref[i] - _f(row, f'accel.T0.{a}')
+        for j, c in enumerate((f'd{name}0', f'{name}1', f'{name}2')):
+            v, s = _f(row, f'accel.{c}.{a}'), _f(row, f'accel.{c}.{a}_std')
+            if j and not np.isfinite(v):
+                continue   # lower-order models leave the column empty
+            val[i] += v * dt ** j
+            var[i] += (s * dt ** j) ** 2 if np.isfinite(s) else np.nan
+    return val, np.sqrt(var)
+
+
+def compare(prev, cur, names=('b', 'k')):
+    """Return {'db0': z (3,), 'dk0': z (3,)}: consecutive change in units of its sigma."""
+    t_ref = np.array([(_f(prev, f'accel.T0.{a}') + _f(cur, f'accel.T0.{a}')) / 2
+                      for a in AXES])
+    out = {}
+    for name in names:
+        v0, s0 = at_temperature(prev, name, t_ref)
+        v1, s1 = at_temperature(cur, name, t_ref)
+        out[f'd{name}0'] = (v1 - v0) / np.sqrt(s0 ** 2 + s1 ** 2)
+    return out
+
+
+def alarms(rows, sigma=SIGMA_ALARM, residual_mads=RESIDUAL_MADS):
+    """Return sensor -> list of alarm strings (empty list: no alarm) for index rows."""
+    by = {}
+    for r in rows:
+        by.setdefault(r['sensor'], []).append(r)
+    out = {s: [] for s in by}
+    for s, rs in by.items():
+        rs.sort(key=lambda r: r['time'])
+        for prev, cur in zip(rs, rs[1:]):
+            if prev['accel_model'] != cur['accel_model']:
+                continue
+            for name, z in compare(prev, cur, ALARM_ON).items():
+                bad = [f'{a} {z[i]:+.1f} sigma' for i, a in enumerate(AXES)
+                       if np.isfinite(z[i]) and abs(z[i]) > sigma]
+                if bad:
+                    out[s].append(f'{name} changed {prev["time"]} -> {cur["time"]}: '
+                                  + ', '.join(bad))
+    latest = {s: _f(rs[-1], 'residual_rms_mps2') for s, rs in by.items()}
+    vals = np.array([v for v in latest.values() if np.isfinite(v)])
+    if len(vals) >= 3:
+        med = np.median(vals)
+        mad = 1.4826 * np.median(np.abs(vals - med))
+        for s, v in latest.items():
+            if np.isfinite(v) and mad > 0 and v > med + residual_mads * mad:
+                out[s].append(f'latest residual {v:.3g} m/s^2 out of family (fleet median '
+                              f'{med:.3g}, {(v - med) / mad:.1f} robust sigma above)')
+    return out

@@ -1,0 +1,176 @@
+"""Fleet map/reduce on Dask: one task per log, one estimation per sensor (and period).
+
+Map (``collect_log``): stream one log and keep what ``calibrate`` keeps, its window
+statistics and pose changes (``pipeline.Collected``: kilobytes; samples never travel), plus
+the sensor id and the log's time span. A log that cannot be read is a ``LogResult`` with
+``error`` set, never an exception, so it cannot stop the job.
+
+Reduce: the caller's ``reduce_fn(collected_list, paths) -> CalibrationResult`` runs once per
+sensor (and ``period``) on a worker, with the map results passed as futures (they move
+worker to worker, not through the client). ``cli_fleet`` passes ``cli.calibrate_collected``:
+the very code of ``calibrate``.
+
+A worker that dies mid-job loses its results; the scheduler recomputes them from the
+task graph (``distributed.scheduler.allowed-failures`` retries), so nothing is lost.
+"""
+
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+import os
+import sys
+import time
+
+NS_PER_DAY = 86400 * 10 ** 9
+
+
+@dataclass
+class LogResult:
+    """What the map step returns for one log."""
+
+    path: str
+    sensor: str = ''
+    start_ns: int = 0
+    end_ns: int = 0
+    imu_topic: str = ''
+    collected: object = None       # pipeline.Collected, None on error
+    error: str = ''
+    seconds: float = 0.0
+
+    def header(self):
+        """Return this result without the windows (what the client needs to group)."""
+        return LogResult(self.path, self.sensor, self.start_ns, self.end_ns, self.imu_topic,
+                         None, self.error, self.seconds)
+
+
+@dataclass
+class UnitResult:
+    """What the reduce step returns for one sensor (and period)."""
+
+    sensor: str
+    logs: list
+    start_ns: int
+    end_ns: int
+    result: object = None          # estimation.calibrate.CalibrationResult, None on error
+    error: str = ''
+    excluded: list = field(default_factory=list)   # (path, reason) of this unit's bad logs
+
+
+def _reason(e):
+    msg = str(e).strip().replace('\n', ' ') or type(e).__name__
+    return msg if isinstance(e, (ValueError, OSError)) or 'Error' not in type(e).__name__ \
+        else f'{type(e).__name__}: {msg}'
+
+
+def collect_log(path, group, imu_topic=None, temperature_topics=None, detector=None,
+                chunk_size=20000, max_gap_s=5.0):
+    """Map task: stream one log; returns a LogResult (``error`` set instead of raising)."""
+    from ..io.bag import open_log
+    from ..pipeline import collect_windows, resolve_topics
+    t = time.perf_counter()
+    res = LogResult(os.fspath(path))
+    try:
+        if group.kind in ('path', 'metadata'):   # known even when the log is unreadable
+            res.sensor = group.sensor_id(path)
+        with open_log(path) as reader:
+            res.start_ns, res.end_ns = int(reader.start_ns or 0), int(reader.end_ns or 0)
+            res.imu_topic, _ = resolve_topics(reader, imu_topic, temperature_topics)
+        c = collect_windows(path, res.imu_topic, temperature_topics, detector, chunk_size,
+                            max_gap_s, progress=False, motion=True)
+        if c.imu_messages == 0:
+            raise ValueError('the log has no Imu messages')
+        res.sensor = res.sensor or group.sensor_id(path, c.frame_id, res.imu_topic)
+        res.collected = c
+    except Exception as e:   # noqa: B902 - a bad log is data: reported, never raised
+        res.error = _reason(e)
+    res.seconds = time.perf_counter() - t
+    return res
+
+
+def header(res):
+    """Small task: the LogResult without its windows."""
+    return res.header()
+
+
+def reduce_unit(sensor, reduce_fn, heads, *results):
+    """Reduce task: merge the logs of one unit (in time order) and estimate."""
+    good = [r for r in results if not r.error]
+    out = UnitResult(sensor, [r.path for r in good], min(h.start_ns for h in heads),
+                     max(h.end_ns for h in heads),
+                     excluded=[(r.path, r.error) for r in results if r.error])
+    if not good:
+        out.error = 'no readable log'
+        return out
+    try:
+        out.result = reduce_fn([r.collected for r in good], [r.path for r in good])
+    except Exception as e:   # noqa: B902 - a refused unit is reported, the others go on
+        out.error = _reason(e)
+    return out
+
+
+@contextmanager
+def fleet_client(scheduler=None, workers=None, out=None):
+    """Yield a ``distributed.Client``: on ``scheduler`` (an address) or a new LocalCluster.
+
+    The LocalCluster has ``workers`` single-threaded worker processes (default: one per
+    core) and its dashboard on a free port; the dashboard address is printed to ``out``.
+    """
+    from distributed import Client, LocalCluster
+    out = sys.stderr if out is None else out
+    if scheduler:
+        with Client(scheduler, timeout='30s') as client:
+            print(f'dask: scheduler {scheduler}, {len(client.scheduler_info()["workers"])} '
+                  f'workers, dashboard {client.dashboard_link}', file=out)
+            yield client
+        return
+    n = workers or os.cpu_count() or 1
+    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                      dashboard_address=':0') as cluster, Client(cluster) as client:
+        print(f'dask: LocalCluster of {n} worker processes, dashboard {client.dashboard_link}',
+              file=out)
+        yield client
+
+
+def _progress(futures, enabled):
+    if enabled is None:
+        enabled = sys.stderr.isatty()
+    if enabled and futures:
+        from distributed import progress
+        progress(futures)
+        print(file=sys.stderr)
+
+
+def period_key(heads, period_days):
+    """Return path -> (sensor, period index) for the logs of each sensor (0 days: one)."""
+    first = {}
+    for h in heads:
+        first[h.sensor] = min(first.get(h.sensor, h.start_ns), h.start_ns)
+    step = max(period_days, 0) * NS_PER_DAY
+    return {h.path: (h.sensor, int((h.start_ns - first[h.sensor]) // step) if step else 0)
+            for h in heads}
+
+
+def run_fleet(client, paths, group, reduce_fn, collect_kw=None, period_days=0.0,
+              progress=None):
+    """Map every log, reduce per sensor (and period); returns (units, failed logs).
+
+    ``units`` is a list of UnitResult in (sensor, time) order; ``failed`` the LogResult
+    headers of logs that could not be read and whose sensor is unknown.
+    """
+    collect_kw = dict(collect_kw or {})
+    maps = client.map(collect_log, list(paths), group=group, pure=False, **collect_kw)
+    heads_f = client.map(header, maps, pure=False)
+    _progress(maps, progress)
+    heads = client.gather(heads_f)
+    by_path = dict(zip((h.path for h in heads), maps))
+    failed = [h for h in heads if h.error and not h.sensor]
+    known = [h for h in heads if h.sensor]
+    keys = period_key(known, period_days)
+    groups = {}
+    for h in sorted(known, key=lambda h: (h.start_ns, h.path)):
+        groups.setdefault(keys[h.path], []).append(h)
+    reduces = [client.submit(reduce_unit, sensor, reduce_fn, hs,
+                             *[by_path[h.path] for h in hs], pure=False)
+               for (sensor, _), hs in sorted(groups.items())]
+    _progress(reduces, progress)
+    units = client.gather(reduces)
+    return units, failed
