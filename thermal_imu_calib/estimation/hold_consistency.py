@@ -56,18 +56,25 @@ def hold_table(windows, temps=None):
     """
     ids = windows.hold_ids
     h = len(ids)
-    mean, var, n = np.zeros((h, 3)), np.zeros((h, 3)), np.zeros(h)
-    tmid, tm = np.zeros(h), np.full((h, 3), np.nan)
-    for j, i in enumerate(ids):
-        m = windows.hold == i
-        w = windows.n[m].astype(float)
-        mean[j] = np.average(windows.accel[m], axis=0, weights=w)
-        spread = np.average((windows.accel[m] - mean[j]) ** 2, axis=0, weights=w)
-        var[j] = np.average(windows.accel_var[m], axis=0, weights=w) + spread
-        n[j] = w.sum()
-        tmid[j] = 0.5 * (windows.t0[m].min() + windows.t1[m].max())
-        if temps is not None and len(temps):
-            tm[j] = np.average(temps[m], axis=0, weights=w)
+    pos = {int(i): j for j, i in enumerate(ids)}
+    idx = np.array([pos[int(i)] for i in windows.hold], int)
+    w = windows.n.astype(float)
+    n = np.bincount(idx, w, h)
+
+    def wmean(x):
+        x = np.asarray(x, float).reshape(len(idx), -1)
+        return np.stack([np.bincount(idx, w * x[:, c], h) for c in range(x.shape[1])],
+                        1) / n[:, None]
+
+    mean = wmean(windows.accel)
+    spread = wmean((windows.accel - mean[idx]) ** 2)
+    var = wmean(windows.accel_var) + spread
+    t0 = np.full(h, np.inf)
+    t1 = np.full(h, -np.inf)
+    np.minimum.at(t0, idx, windows.t0)
+    np.maximum.at(t1, idx, windows.t1)
+    tmid = 0.5 * (t0 + t1)
+    tm = wmean(temps) if temps is not None and len(temps) else np.full((h, 3), np.nan)
     return ids, mean, var, n, tmid, tm
 
 
