@@ -26,7 +26,7 @@ import bench_real_data as R  # noqa: E402
 from thermal_imu_calib import sim  # noqa: E402
 from thermal_imu_calib.calibration import Calibration  # noqa: E402
 from thermal_imu_calib.estimation.calibrate import calibrate_windows  # noqa: E402
-from thermal_imu_calib.estimation.gyro_fit import collect_motion  # noqa: E402
+from thermal_imu_calib.collection.motion import collect_motion  # noqa: E402
 from thermal_imu_calib.estimation.whole_unit_fit import fit_whole_unit  # noqa: E402
 from thermal_imu_calib.formats import export_calibration  # noqa: E402
 from thermal_imu_calib.formats.common import loss_text  # noqa: E402

@@ -94,7 +94,8 @@ def _topics(path):
 def run(path, calibration, tmp) -> dict:
     """Measure every stage on ``path``; returns {stage: figures}."""
     from thermal_imu_calib.calibration import Calibration
-    from thermal_imu_calib.io.bag import LogWriter, open_log
+    from thermal_imu_calib.io.bag import open_log
+    from thermal_imu_calib.io.bag_writer import LogWriter
     from thermal_imu_calib.pipeline import collect_windows, compensate_log
 
     imu, temps, total = _topics(path)
@@ -165,7 +166,7 @@ print(n, time.perf_counter() - t, time.process_time(), hwm)
 
 def rss(n_messages: int, tmp: str, calibration: str) -> dict:
     """Write an ``n_messages`` log (1 kHz Imu, 10 Hz temperature); peak RSS of each stage."""
-    from thermal_imu_calib.io.bag import write_columns
+    from thermal_imu_calib.io.bag_writer import write_columns
     from thermal_imu_calib.io.columns import ImuColumns, TemperatureColumns
 
     path = Path(tmp) / 'big.mcap'

@@ -40,9 +40,9 @@ import numpy as np
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
-from thermal_imu_calib.estimation.gyro_fit import (collect_motion,  # noqa: E402
-                                                   integrate_rotation, quat_from_rotvec,
-                                                   quat_rotate_inverse, Transition)
+from thermal_imu_calib.collection.motion import collect_motion, Transition  # noqa: E402
+from thermal_imu_calib.rotations import (integrate_rotation, quat_from_rotvec,  # noqa: E402
+                                         quat_rotate_inverse)
 from thermal_imu_calib.estimation.whole_unit_fit import fit_whole_unit  # noqa: E402
 from thermal_imu_calib.io.csv_logs import (read_imucal_annotated,  # noqa: E402
                                            read_imucal_session, read_mpu6050_csv)
@@ -272,7 +272,7 @@ def imucal_annotated_session(snapshot=None):
         w, _, _ = collect_motion(_single(imu), DEFAULT, 0)
         w.hold = w.hold + 1000 * len(parts)
         parts.append((name, w))
-    from thermal_imu_calib.estimation.segments import Windows
+    from thermal_imu_calib.collection.segments import Windows
     windows = Windows.concat([w for _, w in parts])
     face = np.concatenate([np.full(len(w), name in FACES) for name, w in parts])
     fit = fit_whole_unit(windows.select(face), G)

@@ -36,10 +36,11 @@ import numpy as np
 
 from thermal_imu_calib import sim
 from thermal_imu_calib.calibration import TemperatureInput
-from thermal_imu_calib.estimation import baselines, select
+from thermal_imu_calib.estimation import baselines
+from thermal_imu_calib.selection import select
 from thermal_imu_calib.estimation.calibrate import CalibrateOptions
 from thermal_imu_calib.estimation.rvm_fit import fit_rvm_offset, RvmSettings
-from thermal_imu_calib.estimation.segments import Windows
+from thermal_imu_calib.collection.segments import Windows
 from thermal_imu_calib.estimation.thermal_lag import cv_groups, lagged_axis_temperatures, legs
 from thermal_imu_calib.pipeline import windows_from_columns
 

@@ -14,7 +14,7 @@ import numpy as np
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
-from thermal_imu_calib.io.bag import write_columns  # noqa: E402
+from thermal_imu_calib.io.bag_writer import write_columns  # noqa: E402
 from thermal_imu_calib.io.columns import ImuColumns, TemperatureColumns  # noqa: E402
 from thermal_imu_calib.io.csv_logs import (read_bmi270_rows, read_imucal_session,  # noqa: E402
                                            read_mpu6050_csv)

@@ -19,7 +19,7 @@ import sys
 import numpy as np
 import yaml
 
-from thermal_imu_calib.io.bag import write_columns
+from thermal_imu_calib.io.bag_writer import write_columns
 from thermal_imu_calib.io.columns import ImuColumns
 from thermal_imu_calib.io.csv_logs import read_bmi270_rows, read_mpu6050_csv
 

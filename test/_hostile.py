@@ -11,7 +11,7 @@ import numpy as np
 
 from thermal_imu_calib import sim
 from thermal_imu_calib.io import cdr
-from thermal_imu_calib.io.bag import LogWriter
+from thermal_imu_calib.io.bag_writer import LogWriter
 from thermal_imu_calib.io.cdr import IMU_MSGTYPE, TEMPERATURE_MSGTYPE
 from thermal_imu_calib.io.columns import ImuColumns, TemperatureColumns
 

@@ -8,7 +8,7 @@
 import numpy as np
 
 from thermal_imu_calib import sim
-from thermal_imu_calib.io.bag import write_columns
+from thermal_imu_calib.io.bag_writer import write_columns
 from thermal_imu_calib.io.columns import ImuColumns
 
 GYRO_M = np.array([[1.003, 8e-4, -1.2e-3], [-6e-4, 0.9975, 9e-4], [1.1e-3, -7e-4, 1.002]])

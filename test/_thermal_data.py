@@ -6,7 +6,7 @@ import numpy as np
 
 from thermal_imu_calib.calibration import TemperatureInput
 from thermal_imu_calib.estimation.calibrate import CalibrateOptions
-from thermal_imu_calib.estimation.segments import Windows
+from thermal_imu_calib.collection.segments import Windows
 from thermal_imu_calib.io.csv_logs import read_bmi270_rows
 from thermal_imu_calib.pipeline import windows_from_columns
 

@@ -251,7 +251,7 @@ def test_too_few_poses_and_no_stationary_segments(tmp_path, capsys):
 
 
 def test_compensate_despike_removes_injected_spikes(tmp_path, capsys):
-    from thermal_imu_calib.io.bag import write_columns
+    from thermal_imu_calib.io.bag_writer import write_columns
     rec = sim.simulate('demo', 8, repetitions=1)
     imu = rec.imu()
     # one bump of ~5 g on a single sample in the middle of every hold

@@ -9,8 +9,8 @@ import pytest
 
 from thermal_imu_calib import sim
 from thermal_imu_calib.estimation.calibrate import CalibrateOptions, calibrate_windows
-from thermal_imu_calib.estimation.gyro_fit import MotionCollector
-from thermal_imu_calib.estimation.segments import Windows
+from thermal_imu_calib.collection.motion import MotionCollector
+from thermal_imu_calib.collection.segments import Windows
 from thermal_imu_calib.io.align import StreamAligner
 
 

@@ -358,7 +358,7 @@ def test_real_mpu6050_whole_unit_exports():
         __file__))), 'bench'))
     import bench_real_data as R
     from thermal_imu_calib.calibration import Calibration
-    from thermal_imu_calib.estimation.gyro_fit import collect_motion
+    from thermal_imu_calib.collection.motion import collect_motion
     from thermal_imu_calib.estimation.whole_unit_fit import fit_whole_unit
     from thermal_imu_calib.io.csv_logs import read_mpu6050_csv
     s = read_mpu6050_csv(os.path.join(R.MPU, 'example_data_calibration.csv.gz'))

@@ -24,7 +24,8 @@ import yaml
 
 from _hostile import bad_calibrations, good_calibration, recording, write_bag
 from thermal_imu_calib.calibration import Calibration, CalibrationError
-from thermal_imu_calib.io.bag import LogError, open_log
+from thermal_imu_calib.io.bag import open_log
+from thermal_imu_calib.io.log_info import LogError
 
 EXAMPLES = int(os.environ.get('THERMAL_FUZZ_EXAMPLES', '30'))
 #: per-case wall-clock limit, s (a loader case takes ~ms; a bag case ~50 ms)

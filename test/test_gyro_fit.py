@@ -3,12 +3,12 @@
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from thermal_imu_calib.estimation.gyro_fit import (collect_motion, EARTH_RATE, fit_gyro,
-                                                   fit_gyro_static, integrate_batch,
-                                                   integrate_rotation, MotionCollector,
-                                                   quat_to_rotvec)
-from thermal_imu_calib.estimation.segments import Windows
-from thermal_imu_calib.estimation.stationary import DetectorConfig
+from thermal_imu_calib.collection.motion import collect_motion, MotionCollector
+from thermal_imu_calib.estimation.gyro_fit import fit_gyro
+from thermal_imu_calib.estimation.gyro_static import EARTH_RATE, fit_gyro_static
+from thermal_imu_calib.rotations import integrate_batch, integrate_rotation, quat_to_rotvec
+from thermal_imu_calib.collection.segments import Windows
+from thermal_imu_calib.collection.stationary import DetectorConfig
 from thermal_imu_calib.io.columns import AlignedChunk, ImuColumns
 from thermal_imu_calib.models.whole_unit import WholeUnitAccelModel
 

@@ -7,7 +7,8 @@ import pytest
 
 from _thermal_data import options, sim_windows
 from thermal_imu_calib import sim
-from thermal_imu_calib.estimation import calibrate, gyro_select
+from thermal_imu_calib.estimation import calibrate
+from thermal_imu_calib.selection import gyro_select
 from thermal_imu_calib.estimation.calibrate import calibrate_windows
 
 

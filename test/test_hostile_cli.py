@@ -19,7 +19,7 @@ from _hostile import recording, write_bag
 from thermal_imu_calib.calibration import Calibration
 from thermal_imu_calib.cli import main
 from thermal_imu_calib.cli_checks import UserError, validated
-from thermal_imu_calib.io.bag import write_columns
+from thermal_imu_calib.io.bag_writer import write_columns
 
 CLI = [sys.executable, '-m', 'thermal_imu_calib.cli']
 

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from thermal_imu_calib.io.align import StreamAligner, TemperatureTrack
-from thermal_imu_calib.io.bag import open_log, write_columns
+from thermal_imu_calib.io.bag import open_log
+from thermal_imu_calib.io.bag_writer import write_columns
 from thermal_imu_calib.io.columns import ImuColumns, TemperatureColumns
 
 S = 1_000_000_000

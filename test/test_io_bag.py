@@ -10,8 +10,9 @@ from rosbags.rosbag2.enums import StoragePlugin
 from rosbags.typesys import get_typestore, Stores
 
 from thermal_imu_calib.io import cdr
-from thermal_imu_calib.io.bag import (copy_and_stream, LogError, LogWriter, open_log,
-                                      write_columns)
+from thermal_imu_calib.io.bag import copy_and_stream, open_log
+from thermal_imu_calib.io.bag_writer import LogWriter, write_columns
+from thermal_imu_calib.io.log_info import LogError
 from thermal_imu_calib.io.columns import ImuColumns, TemperatureColumns
 
 TS = get_typestore(Stores.ROS2_JAZZY)

@@ -18,7 +18,9 @@ from rosbags.rosbag2 import Reader
 from rosbags.typesys import get_typestore, Stores
 
 from thermal_imu_calib.io import cdr
-from thermal_imu_calib.io.bag import copy_and_stream, LogError, LogWriter, open_log
+from thermal_imu_calib.io.bag import copy_and_stream, open_log
+from thermal_imu_calib.io.bag_writer import LogWriter
+from thermal_imu_calib.io.log_info import LogError
 from thermal_imu_calib.io.columns import ImuColumns, TemperatureColumns
 from thermal_imu_calib.io.mcap_read import iter_batches, McapBulkReader, McapFormatError
 from thermal_imu_calib.io.mcap_source import McapBulkSource

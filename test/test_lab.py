@@ -117,7 +117,7 @@ def test_schedule_files_round_trip_and_bad_input_is_refused(tmp_path):
 
 def test_lab_log_with_schedule_file_end_to_end(tmp_path):
     from thermal_imu_calib.estimation.lab import accumulate_log
-    from thermal_imu_calib.io.bag import write_columns
+    from thermal_imu_calib.io.bag_writer import write_columns
     from thermal_imu_calib.io.columns import ImuColumns, TemperatureColumns
     sched, setpoints = paper_schedule(G, temps=tuple(range(0, 75, 10)),
                                       rates_deg=tuple(range(0, 520, 50)),

@@ -21,9 +21,8 @@ from std_srvs.srv import Trigger
 
 from thermal_imu_calib import sim
 from thermal_imu_calib.calibration import Calibration
-from thermal_imu_calib.estimation.gyro_fit import (load_transitions,
-                                                   save_transitions)
-from thermal_imu_calib.estimation.segments import Windows
+from thermal_imu_calib.collection.motion import load_transitions, save_transitions
+from thermal_imu_calib.collection.segments import Windows
 from thermal_imu_calib.nodes import common
 from thermal_imu_calib.nodes.calibrator import CalibratorNode
 from thermal_imu_calib.pipeline import windows_from_columns

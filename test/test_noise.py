@@ -9,7 +9,7 @@ import yaml
 from thermal_imu_calib import noise, sim
 from thermal_imu_calib.cli import main
 from thermal_imu_calib.estimation import allan
-from thermal_imu_calib.io.bag import write_columns
+from thermal_imu_calib.io.bag_writer import write_columns
 from thermal_imu_calib.io.columns import ImuColumns
 
 RATE = 100.0

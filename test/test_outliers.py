@@ -2,9 +2,9 @@
 
 import numpy as np
 
-from thermal_imu_calib.estimation.outliers import (despike, ImuSpikeFilter, robust_least_squares,
+from thermal_imu_calib.collection.outliers import (despike, ImuSpikeFilter, robust_least_squares,
                                                    SpikeFilter)
-from thermal_imu_calib.estimation.whole_unit_fit import fit_whole_unit_accel
+from thermal_imu_calib.estimation.whole_unit_accel import fit_whole_unit_accel
 from thermal_imu_calib.io.columns import AlignedChunk, ImuColumns
 
 from test_whole_unit import directions, G, synth_windows, truth_accel

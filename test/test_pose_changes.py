@@ -14,8 +14,8 @@ import pytest
 
 from thermal_imu_calib.calibration import Calibration
 from thermal_imu_calib.cli import main
-from thermal_imu_calib.estimation.gyro_fit import load_transitions, save_transitions, Transition
-from thermal_imu_calib.estimation.segments import Windows
+from thermal_imu_calib.collection.motion import load_transitions, save_transitions, Transition
+from thermal_imu_calib.collection.segments import Windows
 from thermal_imu_calib.pipeline import collect_windows, merge_transitions, merge_windows
 
 

@@ -20,7 +20,8 @@ from thermal_imu_calib.cli import main
 from thermal_imu_calib.estimation.calibrate import (CalibrateOptions, calibrate_windows,
                                                     default_input_map, input_margins)
 from thermal_imu_calib.input_units import normalize_unit, parse_unit_map
-from thermal_imu_calib.io.bag import open_log, write_columns
+from thermal_imu_calib.io.bag import open_log
+from thermal_imu_calib.io.bag_writer import write_columns
 from thermal_imu_calib.io.columns import TemperatureColumns
 from thermal_imu_calib.models.field import FieldPolynomialModel
 from thermal_imu_calib.models.polynomial import OffsetPolynomialModel
@@ -322,7 +323,7 @@ def test_lag_applies_to_the_temperature_not_to_the_proxy():
     The resonance frequency follows the gyro's own (lagged) temperature: the lag search
     lags only the degC input, and the gyro on the proxy needs none.
     """
-    from thermal_imu_calib.estimation.evaluate import WindowAccumulator
+    from thermal_imu_calib.evaluate import WindowAccumulator
     from thermal_imu_calib.pipeline import windows_from_columns
 
     def windows(rec):

@@ -10,10 +10,10 @@ import pytest
 
 from thermal_imu_calib.calibration import Calibration
 from thermal_imu_calib.cli import main
-from thermal_imu_calib.estimation.gyro_fit import collect_motion
+from thermal_imu_calib.collection.motion import collect_motion
+from thermal_imu_calib.collection.segments import Windows
+from thermal_imu_calib.collection.stationary import DetectorConfig, StationaryDetector
 from thermal_imu_calib.estimation.hold_consistency import hold_consistency
-from thermal_imu_calib.estimation.segments import Windows
-from thermal_imu_calib.estimation.stationary import DetectorConfig, StationaryDetector
 from thermal_imu_calib.estimation.whole_unit_fit import fit_whole_unit
 from thermal_imu_calib.io.bag import write_columns
 from thermal_imu_calib.io.csv_logs import (read_imucal_annotated, read_imucal_session,

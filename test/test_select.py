@@ -9,7 +9,8 @@ import pytest
 from _thermal_data import options, sim_windows
 from thermal_imu_calib import sim
 from thermal_imu_calib.calibration import Calibration
-from thermal_imu_calib.estimation import calibrate, select
+from thermal_imu_calib.estimation import calibrate
+from thermal_imu_calib.selection import select
 from thermal_imu_calib.estimation.calibrate import calibrate_windows, CalibrationRefused
 from thermal_imu_calib.estimation.thermal_lag import lagged_axis_temperatures
 

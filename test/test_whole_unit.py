@@ -8,9 +8,10 @@ import pytest
 from thermal_imu_calib.calibration import Calibration, TemperatureInput
 from thermal_imu_calib.estimation.calibrate import (CalibrateOptions, calibrate_windows,
                                                     model_choices)
-from thermal_imu_calib.estimation.segments import Windows
-from thermal_imu_calib.estimation.whole_unit_fit import (_vector_residual, accel_layout,
-                                                         fit_whole_unit_accel, Priors)
+from thermal_imu_calib.collection.segments import Windows
+from thermal_imu_calib.estimation.observability import Priors
+from thermal_imu_calib.estimation.whole_unit_accel import (_vector_residual, accel_layout,
+                                                           fit_whole_unit_accel)
 from thermal_imu_calib.models.base import model_from_dict
 from thermal_imu_calib.models.whole_unit import WholeUnitAccelModel, WholeUnitGyroModel
 

@@ -36,6 +36,9 @@ coefficients are in the unit of the inputs its axes are mapped to (``T0`` in Hz,
 rad/s/Hz); files without units are degC.
 
 ``Calibration.apply`` is the one vectorised entry point the CLI and both nodes use.
+
+Cohesive: the calibration object and its versioned file format: one schema, read,
+validated, applied and written in one place.
 """
 
 import datetime

@@ -50,7 +50,7 @@ def add_parser(sub):
 
 
 def _windows(path):
-    from .estimation.segments import Windows
+    from .collection.segments import Windows
     with open(path) as f:
         w = Windows.from_jsonl(f.read())
     if not len(w):

@@ -32,7 +32,7 @@ def _add_cluster(p):
 
 def add_fleet_parsers(sub, commands):
     """Add the fleet subcommands to ``sub`` and their handlers to ``commands``."""
-    from .cli import _add_detector, _add_topics
+    from .cli_calibrate import _add_detector, _add_topics
     from .estimation.calibrate import model_choices
     fleet = sub.add_parser('fleet', help='calibrate or compensate many logs of many sensors '
                                          'on a Dask cluster')
@@ -95,8 +95,8 @@ def cmd_fleet(args):
 
 def calibrate_args(args):
     """Return the ``calibrate`` Namespace (its defaults) with the fleet options applied."""
-    from .cli import build_parser
-    cargs = build_parser().parse_args(['calibrate', '-', '-o', '-'])
+    from .cli_calibrate import calibrate_defaults
+    cargs = calibrate_defaults()
     for k, v in vars(args).items():
         if hasattr(cargs, k) and k not in ('inputs', 'output', 'cmd'):
             setattr(cargs, k, v)
@@ -105,7 +105,7 @@ def calibrate_args(args):
 
 
 def _collect_kw(args):
-    from .cli import _detector
+    from .cli_calibrate import _detector
     kw = {'imu_topic': args.imu_topic, 'temperature_topics': args.temperature_topic,
           'chunk_size': args.chunk_size, 'max_gap_s': args.max_gap}
     if hasattr(args, 'min_hold'):
@@ -115,7 +115,7 @@ def _collect_kw(args):
 
 def cmd_fleet_calibrate(args):
     """Run ``fleet calibrate``: map logs, reduce per sensor, write the registry."""
-    from .cli import _gravity, calibrate_collected
+    from .cli_calibrate import _gravity, calibrate_collected
     group = fin.GroupBy.parse(args.by)
     if args.period < 0:
         raise ValueError(f'--period {args.period}: give 0 (all logs) or a positive number '
@@ -157,7 +157,8 @@ def cmd_fleet_calibrate(args):
 def compensate_one(path, out_path, registry, group, kw):
     """Task: compensate one log with its unit's calibration; returns (path, text, ok)."""
     from .io.bag import open_log
-    from .pipeline import compensate_log, resolve_topics
+    from .io.topics import resolve_topics
+    from .pipeline import compensate_log
     try:
         with open_log(path) as reader:
             start = int(reader.start_ns or 0)

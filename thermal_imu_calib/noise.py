@@ -9,9 +9,10 @@ import numpy as np
 import yaml
 
 from .estimation import allan
-from .estimation.stationary import DetectorConfig, StationaryDetector
-from .io.bag import LogError, open_log
-from .pipeline import resolve_topics
+from .collection.stationary import DetectorConfig, StationaryDetector
+from .io.bag import open_log
+from .io.log_info import LogError
+from .io.topics import resolve_topics
 
 #: a still recording: the detector's holds cover this much of the log in one orientation
 STILL_COVERAGE = 0.9

@@ -16,16 +16,21 @@ import numpy as np
 
 from .io import cdr
 from .io.align import StreamAligner
-from .io.bag import copy_and_stream, LogError, LogWriter, open_log
+from .io.bag import copy_and_stream, open_log
+from .io.bag_writer import LogWriter
+from .io.log_info import LogError
 from .input_units import DEGC, parse_unit_map
-from .io.cdr import IMU_MSGTYPE, SCALAR_MSGTYPES, TEMPERATURE_MSGTYPE
+from .io.cdr import IMU_MSGTYPE
 from .io.columns import TemperatureColumns
-from .io.gate import InputGate, thermal_problems
-from .estimation.outliers import ImuSpikeFilter
-from .estimation.evaluate import static_metrics, WindowAccumulator, with_signals
-from .estimation.gyro_fit import MotionCollector, offset_holds
-from .estimation.segments import Windows
-from .estimation.stationary import StationaryDetector
+from .io.gate import InputGate
+from .collection.outliers import ImuSpikeFilter
+from .evaluate import static_metrics, WindowAccumulator, with_signals
+from .collection.motion import MotionCollector, offset_holds
+from .collection.segments import Windows
+from .collection.stationary import StationaryDetector
+
+from .io.topics import resolve_topics
+
 
 #: temperature samples further apart than this are a gap: the nearest sample is held
 DEFAULT_MAX_GAP_S = 5.0
@@ -60,28 +65,6 @@ def _progress(total, desc, enabled):
     from tqdm import tqdm
     return tqdm(total=total, desc=desc, unit='msg', unit_scale=True, file=sys.stderr,
                 leave=False)
-
-
-def resolve_topics(reader, imu_topic, temperature_topics):
-    """Check the IMU topic and pick temperature topics (all Temperature topics when None).
-
-    Named thermal-input topics may be any header-stamped scalar of ``SCALAR_MSGTYPES``
-    (e.g. a proxy on sensor_msgs/Temperature or FluidPressure). Returns the temperature
-    topic list; raises LogError naming the topics present.
-    """
-    types = reader.topic_types()
-    if imu_topic is None:
-        imus = [t for t, ty in types.items() if ty == IMU_MSGTYPE]
-        if len(imus) != 1:
-            raise LogError(f'{reader.path}: pass --imu-topic; Imu topics present: '
-                           f'{", ".join(imus) or "none"}')
-        imu_topic = imus[0]
-    reader.check_topics([imu_topic], IMU_MSGTYPE)
-    if temperature_topics is None:
-        temperature_topics = sorted(t for t, ty in types.items() if ty == TEMPERATURE_MSGTYPE)
-    else:
-        reader.check_topics(temperature_topics, SCALAR_MSGTYPES)
-    return imu_topic, list(temperature_topics)
 
 
 def _aligned(reader, imu_topic, temp_topics, chunk_size, max_gap_s, keep_raw=False, bar=None,
@@ -139,38 +122,6 @@ def collect_windows(path, imu_topic=None, temperature_topics=None, detector=None
                      {'dropped': dict(det.dropped), 'peak_bytes': peak} if motion else None,
                      sd.settings(), list(sd.holds),
                      gate.report)
-
-
-def check_collected(path, collected, max_gap_s=DEFAULT_MAX_GAP_S):
-    """Refuse a collected log no calibration can come from; return warnings to print.
-
-    Refused (LogError, saying what to do): no IMU message, IMU stamps all 0 or mostly not
-    increasing, every sample dropped, and thermal inputs that cannot support a thermal fit
-    (``io.gate.thermal_problems``). Warned: what the input gate dropped and counted.
-    """
-    r = collected.gate
-    if r is None:
-        return []
-    if r.imu_in == 0:
-        raise LogError(f'{path}: the IMU topic has 0 messages, so there is nothing to '
-                       f'calibrate; check --imu-topic (`thermal-imu-calib info {path}` lists '
-                       'the topics and counts)')
-    if r.imu_stamp_zero == r.imu_in:
-        raise LogError(f'{path}: every IMU header stamp is 0, so holds cannot be timed; fix the '
-                       'driver to stamp its messages (header.stamp), then record again')
-    if r.imu_stamp_not_increasing > 0.1 * r.imu_in:
-        raise LogError(f'{path}: {r.imu_stamp_not_increasing} of {r.imu_in} IMU header stamps '
-                       'do not increase (duplicated or running backwards); the stamps are '
-                       'broken: fix the driver\'s clock or re-record')
-    if r.imu_dropped == r.imu_in:
-        raise LogError(f'{path}: every IMU sample was dropped ({r.dropped_text()}); the log '
-                       'has no usable IMU data')
-    problems = thermal_problems(r, max_gap_s)
-    if problems:
-        raise LogError(f'{path}: the thermal inputs cannot support a thermal fit: '
-                       + '; '.join(problems))
-    dropped = r.dropped_text()
-    return [f'dropped and counted: {dropped}'] if dropped else []
 
 
 def windows_from_columns(imu_chunks, temperatures=(), detector=None,

@@ -2,6 +2,9 @@
 
 This is the one estimation entry point used by the CLI (offline logs) and the calibrator
 node (live segment statistics).
+
+Cohesive: the calibrate_windows entry point, its context and estimator registry, and the
+offset/field estimators that define the registry.
 """
 
 import dataclasses
@@ -20,7 +23,7 @@ from .field_estimator import fit_field_model, per_axis_vertical_range
 from .hold_consistency import hold_consistency
 from .offset_fit import fit_offset_model, time_groups
 from .allan import window_noise
-from .segments import coverage, distinct_orientations, FACE_NAMES, Windows
+from ..collection.segments import coverage, distinct_orientations, FACE_NAMES, Windows
 
 #: temperature span (degC) needed for each polynomial order of the field model
 ORDER_SPAN = {1: 1.0, 2: 3.0}
@@ -303,8 +306,8 @@ ESTIMATORS = {}
 #: modules that register further estimators when imported (one line per model family)
 ESTIMATOR_MODULES = ['thermal_imu_calib.estimation.whole_unit_fit',
                      'thermal_imu_calib.estimation.baselines',
-                     'thermal_imu_calib.estimation.select',
-                     'thermal_imu_calib.estimation.gyro_select']
+                     'thermal_imu_calib.selection.select',
+                     'thermal_imu_calib.selection.gyro_select']
 
 
 def register_estimator(name):

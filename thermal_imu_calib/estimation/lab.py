@@ -394,7 +394,7 @@ def accumulate_log(path, schedule, imu_topic=None, temperature_topics=None, trim
     """Stream a log through a SegmentAccumulator; return (SegmentMeans, temperature topics)."""
     from ..io.align import StreamAligner
     from ..io.bag import open_log
-    from ..pipeline import resolve_topics
+    from ..io.topics import resolve_topics
     with open_log(path) as reader:
         imu_topic, temps = resolve_topics(reader, imu_topic, temperature_topics)
         acc = SegmentAccumulator(schedule, len(temps), trim_s)

@@ -7,8 +7,8 @@ the sensor id and the log's time span. A log that cannot be read is a ``LogResul
 
 Reduce: the caller's ``reduce_fn(collected_list, paths) -> CalibrationResult`` runs once per
 sensor (and ``period``) on a worker, with the map results passed as futures (they move
-worker to worker, not through the client). ``cli_fleet`` passes ``cli.calibrate_collected``:
-the very code of ``calibrate``.
+worker to worker, not through the client). ``cli_fleet`` passes
+``cli_calibrate.calibrate_collected``: the very code of ``calibrate``.
 
 A worker that dies mid-job loses its results; the scheduler recomputes them from the
 task graph (``distributed.scheduler.allowed-failures`` retries), so nothing is lost.
@@ -65,7 +65,8 @@ def collect_log(path, group, imu_topic=None, temperature_topics=None, detector=N
                 chunk_size=20000, max_gap_s=5.0):
     """Map task: stream one log; returns a LogResult (``error`` set instead of raising)."""
     from ..io.bag import open_log
-    from ..pipeline import collect_windows, resolve_topics
+    from ..io.topics import resolve_topics
+    from ..pipeline import collect_windows
     t = time.perf_counter()
     res = LogResult(os.fspath(path))
     try:

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .columns import TemperatureColumns
+from .log_info import LogError
 from ..input_units import is_temperature, TEMPERATURE_BOUNDS
 
 #: largest specific force any accelerometer reports, m/s^2 (~200 g)
@@ -183,3 +184,34 @@ def thermal_problems(report, max_gap_s):
                            'temperature; record it at >= 1 Hz, or pass --max-gap '
                            f'{med * 1.5:.3g} to interpolate between readings')
     return out
+
+
+def check_report(path, r, max_gap_s=5.0):
+    """Refuse a log no calibration can come from, from its GateReport ``r``; return warnings.
+
+    Refused (LogError, saying what to do): no IMU message, IMU stamps all 0 or mostly not
+    increasing, every sample dropped, and thermal inputs that cannot support a thermal fit
+    (``thermal_problems``). Warned: what the input gate dropped and counted.
+    """
+    if r is None:
+        return []
+    if r.imu_in == 0:
+        raise LogError(f'{path}: the IMU topic has 0 messages, so there is nothing to '
+                       f'calibrate; check --imu-topic (`thermal-imu-calib info {path}` lists '
+                       'the topics and counts)')
+    if r.imu_stamp_zero == r.imu_in:
+        raise LogError(f'{path}: every IMU header stamp is 0, so holds cannot be timed; fix the '
+                       'driver to stamp its messages (header.stamp), then record again')
+    if r.imu_stamp_not_increasing > 0.1 * r.imu_in:
+        raise LogError(f'{path}: {r.imu_stamp_not_increasing} of {r.imu_in} IMU header stamps '
+                       'do not increase (duplicated or running backwards); the stamps are '
+                       'broken: fix the driver\'s clock or re-record')
+    if r.imu_dropped == r.imu_in:
+        raise LogError(f'{path}: every IMU sample was dropped ({r.dropped_text()}); the log '
+                       'has no usable IMU data')
+    problems = thermal_problems(r, max_gap_s)
+    if problems:
+        raise LogError(f'{path}: the thermal inputs cannot support a thermal fit: '
+                       + '; '.join(problems))
+    dropped = r.dropped_text()
+    return [f'dropped and counted: {dropped}'] if dropped else []

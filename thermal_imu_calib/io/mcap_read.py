@@ -18,6 +18,9 @@ Files without a summary or chunk index are not handled here (``read_summary`` re
 None); the caller falls back to a per-message reader.  Damage that this reader detects
 (truncated chunk, bad CRC, unknown compression, records that do not fit) raises
 :class:`McapFormatError` naming the chunk and its file offset.
+
+Cohesive: one reader of one file format (summary, chunk decoding, record tiling, the
+ordered merge of chunks); the parts share the record layout and the error reporting.
 """
 
 from __future__ import annotations

@@ -13,6 +13,9 @@ restarted node resumes where it stopped. Services (std_srvs/Trigger):
 ``calibration_file`` atomically (previous kept as ``.bak``) and publishes it latched on
 ``imu/calibration``; ``~/reset`` clears the collection; ``~/save`` writes the current model.
 ``~/progress`` (JSON) and ``/diagnostics`` report coverage and what to hold next.
+
+Cohesive: one rclpy node (parameters, subscriptions, services) around the collection and
+estimation core; no maths.
 """
 
 from concurrent.futures import ThreadPoolExecutor
@@ -40,10 +43,9 @@ from ..calibration import Calibration, CalibrationError, TemperatureInput
 from ..estimation import calibrate as estimation
 from ..estimation.calibrate import (CalibrateOptions, CalibrationRefused, calibrate_windows,
                                     readiness)
-from ..estimation.gyro_fit import (load_transitions, MotionCollector, offset_holds,
-                                   save_transitions)
-from ..estimation.segments import FACE_NAMES, Windows
-from ..estimation.stationary import DetectorConfig
+from ..collection.motion import load_transitions, MotionCollector, offset_holds, save_transitions
+from ..collection.segments import FACE_NAMES, Windows
+from ..collection.stationary import DetectorConfig
 from ..formats import load_prior
 from ..gravity import resolve_gravity
 from ..io.align import StreamAligner

@@ -24,7 +24,7 @@ from std_srvs.srv import Trigger
 
 from . import common
 from ..calibration import Calibration, CalibrationError
-from ..estimation.outliers import ImuSpikeFilter
+from ..collection.outliers import ImuSpikeFilter
 from ..io.columns import AlignedChunk, ImuColumns
 from ..thermal_input import CalibrationStream
 

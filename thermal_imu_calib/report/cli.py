@@ -34,7 +34,7 @@ def cmd_report(args, format_calibration, user_error):
 
 def load_windows(args, cal, user_error):
     """Return (Windows or None, temperature series or None, source text)."""
-    from ..estimation.segments import Windows
+    from ..collection.segments import Windows
     if args.log:
         from ..pipeline import collect_windows, merge_windows
         topics = cal.temperature_topics or None
@@ -59,7 +59,7 @@ def _series(path, topics):
     """Return [(t [s], value)] per temperature topic of the first log (None on failure)."""
     import numpy as np
     from ..io.bag import open_log
-    from ..pipeline import resolve_topics
+    from ..io.topics import resolve_topics
     with open_log(path) as reader:
         imu, topics = resolve_topics(reader, None, topics)
         parts = {t: ([], []) for t in topics}

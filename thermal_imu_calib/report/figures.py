@@ -10,7 +10,7 @@ Allan figure on an ``estimation.allan`` result.
 from matplotlib.figure import Figure
 import numpy as np
 
-from ..estimation.segments import face_of
+from ..collection.segments import face_of
 
 UG = 1e6 / 9.80665          # micro-g per m/s^2
 AXES = 'xyz'

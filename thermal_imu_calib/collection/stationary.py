@@ -30,6 +30,9 @@ shorter ones than ``min_hold_s`` are dropped, and each hold is cut into windows 
 ``window_s`` (estimation.segments.Windows). ``holds`` keeps one record per hold (start,
 duration, stillness score). Memory stays small for hours of data, and the same class runs
 offline (CLI) and live (node). Settings given explicitly (not None / 0) are kept.
+
+Cohesive: one streaming algorithm (derive, score blocks, bridge, make holds and windows)
+whose state is shared by every step; split, its parts would pass that state around.
 """
 
 from collections import deque
@@ -55,6 +58,8 @@ VARIANCE_MARGIN = 3.0
 MATURE_BLOCKS = 200
 #: a derived guard is this fraction of the still run, between guard_s and GUARD_MAX_S
 GUARD_FRACTION = 0.02
+#: ... and at the end of a hold, before a pose change, this fraction
+GUARD_TAIL_FRACTION = 0.05
 GUARD_MAX_S = 1.0
 #: isolated false alarms: runs this short and this marginal between still blocks are still
 BRIDGE_BLOCKS = 2
@@ -398,12 +403,15 @@ class StationaryDetector:
         c = self.config
         if len(b) == 0:
             return None
-        guard = c.guard_s
+        guard = lead = c.guard_s
         if 'guard_s' not in self.derived['given']:
-            # derived guard: grows with the hold (slow tails of a pose change) up to GUARD_MAX_S
-            guard = min(max(guard, GUARD_FRACTION * (b.t1[-1] - b.t0[0])),
-                        max(guard, GUARD_MAX_S))
-        t_lo = b.t0[0] + (0.0 if edge[0] else guard)
+            # derived guard: grows with the hold up to GUARD_MAX_S; at the end of a hold, where
+            # a pose change begins slowly before the blocks see it (a hand starting to turn
+            # the unit), by GUARD_TAIL_FRACTION of the run, at the start by GUARD_FRACTION
+            run = b.t1[-1] - b.t0[0]
+            lead = min(max(guard, GUARD_FRACTION * run), max(guard, GUARD_MAX_S))
+            guard = min(max(guard, GUARD_TAIL_FRACTION * run), max(guard, GUARD_MAX_S))
+        t_lo = b.t0[0] + (0.0 if edge[0] else lead)
         t_hi = b.t1[-1] - (0.0 if edge[1] else guard)
         keep = (b.t0 >= t_lo - 1e-9) & (b.t1 <= t_hi + 1e-9)
         b = b.take(keep)

@@ -31,6 +31,9 @@ misalignment from the pose changes.
 ``auto_policy`` is installed as ``calibrate.AUTO_POLICY[0]``; its decision and the table of
 held-out errors go to ``ctx.thermal_selection`` so that the estimators registered here
 reuse the time constant and RVM kernels instead of searching again.
+
+Cohesive: one algorithm, held-out validation of candidate families, with the estimator
+registrations that share its fit helpers.
 """
 
 import dataclasses
@@ -43,14 +46,15 @@ import numpy as np
 from ..input_units import is_temperature
 from ..thermal_input import ThermalFilter
 from ..calibration import Calibration
-from .calibrate import (AUTO_POLICY, CalibrateOptions, CalibrationRefused,
-                        check_faces_up_and_down, Estimate, estimate_field, input_margins,
-                        input_units, make_context, ORDER_SPAN, register_estimator, valid_range)
-from .field_estimator import fit_field_model
-from .offset_fit import fit_offset_model
-from .segments import face_of
-from .rvm_fit import fit_rvm_bias_scale, fit_rvm_offset
-from .thermal_lag import cv_groups, estimate_tau, lagged_axis_temperatures, tau_or_none
+from ..estimation.calibrate import (AUTO_POLICY, CalibrateOptions, CalibrationRefused,
+                                    check_faces_up_and_down, Estimate, estimate_field,
+                                    input_margins, input_units, make_context, ORDER_SPAN,
+                                    register_estimator, valid_range)
+from ..estimation.field_estimator import fit_field_model
+from ..estimation.offset_fit import fit_offset_model
+from ..collection.segments import face_of
+from ..estimation.rvm_fit import fit_rvm_bias_scale, fit_rvm_offset
+from ..estimation.thermal_lag import cv_groups, estimate_tau, lagged_axis_temperatures, tau_or_none
 
 #: candidates in order of complexity (parsimony prefers the earlier one on a near tie)
 SINGLE_CANDIDATES = ('offset', 'lag', 'rvm', 'rvm-lag')
@@ -461,8 +465,8 @@ def heldout_whole_unit(ctx):
     so a pose-dependent bias (g-sensitivity) shows as a larger held-out |w|. The field
     calibration's gyro is the default bias polynomial (``calibrate._gyro_bias``).
     """
-    from .calibrate import _gyro_bias
-    from .whole_unit_fit import fit_whole_unit_context
+    from ..estimation.calibrate import _gyro_bias
+    from ..estimation.whole_unit_fit import fit_whole_unit_context
     w, o = ctx.windows, ctx.options
     folds, n = _whole_unit_folds(w)
     out = {s: {'field': np.full(len(w), np.nan), 'whole_unit': np.full(len(w), np.nan)}
@@ -690,7 +694,7 @@ def calibrate_thermal(windows, options=None):
     default) with the temperature filter honoured even where calibrate.py cannot store it
     yet; the Calibration has no fit statistics beyond the estimator's.
     """
-    from .calibrate import _gyro_bias, ESTIMATORS, model_choices
+    from ..estimation.calibrate import _gyro_bias, ESTIMATORS, model_choices
     o = options or CalibrateOptions()
     if o.model not in model_choices():
         raise CalibrationRefused(f'unknown model {o.model!r}', f'use one of {model_choices()}')

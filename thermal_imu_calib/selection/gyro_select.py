@@ -38,8 +38,8 @@ def still_rate_error(gyro):
 
 def _whole_unit_gyro(ctx, rows, acc, accel_model, transitions=None):
     """Fit the seed 002 gyro on the windows ``rows`` (corrected accel ``acc`` per window)."""
-    from .gyro_fit import fit_gyro
-    from .whole_unit_fit import Priors
+    from ..estimation.gyro_fit import fit_gyro
+    from ..estimation.observability import Priors
     o, k = ctx.options, ctx.k
     w = ctx.windows.select(rows)
     return fit_gyro(w, ctx.tg[rows] if k else None, acc[rows],
@@ -55,7 +55,7 @@ def heldout_gyro(ctx, accel_model, acc):
 
     ``acc``: (m, 3) specific force per window corrected by ``accel_model``.
     """
-    from .calibrate import _gyro_bias
+    from ..estimation.calibrate import _gyro_bias
     from .select import _hold_folds, clamp_to_training
     w, o = ctx.windows, ctx.options
     folds, n = _hold_folds(w)
@@ -74,7 +74,7 @@ def heldout_gyro(ctx, accel_model, acc):
 
 def default_gyro(ctx, est):
     """Return (gyro model, report, notes) for an Estimate without a gyro model."""
-    from .calibrate import _gyro_bias
+    from ..estimation.calibrate import _gyro_bias
     from .select import _hold_folds, _weighted_rms
     poly, rep = _gyro_bias(ctx)
     usable = (est.accel is not None and est.temperature_filter is None
@@ -104,7 +104,7 @@ def default_gyro(ctx, est):
 
 def _install():
     """Install ``default_gyro`` as ``calibrate.DEFAULT_GYRO[0]`` (via ESTIMATOR_MODULES)."""
-    from . import calibrate
+    from ..estimation import calibrate
     calibrate.DEFAULT_GYRO[0] = default_gyro
 
 

@@ -1,0 +1,215 @@
+"""What ``calibrate`` and ``fleet calibrate`` share: the options, and one estimation step.
+
+``calibrate_collected`` turns the Collected of several logs into a validated calibration;
+``cli.cmd_calibrate`` and the fleet's reduce step (``cli_fleet``) both call it, so a fleet
+calibration is the one ``calibrate`` gives on the same logs. Units: gravity m/s^2,
+--max-gap and detector lengths in s, --rotation-dps in deg/s.
+"""
+
+import argparse
+import os
+import sys
+
+from . import cli_checks
+from .calibration import TemperatureInput
+from .cli_checks import UserError
+from .collection.stationary import DetectorConfig
+from .estimation.calibrate import CalibrateOptions, calibrate_windows, model_choices
+from .formats import load_prior
+from .gravity import resolve_gravity
+from .input_units import parse_unit_map
+
+
+def add_calibrate_parser(sub):
+    """Add the ``calibrate`` subcommand's parser to ``sub`` and return it."""
+    p = sub.add_parser('calibrate', help='estimate a thermal calibration from logs')
+    p.add_argument('inputs', nargs='+', metavar='INPUT', help='rosbag2 dir, .mcap or .db3')
+    _add_topics(p)
+    grav = p.add_mutually_exclusive_group()
+    grav.add_argument('--gravity', type=float, help='local gravity (m/s^2)')
+    grav.add_argument('--latitude', type=float, help='latitude (deg) for WGS84 normal gravity')
+    p.add_argument('--altitude', type=float, default=0.0, help='height (m) with --latitude')
+    p.add_argument('--model', default='auto', choices=model_choices(),
+                   help='auto: chosen from the data (see the summary); field: seed 000; '
+                        'offset: single-orientation drift only; whole_unit: seed 002, gyro '
+                        'scale and misalignment from the pose changes between holds')
+    p.add_argument('--prior', help='lab calibration (k0, b0, S at T0) the field model refines: a '
+                   'thermal_imu_calib YAML, imu_tk *_acc.calib, imucal .json, PX4 .params, '
+                   'ArduPilot .parm or Kalibr imu.yaml')
+    p.add_argument('--order', type=int, default=2, choices=(0, 1, 2),
+                   help='temperature polynomial order of the field model (default 2)')
+    p.add_argument('--no-refine', action='store_true', help='skip the joint refinement')
+    p.add_argument('--out-of-range', default='clamp', choices=('clamp', 'extrapolate'),
+                   help='outside the valid temperature range: hold the edge value (clamp) or '
+                        'evaluate the model (extrapolate); both are counted and flagged')
+    p.add_argument('--range-margin', type=float, default=1.0, metavar='DEGC',
+                   help='valid range = collected temperature range widened by this (default 1)')
+    p.add_argument('--input-unit', action='append', default=[], metavar='TOPIC=UNIT',
+                   help='unit of a thermal input, recorded in the calibration: degC (default) '
+                        'or a proxy unit such as Hz (e.g. /imu/gyro_resonance=Hz); repeat per '
+                        'input. Kelvin/Fahrenheit are refused: publish degC')
+    p.add_argument('--input-margin', action='append', default=[], metavar='UNIT=VALUE',
+                   help='valid-range margin of the inputs in UNIT (default for a proxy: '
+                        '--range-margin degC scaled by its span relative to the degC inputs)')
+    p.add_argument('--accel-input', metavar='TOPIC[,TOPIC,TOPIC]',
+                   help='input(s) driving the accelerometer axes (default: the degC inputs, '
+                        'three per axis, else the first)')
+    p.add_argument('--gyro-input', metavar='TOPIC[,TOPIC,TOPIC]',
+                   help='input(s) driving the gyro axes (default: the one non-degC input, '
+                        'e.g. a resonance-frequency proxy, else the first input)')
+    p.add_argument('--frame-id', help='sensor frame_id to record (default: from the log)')
+    p.add_argument('--save-windows', metavar='FILE',
+                   help='write the window statistics (JSONL) and the pose changes between '
+                        'holds (FILE.transitions.npz, gyro_fit.load_transitions)')
+    p.add_argument('-o', '--output', required=True, help='calibration YAML to write')
+    p.add_argument('--force', action='store_true',
+                   help='overwrite an existing -o that is not a calibration file (never an '
+                        'input)')
+    p.add_argument('--json', action='store_true', help='print the report as JSON')
+    _add_detector(p)
+    return p
+
+
+def calibrate_defaults():
+    """Return the calibrate Namespace with every default (inputs '-', output '-')."""
+    ap = argparse.ArgumentParser()
+    add_calibrate_parser(ap.add_subparsers(dest='cmd'))
+    return ap.parse_args(['calibrate', '-', '-o', '-'])
+
+
+def _add_topics(p, imu_required=False):
+    p.add_argument('--imu-topic', required=imu_required, default=None,
+                   help='sensor_msgs/Imu topic (default: the only Imu topic in the log)')
+    p.add_argument('--temperature-topic', action='append', default=None, metavar='TOPIC',
+                   help='thermal input topic: sensor_msgs/Temperature (a temperature, or a '
+                        'proxy such as a resonance frequency) or another stamped scalar '
+                        '(FluidPressure, Illuminance, RelativeHumidity); repeat for several '
+                        'inputs (default: all Temperature topics, or those of the calibration)')
+    p.add_argument('--max-gap', type=float, default=5.0, metavar='S',
+                   help='temperature samples further apart than this are a gap: the nearest '
+                        'sample is held instead of interpolating (s, default 5)')
+    p.add_argument('--chunk-size', type=int, default=20000, help=argparse.SUPPRESS)
+    p.add_argument('--progress', action=argparse.BooleanOptionalAction, default=None,
+                   help='progress bar (default: only on a terminal)')
+
+
+def _add_detector(p):
+    d = DetectorConfig()
+    g = p.add_argument_group('stationary detector (default: every setting derived from the '
+                             'log\'s rate, noise floor and LSB)')
+    g.add_argument('--block', type=float, default=None, metavar='S',
+                   help='block length of the stillness test (s; default ~0.1 s, >= 5 samples)')
+    g.add_argument('--min-hold', type=float, default=None, metavar='S',
+                   help='minimum stationary segment (s; default max(1 s, 8 blocks))')
+    g.add_argument('--window', type=float, default=None, metavar='S',
+                   help='sub-window length within a hold (s; default max(5 s, 2 blocks))')
+    g.add_argument('--guard', type=float, default=None, metavar='S',
+                   help='trimmed from both ends of a hold (s; default max(0.2 s, 2 blocks))')
+    g.add_argument('--still-factor', type=float, default=None, metavar='X',
+                   help='variance threshold as a multiple of the noise floor (default: from '
+                        'the chi-square spread of a block variance)')
+    g.add_argument('--rotation-dps', type=float, default=d.rotation_dps, metavar='DPS',
+                   help='rotation rate still counted as held (hand tremor; deg/s, default '
+                        f'{d.rotation_dps:g})')
+
+
+def _detector(args):
+    c = DetectorConfig(block_s=args.block, min_hold_s=args.min_hold, window_s=args.window,
+                       guard_s=args.guard, accel_factor=args.still_factor,
+                       gyro_factor=args.still_factor, rotation_dps=args.rotation_dps)
+    try:
+        c.validate()
+    except ValueError as e:
+        raise UserError(f'{e}; leave it out to derive it from the log') from None
+    return c
+
+
+def _gravity(args):
+    try:
+        g, src = resolve_gravity(args.gravity, args.latitude, args.altitude)
+    except ValueError as e:
+        raise UserError(str(e)) from None
+    if not 9.7 <= g <= 9.9:
+        raise UserError(f'gravity {g:.6g} m/s^2 from --latitude/--altitude is not a '
+                        'terrestrial value (9.7..9.9); check --altitude (metres)')
+    return g, src
+
+
+def calibrate_collected(args, collected, paths):
+    """Merge the Collected of several logs and estimate as ``calibrate`` does.
+
+    ``args`` holds the calibrate options (the Namespace of its parser); ``paths`` are the
+    logs (their names go to ``fit.inputs``; long holds are re-read for the random walk,
+    ``noise.add_random_walk``). Returns the CalibrationResult (not saved), re-read by the
+    nodes' loader first (``cli_checks.validated``: UserError if it would be refused). Shared by
+    ``fleet calibrate`` (cli_fleet), whose reduce step must equal ``calibrate``.
+    """
+    from .collection.motion import save_transitions
+    from .pipeline import merge_transitions, merge_windows
+    g, g_src = _gravity(args)
+    prior = load_prior(args.prior) if args.prior else None
+    topics = collected[0].temperature_topics
+    for c in collected[1:]:
+        if c.temperature_topics != topics:
+            raise UserError(f'inputs have different temperature topics ({topics} vs '
+                            f'{c.temperature_topics}); pass --temperature-topic')
+    windows = merge_windows(collected)
+    transitions = merge_transitions(collected)
+    if args.save_windows:
+        with open(args.save_windows, 'w') as f:
+            f.write(windows.to_jsonl())
+        with open(args.save_windows + '.transitions.npz', 'wb') as f:
+            save_transitions(f, transitions)
+        print(f'wrote {len(windows)} windows to {args.save_windows} and {len(transitions)} '
+              f'pose changes to {args.save_windows}.transitions.npz', file=sys.stderr)
+    inputs, mapping = _thermal_inputs(args, topics)
+    opts = CalibrateOptions(model=args.model, gravity=g, gravity_source=g_src, prior=prior,
+                            inputs=inputs, frame_id=args.frame_id or collected[0].frame_id,
+                            out_of_range=args.out_of_range, order=args.order,
+                            refine=not args.no_refine,
+                            min_hold_s=args.min_hold or collected[0].detector["min_hold_s"]
+                            if collected[0].detector else 10.0,
+                            range_margin=args.range_margin, latitude=args.latitude,
+                            transitions=transitions, **mapping)
+    result = calibrate_windows(windows, opts)
+    result.calibration.fit['inputs'] = [os.path.basename(os.path.normpath(p)) for p in paths]
+    result.calibration.fit['detector'] = (collected[0].detector if len(collected) == 1
+                                          else [c.detector for c in collected])
+    from .noise import add_random_walk
+    note = add_random_walk(result.calibration, paths, windows, args.imu_topic)
+    result.calibration.notes += [note] if note else []
+    # never hand on a calibration the nodes' loader would refuse (calibrate and fleet alike)
+    cli_checks.validated(result.calibration, getattr(args, 'output', None) or 'the output')
+    return result
+
+
+def _thermal_inputs(args, topics):
+    """Return the TemperatureInputs (with units) and the axis-mapping options of calibrate."""
+    try:
+        units = parse_unit_map(args.input_unit, topics)
+    except ValueError as e:
+        raise UserError(str(e)) from None
+    inputs = [TemperatureInput(t.strip('/').replace('/', '_') or f't{i}', t, u)
+              for i, (t, u) in enumerate(zip(topics, units))]
+    margins = {}
+    for item in args.input_margin:
+        unit, sep, value = item.partition('=')
+        try:
+            margins[unit] = float(value)
+        except ValueError:
+            sep = ''
+        if not sep or margins[unit] < 0:
+            raise UserError(f'--input-margin {item!r} is not UNIT=VALUE with VALUE >= 0 (e.g. '
+                            'Hz=1.5)')
+    mapping = {'unit_margins': margins or None}
+    bare = [t.lstrip('/') for t in topics]
+    for sensor in ('accel', 'gyro'):
+        spec = getattr(args, f'{sensor}_input')
+        if not spec:
+            continue
+        names = [n.strip().lstrip('/') for n in spec.split(',')]
+        if len(names) not in (1, 3) or any(n not in bare for n in names):
+            raise UserError(f'--{sensor}-input {spec!r} must name one or three of the thermal '
+                            f'inputs ({", ".join(topics) or "none"}), comma-separated')
+        mapping[f'{sensor}_input'] = [bare.index(n) for n in names] * (3 // len(names))
+    return inputs, mapping

@@ -1,0 +1,357 @@
+"""Gyroscope rotation fit (imu_tk, Tedaldi et al. 2014) over pose changes.
+
+Between consecutive holds i -> j the compensated gyro is integrated (quaternions,
+all transitions at once by a pairwise tree product) and the gravity direction
+measured before is carried over and compared with the one measured after:
+``r = u_j - dR' u_i``. Transitions flagged ``closed`` (full turns, start and end
+orientation identical, as the Ferraris protocol) add ``rotvec(dR) = 0``.
+Unknowns: Omega1 (3x3 scale/misalignment relative to the accelerometer frame)
+and the per-axis nonlinearity Omega2, Omega3; observability as in
+``observability``. The earth rate during a 2-4 s pose change (< 3e-4 rad) is
+neglected. The pose changes come from ``collection.motion``.
+"""
+
+from dataclasses import dataclass, field
+from typing import List, Optional
+
+import numpy as np
+
+from ..collection.outliers import robust_scale
+from .observability import decide_determined, DETERMINED_RATIO, fit_free, Layout, Priors
+
+from ..rotations import (integrate_batch, prefix_products, quat_from_rotvec, quat_rotate_inverse,
+                         quat_to_matrix, quat_to_rotvec)
+
+
+# ------------------------------------------------------------------------ rotation fit
+@dataclass
+class RotationFit:
+    """Omega1 (and Omega2, Omega3) from rotations between holds."""
+
+    omega1: np.ndarray
+    omega2: np.ndarray
+    omega3: np.ndarray
+    std: dict
+    estimated: dict
+    fixed: dict
+    ratios: dict
+    used: int
+    error_before_deg: np.ndarray     # per transition, with the prior Omega1
+    error_after_deg: np.ndarray
+    notes: list
+
+
+@dataclass
+class PreparedTransitions:
+    """Fixed per-transition arrays of the rotation fit (padded with zeros to one length).
+
+    The rotation increment of sample interval k is linear in the unknowns:
+    ``theta_k = Omega1 b_k + Omega2 o c2_k + Omega3 o c3_k`` (trapezoid rule).
+    """
+
+    b: np.ndarray          # (k, n, 3) integrated bias/g-sensitivity-free raw rate, rad
+    c2: np.ndarray         # (k, n, 3) integrated W^2
+    c3: np.ndarray         # (k, n, 3) integrated W^3
+    u_from: np.ndarray     # (k, 3)
+    u_to: np.ndarray       # (k, 3)
+    sigma: np.ndarray      # (k,) rad, direction-residual standard deviation
+    closed: np.ndarray     # (k,) bool
+    index: List[int] = field(default_factory=list)   # positions in the input list
+    cone: Optional[np.ndarray] = None                 # (k, n, 3) coning increments, rad
+
+
+def _trapezoid(x, dt):
+    return 0.5 * (x[1:] + x[:-1]) * dt[:, None]
+
+
+#: consecutive increments are summed into one while the neglected second-order term of the
+#: composition (1/2 sum_{i<j} theta_i x theta_j, Baker-Campbell-Hausdorff) stays below this
+MERGE_COMMUTATOR = 1e-7      # rad
+#: motion = smoothed bias-free rate above this many noise standard deviations
+MOTION_SIGMAS = 8.0
+#: still time kept around the detected motion of a transition, s
+MOTION_MARGIN_S = 0.25
+
+
+def _merge_commuting(b, c2, c3, cone):
+    """Sum runs of increments whose composition is their sum to 1e-7 rad (one pass)."""
+    groups = [0]
+    sx = sy = sz = ex = ey = ez = 0.0
+    lim2 = MERGE_COMMUTATOR ** 2
+    for i, (x, y, z) in enumerate(b.tolist()):
+        # commutator added by appending theta_i to the group: 1/2 S x theta_i
+        cx, cy, cz = 0.5 * (sy * z - sz * y), 0.5 * (sz * x - sx * z), 0.5 * (sx * y - sy * x)
+        nx, ny, nz = ex + cx, ey + cy, ez + cz
+        if i and nx * nx + ny * ny + nz * nz > lim2:
+            groups.append(i)
+            sx, sy, sz, ex, ey, ez = x, y, z, 0.0, 0.0, 0.0
+        else:
+            sx, sy, sz, ex, ey, ez = sx + x, sy + y, sz + z, nx, ny, nz
+    starts = np.array(groups)
+    return tuple(np.add.reduceat(x, starts, axis=0) for x in (b, c2, c3, cone))
+
+
+def _motion_extent(t, d, noise):
+    """Return the sample slice of a transition that holds its motion (plus a margin).
+
+    Outside it the unit is still (the detector guard), so its true rotation is zero and
+    integrating it would only add angle random walk. ``noise``: per-sample rate std.
+    """
+    n = len(t)
+    if noise is None or n < 8:
+        return slice(0, n)
+    dt = float(np.median(np.diff(t)))
+    k = max(3, int(round(0.1 / max(dt, 1e-6))))
+    mag = np.linalg.norm(d, axis=1)
+    smooth = np.convolve(mag, np.ones(k) / k, mode='same')
+    moving = np.flatnonzero(smooth > MOTION_SIGMAS * float(np.mean(noise)) / np.sqrt(k)
+                            + float(np.mean(noise)) * np.sqrt(2.0 / np.pi))
+    if len(moving) == 0:
+        return slice(0, n)
+    lo = np.searchsorted(t, t[moving[0]] - MOTION_MARGIN_S)
+    hi = np.searchsorted(t, t[moving[-1]] + MOTION_MARGIN_S, side='right')
+    return slice(int(lo), int(max(hi, lo + 2)))
+
+
+def prepare_transitions(transitions, hold_up, hold_sigma, static, accel_model, accel_input,
+                        gyro_input, t0g, gyro_noise=None):
+    """Precompute the static-compensated, integrated raw rates of each usable transition.
+
+    hold_up: dict hold id -> unit up (3,); hold_sigma: dict hold id -> direction std (rad).
+    static: StaticGyroFit; accel_model corrects the transition's specific force (g-sensitivity
+    during motion). Transitions between unknown holds are skipped.
+    """
+    rows = []
+    for i, tr in enumerate(transitions):
+        if tr.hold_from not in hold_up or tr.hold_to not in hold_up or len(tr.t) < 3:
+            continue
+        temps = np.asarray(tr.temps, float)
+        ta = np.broadcast_to(temps[list(accel_input)] if temps.size else accel_model.t0,
+                             (len(tr.t), 3))
+        xg = temps[list(gyro_input)] if temps.size else np.asarray(t0g, float)
+        a = accel_model.correct(tr.accel, ta)
+        dxg = xg - t0g
+        c = np.zeros(3)
+        for row in static.offset[::-1]:
+            c = c * dxg + row
+        w = tr.gyro - c
+        d = w - static.beta - a @ static.g.T
+        keep = _motion_extent(tr.t, d, gyro_noise)
+        tt, d, w = tr.t[keep], d[keep], w[keep]
+        dt = np.diff(tt)
+        # within-interval coning of a linearly varying rate (Bortz): dt^2/12 w_a x w_b,
+        # evaluated with the prior scale (its Omega1 dependence is second order)
+        cone = np.cross(d[:-1], d[1:]) * (dt ** 2 / 12.0)[:, None]
+        bb, cc2, cc3, cc = _merge_commuting(_trapezoid(d, dt), _trapezoid(w * w, dt),
+                                            _trapezoid(w ** 3, dt), cone)
+        rows.append((i, tr, bb, cc2, cc3, cc, dt))
+    k = len(rows)
+    n = max([len(r[2]) for r in rows], default=1)
+    b = np.zeros((k, n, 3))
+    c2 = np.zeros((k, n, 3))
+    c3 = np.zeros((k, n, 3))
+    c0 = np.zeros((k, n, 3))
+    uf, ut, sg, cl, idx = [], [], [], [], []
+    for j, (i, tr, bb, cc2, cc3, cc, dt) in enumerate(rows):
+        b[j, :len(bb)], c2[j, :len(bb)], c3[j, :len(bb)], c0[j, :len(bb)] = bb, cc2, cc3, cc
+        uf.append(hold_up[tr.hold_from])
+        ut.append(hold_up[tr.hold_to])
+        gn = 0.0 if gyro_noise is None else \
+            float(np.mean(gyro_noise)) * np.sqrt(np.sum(dt ** 2))
+        sg.append(np.sqrt(hold_sigma[tr.hold_from] ** 2 + hold_sigma[tr.hold_to] ** 2
+                          + gn ** 2 + 1e-12))
+        cl.append(bool(tr.closed))
+        idx.append(i)
+    return PreparedTransitions(b, c2, c3, np.array(uf).reshape(k, 3),
+                               np.array(ut).reshape(k, 3), np.array(sg), np.array(cl, bool),
+                               idx, c0)
+
+
+def transition_rotations(prep, omega1, omega2, omega3, prefixes=False):
+    """Return (k, 4) quaternions dR of every prepared transition (and the prefixes)."""
+    theta = prep.b @ np.asarray(omega1).T + omega2 * prep.c2 + omega3 * prep.c3
+    if prep.cone is not None:
+        theta = theta + prep.cone
+    q = quat_from_rotvec(theta)
+    if not prefixes:
+        return integrate_batch(theta), None
+    pre = prefix_products(q)
+    return pre[:, -1], pre
+
+
+def rotation_residuals(prep, omega1, omega2, omega3, want_jac=False):
+    """Return (k, 3) residuals u_to - dR' u_from (rad; closure rotvec if closed) [, jac].
+
+    The Jacobian (k, 3, 15) w.r.t. (Omega1 row-major, Omega2, Omega3) uses the
+    right-perturbation dR -> dR exp(dphi), dphi = dR' sum_k P_k dtheta_k (P_k prefix
+    products), with the small-increment approximation of the SO(3) Jacobian.
+    """
+    q, pre = transition_rotations(prep, omega1, omega2, omega3, want_jac)
+    carried = quat_rotate_inverse(q, prep.u_from)
+    r = prep.u_to - carried
+    if np.any(prep.closed):
+        r[prep.closed] = quat_to_rotvec(q[prep.closed])
+    if not want_jac:
+        return r
+    pm = quat_to_matrix(pre)                                   # (k, n, 3, 3)
+    d1 = np.einsum('knia,knb->kiab', pm, prep.b).reshape(-1, 3, 9)
+    d2 = np.einsum('knia,kna->kia', pm, prep.c2)
+    d3 = np.einsum('knia,kna->kia', pm, prep.c3)
+    dphi_start = np.concatenate([d1, d2, d3], axis=2)         # (k, 3, 15)
+    rot = quat_to_matrix(q)
+    dphi = np.einsum('kji,kjp->kip', rot, dphi_start)          # end frame
+    jac = np.cross(dphi, carried[:, :, None], axisa=1, axisb=1, axisc=1)
+    if np.any(prep.closed):
+        jac[prep.closed] = dphi[prep.closed]
+    return r, jac
+
+
+def direction_error_deg(prep, omega1, omega2=0.0, omega3=0.0):
+    """Return (k,) angle between u_to and the carried u_from (deg); closure angle if closed."""
+    q, _ = transition_rotations(prep, omega1, omega2, omega3)
+    carried = quat_rotate_inverse(q, prep.u_from)
+    c = np.clip(np.sum(carried * prep.u_to, axis=1), -1, 1)
+    ang = np.degrees(np.arccos(c))
+    if np.any(prep.closed):
+        ang[prep.closed] = np.degrees(np.linalg.norm(quat_to_rotvec(q[prep.closed]), axis=1))
+    return ang
+
+
+def _subset(prep, rows):
+    """Return the prepared transitions selected by a bool mask."""
+    return PreparedTransitions(prep.b[rows], prep.c2[rows], prep.c3[rows], prep.u_from[rows],
+                               prep.u_to[rows], prep.sigma[rows], prep.closed[rows],
+                               [i for i, r in zip(prep.index, rows) if r],
+                               None if prep.cone is None else prep.cone[rows])
+
+
+def _select_rotation_terms(lay, free, p1, prep, solve_rows, k, tol=0.01):
+    """Drop Omega3, then Omega2, unless leave-pose-changes-out validation supports them."""
+    if k < 6:
+        return free, {}
+    folds = np.arange(k) % min(5, k)
+
+    def cv_error(fr):
+        err = 0.0
+        for f in np.unique(folds):
+            test = folds == f
+            p = solve_rows(fr, p1, ~test)
+            r = rotation_residuals(_subset(prep, test), lay.get(p, 'Omega1'),
+                                   lay.get(p, 'Omega2'), lay.get(p, 'Omega3'))
+            err += float(np.sum((r / prep.sigma[test, None]) ** 2))
+        return err / k
+
+    current = free.copy()
+    best = cv_error(current)
+    scores = {'all determined': best}
+    for g in ('Omega3', 'Omega2'):
+        i = np.arange(lay.slices[g].start, lay.slices[g].stop)
+        i = i[current[i]]
+        if not len(i):
+            continue
+        fr = current.copy()
+        fr[i] = False
+        e = cv_error(fr)
+        scores[f'without {g}'] = e
+        if e <= best * (1.0 + tol):
+            current = fr
+            best = min(best, e)
+            for j in i:
+                lay.reason[j] = ('determined, but leave-pose-changes-out validation does not '
+                                 'support it: fixed at its prior')
+        else:
+            break
+    return current, scores
+
+
+def fit_gyro_rotations(prep, priors=None, omega1_prior=None, ratio=DETERMINED_RATIO,
+                       robust=True, select=True):
+    """Estimate Omega1 (and, when determined, Omega2/Omega3) from prepared transitions.
+
+    ``select``: keep the nonlinear terms only when leave-pose-changes-out validation
+    supports them (as the accelerometer's optional terms).
+    """
+    priors = priors or Priors()
+    lay = Layout()
+    std1 = np.full((3, 3), priors.gyro_misalignment)
+    np.fill_diagonal(std1, priors.gyro_scale)
+    lay.add('Omega1', (3, 3), np.eye(3) if omega1_prior is None else omega1_prior, std1)
+    lay.add('Omega2', (3,), 0.0, priors.gyro_nonlin2)
+    lay.add('Omega3', (3,), 0.0, priors.gyro_nonlin3)
+    k = len(prep.sigma)
+    before = direction_error_deg(prep, lay.get(lay.mean, 'Omega1')) if k else np.zeros(0)
+
+    def residuals_of(pr):
+        def resid(p, want_jac=False):
+            out = rotation_residuals(pr, lay.get(p, 'Omega1'), lay.get(p, 'Omega2'),
+                                     lay.get(p, 'Omega3'), want_jac)
+            if not want_jac:
+                return (out / pr.sigma[:, None]).ravel()
+            r, j = out
+            return ((r / pr.sigma[:, None]).ravel(),
+                    (j / pr.sigma[:, None, None]).reshape(-1, lay.size))
+        return resid
+
+    resid = residuals_of(prep)
+
+    def solve(free, base, with_prior, use_robust):
+        return fit_free(resid, lay.std, base, free, with_prior, use_robust, max_nfev=100)
+
+    def solve_rows(free, base, rows):
+        """Plain least squares of the free parameters on a subset of transitions."""
+        return fit_free(residuals_of(_subset(prep, rows)), lay.std, base, free, tight=False,
+                        max_nfev=50)[0]
+
+    if k < 2:
+        free = np.zeros(lay.size, bool)
+        for i in range(lay.size):
+            lay.reason[i] = ('no rotations between holds were collected: fixed at the prior'
+                             if k == 0 else 'one rotation cannot determine it: fixed at the '
+                             'prior')
+        ratios = {}
+        p = lay.mean.copy()
+        std = lay.std.copy()
+        notes = ['gyroscope scale factor and misalignment (Omega1) not estimated: '
+                 f'{k} usable pose changes between holds (need several, about different '
+                 'axes)']
+        after = before
+    else:
+        p1, _ = solve(lay.candidates, lay.mean, True, False)
+        r1, j1 = resid(p1, True)
+        s = max(robust_scale(r1), 1.0)
+        free, ratios = decide_determined(lay, j1, s, ratio,
+                                         chains=[[9 + i, 12 + i] for i in range(3)])
+        cv = {}
+        if select:
+            free, cv = _select_rotation_terms(lay, free, p1, prep, solve_rows, k)
+        p0 = lay.mean.copy()
+        p0[free] = p1[free]
+        p, res = solve(free, p0, False, robust)
+        r, jf = resid(p, True)
+        scale = robust_scale(r) if robust else float(np.sqrt(np.mean(r * r)))
+        jf = jf[:, free]
+        std = np.where(free, 0.0, lay.std)
+        try:
+            cov = np.linalg.pinv(jf.T @ jf) * max(scale, 1.0) ** 2
+            std[free] = np.sqrt(np.maximum(np.diag(cov), 0))
+        except np.linalg.LinAlgError:
+            std[free] = np.nan
+        after = direction_error_deg(prep, lay.get(p, 'Omega1'), lay.get(p, 'Omega2'),
+                                    lay.get(p, 'Omega3'))
+        notes = []
+        by_cv = [lay.label(i) for i in range(lay.size) if not free[i]
+                 and (lay.reason[i] or '').startswith('determined, but')]
+        labels = [lay.label(i) for i in range(lay.size) if not free[i]
+                  and lay.label(i) not in by_cv]
+        if labels:
+            notes.append(f'gyroscope {", ".join(labels)} not determined by the {k} pose '
+                         'changes: fixed at the prior (scale needs rotations about each axis; '
+                         'nonlinearity needs fast ones)')
+        if by_cv:
+            notes.append(f'gyroscope {", ".join(by_cv)}: determined, but held-out pose changes '
+                         'do not support it (leave-pose-changes-out validation): fixed at the '
+                         'prior')
+    return RotationFit(lay.get(p, 'Omega1'), lay.get(p, 'Omega2'), lay.get(p, 'Omega3'),
+                       {n: lay.get(std, n) for n in lay.names}, lay.masks(free),
+                       lay.reasons(free), {lay.label(i): v for i, v in ratios.items()}, k,
+                       before, after, notes)

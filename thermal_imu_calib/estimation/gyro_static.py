@@ -1,0 +1,266 @@
+"""Static gyroscope fit: bias and g-sensitivity from stationary windows.
+
+Raw means y_w in rad/s, corrected specific force a_w::
+
+    y_w = beta + cw(X_w) + G a_w + Omega1^-1 w_earth(hold)          (raw domain)
+
+so that the seed 002 model ``w = Omega0 + Omega1 W + ... + C a`` (models.whole_unit)
+gets ``Omega0 = -Omega1 beta`` and ``C = -Omega1 G``. The earth rate in the sensor
+frame is ``W_e (sin(lat) u + cos(lat) (cos(psi) e1 + sin(psi) e2))`` with u the
+hold's up direction (from the corrected accelerometer) and e1, e2 spanning its
+horizontal plane:
+
+* latitude given: the vertical component is removed exactly; the heading psi of
+  each hold is unknown, so the horizontal component (fixed magnitude) is a
+  per-hold nuisance angle;
+* latitude unknown: the horizontal magnitude becomes one more nuisance (0..W_e),
+  and the vertical component ``W_e sin(lat) u`` is indistinguishable from an
+  isotropic g-sensitivity (both are proportional to u): it stays in the diagonal
+  of C (at most 7.4e-6 rad/s per m/s^2), which the notes say.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..collection.outliers import robust_scale
+from .observability import CONVENTION, decide_determined, DETERMINED_RATIO, Layout, Priors
+
+
+EARTH_RATE = 7.2921150e-5    # rad/s, WGS84
+
+
+# ------------------------------------------------------------------------ static fit
+def _hold_frames(windows, acc):
+    """Return (hold ids, index per window, (h, 3) up, e1, e2) from corrected accel means."""
+    ids, inv = np.unique(windows.hold, return_inverse=True)
+    up = np.zeros((len(ids), 3))
+    np.add.at(up, inv, acc * windows.n[:, None])
+    up /= np.linalg.norm(up, axis=1, keepdims=True)
+    ref = np.eye(3)[np.argmin(np.abs(up), axis=1)]
+    e1 = np.cross(up, ref)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(up, e1)
+    return ids, inv, up, e1, e2
+
+
+@dataclass
+class StaticGyroFit:
+    """Raw-domain static solution: y = beta + cw(X) + G a + Omega1^-1 w_earth."""
+
+    beta: np.ndarray
+    offset: np.ndarray                # (no + 1, 3), row 0 = 0 (convention)
+    g: np.ndarray                     # (3, 3)
+    std: dict
+    estimated: dict
+    fixed: dict
+    ratios: dict
+    heading: np.ndarray               # (h,) rad nuisance per hold
+    horizontal_fraction: float        # |horizontal earth rate| / W_e used
+    residual_rms: float               # rad/s, window means
+    outlier_holds: list
+    notes: list
+
+
+def _normal_solve(a, b):
+    """Least squares by normal equations with column scaling (small, well-posed systems)."""
+    if a.shape[1] == 0:
+        return np.zeros(0)
+    cs = np.sqrt(np.sum(a * a, axis=0))
+    cs[cs == 0] = 1.0
+    an = a / cs
+    try:
+        sol = np.linalg.solve(an.T @ an, an.T @ b)
+    except np.linalg.LinAlgError:
+        sol = np.linalg.lstsq(an, b, rcond=None)[0]
+    return sol / cs
+
+
+def fit_gyro_static(windows, axis_inputs, acc, t0, latitude=None, omega1=None, priors=None,
+                    order=2, ratio=DETERMINED_RATIO, robust=True, k_robust=3.0):
+    """Estimate the gyro thermal bias polynomial and g-sensitivity from stationary windows.
+
+    windows: Windows (gyro means rad/s); axis_inputs: (m, 3) thermal inputs or None;
+    acc: (m, 3) corrected specific force per window (m/s^2); t0: (3,) input reference;
+    latitude: degrees or None; omega1: current 3x3 scale/misalignment (identity if None).
+
+    The model is linear in (beta, cw, G) for fixed headings, and each heading (and the
+    horizontal magnitude without latitude) has a closed form for fixed linear parameters,
+    so the solver alternates the two (with iteratively reweighted soft-L1 then Cauchy
+    weights when ``robust``); observability is decided as in ``whole_unit_fit`` from the
+    full Jacobian, headings included as nuisances.
+    """
+    priors = priors or Priors()
+    om1 = np.eye(3) if omega1 is None else np.asarray(omega1, float)
+    om1_inv = np.linalg.inv(om1)
+    has_x = axis_inputs is not None
+    no = order if has_x else 0
+    y = np.asarray(windows.gyro, float)
+    m = len(y)
+    sig = np.sqrt(np.maximum(windows.gyro_var, 1e-30) / windows.n[:, None])
+    dx = (np.asarray(axis_inputs, float) - t0) if has_x else np.zeros((m, 3))
+    ids, inv, up, e1, e2 = _hold_frames(windows, acc)
+    nh = len(ids)
+    lat_known = latitude is not None
+    s_lat = np.sin(np.radians(latitude)) if lat_known else 0.0
+    c_lat = np.cos(np.radians(latitude)) if lat_known else 1.0
+
+    lay = Layout()
+    lay.add('beta', (3,), 0.0, priors.gyro_bias)
+    lay.add('cw0', (3,), 0.0, 0.0, CONVENTION + ': cw0 = 0, the bias is carried by Omega0 '
+            '(exactly redundant)')
+    for j in range(1, no + 1):
+        lay.add(f'cw{j}', (3,), 0.0, priors.gyro_offset_tc[j - 1])
+    lay.add('G', (3, 3), 0.0, priors.g_sensitivity)
+    n_lin = lay.size
+    lay.add('psi', (nh,), 0.0, np.pi)
+    if not lat_known:
+        lay.add('mh', (1,), 0.5, 0.5)
+    nuis = np.zeros(lay.size, bool)
+    nuis[n_lin:] = True
+
+    # linear design per window: (m, 3, n_lin)
+    x = np.zeros((m, 3, n_lin))
+    x[:, :, lay.slices['beta']] = np.eye(3)
+    for j in range(1, no + 1):
+        x[:, :, lay.slices[f'cw{j}']] = np.einsum('ij,ni->nij', np.eye(3), dx ** j)
+    x[:, :, lay.slices['G']] = np.einsum('ij,nk->nijk', np.eye(3), acc).reshape(m, 3, 9)
+
+    def earth(psi, mh):
+        hdir = np.cos(psi)[inv, None] * e1[inv] + np.sin(psi)[inv, None] * e2[inv]
+        return EARTH_RATE * (s_lat * up[inv] + mh * hdir) @ om1_inv.T, hdir
+
+    def full_jac(theta, psi, mh):
+        """Whitened Jacobian (3m, size) of r = (y - pred) / sigma."""
+        jac = np.zeros((m, 3, lay.size))
+        jac[:, :, :n_lin] = x
+        dpsi = EARTH_RATE * mh * (-np.sin(psi)[inv, None] * e1[inv]
+                                  + np.cos(psi)[inv, None] * e2[inv]) @ om1_inv.T
+        jac[np.arange(m), :, n_lin + inv] = dpsi
+        if not lat_known:
+            _, hdir = earth(psi, mh)
+            jac[:, :, lay.slices['mh'].start] = EARTH_RATE * hdir @ om1_inv.T
+        return (-jac / sig[:, :, None]).reshape(3 * m, lay.size)
+
+    def solve(free_lin, theta0, with_prior, weights_kind):
+        """Alternate linear LS and closed-form headings; return (theta, psi, mh, r, w)."""
+        idx = np.flatnonzero(free_lin)
+        x_free, x_fixed = x[:, :, idx], x[:, :, ~free_lin]  # loop invariants
+        theta = theta0.copy()
+        psi = np.zeros(nh)
+        mh = c_lat if lat_known else 0.5
+        wts = np.ones((m, 3))
+        stages = ['linear'] if weights_kind == 'linear' else ['linear', 'soft_l1', 'cauchy']
+        c = np.inf
+        for stage in stages:
+            if stage != 'linear':
+                r_all = ((y - np.einsum('nik,k->ni', x, theta) - earth(psi, mh)[0])
+                         / sig).ravel()
+                c = k_robust * max(robust_scale(r_all), 1.0)
+            for _ in range(60):
+                we, hdir = earth(psi, mh)
+                yy = y - we - np.einsum('nik,k->ni', x_fixed, theta[~free_lin])
+                r = (yy - np.einsum('nik,k->ni', x_free, theta[idx])) / sig
+                if stage == 'soft_l1':
+                    wts = 1.0 / np.sqrt(1.0 + (r / c) ** 2)
+                elif stage == 'cauchy':
+                    wts = 1.0 / (1.0 + (r / c) ** 2)
+                sw = np.sqrt(wts) / sig
+                a = (x_free * sw[:, :, None]).reshape(3 * m, len(idx))
+                b = (yy * sw).ravel()
+                if with_prior:
+                    sd = lay.std[idx]
+                    a = np.vstack([a, np.diag(1.0 / sd)])
+                    b = np.r_[b, lay.mean[idx] / sd]
+                new = _normal_solve(a, b)
+                step = np.max(np.abs(new - theta[idx]) / lay.std[idx]) if len(idx) else 0.0
+                theta[idx] = new
+                # headings (and horizontal magnitude) in closed form, rate domain
+                rr = (y - np.einsum('nik,k->ni', x, theta)) @ om1.T \
+                    - EARTH_RATE * s_lat * up[inv]
+                ww = np.mean(wts / sig ** 2, axis=1)
+                dh = np.zeros((nh, 3))
+                np.add.at(dh, inv, rr * ww[:, None])
+                psi_new = np.arctan2(np.sum(dh * e2, 1), np.sum(dh * e1, 1))
+                if not lat_known:
+                    hd = np.cos(psi_new)[:, None] * e1 + np.sin(psi_new)[:, None] * e2
+                    wsum = np.zeros(nh)
+                    np.add.at(wsum, inv, ww)
+                    mh = float(np.clip(np.sum(dh * hd) / (EARTH_RATE * wsum.sum()), 0.0, 1.0))
+                dpsi = float(np.max(np.abs(np.angle(np.exp(1j * (psi_new - psi))))))
+                psi = psi_new
+                if step < 1e-6 and dpsi < 1e-4:
+                    break
+        r = (y - np.einsum('nik,k->ni', x, theta) - earth(psi, mh)[0]) / sig
+        return theta, psi, mh, r, wts, c
+
+    lin_cand = lay.candidates[:n_lin]
+    theta1, psi1, mh1, r1, _, _ = solve(lin_cand, lay.mean[:n_lin].copy(), True, 'linear')
+    s = max(robust_scale(r1), 1.0)
+    chains = [[lay.slices[f'cw{j}'].start + i for j in range(1, no + 1)] for i in range(3)]
+    free, ratios = decide_determined(lay, full_jac(theta1, psi1, mh1), s, ratio,
+                                     chains=chains, nuisance=nuis)
+    theta0 = lay.mean[:n_lin].copy()
+    theta0[free[:n_lin]] = theta1[free[:n_lin]]
+    theta, psi, mh, r, wts, c = solve(free[:n_lin], theta0, False,
+                                      'robust' if robust else 'linear')
+    scale = robust_scale(r) if robust else float(np.sqrt(np.mean(r * r)))
+    p = np.r_[theta, psi, [] if lat_known else [mh]]
+    idx = np.flatnonzero(free | nuis)
+    jf = full_jac(theta, psi, mh)[:, idx] * np.sqrt(wts).ravel()[:, None]
+    try:
+        cov = np.linalg.pinv(jf.T @ jf) * max(scale, 1.0) ** 2
+        sd = np.sqrt(np.maximum(np.diag(cov), 0))
+    except np.linalg.LinAlgError:
+        sd = np.full(len(idx), np.nan)
+    std = lay.posterior_std(free, idx, sd)
+    offset = np.stack([lay.get(p, f'cw{j}') for j in range(no + 1)])
+    rw = r * sig
+    holds_bad = []
+    if robust:
+        hold_r = np.array([np.median(np.abs(r[windows.hold == h])) for h in ids])
+        holds_bad = [int(h) for h, v in zip(ids, hold_r) if v > 4 * max(scale, 1.0)]
+    notes = []
+    labels = [lay.label(i) for i in range(lay.size) if not free[i] and not nuis[i]
+              and lay.reason[i] and not lay.reason[i].startswith(CONVENTION)]
+    if labels:
+        notes.append(f'gyroscope {", ".join(labels)} not determined by the static holds: '
+                     'fixed at the prior (g-sensitivity needs holds in at least three '
+                     'non-coplanar directions; thermal terms a temperature span)')
+    if lat_known:
+        notes.append(f'gyroscope: earth rate removed at latitude {latitude:g} deg (vertical '
+                     'component exactly; horizontal component with an unknown heading per '
+                     'hold as a nuisance)')
+    else:
+        notes.append('gyroscope: no latitude given: the horizontal earth rate is a per-hold '
+                     'nuisance of unknown magnitude (<= 7.3e-5 rad/s) and the vertical '
+                     'component stays in the diagonal of C (<= 7.4e-6 rad/s per m/s^2); pass '
+                     '--latitude to remove it')
+    if holds_bad:
+        notes.append(f'gyroscope: holds {holds_bad} disagree with the others (down-weighted)')
+    est = lay.masks(free)
+    fixed = lay.reasons(free)
+    for k in ('psi', 'mh'):
+        est.pop(k, None)
+        fixed.pop(k, None)
+    return StaticGyroFit(
+        lay.get(p, 'beta'), offset, lay.get(p, 'G'),
+        {n: lay.get(std, n) for n in lay.names if n not in ('psi', 'mh')}, est, fixed,
+        {lay.label(i): v for i, v in ratios.items() if not nuis[i]},
+        psi, float(mh), float(np.sqrt(np.mean(rw ** 2))), holds_bad, notes)
+
+
+def hold_directions(windows, acc):
+    """Return dicts hold -> unit up (corrected accel) and hold -> direction std (rad)."""
+    ids, inv, up, _, _ = _hold_frames(windows, acc)
+    g = np.linalg.norm(acc, axis=1)
+    var = np.zeros(len(ids))
+    n = np.zeros(len(ids))
+    np.add.at(var, inv, np.mean(windows.accel_var, axis=1) * windows.n)
+    np.add.at(n, inv, windows.n)
+    gm = np.zeros(len(ids))
+    np.add.at(gm, inv, g * windows.n)
+    gm /= n
+    sig = np.sqrt(var / n / n) / gm
+    return ({int(h): up[j] for j, h in enumerate(ids)},
+            {int(h): float(sig[j]) for j, h in enumerate(ids)})

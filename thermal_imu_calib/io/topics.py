@@ -1,0 +1,30 @@
+"""Topic selection in a log: which topic is the IMU, which are temperatures.
+
+Shared by the offline pipelines and lab mode; raises LogError naming the
+topics present.
+"""
+
+from .log_info import LogError
+from .cdr import IMU_MSGTYPE, SCALAR_MSGTYPES, TEMPERATURE_MSGTYPE
+
+
+def resolve_topics(reader, imu_topic, temperature_topics):
+    """Check the IMU topic and pick temperature topics (all Temperature topics when None).
+
+    Named thermal-input topics may be any header-stamped scalar of ``SCALAR_MSGTYPES``
+    (e.g. a proxy on sensor_msgs/Temperature or FluidPressure). Returns the temperature
+    topic list; raises LogError naming the topics present.
+    """
+    types = reader.topic_types()
+    if imu_topic is None:
+        imus = [t for t, ty in types.items() if ty == IMU_MSGTYPE]
+        if len(imus) != 1:
+            raise LogError(f'{reader.path}: pass --imu-topic; Imu topics present: '
+                           f'{", ".join(imus) or "none"}')
+        imu_topic = imus[0]
+    reader.check_topics([imu_topic], IMU_MSGTYPE)
+    if temperature_topics is None:
+        temperature_topics = sorted(t for t, ty in types.items() if ty == TEMPERATURE_MSGTYPE)
+    else:
+        reader.check_topics(temperature_topics, SCALAR_MSGTYPES)
+    return imu_topic, list(temperature_topics)
