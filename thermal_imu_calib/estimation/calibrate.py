@@ -20,6 +20,7 @@ from ..models.base import SensorModel
 from ..models.field import FieldPolynomialModel
 from ..thermal_input import ThermalFilter
 from .field_estimator import fit_field_model, per_axis_vertical_range
+from .hold_consistency import hold_consistency
 from .offset_fit import fit_offset_model, time_groups
 from .allan import window_noise
 from ..collection.segments import coverage, distinct_orientations, FACE_NAMES, Windows
@@ -251,6 +252,19 @@ class Context:
     prior_model: Optional[FieldPolynomialModel]
     #: (3,) reference of the gyro axes in their input's unit (None: ``t0``, a degC input)
     t0g: Optional[np.ndarray] = None
+    #: bool mask of the windows the accelerometer is fitted on (None: all); the holds left
+    #: out by ``hold_consistency`` stay in ``windows`` for the gyro and the pose changes
+    accel_rows: Optional[np.ndarray] = None
+
+    def accel_view(self):
+        """Return the Context of the accelerometer's windows (``accel_rows``), coverage redone."""
+        if self.accel_rows is None or np.all(self.accel_rows):
+            return self
+        rows = self.accel_rows
+        w = self.windows.select(rows)
+        return dataclasses.replace(self, windows=w, ta=self.ta[rows], tg=self.tg[rows],
+                                   coverage=coverage(w), n_orientations=distinct_orientations(w),
+                                   accel_rows=None)
 
     @property
     def gyro_unit(self):
@@ -372,10 +386,14 @@ def calibrate_windows(windows, options=None):
         raise ValueError(f'{len(o.inputs)} temperature inputs named but windows carry '
                          f'{windows.n_inputs}')
     ctx = make_context(windows, o)
+    keep, consistency = hold_consistency(windows, o.gravity, ctx.ta if ctx.k else None)
+    if not np.all(keep):
+        ctx.accel_rows = keep
     accel_input, gyro_input, units = ctx.accel_input, ctx.gyro_input, input_units(o, ctx.k)
-    name, why = (o.model, 'requested') if o.model != 'auto' else AUTO_POLICY[0](ctx)
+    name, why = ((o.model, 'requested') if o.model != 'auto'
+                 else AUTO_POLICY[0](ctx.accel_view()))
     est = ESTIMATORS[name](ctx)
-    notes = list(est.notes)
+    notes = _consistency_notes(consistency) + list(est.notes)
     report = {'coverage': ctx.coverage, 'distinct_orientations': ctx.n_orientations,
               'model_choice': {'model': name, 'reason': why}, **est.report}
     gyro_model = est.gyro
@@ -393,9 +411,10 @@ def calibrate_windows(windows, options=None):
         accel_noise_std=np.sqrt(np.median(windows.accel_var, axis=0)),
         gyro_noise_std=np.sqrt(np.median(windows.gyro_var, axis=0)), notes=notes,
         temperature_filter=est.temperature_filter, noise_model=window_noise(windows))
-    before, after = gravity_residuals(windows, cal, g)
+    before, after = gravity_residuals(ctx.accel_view().windows, cal, g)
     fit_stats = dict(est.fit)
     fit_stats.update({
+        'hold_consistency': consistency,
         'model_choice': {'model': name, 'reason': why},
         'holds': cov['holds'], 'windows': cov['windows'],
         'faces': {f: cov['faces'][f]['holds'] for f in FACE_NAMES},
@@ -418,10 +437,26 @@ def calibrate_windows(windows, options=None):
     summary = (f'{kind}: {cov["holds"]} holds ({cov["windows"]} windows), faces '
                f'{_face_text(cov)}, {_span_text(cov, units)}, gravity residual '
                f'{_amax(before):.0f} -> {_amax(after):.1f} ug max')
+    if consistency['left_out']:
+        summary += (f', {len(consistency["left_out"])} holds left out of the accelerometer '
+                    'fit (pose repeats that disagree, see notes)')
     if 'residual_rms' in fit_stats:
         summary += f', fit residual {fit_stats["residual_rms"]["value"] * 1e6 / g:.1f} ug RMS'
     return CalibrationResult(cal, summary + _pose_change_text(rot, len(o.transitions)),
                              report)
+
+
+def _consistency_notes(report):
+    """Return the notes on the holds ``hold_consistency`` left out of the accel fit."""
+    out = []
+    for h in report['left_out']:
+        out.append(
+            f'hold {h["hold"]} left out of the accelerometer fit: still, but its |a| differs '
+            f'by {h["difference_ug"]:.0f} ug ({h["z"]:.1f} sigma, limit '
+            f'{report["z_limit"]:.1f}) from hold {h["reference_hold"]} in the same pose, so '
+            'the sensor output changed between the two (handling, a temperature step); '
+            'it is still used for the gyro')
+    return out
 
 
 def _rotation_stats(fit, report):
@@ -513,6 +548,7 @@ def check_faces_up_and_down(ctx):
 @register_estimator('field')
 def estimate_field(ctx):
     """Seed 000 field model: two-step iteration plus joint refinement."""
+    ctx = ctx.accel_view()
     w, o, k, ta = ctx.windows, ctx.options, ctx.k, ctx.ta
     check_faces_up_and_down(ctx)
     notes = []

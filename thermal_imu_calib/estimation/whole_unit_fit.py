@@ -101,10 +101,12 @@ def fit_whole_unit_context(ctx, rows=None, transitions=None):
     if ctx.prior_model is not None:
         priors.accel_mean = prior_from_field_model(ctx.prior_model)
     t0g = ctx.t0 if k and list(ctx.gyro_input) == list(ctx.accel_input) else None
+    acc_rows = getattr(ctx, 'accel_rows', None)
     return fit_whole_unit(w.select(rows), o.gravity, ctx.ta[rows] if k else None, ctx.t0,
                           ctx.tg[rows] if k else None, t0g, o.latitude,
                           transitions, priors, o.order if k else 0, ctx.accel_input,
-                          ctx.gyro_input, o.whole_unit_residual, ctx.gyro_unit)
+                          ctx.gyro_input, o.whole_unit_residual, ctx.gyro_unit,
+                          accel_rows=None if acc_rows is None else acc_rows[rows])
 
 
 # ------------------------------------------------------------------------ estimator
