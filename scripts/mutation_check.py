@@ -49,8 +49,8 @@ BREAKS = {
     'auto-field': (
         'make auto always pick field',
         [(f'{PKG}/estimation/calibrate.py',
-          "name, why = (o.model, 'requested') if o.model != 'auto' else AUTO_POLICY[0](ctx)",
-          "name, why = (o.model, 'requested') if o.model != 'auto' else ('field', 'MUTANT')"),
+          "                 else AUTO_POLICY[0](ctx.accel_view()))",
+          "                 else ('field', 'MUTANT'))"),
          (f'{PKG}/selection/select.py',
           "name, why = (o.model, 'requested') if o.model != 'auto' else AUTO_POLICY[0](ctx)",
           "name, why = (o.model, 'requested') if o.model != 'auto' else ('field', 'MUTANT')")],
