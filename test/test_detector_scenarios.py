@@ -10,24 +10,15 @@ import pytest
 from thermal_imu_calib import sim
 from thermal_imu_calib.estimation.calibrate import CalibrateOptions, calibrate_windows
 from thermal_imu_calib.collection.motion import MotionCollector
-from thermal_imu_calib.collection.segments import Windows
-from thermal_imu_calib.io.align import StreamAligner
+from thermal_imu_calib.pipeline import feed_columns
 
 
 def run(rec):
     """Return (Windows, hold records, transitions, detector settings) with default settings."""
     temps = list(rec.temperatures.values())
-    aligner = StreamAligner(len(temps), 5.0)
     col = MotionCollector(None, len(temps))
-    parts, pending = [], temps
-    for ch in rec.imu_chunks():
-        for a in aligner.push_columns(ch, pending):
-            parts.append(col.update(a.imu.t, a.imu.accel, a.imu.gyro, a.temps))
-        pending = [t.empty() for t in temps]
-    for a in aligner.finish():
-        parts.append(col.update(a.imu.t, a.imu.accel, a.imu.gyro, a.temps))
-    parts.append(col.finish())
-    return Windows.concat(parts), col.det.holds, col.transitions, col.det.settings()
+    w = feed_columns(col, rec.imu_chunks(), temps)
+    return w, col.det.holds, col.transitions, col.det.settings()
 
 
 def match(rec, holds):

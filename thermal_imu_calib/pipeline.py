@@ -132,8 +132,18 @@ def windows_from_columns(imu_chunks, temperatures=(), detector=None,
     per input (whole series). Returns the Windows table.
     """
     temperatures = list(temperatures)
+    return feed_columns(StationaryDetector(detector, len(temperatures)), imu_chunks,
+                        temperatures, max_gap_s)
+
+
+def feed_columns(det, imu_chunks, temperatures=(), max_gap_s=DEFAULT_MAX_GAP_S):
+    """Feed in-memory columns through the temperature aligner into ``det``; return Windows.
+
+    ``det`` is anything with ``update(t, accel, gyro, temps)`` and ``finish()`` returning
+    Windows: a StationaryDetector, or a MotionCollector (which keeps the pose changes too).
+    """
+    temperatures = list(temperatures)
     aligner = StreamAligner(len(temperatures), max_gap_s)
-    det = StationaryDetector(detector, len(temperatures))
     pending = temperatures
     parts = []
     for ch in imu_chunks:
