@@ -17,6 +17,7 @@ import os
 import time
 
 import numpy as np
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from sensor_msgs.msg import Imu
 from std_msgs.msg import String
@@ -114,7 +115,8 @@ class CompensatorNode(Node):
         self.counts = {'received': 0, 'published': 0, 'compensated': 0, 'passthrough': 0,
                        'dropped': 0, 'invalid': 0, 'clamped': 0, 'temperature_held': 0,
                        'temperature_missing': 0, 'frame_mismatch': 0,
-                       'calibrations_rejected': 0, 'calibrations_loaded': 0}
+                       'calibrations_rejected': 0, 'calibrations_loaded': 0,
+                       'input_lost': 0}
         self.last_rejection = ''
         self._last_stamp_ns = None
         self._rate = common.RateMeter()
@@ -122,8 +124,10 @@ class CompensatorNode(Node):
 
         self.pub = self.create_publisher(Imu, 'imu/data_compensated',
                                          common.output_qos(out_rel, out_depth))
-        self.imu_sub = self.create_subscription(Imu, 'imu/data_raw', self._on_imu,
-                                                common.sensor_qos(in_depth))
+        self.imu_sub = self.create_subscription(
+            Imu, 'imu/data_raw', self._on_imu, common.sensor_qos(in_depth),
+            event_callbacks=SubscriptionEventCallbacks(message_lost=self._on_lost))
+        self._temp_fields = [value for _, value in scalar_types]
         self.temp_subs = [
             self.create_subscription(cls, topic, self._temperature_cb(i, value),
                                      common.sensor_qos(in_depth))
@@ -256,9 +260,27 @@ class CompensatorNode(Node):
     def _temperature_cb(self, index, value='temperature'):
         def cb(msg):
             # drained too, so temperature keeps pace with batched IMU data under load
-            for m in [msg] + common.drain(self.temp_subs[index], 100, self):
-                self.temps.add(index, common.stamp_to_ns(m.header.stamp), getattr(m, value))
+            self._add_temperatures(index, value, [msg] + common.drain(self.temp_subs[index],
+                                                                       100, self))
         return cb
+
+    def _add_temperatures(self, index, value, msgs):
+        for m in msgs:
+            self.temps.add(index, common.stamp_to_ns(m.header.stamp), getattr(m, value))
+
+    def _take_queued_temperatures(self):
+        """Take readings still queued before compensating an IMU batch.
+
+        The executor runs the IMU callback before the temperature callbacks of the same
+        wake-up; under load, readings stamped within the batch would otherwise still wait in
+        their queue and the batch would be compensated with an older, held reading.
+        """
+        for i, sub in enumerate(self.temp_subs):
+            self._add_temperatures(i, self._temp_fields[i], common.drain(sub, 1000, self))
+
+    def _on_lost(self, info):
+        # DDS-reported losses on imu/data_raw (sequence gaps the reader saw): diagnostics
+        self.counts['input_lost'] += info.total_count_change
 
     def _on_imu(self, msg):
         if self.registry_dir and msg.header.frame_id != self._registry_frame:
@@ -266,6 +288,7 @@ class CompensatorNode(Node):
             common.log(self, *self.load_file(), failure='warning')
         msgs = [msg]
         msgs.extend(common.drain(self.imu_sub, self.batch_limit - 1, self))
+        self._take_queued_temperatures()
         if self._gate is None:
             self.process(msgs)
             return
