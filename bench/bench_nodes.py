@@ -293,6 +293,16 @@ def _pacing(sent, rate):
     return out
 
 
+def _cpu_s(pid):
+    """User + system CPU seconds of process ``pid`` so far (None if unknown)."""
+    try:
+        with open(f'/proc/{pid}/stat') as f:
+            fields = f.read().rsplit(')', 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+    except (OSError, IndexError, ValueError):
+        return None
+
+
 def _int(d, key):
     try:
         return int(float(d[key]))
@@ -300,7 +310,7 @@ def _int(d, key):
         return None
 
 
-def measure(src, env, dut, rate, n, cal, warm_up=True):
+def measure(src, env, dut, rate, n, cal, warm_up=True, pid=None):
     """One run of n messages at ``rate`` (None: flood) through a running DUT; a result row.
 
     ``warm_up=False`` is the old bench's start: 1 s after the graph shows every endpoint.
@@ -326,10 +336,12 @@ def measure(src, env, dut, rate, n, cal, warm_up=True):
             sink.stdin.flush()
             time.sleep(0.05)
             t0_ns = time.time_ns()
+            cpu0 = _cpu_s(pid)
             sent = src.paced(n, rate, t0_ns)
             sink.stdin.write('sent\n')
             sink.stdin.flush()
             sink.wait(n / (rate or 5000) + 90)
+            cpu1 = _cpu_s(pid)
         finally:
             _stop(sink)
         with open(out) as f:
@@ -364,6 +376,9 @@ def measure(src, env, dut, rate, n, cal, warm_up=True):
         a, b = _int(go, key) if go else 0, _int(end, key)
         if a is not None and b is not None:
             row[f'dut_{key}'] = b - a
+    if cpu0 is not None and cpu1 is not None:
+        row['dut_cpu_s'] = cpu1 - cpu0
+        row['dut_cpu_us_per_msg'] = 1e6 * (cpu1 - cpu0) / max(row.get('dut_received', n), 1)
     row['wrong'] = _check_values(rows[first], t0_ns, cal, dut, rate or 5000.0)
     return row
 
@@ -424,34 +439,40 @@ HEADER = ('| DUT | input | sent | msgs/s in | interval p99 us | msgs/s out | del
           '---|---:|---:|---:|---:|')
 
 
-def search(run, start, step_rates):
-    """Highest rate of ``step_rates`` (ascending) sustained (>= SUSTAINED %), then bisect.
+def search(run, rows, name, steps):
+    """Highest evenly paced rate ``name`` sustains (>= SUSTAINED % delivered in every run).
 
-    ``run(rate)`` returns a row. Returns (best rate or None, rows).
+    Starts from the paced runs in ``rows``: steps up through ``steps`` from the highest rate
+    sustained there until one fails, then bisects twice (250 Hz grid). ``run(rate)`` returns
+    a row. Returns the best rate or None.
     """
-    rows, best, fail = [], None, None
-    for rate in step_rates:
-        if rate < start:
-            continue
-        r = run(rate)
-        rows.append(r)
-        if r['delivered_pct'] >= SUSTAINED:
-            best = rate
-        else:
-            fail = rate
-            break
-    if best is not None and fail is not None:
-        for _ in range(2):
-            mid = round((best + fail) / 2 / 250) * 250
-            if mid in (best, fail):
-                break
-            r = run(mid)
-            rows.append(r)
-            if r['delivered_pct'] >= SUSTAINED:
-                best = mid
+    mine = [r for r in rows if r['dut'] == name and r['rate_hz']]
+    failed = [r['rate_hz'] for r in mine if r['delivered_pct'] < SUSTAINED]
+    fail = min(failed) if failed else None
+    passed = [r['rate_hz'] for r in mine if r['delivered_pct'] >= SUSTAINED
+              and (fail is None or r['rate_hz'] < fail)]
+    best = max(passed) if passed else None
+    if fail is None:
+        for rate in steps:
+            if best is not None and rate <= best:
+                continue
+            if run(rate)['delivered_pct'] >= SUSTAINED:
+                best = rate
             else:
-                fail = mid
-    return best, rows
+                fail = rate
+                break
+    lo = best or 0.0
+    for _ in range(2):
+        if fail is None:
+            break
+        mid = round((lo + fail) / 2 / 250) * 250
+        if mid in (lo, fail) or mid <= 0:
+            break
+        if run(mid)['delivered_pct'] >= SUSTAINED:
+            lo = best = mid
+        else:
+            fail = mid
+    return best
 
 
 def main():
@@ -509,7 +530,7 @@ def main():
 
         def run(d, rate, n=None, tag='paced'):
             r = measure(src, env, d.name, rate, n or int(round(rate * args.seconds)), cal,
-                        not args.no_warm_up)
+                        not args.no_warm_up, d.proc.pid)
             r['stage'] = tag
             rows.append(r)
             _print_row(r)
@@ -523,10 +544,11 @@ def main():
                         for rate in rates:
                             run(d, rate)
             if not args.no_search:
-                steps = [4000, 6000, 8000, 10000, 12000, 14000, 16000, 20000]
+                steps = [4000, 6000, 8000, 10000, 12000, 14000, 16000, 20000, 25000]
                 for name in duts:
                     with Dut(name, cmds[name], env, src) as d:
-                        best, _ = search(lambda r: run(d, r, tag='search'), min(rates), steps)
+                        best = search(lambda r: run(d, r, tag='search'), list(rows), name,
+                                      steps)
                     result['max_sustained_hz'][name] = best
                     print(f'{name}: highest evenly paced rate with >= {SUSTAINED} % '
                           f'delivered: {best} Hz', flush=True)
@@ -560,13 +582,23 @@ def _profile_summary(path, top=25):
     st = pstats.Stats(path)
     total = st.total_tt
     items = sorted(st.stats.items(), key=lambda kv: -kv[1][2])[:top]
+
+    def name(fn, line, func):
+        return f'{os.path.basename(fn)}:{line}({func})'
     out = {'total_s': total, 'top_tottime': [
-        {'function': f'{os.path.basename(fn)}:{line}({name})', 'calls': v[1],
-         'tottime_s': round(v[2], 4), 'cumtime_s': round(v[3], 4)}
-        for (fn, line, name), v in items]}
-    print(f'\ncProfile of the compensator at its limit (total {total:.2f} s):')
-    for e in out['top_tottime'][:15]:
+        {'function': name(*k), 'calls': v[1], 'tottime_s': round(v[2], 4),
+         'cumtime_s': round(v[3], 4)} for k, v in items]}
+    # where the node's own code spends its time (cumulative, callees included)
+    ours = ('_on_imu', 'process', 'imu_to_arrays', 'write_imu', '_publish', 'drain', 'apply',
+            '_take_queued_temperatures', 'resolve', 'spin_once', '_wait_for_ready_callbacks')
+    out['cumtime'] = {name(*k): round(v[3], 4) for k, v in st.stats.items()
+                      if k[2] in ours and ('thermal_imu_calib' in k[0] or 'rclpy' in k[0])}
+    print(f'\ncProfile of the compensator at its limit (total {total:.2f} s); own time:')
+    for e in out['top_tottime'][:12]:
         print(f'  {e["tottime_s"]:8.3f} s  {e["calls"]:8d}  {e["function"]}')
+    print('cumulative:')
+    for k, v in sorted(out['cumtime'].items(), key=lambda kv: -kv[1]):
+        print(f'  {v:8.3f} s  {k}')
     return out
 
 

@@ -260,23 +260,33 @@ class CompensatorNode(Node):
     def _temperature_cb(self, index, value='temperature'):
         def cb(msg):
             # drained too, so temperature keeps pace with batched IMU data under load
-            self._add_temperatures(index, value, [msg] + common.drain(self.temp_subs[index],
-                                                                       100, self))
+            taken = [msg] + common.drain(self.temp_subs[index], 100, self)
+            self._add_temperatures(index, value, taken)
         return cb
 
     def _add_temperatures(self, index, value, msgs):
         for m in msgs:
             self.temps.add(index, common.stamp_to_ns(m.header.stamp), getattr(m, value))
 
-    def _take_queued_temperatures(self):
-        """Take readings still queued before compensating an IMU batch.
+    def _take_queued_temperatures(self, msgs):
+        """Take readings still queued that are stamped within the IMU batch ``msgs``.
 
         The executor runs the IMU callback before the temperature callbacks of the same
         wake-up; under load, readings stamped within the batch would otherwise still wait in
         their queue and the batch would be compensated with an older, held reading.
+        Readings stamped after the batch's newest IMU stamp are returned, to be added after
+        the batch as if taken in arrival order: what a sample uses never depends on
+        readings newer than the samples around it.
         """
+        until = max(common.stamp_to_ns(m.header.stamp) for m in msgs)
+        later = []
         for i, sub in enumerate(self.temp_subs):
-            self._add_temperatures(i, self._temp_fields[i], common.drain(sub, 1000, self))
+            taken = common.drain(sub, 1000, self)
+            cut = next((j for j, m in enumerate(taken)
+                        if common.stamp_to_ns(m.header.stamp) > until), len(taken))
+            self._add_temperatures(i, self._temp_fields[i], taken[:cut])
+            later.append(taken[cut:])
+        return later
 
     def _on_lost(self, info):
         # DDS-reported losses on imu/data_raw (sequence gaps the reader saw): diagnostics
@@ -288,7 +298,14 @@ class CompensatorNode(Node):
             common.log(self, *self.load_file(), failure='warning')
         msgs = [msg]
         msgs.extend(common.drain(self.imu_sub, self.batch_limit - 1, self))
-        self._take_queued_temperatures()
+        later = self._take_queued_temperatures(msgs)
+        try:
+            self._compensate(msgs)
+        finally:
+            for i, taken in enumerate(later):
+                self._add_temperatures(i, self._temp_fields[i], taken)
+
+    def _compensate(self, msgs):
         if self._gate is None:
             self.process(msgs)
             return
