@@ -12,10 +12,12 @@ jitter, lateness), the DUT's own counters (``/diagnostics``: messages taken, pub
 DDS-reported input losses), and the sink's messages by sequence number (carried in
 ``orientation.x``; orientation is marked unavailable). Before each run the whole path is
 warmed up: the publisher sends marked messages until the sink has received one, so a run
-only starts once the DUT's output writer has matched the sink (graph settled). The sink also
-checks every compensated sample against ``Calibration.apply`` at the true temperature of its
-stamp (a message compensated twice, with another message's values or with a temperature
-more than two readings old is counted as ``wrong``).
+only starts once the DUT's output writer has matched the sink (graph settled). Every output
+is checked against its input: the relay's must be unchanged, the compensator's must be
+``Calibration.apply`` of it at the temperature ramp's value some age before its stamp
+(interpolated or held readings); the age is solved per message and reported (p99/max), and a
+message matching no age in [-1 ms, temperature_timeout] (uncompensated, compensated twice,
+another message's values) is counted as ``wrong``.
 
 DUTs: ``relay`` (subscribe, publish the same message; counters on /diagnostics) and
 ``compensator`` (``compensator_node`` with the simulated device's true calibration).
@@ -39,7 +41,8 @@ import numpy as np
 OUT_TOPIC = 'imu/data_compensated'
 DIAG_PERIOD = 0.2           # s, DUT /diagnostics period
 TEMP_EVERY = 10             # one temperature reading per this many IMU messages
-T_START, T_SLOPE, T_MAX = 24.0, 1.0, 33.0   # degC, degC/s, degC: the temperature ramp
+T_START, T_SLOPE = 24.0, 1.0   # degC, degC/s: the temperature ramp through t0 ...
+T_MIN, T_MAX = 22.0, 33.0      # degC: ... clipped inside the calibration's valid range
 SUSTAINED = 99.9            # % delivered that counts as sustained
 QUIET_S = 2.0               # sink: stop this long after 'sent' without a new message
 
@@ -73,9 +76,13 @@ def imu_values(seq):
 
 
 def temperature_at(stamp_ns, t0_ns):
-    """The temperature ramp (degC) at header stamps: T_START, rising T_SLOPE/s from t0."""
-    dt = np.maximum(np.asarray(stamp_ns, np.int64) - t0_ns, 0) / 1e9
-    return np.minimum(T_START + T_SLOPE * dt, T_MAX)
+    """The temperature ramp (degC) at header stamps: T_START at t0, T_SLOPE per s, clipped.
+
+    Linear on both sides of t0 (the warm-up readings lie on it too), so a held or
+    interpolated reading maps to one age along the ramp.
+    """
+    dt = (np.asarray(stamp_ns, np.int64) - t0_ns) / 1e9
+    return np.clip(T_START + T_SLOPE * dt, T_MIN, T_MAX)
 
 
 # ------------------------------------------------------------------------------ processes
@@ -325,7 +332,7 @@ def measure(src, env, dut, rate, n, cal, warm_up=True, pid=None):
             if sink.stdout.readline().strip() != 'ready':
                 raise RuntimeError('the sink did not start: ' + sink.stdout.read()[-2000:])
             src.wait_graph(dut)
-            t0_ns = time.time_ns()
+            t0_ns = time.time_ns()   # the temperature ramp runs through warm-up and run
             if warm_up:
                 warm = src.warm_up(sink, min(rate or 1000.0, 1000.0), t0_ns)
                 time.sleep(3 * DIAG_PERIOD)   # a DUT /diagnostics after the warm-up, then go
@@ -335,7 +342,6 @@ def measure(src, env, dut, rate, n, cal, warm_up=True, pid=None):
             sink.stdin.write('go\n')
             sink.stdin.flush()
             time.sleep(0.05)
-            t0_ns = time.time_ns()
             cpu0 = _cpu_s(pid)
             sent = src.paced(n, rate, t0_ns)
             sink.stdin.write('sent\n')
@@ -379,28 +385,44 @@ def measure(src, env, dut, rate, n, cal, warm_up=True, pid=None):
     if cpu0 is not None and cpu1 is not None:
         row['dut_cpu_s'] = cpu1 - cpu0
         row['dut_cpu_us_per_msg'] = 1e6 * (cpu1 - cpu0) / max(row.get('dut_received', n), 1)
-    row['wrong'] = _check_values(rows[first], t0_ns, cal, dut, rate or 5000.0)
+    row['wrong'], row['temperature_age_p99_ms'], row['temperature_age_max_ms'] = \
+        _check_values(rows[first], t0_ns, cal, dut)
     return row
 
 
-def _check_values(rows, t0_ns, cal, dut, rate):
-    """Count messages whose output is not the input compensated at its stamp's temperature."""
+def _check_values(rows, t0_ns, cal, dut, timeout_s=1.0):
+    """Check every output against its input; return (wrong count, temperature age p99/max ms).
+
+    Relay: output == input. Compensator: output == ``cal.apply`` of the input at the ramp's
+    temperature ``age`` seconds before its stamp, for some age in [-1 ms, ``timeout_s``]
+    (the node interpolates readings or holds the newest one it has; the age is solved per
+    message along the ramp, linearised). Anything else (uncompensated, compensated twice,
+    another message's values, a temperature from outside the ramp) is ``wrong``.
+    """
     if not len(rows):
-        return 0
+        return 0, None, None
     accel_in, gyro_in = imu_values(rows[:, 0])
-    out_a, out_g = rows[:, 3:6], rows[:, 6:9]
+    out = rows[:, 3:9]
     if dut == 'relay':
-        return int(np.count_nonzero(~(np.isclose(out_a, accel_in, 0, 1e-12).all(1)
-                                      & np.isclose(out_g, gyro_in, 0, 1e-12).all(1))))
+        bad = ~np.isclose(out, np.hstack([accel_in, gyro_in]), 0, 1e-12).all(1)
+        return int(np.count_nonzero(bad)), None, None
     stamp = rows[:, 2].astype(np.int64)
-    hold_ns = int(2 * TEMP_EVERY / rate * 1e9)      # at most two readings old
-    lo = cal.apply(accel_in, gyro_in, temperature_at(stamp - hold_ns, t0_ns)[:, None])
-    hi = cal.apply(accel_in, gyro_in, temperature_at(stamp, t0_ns)[:, None])
-    ok = np.ones(len(rows), bool)
-    for out, a, b in ((out_a, lo.accel, hi.accel), (out_g, lo.gyro, hi.gyro)):
-        tol = np.abs(a - b) + 1e-9
-        ok &= (np.abs(out - b) <= tol).all(1)
-    return int(np.count_nonzero(~ok))
+
+    def comp(age_s):
+        t = temperature_at(stamp - (age_s * 1e9).astype(np.int64), t0_ns)[:, None]
+        r = cal.apply(accel_in, gyro_in, t)
+        return np.hstack([r.accel, r.gyro])
+    age = np.zeros(len(rows))
+    for _ in range(3):                            # Newton steps along the ramp
+        at = comp(age)
+        step = comp(age + 0.01) - at              # d(output) per 10 ms of age
+        den = np.maximum((step * step).sum(1), 1e-300)
+        age = age + 0.01 * ((out - at) * step).sum(1) / den
+    ok = ((np.abs(out - comp(age)).max(1) <= 1e-8) & (age >= -1e-3) & (age <= timeout_s))
+    age_ms = 1e3 * np.clip(age[ok], 0.0, None)
+    return (int(np.count_nonzero(~ok)),
+            float(np.percentile(age_ms, 99)) if len(age_ms) else None,
+            float(age_ms.max()) if len(age_ms) else None)
 
 
 # ------------------------------------------------------------------------------ the plan
@@ -424,19 +446,24 @@ class Dut:
             print(out[-2000:], file=sys.stderr)
 
 
+def _f(x):
+    return '' if x is None else f'{x:.1f}'
+
+
 def _print_row(r):
     print(f'| {r["dut"]} | {r["rate"]} | {r["sent"]} | {r["in_per_s"]:.0f} | '
           f'{r["interval_p99_us"]:.0f} | {r["out_per_s"]:.0f} | {r["delivered_pct"]:.2f} | '
           f'{r.get("dut_received", "")} | {r.get("dut_published", "")} | '
           f'{r.get("dut_input_lost", "")} | {r["lost_first_seq"]}..{r["lost_last_seq"]} | '
-          f'{r["wrong"]} | {r["lat_p50_ms"]:.2f} | {r["lat_p99_ms"]:.2f} | '
+          f'{r["wrong"]} | {_f(r.get("temperature_age_max_ms"))} | {r["lat_p50_ms"]:.2f} | '
+          f'{r["lat_p99_ms"]:.2f} | '
           f'{r["load_avg"][0]:.2f} |', flush=True)
 
 
 HEADER = ('| DUT | input | sent | msgs/s in | interval p99 us | msgs/s out | delivered % | '
-          'DUT in | DUT out | DDS lost | lost seqs | wrong | latency p50 ms | '
-          'latency p99 ms | load 1 min |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---:|'
-          '---|---:|---:|---:|---:|')
+          'DUT in | DUT out | DDS lost | lost seqs | wrong | temp. age max ms | '
+          'latency p50 ms | latency p99 ms | load 1 min |\n'
+          '|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|')
 
 
 def search(run, rows, name, steps):
