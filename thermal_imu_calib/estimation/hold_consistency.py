@@ -265,7 +265,8 @@ def hold_consistency(windows, gravity, temps=None, lsb=None):
     ids, mean, var, n, tmid, tm = hold_table(windows, temps)
     report = {'test': f'pose-repeat |a| test: visits within {CLUSTER_DEG:g} deg compared, '
                       f'Bonferroni alpha {ALPHA:g}, floor {FLOOR_G * 1e6:.0f} ug; a change '
-                      f'it proves lasts when the later repeats agree at p < {PERSIST_ALPHA:g}',
+                      'it proves lasted when the later repeat visits differ jointly at p < '
+                      f'{PERSIST_ALPHA:g}',
               'holds_tested': int(len(ids)), 'left_out': []}
     if len(ids) < 2:
         return np.ones(len(windows), bool), report
