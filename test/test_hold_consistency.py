@@ -86,6 +86,19 @@ def test_a_bias_step_between_epochs_is_caught():
     assert caught >= 0.95 * 200, caught
 
 
+def test_with_a_temperature_input_only_the_pairs_are_tested():
+    # the thermal model describes a state that moves with temperature and its history: a
+    # failed pair there proves no epoch, so the later holds stay
+    step = np.array([0.8, 0.3, 0.3]) * 1e-3 * G
+    w = session(FACES + REPEATS, 0, step, steps=range(6, 12))
+    keep, rep = hold_consistency(w, G, temps=np.full((len(w), 3), 25.0))
+    assert 'epochs' not in rep and all('epoch' not in h for h in rep['left_out'])
+    assert [h['hold'] for h in rep['left_out']][:2] == [6, 7]
+    assert keep[w.hold >= 8].any()
+    _, rep = hold_consistency(w, G)
+    assert rep['epochs'][0]['lasting']                  # the same holds without the input
+
+
 def test_a_change_that_does_not_last_leaves_out_only_its_visits():
     # one +x repeat read 1 mg off (a hand on the unit), everything after it back in the
     # earlier state: the later repeats agree jointly at the rate the level allows

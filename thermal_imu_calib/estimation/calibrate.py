@@ -467,11 +467,11 @@ def _consistency_notes(report):
                 f'the change {"lasted" if ep["lasting"] else "is not shown to last"})'
                 if ep['tail_dof'] else 'no later repeat visit to test whether it lasted')
         if not held:
-            out.append(f'sensor-state change from {ep["start_s"]:.1f} s: {tail}; only the '
+            out.append(f'sensor-state change at hold {ep["holds"][0]}: {tail}; only the '
                        'visits that disagree are left out')
             continue
         obs = ep['observability']
-        out.append(f'sensor-state epochs: the output changed by {ep["start_s"]:.1f} s and '
+        out.append(f'sensor-state epochs: the output changed by hold {ep["holds"][0]} and '
                    f'{tail}; holds {", ".join(map(str, ep["holds"]))} are one epoch, the '
                    f'{ep["accel_uses"]} one observes more of a bias and scale per axis (rank '
                    f'{obs["earlier"][0]} earlier, {obs["changed"][0]} changed), so holds '
