@@ -115,13 +115,17 @@ def test_a_change_that_does_not_last_leaves_out_only_its_visits():
 
 
 def test_the_epoch_that_observes_more_is_kept():
-    # two holds (+z, +x) read in another state before the six faces: the earlier epoch is
-    # left out, the faces (which observe every bias and scale) kept
+    # +x, -x, +y read first; then the bias steps and the six faces follow. The x references
+    # are the early visits (next to their opposite pose), so the later +x and -x fail and
+    # span the later epoch, which has every face: it is kept, the early one left out
     step = np.array([1.0, 1.0, 1.0]) * 1e-3 * G
-    w = session([FACES[4], FACES[0]] + FACES + [FACES[4]], 0, step, steps=[0, 1])
+    ups = [FACES[0], FACES[1], FACES[2], FACES[0], FACES[2], FACES[3], FACES[4], FACES[5],
+           FACES[1]]
+    w = session(ups, 0, step, steps=range(3, 9))
     keep, rep = hold_consistency(w, G)
-    assert sorted(h['hold'] for h in rep['left_out']) == [0, 1]
-    assert keep.sum() == 7 and not keep[:2].any()
+    assert sorted(h['hold'] for h in rep['left_out']) == [0, 1, 2], rep
+    assert rep['epochs'][0]['accel_uses'] == 'changed'
+    assert np.array_equal(keep, w.hold >= 3)
 
 
 def test_observability_counts_the_bias_and_scale_a_set_of_poses_determines():
