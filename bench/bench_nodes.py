@@ -509,7 +509,7 @@ def main():
     ap.add_argument('--rates', default='1000,2000,4000', help='paced rates, Hz (comma list)')
     ap.add_argument('--seconds', type=float, default=5.0, help='duration of each paced run')
     ap.add_argument('--repeat', type=int, default=3, help='runs per DUT and paced rate')
-    ap.add_argument('--duts', default='relay,compensator')
+    ap.add_argument('--duts', default='relay,compensator', help='comma list of DUTs')
     ap.add_argument('--no-search', action='store_true', help='skip the max-rate search')
     ap.add_argument('--no-profile', action='store_true', help='skip the cProfile run')
     ap.add_argument('--flood', type=int, default=20000, help='messages of the flood run '
