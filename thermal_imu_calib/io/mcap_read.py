@@ -157,6 +157,10 @@ def gather(buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray) -> np.ndarr
         hi = np.r_[brk, len(starts)] - 1
         pieces = [buf[a:b] for a, b in zip(starts[lo].tolist(), ends[hi].tolist())]
         return pieces[0].copy() if len(pieces) == 1 else np.concatenate(pieces)
+    if lengths[0] == lengths.min() == lengths.max():
+        # equal-size pieces (records of one message type): one row gather
+        from numpy.lib.stride_tricks import sliding_window_view
+        return sliding_window_view(buf, int(lengths[0]))[starts].reshape(-1)
     total = int(lengths.sum())
     shift = starts - (np.cumsum(lengths) - lengths)
     idx = np.arange(total, dtype=np.int64) + np.repeat(shift, lengths)
@@ -178,6 +182,13 @@ class _Cursor:
         out = self.data[self.pos:self.pos + n]
         self.pos += n
         return out
+
+    def view(self, n: int) -> memoryview:
+        """Like ``take`` but a zero-copy memoryview (for chunk-sized fields)."""
+        if n < 0 or self.pos + n > self.end:
+            self.take(n)  # raises the error of a field running past its record
+        self.pos += n
+        return memoryview(self.data)[self.pos - n:self.pos]
 
     def u8(self):
         return self.take(1)[0]
@@ -352,7 +363,7 @@ class McapBulkReader:
         c.u64(), c.u64()
         usize, crc = c.u64(), c.u32()
         compression = c.string()
-        data = c.take(c.u64())
+        data = c.view(c.u64())  # the records, compressed or not, without a copy
         decompress = _decompressor(compression)
         if decompress is None:
             raise McapFormatError(f'{where}: unknown compression {compression!r}; this reader '
