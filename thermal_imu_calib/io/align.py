@@ -122,6 +122,9 @@ class TemperatureTrack:
         inside = (d0 >= 0) & (d1 >= 0)
         span = (t1 - t0).astype(np.float64) / NS
         interp = inside & (span <= max_gap_s) & (span > 0)
+        if interp.all():  # the usual case: every stamp bracketed closely (same arithmetic)
+            w = d0 / span
+            return v[lo] * (1.0 - w) + v[hi] * w, np.zeros(n)
         near_hi = np.abs(d1) < np.abs(d0)
         out = np.where(near_hi, v[hi], v[lo])
         age = np.minimum(np.abs(d0), np.abs(d1))
