@@ -493,16 +493,33 @@ class StationaryDetector:
             accel_var=wmean(b.av), gyro_var=wmean(b.gv), temp=temp, temp_rate=rate)
 
 
-def _mean_var(x):
-    """Return ``x.mean(1), x.var(1, ddof=1)`` of (m, n, 3) blocks, the sum taken once.
+#: blocks up to this many samples are summed with one numpy add per sample row
+SEQUENTIAL_SUM_N = 32
 
-    The same operations as numpy's ``mean`` and ``var`` (bit-identical results).
+
+def _mean_var(x):
+    """Return ``x.mean(1), x.var(1, ddof=1)`` of (m, n, c) blocks.
+
+    numpy reduces the middle axis of a C-ordered (m, n, c) array one sample row after the
+    other; for short blocks the same additions in the same order are done here with one
+    vectorised add per row (several times faster, bit-identical: ``test_collection_fast``).
     """
     n = x.shape[1]
-    mean = np.add.reduce(x, axis=1) / n
-    dev = x - mean[:, None, :]
-    np.square(dev, out=dev)
-    return mean, np.add.reduce(dev, axis=1) / (n - 1)
+    if n > SEQUENTIAL_SUM_N:
+        mean = np.add.reduce(x, axis=1) / n
+        dev = x - mean[:, None, :]
+        np.square(dev, out=dev)
+        return mean, np.add.reduce(dev, axis=1) / (n - 1)
+    total = x[:, 0].copy()
+    for i in range(1, n):
+        total += x[:, i]
+    mean = total / n
+    ss = np.square(x[:, 0] - mean)
+    for i in range(1, n):
+        d = x[:, i] - mean
+        np.square(d, out=d)
+        ss += d
+    return mean, ss / (n - 1)
 
 
 def _bridge(score):
