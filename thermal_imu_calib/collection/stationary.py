@@ -40,7 +40,7 @@ from dataclasses import dataclass
 from typing import Optional
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import gammaincinv
 
 from .segments import face_of, Windows
 
@@ -113,14 +113,23 @@ class DetectorConfig:
             block_n = max(MIN_BLOCK_N, int(round(BLOCK_TARGET_S * rate_hz)))
         block_s = block_n / rate_hz
         dof = 3 * (block_n - 1)
-        factor = VARIANCE_MARGIN * float(chi2.ppf(1 - BLOCK_FALSE_ALARM, dof)
-                                         / chi2.ppf(self.noise_quantile, dof))
+        factor = VARIANCE_MARGIN * float(chi2_ppf(1 - BLOCK_FALSE_ALARM, dof)
+                                         / chi2_ppf(self.noise_quantile, dof))
         auto = {'block_s': block_s, 'min_hold_s': max(0.5, 5 * block_s),
                 'guard_s': max(0.2, 2 * block_s), 'window_s': max(5.0, 2 * block_s),
                 'accel_factor': factor, 'gyro_factor': factor}
         auto.update({k: v for k, v in given.items() if k in DERIVED})
         auto['window_s'] = max(auto['window_s'], block_s)
         return dataclasses.replace(self, **auto), block_n
+
+
+def chi2_ppf(p, dof):
+    """Return the chi-square quantile at ``p`` with ``dof`` degrees of freedom.
+
+    What ``scipy.stats.chi2.ppf`` computes (``2 gammaincinv(dof/2, p)``, the same float),
+    without importing scipy.stats (about 0.3 s of start-up).
+    """
+    return 2 * gammaincinv(dof / 2, p)
 
 
 def quantisation_step(x):
@@ -296,7 +305,7 @@ class StationaryDetector:
             return self._floor[1]
         q = self.config.noise_quantile
         dof = 3 * (self.block_n - 1)
-        bias = float(chi2.ppf(q, dof) / dof)
+        bias = float(chi2_ppf(q, dof) / dof)
         fa = max(float(np.quantile(self._var_a.values(), q)), bias * self._lsb_var[0],
                  self.config.min_accel_var)
         fg = max(float(np.quantile(self._var_g.values(), q)), bias * self._lsb_var[1],
