@@ -201,7 +201,7 @@ class _Cursor:
         return out
 
     def view(self, n: int) -> memoryview:
-        """Like ``take`` but a zero-copy memoryview (for chunk-sized fields)."""
+        """Return the next ``n`` bytes without a copy, for chunk-sized fields."""
         if n < 0 or self.pos + n > self.end:
             self.take(n)  # raises the error of a field running past its record
         self.pos += n
