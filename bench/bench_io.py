@@ -25,6 +25,9 @@ decoding), ``thermal-imu-calib calibrate --model field`` and ``--model auto`` (w
 ``--prior`` when ``LOG.prior.yaml`` exists), and reports each one's least CPU time and the
 ratios to the rosbags iteration.
 
+``--stages`` splits the calibrate-collect stage by component (CPU of the reader, input
+gate, temperature aligner, stationary detector and pose-change collector, one run each).
+
 ``--rss-messages N`` also writes an N-message log (1 kHz Imu + 10 Hz temperature) and
 reports the peak RSS of ``calibrate``-style reading and of ``compensate`` on it, each in a
 fresh process.  Run: ``python bench/bench_io.py [--json out.json] [--rss-messages 10000000]``.
@@ -163,6 +166,57 @@ def run(path, calibration, tmp, repeat=1) -> dict:
     return out
 
 
+def collect_stages(path, imu, temps) -> dict:
+    """CPU seconds per component of ``collect_windows(motion=True)`` (one run)."""
+    from thermal_imu_calib import pipeline
+    from thermal_imu_calib.collection import motion, stationary
+    from thermal_imu_calib.io import align, bag, gate
+
+    acc = dict.fromkeys(('read', 'gate', 'align', 'detector', 'motion+detector'), 0.0)
+    saved = []
+
+    def wrap(owner, name, key):
+        f = getattr(owner, name)
+        saved.append((owner, name, f))
+
+        def timed(*a, **k):
+            c = time.process_time()
+            try:
+                return f(*a, **k)
+            finally:
+                acc[key] += time.process_time() - c
+        setattr(owner, name, timed)
+
+    def stream(self, *a, **k):
+        it = stream_orig(self, *a, **k)
+        while True:
+            c = time.process_time()
+            try:
+                x = next(it)
+            except StopIteration:
+                return
+            finally:
+                acc['read'] += time.process_time() - c
+            yield x
+    stream_orig = bag.LogReader.stream
+    saved.append((bag.LogReader, 'stream', stream_orig))
+    bag.LogReader.stream = stream
+    wrap(align.StreamAligner, 'push', 'align')
+    wrap(gate.InputGate, 'push', 'gate')
+    for name in ('update', 'finish'):
+        wrap(stationary.StationaryDetector, name, 'detector')
+        wrap(motion.MotionCollector, name, 'motion+detector')
+    try:
+        c = time.process_time()
+        pipeline.collect_windows(path, imu, temps, motion=True, progress=False)
+        acc['total'] = time.process_time() - c
+    finally:
+        for owner, name, f in saved:
+            setattr(owner, name, f)
+    acc['motion (besides the detector)'] = acc.pop('motion+detector') - acc['detector']
+    return acc
+
+
 _ROSBAGS_RAW = ("from rosbags.rosbag2 import Reader; import sys; r = Reader(sys.argv[1]); "
                 "r.open(); print(sum(1 for _ in r.messages()))")
 
@@ -288,6 +342,8 @@ def main(argv=None) -> int:
     ap.add_argument('--e2e', type=int, default=0, metavar='N',
                     help='also time rosbags raw iteration and calibrate field/auto N times '
                     'each, in turn, in fresh processes')
+    ap.add_argument('--stages', action='store_true',
+                    help='also split calibrate read+detect+collect by component')
     ap.add_argument('--json', help='write the figures here')
     args = ap.parse_args(argv)
     from threadpoolctl import threadpool_limits
@@ -304,6 +360,9 @@ def main(argv=None) -> int:
         figures = {'log': str(args.log or f'{args.scenario} seed {args.seed}'),
                    'file_MB': os.path.getsize(path) / 1e6, 'repeat': args.repeat,
                    'stages': run(path, cal, tmp, args.repeat)}
+        if args.stages:
+            imu, temps, _ = _topics(path)
+            figures['calibrate_collect_stages_cpu_s'] = collect_stages(path, imu, temps)
         if args.e2e:
             figures['calibrate_end_to_end'] = end_to_end(path, tmp, args.e2e)
         if args.rss_messages:
@@ -329,6 +388,9 @@ def main(argv=None) -> int:
               f'{f["msgs_per_s"]:11,.0f} {f["msgs_per_cpu_s"]:11,.0f} {f["MB_per_s"]:7.0f}')
     for name, v in figures['ratios'].items():
         print(f'{name}: {v:.2f}')
+    if 'calibrate_collect_stages_cpu_s' in figures:
+        print('calibrate read+detect+collect, CPU s: ' + ', '.join(
+            f'{k} {v:.3f}' for k, v in figures['calibrate_collect_stages_cpu_s'].items()))
     for name, f in figures.get('calibrate_end_to_end', {}).items():
         print(f'{name:<{width}}  wall {f["wall_s"]:6.2f} s  cpu {f["cpu_s"]:5.2f} s  '
               f'(runs {", ".join(f"{c:.2f}" for c in f["cpu_s_all"])})  '
