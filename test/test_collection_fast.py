@@ -126,6 +126,10 @@ def ref_gather(buf, starts, lengths):
                          np.uint8)
 
 
+def ref_take_rows(buf, width, starts):
+    return sliding_window_view(buf, width)[starts]
+
+
 def ref_decode_imu_packed(buf, starts, lengths):
     """The general (per layout group) decode of packed Imu payloads."""
     return cdr._imu_columns(len(lengths), cdr._packed_groups(buf, starts, lengths,
@@ -140,7 +144,8 @@ REFERENCES = [(stationary, '_Ring', RefRing), (stationary, '_mean_var', ref_mean
               (stationary, 'chi2_ppf', ref_chi2_ppf), (motion, '_Tape', RefTape),
               (align.TemperatureTrack, 'interpolate', ref_interpolate),
               (mcap_read, 'gather', ref_gather), (mcap_read, 'crc32', zlib.crc32),
-              (mcap_read, 'windows', sliding_window_view), (cdr, 'windows', sliding_window_view),
+              (mcap_read, 'windows', sliding_window_view),
+              (mcap_read, 'take_rows', ref_take_rows), (cdr, 'take_rows', ref_take_rows),
               (cdr, 'decode_imu_packed', ref_decode_imu_packed)]
 
 
@@ -294,9 +299,14 @@ def test_interpolation_shortcut_is_the_general_formula():
 def test_gather_and_windows_are_plain_slicing():
     rng = np.random.default_rng(4)
     buf = rng.integers(0, 256, 5000).astype(np.uint8)
+    starts = rng.integers(0, 4900, 777)
     for width in (1, 8, 31):
         assert np.array_equal(mcap_read.windows(buf, width), sliding_window_view(buf, width))
         assert not mcap_read.windows(buf, width).flags.writeable
+        for idx in (starts, starts[:0], starts[:1]):
+            got = mcap_read.take_rows(buf, width, idx)
+            assert got.shape == (len(idx), width) and got.dtype == np.uint8
+            assert np.array_equal(got, ref_take_rows(buf, width, idx))
     for same in (True, False):
         starts = np.sort(rng.choice(4000, 300, replace=False))
         lengths = np.full(300, 9) if same else rng.integers(0, 40, 300)

@@ -25,7 +25,7 @@ from collections.abc import Iterator, Sequence
 
 import numpy as np
 from .columns import ImuColumns, TemperatureColumns
-from .mcap_read import windows
+from .mcap_read import take_rows
 
 IMU_MSGTYPE = 'sensor_msgs/msg/Imu'
 TEMPERATURE_MSGTYPE = 'sensor_msgs/msg/Temperature'
@@ -107,7 +107,7 @@ def _packed_groups(buf: np.ndarray, starts, lengths, fields, what):
     def rows_u8(rows, size):
         if size == 0 or len(buf) < size:
             return np.zeros((len(rows), size), np.uint8)
-        return windows(buf, size)[starts[rows]]
+        return take_rows(buf, size, starts[rows])
     yield from _sized_groups(sizes, rows_u8, fields, what)
 
 
@@ -209,7 +209,7 @@ def _imu_packed_one_layout(buf: np.ndarray, starts, lengths) -> ImuColumns | Non
     size = int(sizes[0])
     if size < _HDR + 12 + _payload_size(_IMU_FIELDS) or len(buf) < size:
         return None
-    head = windows(buf, _HDR + 12)[starts]
+    head = take_rows(buf, _HDR + 12, starts)
     if np.any(head[:, 0] != 0) or np.any(head[:, 1] != 1):
         return None
     h = head.view(_HEAD).reshape(-1)
@@ -222,14 +222,13 @@ def _imu_packed_one_layout(buf: np.ndarray, starts, lengths) -> ImuColumns | Non
         return None
     frame = ''
     if flen > 1:
-        text = windows(buf, flen - 1)[starts + (_HDR + 12)]
+        text = take_rows(buf, flen - 1, starts + (_HDR + 12))
         if len(text) > 1 and np.any(text != text[0]):
             frame = None
         else:
             frame = bytes(text[0]).decode('utf-8', errors='replace')
-    triple = windows(buf, 24)
-    gyro = triple[starts + (body + _GYRO_AT)].view('<f8')
-    accel = triple[starts + (body + _ACCEL_AT)].view('<f8')
+    gyro = take_rows(buf, 24, starts + (body + _GYRO_AT)).view('<f8')
+    accel = take_rows(buf, 24, starts + (body + _ACCEL_AT)).view('<f8')
     stamp = h['sec'].astype(np.int64) * 1_000_000_000 + h['nanosec'].astype(np.int64)
     return ImuColumns(stamp, accel.astype(np.float64, copy=False),
                       gyro.astype(np.float64, copy=False), frame or '')

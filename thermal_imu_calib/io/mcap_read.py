@@ -158,6 +158,19 @@ def windows(buf: np.ndarray, width: int) -> np.ndarray:
     return out
 
 
+def take_rows(buf: np.ndarray, width: int, starts) -> np.ndarray:
+    """Return the (n, width) uint8 copy of ``buf[s:s + width]`` for each ``s`` in ``starts``.
+
+    ``windows(buf, width)[starts]``, but each row is copied as one ``V<width>`` item (a
+    memcpy) instead of byte by byte: about twice as fast for the short fields read here.
+    """
+    if (width <= 0 or buf.ndim != 1 or buf.itemsize != 1 or not buf.flags.c_contiguous
+            or width > len(buf)):
+        return windows(buf, width)[starts]
+    items = np.ndarray((len(buf) - width + 1,), np.dtype(f'V{width}'), buf, 0, (1,))
+    return items[starts].view(np.uint8).reshape(-1, width)
+
+
 def gather(buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
     """Concatenate ``buf[starts[i]:starts[i] + lengths[i]]`` for all i (uint8).
 
@@ -177,7 +190,7 @@ def gather(buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray) -> np.ndarr
         return pieces[0].copy() if len(pieces) == 1 else np.concatenate(pieces)
     if lengths[0] == lengths.min() == lengths.max():
         # equal-size pieces (records of one message type): one row gather
-        return windows(buf, int(lengths[0]))[starts].reshape(-1)
+        return take_rows(buf, int(lengths[0]), starts).reshape(-1)
     total = int(lengths.sum())
     shift = starts - (np.cumsum(lengths) - lengths)
     idx = np.arange(total, dtype=np.int64) + np.repeat(shift, lengths)
@@ -444,7 +457,7 @@ class McapBulkReader:
 
 
 def _u64_at(u8: np.ndarray, pos: np.ndarray) -> np.ndarray:
-    return windows(u8, 8)[pos].view('<u8')[:, 0]
+    return take_rows(u8, 8, pos).view('<u8')[:, 0]
 
 
 def _walk(raw: bytes, where: str) -> np.ndarray:
@@ -475,7 +488,7 @@ def _parse_messages(raw: bytes, starts: np.ndarray, where: str) -> Batch:
     if starts[-1] + MESSAGE_HEADER > len(buf):
         raise McapFormatError(f'{where}: message record at byte {int(starts[-1])} of the '
                               'uncompressed chunk is shorter than its header; corrupt chunk.')
-    head = windows(buf, MESSAGE_HEADER)[starts]
+    head = take_rows(buf, MESSAGE_HEADER, starts)
     h = head.view(_MSG_DTYPE).reshape(-1)
     length = h['length'].astype(np.int64)
     short = length < MESSAGE_HEADER - 9
