@@ -23,7 +23,7 @@ from scipy.stats import chi2
 from thermal_imu_calib import sim
 from thermal_imu_calib.collection import motion, stationary
 from thermal_imu_calib.io import align, cdr, mcap_read
-from thermal_imu_calib.io.columns import ImuColumns
+from thermal_imu_calib.io.columns import AlignedChunk, ImuColumns, TemperatureColumns
 from thermal_imu_calib.pipeline import collect_windows
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -118,6 +118,15 @@ def ref_interpolate(self, stamp_ns, max_gap_s):
     return out, age
 
 
+def ref_resolve(self, imu, extra):
+    """StreamAligner._resolve as it was: each input interpolated on its own."""
+    temps = np.empty((len(imu), self.n_inputs))
+    ages = np.empty((len(imu), self.n_inputs))
+    for j, track in enumerate(self.tracks):
+        temps[:, j], ages[:, j] = ref_interpolate(track, imu.stamp_ns, self.max_gap_s)
+    return AlignedChunk(imu, temps, ages, extra)
+
+
 def ref_gather(buf, starts, lengths):
     """Concatenate the pieces with one bytes join."""
     raw = buf.tobytes()
@@ -143,6 +152,7 @@ def ref_chi2_ppf(p, dof):
 REFERENCES = [(stationary, '_Ring', RefRing), (stationary, '_mean_var', ref_mean_var),
               (stationary, 'chi2_ppf', ref_chi2_ppf), (motion, '_Tape', RefTape),
               (align.TemperatureTrack, 'interpolate', ref_interpolate),
+              (align.StreamAligner, '_resolve', ref_resolve),
               (mcap_read, 'gather', ref_gather), (mcap_read, 'crc32', zlib.crc32),
               (mcap_read, 'windows', sliding_window_view),
               (mcap_read, 'take_rows', ref_take_rows), (cdr, 'take_rows', ref_take_rows),
@@ -278,6 +288,24 @@ def test_tape_trims_like_the_reference_sorted_or_not():
             assert tape.end() == ref.end()
             for a, b in zip(tape.select(lo + 0.1, t0 - 0.05), ref.select(lo + 0.1, t0 - 0.05)):
                 assert np.array_equal(a, b)
+
+
+def test_inputs_stamped_alike_share_one_plan_with_the_same_result():
+    rng = np.random.default_rng(6)
+    st = np.cumsum(rng.integers(50_000_000, 150_000_000, 300)).astype(np.int64)
+    tc = [TemperatureColumns(st, 20 + rng.normal(size=300), 'a'),
+          TemperatureColumns(st.copy(), 30 + rng.normal(size=300), 'b'),
+          TemperatureColumns(st[::2], 40 + rng.normal(size=150), 'c')]
+    imu_st = np.sort(rng.integers(st[0] - 10**9, st[-1] + 10**9, 4000))
+    imu = ImuColumns(imu_st, np.zeros((4000, 3)), np.zeros((4000, 3)))
+    fast = align.StreamAligner(3)
+    got = fast.push_columns(imu, tc) + fast.finish()
+    ref = align.StreamAligner(3)
+    ref._resolve = ref_resolve.__get__(ref)
+    want = ref.push_columns(imu, tc) + ref.finish()
+    assert len(got) == len(want)
+    for a, b in zip(got, want):
+        assert np.array_equal(a.temps, b.temps) and np.array_equal(a.temp_age, b.temp_age)
 
 
 def test_interpolation_shortcut_is_the_general_formula():
