@@ -24,6 +24,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, 'bench'))
 import bench_real_data as R  # noqa: E402
 from make_real_bags import bmi270_rows  # noqa: E402
+from ferraris_turns import turn_errors  # noqa: E402
 
 FER = R.FERRARIS
 MPU = R.MPU
@@ -291,12 +292,7 @@ def test_pose_repeat_test_leaves_out_only_a_visit_that_disagrees(step_g, left_ou
 
 def _turn_errors(t, gyro, sections):
     """Return the |integrated angle| - 360 deg (deg) of the three labelled turns."""
-    out = []
-    for k in R.ROTATIONS:
-        a, b = sections[k]
-        sel = (t >= t[a] - R.ROTATION_MARGIN_S) & (t <= t[b - 1] + R.ROTATION_MARGIN_S)
-        out.append(R.turn_angle_error_deg(t[sel], gyro[sel]))
-    return np.array(out)
+    return np.array(list(turn_errors(t, gyro, sections).values()))
 
 
 def test_default_calibrate_uses_the_ferraris_turns_for_the_gyro(tmp_path, session, capsys):
