@@ -124,17 +124,11 @@ def _pose_figures(ctx, est, poly, acc, turns_fit):
 def _still_figures(ctx, est, acc, names):
     """Return ({candidate: (m,) held-out | |w| - earth rate | (nan: never held out)}, folds)."""
     from ..estimation.calibrate import _gyro_bias
-    from .select import _whole_unit_folds, clamp_to_training
+    from .select import _whole_unit_folds, clamp_to_training, fold_masks
     w, o = ctx.windows, ctx.options
     folds, n = _whole_unit_folds(w)
     out = {k: np.full(len(w), np.nan) for k in names}
-    if n < 2:
-        return out, n
-    for f in range(n):
-        test = folds == f
-        train = ~test
-        if not test.any():
-            continue
+    for test, train in fold_masks(folds, n if n >= 2 else 0):
         tg = clamp_to_training(ctx.tg, w, train, ctx.gyro_input, o.range_margin)
         models = {'polynomial': _gyro_bias(ctx.subset(train))[0]}
         if 'whole_unit_static' in names:

@@ -468,6 +468,14 @@ def _whole_unit_folds(windows):
     return np.array([fold_of[int(h)] for h in windows.hold]), min(k, MULTI_FOLDS)
 
 
+def fold_masks(folds, n):
+    """Yield (test, train) bool masks of folds 0..n-1 of ``folds`` (empty ones skipped)."""
+    for f in range(n):
+        test = folds == f
+        if test.any():
+            yield test, ~test
+
+
 def heldout_whole_unit(ctx):
     """Held-out static residuals of the field and whole-unit calibrations; (dict, folds).
 
@@ -484,11 +492,7 @@ def heldout_whole_unit(ctx):
     folds, n = _whole_unit_folds(w)
     out = {s: {'field': np.full(len(w), np.nan), 'whole_unit': np.full(len(w), np.nan)}
            for s in ('accel', 'gyro')}
-    for f in range(n):
-        test = folds == f
-        train = ~test
-        if not test.any():
-            continue
+    for test, train in fold_masks(folds, n):
         ta = clamp_to_training(ctx.ta, w, train, ctx.accel_input, o.range_margin)
         tg = clamp_to_training(ctx.tg, w, train, ctx.gyro_input, o.range_margin)
         sub = ctx.subset(train)
