@@ -84,7 +84,7 @@ SAME_POSE_DEG = 5.0
 #: session: +3.4 % on x) and a hand-made turn that ends a few degrees off
 FULL_TURN_TOLERANCE = 0.10
 #: leave-one-pose-change-out up to this many pose changes, round-robin folds beyond
-HELDOUT_FOLDS = 20
+HELDOUT_FOLDS = 12
 
 
 def is_full_turn(rate, dt, up_from, up_to):
@@ -257,7 +257,7 @@ def _subset(prep, rows):
 
 def _select_rotation_terms(lay, free, p1, prep, solve_rows, k, tol=0.01):
     """Drop Omega3, then Omega2, unless leave-pose-changes-out validation supports them."""
-    if k < 6:
+    if k < 6 or not any(np.any(free[lay.slices[g]]) for g in ('Omega3', 'Omega2')):
         return free, {}
     folds = np.arange(k) % min(5, k)
 
@@ -387,20 +387,34 @@ def fit_gyro_rotations(prep, priors=None, omega1_prior=None, ratio=DETERMINED_RA
                        before, after, notes, prep)
 
 
+def priors_like(fit, priors=None):
+    """Return ``priors`` with Omega2/Omega3 fixed (std 1e-12) where ``fit`` left them out.
+
+    Refits on part of the pose changes (held-out scores) then estimate the terms the fit on
+    all of them kept, without repeating its leave-pose-changes-out selection.
+    """
+    from dataclasses import replace
+    changes = {attr: 1e-12 for name, attr in (('Omega2', 'gyro_nonlin2'),
+                                              ('Omega3', 'gyro_nonlin3'))
+               if not np.any(fit.estimated[name])}
+    return replace(priors or Priors(), **changes)
+
+
 def heldout_rotation_errors(prep, priors=None, robust=True, max_folds=HELDOUT_FOLDS):
     """Return (k,) held-out errors (deg) of the rotation fit, one pose change out at a time.
 
     Each prepared transition is left out (with more than ``max_folds`` of them: round-robin
-    folds of about k / max_folds, to bound the cost), Omega1 (Omega2, Omega3) refitted on the
-    others and the left-out ones scored by ``direction_error_deg`` (closure angle of a full
-    turn, else the angle between the carried and the measured gravity direction).
+    folds, to bound the cost), Omega1 (Omega2, Omega3 unless ``priors`` fix them, see
+    ``priors_like``) refitted on the others and the left-out ones scored by
+    ``direction_error_deg`` (closure angle of a full turn, else the angle between the carried
+    and the measured gravity direction).
     """
     k = len(prep.sigma)
     out = np.full(k, np.nan)
     folds = np.arange(k) % max(min(k, max_folds), 1)
     for f in np.unique(folds):
         test = folds == f
-        fit = fit_gyro_rotations(_subset(prep, ~test), priors, robust=robust)
+        fit = fit_gyro_rotations(_subset(prep, ~test), priors, robust=robust, select=False)
         out[test] = direction_error_deg(_subset(prep, test), fit.omega1, fit.omega2,
                                         fit.omega3)
     return out

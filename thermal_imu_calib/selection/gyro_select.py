@@ -38,6 +38,8 @@ the static one and the comparison above runs as without pose changes.
 
 import numpy as np
 
+from ..estimation.gyro_rotations import HELDOUT_FOLDS
+
 #: WGS84 earth rotation rate, rad/s
 EARTH_RATE = 7.2921150e-5
 #: the seed 002 static gyro model must beat the bias polynomial by this much (relative)
@@ -61,7 +63,7 @@ def still_rate_error(gyro):
     return np.abs(np.linalg.norm(gyro, axis=1) - EARTH_RATE)
 
 
-def _whole_unit_gyro(ctx, rows, acc, accel_model, transitions=None):
+def _whole_unit_gyro(ctx, rows, acc, accel_model, transitions=None, priors=None):
     """Fit the seed 002 gyro on the windows ``rows`` (corrected accel ``acc`` per window)."""
     from ..estimation.gyro_fit import fit_gyro
     from ..estimation.observability import Priors
@@ -71,7 +73,7 @@ def _whole_unit_gyro(ctx, rows, acc, accel_model, transitions=None):
                     ctx.gyro_t0 if k else np.zeros(3), latitude=o.latitude,
                     transitions=transitions, accel_model=accel_model,
                     accel_input=ctx.accel_input, gyro_input=ctx.gyro_input,
-                    priors=o.whole_unit_priors or Priors(),
+                    priors=priors or o.whole_unit_priors or Priors(),
                     order=o.order if k else 0, input_unit=ctx.gyro_unit)
 
 
@@ -104,13 +106,12 @@ def _poly_as_static(poly):
 
 
 def _pose_figures(ctx, est, poly, acc, turns_fit):
-    """Return {candidate: (k,) held-out pose-change errors (deg)} and the prepared count."""
+    """Return {candidate: (k,) held-out pose-change errors (deg)} and how they were held out."""
     from ..estimation.gyro_rotations import (direction_error_deg, heldout_rotation_errors,
-                                             prepare_transitions)
+                                             prepare_transitions, priors_like)
     from ..estimation.gyro_static import hold_directions
-    from ..estimation.observability import Priors
     prep = turns_fit.rotation.prepared
-    priors = ctx.options.whole_unit_priors or Priors()
+    priors = priors_like(turns_fit.rotation, ctx.options.whole_unit_priors)
     out = {'whole_unit_static': direction_error_deg(prep, np.eye(3)),
            'whole_unit_turns': heldout_rotation_errors(prep, priors)}
     up, sig = hold_directions(ctx.windows, acc)
@@ -118,14 +119,18 @@ def _pose_figures(ctx, est, poly, acc, turns_fit):
     pp = prepare_transitions(ctx.options.transitions, up, sig, _poly_as_static(poly),
                              est.accel, ctx.accel_input, ctx.gyro_input, poly.t0, noise)
     out['polynomial'] = direction_error_deg(pp, np.eye(3))
-    return out, len(prep.sigma)
+    k = len(prep.sigma)
+    return out, (f'leave-one-out error of {k} pose changes' if k <= HELDOUT_FOLDS else
+                 f'held-out error of {k} pose changes in {HELDOUT_FOLDS} folds')
 
 
-def _still_figures(ctx, est, acc, names):
+def _still_figures(ctx, est, acc, names, like):
     """Return ({candidate: (m,) held-out | |w| - earth rate | (nan: never held out)}, folds)."""
     from ..estimation.calibrate import _gyro_bias
+    from ..estimation.gyro_rotations import priors_like
     from .select import _whole_unit_folds, clamp_to_training, fold_masks
     w, o = ctx.windows, ctx.options
+    priors = priors_like(like.rotation, o.whole_unit_priors)
     folds, n = _whole_unit_folds(w)
     out = {k: np.full(len(w), np.nan) for k in names}
     for test, train in fold_masks(folds, n if n >= 2 else 0):
@@ -134,7 +139,7 @@ def _still_figures(ctx, est, acc, names):
         if 'whole_unit_static' in names:
             models['whole_unit_static'] = _whole_unit_gyro(ctx, train, acc, est.accel).model
         models['whole_unit_turns'] = _whole_unit_gyro(ctx, train, acc, est.accel,
-                                                      o.transitions).model
+                                                      o.transitions, priors).model
         for k, m in models.items():
             out[k][test] = still_rate_error(m.correct(w.gyro[test], tg[test],
                                                       aux={'accel': acc[test]}))
@@ -177,8 +182,8 @@ def turns_gyro(ctx, est, poly, rep):
         return None
     static_ok = (ctx.n_orientations >= MIN_ORIENTATIONS and not ctx.coverage.get('missing'))
     names = [c for c, _ in POSE_CANDIDATES if c != 'whole_unit_static' or static_ok]
-    pose, k = _pose_figures(ctx, est, poly, acc, fit)
-    still, n_folds = _still_figures(ctx, est, acc, names)
+    pose, how = _pose_figures(ctx, est, poly, acc, fit)
+    still, n_folds = _still_figures(ctx, est, acc, names, fit)
     held = np.isfinite(still['polynomial'])
     figures = {}
     for c in names:
@@ -191,13 +196,14 @@ def turns_gyro(ctx, est, poly, rep):
                              else []) + [f'pose changes {figures[c]["pose"]:.3g} deg'])
         for c in names)
     text = (f'gyro candidates compared held out (still | |w| - earth rate | RMS, {n_folds} hold '
-            f'folds; leave-one-out error of {k} pose changes, RMS): {parts}; {why}: chose '
+            f'folds; {how}, RMS): {parts}; {why}: chose '
             f'{chosen}')
     report = {'gyro_offset': rep, 'gyro_choice': {
         'model': chosen, 'candidates': {c: {('heldout_still_error_rad_s' if f == 'still' else
                                              'heldout_pose_change_error_deg'): v
                                             for f, v in figures[c].items()} for c in names},
-        'kept': kept, 'folds': n_folds, 'pose_changes_scored': k, 'keep_ratio': KEEP_RATIO,
+        'kept': kept, 'folds': n_folds, 'pose_changes_scored': len(pose['whole_unit_turns']),
+        'keep_ratio': KEEP_RATIO,
         'margin': GYRO_MARGIN, 'text': text}}
     if chosen == 'polynomial':
         return poly, report, [POLYNOMIAL_NOTE + f'; {text}']
