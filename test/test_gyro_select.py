@@ -59,3 +59,47 @@ def test_one_orientation_keeps_the_bias_polynomial():
     assert res.calibration.gyro.kind == 'offset_polynomial'
     assert 'gyro_choice' not in res.report
     assert any(n.startswith('gyroscope: bias polynomial') for n in res.calibration.notes)
+
+
+def test_choose_never_keeps_a_candidate_over_the_keep_ratio():
+    aims = dict(gyro_select.POSE_CANDIDATES)
+    # the Ferraris figures: the static candidates are 3x worse on the pose changes
+    figs = {'polynomial': {'still': 1.25e-4, 'pose': 3.85},
+            'whole_unit_static': {'still': 8.56e-5, 'pose': 3.85},
+            'whole_unit_turns': {'still': 8.42e-5, 'pose': 1.29}}
+    chosen, kept, why = gyro_select.choose(figs, aims)
+    assert chosen == 'whole_unit_turns' and kept == ['whole_unit_turns'], why
+    # near tie on both figures: the simplest stays (a richer one must be 25 % better on the
+    # figure its terms explain)
+    figs = {'polynomial': {'still': 1.0e-4, 'pose': 1.0},
+            'whole_unit_static': {'still': 0.9e-4, 'pose': 1.0},
+            'whole_unit_turns': {'still': 0.9e-4, 'pose': 0.8}}
+    assert gyro_select.choose(figs, aims)[0] == 'polynomial'
+    figs['whole_unit_turns']['pose'] = 0.7
+    assert gyro_select.choose(figs, aims)[0] == 'whole_unit_turns'
+    # a candidate better on one figure but over 1.5x the best on the other is never kept
+    figs = {'polynomial': {'still': 1.0e-4, 'pose': 5.0},
+            'whole_unit_turns': {'still': 1.4e-4, 'pose': 1.0}}
+    chosen, kept, why = gyro_select.choose(figs, aims)
+    assert kept == [chosen] == ['whole_unit_turns'], why
+    # every candidate over the ratio on some figure: the one nearest the best is kept
+    figs['whole_unit_turns']['still'] = 1.6e-4
+    chosen, kept, why = gyro_select.choose(figs, aims)
+    assert kept == [chosen] == ['whole_unit_turns'] and 'nearest the best' in why, why
+
+
+def test_a_same_pose_change_of_a_whole_turn_is_closed():
+    from thermal_imu_calib.estimation.gyro_rotations import is_full_turn
+    t = np.linspace(0.0, 4.0, 401)
+    dt = np.diff(t)
+    up = np.array([1.0, 0.0, 0.0])
+
+    def about_x(deg):
+        return np.tile([np.radians(deg) / 4.0, 0.0, 0.0], (len(t), 1))
+    assert is_full_turn(about_x(372.0), dt, up, up)            # +3.3 % scale error
+    assert is_full_turn(about_x(-720.0), dt, up, up)           # two turns, either sense
+    assert not is_full_turn(about_x(90.0), dt, up, up)         # a heading change
+    assert not is_full_turn(about_x(13.0), dt, up, up)         # an adjustment
+    assert not is_full_turn(about_x(300.0), dt, up, up)        # 17 % off a turn
+    tilted = np.array([np.cos(0.2), np.sin(0.2), 0.0])         # 11 deg off: not the same pose
+    assert not is_full_turn(about_x(360.0), dt, up, tilted)

@@ -415,7 +415,7 @@ def calibrate_windows(windows, options=None):
     fit_stats = dict(est.fit)
     fit_stats.update({
         'hold_consistency': consistency,
-        'model_choice': {'model': name, 'reason': why},
+        'model_choice': _model_choice(name, why, report),
         'holds': cov['holds'], 'windows': cov['windows'],
         'faces': {f: cov['faces'][f]['holds'] for f in FACE_NAMES},
         'tilted_holds': cov['tilted_holds'],
@@ -442,8 +442,20 @@ def calibrate_windows(windows, options=None):
                     'fit (pose repeats that disagree, sensor-state epochs; see notes)')
     if 'residual_rms' in fit_stats:
         summary += f', fit residual {fit_stats["residual_rms"]["value"] * 1e6 / g:.1f} ug RMS'
-    return CalibrationResult(cal, summary + _pose_change_text(rot, len(o.transitions)),
-                             report)
+    gyro_text = report.get('gyro_choice', {}).get('text')
+    summary += _pose_change_text(rot, len(o.transitions))
+    summary += f'; {gyro_text}' if gyro_text else ''
+    return CalibrationResult(cal, summary, report)
+
+
+def _model_choice(name, why, report):
+    """Return fit.model_choice: the model, why, and the gyro comparison with pose changes."""
+    out = {'model': name, 'reason': why}
+    gyro = report.get('gyro_choice', {})
+    if 'text' in gyro:
+        out['gyro'] = {'model': gyro['model'], 'reason': gyro['text'],
+                       'heldout': gyro['candidates']}
+    return out
 
 
 def _consistency_notes(report):

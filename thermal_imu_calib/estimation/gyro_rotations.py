@@ -4,7 +4,11 @@ Between consecutive holds i -> j the compensated gyro is integrated (quaternions
 all transitions at once by a pairwise tree product) and the gravity direction
 measured before is carried over and compared with the one measured after:
 ``r = u_j - dR' u_i``. Transitions flagged ``closed`` (full turns, start and end
-orientation identical, as the Ferraris protocol) add ``rotvec(dR) = 0``.
+orientation identical, as the Ferraris protocol) add ``rotvec(dR) = 0``. A pose change
+that starts and ends in the same pose (gravity directions within ``SAME_POSE_DEG``) and
+turns the unit by a whole number of turns (integrated angle within ``FULL_TURN_TOLERANCE``
+of n x 360 deg, n >= 1) is taken as closed: gravity alone cannot see a turn about the
+vertical, the closure can (``is_full_turn``).
 Unknowns: Omega1 (3x3 scale/misalignment relative to the accelerometer frame)
 and the per-axis nonlinearity Omega2, Omega3; observability as in
 ``observability``. The earth rate during a 2-4 s pose change (< 3e-4 rad) is
@@ -39,6 +43,8 @@ class RotationFit:
     error_before_deg: np.ndarray     # per transition, with the prior Omega1
     error_after_deg: np.ndarray
     notes: list
+    #: the transitions the fit used (for leave-one-pose-change-out scores)
+    prepared: Optional['PreparedTransitions'] = None
 
 
 @dataclass
@@ -71,6 +77,28 @@ MERGE_COMMUTATOR = 1e-7      # rad
 MOTION_SIGMAS = 8.0
 #: still time kept around the detected motion of a transition, s
 MOTION_MARGIN_S = 0.25
+#: start and end of a pose change in the same pose: gravity directions within this (deg)
+SAME_POSE_DEG = 5.0
+#: a same-pose change is a full turn when its integrated angle is within this fraction of
+#: n x 360 deg (n >= 1): covers the raw scale error of MEMS gyros (imucal's Ferraris
+#: session: +3.4 % on x) and a hand-made turn that ends a few degrees off
+FULL_TURN_TOLERANCE = 0.10
+#: leave-one-pose-change-out up to this many pose changes, round-robin folds beyond
+HELDOUT_FOLDS = 12
+
+
+def is_full_turn(rate, dt, up_from, up_to):
+    """Return True when a pose change is a whole number of turns back to the same pose.
+
+    rate: (n, 3) bias-free angular rate (rad/s) over the samples; dt: (n - 1,) s; up_from,
+    up_to: unit gravity directions of the holds before and after. The rotation angle is the
+    norm of the integrated rate (exact for a turn about a fixed axis).
+    """
+    if float(np.dot(up_from, up_to)) < np.cos(np.radians(SAME_POSE_DEG)) or len(dt) == 0:
+        return False
+    angle = float(np.degrees(np.linalg.norm(np.sum(_trapezoid(rate, dt), axis=0))))
+    turns = round(angle / 360.0)
+    return turns >= 1 and abs(angle - 360.0 * turns) <= FULL_TURN_TOLERANCE * 360.0 * turns
 
 
 def _merge_commuting(b, c2, c3, cone):
@@ -139,12 +167,14 @@ def prepare_transitions(transitions, hold_up, hold_sigma, static, accel_model, a
         keep = _motion_extent(tr.t, d, gyro_noise)
         tt, d, w = tr.t[keep], d[keep], w[keep]
         dt = np.diff(tt)
+        closed = bool(tr.closed) or is_full_turn(d, dt, hold_up[tr.hold_from],
+                                                 hold_up[tr.hold_to])
         # within-interval coning of a linearly varying rate (Bortz): dt^2/12 w_a x w_b,
         # evaluated with the prior scale (its Omega1 dependence is second order)
         cone = np.cross(d[:-1], d[1:]) * (dt ** 2 / 12.0)[:, None]
         bb, cc2, cc3, cc = _merge_commuting(_trapezoid(d, dt), _trapezoid(w * w, dt),
                                             _trapezoid(w ** 3, dt), cone)
-        rows.append((i, tr, bb, cc2, cc3, cc, dt))
+        rows.append((i, tr, bb, cc2, cc3, cc, dt, closed))
     k = len(rows)
     n = max([len(r[2]) for r in rows], default=1)
     b = np.zeros((k, n, 3))
@@ -152,7 +182,7 @@ def prepare_transitions(transitions, hold_up, hold_sigma, static, accel_model, a
     c3 = np.zeros((k, n, 3))
     c0 = np.zeros((k, n, 3))
     uf, ut, sg, cl, idx = [], [], [], [], []
-    for j, (i, tr, bb, cc2, cc3, cc, dt) in enumerate(rows):
+    for j, (i, tr, bb, cc2, cc3, cc, dt, closed) in enumerate(rows):
         b[j, :len(bb)], c2[j, :len(bb)], c3[j, :len(bb)], c0[j, :len(bb)] = bb, cc2, cc3, cc
         uf.append(hold_up[tr.hold_from])
         ut.append(hold_up[tr.hold_to])
@@ -160,7 +190,7 @@ def prepare_transitions(transitions, hold_up, hold_sigma, static, accel_model, a
             float(np.mean(gyro_noise)) * np.sqrt(np.sum(dt ** 2))
         sg.append(np.sqrt(hold_sigma[tr.hold_from] ** 2 + hold_sigma[tr.hold_to] ** 2
                           + gn ** 2 + 1e-12))
-        cl.append(bool(tr.closed))
+        cl.append(closed)
         idx.append(i)
     return PreparedTransitions(b, c2, c3, np.array(uf).reshape(k, 3),
                                np.array(ut).reshape(k, 3), np.array(sg), np.array(cl, bool),
@@ -227,7 +257,7 @@ def _subset(prep, rows):
 
 def _select_rotation_terms(lay, free, p1, prep, solve_rows, k, tol=0.01):
     """Drop Omega3, then Omega2, unless leave-pose-changes-out validation supports them."""
-    if k < 6:
+    if k < 6 or not any(np.any(free[lay.slices[g]]) for g in ('Omega3', 'Omega2')):
         return free, {}
     folds = np.arange(k) % min(5, k)
 
@@ -354,4 +384,37 @@ def fit_gyro_rotations(prep, priors=None, omega1_prior=None, ratio=DETERMINED_RA
     return RotationFit(lay.get(p, 'Omega1'), lay.get(p, 'Omega2'), lay.get(p, 'Omega3'),
                        {n: lay.get(std, n) for n in lay.names}, lay.masks(free),
                        lay.reasons(free), {lay.label(i): v for i, v in ratios.items()}, k,
-                       before, after, notes)
+                       before, after, notes, prep)
+
+
+def priors_like(fit, priors=None):
+    """Return ``priors`` with Omega2/Omega3 fixed (std 1e-12) where ``fit`` left them out.
+
+    Refits on part of the pose changes (held-out scores) then estimate the terms the fit on
+    all of them kept, without repeating its leave-pose-changes-out selection.
+    """
+    from dataclasses import replace
+    changes = {attr: 1e-12 for name, attr in (('Omega2', 'gyro_nonlin2'),
+                                              ('Omega3', 'gyro_nonlin3'))
+               if not np.any(fit.estimated[name])}
+    return replace(priors or Priors(), **changes)
+
+
+def heldout_rotation_errors(prep, priors=None, robust=True, max_folds=HELDOUT_FOLDS):
+    """Return (k,) held-out errors (deg) of the rotation fit, one pose change out at a time.
+
+    Each prepared transition is left out (with more than ``max_folds`` of them: round-robin
+    folds, to bound the cost), Omega1 (Omega2, Omega3 unless ``priors`` fix them, see
+    ``priors_like``) refitted on the others and the left-out ones scored by
+    ``direction_error_deg`` (closure angle of a full turn, else the angle between the carried
+    and the measured gravity direction).
+    """
+    k = len(prep.sigma)
+    out = np.full(k, np.nan)
+    folds = np.arange(k) % max(min(k, max_folds), 1)
+    for f in np.unique(folds):
+        test = folds == f
+        fit = fit_gyro_rotations(_subset(prep, ~test), priors, robust=robust, select=False)
+        out[test] = direction_error_deg(_subset(prep, test), fit.omega1, fit.omega2,
+                                        fit.omega3)
+    return out

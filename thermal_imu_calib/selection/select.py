@@ -1,9 +1,19 @@
 """``--model auto``: choose the thermal model by held-out validation on the collected data.
 
-One orientation (warm-up, chamber cycle): the lag search (thermal_lag.estimate_tau, same
-polynomial order with and without the lag) decides whether the models see a first-order
-lagged temperature. The candidates are the offset polynomial (order per axis by CV, 0..3)
-with and without that lag and the RVM (seed 003) with the chosen filter. Every candidate is
+One orientation: only an offset per axis as a function of temperature is observable (the
+bias and scale of an axis separate only between its up and down poses). Every candidate
+below is such an offset model; they differ in the shape of the dependence, which needs the
+temperature to move. When the degC inputs span less than ``SINGLE_MIN_SPAN`` over the
+windows (a soak, a robot on its mount at a steady temperature) auto ends at ``offset``
+(order by cross-validation) without comparing shapes: a held-out gain of a richer model over
+such a span is a drift in time that happens to correlate with temperature (BMI270 soaks:
+0.4 and 0.03 degC, the accelerometer drifting 16 mg in 80 s while the temperature is flat).
+
+One orientation across a temperature span (warm-up, chamber cycle): the lag search
+(thermal_lag.estimate_tau, same polynomial order with and without the lag) decides whether
+the models see a first-order lagged temperature. The candidates are the offset polynomial
+(order per axis by CV, 0..3) with and without that lag and the RVM (seed 003) with the
+chosen filter. Every candidate is
 refitted with one temperature leg (chamber cycle), hold, or contiguous time block (single
 warm-up) left out, and scored on it: the held-out drift is the corrected output minus its
 mean over the training part (the constant is not observable in one pose), inputs clamped
@@ -61,6 +71,9 @@ SINGLE_CANDIDATES = ('offset', 'lag', 'rvm', 'rvm-lag')
 MULTI_CANDIDATES = ('field', 'field-lag', 'rvm')
 #: a more complex single-orientation candidate must be this much better (relative)
 SINGLE_MARGIN = 0.05
+#: one orientation: degC span (over the windows) below which auto ends at ``offset``
+#: (the field model's span for a first-order term, ``calibrate.ORDER_SPAN[1]``)
+SINGLE_MIN_SPAN = ORDER_SPAN[1]
 #: the lag is used when it cuts the held-out error of the lag search by this much
 LAG_MIN_IMPROVEMENT = 0.10
 #: several orientations: the lagged field model must beat the field model by this much
@@ -455,6 +468,14 @@ def _whole_unit_folds(windows):
     return np.array([fold_of[int(h)] for h in windows.hold]), min(k, MULTI_FOLDS)
 
 
+def fold_masks(folds, n):
+    """Yield (test, train) bool masks of folds 0..n-1 of ``folds`` (empty ones skipped)."""
+    for f in range(n):
+        test = folds == f
+        if test.any():
+            yield test, ~test
+
+
 def heldout_whole_unit(ctx):
     """Held-out static residuals of the field and whole-unit calibrations; (dict, folds).
 
@@ -471,11 +492,7 @@ def heldout_whole_unit(ctx):
     folds, n = _whole_unit_folds(w)
     out = {s: {'field': np.full(len(w), np.nan), 'whole_unit': np.full(len(w), np.nan)}
            for s in ('accel', 'gyro')}
-    for f in range(n):
-        test = folds == f
-        train = ~test
-        if not test.any():
-            continue
+    for test, train in fold_masks(folds, n):
         ta = clamp_to_training(ctx.ta, w, train, ctx.accel_input, o.range_margin)
         tg = clamp_to_training(ctx.tg, w, train, ctx.gyro_input, o.range_margin)
         sub = ctx.subset(train)
@@ -553,6 +570,13 @@ def auto_policy(ctx):
     if ctx.n_orientations == 1:
         if ctx.k == 0:
             return 'offset', 'one orientation and no temperature input'
+        span = _degc_span(ctx)
+        if span is not None and span < SINGLE_MIN_SPAN:
+            return 'offset', (
+                f'one orientation: only an offset per axis vs temperature is observable; the '
+                f'temperature spans {span:.2f} degC (< {SINGLE_MIN_SPAN:g}), too little to tell '
+                'a temperature dependence from a drift in time, so no richer shape (lag, rvm) '
+                'is compared: offset polynomial, order by cross-validation')
         sel = select_single(ctx)
     else:
         try:
@@ -563,6 +587,14 @@ def auto_policy(ctx):
         sel = select_whole_unit(ctx, select_multi(ctx))
     ctx.thermal_selection = sel
     return sel.model, sel.reason
+
+
+def _degc_span(ctx):
+    """Return the largest span (degC) of the degC inputs over the windows (None: none)."""
+    degc = [i for i, t in enumerate(_lagged_inputs(ctx)) if t]
+    if not degc or len(ctx.windows) == 0:
+        return None
+    return float(np.max(np.ptp(ctx.windows.temp[:, degc], axis=0)))
 
 
 def _lagged_inputs(ctx):
