@@ -109,6 +109,46 @@ def test_corrupt_log_reported_others_calibrated(fleet, tmp_path, capsys):
     assert got == ref
 
 
+def _temperature_all_nan(a):
+    a['temperature'][:] = np.nan
+
+
+def _imu_stamps_duplicated(a):
+    a['stamp_ns'][1::2] = a['stamp_ns'][::2][:len(a['stamp_ns'][1::2])]
+
+
+def test_map_step_applies_the_input_gate(fleet, tmp_path, capsys):
+    """A log ``calibrate`` refuses (test_hostile_cli's inputs) is refused by the map step too."""
+    from _hostile import recording, write_bag
+    work = tmp_path / 'logs'
+    for unit in ('u01', 'u02'):
+        shutil.copytree(os.path.join(fleet, unit), work / unit)
+    imu, temp = recording()
+    bad = {write_bag(str(work / 'u01' / 'nan_temperature.mcap'), imu, temp,
+                     _temperature_all_nan): 'no usable reading',
+           write_bag(str(work / 'u02' / 'stamps_duplicated.mcap'), imu, temp,
+                     _imu_stamps_duplicated): 'do not increase'}
+    for path, cause in bad.items():   # what calibrate says of the same log
+        assert cli.main(['calibrate', path, '-o', str(tmp_path / 'one.yaml')]) == 2
+        assert cause in capsys.readouterr().err
+    registry = str(tmp_path / 'reg')
+    code = cli.main(['fleet', 'calibrate', str(work), '--workers', '2',
+                     '--by', r'path:/(u\d+)/', '-o', registry])
+    out = capsys.readouterr().out
+    assert code == 1, out
+    for path, cause in bad.items():
+        line = next(ln for ln in out.splitlines() if ln.startswith(f'FAILED {path}: '))
+        assert cause in line and 'not used' in line
+    rows = {r['sensor']: r for r in reg.read_index(registry)}
+    assert sorted(rows) == ['u01', 'u02']
+    assert all(int(r['logs']) == DESIGN.logs_per_unit for r in rows.values())
+    # the refused log did not enter the reduction: u01 is what calibrate gives on its logs
+    got, ref = _plain(_latest(registry, 'u01')), _plain(_reference(fleet, 'u01', tmp_path))
+    notes = got.pop('notes')
+    assert 'nan_temperature.mcap was not used' in notes[-1] and notes[:-1] == ref.pop('notes')
+    assert got == ref
+
+
 def _free_port():
     with socket.socket() as s:
         s.bind(('127.0.0.1', 0))

@@ -108,8 +108,9 @@ def _collect_kw(args):
     from .cli_calibrate import _detector
     kw = {'imu_topic': args.imu_topic, 'temperature_topics': args.temperature_topic,
           'chunk_size': args.chunk_size, 'max_gap_s': args.max_gap}
-    if hasattr(args, 'min_hold'):
+    if hasattr(args, 'min_hold'):    # fleet calibrate: calibrate's detector and input gate
         kw['detector'] = _detector(args)
+        kw['input_units'] = calibrate_args(args).input_unit
     return kw
 
 
@@ -128,6 +129,8 @@ def cmd_fleet_calibrate(args):
         units, failed = run_fleet(client, paths, group, reduce_fn, _collect_kw(args),
                                   args.period, args.progress)
     entries, bad = [], len(failed)
+    for path, warning in (w for u in units for w in u.warnings):
+        print(f'{path}: warning: {warning}', file=sys.stderr)
     for f in failed:
         print(f'FAILED {f.path}: {f.error} (sensor unknown; not used)')
     for u in units:
