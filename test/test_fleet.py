@@ -257,7 +257,10 @@ def test_alarms_history_and_compensate(fleet, tmp_path, capsys):
     assert cli.main(['history', registry, '--sensor', step, '--html', str(html)]) == 0
     text = capsys.readouterr().out
     assert f'{step}: {DESIGN.logs_per_unit} calibrations  ALARM' in text
-    assert 'db0 changed' in text and '<svg' in html.read_text()
+    assert text.startswith('alarm rule: ') and '1 % family-wise false-alarm rate' in text
+    assert f'db0 {"xyz"[int(truth[step]["step_axis"])]} changed' in text
+    page = html.read_text()
+    assert '<svg' in page and '1 % family-wise false-alarm rate' in page
 
     # compensate: every log with the calibration of its own period, outputs mirror the tree
     out_dir = tmp_path / 'out'
@@ -311,3 +314,44 @@ def test_inputs_and_registry_lookup(fleet, tmp_path):
         reg.valid_at(str(d), 'u99')
     idx = yaml.safe_load(open(os.path.join(d, 'u00', reg.iso(10 * day) + '.yaml')))
     assert idx['accel']['kind'] == cal.accel.kind
+
+
+def _synthetic_rows(rng, units, cals, sigma, drift=0.0, prefix='u'):
+    """Index rows of a fleet whose true db0/dk0 are constant (+ ``drift`` per 30 days)."""
+    day = 86400 * 10 ** 9
+    rows = []
+    for u in range(units):
+        for k in range(cals):
+            r = {'sensor': f'{prefix}{u:02d}', 'time': reg.iso((30 * k + 1) * day),
+                 'accel_model': 'field_polynomial', 'residual_rms_mps2': '5e-4'}
+            for a in 'xyz':
+                r[f'accel.T0.{a}'] = 30.0 + rng.normal(0, 0.3)
+                for name, s, d in (('db0', sigma, drift * k), ('dk0', 1e-4, 0.0)):
+                    r[f'accel.{name}.{a}'] = d + rng.normal(0, s)
+                    r[f'accel.{name}.{a}_std'] = s
+            rows.append(r)
+    return rows
+
+
+def test_alarm_statistic_keeps_its_family_rate_and_matches_numpy():
+    """Honest stds: a stable fleet is flagged at about the stated family rate; trend = polyfit."""
+    rng = np.random.default_rng(14)
+    scale = {'b': 1.0, 'k': 1.0}
+    n_fleets = 400
+    flagged = sum(any(reg.assess(_synthetic_rows(rng, 20, 5, 1e-3), std_scale=scale)[0].values())
+                  for _ in range(n_fleets))
+    # expected 4 of 400 at 1 %; Poisson(4) exceeds 12 with probability 1e-3
+    assert flagged <= 12
+    assert reg.family_threshold(1, 0.05) == pytest.approx(1.959964, abs=1e-5)
+    # the trend z is numpy's weighted polyfit slope over its std
+    rows = _synthetic_rows(rng, 1, 5, 1e-3, drift=2e-3, prefix='drifting')
+    z = reg.trend(rows, 'b', scale)
+    t = np.array([reg.parse_time(r['time']) for r in rows]) / 86400e9
+    t_ref = np.mean([[r[f'accel.T0.{a}'] for a in 'xyz'] for r in rows], axis=0)
+    vs = np.array([reg.at_temperature(r, 'b', t_ref) for r in rows])
+    for i in range(3):
+        p, cov = np.polyfit(t, vs[:, 0, i], 1, w=1 / vs[:, 1, i], cov='unscaled')
+        assert z[i] == pytest.approx(p[0] / np.sqrt(cov[0, 0]), rel=1e-9)
+    # a drift of 2 sigma per 30 days: no consecutive change is, the trend over 5 is flagged
+    found = reg.assess(rows + _synthetic_rows(rng, 19, 5, 1e-3), std_scale=scale)[0]
+    assert found['drifting00'] and all('trend' in a for a in found['drifting00'])

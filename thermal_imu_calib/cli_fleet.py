@@ -230,15 +230,15 @@ def cmd_history(args):
     if not rows:
         raise ValueError(f'{args.registry}: no {reg.INDEX}; run `thermal-imu-calib fleet '
                          'calibrate ... -o REGISTRY_DIR` first')
-    fleet_alarms = reg.alarms(rows)       # residual family = the whole fleet
+    fleet_alarms, info = reg.assess(rows)   # the family (tests, residuals) = the whole fleet
     if args.sensor:
         unknown = sorted(set(args.sensor) - {r['sensor'] for r in rows})
         if unknown:
             raise ValueError(f'no sensor {unknown[0]!r} in {args.registry}')
         rows = [r for r in rows if r['sensor'] in args.sensor]
-    print(format_history(rows, fleet_alarms))
+    print(format_history(rows, fleet_alarms, info))
     if args.html:
-        write_html(args.html, rows, fleet_alarms)
+        write_html(args.html, rows, fleet_alarms, info)
         print(f'wrote {args.html}')
     return 0
 
