@@ -35,6 +35,8 @@ AXES = 'xyz'
 #: axes, parameters, comparisons and trends together)
 FAMILY_RATE = 0.01
 RESIDUAL_MADS = 5.0
+#: alarm lines listed per unit (the strongest tests; the others are counted)
+SHOWN_ALARMS = 4
 #: parameters tested: the accelerometer bias and scale factor at T0 ('b' -> db0, 'k' -> dk0)
 ALARM_ON = ('b', 'k')
 #: factor on the fit's std of d{name}0 (1: the fit's own). Checked on the stable units of
@@ -308,8 +310,13 @@ def assess(rows, family_rate=FAMILY_RATE, residual_mads=RESIDUAL_MADS, std_scale
     tests = {s: unit_tests(rs, std_scale) for s, rs in by.items()}
     n = sum(len(t) for t in tests.values())
     z_c = family_threshold(n, family_rate)
-    out = {s: [f'{lbl}: {z:+.1f} sigma' for lbl, z in t if abs(z) > z_c]
-           for s, t in tests.items()}
+    out = {}
+    for s, t in tests.items():   # the strongest SHOWN_ALARMS tests over the threshold
+        over = sorted(((lbl, z) for lbl, z in t if abs(z) > z_c), key=lambda x: -abs(x[1]))
+        out[s] = [f'{lbl}: {z:+.1f} sigma' for lbl, z in over[:SHOWN_ALARMS]]
+        if len(over) > SHOWN_ALARMS:
+            out[s].append(f'... and {len(over) - SHOWN_ALARMS} more tests over '
+                          f'{z_c:.2f} sigma')
     latest = {s: _f(rs[-1], 'residual_rms_mps2') for s, rs in by.items()}
     vals = np.array([v for v in latest.values() if np.isfinite(v)])
     if len(vals) >= 3:
