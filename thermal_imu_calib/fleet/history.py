@@ -39,7 +39,10 @@ def format_history(rows, alarms, info=None):
     out = [info['rule']] if 'rule' in info else []
     for sensor, rs in _by_sensor(rows).items():
         flag = alarms.get(sensor) or []
-        out.append(f'{sensor}: {len(rs)} calibrations' + ('  ALARM' if flag else '  ok'))
+        zmax = info.get('max_abs_z', {}).get(sensor, np.nan)
+        out.append(f'{sensor}: {len(rs)} calibrations' + ('  ALARM' if flag else '  ok') + (
+            f' (largest |z| {zmax:.2f}, threshold {info["threshold_sigma"]:.2f})'
+            if np.isfinite(zmax) else ''))
         cols = [(c, lbl, sc, u) for c, lbl, sc, u in SHOWN
                 if any(np.isfinite(_f(r, f'{c}.x')) for r in rs)]
         out.append('  ' + f'{"time":17s} {"model":17s} {"resid":>8s}  ' + '  '.join(
