@@ -28,6 +28,7 @@ setup(
         'allantools>=2019.9',
         'dask[distributed]>=2024.1',
         'threadpoolctl>=3',
+        'zlib-ng>=0.5',
     ],
     extras_require={
         'test': ['pytest>=7', 'flake8>=6', 'pydocstyle>=6', 'hypothesis>=6.80'],

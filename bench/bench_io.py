@@ -17,6 +17,17 @@ run, each stage with wall and CPU (process) time, messages/s and MB/s of the inp
 * ``write (LogWriter.write_many)`` vs ``mcap library add_message``: the Imu messages
   written again.
 
+``--repeat N`` measures the bulk-read, stream and calibrate-collect stages N times and
+keeps the run with the least CPU time (the machine is shared: other processes only ever
+add to it).  ``--e2e N`` also runs, N times in turn, each in a fresh process (CPU = user +
+sys from ``getrusage``): a plain rosbags raw iteration (``Reader.messages()``, no
+decoding), ``thermal-imu-calib calibrate --model field`` and ``--model auto`` (with
+``--prior`` when ``LOG.prior.yaml`` exists), and reports each one's least CPU time and the
+ratios to the rosbags iteration.
+
+``--stages`` splits the calibrate-collect stage by component (CPU of the reader, input
+gate, temperature aligner, stationary detector and pose-change collector, one run each).
+
 ``--rss-messages N`` also writes an N-message log (1 kHz Imu + 10 Hz temperature) and
 reports the peak RSS of ``calibrate``-style reading and of ``compensate`` on it, each in a
 fresh process.  Run: ``python bench/bench_io.py [--json out.json] [--rss-messages 10000000]``.
@@ -91,7 +102,13 @@ def _topics(path):
     return imu, temps, count
 
 
-def run(path, calibration, tmp) -> dict:
+def _best(fn, repeat):
+    """Run ``fn`` ``repeat`` times; return (result, wall, cpu) of the least-CPU run."""
+    runs = [_timed(fn) for _ in range(max(1, repeat))]
+    return min(runs, key=lambda r: r[2])
+
+
+def run(path, calibration, tmp, repeat=1) -> dict:
     """Measure every stage on ``path``; returns {stage: figures}."""
     from thermal_imu_calib.calibration import Calibration
     from thermal_imu_calib.io.bag import open_log
@@ -110,11 +127,12 @@ def run(path, calibration, tmp) -> dict:
     record('mcap library raw loop', n, w, c)
     n, w, c = _timed(lambda: _rosbags_loop(path))
     record('rosbags AnyReader + deserialize_cdr', n, w, c)
-    n, w, c = _timed(lambda: _bulk_loop(path))
+    n, w, c = _best(lambda: _bulk_loop(path), repeat)
     record('bulk read (chunks, all messages)', n, w, c)
-    n, w, c = _timed(lambda: _stream(path, imu, temps))
+    n, w, c = _best(lambda: _stream(path, imu, temps), repeat)
     record('stream Imu+temperature (Imu msgs)', n, w, c)
-    col, w, c = _timed(lambda: collect_windows(path, imu, temps, motion=True, progress=False))
+    col, w, c = _best(lambda: collect_windows(path, imu, temps, motion=True, progress=False),
+                      repeat)
     record('calibrate read+detect+collect (Imu msgs)', col.imu_messages, w, c)
     cal = Calibration.load(calibration)
     dst = Path(tmp) / 'compensated.mcap'
@@ -146,6 +164,98 @@ def run(path, calibration, tmp) -> dict:
     _, w, c = _timed(library)
     record('write Imu (mcap library add_message)', len(data), w, c, mb)
     return out
+
+
+def collect_stages(path, imu, temps) -> dict:
+    """CPU seconds per component of ``collect_windows(motion=True)`` (one run)."""
+    from thermal_imu_calib import pipeline
+    from thermal_imu_calib.collection import motion, stationary
+    from thermal_imu_calib.io import align, bag, gate
+
+    acc = dict.fromkeys(('read', 'gate', 'align', 'detector', 'motion+detector'), 0.0)
+    saved = []
+
+    def wrap(owner, name, key):
+        f = getattr(owner, name)
+        saved.append((owner, name, f))
+
+        def timed(*a, **k):
+            c = time.process_time()
+            try:
+                return f(*a, **k)
+            finally:
+                acc[key] += time.process_time() - c
+        setattr(owner, name, timed)
+
+    def stream(self, *a, **k):
+        it = stream_orig(self, *a, **k)
+        while True:
+            c = time.process_time()
+            try:
+                x = next(it)
+            except StopIteration:
+                return
+            finally:
+                acc['read'] += time.process_time() - c
+            yield x
+    stream_orig = bag.LogReader.stream
+    saved.append((bag.LogReader, 'stream', stream_orig))
+    bag.LogReader.stream = stream
+    wrap(align.StreamAligner, 'push', 'align')
+    wrap(gate.InputGate, 'push', 'gate')
+    for name in ('update', 'finish'):
+        wrap(stationary.StationaryDetector, name, 'detector')
+        wrap(motion.MotionCollector, name, 'motion+detector')
+    try:
+        c = time.process_time()
+        pipeline.collect_windows(path, imu, temps, motion=True, progress=False)
+        acc['total'] = time.process_time() - c
+    finally:
+        for owner, name, f in saved:
+            setattr(owner, name, f)
+    acc['motion (besides the detector)'] = acc.pop('motion+detector') - acc['detector']
+    return acc
+
+
+_ROSBAGS_RAW = ("from rosbags.rosbag2 import Reader; import sys; r = Reader(sys.argv[1]); "
+                "r.open(); print(sum(1 for _ in r.messages()))")
+
+
+def _child_cpu(cmd) -> tuple[float, float]:
+    """Run ``cmd`` to completion; return (wall s, CPU s = user + sys of the child)."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    w0 = time.perf_counter()
+    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    wall = time.perf_counter() - w0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+def end_to_end(path, tmp, repeat) -> dict:
+    """CPU of rosbags' raw iteration and of ``calibrate --model field|auto``, in turn."""
+    script = os.path.join(os.path.dirname(sys.executable), 'thermal-imu-calib')
+    cli = ([script] if os.path.exists(script) else
+           [sys.executable, '-m', 'thermal_imu_calib.cli']) + ['calibrate', str(path)]
+    if os.path.exists(f'{path}.prior.yaml'):
+        cli += ['--prior', f'{path}.prior.yaml']
+    raw = [sys.executable, '-c', _ROSBAGS_RAW, str(path)]
+    cmds = {'rosbags raw iteration (Reader.messages())': raw}
+    for model in ('field', 'auto'):
+        cmds[f'calibrate --model {model}'] = cli + ['--model', model, '-o',
+                                                    str(Path(tmp) / f'e2e_{model}.yaml')]
+    runs: dict[str, list] = {k: [] for k in cmds}
+    for _ in range(max(1, repeat)):
+        for name, cmd in cmds.items():
+            out = cmd[-1] if name.startswith('calibrate') else None
+            if out and os.path.exists(out):
+                os.unlink(out)
+            runs[name].append(_child_cpu(cmd))
+    res = {k: {'wall_s': min(v, key=lambda r: r[1])[0], 'cpu_s': min(r[1] for r in v),
+               'cpu_s_all': [r[1] for r in v]} for k, v in runs.items()}
+    ref = res['rosbags raw iteration (Reader.messages())']['cpu_s']
+    for v in res.values():
+        v['cpu_over_rosbags_raw'] = v['cpu_s'] / ref
+    return res
 
 
 _RSS_CHILD = r'''
@@ -226,6 +336,14 @@ def main(argv=None) -> int:
     ap.add_argument('--seed', type=int, default=0)
     ap.add_argument('--rss-messages', type=int, default=0,
                     help='also measure peak RSS on a log of this many messages')
+    ap.add_argument('--repeat', type=int, default=1,
+                    help='measure the read/stream/calibrate-collect stages this many times, '
+                    'keep the least CPU')
+    ap.add_argument('--e2e', type=int, default=0, metavar='N',
+                    help='also time rosbags raw iteration and calibrate field/auto N times '
+                    'each, in turn, in fresh processes')
+    ap.add_argument('--stages', action='store_true',
+                    help='also split calibrate read+detect+collect by component')
     ap.add_argument('--json', help='write the figures here')
     args = ap.parse_args(argv)
     from threadpoolctl import threadpool_limits
@@ -240,7 +358,13 @@ def main(argv=None) -> int:
         if cal is None:
             ap.error('--calibration is needed with --log')
         figures = {'log': str(args.log or f'{args.scenario} seed {args.seed}'),
-                   'file_MB': os.path.getsize(path) / 1e6, 'stages': run(path, cal, tmp)}
+                   'file_MB': os.path.getsize(path) / 1e6, 'repeat': args.repeat,
+                   'stages': run(path, cal, tmp, args.repeat)}
+        if args.stages:
+            imu, temps, _ = _topics(path)
+            figures['calibrate_collect_stages_cpu_s'] = collect_stages(path, imu, temps)
+        if args.e2e:
+            figures['calibrate_end_to_end'] = end_to_end(path, tmp, args.e2e)
         if args.rss_messages:
             if args.log is None:
                 os.unlink(path)
@@ -264,6 +388,13 @@ def main(argv=None) -> int:
               f'{f["msgs_per_s"]:11,.0f} {f["msgs_per_cpu_s"]:11,.0f} {f["MB_per_s"]:7.0f}')
     for name, v in figures['ratios'].items():
         print(f'{name}: {v:.2f}')
+    if 'calibrate_collect_stages_cpu_s' in figures:
+        print('calibrate read+detect+collect, CPU s: ' + ', '.join(
+            f'{k} {v:.3f}' for k, v in figures['calibrate_collect_stages_cpu_s'].items()))
+    for name, f in figures.get('calibrate_end_to_end', {}).items():
+        print(f'{name:<{width}}  wall {f["wall_s"]:6.2f} s  cpu {f["cpu_s"]:5.2f} s  '
+              f'(runs {", ".join(f"{c:.2f}" for c in f["cpu_s_all"])})  '
+              f'{f["cpu_over_rosbags_raw"]:.2f}x rosbags raw')
     if 'rss' in figures:
         r = figures['rss']
         print(f'peak RSS on {r["messages"]:,} messages ({r["file_MB"]:.0f} MB): ' + ', '.join(

@@ -219,23 +219,36 @@ def _csv_session():
     return x[:, 4:7], np.radians(x[:, 1:4]), sections
 
 
-def test_default_calibrate_leaves_out_the_disagreeing_ferraris_holds(tmp_path, session):
-    # the shipped CLI path with default options only
+@pytest.mark.parametrize('model', [[], ['--model', 'whole_unit']])
+def test_default_calibrate_leaves_out_the_disagreeing_ferraris_holds(tmp_path, session, model):
+    # the shipped CLI path with default options only (and whole_unit, the other candidate)
     bag, cal_path = str(tmp_path / 'ferraris.mcap'), str(tmp_path / 'f.yaml')
     write_columns(bag, '/imu', session.imu)
     assert main(['calibrate', bag, '--imu-topic', '/imu', '--gravity', '9.81',
-                 '-o', cal_path]) == 0
+                 '-o', cal_path] + model) == 0
     cal = Calibration.load(cal_path)
     acc, gyr, sections = _csv_session()
     t = np.arange(len(acc)) / 102.4
     # the still periods next to the x turn read |a| ~0.85 mg below the +x face a minute
-    # earlier (same pose, same noise): both are left out, and no face
-    out = cal.fit['hold_consistency']['left_out']
+    # earlier (same pose, same noise): both are left out on their own; the ones around the
+    # y and z turns after them read 0.2 mg below their faces (2-2.5 sigma each, chi2 9.3 on
+    # 2 poses jointly): the change lasted, they are the same sensor-state epoch and out too
+    rep = cal.fit['hold_consistency']
+    out = rep['left_out']
+    pairwise = [h for h in out if 'epoch' not in h]
     a, b = sections['x_rot']
-    assert len(out) == 2
-    for h in out:
+    assert len(pairwise) == 2
+    for h in pairwise:
         assert t[a] - 10.0 < h['start_s'] and h['end_s'] < t[b - 1] + 10.0
         assert h['z'] > 5.0
+    ep, = rep['epochs']
+    assert ep['lasting'] and ep['accel_uses'] == 'earlier'
+    later = [h for h in out if 'epoch' in h]
+    assert len(later) == 4
+    for h in later:
+        assert h['start_s'] > t[b - 1] - 1.0
+        assert t[sections['y_rot'][0]] - 10.0 < h['start_s'] < t[sections['z_rot'][1] - 1] + 10.0
+    for h in out:                                       # no face is lost
         for k in R.FACES:
             lo, hi = sections[k]
             assert min(h['end_s'], t[hi - 1]) <= max(h['start_s'], t[lo])
@@ -248,13 +261,12 @@ def test_default_calibrate_leaves_out_the_disagreeing_ferraris_holds(tmp_path, s
         u = m / np.linalg.norm(m)
         noise.append(np.sqrt(u ** 2 @ acc[lo:hi].var(0) / (hi - lo)))
         err.append(np.linalg.norm(ca[lo:hi].mean(0)) - 9.81)
-    raw = np.linalg.norm([acc[lo:hi].mean(0) for lo, hi in
-                          (sections[k] for k in R.FACES)], axis=1) - 9.81
     rms, sig = np.sqrt(np.mean(np.square(err))), np.sqrt(np.mean(np.square(noise)))
-    # measured 61.8 ug with 48 ug section noise (imucal in-sample 40.3 ug); all 13 holds
-    # fitted gave 167 ug
-    assert rms < 1.5 * sig, (rms / 9.81e-6, sig / 9.81e-6)
-    assert rms < 0.002 * np.sqrt(np.mean(raw ** 2))
+    # measured 20.9 ug (auto: field) / 18.7 ug (whole_unit) with 65 ug RMS section-mean
+    # noise; the acceptance target is imucal's in-sample 40.3 ug; all 13 holds fitted gave
+    # 167 ug, holds 7 and 8 alone out 61.8 ug
+    assert rms <= 40.3e-6 * 9.81, rms / 9.81e-6
+    assert rms < sig, (rms / 9.81e-6, sig / 9.81e-6)
 
 
 def _six_faces_and_repeat(step_g, seed=0):

@@ -48,15 +48,30 @@ class Transition:
 
 
 class _Tape:
-    """Growing sample columns (t, gyro, accel, temps)."""
+    """Growing sample columns (t, gyro, accel, temps), kept as a list of appended parts.
+
+    Parts are concatenated only when the samples are needed (``cols``/``select``); while
+    the stamps increase, trimming the front drops or slices whole parts (views, no copy).
+    """
+
+    #: parts are merged into one once there are more than this many (bounds the list)
+    MAX_PARTS = 16
 
     def __init__(self, k):
         self.k = k
         self.parts = []
+        self._n = 0
+        self._sorted = True       # stamps non-decreasing over all parts
 
     def append(self, t, g, a, tm):
         if len(t):
+            if self._sorted:
+                self._sorted = bool((not self.parts or t[0] >= self.parts[-1][0][-1])
+                                    and np.all(t[1:] >= t[:-1]))
             self.parts.append((t, g, a, tm))
+            self._n += len(t)
+            if len(self.parts) > self.MAX_PARTS:
+                self.cols()
 
     def cols(self):
         if not self.parts:
@@ -71,20 +86,29 @@ class _Tape:
         return t[m], g[m], a[m], tm[m]
 
     def end(self):
-        t = self.cols()[0]
-        return t[-1] if len(t) else -np.inf
+        return self.parts[-1][0][-1] if self.parts else -np.inf
 
     def start(self):
-        t = self.cols()[0]
-        return t[0] if len(t) else np.inf
+        return self.parts[0][0][0] if self.parts else np.inf
 
     def trim_before(self, lo):
-        t, g, a, tm = self.cols()
-        m = t >= lo
-        self.parts = [(t[m], g[m], a[m], tm[m])]
+        if not self._sorted:
+            t, g, a, tm = self.cols()
+            m = t >= lo
+            self._n = int(np.count_nonzero(m))
+            self.parts = [(t[m], g[m], a[m], tm[m])] if self._n else []
+            return
+        # non-decreasing stamps: the samples kept (t >= lo) are a suffix
+        while self.parts and self.parts[0][0][-1] < lo:
+            self._n -= len(self.parts.pop(0)[0])
+        if self.parts:
+            i = int(np.searchsorted(self.parts[0][0], lo, side='left'))
+            if i:
+                self.parts[0] = tuple(c[i:] for c in self.parts[0])
+                self._n -= i
 
     def __len__(self):
-        return len(self.cols()[0])
+        return self._n
 
 
 class MotionCollector:

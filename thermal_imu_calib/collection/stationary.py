@@ -35,13 +35,12 @@ Cohesive: one streaming algorithm (derive, score blocks, bridge, make holds and 
 whose state is shared by every step; split, its parts would pass that state around.
 """
 
-from collections import deque
 import dataclasses
 from dataclasses import dataclass
 from typing import Optional
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import gammaincinv
 
 from .segments import face_of, Windows
 
@@ -114,14 +113,23 @@ class DetectorConfig:
             block_n = max(MIN_BLOCK_N, int(round(BLOCK_TARGET_S * rate_hz)))
         block_s = block_n / rate_hz
         dof = 3 * (block_n - 1)
-        factor = VARIANCE_MARGIN * float(chi2.ppf(1 - BLOCK_FALSE_ALARM, dof)
-                                         / chi2.ppf(self.noise_quantile, dof))
+        factor = VARIANCE_MARGIN * float(chi2_ppf(1 - BLOCK_FALSE_ALARM, dof)
+                                         / chi2_ppf(self.noise_quantile, dof))
         auto = {'block_s': block_s, 'min_hold_s': max(0.5, 5 * block_s),
                 'guard_s': max(0.2, 2 * block_s), 'window_s': max(5.0, 2 * block_s),
                 'accel_factor': factor, 'gyro_factor': factor}
         auto.update({k: v for k, v in given.items() if k in DERIVED})
         auto['window_s'] = max(auto['window_s'], block_s)
         return dataclasses.replace(self, **auto), block_n
+
+
+def chi2_ppf(p, dof):
+    """Return the chi-square quantile at ``p`` with ``dof`` degrees of freedom.
+
+    What ``scipy.stats.chi2.ppf`` computes (``2 gammaincinv(dof/2, p)``, the same float),
+    without importing scipy.stats (about 0.3 s of start-up).
+    """
+    return 2 * gammaincinv(dof / 2, p)
 
 
 def quantisation_step(x):
@@ -138,6 +146,50 @@ def quantisation_step(x):
         if np.median(np.abs(ratio - np.round(ratio))) < 0.02:
             out[i] = q
     return out
+
+
+class _Ring:
+    """The last ``maxlen`` rows appended (like ``deque(maxlen=...)``), in one numpy array.
+
+    ``values`` is not in insertion order once the ring has wrapped: only order-free
+    statistics (quantiles, medians) are taken of it.
+    """
+
+    def __init__(self, maxlen, width=None):
+        self.maxlen = int(maxlen)
+        self._shape = () if width is None else (int(width),)
+        self._a = np.empty((0,) + self._shape)
+        self._total = 0
+
+    def __len__(self):
+        return min(self._total, self.maxlen)
+
+    def clear(self):
+        self._total = 0
+
+    def extend(self, x):
+        x = np.asarray(x, float).reshape((-1,) + self._shape)
+        if len(x) >= self.maxlen:
+            x = x[len(x) - self.maxlen:]
+        n = len(x)
+        if not n:
+            return
+        size = len(self)
+        if size + n > len(self._a) and len(self._a) < self.maxlen:
+            grown = np.empty((min(self.maxlen, max(2 * len(self._a), size + n, 1024)),)
+                             + self._shape)
+            grown[:size] = self._a[:size]
+            self._a = grown
+        pos = self._total % self.maxlen if self._total >= self.maxlen else self._total
+        first = min(n, self.maxlen - pos)
+        self._a[pos:pos + first] = x[:first]
+        if first < n:
+            self._a[:n - first] = x[first:]
+        self._total += n
+
+    def values(self):
+        """Return the rows kept (a view; order unspecified once wrapped)."""
+        return self._a[:len(self)]
 
 
 class _Blocks:
@@ -187,9 +239,9 @@ class StationaryDetector:
         self._pending = []          # samples before the settings are derived
         self._pending_n = 0
         self._carry = None          # rows of the last, unfinished block
-        self._var_a = deque(maxlen=FLOOR_BLOCKS)
-        self._var_g = deque(maxlen=FLOOR_BLOCKS)
-        self._bias = deque(maxlen=BIAS_BLOCKS)
+        self._var_a = _Ring(FLOOR_BLOCKS)
+        self._var_g = _Ring(FLOOR_BLOCKS)
+        self._bias = _Ring(BIAS_BLOCKS, 3)
         self._lsb_var = (0.0, 0.0)
         self._floor = None          # (blocks seen, (accel, gyro) floor), see noise_floor
         self._n_blocks = 0
@@ -253,10 +305,10 @@ class StationaryDetector:
             return self._floor[1]
         q = self.config.noise_quantile
         dof = 3 * (self.block_n - 1)
-        bias = float(chi2.ppf(q, dof) / dof)
-        fa = max(float(np.quantile(self._var_a, q)), bias * self._lsb_var[0],
+        bias = float(chi2_ppf(q, dof) / dof)
+        fa = max(float(np.quantile(self._var_a.values(), q)), bias * self._lsb_var[0],
                  self.config.min_accel_var)
-        fg = max(float(np.quantile(self._var_g, q)), bias * self._lsb_var[1],
+        fg = max(float(np.quantile(self._var_g.values(), q)), bias * self._lsb_var[1],
                  self.config.min_gyro_var)
         # cached until new blocks arrive (the node calls this on every message batch)
         self._floor = (len(self._var_a), (fa, fg))
@@ -280,9 +332,8 @@ class StationaryDetector:
         still = _bridge(self._score) if len(ob) else np.zeros(0, bool)
         run = 0.0
         if len(still) and still[-1]:
-            i = len(still) - 1
-            while i > 0 and still[i - 1]:
-                i -= 1
+            moving = np.flatnonzero(~still)
+            i = int(moving[-1]) + 1 if len(moving) else 0
             run = float(ob.t1[-1] - ob.t0[i])
         nf = self.noise_floor()
         return {'stationary': bool(len(still) and still[-1]), 'hold_seconds': run,
@@ -316,13 +367,12 @@ class StationaryDetector:
         tt = t.reshape(m, n)
         blk.t0, blk.t1, blk.tt = tt[:, 0], tt[:, -1], tt.mean(1)
         blk.n = np.full(m, n)
-        a, g = accel.reshape(m, n, 3), gyro.reshape(m, n, 3)
-        blk.am, blk.av = a.mean(1), a.var(1, ddof=1)
-        blk.gm, blk.gv = g.mean(1), g.var(1, ddof=1)
+        blk.am, blk.av = _mean_var(accel.reshape(m, n, 3))
+        blk.gm, blk.gv = _mean_var(gyro.reshape(m, n, 3))
         blk.tm = temps.reshape(m, n, self.k).mean(1)
         self._floor = None
-        self._var_a.extend(blk.av.sum(1).tolist())
-        self._var_g.extend(blk.gv.sum(1).tolist())
+        self._var_a.extend(blk.av.sum(1))
+        self._var_g.extend(blk.gv.sum(1))
         if self._log_t0 is None:
             self._log_t0 = blk.t0[0]
         self._open.append(blk)
@@ -344,7 +394,7 @@ class StationaryDetector:
         va, vg = b.av[sl].sum(1), b.gv[sl].sum(1)
         quiet = (va < thr_a) & (vg < thr_g)
         self._bias.extend(b.gm[sl][quiet])
-        bias = np.median(np.asarray(self._bias), 0) if len(self._bias) else np.zeros(3)
+        bias = np.median(self._bias.values(), 0) if len(self._bias) else np.zeros(3)
         rot = np.sum((b.gm[sl] - bias) ** 2, 1) / w_rot ** 2
         self._score[sl] = np.maximum.reduce([va / thr_a, vg / thr_g, rot])
         # mean continuity between neighbours: a jump marks both blocks as moving
@@ -450,6 +500,35 @@ class StationaryDetector:
             t0=b.t0[starts], t1=b.t1[np.r_[starts[1:], len(b)] - 1], n=n.astype(int),
             accel=wmean(b.am), gyro=wmean(b.gm),
             accel_var=wmean(b.av), gyro_var=wmean(b.gv), temp=temp, temp_rate=rate)
+
+
+#: blocks up to this many samples are summed with one numpy add per sample row
+SEQUENTIAL_SUM_N = 32
+
+
+def _mean_var(x):
+    """Return ``x.mean(1), x.var(1, ddof=1)`` of (m, n, c) blocks.
+
+    numpy reduces the middle axis of a C-ordered (m, n, c) array one sample row after the
+    other; for short blocks the same additions in the same order are done here with one
+    vectorised add per row (several times faster, bit-identical: ``test_collection_fast``).
+    """
+    n = x.shape[1]
+    if n > SEQUENTIAL_SUM_N:
+        mean = np.add.reduce(x, axis=1) / n
+        dev = x - mean[:, None, :]
+        np.square(dev, out=dev)
+        return mean, np.add.reduce(dev, axis=1) / (n - 1)
+    total = x[:, 0].copy()
+    for i in range(1, n):
+        total += x[:, i]
+    mean = total / n
+    ss = np.square(x[:, 0] - mean)
+    for i in range(1, n):
+        d = x[:, i] - mean
+        np.square(d, out=d)
+        ss += d
+    return mean, ss / (n - 1)
 
 
 def _bridge(score):

@@ -439,7 +439,7 @@ def calibrate_windows(windows, options=None):
                f'{_amax(before):.0f} -> {_amax(after):.1f} ug max')
     if consistency['left_out']:
         summary += (f', {len(consistency["left_out"])} holds left out of the accelerometer '
-                    'fit (pose repeats that disagree, see notes)')
+                    'fit (pose repeats that disagree, sensor-state epochs; see notes)')
     if 'residual_rms' in fit_stats:
         summary += f', fit residual {fit_stats["residual_rms"]["value"] * 1e6 / g:.1f} ug RMS'
     return CalibrationResult(cal, summary + _pose_change_text(rot, len(o.transitions)),
@@ -450,12 +450,33 @@ def _consistency_notes(report):
     """Return the notes on the holds ``hold_consistency`` left out of the accel fit."""
     out = []
     for h in report['left_out']:
+        if 'epoch' in h:
+            continue
         out.append(
             f'hold {h["hold"]} left out of the accelerometer fit: still, but its |a| differs '
             f'by {h["difference_ug"]:.0f} ug ({h["z"]:.1f} sigma, limit '
             f'{report["z_limit"]:.1f}) from hold {h["reference_hold"]} in the same pose, so '
             'the sensor output changed between the two (handling, a temperature step); '
             'it is still used for the gyro')
+    for k, ep in enumerate(report.get('epochs', [])):
+        held = [h['hold'] for h in report['left_out'] if h.get('epoch') == k]
+        poses = ', '.join(f'{p["difference_ug"]:.0f} +- {p["sigma_ug"]:.0f} ug'
+                          for p in ep['tail_poses'])
+        tail = (f'the later repeat visits differ from the earlier holds by {poses} (chi2 '
+                f'{ep["tail_chi2"]:.1f} on {ep["tail_dof"]} poses, p {ep["tail_p"]:.2g}: '
+                f'the change {"lasted" if ep["lasting"] else "is not shown to last"})'
+                if ep['tail_dof'] else 'no later repeat visit to test whether it lasted')
+        if not held:
+            out.append(f'sensor-state change at hold {ep["holds"][0]}: {tail}; only the '
+                       'visits that disagree are left out')
+            continue
+        obs = ep['observability']
+        out.append(f'sensor-state epochs: the output changed by hold {ep["holds"][0]} and '
+                   f'{tail}; holds {", ".join(map(str, ep["holds"]))} are one epoch, the '
+                   f'{ep["accel_uses"]} one observes more of a bias and scale per axis (rank '
+                   f'{obs["earlier"][0]} earlier, {obs["changed"][0]} changed), so holds '
+                   f'{", ".join(map(str, held))} are left out of the accelerometer fit; they '
+                   'are still used for the gyro')
     return out
 
 

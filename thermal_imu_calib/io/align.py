@@ -108,10 +108,18 @@ class TemperatureTrack:
 
     def interpolate(self, stamp_ns, max_gap_s: float) -> tuple[np.ndarray, np.ndarray]:
         """Return ``(values, age_s)`` at the given stamps (see the module doc for gaps)."""
+        return self.apply(self.plan(stamp_ns, max_gap_s))
+
+    def plan(self, stamp_ns, max_gap_s: float) -> tuple:
+        """Return where ``stamp_ns`` fall among the retained stamps (for :meth:`apply`).
+
+        The plan depends on the stamps only, so tracks with the same stamps (inputs
+        published together) share one.
+        """
         s = np.atleast_1d(np.asarray(stamp_ns, dtype=np.int64))
-        n, t, v = s.size, self._t, self._v
+        n, t = s.size, self._t
         if t.size == 0:
-            return np.full(n, np.nan), np.full(n, np.inf)
+            return (n,)
         hi = np.clip(np.searchsorted(t, s, side='left'), 1, max(t.size - 1, 1))
         lo = hi - 1
         if t.size == 1:
@@ -122,11 +130,24 @@ class TemperatureTrack:
         inside = (d0 >= 0) & (d1 >= 0)
         span = (t1 - t0).astype(np.float64) / NS
         interp = inside & (span <= max_gap_s) & (span > 0)
-        near_hi = np.abs(d1) < np.abs(d0)
+        if interp.all():  # the usual case: every stamp bracketed closely (same arithmetic)
+            return n, lo, hi, d0 / span
+        w = d0[interp] / span[interp]
+        return (n, lo, hi, None, np.abs(d1) < np.abs(d0), np.minimum(np.abs(d0), np.abs(d1)),
+                interp, w)
+
+    def apply(self, plan) -> tuple[np.ndarray, np.ndarray]:
+        """Return ``(values, age_s)`` of this track at the stamps of ``plan``."""
+        if len(plan) == 1:
+            return np.full(plan[0], np.nan), np.full(plan[0], np.inf)
+        v = self._v
+        n, lo, hi, w_all = plan[:4]
+        if w_all is not None:
+            return v[lo] * (1.0 - w_all) + v[hi] * w_all, np.zeros(n)
+        near_hi, age, interp, w = plan[4:]
         out = np.where(near_hi, v[hi], v[lo])
-        age = np.minimum(np.abs(d0), np.abs(d1))
+        age = age.copy()
         if np.any(interp):
-            w = d0[interp] / span[interp]
             out[interp] = v[lo][interp] * (1.0 - w) + v[hi][interp] * w
             age[interp] = 0.0
         return out, age
@@ -264,8 +285,14 @@ class StreamAligner:
         n, k = len(imu), self.n_inputs
         temps = np.empty((n, k))
         ages = np.empty((n, k))
+        plans = []   # (stamps, plan): inputs stamped alike share the search
         for j, track in enumerate(self.tracks):
-            temps[:, j], ages[:, j] = track.interpolate(imu.stamp_ns, self.max_gap_s)
+            plan = next((p for st, p in plans if st is track.stamps_ns or (
+                len(st) == len(track) and np.array_equal(st, track.stamps_ns))), None)
+            if plan is None:
+                plan = track.plan(imu.stamp_ns, self.max_gap_s)
+                plans.append((track.stamps_ns, plan))
+            temps[:, j], ages[:, j] = track.apply(plan)
         return AlignedChunk(imu, temps, ages, extra)
 
 

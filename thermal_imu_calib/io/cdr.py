@@ -24,9 +24,8 @@ from __future__ import annotations
 from collections.abc import Iterator, Sequence
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
-
 from .columns import ImuColumns, TemperatureColumns
+from .mcap_read import take_rows
 
 IMU_MSGTYPE = 'sensor_msgs/msg/Imu'
 TEMPERATURE_MSGTYPE = 'sensor_msgs/msg/Temperature'
@@ -108,7 +107,7 @@ def _packed_groups(buf: np.ndarray, starts, lengths, fields, what):
     def rows_u8(rows, size):
         if size == 0 or len(buf) < size:
             return np.zeros((len(rows), size), np.uint8)
-        return sliding_window_view(buf, size)[starts[rows]]
+        return take_rows(buf, size, starts[rows])
     yield from _sized_groups(sizes, rows_u8, fields, what)
 
 
@@ -182,7 +181,57 @@ def decode_imu_packed(buf: np.ndarray, starts, lengths) -> ImuColumns:
     Same result and checks as :func:`decode_imu`, without one bytes object per message
     (what the bulk MCAP reader hands over).
     """
+    fast = _imu_packed_one_layout(buf, starts, lengths)
+    if fast is not None:
+        return fast
     return _imu_columns(len(lengths), _packed_groups(buf, starts, lengths, _IMU_FIELDS, 'Imu'))
+
+
+_HEAD = np.dtype({'names': ['sec', 'nanosec', 'frame_len'], 'formats': ['<i4', '<u4', '<u4'],
+                  'offsets': [_HDR, _HDR + 4, _HDR + 8], 'itemsize': _HDR + 12})
+_GYRO_AT = 8 * 13     # angular_velocity after orientation (4) and its covariance (9)
+_ACCEL_AT = 8 * 25    # linear_acceleration after angular_velocity (3) and its covariance (9)
+
+
+def _imu_packed_one_layout(buf: np.ndarray, starts, lengths) -> ImuColumns | None:
+    """Decode packed Imu payloads that all share one layout, gathering only what is used.
+
+    Only the 16 header bytes, the two float64 triples and the frame_id are copied out
+    (not the 37 floats of every message). Returns None when sizes, frame_id lengths or
+    encapsulations differ or anything fails a check: the general path then decodes (and
+    raises its errors); the values are the same bytes either way.
+    """
+    starts = np.asarray(starts, dtype=np.int64)
+    sizes = np.asarray(lengths, dtype=np.int64)
+    n = len(sizes)
+    if n == 0 or sizes.min() != sizes.max():
+        return None
+    size = int(sizes[0])
+    if size < _HDR + 12 + _payload_size(_IMU_FIELDS) or len(buf) < size:
+        return None
+    head = take_rows(buf, _HDR + 12, starts)
+    if np.any(head[:, 0] != 0) or np.any(head[:, 1] != 1):
+        return None
+    h = head.view(_HEAD).reshape(-1)
+    frame_len = h['frame_len']
+    flen = int(frame_len[0])
+    if flen == 0 or np.any(frame_len != flen):
+        return None
+    body = _HDR + ((12 + flen + 7) & ~7)
+    if body - _HDR + _payload_size(_IMU_FIELDS) > size - _HDR:
+        return None
+    frame = ''
+    if flen > 1:
+        text = take_rows(buf, flen - 1, starts + (_HDR + 12))
+        if len(text) > 1 and np.any(text != text[0]):
+            frame = None
+        else:
+            frame = bytes(text[0]).decode('utf-8', errors='replace')
+    gyro = take_rows(buf, 24, starts + (body + _GYRO_AT)).view('<f8')
+    accel = take_rows(buf, 24, starts + (body + _ACCEL_AT)).view('<f8')
+    stamp = h['sec'].astype(np.int64) * 1_000_000_000 + h['nanosec'].astype(np.int64)
+    return ImuColumns(stamp, accel.astype(np.float64, copy=False),
+                      gyro.astype(np.float64, copy=False), frame or '')
 
 
 def _imu_columns(n: int, groups) -> ImuColumns:

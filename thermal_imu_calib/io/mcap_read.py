@@ -26,11 +26,15 @@ ordered merge of chunks); the parts share the record layout and the error report
 from __future__ import annotations
 
 import struct
-import zlib
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
+
+try:  # zlib-ng's SIMD CRC-32: ~10x zlib's (the same checksum)
+    from zlib_ng.zlib_ng import crc32
+except ImportError:  # pragma: no cover - zlib-ng is a dependency; zlib gives the same values
+    from zlib import crc32
 
 MAGIC = b'\x89MCAP0\r\n'
 OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 1, 2, 3, 4, 5, 6
@@ -140,6 +144,33 @@ class Batch:
         return gather(self.buf, self.start, self.data_len + MESSAGE_HEADER)
 
 
+def windows(buf: np.ndarray, width: int) -> np.ndarray:
+    """Return the read-only (len - width + 1, width) view of every ``width``-byte window.
+
+    ``sliding_window_view`` for a contiguous 1-d uint8 array, built without its overhead
+    (this is called a few times per chunk); row ``i`` is ``buf[i:i + width]``.
+    """
+    if buf.ndim != 1 or buf.itemsize != 1 or not buf.flags.c_contiguous or width > len(buf):
+        from numpy.lib.stride_tricks import sliding_window_view
+        return sliding_window_view(buf, width)
+    out = np.ndarray((len(buf) - width + 1, width), buf.dtype, buf, 0, (1, 1))
+    out.flags.writeable = False
+    return out
+
+
+def take_rows(buf: np.ndarray, width: int, starts) -> np.ndarray:
+    """Return the (n, width) uint8 copy of ``buf[s:s + width]`` for each ``s`` in ``starts``.
+
+    ``windows(buf, width)[starts]``, but each row is copied as one ``V<width>`` item (a
+    memcpy) instead of byte by byte: about twice as fast for the short fields read here.
+    """
+    if (width <= 0 or buf.ndim != 1 or buf.itemsize != 1 or not buf.flags.c_contiguous
+            or width > len(buf)):
+        return windows(buf, width)[starts]
+    items = np.ndarray((len(buf) - width + 1,), np.dtype(f'V{width}'), buf, 0, (1,))
+    return items[starts].view(np.uint8).reshape(-1, width)
+
+
 def gather(buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
     """Concatenate ``buf[starts[i]:starts[i] + lengths[i]]`` for all i (uint8).
 
@@ -157,6 +188,9 @@ def gather(buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray) -> np.ndarr
         hi = np.r_[brk, len(starts)] - 1
         pieces = [buf[a:b] for a, b in zip(starts[lo].tolist(), ends[hi].tolist())]
         return pieces[0].copy() if len(pieces) == 1 else np.concatenate(pieces)
+    if lengths[0] == lengths.min() == lengths.max():
+        # equal-size pieces (records of one message type): one row gather
+        return take_rows(buf, int(lengths[0]), starts).reshape(-1)
     total = int(lengths.sum())
     shift = starts - (np.cumsum(lengths) - lengths)
     idx = np.arange(total, dtype=np.int64) + np.repeat(shift, lengths)
@@ -178,6 +212,13 @@ class _Cursor:
         out = self.data[self.pos:self.pos + n]
         self.pos += n
         return out
+
+    def view(self, n: int) -> memoryview:
+        """Return the next ``n`` bytes without a copy, for chunk-sized fields."""
+        if n < 0 or self.pos + n > self.end:
+            self.take(n)  # raises the error of a field running past its record
+        self.pos += n
+        return memoryview(self.data)[self.pos - n:self.pos]
 
     def u8(self):
         return self.take(1)[0]
@@ -262,7 +303,7 @@ def read_summary(f, path='') -> Summary | None:
                               f'{summary_start} outside the file; the file is damaged.')
     f.seek(summary_start)
     data = f.read(footer_at - summary_start)
-    if summary_crc and zlib.crc32(tail[:1 + 8 + 16], zlib.crc32(data)) != summary_crc:
+    if summary_crc and crc32(tail[:1 + 8 + 16], crc32(data)) != summary_crc:
         raise McapFormatError(f'{path}: summary section (byte {summary_start}) fails its CRC '
                               'check; the file is damaged (try `mcap recover`).')
     what = f'{path}: summary section'
@@ -352,7 +393,7 @@ class McapBulkReader:
         c.u64(), c.u64()
         usize, crc = c.u64(), c.u32()
         compression = c.string()
-        data = c.take(c.u64())
+        data = c.view(c.u64())  # the records, compressed or not, without a copy
         decompress = _decompressor(compression)
         if decompress is None:
             raise McapFormatError(f'{where}: unknown compression {compression!r}; this reader '
@@ -366,7 +407,7 @@ class McapBulkReader:
         if len(raw) != usize:
             raise McapFormatError(f'{where}: decompressed to {len(raw)} bytes, its header says '
                                   f'{usize}; the chunk is corrupt (try `mcap recover`).')
-        if crc and zlib.crc32(raw) != crc:
+        if crc and crc32(raw) != crc:
             raise McapFormatError(f'{where}: CRC mismatch of the uncompressed records; the '
                                   'chunk is corrupt (try `mcap recover`).')
         starts = self._message_starts(raw, rec, index, where)
@@ -388,7 +429,9 @@ class McapBulkReader:
             parts.append(pairs[:, 1])
         if not parts:
             return _walk(raw, where)
-        starts = np.sort(np.concatenate(parts).astype(np.int64))
+        # each index lists its records in log-time order, mostly file order: a merge of
+        # sorted runs for the stable (tim)sort
+        starts = np.sort(np.concatenate(parts).astype(np.int64), kind='stable')
         u8 = np.frombuffer(raw, np.uint8)
         n = len(raw)
         if len(starts) and (starts[0] < 0 or starts[-1] + MESSAGE_HEADER > n):
@@ -414,9 +457,7 @@ class McapBulkReader:
 
 
 def _u64_at(u8: np.ndarray, pos: np.ndarray) -> np.ndarray:
-    from numpy.lib.stride_tricks import sliding_window_view
-
-    return np.ascontiguousarray(sliding_window_view(u8, 8)[pos]).view('<u8')[:, 0]
+    return take_rows(u8, 8, pos).view('<u8')[:, 0]
 
 
 def _walk(raw: bytes, where: str) -> np.ndarray:
@@ -447,9 +488,7 @@ def _parse_messages(raw: bytes, starts: np.ndarray, where: str) -> Batch:
     if starts[-1] + MESSAGE_HEADER > len(buf):
         raise McapFormatError(f'{where}: message record at byte {int(starts[-1])} of the '
                               'uncompressed chunk is shorter than its header; corrupt chunk.')
-    from numpy.lib.stride_tricks import sliding_window_view
-
-    head = np.ascontiguousarray(sliding_window_view(buf, MESSAGE_HEADER)[starts])
+    head = take_rows(buf, MESSAGE_HEADER, starts)
     h = head.view(_MSG_DTYPE).reshape(-1)
     length = h['length'].astype(np.int64)
     short = length < MESSAGE_HEADER - 9
@@ -521,9 +560,11 @@ def iter_batches(reader: McapBulkReader, channels: Iterable[int] | None = None
         pool = concat_batches(parts)
         pool_key = np.concatenate(keys)
         # stable: record order within a chunk (and the pool's own order) is kept
-        srt = np.lexsort((pool_key, pool.log_time))
-        if np.any(srt != np.arange(len(srt))):
-            pool, pool_key = pool.take(srt), pool_key[srt]
+        lt = pool.log_time
+        if not (np.all(lt[1:] >= lt[:-1]) and np.all(pool_key[1:] >= pool_key[:-1])):
+            srt = np.lexsort((pool_key, lt))   # (already in that order: nothing to do)
+            if np.any(srt != np.arange(len(srt))):
+                pool, pool_key = pool.take(srt), pool_key[srt]
         nxt = (summary.chunk_indexes[order[k + 1]].message_start_time
                if k + 1 < len(order) else None)
         if nxt is None:
