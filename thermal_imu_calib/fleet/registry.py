@@ -264,9 +264,9 @@ def family_threshold(n_tests, family_rate=FAMILY_RATE):
     two-sided tests of jointly normal z with any correlation, so the consecutive changes
     sharing a calibration and the trend of the same values need no independence.
     """
-    from scipy.stats import norm
+    from scipy.special import ndtri
     p = -np.expm1(np.log1p(-family_rate) / max(n_tests, 1))
-    return float(norm.isf(p / 2))
+    return float(-ndtri(p / 2))
 
 
 def unit_tests(rows, std_scale=None):
