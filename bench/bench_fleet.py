@@ -3,13 +3,19 @@
 ``speed``: simulate-fleet (default 20 units x 5 logs, seed 0), then ``fleet calibrate`` on
 a LocalCluster of 1 and of 2 single-threaded worker processes; prints wall time,
 speed-up, CPU utilisation (worker CPU seconds / (wall x workers)) and the peak RSS per
-worker. ``alarms``: for each seed, simulate a fleet, calibrate it per 20-day period
-and count the alarms on stable units (false) and on drifting/step units (detected).
+worker. ``alarms``: for each seed, simulate a fleet and calibrate it per 20-day period
+(one calibration per log) on a LocalCluster, once: the registry and the truth are cached
+in ``--cache`` (default /tmp/alarms_cache/<units>x<logs>/seed_N), so a change of the alarm
+statistic re-evaluates in seconds. Then count the alarms (``registry.assess``) on stable
+units (false) and on drifting/step units (detected), and summarise the z of the stable
+units' tests with the fit's own std (are the stds honest?).
 
-    .venv/bin/python bench/bench_fleet.py speed
-    .venv/bin/python bench/bench_fleet.py alarms --seeds 20 --units 8 --logs-per-unit 3
+    nice -n 10 .venv/bin/python bench/bench_fleet.py speed
+    nice -n 10 .venv/bin/python bench/bench_fleet.py alarms --seeds 20 --units 8 --logs-per-unit 3
+    nice -n 10 .venv/bin/python bench/bench_fleet.py alarms --seeds 10 --units 20 --logs-per-unit 5
 
-Results go to bench/results/bench_fleet_<mode>.json and a markdown table on stdout.
+Results go to bench/results/bench_fleet_speed.json, bench_fleet_alarms.json (8 x 3) or
+bench_fleet_alarms_<units>x<logs>.json.
 """
 
 import argparse
@@ -89,48 +95,141 @@ def speed(args):
     return out
 
 
+def cache_dir(cache, units, logs_per_unit, seed):
+    """Return the cache directory of one simulated and calibrated fleet."""
+    return os.path.join(cache, f'{units}x{logs_per_unit}', f'seed_{seed}')
+
+
+def calibrated_fleet(client, cache, units, logs_per_unit, seed, reduce_fn):
+    """Return DIR holding reg/ (the registry) and fleet_truth.csv of one seed, cached.
+
+    Simulates the fleet, calibrates it per 20-day period (one calibration per log) and keeps
+    only the registry and the truth (the logs are deleted); a second call reads the cache,
+    so a change of the alarm statistic re-evaluates without recalibrating.
+    """
+    d = cache_dir(cache, units, logs_per_unit, seed)
+    if os.path.isfile(os.path.join(d, 'reg', reg.INDEX)):
+        return d
+    tmp = d + '.tmp'
+    shutil.rmtree(tmp, ignore_errors=True)
+    os.makedirs(tmp)
+    try:
+        design = FleetDesign(units=units, logs_per_unit=logs_per_unit, seed=seed)
+        logs = os.path.join(tmp, 'logs')
+        t = time.perf_counter()
+        simulate_fleet(logs, design, client)
+        paths = expand_inputs([logs])
+        units_out, failed = run_fleet(client, paths, GroupBy('frame_id'), reduce_fn, {},
+                                      design.spacing_days * 2 / 3, progress=False)
+        reg.add(os.path.join(tmp, 'reg'), [
+            (u.sensor, u.result.calibration, u.end_ns, u.start_ns, u.logs)
+            for u in units_out if not u.error])
+        shutil.copy(os.path.join(logs, 'fleet_truth.csv'), tmp)
+        with open(os.path.join(tmp, 'refused.json'), 'w') as f:
+            json.dump({'failed_logs': [h.path for h in failed],
+                       'failed_units': [[u.sensor, u.error] for u in units_out if u.error],
+                       'seconds': round(time.perf_counter() - t, 1)}, f)
+        shutil.rmtree(logs)
+        os.replace(tmp, d)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return d
+
+
+def evaluate_seed(d, seed, std_scale=None):
+    """Return one seed's row: stable units flagged (false) and drifting/step units flagged."""
+    rows = reg.read_index(os.path.join(d, 'reg'))
+    found, info = reg.assess(rows, std_scale=std_scale)
+    flagged = {s for s, a in found.items() if a}
+    truth = read_truth(d)
+    stable = {u for u, t in truth.items() if t['kind'] == 'stable'}
+    with open(os.path.join(d, 'refused.json')) as f:
+        refused = json.load(f)
+    worst = max(stable, key=lambda u: info['max_abs_z'].get(u, 0.0))
+    return {'seed': seed, 'stable': len(stable), 'false_alarms': len(flagged & stable),
+            'falsely_flagged': {u: found[u] for u in sorted(flagged & stable)},
+            'special': len(truth) - len(stable), 'detected': len(flagged - stable),
+            'missed': sorted(set(truth) - stable - flagged), 'tests': info['tests'],
+            'threshold_sigma': round(info['threshold_sigma'], 3),
+            'worst_stable': [worst, round(info['max_abs_z'].get(worst, 0.0), 2)],
+            'weakest_special': min(([u, round(info['max_abs_z'][u], 2)]
+                                    for u in set(truth) - stable if u in info['max_abs_z']),
+                                   key=lambda x: x[1], default=None),
+            'refused': len(refused['failed_logs']) + len(refused['failed_units'])}
+
+
+def stable_z(d, std_scale):
+    """Return {test kind: z list} of the stable units (truth): consecutive changes, trends.
+
+    With ``std_scale`` {} the fit's own stds: what says whether they are honest.
+    """
+    truth = read_truth(d)
+    rows = [r for r in reg.read_index(os.path.join(d, 'reg'))
+            if truth[r['sensor']]['kind'] == 'stable']
+    out = {}
+    for rs in reg.by_sensor(rows).values():
+        for prev, cur in zip(rs, rs[1:]):
+            for name, z in reg.compare(prev, cur, std_scale=std_scale).items():
+                out.setdefault(f'{name} change', []).extend(z.tolist())
+        if len(rs) >= 3:
+            for name in reg.ALARM_ON:
+                out.setdefault(f'd{name}0 trend', []).extend(
+                    reg.trend(rs, name, std_scale).tolist())
+    return out
+
+
+def _z_summary(v):
+    import numpy as np
+    from scipy.stats import kstest
+    v = np.asarray(v, float)
+    v = v[np.isfinite(v)]
+    return {'n': len(v), 'ks_p_vs_normal_0_1': round(float(kstest(v, 'norm').pvalue), 4),
+            'mean': round(float(v.mean()), 3), 'std': round(float(v.std()), 3),
+            'robust_std': round(float(1.4826 * np.median(np.abs(v - np.median(v)))), 3),
+            'frac_abs_gt_2': round(float(np.mean(np.abs(v) > 2)), 4),
+            'frac_abs_gt_3': round(float(np.mean(np.abs(v) > 3)), 4),
+            'max_abs': round(float(np.abs(v).max()), 2)}
+
+
 def alarms(args):
     """Alarm rates over seeds: false alarms on stable units, detection of the others."""
     from distributed import Client, LocalCluster
-    rows_out = []
     cargs = cli.build_parser().parse_args(['fleet', 'calibrate', '-', '-o', '-'])
     reduce_fn = functools.partial(cli.calibrate_collected, calibrate_args(cargs))
-    with LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True,
-                      dashboard_address=':0') as cluster, Client(cluster) as client:
-        for seed in range(args.seeds):
-            d = tempfile.mkdtemp(prefix='bench_fleet_alarm_')
-            try:
-                design = FleetDesign(units=args.units, logs_per_unit=args.logs_per_unit,
-                                     seed=seed)
-                simulate_fleet(os.path.join(d, 'logs'), design, client)
-                paths = expand_inputs([os.path.join(d, 'logs')])
-                units, failed = run_fleet(client, paths, GroupBy('frame_id'), reduce_fn, {},
-                                          design.spacing_days * 2 / 3, progress=False)
-                reg.add(os.path.join(d, 'reg'), [
-                    (u.sensor, u.result.calibration, u.end_ns, u.start_ns, u.logs)
-                    for u in units if not u.error])
-                flagged = {s for s, a in reg.alarms(reg.read_index(os.path.join(d, 'reg')))
-                           .items() if a}
-                truth = read_truth(os.path.join(d, 'logs'))
-                stable = {u for u, t in truth.items() if t['kind'] == 'stable'}
-                row = {'seed': seed, 'stable': len(stable),
-                       'false_alarms': len(flagged & stable),
-                       'special': len(truth) - len(stable), 'detected': len(flagged - stable),
-                       'refused': sum(bool(u.error) for u in units) + len(failed)}
-                rows_out.append(row)
-                print(row, flush=True)
-            finally:
-                shutil.rmtree(d, ignore_errors=True)
+    seeds = range(args.first_seed, args.first_seed + args.seeds)
+    todo = [s for s in seeds if not os.path.isfile(os.path.join(cache_dir(
+        args.cache, args.units, args.logs_per_unit, s), 'reg', reg.INDEX))]
+    if todo:
+        with LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True,
+                          dashboard_address=':0') as cluster, Client(cluster) as client:
+            for seed in todo:
+                d = calibrated_fleet(client, args.cache, args.units, args.logs_per_unit, seed,
+                                     reduce_fn)
+                print(f'seed {seed}: calibrated into {d}', flush=True)
+    rows_out, zs_fit = [], {}
+    for seed in seeds:
+        d = cache_dir(args.cache, args.units, args.logs_per_unit, seed)
+        row = evaluate_seed(d, seed)
+        rows_out.append(row)
+        print(row, flush=True)
+        for k, v in stable_z(d, {}).items():
+            zs_fit.setdefault(k, []).extend(v)
     fa = sum(r['false_alarms'] for r in rows_out)
     st = sum(r['stable'] for r in rows_out)
     det = sum(r['detected'] for r in rows_out)
     sp = sum(r['special'] for r in rows_out)
-    out = {'units': args.units, 'logs_per_unit': args.logs_per_unit, 'seeds': args.seeds,
-           'per_seed': rows_out, 'false_alarm_rate': fa / max(st, 1),
-           'detection_rate': det / max(sp, 1),
-           'seeds_with_false_alarm': sum(r['false_alarms'] > 0 for r in rows_out)}
+    out = {'units': args.units, 'logs_per_unit': args.logs_per_unit, 'seeds': list(seeds),
+           'family_rate': reg.FAMILY_RATE, 'std_scale': reg.STD_SCALE,
+           'alarm_on': [f'd{n}0' for n in reg.ALARM_ON],
+           'false_alarms': fa, 'stable_units': st, 'false_alarm_rate': fa / max(st, 1),
+           'seeds_with_false_alarm': sum(r['false_alarms'] > 0 for r in rows_out),
+           'detected': det, 'special_units': sp, 'detection_rate': det / max(sp, 1),
+           'stable_z_fit_std': {k: _z_summary(v) for k, v in zs_fit.items()},
+           'per_seed': rows_out}
+    for k, v in out['stable_z_fit_std'].items():
+        print(f'stable units, z of {k} with the fit\'s std: {v}')
     print(f'false alarms: {fa} of {st} stable units ({100 * fa / max(st, 1):.1f} %), '
-          f'{out["seeds_with_false_alarm"]} of {args.seeds} seeds with any; detected '
+          f'{out["seeds_with_false_alarm"]} of {len(seeds)} seeds with any; detected '
           f'{det} of {sp} drifting/step units ({100 * det / max(sp, 1):.1f} %)')
     return out
 
@@ -143,13 +242,19 @@ def main():
     ap.add_argument('--logs-per-unit', type=int, default=None)
     ap.add_argument('--seeds', type=int, default=20)
     ap.add_argument('--workers', type=int, default=2)
+    ap.add_argument('--first-seed', type=int, default=0)
+    ap.add_argument('--cache', default='/tmp/alarms_cache',
+                    help='alarms: one calibrated registry per fleet size and seed is kept here '
+                         '(DIR/<units>x<logs>/seed_N); delete it to recalibrate')
     args = ap.parse_args()
     big = args.mode == 'speed'
     args.units = args.units or (20 if big else 8)
     args.logs_per_unit = args.logs_per_unit or (5 if big else 3)
     out = speed(args) if big else alarms(args)
     os.makedirs(os.path.join(HERE, 'results'), exist_ok=True)
-    path = os.path.join(HERE, 'results', f'bench_fleet_{args.mode}.json')
+    name = args.mode if big or (args.units, args.logs_per_unit) == (8, 3) else \
+        f'alarms_{args.units}x{args.logs_per_unit}'
+    path = os.path.join(HERE, 'results', f'bench_fleet_{name}.json')
     with open(path, 'w') as f:
         json.dump(out, f, indent=1)
     print(f'wrote {path}')

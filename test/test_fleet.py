@@ -109,6 +109,46 @@ def test_corrupt_log_reported_others_calibrated(fleet, tmp_path, capsys):
     assert got == ref
 
 
+def _temperature_all_nan(a):
+    a['temperature'][:] = np.nan
+
+
+def _imu_stamps_duplicated(a):
+    a['stamp_ns'][1::2] = a['stamp_ns'][::2][:len(a['stamp_ns'][1::2])]
+
+
+def test_map_step_applies_the_input_gate(fleet, tmp_path, capsys):
+    """A log ``calibrate`` refuses (test_hostile_cli's inputs) is refused by the map step too."""
+    from _hostile import recording, write_bag
+    work = tmp_path / 'logs'
+    for unit in ('u01', 'u02'):
+        shutil.copytree(os.path.join(fleet, unit), work / unit)
+    imu, temp = recording()
+    bad = {write_bag(str(work / 'u01' / 'nan_temperature.mcap'), imu, temp,
+                     _temperature_all_nan): 'no usable reading',
+           write_bag(str(work / 'u02' / 'stamps_duplicated.mcap'), imu, temp,
+                     _imu_stamps_duplicated): 'do not increase'}
+    for path, cause in bad.items():   # what calibrate says of the same log
+        assert cli.main(['calibrate', path, '-o', str(tmp_path / 'one.yaml')]) == 2
+        assert cause in capsys.readouterr().err
+    registry = str(tmp_path / 'reg')
+    code = cli.main(['fleet', 'calibrate', str(work), '--workers', '2',
+                     '--by', r'path:/(u\d+)/', '-o', registry])
+    out = capsys.readouterr().out
+    assert code == 1, out
+    for path, cause in bad.items():
+        line = next(ln for ln in out.splitlines() if ln.startswith(f'FAILED {path}: '))
+        assert cause in line and 'not used' in line
+    rows = {r['sensor']: r for r in reg.read_index(registry)}
+    assert sorted(rows) == ['u01', 'u02']
+    assert all(int(r['logs']) == DESIGN.logs_per_unit for r in rows.values())
+    # the refused log did not enter the reduction: u01 is what calibrate gives on its logs
+    got, ref = _plain(_latest(registry, 'u01')), _plain(_reference(fleet, 'u01', tmp_path))
+    notes = got.pop('notes')
+    assert 'nan_temperature.mcap was not used' in notes[-1] and notes[:-1] == ref.pop('notes')
+    assert got == ref
+
+
 def _free_port():
     with socket.socket() as s:
         s.bind(('127.0.0.1', 0))
@@ -217,7 +257,10 @@ def test_alarms_history_and_compensate(fleet, tmp_path, capsys):
     assert cli.main(['history', registry, '--sensor', step, '--html', str(html)]) == 0
     text = capsys.readouterr().out
     assert f'{step}: {DESIGN.logs_per_unit} calibrations  ALARM' in text
-    assert 'db0 changed' in text and '<svg' in html.read_text()
+    assert text.startswith('alarm rule: ') and '1 % family-wise false-alarm rate' in text
+    assert f'db0 {"xyz"[int(truth[step]["step_axis"])]} changed' in text
+    page = html.read_text()
+    assert '<svg' in page and '1 % family-wise false-alarm rate' in page
 
     # compensate: every log with the calibration of its own period, outputs mirror the tree
     out_dir = tmp_path / 'out'
@@ -271,3 +314,44 @@ def test_inputs_and_registry_lookup(fleet, tmp_path):
         reg.valid_at(str(d), 'u99')
     idx = yaml.safe_load(open(os.path.join(d, 'u00', reg.iso(10 * day) + '.yaml')))
     assert idx['accel']['kind'] == cal.accel.kind
+
+
+def _synthetic_rows(rng, units, cals, sigma, drift=0.0, prefix='u'):
+    """Index rows of a fleet whose true db0/dk0 are constant (+ ``drift`` per 30 days)."""
+    day = 86400 * 10 ** 9
+    rows = []
+    for u in range(units):
+        for k in range(cals):
+            r = {'sensor': f'{prefix}{u:02d}', 'time': reg.iso((30 * k + 1) * day),
+                 'accel_model': 'field_polynomial', 'residual_rms_mps2': '5e-4'}
+            for a in 'xyz':
+                r[f'accel.T0.{a}'] = 30.0 + rng.normal(0, 0.3)
+                for name, s, d in (('db0', sigma, drift * k), ('dk0', 1e-4, 0.0)):
+                    r[f'accel.{name}.{a}'] = d + rng.normal(0, s)
+                    r[f'accel.{name}.{a}_std'] = s
+            rows.append(r)
+    return rows
+
+
+def test_alarm_statistic_keeps_its_family_rate_and_matches_numpy():
+    """Honest stds: a stable fleet is flagged at about the stated family rate; trend = polyfit."""
+    rng = np.random.default_rng(14)
+    scale = {'b': 1.0, 'k': 1.0}
+    n_fleets = 400
+    flagged = sum(any(reg.assess(_synthetic_rows(rng, 20, 5, 1e-3), std_scale=scale)[0].values())
+                  for _ in range(n_fleets))
+    # expected 4 of 400 at 1 %; Poisson(4) exceeds 12 with probability 1e-3
+    assert flagged <= 12
+    assert reg.family_threshold(1, 0.05) == pytest.approx(1.959964, abs=1e-5)
+    # the trend z is numpy's weighted polyfit slope over its std
+    rows = _synthetic_rows(rng, 1, 5, 1e-3, drift=2e-3, prefix='drifting')
+    z = reg.trend(rows, 'b', scale)
+    t = np.array([reg.parse_time(r['time']) for r in rows]) / 86400e9
+    t_ref = np.mean([[r[f'accel.T0.{a}'] for a in 'xyz'] for r in rows], axis=0)
+    vs = np.array([reg.at_temperature(r, 'b', t_ref) for r in rows])
+    for i in range(3):
+        p, cov = np.polyfit(t, vs[:, 0, i], 1, w=1 / vs[:, 1, i], cov='unscaled')
+        assert z[i] == pytest.approx(p[0] / np.sqrt(cov[0, 0]), rel=1e-9)
+    # a drift of 2 sigma per 30 days: no consecutive change is, the trend over 5 is flagged
+    found = reg.assess(rows + _synthetic_rows(rng, 19, 5, 1e-3), std_scale=scale)[0]
+    assert found['drifting00'] and all('trend' in a for a in found['drifting00'])

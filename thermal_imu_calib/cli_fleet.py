@@ -108,8 +108,9 @@ def _collect_kw(args):
     from .cli_calibrate import _detector
     kw = {'imu_topic': args.imu_topic, 'temperature_topics': args.temperature_topic,
           'chunk_size': args.chunk_size, 'max_gap_s': args.max_gap}
-    if hasattr(args, 'min_hold'):
+    if hasattr(args, 'min_hold'):    # fleet calibrate: calibrate's detector and input gate
         kw['detector'] = _detector(args)
+        kw['input_units'] = calibrate_args(args).input_unit
     return kw
 
 
@@ -128,6 +129,8 @@ def cmd_fleet_calibrate(args):
         units, failed = run_fleet(client, paths, group, reduce_fn, _collect_kw(args),
                                   args.period, args.progress)
     entries, bad = [], len(failed)
+    for path, warning in (w for u in units for w in u.warnings):
+        print(f'{path}: warning: {warning}', file=sys.stderr)
     for f in failed:
         print(f'FAILED {f.path}: {f.error} (sensor unknown; not used)')
     for u in units:
@@ -227,15 +230,15 @@ def cmd_history(args):
     if not rows:
         raise ValueError(f'{args.registry}: no {reg.INDEX}; run `thermal-imu-calib fleet '
                          'calibrate ... -o REGISTRY_DIR` first')
-    fleet_alarms = reg.alarms(rows)       # residual family = the whole fleet
+    fleet_alarms, info = reg.assess(rows)   # the family (tests, residuals) = the whole fleet
     if args.sensor:
         unknown = sorted(set(args.sensor) - {r['sensor'] for r in rows})
         if unknown:
             raise ValueError(f'no sensor {unknown[0]!r} in {args.registry}')
         rows = [r for r in rows if r['sensor'] in args.sensor]
-    print(format_history(rows, fleet_alarms))
+    print(format_history(rows, fleet_alarms, info))
     if args.html:
-        write_html(args.html, rows, fleet_alarms)
+        write_html(args.html, rows, fleet_alarms, info)
         print(f'wrote {args.html}')
     return 0
 

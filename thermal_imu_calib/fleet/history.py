@@ -30,12 +30,19 @@ def _cell(row, col, scale):
     return f'{v * scale:.3g}' + (f'+-{s * scale:.2g}' if np.isfinite(s) else '')
 
 
-def format_history(rows, alarms):
-    """Return the text report: one block per unit, one line per calibration."""
-    out = []
+def format_history(rows, alarms, info=None):
+    """Return the text report: one block per unit, one line per calibration.
+
+    ``info`` is ``registry.assess``'s second result: the rule (stated first), the notes.
+    """
+    info = info or {}
+    out = [info['rule']] if 'rule' in info else []
     for sensor, rs in _by_sensor(rows).items():
         flag = alarms.get(sensor) or []
-        out.append(f'{sensor}: {len(rs)} calibrations' + ('  ALARM' if flag else '  ok'))
+        zmax = info.get('max_abs_z', {}).get(sensor, np.nan)
+        out.append(f'{sensor}: {len(rs)} calibrations' + ('  ALARM' if flag else '  ok') + (
+            f' (largest |z| {zmax:.2f}, threshold {info["threshold_sigma"]:.2f})'
+            if np.isfinite(zmax) else ''))
         cols = [(c, lbl, sc, u) for c, lbl, sc, u in SHOWN
                 if any(np.isfinite(_f(r, f'{c}.x')) for r in rs)]
         out.append('  ' + f'{"time":17s} {"model":17s} {"resid":>8s}  ' + '  '.join(
@@ -45,6 +52,7 @@ def format_history(rows, alarms):
             out.append(f'  {r["time"]:17s} {r["accel_model"][:17]:17s} {res:8.2e}  ' + '  '.join(
                 '/'.join(_cell(r, f'{c}.{a}', sc) for a in AXES) for c, _, sc, _ in cols))
         out.extend(f'  ALARM {a}' for a in flag)
+        out.extend(f'  note: {n}' for n in info.get('notes', {}).get(sensor, []))
     n = sum(bool(v) for s, v in alarms.items() if s in _by_sensor(rows))
     out.append(f'{n} of {len(_by_sensor(rows))} units flagged')
     return '\n'.join(out)
@@ -87,17 +95,20 @@ def _svg(rs, col, scale, unit, w=360, h=120):
     return ''.join(parts)
 
 
-def write_html(path, rows, alarms):
+def write_html(path, rows, alarms, info=None):
     """Write the HTML history report (tables, +-1 sigma plots x red, y green, z blue)."""
+    info = info or {}
     body = ['<h1>thermal_imu_calib fleet history</h1>',
             '<p>Per unit: parameters of each calibration with +-1 sigma (x red, y green, '
-            'z blue), oldest left. Alarms: consecutive change &gt; 3 sigma, or latest '
-            'residual out of family.</p>']
+            'z blue), oldest left.</p>',
+            f'<p><b>{html.escape(info.get("rule", "alarms"))}</b></p>']
     for sensor, rs in _by_sensor(rows).items():
         flag = alarms.get(sensor) or []
         body.append(f'<h2>{html.escape(sensor)} ' + ('<span style="color:#c00">ALARM</span>'
                                                      if flag else 'ok') + '</h2>')
         body.extend(f'<p style="color:#c00">{html.escape(a)}</p>' for a in flag)
+        body.extend(f'<p>note: {html.escape(n)}</p>'
+                    for n in info.get('notes', {}).get(sensor, []))
         body.append('<div>' + ''.join(_svg(rs, c, sc, u) for c, _, sc, u in SHOWN
                                       if any(np.isfinite(_f(r, f'{c}.x')) for r in rs))
                     + '</div>')

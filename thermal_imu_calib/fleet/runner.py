@@ -2,8 +2,12 @@
 
 Map (``collect_log``): stream one log and keep what ``calibrate`` keeps, its window
 statistics and pose changes (``pipeline.Collected``: kilobytes; samples never travel), plus
-the sensor id and the log's time span. A log that cannot be read is a ``LogResult`` with
-``error`` set, never an exception, so it cannot stop the job.
+the sensor id and the log's time span. The map applies the input gate ``calibrate``
+applies (``io.gate.check_report``: no usable IMU data, broken stamps, temperature inputs
+that cannot support a thermal fit), so a log ``calibrate`` would refuse never enters its
+unit's reduction; what the gate dropped and counted comes back as ``warnings``. A log that
+cannot be read or is refused is a ``LogResult`` with ``error`` set, never an exception, so
+it cannot stop the job.
 
 Reduce: the caller's ``reduce_fn(collected_list, paths) -> CalibrationResult`` runs once per
 sensor (and ``period``) on a worker, with the map results passed as futures (they move
@@ -35,11 +39,12 @@ class LogResult:
     collected: object = None       # pipeline.Collected, None on error
     error: str = ''
     seconds: float = 0.0
+    warnings: list = field(default_factory=list)   # the input gate's 'dropped and counted'
 
     def header(self):
         """Return this result without the windows (what the client needs to group)."""
         return LogResult(self.path, self.sensor, self.start_ns, self.end_ns, self.imu_topic,
-                         None, self.error, self.seconds)
+                         None, self.error, self.seconds, list(self.warnings))
 
 
 @dataclass
@@ -53,18 +58,28 @@ class UnitResult:
     result: object = None          # estimation.calibrate.CalibrationResult, None on error
     error: str = ''
     excluded: list = field(default_factory=list)   # (path, reason) of this unit's bad logs
+    warnings: list = field(default_factory=list)   # (path, warning) of its good logs
 
 
-def _reason(e):
+def _reason(e, path=None):
+    from ..io.log_info import LogError
     msg = str(e).strip().replace('\n', ' ') or type(e).__name__
-    return msg if isinstance(e, (ValueError, OSError)) or 'Error' not in type(e).__name__ \
-        else f'{type(e).__name__}: {msg}'
+    if path is not None and msg.startswith(f'{path}: '):
+        msg = msg[len(f'{path}: '):]      # the FAILED line names the path already
+    return msg if isinstance(e, (ValueError, OSError, LogError)) \
+        or 'Error' not in type(e).__name__ else f'{type(e).__name__}: {msg}'
 
 
 def collect_log(path, group, imu_topic=None, temperature_topics=None, detector=None,
-                chunk_size=20000, max_gap_s=5.0):
-    """Map task: stream one log; returns a LogResult (``error`` set instead of raising)."""
+                chunk_size=20000, max_gap_s=5.0, input_units=()):
+    """Map task: stream one log and gate it; returns a LogResult (``error`` set, not raised).
+
+    ``input_units`` are ``calibrate``'s ``--input-unit`` items (default: every temperature
+    input in degC, bounded to -80..200 as ``calibrate`` does). The log is refused, as
+    ``calibrate`` refuses it, when ``io.gate.check_report`` raises.
+    """
     from ..io.bag import open_log
+    from ..io.gate import check_report
     from ..io.topics import resolve_topics
     from ..pipeline import collect_windows
     t = time.perf_counter()
@@ -76,13 +91,15 @@ def collect_log(path, group, imu_topic=None, temperature_topics=None, detector=N
             res.start_ns, res.end_ns = int(reader.start_ns or 0), int(reader.end_ns or 0)
             res.imu_topic, _ = resolve_topics(reader, imu_topic, temperature_topics)
         c = collect_windows(path, res.imu_topic, temperature_topics, detector, chunk_size,
-                            max_gap_s, progress=False, motion=True)
+                            max_gap_s, progress=False, motion=True,
+                            input_units=list(input_units))
+        res.sensor = res.sensor or group.sensor_id(path, c.frame_id, res.imu_topic)
+        res.warnings = check_report(os.fspath(path), c.gate, max_gap_s)
         if c.imu_messages == 0:
             raise ValueError('the log has no Imu messages')
-        res.sensor = res.sensor or group.sensor_id(path, c.frame_id, res.imu_topic)
         res.collected = c
     except Exception as e:   # noqa: B902 - a bad log is data: reported, never raised
-        res.error = _reason(e)
+        res.error = _reason(e, os.fspath(path))
     res.seconds = time.perf_counter() - t
     return res
 
@@ -97,7 +114,8 @@ def reduce_unit(sensor, reduce_fn, heads, *results):
     good = [r for r in results if not r.error]
     out = UnitResult(sensor, [r.path for r in good], min(h.start_ns for h in heads),
                      max(h.end_ns for h in heads),
-                     excluded=[(r.path, r.error) for r in results if r.error])
+                     excluded=[(r.path, r.error) for r in results if r.error],
+                     warnings=[(r.path, w) for r in good for w in r.warnings])
     if not good:
         out.error = 'no readable log'
         return out
