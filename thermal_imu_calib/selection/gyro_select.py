@@ -83,13 +83,11 @@ def heldout_gyro(ctx, accel_model, acc):
     ``acc``: (m, 3) specific force per window corrected by ``accel_model``.
     """
     from ..estimation.calibrate import _gyro_bias
-    from .select import _hold_folds, clamp_to_training
+    from .select import _hold_folds, clamp_to_training, fold_masks
     w, o = ctx.windows, ctx.options
     folds, n = _hold_folds(w)
     out = {'polynomial': np.zeros(len(w)), 'whole_unit': np.zeros(len(w))}
-    for f in range(n):
-        test = folds == f
-        train = ~test
+    for test, train in fold_masks(folds, n):
         tg = clamp_to_training(ctx.tg, w, train, ctx.gyro_input, o.range_margin)
         poly, _ = _gyro_bias(ctx.subset(train))
         wu = _whole_unit_gyro(ctx, train, acc, accel_model).model
