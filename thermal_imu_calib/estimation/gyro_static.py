@@ -76,6 +76,65 @@ def _normal_solve(a, b):
     return sol / cs
 
 
+def _scaled_solve(n, b):
+    """Solve the normal equations ``n s = b`` as ``_normal_solve`` does (column scaling).
+
+    Scaling the design columns by their norms is scaling ``n`` by sqrt(diag(n)) on both
+    sides. Raises LinAlgError when the scaled system is singular.
+    """
+    cs = np.sqrt(np.diag(n))
+    cs[cs == 0] = 1.0
+    return np.linalg.solve(n / np.outer(cs, cs), b / cs) / cs
+
+
+class _AxisBlocks:
+    """The linear design of the static fit, one small dense block per gyro axis.
+
+    ``x`` (m, 3, n_lin) is block diagonal: axis i depends only on the columns ``cols[i]``
+    (beta[i], cw_j[i], row i of G), so its weighted normal matrix is the sum over axes of
+    ``D_i^T W_i D_i`` scattered into those columns. ``d`` (3, m, p) holds the blocks D_i,
+    ``q`` (3, m, p * p) the row outer products (the normal matrix is then one weighted
+    sum per axis).
+    """
+
+    def __init__(self, x, cols):
+        self.cols = cols
+        self.d = np.ascontiguousarray(x[:, np.arange(3)[:, None], cols].transpose(1, 0, 2))
+        m, p = self.d.shape[1:]
+        self.q = np.einsum('imp,imq->impq', self.d, self.d).reshape(3, m, p * p)
+
+    def predict(self, theta):
+        """Return the (m, 3) linear prediction ``einsum('nik,k->ni', x, theta)``."""
+        return np.matmul(self.d, theta[self.cols][:, :, None])[:, :, 0].T
+
+    def system(self, free):
+        """Return (normal, rhs): functions of the (m, 3) weights (and weighted data).
+
+        ``normal(wt)`` is ``sum_n x_free^T diag(wt_n) x_free`` (k, k) and ``rhs(wy)`` is
+        ``sum_n x_free^T wy_n`` (k,), over the k = free.sum() free columns in order.
+        """
+        k = int(np.sum(free))
+        p = self.cols.shape[1]
+        pos = np.full(len(free), -1)
+        pos[np.flatnonzero(free)] = np.arange(k)
+        lp = pos[self.cols]                                        # (3, p), -1: fixed
+        ax, a, b = np.nonzero((lp[:, :, None] >= 0) & (lp[:, None, :] >= 0))
+        tn, sn = lp[ax, a] * k + lp[ax, b], (ax * p + a) * p + b
+        ax, a = np.nonzero(lp >= 0)
+        tr, sr = lp[ax, a], ax * p + a
+
+        def normal(wt):
+            out = np.zeros(k * k)
+            out[tn] = np.matmul(wt.T[:, None, :], self.q).ravel()[sn]
+            return out.reshape(k, k)
+
+        def rhs(wy):
+            out = np.zeros(k)
+            out[tr] = np.matmul(wy.T[:, None, :], self.d).ravel()[sr]
+            return out
+        return normal, rhs
+
+
 def fit_gyro_static(windows, axis_inputs, acc, t0, latitude=None, omega1=None, priors=None,
                     order=2, ratio=DETERMINED_RATIO, robust=True, k_robust=3.0):
     """Estimate the gyro thermal bias polynomial and g-sensitivity from stationary windows.
@@ -126,9 +185,19 @@ def fit_gyro_static(windows, axis_inputs, acc, t0, latitude=None, omega1=None, p
         x[:, :, lay.slices[f'cw{j}']] = np.einsum('ij,ni->nij', np.eye(3), dx ** j)
     x[:, :, lay.slices['G']] = np.einsum('ij,nk->nijk', np.eye(3), acc).reshape(m, 3, 9)
 
+    blocks = _AxisBlocks(x, np.array([
+        [lay.slices['beta'].start + i] + [lay.slices[f'cw{j}'].start + i
+                                          for j in range(1, no + 1)]
+        + list(range(lay.slices['G'].start + 3 * i, lay.slices['G'].start + 3 * i + 3))
+        for i in range(3)]))
+    sig2 = sig ** 2
+    onehot = np.zeros((nh, m))                     # (h, m): sums over the windows of a hold
+    onehot[inv, np.arange(m)] = 1.0
+    up_rate = EARTH_RATE * s_lat * up[inv]         # vertical earth rate, rate domain
+
     def earth(psi, mh):
-        hdir = np.cos(psi)[inv, None] * e1[inv] + np.sin(psi)[inv, None] * e2[inv]
-        return EARTH_RATE * (s_lat * up[inv] + mh * hdir) @ om1_inv.T, hdir
+        hdir = np.cos(psi)[:, None] * e1 + np.sin(psi)[:, None] * e2
+        return (EARTH_RATE * (s_lat * up + mh * hdir) @ om1_inv.T)[inv]
 
     def full_jac(theta, psi, mh):
         """Whitened Jacobian (3m, size) of r = (y - pred) / sigma."""
@@ -138,15 +207,30 @@ def fit_gyro_static(windows, axis_inputs, acc, t0, latitude=None, omega1=None, p
                                   + np.cos(psi)[inv, None] * e2[inv]) @ om1_inv.T
         jac[np.arange(m), :, n_lin + inv] = dpsi
         if not lat_known:
-            _, hdir = earth(psi, mh)
+            hdir = np.cos(psi)[inv, None] * e1[inv] + np.sin(psi)[inv, None] * e2[inv]
             jac[:, :, lay.slices['mh'].start] = EARTH_RATE * hdir @ om1_inv.T
         return (-jac / sig[:, :, None]).reshape(3 * m, lay.size)
+
+    def dense_solve(idx, wts, yy, with_prior):
+        """Solve one linear step from the dense (3m, k) design (singular-system fallback)."""
+        sw = np.sqrt(wts) / sig
+        a = (x[:, :, idx] * sw[:, :, None]).reshape(3 * m, len(idx))
+        b = (yy * sw).ravel()
+        if with_prior:
+            sd = lay.std[idx]
+            a = np.vstack([a, np.diag(1.0 / sd)])
+            b = np.r_[b, lay.mean[idx] / sd]
+        return _normal_solve(a, b)
 
     def solve(free_lin, theta0, with_prior, weights_kind):
         """Alternate linear LS and closed-form headings; return (theta, psi, mh, r, w)."""
         idx = np.flatnonzero(free_lin)
-        x_free, x_fixed = x[:, :, idx], x[:, :, ~free_lin]  # loop invariants
+        normal, rhs = blocks.system(free_lin)
         theta = theta0.copy()
+        p_fixed = blocks.predict(np.where(free_lin, 0.0, theta))     # loop invariant
+        p_free = blocks.predict(np.where(free_lin, theta, 0.0))
+        prior_n = 1.0 / lay.std[idx] ** 2 if with_prior else 0.0
+        prior_b = lay.mean[idx] / lay.std[idx] ** 2 if with_prior else 0.0
         psi = np.zeros(nh)
         mh = c_lat if lat_known else 0.5
         wts = np.ones((m, 3))
@@ -154,44 +238,41 @@ def fit_gyro_static(windows, axis_inputs, acc, t0, latitude=None, omega1=None, p
         c = np.inf
         for stage in stages:
             if stage != 'linear':
-                r_all = ((y - np.einsum('nik,k->ni', x, theta) - earth(psi, mh)[0])
-                         / sig).ravel()
+                r_all = ((y - (p_fixed + p_free) - earth(psi, mh)) / sig).ravel()
                 c = k_robust * max(robust_scale(r_all), 1.0)
+            n_eq = None
             for _ in range(60):
-                we, hdir = earth(psi, mh)
-                yy = y - we - np.einsum('nik,k->ni', x_fixed, theta[~free_lin])
-                r = (yy - np.einsum('nik,k->ni', x_free, theta[idx])) / sig
+                yy = y - earth(psi, mh) - p_fixed
+                r = (yy - p_free) / sig
                 if stage == 'soft_l1':
                     wts = 1.0 / np.sqrt(1.0 + (r / c) ** 2)
                 elif stage == 'cauchy':
                     wts = 1.0 / (1.0 + (r / c) ** 2)
-                sw = np.sqrt(wts) / sig
-                a = (x_free * sw[:, :, None]).reshape(3 * m, len(idx))
-                b = (yy * sw).ravel()
-                if with_prior:
-                    sd = lay.std[idx]
-                    a = np.vstack([a, np.diag(1.0 / sd)])
-                    b = np.r_[b, lay.mean[idx] / sd]
-                new = _normal_solve(a, b)
+                wt = wts / sig2                    # squared row weights
+                if n_eq is None or stage != 'linear':   # constant weights: same matrix
+                    n_eq = normal(wt)
+                    n_eq[np.diag_indices(len(idx))] += prior_n
+                try:
+                    new = _scaled_solve(n_eq, rhs(wt * yy) + prior_b) if len(idx) else \
+                        np.zeros(0)
+                except np.linalg.LinAlgError:
+                    new = dense_solve(idx, wts, yy, with_prior)
                 step = np.max(np.abs(new - theta[idx]) / lay.std[idx]) if len(idx) else 0.0
                 theta[idx] = new
+                p_free = blocks.predict(np.where(free_lin, theta, 0.0))
                 # headings (and horizontal magnitude) in closed form, rate domain
-                rr = (y - np.einsum('nik,k->ni', x, theta)) @ om1.T \
-                    - EARTH_RATE * s_lat * up[inv]
-                ww = np.mean(wts / sig ** 2, axis=1)
-                dh = np.zeros((nh, 3))
-                np.add.at(dh, inv, rr * ww[:, None])
+                rr = (y - (p_fixed + p_free)) @ om1.T - up_rate
+                ww = np.mean(wt, axis=1)
+                dh = onehot @ (rr * ww[:, None])
                 psi_new = np.arctan2(np.sum(dh * e2, 1), np.sum(dh * e1, 1))
                 if not lat_known:
                     hd = np.cos(psi_new)[:, None] * e1 + np.sin(psi_new)[:, None] * e2
-                    wsum = np.zeros(nh)
-                    np.add.at(wsum, inv, ww)
-                    mh = float(np.clip(np.sum(dh * hd) / (EARTH_RATE * wsum.sum()), 0.0, 1.0))
+                    mh = float(np.clip(np.sum(dh * hd) / (EARTH_RATE * ww.sum()), 0.0, 1.0))
                 dpsi = float(np.max(np.abs(np.angle(np.exp(1j * (psi_new - psi))))))
                 psi = psi_new
                 if step < 1e-6 and dpsi < 1e-4:
                     break
-        r = (y - np.einsum('nik,k->ni', x, theta) - earth(psi, mh)[0]) / sig
+        r = (y - (p_fixed + p_free) - earth(psi, mh)) / sig
         return theta, psi, mh, r, wts, c
 
     lin_cand = lay.candidates[:n_lin]
