@@ -108,10 +108,11 @@ class _AxisBlocks:
         return np.matmul(self.d, theta[self.cols][:, :, None])[:, :, 0].T
 
     def system(self, free):
-        """Return (normal, rhs): functions of the (m, 3) weights (and weighted data).
+        """Return functions (normal, rhs, gather) of the normal equations of the free columns.
 
-        ``normal(wt)`` is ``sum_n x_free^T diag(wt_n) x_free`` (k, k) and ``rhs(wy)`` is
-        ``sum_n x_free^T wy_n`` (k,), over the k = free.sum() free columns in order.
+        ``normal(wt)``: ``sum_n x_free^T diag(wt_n) x_free`` (k, k) for (m, 3) weights;
+        ``rhs(wy)``: ``sum_n x_free^T wy_n`` (k,); ``gather(r3)``: the (k,) free entries
+        of per-axis (3, p) block vectors; k = free.sum(), free columns in order.
         """
         k = int(np.sum(free))
         p = self.cols.shape[1]
@@ -128,11 +129,148 @@ class _AxisBlocks:
             out[tn] = np.matmul(wt.T[:, None, :], self.q).ravel()[sn]
             return out.reshape(k, k)
 
-        def rhs(wy):
+        def gather(r3):
             out = np.zeros(k)
-            out[tr] = np.matmul(wy.T[:, None, :], self.d).ravel()[sr]
+            out[tr] = r3.ravel()[sr]
             return out
-        return normal, rhs
+
+        def rhs(wy):
+            return gather(np.matmul(wy.T[:, None, :], self.d))
+        return normal, rhs, gather
+
+
+class _StaticProblem:
+    """Data of the static alternation: window means, design, hold frames, earth-rate model.
+
+    y, sig (m, 3) rad/s; x (m, 3, n_lin) linear design; cols (3, p) the columns of x
+    each axis depends on; inv (m,) hold index per window; up, e1, e2 (h, 3) hold frames;
+    om1 (3, 3); s_lat, c_lat: sin/cos latitude (0, 1 without latitude); mean, std the
+    priors of the linear parameters.
+    """
+
+    def __init__(self, y, sig, x, cols, inv, frames, om1, lat, mean, std, k_robust):
+        self.y, self.sig, self.x, self.inv = y, sig, x, inv
+        self.up, self.e1, self.e2 = frames
+        self.om1, self.om1_inv = om1, np.linalg.inv(om1)
+        self.lat_known = lat is not None
+        self.s_lat = np.sin(np.radians(lat)) if self.lat_known else 0.0
+        self.c_lat = np.cos(np.radians(lat)) if self.lat_known else 1.0
+        self.mean, self.std, self.k_robust = mean, std, k_robust
+        self.blocks = _AxisBlocks(x, cols)
+        m, nh = len(y), len(self.up)
+        self.onehot = np.zeros((nh, m))            # (h, m): sums over the windows of a hold
+        self.onehot[inv, np.arange(m)] = 1.0
+        self.up_rate = EARTH_RATE * self.s_lat * self.up[inv]   # vertical earth rate
+
+    def earth_holds(self, psi, mh):
+        """Return the (h, 3) earth rate per hold in the raw domain (rad/s)."""
+        hdir = np.cos(psi)[:, None] * self.e1 + np.sin(psi)[:, None] * self.e2
+        return EARTH_RATE * (self.s_lat * self.up + mh * hdir) @ self.om1_inv.T
+
+    def residual(self, theta, psi, mh):
+        """Return the (m, 3) whitened residual (y - pred) / sigma."""
+        return (self.y - self.blocks.predict(theta) - self.earth_holds(psi, mh)[self.inv]) \
+            / self.sig
+
+    def jacobian(self, psi, mh, size):
+        """Whitened Jacobian (3m, size) of r = (y - pred) / sigma (linear, psi[, mh])."""
+        m, _, n_lin = self.x.shape
+        inv, e1, e2, nsig = self.inv, self.e1, self.e2, -self.sig[:, :, None]
+        jac = np.zeros((m, 3, size))
+        jac[:, :, :n_lin] = self.x / nsig
+        dpsi = EARTH_RATE * mh * (-np.sin(psi)[inv, None] * e1[inv]
+                                  + np.cos(psi)[inv, None] * e2[inv]) @ self.om1_inv.T
+        jac[np.arange(m), :, n_lin + inv] = dpsi / nsig[:, :, 0]
+        if not self.lat_known:
+            hdir = np.cos(psi)[inv, None] * e1[inv] + np.sin(psi)[inv, None] * e2[inv]
+            jac[:, :, size - 1] = EARTH_RATE * hdir @ self.om1_inv.T / nsig[:, :, 0]
+        return jac.reshape(3 * m, size)
+
+    def dense_step(self, idx, wts, yy, with_prior):
+        """Solve one linear step from the dense (3m, k) design (singular-system fallback)."""
+        sw = np.sqrt(wts) / self.sig
+        a = (self.x[:, :, idx] * sw[:, :, None]).reshape(-1, len(idx))
+        b = (yy * sw).ravel()
+        if with_prior:
+            sd = self.std[idx]
+            a = np.vstack([a, np.diag(1.0 / sd)])
+            b = np.r_[b, self.mean[idx] / sd]
+        return _normal_solve(a, b)
+
+
+def _alternate(pb, free_lin, theta0, with_prior, weights_kind):
+    """Alternate linear LS and closed-form headings; return (theta, psi, mh, r, wts, c).
+
+    Stages 'linear' (then 'soft_l1', 'cauchy' when ``weights_kind`` is 'robust'), each
+    until the linear step is < 1e-6 prior std and the headings move < 1e-4 rad. With
+    constant weights (the 'linear' stage) every per-window sum of an iteration is a sum
+    over holds of precomputed per-hold sums (the earth rate is constant within a hold).
+    """
+    idx = np.flatnonzero(free_lin)
+    k = len(idx)
+    bl, sig, inv, om1 = pb.blocks, pb.sig, pb.inv, pb.om1
+    normal, rhs, gather = bl.system(free_lin)
+    theta = theta0.copy()
+    y_fix = pb.y - bl.predict(np.where(free_lin, 0.0, theta))    # fixed columns: invariant
+    prior_n = 1.0 / pb.std[idx] ** 2 if with_prior else 0.0
+    prior_b = pb.mean[idx] / pb.std[idx] ** 2 if with_prior else 0.0
+    nh = len(pb.up)
+    psi = np.zeros(nh)
+    mh = pb.c_lat if pb.lat_known else 0.5
+    wts = np.ones((len(pb.y), 3))
+    stages = ['linear'] if weights_kind == 'linear' else ['linear', 'soft_l1', 'cauchy']
+    c = np.inf
+
+    def solve_step(n_eq, b, yy):
+        if not k:
+            return np.zeros(0)
+        n_eq[np.diag_indices(k)] += prior_n
+        try:
+            return _scaled_solve(n_eq, b + prior_b)
+        except np.linalg.LinAlgError:
+            return pb.dense_step(idx, wts, yy() if callable(yy) else yy, with_prior)
+
+    for stage in stages:
+        if stage != 'linear':
+            c = pb.k_robust * max(robust_scale(pb.residual(theta, psi, mh).ravel()), 1.0)
+        else:                                  # constant weights: per-hold sums, once
+            wt = wts / sig ** 2
+            ww = np.mean(wt, axis=1)
+            hold_wd = np.matmul(pb.onehot, wt.T[:, :, None] * bl.d)     # (3, h, p)
+            hold_pd = np.matmul(pb.onehot * ww, bl.d)                   # (3, h, p)
+            n_const, b_fix = normal(wt), rhs(wt * y_fix)
+            dh_fix = (pb.onehot * ww) @ (y_fix @ om1.T - pb.up_rate)
+        for _ in range(60):
+            if stage == 'linear':
+                we = pb.earth_holds(psi, mh)
+                b = b_fix - gather(np.einsum('ihp,hi->ip', hold_wd, we))
+                new = solve_step(n_const.copy(), b, lambda: y_fix - we[inv])
+            else:
+                yy = y_fix - pb.earth_holds(psi, mh)[inv]
+                r = (yy - bl.predict(np.where(free_lin, theta, 0.0))) / sig
+                wts = (1.0 / np.sqrt(1.0 + (r / c) ** 2) if stage == 'soft_l1' else
+                       1.0 / (1.0 + (r / c) ** 2))
+                wt = wts / sig ** 2
+                new = solve_step(normal(wt), rhs(wt * yy), yy)
+                ww = np.mean(wt, axis=1)
+            step = np.max(np.abs(new - theta[idx]) / pb.std[idx]) if k else 0.0
+            theta[idx] = new
+            # headings (and horizontal magnitude) in closed form, rate domain
+            th3 = np.where(free_lin, theta, 0.0)[bl.cols][:, :, None]
+            if stage == 'linear':
+                dh = dh_fix - np.matmul(hold_pd, th3)[:, :, 0].T @ om1.T
+            else:
+                rr = (y_fix - bl.predict(np.where(free_lin, theta, 0.0))) @ om1.T - pb.up_rate
+                dh = pb.onehot @ (rr * ww[:, None])
+            psi_new = np.arctan2(np.sum(dh * pb.e2, 1), np.sum(dh * pb.e1, 1))
+            if not pb.lat_known:
+                hd = np.cos(psi_new)[:, None] * pb.e1 + np.sin(psi_new)[:, None] * pb.e2
+                mh = float(np.clip(np.sum(dh * hd) / (EARTH_RATE * ww.sum()), 0.0, 1.0))
+            dpsi = float(np.max(np.abs(np.angle(np.exp(1j * (psi_new - psi))))))
+            psi = psi_new
+            if step < 1e-6 and dpsi < 1e-4:
+                break
+    return theta, psi, mh, pb.residual(theta, psi, mh), wts, c
 
 
 def fit_gyro_static(windows, axis_inputs, acc, t0, latitude=None, omega1=None, priors=None,
@@ -151,7 +289,6 @@ def fit_gyro_static(windows, axis_inputs, acc, t0, latitude=None, omega1=None, p
     """
     priors = priors or Priors()
     om1 = np.eye(3) if omega1 is None else np.asarray(omega1, float)
-    om1_inv = np.linalg.inv(om1)
     has_x = axis_inputs is not None
     no = order if has_x else 0
     y = np.asarray(windows.gyro, float)
@@ -161,8 +298,6 @@ def fit_gyro_static(windows, axis_inputs, acc, t0, latitude=None, omega1=None, p
     ids, inv, up, e1, e2 = _hold_frames(windows, acc)
     nh = len(ids)
     lat_known = latitude is not None
-    s_lat = np.sin(np.radians(latitude)) if lat_known else 0.0
-    c_lat = np.cos(np.radians(latitude)) if lat_known else 1.0
 
     lay = Layout()
     lay.add('beta', (3,), 0.0, priors.gyro_bias)
@@ -185,110 +320,27 @@ def fit_gyro_static(windows, axis_inputs, acc, t0, latitude=None, omega1=None, p
         x[:, :, lay.slices[f'cw{j}']] = np.einsum('ij,ni->nij', np.eye(3), dx ** j)
     x[:, :, lay.slices['G']] = np.einsum('ij,nk->nijk', np.eye(3), acc).reshape(m, 3, 9)
 
-    blocks = _AxisBlocks(x, np.array([
-        [lay.slices['beta'].start + i] + [lay.slices[f'cw{j}'].start + i
-                                          for j in range(1, no + 1)]
-        + list(range(lay.slices['G'].start + 3 * i, lay.slices['G'].start + 3 * i + 3))
-        for i in range(3)]))
-    sig2 = sig ** 2
-    onehot = np.zeros((nh, m))                     # (h, m): sums over the windows of a hold
-    onehot[inv, np.arange(m)] = 1.0
-    up_rate = EARTH_RATE * s_lat * up[inv]         # vertical earth rate, rate domain
-
-    def earth(psi, mh):
-        hdir = np.cos(psi)[:, None] * e1 + np.sin(psi)[:, None] * e2
-        return (EARTH_RATE * (s_lat * up + mh * hdir) @ om1_inv.T)[inv]
-
-    def full_jac(theta, psi, mh):
-        """Whitened Jacobian (3m, size) of r = (y - pred) / sigma."""
-        jac = np.zeros((m, 3, lay.size))
-        jac[:, :, :n_lin] = x
-        dpsi = EARTH_RATE * mh * (-np.sin(psi)[inv, None] * e1[inv]
-                                  + np.cos(psi)[inv, None] * e2[inv]) @ om1_inv.T
-        jac[np.arange(m), :, n_lin + inv] = dpsi
-        if not lat_known:
-            hdir = np.cos(psi)[inv, None] * e1[inv] + np.sin(psi)[inv, None] * e2[inv]
-            jac[:, :, lay.slices['mh'].start] = EARTH_RATE * hdir @ om1_inv.T
-        return (-jac / sig[:, :, None]).reshape(3 * m, lay.size)
-
-    def dense_solve(idx, wts, yy, with_prior):
-        """Solve one linear step from the dense (3m, k) design (singular-system fallback)."""
-        sw = np.sqrt(wts) / sig
-        a = (x[:, :, idx] * sw[:, :, None]).reshape(3 * m, len(idx))
-        b = (yy * sw).ravel()
-        if with_prior:
-            sd = lay.std[idx]
-            a = np.vstack([a, np.diag(1.0 / sd)])
-            b = np.r_[b, lay.mean[idx] / sd]
-        return _normal_solve(a, b)
-
-    def solve(free_lin, theta0, with_prior, weights_kind):
-        """Alternate linear LS and closed-form headings; return (theta, psi, mh, r, w)."""
-        idx = np.flatnonzero(free_lin)
-        normal, rhs = blocks.system(free_lin)
-        theta = theta0.copy()
-        p_fixed = blocks.predict(np.where(free_lin, 0.0, theta))     # loop invariant
-        p_free = blocks.predict(np.where(free_lin, theta, 0.0))
-        prior_n = 1.0 / lay.std[idx] ** 2 if with_prior else 0.0
-        prior_b = lay.mean[idx] / lay.std[idx] ** 2 if with_prior else 0.0
-        psi = np.zeros(nh)
-        mh = c_lat if lat_known else 0.5
-        wts = np.ones((m, 3))
-        stages = ['linear'] if weights_kind == 'linear' else ['linear', 'soft_l1', 'cauchy']
-        c = np.inf
-        for stage in stages:
-            if stage != 'linear':
-                r_all = ((y - (p_fixed + p_free) - earth(psi, mh)) / sig).ravel()
-                c = k_robust * max(robust_scale(r_all), 1.0)
-            n_eq = None
-            for _ in range(60):
-                yy = y - earth(psi, mh) - p_fixed
-                r = (yy - p_free) / sig
-                if stage == 'soft_l1':
-                    wts = 1.0 / np.sqrt(1.0 + (r / c) ** 2)
-                elif stage == 'cauchy':
-                    wts = 1.0 / (1.0 + (r / c) ** 2)
-                wt = wts / sig2                    # squared row weights
-                if n_eq is None or stage != 'linear':   # constant weights: same matrix
-                    n_eq = normal(wt)
-                    n_eq[np.diag_indices(len(idx))] += prior_n
-                try:
-                    new = _scaled_solve(n_eq, rhs(wt * yy) + prior_b) if len(idx) else \
-                        np.zeros(0)
-                except np.linalg.LinAlgError:
-                    new = dense_solve(idx, wts, yy, with_prior)
-                step = np.max(np.abs(new - theta[idx]) / lay.std[idx]) if len(idx) else 0.0
-                theta[idx] = new
-                p_free = blocks.predict(np.where(free_lin, theta, 0.0))
-                # headings (and horizontal magnitude) in closed form, rate domain
-                rr = (y - (p_fixed + p_free)) @ om1.T - up_rate
-                ww = np.mean(wt, axis=1)
-                dh = onehot @ (rr * ww[:, None])
-                psi_new = np.arctan2(np.sum(dh * e2, 1), np.sum(dh * e1, 1))
-                if not lat_known:
-                    hd = np.cos(psi_new)[:, None] * e1 + np.sin(psi_new)[:, None] * e2
-                    mh = float(np.clip(np.sum(dh * hd) / (EARTH_RATE * ww.sum()), 0.0, 1.0))
-                dpsi = float(np.max(np.abs(np.angle(np.exp(1j * (psi_new - psi))))))
-                psi = psi_new
-                if step < 1e-6 and dpsi < 1e-4:
-                    break
-        r = (y - (p_fixed + p_free) - earth(psi, mh)) / sig
-        return theta, psi, mh, r, wts, c
+    cols = np.array([[lay.slices['beta'].start + i]
+                     + [lay.slices[f'cw{j}'].start + i for j in range(1, no + 1)]
+                     + [lay.slices['G'].start + 3 * i + k for k in range(3)] for i in range(3)])
+    pb = _StaticProblem(y, sig, x, cols, inv, (up, e1, e2), om1, latitude, lay.mean[:n_lin],
+                        lay.std[:n_lin], k_robust)
 
     lin_cand = lay.candidates[:n_lin]
-    theta1, psi1, mh1, r1, _, _ = solve(lin_cand, lay.mean[:n_lin].copy(), True, 'linear')
+    theta1, psi1, mh1, r1, _, _ = _alternate(pb, lin_cand, lay.mean[:n_lin].copy(), True,
+                                             'linear')
     s = max(robust_scale(r1), 1.0)
     chains = [[lay.slices[f'cw{j}'].start + i for j in range(1, no + 1)] for i in range(3)]
-    free, ratios = decide_determined(lay, full_jac(theta1, psi1, mh1), s, ratio,
+    free, ratios = decide_determined(lay, pb.jacobian(psi1, mh1, lay.size), s, ratio,
                                      chains=chains, nuisance=nuis)
     theta0 = lay.mean[:n_lin].copy()
     theta0[free[:n_lin]] = theta1[free[:n_lin]]
-    theta, psi, mh, r, wts, c = solve(free[:n_lin], theta0, False,
-                                      'robust' if robust else 'linear')
+    theta, psi, mh, r, wts, c = _alternate(pb, free[:n_lin], theta0, False,
+                                           'robust' if robust else 'linear')
     scale = robust_scale(r) if robust else float(np.sqrt(np.mean(r * r)))
     p = np.r_[theta, psi, [] if lat_known else [mh]]
     idx = np.flatnonzero(free | nuis)
-    jf = full_jac(theta, psi, mh)[:, idx] * np.sqrt(wts).ravel()[:, None]
+    jf = pb.jacobian(psi, mh, lay.size)[:, idx] * np.sqrt(wts).ravel()[:, None]
     try:
         cov = np.linalg.pinv(jf.T @ jf) * max(scale, 1.0) ** 2
         sd = np.sqrt(np.maximum(np.diag(cov), 0))
