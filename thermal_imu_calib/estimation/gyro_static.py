@@ -76,15 +76,16 @@ def _normal_solve(a, b):
     return sol / cs
 
 
-def _scaled_solve(n, b):
-    """Solve the normal equations ``n s = b`` as ``_normal_solve`` does (column scaling).
+def _scaled_solver(n):
+    """Return b -> the solution of the normal equations ``n s = b`` as ``_normal_solve`` finds it.
 
-    Scaling the design columns by their norms is scaling ``n`` by sqrt(diag(n)) on both
-    sides. Raises LinAlgError when the scaled system is singular.
+    Scaling the design columns by their norms (``_normal_solve``) is scaling ``n`` by
+    sqrt(diag(n)) on both sides. Raises LinAlgError when the scaled matrix is singular.
     """
     cs = np.sqrt(np.diag(n))
     cs[cs == 0] = 1.0
-    return np.linalg.solve(n / np.outer(cs, cs), b / cs) / cs
+    inv = np.linalg.inv(n / np.outer(cs, cs))
+    return lambda b: inv @ (b / cs) / cs
 
 
 class _AxisBlocks:
@@ -214,21 +215,27 @@ def _alternate(pb, free_lin, theta0, with_prior, weights_kind):
     y_fix = pb.y - bl.predict(np.where(free_lin, 0.0, theta))    # fixed columns: invariant
     prior_n = 1.0 / pb.std[idx] ** 2 if with_prior else 0.0
     prior_b = pb.mean[idx] / pb.std[idx] ** 2 if with_prior else 0.0
-    nh = len(pb.up)
-    psi = np.zeros(nh)
+    psi = np.zeros(len(pb.up))
     mh = pb.c_lat if pb.lat_known else 0.5
     wts = np.ones((len(pb.y), 3))
     stages = ['linear'] if weights_kind == 'linear' else ['linear', 'soft_l1', 'cauchy']
     c = np.inf
 
-    def solve_step(n_eq, b, yy):
+    def solver(wt):
+        """Return b -> linear step for the weights wt (None when the system is singular)."""
         if not k:
-            return np.zeros(0)
+            return lambda b: np.zeros(0)
+        n_eq = normal(wt)
         n_eq[np.diag_indices(k)] += prior_n
         try:
-            return _scaled_solve(n_eq, b + prior_b)
+            return _scaled_solver(n_eq)
         except np.linalg.LinAlgError:
-            return pb.dense_step(idx, wts, yy() if callable(yy) else yy, with_prior)
+            return None
+
+    def linear_step(solve, b, yy):
+        if solve is None:           # singular: least squares on the dense design, as before
+            return pb.dense_step(idx, wts, yy(), with_prior)
+        return solve(b + prior_b)
 
     for stage in stages:
         if stage != 'linear':
@@ -238,26 +245,26 @@ def _alternate(pb, free_lin, theta0, with_prior, weights_kind):
             ww = np.mean(wt, axis=1)
             hold_wd = np.matmul(pb.onehot, wt.T[:, :, None] * bl.d)     # (3, h, p)
             hold_pd = np.matmul(pb.onehot * ww, bl.d)                   # (3, h, p)
-            n_const, b_fix = normal(wt), rhs(wt * y_fix)
+            solve, b_fix = solver(wt), rhs(wt * y_fix)
             dh_fix = (pb.onehot * ww) @ (y_fix @ om1.T - pb.up_rate)
         for _ in range(60):
             if stage == 'linear':
                 we = pb.earth_holds(psi, mh)
-                b = b_fix - gather(np.einsum('ihp,hi->ip', hold_wd, we))
-                new = solve_step(n_const.copy(), b, lambda: y_fix - we[inv])
+                b = b_fix - gather(np.matmul(we.T[:, None, :], hold_wd))
+                new = linear_step(solve, b, lambda: y_fix - we[inv])
             else:
                 yy = y_fix - pb.earth_holds(psi, mh)[inv]
                 r = (yy - bl.predict(np.where(free_lin, theta, 0.0))) / sig
                 wts = (1.0 / np.sqrt(1.0 + (r / c) ** 2) if stage == 'soft_l1' else
                        1.0 / (1.0 + (r / c) ** 2))
                 wt = wts / sig ** 2
-                new = solve_step(normal(wt), rhs(wt * yy), yy)
+                new = linear_step(solver(wt), rhs(wt * yy), lambda: yy)
                 ww = np.mean(wt, axis=1)
             step = np.max(np.abs(new - theta[idx]) / pb.std[idx]) if k else 0.0
             theta[idx] = new
             # headings (and horizontal magnitude) in closed form, rate domain
-            th3 = np.where(free_lin, theta, 0.0)[bl.cols][:, :, None]
             if stage == 'linear':
+                th3 = np.where(free_lin, theta, 0.0)[bl.cols][:, :, None]
                 dh = dh_fix - np.matmul(hold_pd, th3)[:, :, 0].T @ om1.T
             else:
                 rr = (y_fix - bl.predict(np.where(free_lin, theta, 0.0))) @ om1.T - pb.up_rate
