@@ -173,19 +173,53 @@ class _StaticProblem:
         return (self.y - self.blocks.predict(theta) - self.earth_holds(psi, mh)[self.inv]) \
             / self.sig
 
+    def nuisance_rates(self, psi, mh):
+        """Return the (m, 3) derivatives of the earth rate w.r.t. the window's heading and
+        the horizontal magnitude (None with latitude), raw domain."""
+        inv, e1, e2 = self.inv, self.e1, self.e2
+        dpsi = EARTH_RATE * mh * (-np.sin(psi)[inv, None] * e1[inv]
+                                  + np.cos(psi)[inv, None] * e2[inv]) @ self.om1_inv.T
+        if self.lat_known:
+            return dpsi, None
+        hdir = np.cos(psi)[inv, None] * e1[inv] + np.sin(psi)[inv, None] * e2[inv]
+        return dpsi, EARTH_RATE * hdir @ self.om1_inv.T
+
     def jacobian(self, psi, mh, size):
         """Whitened Jacobian (3m, size) of r = (y - pred) / sigma (linear, psi[, mh])."""
         m, _, n_lin = self.x.shape
-        inv, e1, e2, nsig = self.inv, self.e1, self.e2, -self.sig[:, :, None]
+        nsig = -self.sig
         jac = np.zeros((m, 3, size))
-        jac[:, :, :n_lin] = self.x / nsig
-        dpsi = EARTH_RATE * mh * (-np.sin(psi)[inv, None] * e1[inv]
-                                  + np.cos(psi)[inv, None] * e2[inv]) @ self.om1_inv.T
-        jac[np.arange(m), :, n_lin + inv] = dpsi / nsig[:, :, 0]
-        if not self.lat_known:
-            hdir = np.cos(psi)[inv, None] * e1[inv] + np.sin(psi)[inv, None] * e2[inv]
-            jac[:, :, size - 1] = EARTH_RATE * hdir @ self.om1_inv.T / nsig[:, :, 0]
+        jac[:, :, :n_lin] = self.x / nsig[:, :, None]
+        dpsi, dmh = self.nuisance_rates(psi, mh)
+        jac[np.arange(m), :, n_lin + self.inv] = dpsi / nsig
+        if dmh is not None:
+            jac[:, :, size - 1] = dmh / nsig
         return jac.reshape(3 * m, size)
+
+    def gram(self, psi, mh, wts, size):
+        """Return ``J^T diag(wts) J`` (size, size) of J = ``jacobian`` from its blocks.
+
+        Linear columns: the per-axis normal matrices; a heading column is non-zero on
+        its hold's windows only (its block with the others is diagonal).
+        """
+        n_lin, nh = self.x.shape[2], len(self.up)
+        w = wts / self.sig ** 2
+        cols, d = self.blocks.cols, self.blocks.d
+        dpsi, dmh = self.nuisance_rates(psi, mh)
+        out = np.zeros((size, size))
+        out[:n_lin, :n_lin] = self.blocks.system(np.ones(n_lin, bool))[0](w)
+        lin_psi = np.matmul(self.onehot, (w * dpsi).T[:, :, None] * d)      # (3, h, p)
+        for i in range(3):
+            out[cols[i], n_lin:n_lin + nh] = lin_psi[i].T
+        out[np.arange(n_lin, n_lin + nh), np.arange(n_lin, n_lin + nh)] = \
+            self.onehot @ np.sum(w * dpsi ** 2, axis=1)
+        if dmh is not None:
+            out[cols, size - 1] = np.matmul((w * dmh).T[:, None, :], d)[:, 0, :]
+            out[n_lin:n_lin + nh, size - 1] = self.onehot @ np.sum(w * dpsi * dmh, axis=1)
+            out[size - 1, size - 1] = np.sum(w * dmh ** 2)
+        out[n_lin:, :n_lin] = out[:n_lin, n_lin:].T
+        out[size - 1, n_lin:size - 1] = out[n_lin:size - 1, size - 1]
+        return out
 
     def dense_step(self, idx, wts, yy, with_prior):
         """Solve one linear step from the dense (3m, k) design (singular-system fallback)."""
@@ -347,9 +381,9 @@ def fit_gyro_static(windows, axis_inputs, acc, t0, latitude=None, omega1=None, p
     scale = robust_scale(r) if robust else float(np.sqrt(np.mean(r * r)))
     p = np.r_[theta, psi, [] if lat_known else [mh]]
     idx = np.flatnonzero(free | nuis)
-    jf = pb.jacobian(psi, mh, lay.size)[:, idx] * np.sqrt(wts).ravel()[:, None]
     try:
-        cov = np.linalg.pinv(jf.T @ jf) * max(scale, 1.0) ** 2
+        cov = np.linalg.pinv(pb.gram(psi, mh, wts, lay.size)[np.ix_(idx, idx)]) \
+            * max(scale, 1.0) ** 2
         sd = np.sqrt(np.maximum(np.diag(cov), 0))
     except np.linalg.LinAlgError:
         sd = np.full(len(idx), np.nan)
