@@ -162,6 +162,7 @@ class _StaticProblem:
         self.onehot = np.zeros((nh, m))            # (h, m): sums over the windows of a hold
         self.onehot[inv, np.arange(m)] = 1.0
         self.up_rate = EARTH_RATE * self.s_lat * self.up[inv]   # vertical earth rate
+        self.sig2 = sig ** 2
 
     def earth_holds(self, psi, mh):
         """Return the (h, 3) earth rate per hold in the raw domain (rad/s)."""
@@ -203,7 +204,7 @@ class _StaticProblem:
         its hold's windows only (its block with the others is diagonal).
         """
         n_lin, nh = self.x.shape[2], len(self.up)
-        w = wts / self.sig ** 2
+        w = wts / self.sig2
         cols, d = self.blocks.cols, self.blocks.d
         dpsi, dmh = self.nuisance_rates(psi, mh)
         out = np.zeros((size, size))
@@ -274,8 +275,9 @@ def _alternate(pb, free_lin, theta0, with_prior, weights_kind):
     for stage in stages:
         if stage != 'linear':
             c = pb.k_robust * max(robust_scale(pb.residual(theta, psi, mh).ravel()), 1.0)
+            p_free = bl.predict(np.where(free_lin, theta, 0.0))
         else:                                  # constant weights: per-hold sums, once
-            wt = wts / sig ** 2
+            wt = wts / pb.sig2
             ww = np.mean(wt, axis=1)
             hold_wd = np.matmul(pb.onehot, wt.T[:, :, None] * bl.d)     # (3, h, p)
             hold_pd = np.matmul(pb.onehot * ww, bl.d)                   # (3, h, p)
@@ -287,13 +289,13 @@ def _alternate(pb, free_lin, theta0, with_prior, weights_kind):
                 b = b_fix - gather(np.matmul(we.T[:, None, :], hold_wd))
                 new = linear_step(solve, b, lambda: y_fix - we[inv])
             else:
-                yy = y_fix - pb.earth_holds(psi, mh)[inv]
-                r = (yy - bl.predict(np.where(free_lin, theta, 0.0))) / sig
+                yy = y_fix - np.take(pb.earth_holds(psi, mh), inv, axis=0)
+                r = (yy - p_free) / sig
                 wts = (1.0 / np.sqrt(1.0 + (r / c) ** 2) if stage == 'soft_l1' else
                        1.0 / (1.0 + (r / c) ** 2))
-                wt = wts / sig ** 2
+                wt = wts / pb.sig2
                 new = linear_step(solver(wt), rhs(wt * yy), lambda: yy)
-                ww = np.mean(wt, axis=1)
+                ww = (wt[:, 0] + wt[:, 1] + wt[:, 2]) / 3.0           # mean over the axes
             step = np.max(np.abs(new - theta[idx]) / pb.std[idx]) if k else 0.0
             theta[idx] = new
             # headings (and horizontal magnitude) in closed form, rate domain
@@ -301,8 +303,8 @@ def _alternate(pb, free_lin, theta0, with_prior, weights_kind):
                 th3 = np.where(free_lin, theta, 0.0)[bl.cols][:, :, None]
                 dh = dh_fix - np.matmul(hold_pd, th3)[:, :, 0].T @ om1.T
             else:
-                rr = (y_fix - bl.predict(np.where(free_lin, theta, 0.0))) @ om1.T - pb.up_rate
-                dh = pb.onehot @ (rr * ww[:, None])
+                p_free = bl.predict(np.where(free_lin, theta, 0.0))
+                dh = pb.onehot @ (((y_fix - p_free) @ om1.T - pb.up_rate) * ww[:, None])
             psi_new = np.arctan2(np.sum(dh * pb.e2, 1), np.sum(dh * pb.e1, 1))
             if not pb.lat_known:
                 hd = np.cos(psi_new)[:, None] * pb.e1 + np.sin(psi_new)[:, None] * pb.e2
@@ -312,6 +314,15 @@ def _alternate(pb, free_lin, theta0, with_prior, weights_kind):
             if step < 1e-6 and dpsi < 1e-4:
                 break
     return theta, psi, mh, pb.residual(theta, psi, mh), wts, c
+
+
+def _hold_medians(v, inv, nh):
+    """Return the (nh,) median of the entries of the rows of ``v`` (m, 3) in each hold."""
+    g = np.repeat(inv, v.shape[1])
+    s = v.ravel()[np.lexsort((v.ravel(), g))]
+    n = np.bincount(g, minlength=nh)
+    start = np.cumsum(n) - n
+    return (s[start + (n - 1) // 2] + s[start + n // 2]) / 2
 
 
 def fit_gyro_static(windows, axis_inputs, acc, t0, latitude=None, omega1=None, priors=None,
@@ -392,7 +403,7 @@ def fit_gyro_static(windows, axis_inputs, acc, t0, latitude=None, omega1=None, p
     rw = r * sig
     holds_bad = []
     if robust:
-        hold_r = np.array([np.median(np.abs(r[windows.hold == h])) for h in ids])
+        hold_r = _hold_medians(np.abs(r), inv, len(ids))
         holds_bad = [int(h) for h, v in zip(ids, hold_r) if v > 4 * max(scale, 1.0)]
     notes = []
     labels = [lay.label(i) for i in range(lay.size) if not free[i] and not nuis[i]
