@@ -170,13 +170,15 @@ class _StaticProblem:
         return EARTH_RATE * (self.s_lat * self.up + mh * hdir) @ self.om1_inv.T
 
     def residual(self, theta, psi, mh):
-        """Return the (m, 3) whitened residual (y - pred) / sigma."""
+        """Return the (m, 3) whitened residual, data minus model over sigma."""
         return (self.y - self.blocks.predict(theta) - self.earth_holds(psi, mh)[self.inv]) \
             / self.sig
 
     def nuisance_rates(self, psi, mh):
-        """Return the (m, 3) derivatives of the earth rate w.r.t. the window's heading and
-        the horizontal magnitude (None with latitude), raw domain."""
+        """Return d(earth rate)/d(heading), d(earth rate)/d(magnitude) per window (m, 3).
+
+        Raw domain, rad/s per rad and rad/s; the second is None with a latitude.
+        """
         inv, e1, e2 = self.inv, self.e1, self.e2
         dpsi = EARTH_RATE * mh * (-np.sin(psi)[inv, None] * e1[inv]
                                   + np.cos(psi)[inv, None] * e2[inv]) @ self.om1_inv.T
