@@ -198,12 +198,17 @@ def test_hold_medians_match_numpy():
     assert np.array_equal(med, [np.median(v[inv == j]) for j in range(7)])
 
 
-@pytest.mark.parametrize('latitude,order,inputs,omega1,robust', [
-    (45.0, 2, True, None, True), (None, 2, True, OMEGA1, True), (-30.0, 1, True, OMEGA1, False),
-    (None, 0, False, None, False), (45.0, 2, False, OMEGA1, True)])
-def test_fit_matches_dense_reference(monkeypatch, latitude, order, inputs, omega1, robust):
+@pytest.mark.parametrize('latitude,order,inputs,omega1,robust,shuffle', [
+    (45.0, 2, True, None, True, False), (None, 2, True, OMEGA1, True, True),
+    (-30.0, 1, True, OMEGA1, False, False), (None, 0, False, None, False, True),
+    (45.0, 2, False, OMEGA1, True, False)])
+def test_fit_matches_dense_reference(monkeypatch, latitude, order, inputs, omega1, robust,
+                                     shuffle):
     w, x = synth(7, bad_hold=10, latitude=45.0 if latitude is None else latitude,
                  omega1=omega1)
+    if shuffle:                                 # holds not contiguous
+        perm = np.random.default_rng(8).permutation(len(w))
+        w, x = w.select(perm), x[perm]
     args = (w, x if inputs else None, w.accel, np.full(3, 30.0))
     kw = dict(latitude=latitude, omega1=omega1, order=order, robust=robust)
     fast = fit_gyro_static(*args, **kw)

@@ -159,10 +159,17 @@ class _StaticProblem:
         self.mean, self.std, self.k_robust = mean, std, k_robust
         self.blocks = _AxisBlocks(x, cols)
         m, nh = len(y), len(self.up)
-        self.onehot = np.zeros((nh, m))            # (h, m): sums over the windows of a hold
-        self.onehot[inv, np.arange(m)] = 1.0
+        order = np.argsort(inv, kind='stable')     # windows by hold (every hold non-empty)
+        self.order = None if np.array_equal(order, np.arange(m)) else order
+        self.starts = np.r_[0, np.cumsum(np.bincount(inv, minlength=nh))[:-1]]
         self.up_rate = EARTH_RATE * self.s_lat * self.up[inv]   # vertical earth rate
         self.sig2 = sig ** 2
+
+    def hold_sum(self, a, axis=0):
+        """Return the sums of ``a`` over the windows (along ``axis``) of each hold."""
+        if self.order is not None:
+            a = np.take(a, self.order, axis=axis)
+        return np.add.reduceat(a, self.starts, axis=axis)
 
     def earth_holds(self, psi, mh):
         """Return the (h, 3) earth rate per hold in the raw domain (rad/s)."""
@@ -211,14 +218,14 @@ class _StaticProblem:
         dpsi, dmh = self.nuisance_rates(psi, mh)
         out = np.zeros((size, size))
         out[:n_lin, :n_lin] = self.blocks.system(np.ones(n_lin, bool))[0](w)
-        lin_psi = np.matmul(self.onehot, (w * dpsi).T[:, :, None] * d)      # (3, h, p)
+        lin_psi = self.hold_sum((w * dpsi).T[:, :, None] * d, axis=1)      # (3, h, p)
         for i in range(3):
             out[cols[i], n_lin:n_lin + nh] = lin_psi[i].T
         out[np.arange(n_lin, n_lin + nh), np.arange(n_lin, n_lin + nh)] = \
-            self.onehot @ np.sum(w * dpsi ** 2, axis=1)
+            self.hold_sum(np.sum(w * dpsi ** 2, axis=1))
         if dmh is not None:
             out[cols, size - 1] = np.matmul((w * dmh).T[:, None, :], d)[:, 0, :]
-            out[n_lin:n_lin + nh, size - 1] = self.onehot @ np.sum(w * dpsi * dmh, axis=1)
+            out[n_lin:n_lin + nh, size - 1] = self.hold_sum(np.sum(w * dpsi * dmh, axis=1))
             out[size - 1, size - 1] = np.sum(w * dmh ** 2)
         out[n_lin:, :n_lin] = out[:n_lin, n_lin:].T
         out[size - 1, n_lin:size - 1] = out[n_lin:size - 1, size - 1]
@@ -281,10 +288,10 @@ def _alternate(pb, free_lin, theta0, with_prior, weights_kind):
         else:                                  # constant weights: per-hold sums, once
             wt = wts / pb.sig2
             ww = np.mean(wt, axis=1)
-            hold_wd = np.matmul(pb.onehot, wt.T[:, :, None] * bl.d)     # (3, h, p)
-            hold_pd = np.matmul(pb.onehot * ww, bl.d)                   # (3, h, p)
+            hold_wd = pb.hold_sum(wt.T[:, :, None] * bl.d, axis=1)      # (3, h, p)
+            hold_pd = pb.hold_sum(ww[:, None] * bl.d, axis=1)           # (3, h, p)
             solve, b_fix = solver(wt), rhs(wt * y_fix)
-            dh_fix = (pb.onehot * ww) @ (y_fix @ om1.T - pb.up_rate)
+            dh_fix = pb.hold_sum((y_fix @ om1.T - pb.up_rate) * ww[:, None])
         for _ in range(60):
             if stage == 'linear':
                 we = pb.earth_holds(psi, mh)
@@ -306,7 +313,7 @@ def _alternate(pb, free_lin, theta0, with_prior, weights_kind):
                 dh = dh_fix - np.matmul(hold_pd, th3)[:, :, 0].T @ om1.T
             else:
                 p_free = bl.predict(np.where(free_lin, theta, 0.0))
-                dh = pb.onehot @ (((y_fix - p_free) @ om1.T - pb.up_rate) * ww[:, None])
+                dh = pb.hold_sum(((y_fix - p_free) @ om1.T - pb.up_rate) * ww[:, None])
             psi_new = np.arctan2(np.sum(dh * pb.e2, 1), np.sum(dh * pb.e1, 1))
             if not pb.lat_known:
                 hd = np.cos(psi_new)[:, None] * pb.e1 + np.sin(psi_new)[:, None] * pb.e2
