@@ -19,21 +19,94 @@ def quat_from_rotvec(v):
     return np.concatenate([np.cos(half), s * v], axis=-1)
 
 
+def _product_tensors():
+    """Return (16, 4) Hamilton and (16, 9) rotation-matrix coefficients of q_i q_j."""
+    ham = np.zeros((4, 4, 4))
+    # (p q)_k = sum_ij ham[i, j, k] p_i q_j, scalar first
+    for i, j, k, s in ((0, 0, 0, 1), (1, 1, 0, -1), (2, 2, 0, -1), (3, 3, 0, -1),
+                       (0, 1, 1, 1), (1, 0, 1, 1), (2, 3, 1, 1), (3, 2, 1, -1),
+                       (0, 2, 2, 1), (1, 3, 2, -1), (2, 0, 2, 1), (3, 1, 2, 1),
+                       (0, 3, 3, 1), (1, 2, 3, 1), (2, 1, 3, -1), (3, 0, 3, 1)):
+        ham[i, j, k] = s
+    # R = I + sum_ij rot[i, j] q_i q_j (unit q), the terms of quat_to_matrix's docstring
+    rot = np.zeros((4, 4, 3, 3))
+    w, x, y, z = range(4)
+    for a, b, i, j, s in ((0, 0, y, y, -2), (0, 0, z, z, -2), (1, 1, x, x, -2),
+                          (1, 1, z, z, -2), (2, 2, x, x, -2), (2, 2, y, y, -2),
+                          (0, 1, x, y, 2), (0, 1, w, z, -2), (0, 2, x, z, 2), (0, 2, w, y, 2),
+                          (1, 0, x, y, 2), (1, 0, w, z, 2), (1, 2, y, z, 2), (1, 2, w, x, -2),
+                          (2, 0, x, z, 2), (2, 0, w, y, -2), (2, 1, y, z, 2), (2, 1, w, x, 2)):
+        rot[i, j, a, b] += s
+    return ham.reshape(16, 4), rot.reshape(16, 9)
+
+
+_HAMILTON, _ROTATION = _product_tensors()
+
+
+_I16, _J16 = np.repeat(np.arange(4), 4), np.tile(np.arange(4), 4)
+_I9, _J9 = np.repeat(np.arange(3), 3), np.tile(np.arange(3), 3)
+
+
+def _outer(p, q):
+    """Return (..., 16) products p_i q_j (index 4 i + j) of (..., 4) arrays (broadcast)."""
+    return np.asarray(p, float)[..., _I16] * np.asarray(q, float)[..., _J16]
+
+
 def quat_mul(p, q):
-    """Return the Hamilton product p q of (..., 4) quaternions."""
-    w1, x1, y1, z1 = np.moveaxis(p, -1, 0)
-    w2, x2, y2, z2 = np.moveaxis(q, -1, 0)
-    return np.stack([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-                     w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-                     w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-                     w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2], axis=-1)
+    """Return the Hamilton product p q of (..., 4) quaternions.
+
+    One bilinear map (a (16, 4) coefficient matrix on the outer product): a few array
+    operations whatever the batch shape, as the rotation fit calls it thousands of times
+    on small batches.
+    """
+    return _outer(p, q) @ _HAMILTON
 
 
 def quat_rotate_inverse(q, v):
-    """Return R(q)' v: vectors (..., 3) expressed in the rotated frame."""
-    qc = q * np.array([1.0, -1.0, -1.0, -1.0])
-    vq = np.concatenate([np.zeros(v.shape[:-1] + (1,)), v], axis=-1)
-    return quat_mul(quat_mul(qc, vq), q)[..., 1:]
+    """Return R(q)' v: vectors (..., 3) expressed in the rotated frame (q unit)."""
+    return np.einsum('...ji,...j->...i', quat_to_matrix(q), v)
+
+
+#: [v]x = (v @ SKEW).reshape(3, 3), the cross-product matrix of v
+SKEW = np.array([[0, 0, 0, 0, 0, -1, 0, 1, 0], [0, 0, 1, 0, 0, 0, -1, 0, 0],
+                 [0, -1, 0, 1, 0, 0, 0, 0, 0]], float)
+
+
+def right_jacobian(v):
+    """Return (..., 3, 3) right Jacobians of SO(3) at rotation vectors (..., 3), rad.
+
+    exp(v + d) = exp(v) exp(J_r(v) d) to first order in d:
+    J_r = I - (1 - cos t) / t^2 [v]x + (t - sin t) / t^3 [v]x^2, t = |v|, with
+    [v]x^2 = v v' - t^2 I.
+    """
+    v = np.asarray(v, float)
+    t2 = np.sum(v * v, axis=-1)
+    t = np.sqrt(t2)
+    small = t < 1e-4
+    ts = np.where(small, 1.0, t)
+    a = np.where(small, 0.5 - t2 / 24.0, (1.0 - np.cos(ts)) / ts ** 2)
+    b = np.where(small, 1.0 / 6.0 - t2 / 120.0, (ts - np.sin(ts)) / ts ** 3)
+    out = (v @ SKEW) * -a[..., None] + v[..., _I9] * v[..., _J9] * b[..., None]
+    out[..., 0::4] += (1.0 - b * t2)[..., None]
+    return out.reshape(v.shape[:-1] + (3, 3))
+
+
+def right_jacobian_inverse(v):
+    """Return (..., 3, 3) inverses of ``right_jacobian`` (|v| < pi), rad.
+
+    rotvec(exp(v) exp(d)) = v + J_r^-1(v) d to first order:
+    J_r^-1 = I + [v]x / 2 + (1 / t^2 - (1 + cos t) / (2 t sin t)) [v]x^2.
+    """
+    v = np.asarray(v, float)
+    t2 = np.sum(v * v, axis=-1)
+    t = np.sqrt(t2)
+    small = t < 1e-4
+    ts = np.where(small, 1.0, t)
+    c = np.where(small, 1.0 / 12.0 + t2 / 720.0,
+                 1.0 / ts ** 2 - (1.0 + np.cos(ts)) / (2.0 * ts * np.sin(ts)))
+    out = (v @ SKEW) * 0.5 + v[..., _I9] * v[..., _J9] * c[..., None]
+    out[..., 0::4] += (1.0 - c * t2)[..., None]
+    return out.reshape(v.shape[:-1] + (3, 3))
 
 
 def quat_to_rotvec(q):
@@ -87,10 +160,12 @@ def prefix_products(q):
 
 
 def quat_to_matrix(q):
-    """Return (..., 3, 3) rotation matrices of unit quaternions (..., 4) (w, x, y, z)."""
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)],
-        -2)
+    """Return (..., 3, 3) rotation matrices of unit quaternions (..., 4) (w, x, y, z).
+
+    R = [[1 - 2(y^2 + z^2), 2(xy - wz), 2(xz + wy)], [2(xy + wz), 1 - 2(x^2 + z^2),
+    2(yz - wx)], [2(xz - wy), 2(yz + wx), 1 - 2(x^2 + y^2)]].
+    """
+    q = np.asarray(q, float)
+    r = _outer(q, q) @ _ROTATION
+    r[..., 0::4] += 1.0
+    return r.reshape(q.shape[:-1] + (3, 3))

@@ -28,7 +28,8 @@ Robust fitting
     :func:`robust_least_squares` runs ``scipy.optimize.least_squares`` three times: plain
     least squares, then a soft-L1 and a Cauchy loss whose scale is ``k`` robust standard
     deviations (MAD) of the previous residuals. A bumped hold then has bounded (soft-L1)
-    and finally vanishing (Cauchy) influence on the parameters.
+    and finally vanishing (Cauchy) influence on the parameters. Each stage starts its own
+    trust region at its starting point (``_from_zero``).
 """
 
 from dataclasses import dataclass, field
@@ -302,6 +303,23 @@ class RobustResult:
     message: str = ''
 
 
+def _from_zero(fun, x, jac, kwargs):
+    """Run ``least_squares`` in the offset d = x' - x from its start x; return x' in ``x``.
+
+    scipy's trust-region methods size their first trust region by |x0| (1 only when
+    x0 = 0): a stage that starts where the previous one ended, near zero, would start with
+    a radius of ~1e-14 and stop at once ('ftol') without moving. Each stage starts at d = 0.
+    """
+    kwargs = dict(kwargs)
+    if 'bounds' in kwargs:
+        lo, hi = kwargs['bounds']
+        kwargs['bounds'] = (np.asarray(lo, float) - x, np.asarray(hi, float) - x)
+    res = least_squares(lambda d: fun(x + d), np.zeros_like(x),
+                        jac=(lambda d: jac(x + d)) if callable(jac) else jac, **kwargs)
+    res.x = x + res.x
+    return res
+
+
 def robust_least_squares(fun, x0, jac='2-point', k=3.0, min_scale=1.0, final_loss='cauchy',
                          stages=('linear', 'soft_l1', 'final'), **kwargs):
     """Least squares that one bad group of residuals cannot drag (see the module docstring).
@@ -315,12 +333,12 @@ def robust_least_squares(fun, x0, jac='2-point', k=3.0, min_scale=1.0, final_los
     f_scale = np.inf
     for stage in stages:
         if stage == 'linear':
-            res = least_squares(fun, x, jac=jac, loss='linear', **kwargs)
+            res = _from_zero(fun, x, jac, dict(kwargs, loss='linear'))
         else:
             s = robust_scale(res.fun) if res is not None else robust_scale(fun(x))
             f_scale = k * max(s, min_scale)
             loss = 'soft_l1' if stage == 'soft_l1' else final_loss
-            res = least_squares(fun, x, jac=jac, loss=loss, f_scale=f_scale, **kwargs)
+            res = _from_zero(fun, x, jac, dict(kwargs, loss=loss, f_scale=f_scale))
         x = res.x
     r = np.asarray(res.fun, float)
     return RobustResult(res.x, res.jac, r, robust_scale(r), float(f_scale),

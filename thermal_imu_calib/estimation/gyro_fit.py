@@ -31,15 +31,17 @@ class GyroFit:
 
 def fit_gyro(windows, axis_inputs, acc, t0, latitude=None, transitions=None, accel_model=None,
              accel_input=(0, 0, 0), gyro_input=(0, 0, 0), priors=None, order=2,
-             input_unit='degC', robust=True):
+             input_unit='degC', robust=True, first_static=None):
     """Fit the seed 002 gyro model: static bias/g-sensitivity, then rotations, then static again.
 
     windows, axis_inputs (m, 3) or None, acc (m, 3) corrected accel per window (m/s^2),
     t0 (3,) input reference; transitions from MotionCollector (None: no rotation part).
+    ``first_static``: the first static fit (Omega1 = I) when the caller already has it for
+    the same windows, inputs, priors and order (the static candidate of a fold), else None.
     """
     priors = priors or Priors()
-    st = fit_gyro_static(windows, axis_inputs, acc, t0, latitude, None, priors, order,
-                         robust=robust)
+    st = first_static or fit_gyro_static(windows, axis_inputs, acc, t0, latitude, None,
+                                         priors, order, robust=robust)
     rot = None
     omega1, omega2, omega3 = np.eye(3), np.zeros(3), np.zeros(3)
     notes = list(st.notes)

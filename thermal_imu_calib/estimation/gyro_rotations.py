@@ -24,7 +24,8 @@ from ..collection.outliers import robust_scale
 from .observability import decide_determined, DETERMINED_RATIO, fit_free, Layout, Priors
 
 from ..rotations import (integrate_batch, prefix_products, quat_from_rotvec, quat_rotate_inverse,
-                         quat_to_matrix, quat_to_rotvec)
+                         quat_to_matrix, quat_to_rotvec, right_jacobian,
+                         right_jacobian_inverse, SKEW)
 
 
 # ------------------------------------------------------------------------ rotation fit
@@ -198,47 +199,54 @@ def prepare_transitions(transitions, hold_up, hold_sigma, static, accel_model, a
 
 
 def transition_rotations(prep, omega1, omega2, omega3, prefixes=False):
-    """Return (k, 4) quaternions dR of every prepared transition (and the prefixes)."""
+    """Return (k, 4) quaternions dR of every transition, the prefixes and the increments.
+
+    The increments theta (k, n, 3) rad; the prefixes (k, n, 4) (inclusive ordered products)
+    only when ``prefixes``, else None.
+    """
     theta = prep.b @ np.asarray(omega1).T + omega2 * prep.c2 + omega3 * prep.c3
     if prep.cone is not None:
         theta = theta + prep.cone
-    q = quat_from_rotvec(theta)
     if not prefixes:
-        return integrate_batch(theta), None
-    pre = prefix_products(q)
-    return pre[:, -1], pre
+        return integrate_batch(theta), None, theta
+    pre = prefix_products(quat_from_rotvec(theta))
+    return pre[:, -1], pre, theta
 
 
 def rotation_residuals(prep, omega1, omega2, omega3, want_jac=False):
     """Return (k, 3) residuals u_to - dR' u_from (rad; closure rotvec if closed) [, jac].
 
     The Jacobian (k, 3, 15) w.r.t. (Omega1 row-major, Omega2, Omega3) uses the
-    right-perturbation dR -> dR exp(dphi), dphi = dR' sum_k P_k dtheta_k (P_k prefix
-    products), with the small-increment approximation of the SO(3) Jacobian.
+    right-perturbation dR -> dR exp(dphi), dphi = dR' sum_k P_k J_r(theta_k) dtheta_k (P_k
+    inclusive prefix products, J_r the right Jacobian of SO(3): exact, so Gauss-Newton
+    converges in a few steps even with the large merged increments of a turn about one axis).
     """
-    q, pre = transition_rotations(prep, omega1, omega2, omega3, want_jac)
-    carried = quat_rotate_inverse(q, prep.u_from)
+    q, pre, theta = transition_rotations(prep, omega1, omega2, omega3, want_jac)
+    rot = quat_to_matrix(q)                                    # (k, 3, 3)
+    carried = np.einsum('kji,kj->ki', rot, prep.u_from)        # dR' u_from
     r = prep.u_to - carried
     if np.any(prep.closed):
         r[prep.closed] = quat_to_rotvec(q[prep.closed])
     if not want_jac:
         return r
-    pm = quat_to_matrix(pre)                                   # (k, n, 3, 3)
-    d1 = np.einsum('knia,knb->kiab', pm, prep.b).reshape(-1, 3, 9)
-    d2 = np.einsum('knia,kna->kia', pm, prep.c2)
-    d3 = np.einsum('knia,kna->kia', pm, prep.c3)
-    dphi_start = np.concatenate([d1, d2, d3], axis=2)         # (k, 3, 15)
-    rot = quat_to_matrix(q)
-    dphi = np.einsum('kji,kjp->kip', rot, dphi_start)          # end frame
-    jac = np.cross(dphi, carried[:, :, None], axisa=1, axisb=1, axisc=1)
+    k, n = theta.shape[:2]
+    pm = (quat_to_matrix(pre) @ right_jacobian(theta)).reshape(k, n, 9)
+    # sum_n pm[n, i, a] x[n, c] for x = (b, c2, c3): (k, 3, 3, 9) as [k, i, a, c]
+    s = (pm.transpose(0, 2, 1) @ np.concatenate([prep.b, prep.c2, prep.c3], axis=2)
+         ).reshape(k, 3, 3, 9)
+    diag = np.arange(3)
+    dphi_start = np.concatenate([s[..., :3].reshape(k, 3, 9), s[:, :, diag, 3 + diag],
+                                 s[:, :, diag, 6 + diag]], axis=2)     # (k, 3, 15)
+    dphi = rot.transpose(0, 2, 1) @ dphi_start                  # end frame
+    jac = -(carried @ SKEW).reshape(k, 3, 3) @ dphi             # dphi x carried
     if np.any(prep.closed):
-        jac[prep.closed] = dphi[prep.closed]
+        jac[prep.closed] = right_jacobian_inverse(r[prep.closed]) @ dphi[prep.closed]
     return r, jac
 
 
 def direction_error_deg(prep, omega1, omega2=0.0, omega3=0.0):
     """Return (k,) angle between u_to and the carried u_from (deg); closure angle if closed."""
-    q, _ = transition_rotations(prep, omega1, omega2, omega3)
+    q = transition_rotations(prep, omega1, omega2, omega3)[0]
     carried = quat_rotate_inverse(q, prep.u_from)
     c = np.clip(np.sum(carried * prep.u_to, axis=1), -1, 1)
     ang = np.degrees(np.arccos(c))

@@ -33,26 +33,67 @@ def weighted_polyfit(dt, y, w, order):
     return coef, std
 
 
+def _held_out_fits(dt, y, w, gi, ng, order):
+    """Return (ng, order + 1) coefficients fitted without each group (``gi``: group index).
+
+    Normal equations of the weighted Vandermonde design, column-scaled, batched over the
+    groups (one solve per group); a training set whose scaled system is ill-conditioned
+    (cond > 1e10) is solved by ``lstsq`` like the plain loop.
+    """
+    v = _vander(dt, order) * w[:, None]                          # (m, p)
+    p = order + 1
+    train = np.ones((ng, len(dt)))
+    train[gi, np.arange(len(dt))] = 0.0
+    nrm = (train @ (v[:, :, None] * v[:, None, :]).reshape(len(dt), p * p)).reshape(ng, p, p)
+    rhs = train @ (v * (y * w)[:, None])                          # (ng, p)
+    sc = np.sqrt(np.maximum(np.einsum('gii->gi', nrm), 1e-300))
+    scaled = nrm / (sc[:, :, None] * sc[:, None, :])
+    coef = np.empty((ng, p))
+    ok = np.linalg.cond(scaled) < 1e10
+    if np.any(ok):
+        coef[ok] = np.linalg.solve(scaled[ok], (rhs[ok] / sc[ok])[..., None])[..., 0] / sc[ok]
+    for g in np.flatnonzero(~ok):
+        sel = gi != g
+        coef[g] = _polyfit_coef(dt[sel], y[sel], w[sel], order)[0]
+    return coef
+
+
+def _others_extreme(values, fn):
+    """Return per group the extreme (``fn``: np.max or np.min) over the other groups."""
+    out = np.empty(len(values))
+    for g in range(len(values)):
+        rest = np.delete(values, g)
+        out[g] = fn(rest) if len(rest) else np.nan
+    return out
+
+
 def cv_order(dt, y, w, groups, orders):
     """Pick the order with the lowest held-out weighted squared error (leave one group out).
 
     Returns (order, {order: cv_rms}). Groups are e.g. holds or contiguous time blocks.
+    An order scores inf when a training set has too few points or no temperature span.
+    All groups of an order are fitted at once (``_held_out_fits``).
     """
     scores = {}
-    ug = np.unique(groups)
+    dt, y, w = (np.asarray(a, float) for a in (dt, y, w))
+    ug, gi = np.unique(groups, return_inverse=True)
+    gi = gi.ravel()
+    ng = len(ug)
+    count = np.bincount(gi, minlength=ng)
+    lo = np.full(ng, np.inf)
+    hi = np.full(ng, -np.inf)
+    np.minimum.at(lo, gi, dt)
+    np.maximum.at(hi, gi, dt)
+    n_train = len(dt) - count
+    span = _others_extreme(hi, np.max) - _others_extreme(lo, np.min)
     for order in orders:
-        err, wsum = 0.0, 0.0
-        for g in ug:
-            test = groups == g
-            train = ~test
-            if np.sum(train) <= order + 1 or np.ptp(dt[train]) <= 0:
-                err = np.inf
-                break
-            coef, _ = _polyfit_coef(dt[train], y[train], w[train], order)  # no std needed
-            r = y[test] - _vander(dt[test], order) @ coef
-            err += float(np.sum((r * w[test]) ** 2))
-            wsum += float(np.sum(w[test] ** 2))
-        scores[order] = float(np.sqrt(err / wsum)) if wsum else np.inf
+        if ng == 0 or np.any(n_train <= order + 1) or not np.all(span > 0):
+            scores[order] = np.inf
+            continue
+        coef = _held_out_fits(dt, y, w, gi, ng, order)
+        r = (y - np.einsum('ip,ip->i', _vander(dt, order), coef[gi])) * w
+        wsum = float(np.sum(w ** 2))
+        scores[order] = float(np.sqrt(float(np.sum(r * r)) / wsum)) if wsum else np.inf
     finite = {k: v for k, v in scores.items() if np.isfinite(v)}
     if not finite:
         return min(orders), scores

@@ -63,8 +63,13 @@ def still_rate_error(gyro):
     return np.abs(np.linalg.norm(gyro, axis=1) - EARTH_RATE)
 
 
-def _whole_unit_gyro(ctx, rows, acc, accel_model, transitions=None, priors=None):
-    """Fit the seed 002 gyro on the windows ``rows`` (corrected accel ``acc`` per window)."""
+def _whole_unit_gyro(ctx, rows, acc, accel_model, transitions=None, priors=None,
+                     first_static=None):
+    """Fit the seed 002 gyro on the windows ``rows`` (corrected accel ``acc`` per window).
+
+    ``first_static``: the ``static`` of a fit without transitions on the same rows (its
+    static stage is this fit's first one; the priors differ only in the rotation terms).
+    """
     from ..estimation.gyro_fit import fit_gyro
     from ..estimation.observability import Priors
     o, k = ctx.options, ctx.k
@@ -74,7 +79,8 @@ def _whole_unit_gyro(ctx, rows, acc, accel_model, transitions=None, priors=None)
                     transitions=transitions, accel_model=accel_model,
                     accel_input=ctx.accel_input, gyro_input=ctx.gyro_input,
                     priors=priors or o.whole_unit_priors or Priors(),
-                    order=o.order if k else 0, input_unit=ctx.gyro_unit)
+                    order=o.order if k else 0, input_unit=ctx.gyro_unit,
+                    first_static=first_static)
 
 
 def heldout_gyro(ctx, accel_model, acc):
@@ -134,10 +140,12 @@ def _still_figures(ctx, est, acc, names, like):
     for test, train in fold_masks(folds, n if n >= 2 else 0):
         tg = clamp_to_training(ctx.tg, w, train, ctx.gyro_input, o.range_margin)
         models = {'polynomial': _gyro_bias(ctx.subset(train))[0]}
+        static = None
         if 'whole_unit_static' in names:
-            models['whole_unit_static'] = _whole_unit_gyro(ctx, train, acc, est.accel).model
+            fit = _whole_unit_gyro(ctx, train, acc, est.accel)
+            models['whole_unit_static'], static = fit.model, fit.static
         models['whole_unit_turns'] = _whole_unit_gyro(ctx, train, acc, est.accel,
-                                                      o.transitions, priors).model
+                                                      o.transitions, priors, static).model
         for k, m in models.items():
             out[k][test] = still_rate_error(m.correct(w.gyro[test], tg[test],
                                                       aux={'accel': acc[test]}))
