@@ -164,6 +164,7 @@ class _StaticProblem:
         self.starts = np.r_[0, np.cumsum(np.bincount(inv, minlength=nh))[:-1]]
         self.up_rate = EARTH_RATE * self.s_lat * self.up[inv]   # vertical earth rate
         self.sig2 = sig ** 2
+        self.up_earth = EARTH_RATE * self.s_lat * self.up     # vertical earth rate per hold
 
     def hold_sum(self, a, axis=0):
         """Return the sums of ``a`` over the windows (along ``axis``) of each hold."""
@@ -174,7 +175,7 @@ class _StaticProblem:
     def earth_holds(self, psi, mh):
         """Return the (h, 3) earth rate per hold in the raw domain (rad/s)."""
         hdir = np.cos(psi)[:, None] * self.e1 + np.sin(psi)[:, None] * self.e2
-        return EARTH_RATE * (self.s_lat * self.up + mh * hdir) @ self.om1_inv.T
+        return (self.up_earth + (EARTH_RATE * mh) * hdir) @ self.om1_inv.T
 
     def residual(self, theta, psi, mh):
         """Return the (m, 3) whitened residual, data minus model over sigma."""
@@ -259,6 +260,7 @@ def _alternate(pb, free_lin, theta0, with_prior, weights_kind):
     y_fix = pb.y - bl.predict(np.where(free_lin, 0.0, theta))    # fixed columns: invariant
     prior_n = 1.0 / pb.std[idx] ** 2 if with_prior else 0.0
     prior_b = pb.mean[idx] / pb.std[idx] ** 2 if with_prior else 0.0
+    std = pb.std[idx]
     psi = np.zeros(len(pb.up))
     mh = pb.c_lat if pb.lat_known else 0.5
     wts = np.ones((len(pb.y), 3))
@@ -305,7 +307,7 @@ def _alternate(pb, free_lin, theta0, with_prior, weights_kind):
                 wt = wts / pb.sig2
                 new = linear_step(solver(wt), rhs(wt * yy), lambda: yy)
                 ww = (wt[:, 0] + wt[:, 1] + wt[:, 2]) / 3.0           # mean over the axes
-            step = np.max(np.abs(new - theta[idx]) / pb.std[idx]) if k else 0.0
+            step = np.max(np.abs(new - theta[idx]) / std) if k else 0.0
             theta[idx] = new
             # headings (and horizontal magnitude) in closed form, rate domain
             if stage == 'linear':
@@ -317,7 +319,7 @@ def _alternate(pb, free_lin, theta0, with_prior, weights_kind):
             psi_new = np.arctan2(np.sum(dh * pb.e2, 1), np.sum(dh * pb.e1, 1))
             if not pb.lat_known:
                 hd = np.cos(psi_new)[:, None] * pb.e1 + np.sin(psi_new)[:, None] * pb.e2
-                mh = float(np.clip(np.sum(dh * hd) / (EARTH_RATE * ww.sum()), 0.0, 1.0))
+                mh = min(max(float(np.sum(dh * hd)) / (EARTH_RATE * ww.sum()), 0.0), 1.0)
             dpsi = float(np.max(np.abs(np.angle(np.exp(1j * (psi_new - psi))))))
             psi = psi_new
             if step < 1e-6 and dpsi < 1e-4:
