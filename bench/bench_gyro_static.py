@@ -5,7 +5,10 @@ Inputs: ``--args PATH``, a pickle of ``(ctx, est, poly, rep)`` as passed to
 robust); without it, synthetic still windows of the same size (1800 windows, 30 holds,
 order 2). Prints the process CPU time per call (best and mean of ``--repeat``); run it
 single-threaded (``OPENBLAS_NUM_THREADS=1``) for comparable figures. Target: <= 20 ms per
-call on the 2-core reference machine (about 80 ms before issue 13).
+call on the 2-core reference machine. Measured 2026-11-24 (load ~0.5, one BLAS thread) on the
+nav cold start seed 0 arguments: 72-75 ms per call before (main 9074125), 16-17 ms after
+(4.4-4.6x); synthetic windows 119-122 ms before, 19 ms after. With the default 2 BLAS threads
+the CPU time doubles for both (150 -> 33 ms: OpenBLAS threads spin on these small products).
 
 Usage: OPENBLAS_NUM_THREADS=1 python bench/bench_gyro_static.py [--args PATH] [--repeat 5]
 (exit 1 when the target is missed)
