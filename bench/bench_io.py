@@ -235,7 +235,7 @@ def end_to_end(path, tmp, repeat) -> dict:
     """CPU of rosbags' raw iteration and of ``calibrate --model field|auto``, in turn."""
     script = os.path.join(os.path.dirname(sys.executable), 'thermal-imu-calib')
     cli = ([script] if os.path.exists(script) else
-           [sys.executable, '-m', 'thermal_imu_calib.cli']) + ['calibrate', str(path)]
+           [sys.executable, '-m', 'thermal_imu_calib.cli_entry']) + ['calibrate', str(path)]
     if os.path.exists(f'{path}.prior.yaml'):
         cli += ['--prior', f'{path}.prior.yaml']
     raw = [sys.executable, '-c', _ROSBAGS_RAW, str(path)]
@@ -251,10 +251,16 @@ def end_to_end(path, tmp, repeat) -> dict:
                 os.unlink(out)
             runs[name].append(_child_cpu(cmd))
     res = {k: {'wall_s': min(v, key=lambda r: r[1])[0], 'cpu_s': min(r[1] for r in v),
-               'cpu_s_all': [r[1] for r in v]} for k, v in runs.items()}
+               'cpu_s_all': [r[1] for r in v], 'wall_s_all': [r[0] for r in v],
+               'cpu_s_median': float(np.median([r[1] for r in v])),
+               'wall_s_median': float(np.median([r[0] for r in v]))}
+           for k, v in runs.items()}
     ref = res['rosbags raw iteration (Reader.messages())']['cpu_s']
+    ref_med = res['rosbags raw iteration (Reader.messages())']
     for v in res.values():
         v['cpu_over_rosbags_raw'] = v['cpu_s'] / ref
+        v['median_cpu_over_rosbags_raw'] = v['cpu_s_median'] / ref_med['cpu_s_median']
+        v['median_wall_over_rosbags_raw'] = v['wall_s_median'] / ref_med['wall_s_median']
     return res
 
 
@@ -394,7 +400,10 @@ def main(argv=None) -> int:
     for name, f in figures.get('calibrate_end_to_end', {}).items():
         print(f'{name:<{width}}  wall {f["wall_s"]:6.2f} s  cpu {f["cpu_s"]:5.2f} s  '
               f'(runs {", ".join(f"{c:.2f}" for c in f["cpu_s_all"])})  '
-              f'{f["cpu_over_rosbags_raw"]:.2f}x rosbags raw')
+              f'{f["cpu_over_rosbags_raw"]:.2f}x rosbags raw; median wall '
+              f'{f["wall_s_median"]:.2f} s, cpu {f["cpu_s_median"]:.2f} s: '
+              f'{f["median_wall_over_rosbags_raw"]:.2f}x / '
+              f'{f["median_cpu_over_rosbags_raw"]:.2f}x')
     if 'rss' in figures:
         r = figures['rss']
         print(f'peak RSS on {r["messages"]:,} messages ({r["file_MB"]:.0f} MB): ' + ', '.join(
