@@ -284,7 +284,10 @@ def test_truncated_mcap_says_truncated_and_how_to_recover(clean, tmp_path, capfd
 @pytest.fixture(scope='module')
 def long_bag(tmp_path_factory):
     from thermal_imu_calib import sim
-    rec = sim.simulate('demo', 7, repetitions=8)
+    # long enough that the signal lands while compensate is still writing on a busy machine:
+    # the output exists for ~3 s before the end (mcap; ~0.8 s with 8 repetitions, which a
+    # loaded 2-core machine could miss between two polls)
+    rec = sim.simulate('demo', 7, repetitions=32)
     path = str(tmp_path_factory.mktemp('long') / 'long.mcap')
     write_columns(path, rec.imu_topic, rec.imu_chunks(), rec.temperatures)
     return path
