@@ -102,21 +102,54 @@ def is_full_turn(rate, dt, up_from, up_to):
     return turns >= 1 and abs(angle - 360.0 * turns) <= FULL_TURN_TOLERANCE * 360.0 * turns
 
 
-def _merge_commuting(b, c2, c3, cone):
-    """Sum runs of increments whose composition is their sum to 1e-7 rad (one pass)."""
-    groups = [0]
-    sx = sy = sz = ex = ey = ez = 0.0
+def _group_starts(increments, window=64):
+    """Return the first sample of every merged group of each (n_t, 3) increment array, rad.
+
+    A group grows while the neglected second-order term of its composition,
+    E = 1/2 sum_{l<j} theta_l x theta_j over the group, stays within ``MERGE_COMMUTATOR``;
+    the sample that would exceed it starts the next group. All transitions advance together
+    by ``window`` samples per step, and the running sums are sequential cumulative sums
+    seeded with the group's sums so far: they repeat, in the same order, the additions of a
+    sample-by-sample loop (test_rotations keeps it as the reference), so the groups are
+    identical to it bit for bit.
+    """
+    k = len(increments)
+    lens = np.array([len(x) for x in increments], int)
+    pad = np.zeros((k, (max(lens) if k else 0) + window, 3))
+    for j, x in enumerate(increments):
+        pad[j, :len(x)] = x
     lim2 = MERGE_COMMUTATOR ** 2
-    for i, (x, y, z) in enumerate(b.tolist()):
-        # commutator added by appending theta_i to the group: 1/2 S x theta_i
-        cx, cy, cz = 0.5 * (sy * z - sz * y), 0.5 * (sz * x - sx * z), 0.5 * (sx * y - sy * x)
-        nx, ny, nz = ex + cx, ey + cy, ez + cz
-        if i and nx * nx + ny * ny + nz * nz > lim2:
-            groups.append(i)
-            sx, sy, sz, ex, ey, ez = x, y, z, 0.0, 0.0, 0.0
-        else:
-            sx, sy, sz, ex, ey, ez = sx + x, sy + y, sz + z, nx, ny, nz
-    starts = np.array(groups)
+    starts = [[0] for _ in range(k)]
+    pos = np.ones(k, int)                  # next sample to append
+    s = pad[:, 0].copy()                   # group sum before it
+    e = np.zeros((k, 3))                   # group commutator before it
+    offs = np.arange(window)
+    a, b = [1, 2, 0], [2, 0, 1]            # (S x theta)_i = S_a theta_b - S_b theta_a
+    act = np.flatnonzero(pos < lens)
+    while len(act):
+        idx = pos[act, None] + offs
+        th = pad[act[:, None], idx]                                        # (m, w, 3)
+        ss = np.cumsum(np.concatenate([s[act, None], th], axis=1), axis=1)
+        sp = ss[:, :-1]
+        c = 0.5 * (sp[..., a] * th[..., b] - sp[..., b] * th[..., a])
+        ee = np.cumsum(np.concatenate([e[act, None], c], axis=1), axis=1)[:, 1:]
+        n2 = ee[..., 0] * ee[..., 0] + ee[..., 1] * ee[..., 1] + ee[..., 2] * ee[..., 2]
+        over = (n2 > lim2) & (idx < lens[act, None])
+        hit = over.any(axis=1)
+        first = np.argmax(over, axis=1)
+        for j, f in zip(act[hit], first[hit]):
+            starts[j].append(int(pos[j] + f))
+        rows = np.arange(len(act))
+        s[act] = np.where(hit[:, None], th[rows, first], ss[:, -1])
+        e[act] = np.where(hit[:, None], 0.0, ee[:, -1])
+        pos[act] = np.where(hit, pos[act] + first + 1, pos[act] + window)
+        act = act[pos[act] < lens[act]]
+    return [np.array(x) for x in starts]
+
+
+def _merge_commuting(b, c2, c3, cone):
+    """Sum runs of increments whose composition is their sum to 1e-7 rad (``_group_starts``)."""
+    starts = _group_starts([b])[0]
     return tuple(np.add.reduceat(x, starts, axis=0) for x in (b, c2, c3, cone))
 
 
@@ -173,9 +206,10 @@ def prepare_transitions(transitions, hold_up, hold_sigma, static, accel_model, a
         # within-interval coning of a linearly varying rate (Bortz): dt^2/12 w_a x w_b,
         # evaluated with the prior scale (its Omega1 dependence is second order)
         cone = np.cross(d[:-1], d[1:]) * (dt ** 2 / 12.0)[:, None]
-        bb, cc2, cc3, cc = _merge_commuting(_trapezoid(d, dt), _trapezoid(w * w, dt),
-                                            _trapezoid(w ** 3, dt), cone)
-        rows.append((i, tr, bb, cc2, cc3, cc, dt, closed))
+        rows.append([i, tr, _trapezoid(d, dt), _trapezoid(w * w, dt), _trapezoid(w ** 3, dt),
+                     cone, dt, closed])
+    for r, starts in zip(rows, _group_starts([r[2] for r in rows])):
+        r[2:6] = [np.add.reduceat(x, starts, axis=0) for x in r[2:6]]
     k = len(rows)
     n = max([len(r[2]) for r in rows], default=1)
     b = np.zeros((k, n, 3))
