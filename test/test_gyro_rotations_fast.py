@@ -1,0 +1,99 @@
+"""The fast pieces of the gyro rotation fit against their plain versions, bit for bit.
+
+``gyro_rotations._group_starts`` (the merged increment groups of every pose change, found
+for all transitions at once) against the sample-by-sample loop it replaced, on random
+increments and on the pose changes of the ``sim_scenarios`` sessions and the real fixtures
+written as bags and collected as the CLI does (``collect_windows(motion=True)``).
+"""
+
+import os
+import sys
+
+import numpy as np
+import pytest
+
+from thermal_imu_calib import sim
+from thermal_imu_calib.estimation import gyro_rotations as gr
+from thermal_imu_calib.pipeline import collect_windows
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(ROOT, 'bench'))
+import make_real_bags  # noqa: E402
+
+
+def loop_starts(b):
+    """Return the group starts of the loop ``_merge_commuting`` ran before (the reference)."""
+    groups = [0]
+    sx = sy = sz = ex = ey = ez = 0.0
+    lim2 = gr.MERGE_COMMUTATOR ** 2
+    for i, (x, y, z) in enumerate(np.asarray(b, float).tolist()):
+        # commutator added by appending theta_i to the group: 1/2 S x theta_i
+        cx, cy, cz = 0.5 * (sy * z - sz * y), 0.5 * (sz * x - sx * z), 0.5 * (sx * y - sy * x)
+        nx, ny, nz = ex + cx, ey + cy, ez + cz
+        if i and nx * nx + ny * ny + nz * nz > lim2:
+            groups.append(i)
+            sx, sy, sz, ex, ey, ez = x, y, z, 0.0, 0.0, 0.0
+        else:
+            sx, sy, sz, ex, ey, ez = sx + x, sy + y, sz + z, nx, ny, nz
+    return np.array(groups)
+
+
+def assert_groups_match(increments):
+    """Assert ``_group_starts`` (all at once and one by one) equals the loop; return groups."""
+    ref = [loop_starts(b) for b in increments]
+    for window in (1, 7, 64):
+        got = gr._group_starts(increments, window)
+        assert len(got) == len(ref)
+        for j, (r, g) in enumerate(zip(ref, got)):
+            assert np.array_equal(r, g), (window, j)
+    for b, r in zip(increments, ref):
+        assert np.array_equal(gr._group_starts([b])[0], r)
+    return sum(len(r) for r in ref)
+
+
+def test_group_starts_equal_the_loop_on_random_increments():
+    rng = np.random.default_rng(3)
+    incs = []
+    for n, scale, axis_mix in ((1, 1e-3, 1.0), (2, 1e-2, 1.0), (50, 1e-2, 1.0),
+                               (700, 5e-3, 0.05), (300, 1e-5, 1.0), (900, 2e-2, 0.0)):
+        axis = np.array([0.0, 0.0, 1.0]) + axis_mix * rng.normal(size=(n, 3))
+        incs.append(scale * axis * rng.uniform(0.5, 1.5, size=(n, 1)))
+    groups = assert_groups_match(incs)
+    assert groups > 50                      # short and long groups were both exercised
+    b = incs[3]
+    merged = gr._merge_commuting(b, b ** 2, b ** 3, 0 * b)
+    starts = loop_starts(b)
+    for x, y in zip(merged, (b, b ** 2, b ** 3, 0 * b)):
+        assert np.array_equal(x, np.add.reduceat(y, starts, axis=0))
+
+
+@pytest.fixture(scope='module')
+def pose_changes(tmp_path_factory):
+    """{log: [(n, 3) increments]} of the sim sessions and real fixtures (raw and de-biased)."""
+    d = tmp_path_factory.mktemp('logs')
+    make_real_bags.main(str(d))
+    paths = sorted(str(d / f) for f in os.listdir(d) if f.endswith('.mcap'))
+    for name in ('hand-held', 'imutk-procedure'):
+        path = str(d / f'{name}.mcap')
+        sim.write_scenario(path, name, 1)
+        paths.append(path)
+    out = {}
+    for path in paths:
+        col = collect_windows(path, motion=True, progress=False)
+        bias = np.median(col.windows.gyro, axis=0) if len(col.windows) else np.zeros(3)
+        incs = []
+        for tr in col.transitions:
+            if len(tr.t) >= 2:
+                dt = np.diff(tr.t)
+                incs += [gr._trapezoid(tr.gyro, dt), gr._trapezoid(tr.gyro - bias, dt)]
+        out[os.path.basename(path)] = incs
+    return out
+
+
+def test_group_starts_equal_the_loop_on_real_and_simulated_pose_changes(pose_changes):
+    with_motion = 0
+    for name, incs in pose_changes.items():
+        if incs:
+            with_motion += 1
+            assert assert_groups_match(incs) > len(incs), name
+    assert with_motion >= 4          # ferraris, mpu6050 and both sim sessions have pose changes
