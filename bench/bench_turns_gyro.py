@@ -60,6 +60,19 @@ def compare(a, b, rtol=1e-9):
     return bad
 
 
+def _detail(gs, ctx, est, poly):
+    """Return the intermediate results: the seed 002 fit on all windows, per-item figures."""
+    acc = est.accel.correct(ctx.windows.accel, ctx.ta)
+    fit = gs._whole_unit_gyro(ctx, np.ones(len(ctx.windows), bool), acc, est.accel,
+                              ctx.options.transitions)
+    static = gs._whole_unit_gyro(ctx, np.ones(len(ctx.windows), bool), acc, est.accel)
+    names = [c for c, _ in gs.POSE_CANDIDATES]
+    return {'fit_model': fit.model, 'fit_stats': fit.stats, 'static_model': static.model,
+            'static_stats': static.stats, 'rotation_after_deg': fit.rotation.error_after_deg,
+            'pose': gs._pose_figures(ctx, est, poly, acc, fit)[0],
+            'still': gs._still_figures(ctx, est, acc, names, fit)[0]}
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('args')
@@ -88,13 +101,15 @@ def main(argv=None):
     print('turns_gyro CPU s:', ' '.join(f'{c:.3f}' for c in cpu),
           f'median {np.median(cpu):.3f}')
     print('chosen:', out[1]['gyro_choice']['model'], 'kept:', out[1]['gyro_choice']['kept'])
+    result = {'model': out[0], 'report': out[1], 'notes': out[2],
+              'detail': _detail(gs, ctx, est, poly)}
     if a.save:
         with open(a.save, 'wb') as f:
-            pickle.dump({'model': out[0], 'report': out[1], 'notes': out[2]}, f)
+            pickle.dump(result, f)
     if a.compare:
         with open(a.compare, 'rb') as f:
             ref = pickle.load(f)
-        bad = compare({'model': out[0], 'report': out[1], 'notes': out[2]}, ref)
+        bad = compare(result, ref)
         print('\n'.join(bad) if bad else 'EQUAL to 1e-9 relative')
         return 1 if bad else 0
     return 0

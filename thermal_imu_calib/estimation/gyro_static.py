@@ -394,8 +394,8 @@ def fit_gyro_static(windows, axis_inputs, acc, t0, latitude=None, omega1=None, p
                                              'linear')
     s = max(robust_scale(r1), 1.0)
     chains = [[lay.slices[f'cw{j}'].start + i for j in range(1, no + 1)] for i in range(3)]
-    free, ratios = decide_determined(lay, pb.jacobian(psi1, mh1, lay.size), s, ratio,
-                                     chains=chains, nuisance=nuis)
+    free, ratios = decide_determined(lay, None, s, ratio, chains=chains, nuisance=nuis,
+                                     normal=pb.gram(psi1, mh1, np.ones((m, 3)), lay.size))
     theta0 = lay.mean[:n_lin].copy()
     theta0[free[:n_lin]] = theta1[free[:n_lin]]
     theta, psi, mh, r, wts, c = _alternate(pb, free[:n_lin], theta0, False,

@@ -161,8 +161,13 @@ def posterior_ratio(jac, prior_std, noise_scale=1.0, prior_weight=None):
     ``prior_weight`` (p,) scales the prior information (0 for nuisances without a prior).
     """
     js = jac * prior_std[None, :]
-    info = js.T @ js / max(noise_scale, 1e-12) ** 2
-    pw = np.ones(js.shape[1]) if prior_weight is None else np.asarray(prior_weight, float)
+    return _ratio_of_information(js.T @ js, noise_scale, prior_weight)
+
+
+def _ratio_of_information(info, noise_scale, prior_weight):
+    """Return the posterior/prior std ratios from the prior-scaled normal matrix ``S J'J S``."""
+    info = info / max(noise_scale, 1e-12) ** 2
+    pw = np.ones(len(info)) if prior_weight is None else np.asarray(prior_weight, float)
     info = info + np.diag(np.maximum(pw, 1e-9))
     try:
         cov = np.linalg.inv(info)
@@ -172,10 +177,12 @@ def posterior_ratio(jac, prior_std, noise_scale=1.0, prior_weight=None):
 
 
 def decide_determined(layout, jac, noise_scale, ratio=DETERMINED_RATIO, reason='',
-                      chains=(), nuisance=None):
+                      chains=(), nuisance=None, normal=None):
     """Backward elimination of undetermined candidates (see the module docstring).
 
-    jac: (m, layout.size) whitened Jacobian. ``chains``: list of lists of flat indices in
+    jac: (m, layout.size) whitened Jacobian, or None with ``normal``: its normal matrix
+    J'J (layout.size, layout.size), e.g. built from a block structure (the static gyro
+    fit), which spares forming a tall dense J. ``chains``: list of lists of flat indices in
     polynomial order; fixing one element fixes the later ones of its chain. ``nuisance``:
     bool mask of elements that always stay free (no prior). Returns (free mask,
     {flat index: posterior ratio}).
@@ -192,7 +199,12 @@ def decide_determined(layout, jac, noise_scale, ratio=DETERMINED_RATIO, reason='
         if len(idx) == 0:
             break
         pw = np.where(nuis[idx], 1e-6, 1.0)
-        r = posterior_ratio(jac[:, idx], layout.std[idx], noise_scale, pw)
+        if normal is None:
+            r = posterior_ratio(jac[:, idx], layout.std[idx], noise_scale, pw)
+        else:
+            sd = layout.std[idx]
+            r = _ratio_of_information(normal[np.ix_(idx, idx)] * np.outer(sd, sd),
+                                      noise_scale, pw)
         cand = ~nuis[idx]
         for i, v in zip(idx, r):
             ratios[int(i)] = float(v)
