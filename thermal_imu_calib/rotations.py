@@ -9,14 +9,38 @@ import numpy as np
 
 
 # ------------------------------------------------------------------------ quaternions
+def _sum_sq(v):
+    """Return ``np.sum(v * v, axis=-1)`` of a float array (..., 3 or 4), bit for bit.
+
+    numpy reduces a short last axis left to right, element by element, with a per-row
+    overhead that dominates on these small batches; the same additions in the same order
+    over whole columns give the same bits.
+    """
+    s = v[..., 0] * v[..., 0]
+    for i in range(1, v.shape[-1]):
+        s = s + v[..., i] * v[..., i]
+    return s
+
+
+def _norm(v):
+    """Return ``np.linalg.norm(v, axis=-1, keepdims=True)`` of a float array, bit for bit."""
+    return np.sqrt(_sum_sq(v))[..., None]
+
+
 def quat_from_rotvec(v):
     """Return (..., 4) unit quaternions (w, x, y, z) for rotation vectors (..., 3), rad."""
     v = np.asarray(v, float)
-    th = np.linalg.norm(v, axis=-1, keepdims=True)
+    th = _norm(v)
     half = 0.5 * th
     small = th < 1e-8
-    s = np.where(small, 0.5 - th * th / 48.0, np.sin(half) / np.where(small, 1.0, th))
-    return np.concatenate([np.cos(half), s * v], axis=-1)
+    if small.any():
+        s = np.where(small, 0.5 - th * th / 48.0, np.sin(half) / np.where(small, 1.0, th))
+    else:
+        s = np.sin(half) / th
+    out = np.empty(v.shape[:-1] + (4,))
+    np.cos(half, out=out[..., :1])
+    np.multiply(s, v, out=out[..., 1:])
+    return out
 
 
 def _product_tensors():
@@ -80,7 +104,7 @@ def right_jacobian(v):
     [v]x^2 = v v' - t^2 I.
     """
     v = np.asarray(v, float)
-    t2 = np.sum(v * v, axis=-1)
+    t2 = _sum_sq(v)
     t = np.sqrt(t2)
     small = t < 1e-4
     ts = np.where(small, 1.0, t)
@@ -98,7 +122,7 @@ def right_jacobian_inverse(v):
     J_r^-1 = I + [v]x / 2 + (1 / t^2 - (1 + cos t) / (2 t sin t)) [v]x^2.
     """
     v = np.asarray(v, float)
-    t2 = np.sum(v * v, axis=-1)
+    t2 = _sum_sq(v)
     t = np.sqrt(t2)
     small = t < 1e-4
     ts = np.where(small, 1.0, t)
@@ -112,7 +136,7 @@ def right_jacobian_inverse(v):
 def quat_to_rotvec(q):
     """Return rotation vectors (..., 3) of unit quaternions (..., 4) (angle <= pi)."""
     q = np.where(q[..., :1] < 0, -q, q)
-    s = np.linalg.norm(q[..., 1:], axis=-1, keepdims=True)
+    s = _norm(q[..., 1:])
     ang = 2.0 * np.arctan2(s, q[..., :1])
     scale = np.where(s < 1e-12, 2.0, ang / np.where(s < 1e-12, 1.0, s))
     return scale * q[..., 1:]
@@ -133,7 +157,7 @@ def integrate_batch(increments):
         q = np.concatenate([q, pad], axis=1)
     while q.shape[1] > 1:
         q = quat_mul(q[:, 0::2], q[:, 1::2])
-    return q[:, 0] / np.linalg.norm(q[:, 0], axis=-1, keepdims=True)
+    return q[:, 0] / _norm(q[:, 0])
 
 
 def rate_increments(t, omega):
@@ -156,7 +180,7 @@ def prefix_products(q):
     while s < n:
         q[:, s:] = quat_mul(q[:, :-s], q[:, s:])
         s *= 2
-    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return q / _norm(q)
 
 
 def quat_to_matrix(q):
