@@ -99,7 +99,7 @@ def main(argv=None):
         gs.turns_gyro(ctx, est, poly, rep)
         cpu.append(time.process_time() - t)
     print('turns_gyro CPU s:', ' '.join(f'{c:.3f}' for c in cpu),
-          f'median {np.median(cpu):.3f}')
+          f'median {np.median(cpu):.3f} least {min(cpu):.3f}')
     print('chosen:', out[1]['gyro_choice']['model'], 'kept:', out[1]['gyro_choice']['kept'])
     result = {'model': out[0], 'report': out[1], 'notes': out[2],
               'detail': _detail(gs, ctx, est, poly)}

@@ -148,7 +148,14 @@ def integrate_batch(increments):
     increments: (k, n, 3) body-frame rotation vectors (zero-padded rows are identities);
     returns (k, 4) quaternions of dR = exp(inc_0) exp(inc_1) ... exp(inc_{n-1}).
     """
-    q = quat_from_rotvec(increments)
+    return integrate_quaternions(quat_from_rotvec(increments))
+
+
+def integrate_quaternions(q):
+    """Return the (k, 4) ordered products of (k, n, 4) unit quaternions along axis 1.
+
+    A pairwise tree product (``integrate_batch`` on the increments' quaternions).
+    """
     n = q.shape[1]
     size = 1 << max(int(np.ceil(np.log2(max(n, 1)))), 0)
     if size > n:

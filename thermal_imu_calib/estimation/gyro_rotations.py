@@ -23,8 +23,8 @@ import numpy as np
 from ..collection.outliers import robust_scale
 from .observability import decide_determined, DETERMINED_RATIO, fit_free, Layout, Priors
 
-from ..rotations import (integrate_batch, prefix_products, quat_from_rotvec, quat_rotate_inverse,
-                         quat_to_matrix, quat_to_rotvec, right_jacobian,
+from ..rotations import (integrate_quaternions, prefix_products, quat_from_rotvec,
+                         quat_rotate_inverse, quat_to_matrix, quat_to_rotvec, right_jacobian,
                          right_jacobian_inverse, SKEW)
 
 
@@ -232,30 +232,40 @@ def prepare_transitions(transitions, hold_up, hold_sigma, static, accel_model, a
                                idx, c0)
 
 
-def transition_rotations(prep, omega1, omega2, omega3, prefixes=False):
-    """Return (k, 4) quaternions dR of every transition, the prefixes and the increments.
-
-    The increments theta (k, n, 3) rad; the prefixes (k, n, 4) (inclusive ordered products)
-    only when ``prefixes``, else None.
-    """
+def increment_quaternions(prep, omega1, omega2, omega3):
+    """Return the increments theta (k, n, 3) rad and their (k, n, 4) quaternions."""
     theta = prep.b @ np.asarray(omega1).T + omega2 * prep.c2 + omega3 * prep.c3
     if prep.cone is not None:
         theta = theta + prep.cone
+    return theta, quat_from_rotvec(theta)
+
+
+def transition_rotations(prep, omega1, omega2, omega3, prefixes=False, increments=None):
+    """Return (k, 4) quaternions dR of every transition, the prefixes and the increments.
+
+    The increments theta (k, n, 3) rad; the prefixes (k, n, 4) (inclusive ordered products)
+    only when ``prefixes``, else None. ``increments``: ``increment_quaternions`` of the same
+    arguments when the caller has them.
+    """
+    theta, q = increments or increment_quaternions(prep, omega1, omega2, omega3)
     if not prefixes:
-        return integrate_batch(theta), None, theta
-    pre = prefix_products(quat_from_rotvec(theta))
+        return integrate_quaternions(q), None, theta
+    pre = prefix_products(q)
     return pre[:, -1], pre, theta
 
 
-def rotation_residuals(prep, omega1, omega2, omega3, want_jac=False):
+def rotation_residuals(prep, omega1, omega2, omega3, want_jac=False, increments=None):
     """Return (k, 3) residuals u_to - dR' u_from (rad; closure rotvec if closed) [, jac].
+
+    ``increments``: ``increment_quaternions`` of the same arguments when the caller has them
+    (the fit evaluates the Jacobian where it last evaluated the residuals).
 
     The Jacobian (k, 3, 15) w.r.t. (Omega1 row-major, Omega2, Omega3) uses the
     right-perturbation dR -> dR exp(dphi), dphi = dR' sum_k P_k J_r(theta_k) dtheta_k (P_k
     inclusive prefix products, J_r the right Jacobian of SO(3): exact, so Gauss-Newton
     converges in a few steps even with the large merged increments of a turn about one axis).
     """
-    q, pre, theta = transition_rotations(prep, omega1, omega2, omega3, want_jac)
+    q, pre, theta = transition_rotations(prep, omega1, omega2, omega3, want_jac, increments)
     rot = quat_to_matrix(q)                                    # (k, 3, 3)
     carried = np.einsum('kji,kj->ki', rot, prep.u_from)        # dR' u_from
     r = prep.u_to - carried
@@ -354,9 +364,13 @@ def fit_gyro_rotations(prep, priors=None, omega1_prior=None, ratio=DETERMINED_RA
     before = direction_error_deg(prep, lay.get(lay.mean, 'Omega1')) if k else np.zeros(0)
 
     def residuals_of(pr):
+        last = [None, None]      # parameters and increments of the last evaluation
+
         def resid(p, want_jac=False):
-            out = rotation_residuals(pr, lay.get(p, 'Omega1'), lay.get(p, 'Omega2'),
-                                     lay.get(p, 'Omega3'), want_jac)
+            om = lay.get(p, 'Omega1'), lay.get(p, 'Omega2'), lay.get(p, 'Omega3')
+            if last[0] is None or not np.array_equal(p, last[0]):
+                last[:] = p.copy(), increment_quaternions(pr, *om)
+            out = rotation_residuals(pr, *om, want_jac, last[1])
             if not want_jac:
                 return (out / pr.sigma[:, None]).ravel()
             r, j = out
