@@ -23,9 +23,9 @@ import numpy as np
 from ..collection.outliers import robust_scale
 from .observability import decide_determined, DETERMINED_RATIO, fit_free, Layout, Priors
 
-from ..rotations import (integrate_quaternions, prefix_products, quat_from_rotvec,
+from ..rotations import (cross, integrate_quaternions, prefix_products, quat_from_rotvec,
                          quat_rotate_inverse, quat_to_matrix, quat_to_rotvec, right_jacobian,
-                         right_jacobian_inverse, SKEW)
+                         right_jacobian_inverse, SKEW, sum_sq)
 
 
 # ------------------------------------------------------------------------ rotation fit
@@ -164,7 +164,7 @@ def _motion_extent(t, d, noise):
         return slice(0, n)
     dt = float(np.median(np.diff(t)))
     k = max(3, int(round(0.1 / max(dt, 1e-6))))
-    mag = np.linalg.norm(d, axis=1)
+    mag = np.sqrt(sum_sq(d))                   # np.linalg.norm(d, axis=1), bit for bit
     smooth = np.convolve(mag, np.ones(k) / k, mode='same')
     moving = np.flatnonzero(smooth > MOTION_SIGMAS * float(np.mean(noise)) / np.sqrt(k)
                             + float(np.mean(noise)) * np.sqrt(2.0 / np.pi))
@@ -205,7 +205,7 @@ def prepare_transitions(transitions, hold_up, hold_sigma, static, accel_model, a
                                                  hold_up[tr.hold_to])
         # within-interval coning of a linearly varying rate (Bortz): dt^2/12 w_a x w_b,
         # evaluated with the prior scale (its Omega1 dependence is second order)
-        cone = np.cross(d[:-1], d[1:]) * (dt ** 2 / 12.0)[:, None]
+        cone = cross(d[:-1], d[1:]) * (dt ** 2 / 12.0)[:, None]
         rows.append([i, tr, _trapezoid(d, dt), _trapezoid(w * w, dt), _trapezoid(w ** 3, dt),
                      cone, dt, closed])
     for r, starts in zip(rows, _group_starts([r[2] for r in rows])):

@@ -244,6 +244,11 @@ class _StaticProblem:
         return _normal_solve(a, b)
 
 
+def _row_sums(a):
+    """Return ``np.sum(a, axis=1)`` of an (h, 3) array, bit for bit (left to right)."""
+    return (a[:, 0] + a[:, 1]) + a[:, 2]
+
+
 def _alternate(pb, free_lin, theta0, with_prior, weights_kind):
     """Alternate linear LS and closed-form headings; return (theta, psi, mh, r, wts, c).
 
@@ -316,7 +321,7 @@ def _alternate(pb, free_lin, theta0, with_prior, weights_kind):
             else:
                 p_free = bl.predict(np.where(free_lin, theta, 0.0))
                 dh = pb.hold_sum(((y_fix - p_free) @ om1.T - pb.up_rate) * ww[:, None])
-            psi_new = np.arctan2(np.sum(dh * pb.e2, 1), np.sum(dh * pb.e1, 1))
+            psi_new = np.arctan2(_row_sums(dh * pb.e2), _row_sums(dh * pb.e1))
             if not pb.lat_known:
                 hd = np.cos(psi_new)[:, None] * pb.e1 + np.sin(psi_new)[:, None] * pb.e2
                 mh = min(max(float(np.sum(dh * hd)) / (EARTH_RATE * ww.sum()), 0.0), 1.0)
