@@ -50,11 +50,11 @@ def fit_free(resid, std, base, free, with_prior=False, robust=False, tight=True,
 
     def fun(z):
         r = resid(full(z))
-        return np.r_[r, z] if with_prior else r
+        return np.concatenate([r, z]) if with_prior else r
 
     def jac(z):
         j = resid(full(z), True)[1][:, idx] * sd[None, :]
-        return np.vstack([j, np.eye(len(idx))]) if with_prior else j
+        return np.concatenate([j, np.eye(len(idx))]) if with_prior else j
 
     if tight:
         kwargs = dict(dict(xtol=1e-12, ftol=1e-12, gtol=1e-12), **kwargs)
