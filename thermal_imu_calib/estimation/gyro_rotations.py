@@ -347,11 +347,13 @@ def _select_rotation_terms(lay, free, p1, prep, solve_rows, k, tol=0.01):
 
 
 def fit_gyro_rotations(prep, priors=None, omega1_prior=None, ratio=DETERMINED_RATIO,
-                       robust=True, select=True):
+                       robust=True, select=True, estimate_only=False):
     """Estimate Omega1 (and, when determined, Omega2/Omega3) from prepared transitions.
 
     ``select``: keep the nonlinear terms only when leave-pose-changes-out validation
-    supports them (as the accelerometer's optional terms).
+    supports them (as the accelerometer's optional terms). ``estimate_only``: leave out
+    what a held-out refit does not use (standard deviations: NaN; direction errors before
+    and after: empty); the estimate is the same.
     """
     priors = priors or Priors()
     lay = Layout()
@@ -361,7 +363,8 @@ def fit_gyro_rotations(prep, priors=None, omega1_prior=None, ratio=DETERMINED_RA
     lay.add('Omega2', (3,), 0.0, priors.gyro_nonlin2)
     lay.add('Omega3', (3,), 0.0, priors.gyro_nonlin3)
     k = len(prep.sigma)
-    before = direction_error_deg(prep, lay.get(lay.mean, 'Omega1')) if k else np.zeros(0)
+    before = direction_error_deg(prep, lay.get(lay.mean, 'Omega1')) if k and not \
+        estimate_only else np.zeros(0)
 
     def residuals_of(pr):
         last = [None, None]      # parameters and increments of the last evaluation
@@ -413,17 +416,21 @@ def fit_gyro_rotations(prep, priors=None, omega1_prior=None, ratio=DETERMINED_RA
         p0 = lay.mean.copy()
         p0[free] = p1[free]
         p, res = solve(free, p0, False, robust)
-        r, jf = resid(p, True)
-        scale = robust_scale(r) if robust else float(np.sqrt(np.mean(r * r)))
-        jf = jf[:, free]
         std = np.where(free, 0.0, lay.std)
-        try:
-            cov = np.linalg.pinv(jf.T @ jf) * max(scale, 1.0) ** 2
-            std[free] = np.sqrt(np.maximum(np.diag(cov), 0))
-        except np.linalg.LinAlgError:
+        if estimate_only:
             std[free] = np.nan
-        after = direction_error_deg(prep, lay.get(p, 'Omega1'), lay.get(p, 'Omega2'),
-                                    lay.get(p, 'Omega3'))
+            after = np.zeros(0)
+        else:
+            r, jf = resid(p, True)
+            scale = robust_scale(r) if robust else float(np.sqrt(np.mean(r * r)))
+            jf = jf[:, free]
+            try:
+                cov = np.linalg.pinv(jf.T @ jf) * max(scale, 1.0) ** 2
+                std[free] = np.sqrt(np.maximum(np.diag(cov), 0))
+            except np.linalg.LinAlgError:
+                std[free] = np.nan
+            after = direction_error_deg(prep, lay.get(p, 'Omega1'), lay.get(p, 'Omega2'),
+                                        lay.get(p, 'Omega3'))
         notes = []
         by_cv = [lay.label(i) for i in range(lay.size) if not free[i]
                  and (lay.reason[i] or '').startswith('determined, but')]
@@ -470,7 +477,8 @@ def heldout_rotation_errors(prep, priors=None, robust=True, max_folds=HELDOUT_FO
     folds = np.arange(k) % max(min(k, max_folds), 1)
     for f in np.unique(folds):
         test = folds == f
-        fit = fit_gyro_rotations(_subset(prep, ~test), priors, robust=robust, select=False)
+        fit = fit_gyro_rotations(_subset(prep, ~test), priors, robust=robust, select=False,
+                                 estimate_only=True)
         out[test] = direction_error_deg(_subset(prep, test), fit.omega1, fit.omega2,
                                         fit.omega3)
     return out
