@@ -23,7 +23,7 @@ def sum_sq(v):
 
 
 def cross(a, b):
-    """Return ``np.cross(a, b)`` of (..., 3) float arrays, bit for bit.
+    """Return the cross products of (..., 3) float arrays as numpy's cross, bit for bit.
 
     The same products and differences, without numpy's per-call set-up.
     """

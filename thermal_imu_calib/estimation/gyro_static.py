@@ -325,10 +325,11 @@ def _alternate(pb, free_lin, theta0, with_prior, weights_kind):
             if not pb.lat_known:
                 hd = np.cos(psi_new)[:, None] * pb.e1 + np.sin(psi_new)[:, None] * pb.e2
                 mh = min(max(float(np.sum(dh * hd)) / (EARTH_RATE * ww.sum()), 0.0), 1.0)
-            dpsi = float(np.max(np.abs(np.angle(np.exp(1j * (psi_new - psi))))))
-            psi = psi_new
-            if step < 1e-6 and dpsi < 1e-4:
-                break
+            moved, psi = psi_new - psi, psi_new
+            if step < 1e-6:            # the heading change, wrapped: np.angle(exp(1j moved))
+                turn = np.exp(1j * moved)
+                if float(np.max(np.abs(np.arctan2(turn.imag, turn.real)))) < 1e-4:
+                    break
     return theta, psi, mh, pb.residual(theta, psi, mh), wts, c
 
 
