@@ -21,7 +21,11 @@ from thermal_imu_calib.cli import main
 from thermal_imu_calib.cli_checks import UserError, validated
 from thermal_imu_calib.io.bag_writer import write_columns
 
-CLI = [sys.executable, '-m', 'thermal_imu_calib.cli']
+#: the installed console script, as users run it (through cli_entry). Not ``python -m
+#: thermal_imu_calib.cli``: under runpy, CPython 3.11 sometimes re-raises a SIGINT the CLI has
+#: already handled at exit (exit status -2 after printing "interrupted"; 16 of 60 runs here,
+#: 0 of 120 through the console script)
+CLI = [os.path.join(os.path.dirname(sys.executable), 'thermal-imu-calib')]
 
 
 @pytest.fixture(scope='module')
@@ -300,7 +304,9 @@ def test_interrupted_compensate_leaves_nothing(sig, out_name, long_bag, clean, t
     proc = subprocess.Popen(CLI + ['compensate', long_bag, '--calibration', clean[1],
                                    '--chunk-size', '200', '--storage', 'sqlite3',
                                    '-o', str(out)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            # a test run started in the background inherits SIGINT ignored
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 60
     while not any('.partial' in n for n in os.listdir(tmp_path)):
         assert proc.poll() is None, proc.communicate()

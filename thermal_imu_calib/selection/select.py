@@ -548,10 +548,12 @@ def select_whole_unit(ctx, sel):
         wins = (tilted >= WHOLE_UNIT_MIN_TILTED
                 and acc['whole_unit'] < (1 - margin) * acc['field']
                 and gyr['whole_unit'] <= (1 + WHOLE_UNIT_GYRO_SLACK) * gyr['field'])
-        why = (f'whole_unit {100 * margin:.0f} % better on |a|-g with the gyro no '
-               f'worse and >= {WHOLE_UNIT_MIN_TILTED} tilted holds' if wins else
-               f'whole_unit not {100 * margin:.0f} % better on |a|-g with the gyro '
-               f'no worse, or fewer than {WHOLE_UNIT_MIN_TILTED} tilted holds')
+        better = (f'{100 * margin:.0f} % better' if margin else
+                  'better (no margin: without a temperature input both are constant)')
+        why = (f'whole_unit {better} on |a|-g with the gyro no worse and >= '
+               f'{WHOLE_UNIT_MIN_TILTED} tilted holds' if wins else
+               f'whole_unit not {better} on |a|-g with the gyro no worse, or fewer than '
+               f'{WHOLE_UNIT_MIN_TILTED} tilted holds')
     text = (f'; candidates compared held out: field, whole_unit ({tilted} of {len(ids)} '
             f'holds off the six faces, {n_folds} folds): |a|-g RMS field {acc["field"]:.1f} '
             f'ug, whole_unit {acc["whole_unit"]:.1f} ug; still-gyro |w| RMS field '
