@@ -172,10 +172,19 @@ class _StaticProblem:
             a = np.take(a, self.order, axis=axis)
         return np.add.reduceat(a, self.starts, axis=axis)
 
-    def earth_holds(self, psi, mh):
-        """Return the (h, 3) earth rate per hold in the raw domain (rad/s)."""
-        hdir = np.cos(psi)[:, None] * self.e1 + np.sin(psi)[:, None] * self.e2
+    def earth_holds(self, psi, mh, hdir=None):
+        """Return the (h, 3) earth rate per hold in the raw domain (rad/s).
+
+        ``hdir``: the horizontal unit directions of the headings psi (``horizontal``) when
+        the caller has them.
+        """
+        if hdir is None:
+            hdir = self.horizontal(psi)
         return (self.up_earth + (EARTH_RATE * mh) * hdir) @ self.om1_inv.T
+
+    def horizontal(self, psi):
+        """Return the (h, 3) horizontal unit direction of each hold's heading psi (rad)."""
+        return np.cos(psi)[:, None] * self.e1 + np.sin(psi)[:, None] * self.e2
 
     def residual(self, theta, psi, mh):
         """Return the (m, 3) whitened residual, data minus model over sigma."""
@@ -271,6 +280,7 @@ def _alternate(pb, free_lin, theta0, with_prior, weights_kind):
     wts = np.ones((len(pb.y), 3))
     stages = ['linear'] if weights_kind == 'linear' else ['linear', 'soft_l1', 'cauchy']
     c = np.inf
+    hdir = None                                # horizontal directions of psi, once known
 
     def solver(wt):
         """Return b -> linear step for the weights wt (None when the system is singular)."""
@@ -301,11 +311,11 @@ def _alternate(pb, free_lin, theta0, with_prior, weights_kind):
             dh_fix = pb.hold_sum((y_fix @ om1.T - pb.up_rate) * ww[:, None])
         for _ in range(60):
             if stage == 'linear':
-                we = pb.earth_holds(psi, mh)
+                we = pb.earth_holds(psi, mh, hdir)
                 b = b_fix - gather(np.matmul(we.T[:, None, :], hold_wd))
                 new = linear_step(solve, b, lambda: y_fix - we[inv])
             else:
-                yy = y_fix - np.take(pb.earth_holds(psi, mh), inv, axis=0)
+                yy = y_fix - np.take(pb.earth_holds(psi, mh, hdir), inv, axis=0)
                 r = (yy - p_free) / sig
                 wts = (1.0 / np.sqrt(1.0 + (r / c) ** 2) if stage == 'soft_l1' else
                        1.0 / (1.0 + (r / c) ** 2))
@@ -323,8 +333,8 @@ def _alternate(pb, free_lin, theta0, with_prior, weights_kind):
                 dh = pb.hold_sum(((y_fix - p_free) @ om1.T - pb.up_rate) * ww[:, None])
             psi_new = np.arctan2(_row_sums(dh * pb.e2), _row_sums(dh * pb.e1))
             if not pb.lat_known:
-                hd = np.cos(psi_new)[:, None] * pb.e1 + np.sin(psi_new)[:, None] * pb.e2
-                mh = min(max(float(np.sum(dh * hd)) / (EARTH_RATE * ww.sum()), 0.0), 1.0)
+                hdir = pb.horizontal(psi_new)
+                mh = min(max(float(np.sum(dh * hdir)) / (EARTH_RATE * ww.sum()), 0.0), 1.0)
             moved, psi = psi_new - psi, psi_new
             if step < 1e-6:            # the heading change, wrapped: np.angle(exp(1j moved))
                 turn = np.exp(1j * moved)
