@@ -1,9 +1,12 @@
-"""The fast pieces of the gyro rotation fit against their plain versions, bit for bit.
+"""The fast pieces of the gyro fits against their plain versions.
 
 ``gyro_rotations._group_starts`` (the merged increment groups of every pose change, found
-for all transitions at once) against the sample-by-sample loop it replaced, on random
-increments and on the pose changes of the ``sim_scenarios`` sessions and the real fixtures
-written as bags and collected as the CLI does (``collect_windows(motion=True)``).
+for all transitions at once) against the sample-by-sample loop it replaced, bit for bit, on
+random increments and on the pose changes of the ``sim_scenarios`` sessions and the real
+fixtures written as bags and collected as the CLI does (``collect_windows(motion=True)``);
+the column-wise ``rotations.cross``/``sum_sq`` against numpy, bit for bit; held-out refits
+(``estimate_only``) against the full fit; ``decide_determined`` from a normal matrix against
+the one from the Jacobian.
 """
 
 import os
@@ -12,8 +15,9 @@ import sys
 import numpy as np
 import pytest
 
-from thermal_imu_calib import sim
+from thermal_imu_calib import rotations, sim
 from thermal_imu_calib.estimation import gyro_rotations as gr
+from thermal_imu_calib.estimation.observability import decide_determined, Layout
 from thermal_imu_calib.pipeline import collect_windows
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -97,3 +101,54 @@ def test_group_starts_equal_the_loop_on_real_and_simulated_pose_changes(pose_cha
             with_motion += 1
             assert assert_groups_match(incs) > len(incs), name
     assert with_motion >= 4          # ferraris, mpu6050 and both sim sessions have pose changes
+
+
+def test_column_cross_and_norms_are_numpys_bit_for_bit():
+    rng = np.random.default_rng(5)
+    a = rng.normal(size=(400, 3)) * np.exp(3 * rng.normal(size=(400, 3)))
+    b = rng.normal(size=(400, 3))
+    assert np.array_equal(rotations.cross(a, b), np.cross(a, b))
+    assert np.array_equal(rotations.cross(a[:-1], a[1:]), np.cross(a[:-1], a[1:]))
+    q = rng.normal(size=(7, 9, 4))
+    assert np.array_equal(rotations.sum_sq(a), np.sum(a * a, axis=-1))
+    assert np.array_equal(rotations._norm(q), np.linalg.norm(q, axis=-1, keepdims=True))
+
+
+def test_estimate_only_refit_has_the_same_estimate():
+    rng = np.random.default_rng(4)
+    k, n = 10, 12
+    b = rng.normal(size=(k, n, 3)) * 0.2
+    truth = np.eye(3) + rng.normal(size=(3, 3)) * 0.01
+    u_from = rng.normal(size=(k, 3))
+    u_from /= np.linalg.norm(u_from, axis=1, keepdims=True)
+    prep = gr.PreparedTransitions(b, b ** 2 * 0.1, b ** 3 * 0.01, u_from, u_from,
+                                  np.full(k, 1e-3), np.zeros(k, bool), list(range(k)))
+    # residual u_to - carried with u_to = u_from: the carried direction of Omega1 = truth
+    prep.u_to = u_from - gr.rotation_residuals(prep, truth, 0.0, 0.0)
+    full = gr.fit_gyro_rotations(prep, select=False)
+    quick = gr.fit_gyro_rotations(prep, select=False, estimate_only=True)
+    for name in ('omega1', 'omega2', 'omega3'):
+        assert np.array_equal(getattr(full, name), getattr(quick, name)), name
+    assert np.abs(full.omega1 - truth).max() < 1e-6
+    assert len(quick.error_after_deg) == 0 and np.isnan(quick.std['Omega1']).all()
+
+
+def test_decide_determined_from_the_normal_matrix_matches_the_jacobian():
+    results = []
+    for use_normal in (False, True):
+        lay = Layout()
+        lay.add('a', (4,), 0.0, 1.0)
+        lay.add('c', (3,), 0.0, [1.0, 0.1, 0.01])
+        lay.add('psi', (2,), 0.0, np.pi)
+        jac = np.random.default_rng(6).normal(size=(40, lay.size))
+        jac[:, 1] *= 1e-3                             # one weakly determined parameter
+        jac[:, 5:7] *= 1e-2
+        nuis = np.zeros(lay.size, bool)
+        nuis[7:] = True
+        kw = dict(chains=[[4, 5, 6]], nuisance=nuis)
+        results.append(decide_determined(lay, None, 1.5, normal=jac.T @ jac, **kw)
+                       if use_normal else decide_determined(lay, jac, 1.5, **kw))
+    (free_j, ratios_j), (free_n, ratios_n) = results
+    assert np.array_equal(free_j, free_n) and not free_j[1] and free_j.sum() >= 3
+    assert ratios_j.keys() == ratios_n.keys()
+    np.testing.assert_allclose(list(ratios_n.values()), list(ratios_j.values()), rtol=1e-9)
