@@ -80,51 +80,43 @@ class ScenarioConfig:
     tremor_dps: float = 0.0
 
 
+#: what every navigation-device scenario shares: the device, its 100 Hz output, per-axis
+#: 10 Hz temperature topics (0.01 degC LSB), six faces with 4-8 s pose changes
+_NAV = dict(device='nav', imu_rate=100.0, faces=SIX_FACES, transition_s=(4.0, 8.0),
+            tilt_deg=(0.5, 4.0), t_amb_jitter=0.2,
+            temp_topics=('/imu/temperature/x', '/imu/temperature/y', '/imu/temperature/z'),
+            temp_rate=10.0, temp_lsb=0.01, temp_noise=0.003)
+
 SCENARIOS = {
     'nav-coldstart': ScenarioConfig(
-        name='nav-coldstart', device='nav', imu_rate=100.0,
+        name='nav-coldstart', **_NAV,
         description='navigation-grade cold start at ~20 degC as in seed 000: 5 x six-position '
                     'scheme over a ~2.5 h warm-up (45-min thermal time constant): a quick '
                     'first pass (60-90 s holds) so every face sees the cold start, then '
                     '5.5-6.5 min holds; per-accelerometer temperature sensors',
-        faces=SIX_FACES, repetitions=5, hold_s=(330.0, 390.0), first_hold_s=(60.0, 90.0),
-        transition_s=(4.0, 8.0), tilt_deg=(0.5, 4.0), t_amb=20.0, t_amb_jitter=0.2,
-        rise=16.0, tau_s=2700.0,
-        temp_topics=('/imu/temperature/x', '/imu/temperature/y', '/imu/temperature/z'),
-        temp_rate=10.0, temp_lsb=0.01, temp_noise=0.003),
+        repetitions=5, hold_s=(330.0, 390.0), first_hold_s=(60.0, 90.0), t_amb=20.0,
+        rise=16.0, tau_s=2700.0),
     'nav-coldstart-uniform': ScenarioConfig(
-        name='nav-coldstart-uniform', device='nav', imu_rate=100.0,
+        name='nav-coldstart-uniform', **_NAV,
         description='nav-coldstart with every hold 5.5-6.5 min (no quick first pass: the '
                     'z faces first come up ~7 degC above the start temperature)',
-        faces=SIX_FACES, repetitions=5, hold_s=(330.0, 390.0), transition_s=(4.0, 8.0),
-        tilt_deg=(0.5, 4.0), t_amb=20.0, t_amb_jitter=0.2, rise=16.0, tau_s=2700.0,
-        temp_topics=('/imu/temperature/x', '/imu/temperature/y', '/imu/temperature/z'),
-        temp_rate=10.0, temp_lsb=0.01, temp_noise=0.003),
+        repetitions=5, hold_s=(330.0, 390.0), t_amb=20.0, rise=16.0, tau_s=2700.0),
     'nav-validation': ScenarioConfig(
-        name='nav-validation', device='nav', imu_rate=100.0,
+        name='nav-validation', **_NAV,
         description='second, independent ~3 h cold start of the nav-coldstart device: six '
                     'faces x 28-30 min holds for 300-s averages',
-        faces=SIX_FACES, repetitions=1, shuffle=True, hold_s=(1680.0, 1800.0),
-        transition_s=(4.0, 8.0), tilt_deg=(0.5, 4.0), t_amb=20.4, t_amb_jitter=0.2,
-        rise=16.0, tau_s=2700.0,
-        temp_topics=('/imu/temperature/x', '/imu/temperature/y', '/imu/temperature/z'),
-        temp_rate=10.0, temp_lsb=0.01, temp_noise=0.003),
+        repetitions=1, shuffle=True, hold_s=(1680.0, 1800.0), t_amb=20.4, rise=16.0,
+        tau_s=2700.0),
     'nav-coldstart-short': ScenarioConfig(
-        name='nav-coldstart-short', device='nav', imu_rate=100.0,
+        name='nav-coldstart-short', **_NAV,
         description='a hurried variant of nav-coldstart: 5 x six faces with 3-4 min holds '
                     'over a 107-min warm-up (30-min time constant)',
-        faces=SIX_FACES, repetitions=5, hold_s=(180.0, 240.0), transition_s=(4.0, 8.0),
-        tilt_deg=(0.5, 4.0), t_amb=20.0, t_amb_jitter=0.2, rise=16.0, tau_s=1800.0,
-        temp_topics=('/imu/temperature/x', '/imu/temperature/y', '/imu/temperature/z'),
-        temp_rate=10.0, temp_lsb=0.01, temp_noise=0.003),
+        repetitions=5, hold_s=(180.0, 240.0), t_amb=20.0, rise=16.0, tau_s=1800.0),
     'nav-validation-short': ScenarioConfig(
-        name='nav-validation-short', device='nav', imu_rate=100.0,
+        name='nav-validation-short', **_NAV,
         description='validation for nav-coldstart-short: six faces x 20 min holds',
-        faces=SIX_FACES, repetitions=1, shuffle=True, hold_s=(1200.0, 1260.0),
-        transition_s=(4.0, 8.0), tilt_deg=(0.5, 4.0), t_amb=20.4, t_amb_jitter=0.2,
-        rise=16.0, tau_s=1800.0,
-        temp_topics=('/imu/temperature/x', '/imu/temperature/y', '/imu/temperature/z'),
-        temp_rate=10.0, temp_lsb=0.01, temp_noise=0.003),
+        repetitions=1, shuffle=True, hold_s=(1200.0, 1260.0), t_amb=20.4, rise=16.0,
+        tau_s=1800.0),
     'mems-coldstart': ScenarioConfig(
         name='mems-coldstart', device='mems', imu_rate=200.0,
         description='consumer MEMS cold start: 3 x (six faces + 2 tilted poses), 60-90 s '
