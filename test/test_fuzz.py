@@ -317,3 +317,21 @@ def test_fuzz_targets_cover_the_probe_cases():
             with pytest.raises(CalibrationError):
                 Calibration.from_yaml(text, 'seed')
     assert yaml.safe_load(GOOD_TEXT)['format'] == 'thermal_imu_calib/1'
+
+
+def test_calibrator_survives_stamps_that_imply_no_usable_sample_rate(nodes):
+    """Found by the fuzz test: IMU stamps 850 Ms apart derive a detector block of 8.5e9 s.
+
+    The node warns, drops those samples and restarts detection instead of raising out of
+    its callback; windows collected before are kept.
+    """
+    from conftest import imu_msg, temperature_msg
+    _, calib, _ = nodes
+    before = calib.counts.get('detector_restarts', 0)
+    base = 1_700_000_057 * 1_000_000_000
+    stamps = [base + k * 850_000_000 * 1_000_000_000 for k in range(4)] + [base]
+    for stamp in stamps:                  # 850 million seconds apart, then back: closes it
+        calib._temperature_cb(0)(temperature_msg(stamp, 35.0))
+        calib._on_imu(imu_msg(stamp, [0, 0, 9.81], [0, 0, 0]))
+        calib._process()
+    assert calib.counts.get('detector_restarts', 0) > before

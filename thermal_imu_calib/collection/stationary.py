@@ -70,6 +70,10 @@ FLOOR_BLOCKS = 200_000
 DERIVED = ('block_s', 'window_s', 'min_hold_s', 'guard_s', 'accel_factor', 'gyro_factor')
 
 
+class DetectorSettingsError(ValueError):
+    """The settings derived from the IMU's sample rate are out of range (implausible stamps)."""
+
+
 @dataclass
 class DetectorConfig:
     """Stationary detector settings (seconds, dimensionless factors); None or 0: derived."""
@@ -348,7 +352,13 @@ class StationaryDetector:
         qa, qg = quantisation_step(accel), quantisation_step(gyro)
         self.config, self.block_n = self.requested.derive(rate, float(qa.max()),
                                                           float(qg.max()))
-        self.config.validate()
+        try:
+            self.config.validate()
+        except ValueError as e:
+            raise DetectorSettingsError(
+                f'{e}: derived from a sample rate of {rate:.3g} Hz (median spacing of the first '
+                f'{len(t)} IMU header stamps); check that the stamps are the sample times '
+                '(seconds and nanoseconds)') from None
         self._lsb_var = (float(np.sum(qa ** 2)) / 12.0, float(np.sum(qg ** 2)) / 12.0)
         c = self.config
         self.derived = {'rate_hz': rate, 'block_samples': self.block_n,

@@ -45,7 +45,7 @@ from ..estimation.calibrate import (CalibrateOptions, CalibrationRefused, calibr
                                     readiness)
 from ..collection.motion import load_transitions, MotionCollector, offset_holds, save_transitions
 from ..collection.segments import FACE_NAMES, Windows
-from ..collection.stationary import DetectorConfig
+from ..collection.stationary import DetectorConfig, DetectorSettingsError
 from ..formats import load_prior
 from ..gravity import resolve_gravity
 from ..io.align import StreamAligner
@@ -434,7 +434,10 @@ class CalibratorNode(Node):
             return
         for chunk in self.aligner.finish():
             self._collect(chunk)
-        self._store(self.detector.finish(), self.detector, self._hold_offset)
+        try:
+            self._store(self.detector.finish(), self.detector, self._hold_offset)
+        except DetectorSettingsError as e:
+            self._detector_failed(e)
         self._hold_offset = int(self.windows.hold.max()) + 1 if len(self.windows) else 0
         for why, n in self.detector.dropped.items():
             self.transitions_dropped[why] += n
@@ -455,9 +458,25 @@ class CalibratorNode(Node):
         self.counts['samples'] += int(use.sum())
         if not use.any():
             return
-        win = self.detector.update(imu.t[use], imu.accel[use], imu.gyro[use],
-                                   chunk.temps[use])
+        try:
+            win = self.detector.update(imu.t[use], imu.accel[use], imu.gyro[use],
+                                       chunk.temps[use])
+        except DetectorSettingsError as e:
+            self._detector_failed(e)
+            return
         self._store(win, self.detector, self._hold_offset)
+
+    def _detector_failed(self, err):
+        """Restart detection after samples whose stamps give no usable detector settings.
+
+        The samples since the last restart are dropped (counted in ``detector_restarts``);
+        the windows and pose changes collected before are kept.
+        """
+        self.detector = self._collector()
+        self._hold_offset = int(self.windows.hold.max()) + 1 if len(self.windows) else 0
+        self.counts['detector_restarts'] = self.counts.get('detector_restarts', 0) + 1
+        self.get_logger().warning(f'stationary detection restarted, samples dropped: {err}',
+                                  throttle_duration_sec=10.0)
 
     # ------------------------------------------------------------------ services
     def options(self, transitions=()):
