@@ -65,7 +65,7 @@ def test_group_starts_equal_the_loop_on_random_increments():
     groups = assert_groups_match(incs)
     assert groups > 50                      # short and long groups were both exercised
     b = incs[3]
-    merged = gr._merge_commuting(b, b ** 2, b ** 3, 0 * b)
+    merged = gr._merge_commuting([(b, b ** 2, b ** 3, 0 * b)])[0]
     starts = loop_starts(b)
     for x, y in zip(merged, (b, b ** 2, b ** 3, 0 * b)):
         assert np.array_equal(x, np.add.reduceat(y, starts, axis=0))

@@ -102,9 +102,22 @@ def reference_alternate(pb, free_lin, theta0, with_prior, weights_kind):
     return theta, psi, mh, r, wts, c
 
 
+def dense_jacobian(pb, psi, mh, size):
+    """Whitened Jacobian (3m, size) of r = (y - pred) / sigma (linear, psi[, mh]), dense."""
+    m, _, n_lin = pb.x.shape
+    nsig = -pb.sig
+    jac = np.zeros((m, 3, size))
+    jac[:, :, :n_lin] = pb.x / nsig[:, :, None]
+    dpsi, dmh = pb.nuisance_rates(psi, mh)
+    jac[np.arange(m), :, n_lin + pb.inv] = dpsi / nsig
+    if dmh is not None:
+        jac[:, :, size - 1] = dmh / nsig
+    return jac.reshape(3 * m, size)
+
+
 def reference_gram(pb, psi, mh, wts, size):
     """Return J^T diag(wts) J from the dense Jacobian."""
-    jf = pb.jacobian(psi, mh, size) * np.sqrt(wts).ravel()[:, None]
+    jf = dense_jacobian(pb, psi, mh, size) * np.sqrt(wts).ravel()[:, None]
     return jf.T @ jf
 
 

@@ -107,6 +107,16 @@ SKEW = np.array([[0, 0, 0, 0, 0, -1, 0, 1, 0], [0, 0, 1, 0, 0, 0, -1, 0, 0],
                  [0, -1, 0, 1, 0, 0, 0, 0, 0]], float)
 
 
+def _so3_series(v, a, c, t2):
+    """Return (..., 3, 3) I + a [v]x + c [v]x^2 of vectors v (..., 3), |v|^2 = t2.
+
+    With [v]x^2 = v v' - t^2 I: the form of both ``right_jacobian`` and its inverse.
+    """
+    out = (v @ SKEW) * np.asarray(a)[..., None] + v[..., _I9] * v[..., _J9] * c[..., None]
+    out[..., 0::4] += (1.0 - c * t2)[..., None]
+    return out.reshape(v.shape[:-1] + (3, 3))
+
+
 def right_jacobian(v):
     """Return (..., 3, 3) right Jacobians of SO(3) at rotation vectors (..., 3), rad.
 
@@ -121,9 +131,7 @@ def right_jacobian(v):
     ts = np.where(small, 1.0, t)
     a = np.where(small, 0.5 - t2 / 24.0, (1.0 - np.cos(ts)) / ts ** 2)
     b = np.where(small, 1.0 / 6.0 - t2 / 120.0, (ts - np.sin(ts)) / ts ** 3)
-    out = (v @ SKEW) * -a[..., None] + v[..., _I9] * v[..., _J9] * b[..., None]
-    out[..., 0::4] += (1.0 - b * t2)[..., None]
-    return out.reshape(v.shape[:-1] + (3, 3))
+    return _so3_series(v, -a, b, t2)
 
 
 def right_jacobian_inverse(v):
@@ -139,9 +147,7 @@ def right_jacobian_inverse(v):
     ts = np.where(small, 1.0, t)
     c = np.where(small, 1.0 / 12.0 + t2 / 720.0,
                  1.0 / ts ** 2 - (1.0 + np.cos(ts)) / (2.0 * ts * np.sin(ts)))
-    out = (v @ SKEW) * 0.5 + v[..., _I9] * v[..., _J9] * c[..., None]
-    out[..., 0::4] += (1.0 - c * t2)[..., None]
-    return out.reshape(v.shape[:-1] + (3, 3))
+    return _so3_series(v, 0.5, c, t2)
 
 
 def quat_to_rotvec(q):

@@ -110,7 +110,7 @@ def _group_starts(increments, window=64):
     the sample that would exceed it starts the next group. All transitions advance together
     by ``window`` samples per step, and the running sums are sequential cumulative sums
     seeded with the group's sums so far: they repeat, in the same order, the additions of a
-    sample-by-sample loop (test_rotations keeps it as the reference), so the groups are
+    sample-by-sample loop (test_gyro_rotations_fast keeps it as the reference), so the groups are
     identical to it bit for bit.
     """
     k = len(increments)
@@ -147,10 +147,14 @@ def _group_starts(increments, window=64):
     return [np.array(x) for x in starts]
 
 
-def _merge_commuting(b, c2, c3, cone):
-    """Sum runs of increments whose composition is their sum to 1e-7 rad (``_group_starts``)."""
-    starts = _group_starts([b])[0]
-    return tuple(np.add.reduceat(x, starts, axis=0) for x in (b, c2, c3, cone))
+def _merge_commuting(parts):
+    """Sum runs of increments whose composition is their sum to 1e-7 rad, per transition.
+
+    parts: one (b, c2, c3, cone) tuple of (n_t, 3) arrays per transition; the groups come
+    from b (``_group_starts``, all transitions at once) and apply to all four.
+    """
+    return [tuple(np.add.reduceat(x, starts, axis=0) for x in p)
+            for p, starts in zip(parts, _group_starts([p[0] for p in parts]))]
 
 
 def _motion_extent(t, d, noise):
@@ -208,8 +212,8 @@ def prepare_transitions(transitions, hold_up, hold_sigma, static, accel_model, a
         cone = cross(d[:-1], d[1:]) * (dt ** 2 / 12.0)[:, None]
         rows.append([i, tr, _trapezoid(d, dt), _trapezoid(w * w, dt), _trapezoid(w ** 3, dt),
                      cone, dt, closed])
-    for r, starts in zip(rows, _group_starts([r[2] for r in rows])):
-        r[2:6] = [np.add.reduceat(x, starts, axis=0) for x in r[2:6]]
+    for r, merged in zip(rows, _merge_commuting([tuple(r[2:6]) for r in rows])):
+        r[2:6] = merged
     k = len(rows)
     n = max([len(r[2]) for r in rows], default=1)
     b = np.zeros((k, n, 3))

@@ -201,23 +201,13 @@ class _StaticProblem:
                                   + np.cos(psi)[inv, None] * e2[inv]) @ self.om1_inv.T
         if self.lat_known:
             return dpsi, None
-        hdir = np.cos(psi)[inv, None] * e1[inv] + np.sin(psi)[inv, None] * e2[inv]
-        return dpsi, EARTH_RATE * hdir @ self.om1_inv.T
-
-    def jacobian(self, psi, mh, size):
-        """Whitened Jacobian (3m, size) of r = (y - pred) / sigma (linear, psi[, mh])."""
-        m, _, n_lin = self.x.shape
-        nsig = -self.sig
-        jac = np.zeros((m, 3, size))
-        jac[:, :, :n_lin] = self.x / nsig[:, :, None]
-        dpsi, dmh = self.nuisance_rates(psi, mh)
-        jac[np.arange(m), :, n_lin + self.inv] = dpsi / nsig
-        if dmh is not None:
-            jac[:, :, size - 1] = dmh / nsig
-        return jac.reshape(3 * m, size)
+        return dpsi, EARTH_RATE * self.horizontal(psi)[inv] @ self.om1_inv.T
 
     def gram(self, psi, mh, wts, size):
-        """Return ``J^T diag(wts) J`` (size, size) of J = ``jacobian`` from its blocks.
+        """Return ``J^T diag(wts) J`` (size, size) of the whitened Jacobian, from its blocks.
+
+        J (3m, size) of r = (y - pred) / sigma over (linear, psi[, mh]); the dense one is
+        in test_gyro_static_fast as the reference.
 
         Linear columns: the per-axis normal matrices; a heading column is non-zero on
         its hold's windows only (its block with the others is diagonal).
@@ -364,7 +354,8 @@ def fit_gyro_static(windows, axis_inputs, acc, t0, latitude=None, omega1=None, p
     horizontal magnitude without latitude) has a closed form for fixed linear parameters,
     so the solver alternates the two (with iteratively reweighted soft-L1 then Cauchy
     weights when ``robust``); observability is decided as in ``whole_unit_fit`` from the
-    full Jacobian, headings included as nuisances.
+    full Jacobian's normal matrix (``_StaticProblem.gram``, built from its blocks), headings
+    included as nuisances.
     """
     priors = priors or Priors()
     om1 = np.eye(3) if omega1 is None else np.asarray(omega1, float)

@@ -116,7 +116,8 @@ def _pose_figures(ctx, est, poly, acc, turns_fit):
     from ..estimation.gyro_static import hold_directions
     prep = turns_fit.rotation.prepared
     priors = priors_like(turns_fit.rotation, ctx.options.whole_unit_priors)
-    out = {'whole_unit_static': direction_error_deg(prep, np.eye(3)),
+    # the static model's error is the rotation fit's own before it (Omega1 = I, its prior)
+    out = {'whole_unit_static': turns_fit.rotation.error_before_deg,
            'whole_unit_turns': heldout_rotation_errors(prep, priors)}
     up, sig = hold_directions(ctx.windows, acc)
     noise = np.sqrt(np.median(ctx.windows.gyro_var, axis=0))
