@@ -1,0 +1,280 @@
+"""Replay a log into calibrator_node over DDS and call ~/calibrate, counting every message.
+
+The node is started as its own process the way the launch file describes it
+(``launch_nodes``: the shipped ``config/calibrator.yaml`` and the launch arguments, plus the
+parameters a user adds, e.g. ``gravity``), with ``HOME`` pointed at a fresh directory so
+the shipped ``~/.ros/thermal_imu_calib/...`` collection never carries over between runs.
+
+The node's inputs are best effort (``common.sensor_qos``), which promises no delivery, so
+the replay is flow-controlled: IMU messages go out in chunks, and a chunk is published only
+when the node's ``~/progress`` count (``imu_received``) shows that all but one chunk have
+arrived; the window in flight stays below the node's input depth (1000). At the end both
+counts (IMU and temperature) must equal what was published; ``Replay.complete`` says so.
+Every wait is on a condition, bounded by a stall time (no progress at all), and fails at
+once when the node process has exited.
+"""
+
+import json
+import os
+import signal
+import subprocess
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+import launch_nodes
+
+#: IMU messages published before the node must have caught up (half the window in flight)
+CHUNK = 400
+#: messages per second inside a chunk (bursts beyond the socket buffers are lost)
+RATE = 4000.0
+#: a wait fails when its condition has made no progress for this long (a busy 2-core
+#: machine can starve a process for tens of seconds; a broken path does not move at all)
+STALL_S = 180.0
+#: bound on one ~/calibrate call (the estimation itself; ends as soon as the answer comes)
+CALL_S = 1800.0
+
+
+class NodeFailed(RuntimeError):
+    """The node process exited or a wait made no progress; the message says which."""
+
+
+@dataclass
+class Replay:
+    """What one live run did: counts, the service answer and the written calibration."""
+
+    imu_sent: int = 0
+    temp_sent: int = 0
+    imu_received: int = 0
+    temp_received: int = 0
+    success: bool = False
+    message: str = ''
+    calibration_text: str = ''
+    seconds: dict = field(default_factory=dict)
+    error: str = ''
+    command: list = field(default_factory=list)
+
+    @property
+    def complete(self):
+        """True when every published message was counted by the node."""
+        return (self.imu_received == self.imu_sent and self.temp_received == self.temp_sent
+                and self.imu_sent > 0)
+
+
+class _Driver:
+    """The rclpy side: publishers, the progress subscription and a spinning thread."""
+
+    def __init__(self, domain_id, temperature_topic):
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+        from sensor_msgs.msg import Imu, Temperature
+        from std_msgs.msg import String
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=domain_id)
+        self.node = rclpy.create_node('scoreboard_player', context=self.context)
+        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                         reliability=ReliabilityPolicy.RELIABLE)
+        self.imu_pub = self.node.create_publisher(Imu, 'imu/data_raw', qos)
+        self.temp_pub = (self.node.create_publisher(Temperature, temperature_topic, qos)
+                         if temperature_topic else None)
+        self.progress = None
+        self._lock = threading.Lock()
+        self.node.create_subscription(String, '/thermal_imu_calibrator/progress',
+                                      self._on_progress, 10)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread.start()
+
+    def _on_progress(self, msg):
+        with self._lock:
+            self.progress = json.loads(msg.data)
+
+    def _spin(self):
+        from rclpy.executors import ExternalShutdownException
+        while self.context.ok():
+            try:
+                self.executor.spin_once(timeout_sec=0.05)
+            except ExternalShutdownException:
+                break
+            except Exception:  # noqa: B902 - shutting down
+                if not self.context.ok():
+                    break
+                raise
+
+    def reported(self, key, default=0):
+        with self._lock:
+            return self.progress.get(key, default) if self.progress else default
+
+    def close(self):
+        self.context.try_shutdown()
+        self._thread.join(5.0)
+        self.executor.shutdown(timeout_sec=1.0)
+
+
+class LiveCalibrator:
+    """calibrator_node in its own process (new session), as the launch file starts it."""
+
+    def __init__(self, workdir, launch_args, extra_params, domain_id):
+        self.workdir = workdir
+        os.makedirs(os.path.join(workdir, 'home'), exist_ok=True)
+        node, = launch_nodes.resolve(nodes='calibrator', **launch_args)
+        self.argv = launch_nodes.command(node, workdir, extra_params)
+        env = dict(os.environ, HOME=os.path.join(workdir, 'home'),
+                   ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+                   PYTHONUNBUFFERED='1')
+        self.log_path = os.path.join(workdir, 'node.log')
+        self._log = open(self.log_path, 'wb')
+        self.proc = subprocess.Popen(self.argv, stdout=self._log, stderr=subprocess.STDOUT,
+                                     env=env, start_new_session=True)
+
+    def dead(self):
+        """Return the exit code when the process has exited, else None."""
+        return self.proc.poll()
+
+    def log_tail(self, n=1):
+        """Return the last ``n`` lines of the node's output (its exception, when it died)."""
+        with open(self.log_path, 'rb') as f:
+            lines = f.read().decode('utf-8', 'replace').strip().splitlines()
+        return ' | '.join(x.strip() for x in lines[-n:])
+
+    def stop(self):
+        """SIGINT the node's process group; SIGKILL it if it has not ended in 20 s."""
+        if self.proc.poll() is None:
+            os.killpg(self.proc.pid, signal.SIGINT)
+            try:
+                self.proc.wait(20)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.proc.pid, signal.SIGKILL)
+                self.proc.wait(10)
+        try:                        # the report child (nice 10) may outlive the node
+            os.killpg(self.proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        self._log.close()
+
+
+def _wait(cond, what, node, stall=STALL_S, progress=None):
+    """Wait until ``cond()``; fail when ``progress()`` has not changed for ``stall`` s."""
+    last, moved = (progress() if progress else None), time.monotonic()
+    while not cond():
+        code = node.dead()
+        if code is not None:
+            raise NodeFailed(f'calibrator_node exited (code {code}) while waiting for {what}: '
+                             f'{node.log_tail()}')
+        now = progress() if progress else None
+        if now != last:
+            last, moved = now, time.monotonic()
+        elif time.monotonic() - moved > stall:
+            raise NodeFailed(f'no progress for {stall:.0f} s waiting for {what}')
+        time.sleep(0.02)
+
+
+def _publish(driver, imu, temps, i0, i1, t_lo, t_hi, pace):
+    """Publish IMU rows i0..i1 and the temperatures stamped in [t_lo, t_hi), in stamp order."""
+    from thermal_imu_calib.nodes.player import imu_msg, temperature_msg
+    events = [(int(imu.stamp_ns[i]), 0, i) for i in range(i0, i1)]
+    n_t = 0
+    if temps is not None:
+        m = np.flatnonzero((temps.stamp_ns >= t_lo) & (temps.stamp_ns < t_hi))
+        events += [(int(temps.stamp_ns[j]), 1, j) for j in m]
+        n_t = len(m)
+    events.sort()
+    frame = imu.frame_id or 'imu_link'
+    for k, (stamp, kind, i) in enumerate(events):
+        pace.wait(k)
+        if kind == 0:
+            driver.imu_pub.publish(imu_msg(stamp, imu.accel[i], imu.gyro[i], frame))
+        else:
+            driver.temp_pub.publish(temperature_msg(stamp, temps.temperature[i], frame))
+    return i1 - i0, n_t
+
+
+def run_live(imu, temps, gravity, domain_id, temperature_topics=None, workdir=None,
+             calibration_name='live.yaml'):
+    """Replay ``imu`` (+ ``temps`` on /imu/temperature) into a launched calibrator_node.
+
+    ``temperature_topics``: the launch argument (None: the shipped config's
+    [imu/temperature]; '[]': none). Returns a Replay; never raises for node failures (they
+    are in ``Replay.error``).
+    """
+    from thermal_imu_calib.nodes.player import Pacer
+    from std_srvs.srv import Trigger
+    workdir = workdir or tempfile.mkdtemp(prefix='live-')
+    cal_path = os.path.join(workdir, calibration_name)
+    args = {'calibration_file': cal_path}
+    if temperature_topics is not None:
+        args['temperature_topics'] = temperature_topics
+    out = Replay()
+    t_start = time.monotonic()
+    node = LiveCalibrator(workdir, args, {'gravity': float(gravity)}, domain_id)
+    out.command = node.argv
+    driver = _Driver(domain_id, '/imu/temperature' if temps is not None else None)
+    try:
+        def connected():
+            p = driver.progress
+            return (p is not None and p['imu_publishers'] >= 1
+                    and all(n >= 1 for n in p['temperature_publishers'])
+                    and driver.imu_pub.get_subscription_count() >= 1)
+        _wait(connected, 'the node to match the player', node)
+        if temps is not None and driver.temp_pub.get_subscription_count() < 1:
+            raise NodeFailed('the node does not subscribe /imu/temperature (launch arguments)')
+        out.seconds['start'] = time.monotonic() - t_start
+        t0 = time.monotonic()
+        n = len(imu)
+        base = driver.reported('imu_received')
+        for i0 in range(0, n, CHUNK):
+            i1 = min(i0 + CHUNK, n)
+            if out.imu_sent:
+                need = out.imu_sent - CHUNK
+                _wait(lambda: driver.reported('imu_received') - base >= need,
+                      f'{need} IMU messages at the node', node,
+                      progress=lambda: driver.reported('imu_received'))
+            lo = -2 ** 62 if i0 == 0 else int(imu.stamp_ns[i0])
+            hi = 2 ** 62 if i1 == n else int(imu.stamp_ns[i1])
+            a, b = _publish(driver, imu, temps, i0, i1, lo, hi, Pacer(RATE))
+            out.imu_sent += a
+            out.temp_sent += b
+
+        def all_in():
+            return (driver.reported('imu_received') - base >= out.imu_sent
+                    and driver.reported('temperature_readings') >= out.temp_sent)
+        try:
+            _wait(all_in, 'every message at the node', node, stall=30.0,
+                  progress=lambda: (driver.reported('imu_received'),
+                                    driver.reported('temperature_readings')))
+        except NodeFailed as e:
+            if node.dead() is not None:
+                raise
+            out.error = f'not every message arrived: {e}'
+        out.imu_received = driver.reported('imu_received') - base
+        out.temp_received = driver.reported('temperature_readings')
+        out.seconds['replay'] = time.monotonic() - t0
+        t0 = time.monotonic()
+        client = driver.node.create_client(Trigger, '/thermal_imu_calibrator/calibrate')
+        _wait(client.service_is_ready, 'the ~/calibrate service', node)
+        fut = client.call_async(Trigger.Request())
+        deadline = time.monotonic() + CALL_S
+        while not fut.done():
+            if node.dead() is not None:
+                raise NodeFailed(f'calibrator_node exited during ~/calibrate: {node.log_tail()}')
+            if time.monotonic() > deadline:
+                raise NodeFailed(f'~/calibrate gave no answer in {CALL_S:.0f} s')
+            time.sleep(0.05)
+        r = fut.result()
+        out.success, out.message = bool(r.success), r.message
+        out.seconds['calibrate'] = time.monotonic() - t0
+        if out.success and os.path.exists(cal_path):
+            with open(cal_path) as f:
+                out.calibration_text = f.read()
+    except NodeFailed as e:
+        out.error = str(e)
+    finally:
+        driver.close()
+        node.stop()
+    return out
