@@ -196,12 +196,13 @@ def _publish(driver, imu, temps, i0, i1, t_lo, t_hi, pace):
 
 
 def run_live(imu, temps, gravity, domain_id, temperature_topics=None, workdir=None,
-             calibration_name='live.yaml'):
+             calibration_name='live.yaml', extra_params=None):
     """Replay ``imu`` (+ ``temps`` on /imu/temperature) into a launched calibrator_node.
 
     ``temperature_topics``: the launch argument (None: the shipped config's
-    [imu/temperature]; '[]': none). Returns a Replay; never raises for node failures (they
-    are in ``Replay.error``).
+    [imu/temperature]; '[]': none); ``extra_params`` are added to ``gravity`` (for
+    experiments; by default none). Returns a Replay; never raises for node failures
+    (they are in ``Replay.error``).
     """
     from thermal_imu_calib.nodes.player import Pacer
     from std_srvs.srv import Trigger
@@ -212,7 +213,8 @@ def run_live(imu, temps, gravity, domain_id, temperature_topics=None, workdir=No
         args['temperature_topics'] = temperature_topics
     out = Replay()
     t_start = time.monotonic()
-    node = LiveCalibrator(workdir, args, {'gravity': float(gravity)}, domain_id)
+    node = LiveCalibrator(workdir, args, {'gravity': float(gravity), **(extra_params or {})},
+                          domain_id)
     out.command = node.argv
     driver = _Driver(domain_id, '/imu/temperature' if temps is not None else None)
     try:

@@ -1,0 +1,90 @@
+"""Live equals offline over DDS, on a real recording (issue 20, item 1).
+
+The MPU-6050 multi-position session (``fixtures/real/mpu6050_tomisuarez``, 100 Hz, ten
+poses, no temperature) is written as an MCAP log and
+
+* calibrated with ``thermal-imu-calib calibrate LOG --imu-topic /imu --gravity 9.81``
+  (the installed console script, default options);
+* replayed over DDS into calibrator_node started as ``launch/thermal_imu_calib.launch.py``
+  describes it (the shipped ``config/calibrator.yaml``, ``nodes:=calibrator``,
+  ``calibration_file:=``, plus ``gravity``; ``bench/launch_nodes.py``), every IMU and
+  temperature message counted by the node's ``~/progress``; then ``~/calibrate``.
+
+Both calibrations must have the same holds and windows, the same model (accel kind, auto's
+choice, the gyro choice) and every accel/gyro/temperature number equal to 1e-9 relative
+(``bench/scoreboard.compare``). Two ways a ROS user runs it:
+
+* no thermal input: ``temperature_topics:='[]'`` (the log has none);
+* the shipped thermal input: a room temperature (24 +- 0.15 degC) on ``/imu/temperature``,
+  and ``calibrate`` on the same log with that topic.
+
+Waits are on conditions (the node's counts, the service), bounded by a stall time, and fail
+at once when the node process exits (``bench/live_replay.py``).
+"""
+
+import os
+import subprocess
+import sys
+
+from conftest import DOMAIN_ID, venv_exe
+import pytest
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(ROOT, 'bench'))
+
+import live_replay  # noqa: E402
+import real_recordings  # noqa: E402
+from scoreboard import compare, REL_TOL  # noqa: E402
+from thermal_imu_calib.io.bag_writer import write_columns  # noqa: E402
+from thermal_imu_calib.io.columns import ImuColumns  # noqa: E402
+from thermal_imu_calib.io.csv_logs import read_mpu6050_csv  # noqa: E402
+
+FIXTURE = os.path.join(ROOT, 'test', 'fixtures', 'real', 'mpu6050_tomisuarez',
+                       'example_data_calibration.csv.gz')
+GRAVITY = 9.81
+
+
+def _recording():
+    m = read_mpu6050_csv(FIXTURE)
+    return ImuColumns(m.imu.stamp_ns + real_recordings.T0_NS, m.imu.accel, m.imu.gyro,
+                      'mpu6050')
+
+
+@pytest.mark.parametrize('thermal', ['none', 'room_temperature'])
+def test_live_calibration_equals_offline(tmp_path, thermal):
+    imu = _recording()
+    temps = None
+    topics = {}
+    if thermal == 'room_temperature':
+        temps = real_recordings.flat_temperature(imu)
+        topics = {real_recordings.TEMP_TOPIC: temps}
+    log = str(tmp_path / 'mpu6050.mcap')
+    write_columns(log, '/imu', imu, topics)
+
+    out = str(tmp_path / 'offline.yaml')
+    cmd = [venv_exe('thermal-imu-calib'), 'calibrate', log, '--imu-topic', '/imu',
+           '--gravity', str(GRAVITY), '-o', out]
+    if temps is not None:
+        cmd += ['--temperature-topic', real_recordings.TEMP_TOPIC]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr[-2000:]
+    with open(out) as f:
+        offline = f.read()
+
+    live = live_replay.run_live(imu, temps, GRAVITY, DOMAIN_ID,
+                                temperature_topics='[]' if temps is None else None,
+                                workdir=str(tmp_path / 'live'))
+    assert not live.error, live.error
+    assert live.imu_sent == len(imu) and live.imu_received == live.imu_sent, \
+        f'{live.imu_received} of {live.imu_sent} IMU messages arrived'
+    if temps is not None:
+        assert live.temp_sent == len(temps) and live.temp_received == live.temp_sent, \
+            f'{live.temp_received} of {live.temp_sent} temperatures arrived'
+    assert live.success, live.message
+    c = compare(offline, live.calibration_text)
+    assert c['same_holds'], (f'holds/windows offline {c["offline"]} vs live {c["live"]}')
+    assert c['same_model'], (f'model offline {c["offline"]} vs live {c["live"]}')
+    assert not c['structure'], c['structure']
+    assert c['numbers_compared'] > 0
+    assert c['max_rel_diff'] <= REL_TOL, \
+        f'parameters differ: {c["max_rel_diff"]:.3e} relative at {c["max_rel_diff_at"]}'
