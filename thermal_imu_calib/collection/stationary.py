@@ -471,12 +471,19 @@ class StationaryDetector:
             run = b.t1[-1] - b.t0[0]
             lead = min(max(guard, GUARD_FRACTION * run), max(guard, GUARD_MAX_S))
             guard = min(max(guard, GUARD_TAIL_FRACTION * run), max(guard, GUARD_MAX_S))
-        t_lo = b.t0[0] + (0.0 if edge[0] else lead)
-        t_hi = b.t1[-1] - (0.0 if edge[1] else guard)
-        keep = (b.t0 >= t_lo - 1e-9) & (b.t1 <= t_hi + 1e-9)
+        # guards and the minimum hold count samples (at the derived rate), not stamp
+        # differences: with jittered stamps (a driver stamping on arrival) a 0.2 s guard
+        # would drop two or three 0.1 s blocks by chance, and a run's first-to-last stamp
+        # span is one sample interval short of the time it covers, so a run of exactly the
+        # minimum hold failed it
+        rate = self.derived['rate_hz']
+        before = np.cumsum(b.n) - b.n
+        after = int(np.sum(b.n)) - np.cumsum(b.n)
+        keep = ((before >= (0 if edge[0] else round(lead * rate)))
+                & (after >= (0 if edge[1] else round(guard * rate))))
         b = b.take(keep)
         score = score[keep]
-        if len(b) == 0 or b.t1[-1] - b.t0[0] < c.min_hold_s - 1e-9:
+        if len(b) == 0 or np.sum(b.n) < round(c.min_hold_s * rate):
             return None
         hold = self._next_hold
         self._next_hold += 1
