@@ -29,8 +29,9 @@ splits a hold. Runs of still blocks become *holds*; ``guard_s`` is trimmed from 
 differ from the rest of the hold, ``_settled``), guards and holds measured in samples at the
 derived rate (jittered stamps change nothing), shorter ones than ``min_hold_s`` are
 dropped, and each hold is cut into windows of ``window_s`` (estimation.segments.Windows).
-``holds`` keeps one record per hold (start, duration, stillness score). Memory stays small for hours of data, and the same class runs
-offline (CLI) and live (node). Settings given explicitly (not None / 0) are kept.
+``holds`` keeps one record per hold (start, duration, stillness score). Memory stays small
+for hours of data, and the same class runs offline (CLI) and live (node). Settings given
+explicitly (not None / 0) are kept.
 
 Cohesive: one streaming algorithm (derive, score blocks, bridge, make holds and windows)
 whose state is shared by every step; split, its parts would pass that state around.
