@@ -170,7 +170,8 @@ def _live_dict(r):
     return {'success': r.success, 'message': r.message[:400], 'error': r.error[:600],
             'imu_sent': r.imu_sent, 'imu_received': r.imu_received,
             'temp_sent': r.temp_sent, 'temp_received': r.temp_received,
-            'complete': r.complete, 'seconds': {k: round(v, 1) for k, v in r.seconds.items()},
+            'complete': r.complete, 'attempts': r.attempts,
+            'seconds': {k: round(v, 1) for k, v in r.seconds.items()},
             'command': ' '.join(shlex.quote(c) for c in r.command)}
 
 
@@ -302,6 +303,8 @@ def _score(d, key='score_ug'):
 
 
 def _model(d):
+    if d and not d.get('accel_kind') and d.get('gyro_kind'):
+        return f'gyro only ({d["gyro_kind"]})'
     if not d or not d.get('accel_kind'):
         return None
     return f'{d.get("auto") or "?"} ({d["accel_kind"]}/{d.get("gyro_choice") or d["gyro_kind"]})'
@@ -316,7 +319,7 @@ def _eq(cmp, live):
         return 'live refused/failed: ' + (live.get('message') or live.get('error'))[:160]
     if not cmp:
         return 'offline failed'
-    tag = 'EQUAL' if cmp['equal'] and live['complete'] else 'DIFFER'
+    tag = 'EQUAL' if cmp['equal'] else 'DIFFER'
     parts = [f'{tag}: max rel {cmp["max_rel_diff"]:.2e}'
              + (f' at {cmp["max_rel_diff_at"]}' if cmp['max_rel_diff'] else '')]
     if not cmp['same_holds']:
@@ -325,7 +328,9 @@ def _eq(cmp, live):
     if not cmp['same_model']:
         parts.append('model differs')
     parts.append(f'{live["imu_received"]}/{live["imu_sent"]} IMU, '
-                 f'{live["temp_received"]}/{live["temp_sent"]} T delivered')
+                 f'{live["temp_received"]}/{live["temp_sent"]} T delivered'
+                 + (f' (attempt {live["attempts"]})' if live.get('attempts', 1) > 1 else '')
+                 + ('' if live['complete'] else ' (INCOMPLETE: not comparable)'))
     return '; '.join(parts)
 
 
@@ -333,7 +338,9 @@ def target_met(row):
     off = row.get('offline', {})
     s = (off.get('score_ug') or {}).get('rms')
     name = row['recording']
-    eq = (row.get('live_vs_offline') or {}).get('equal') and row.get('live', {}).get('complete')
+    eq = all((row.get(c) or {}).get('equal') and (row.get(lv) or {}).get('complete')
+             for c, lv in (('live_vs_offline', 'live'), ('live_flat_vs_offline', 'live_flat'))
+             if lv in row or c == 'live_vs_offline')
     flat = (row.get('flat_temperature', {}).get('score_ug') or {}).get('rms')
     flat_ok = None if flat is None or s is None else flat <= 1.2 * s
     why = []
@@ -362,13 +369,13 @@ def target_met(row):
         ok = off.get('accel_kind') == 'offset_polynomial' or off.get('auto') == 'offset'
         why.append(f'model {off.get("auto")}')
     else:
-        return 'n/a (thermal modelling elsewhere)'
+        return (f'accuracy n/a (thermal modelling elsewhere); live==offline '
+                f'{"yes" if eq else "NO"}')
     if flat_ok is not None:
         why.append(f'flat T {"<=" if flat_ok else ">"} 1.2x')
         ok = ok and flat_ok
-    why.append('live==offline' if eq else 'live!=offline')
-    ok = ok and bool(eq)
-    return ('yes' if ok else 'NO') + ' (' + '; '.join(why) + ')'
+    return (f'accuracy {"yes" if ok else "NO"}; live==offline {"yes" if eq else "NO"} ('
+            + '; '.join(why) + ')')
 
 
 def markdown(rows, command, meta):
