@@ -195,6 +195,7 @@ class StationaryDetector:
         self._floor = None          # (blocks in the rings, floor): noise_floor() cache
         self._frozen = None         # (floor, gyro bias, |g|) scoring the current group
         self._floor_at = 0          # blocks in the rings when the frozen floor was taken
+        self._quiet_at = 0          # ... quiet blocks when the frozen bias was taken
         self._g0 = None             # median |mean accel| of the first group (no quiet block)
         self._made = 0              # blocks made since the start (global index of the next)
         self._scored = 0            # blocks scored since the start
@@ -285,7 +286,8 @@ class StationaryDetector:
         """Return a dict for progress reporting: still now, open-hold seconds, noise floor.
 
         Provisional (the last block's score and a trailing gap may still change); during
-        the first group, before any block is scored, from the blocks seen so far.
+        the first group, before any block is scored, from the blocks seen so far (no floor
+        reported yet).
         """
         ob = self._open
         score = self._score
@@ -297,7 +299,8 @@ class StationaryDetector:
             moving = np.flatnonzero(~still)
             i = int(moving[-1]) + 1 if len(moving) else 0
             run = float(ob.t1[len(still) - 1] - ob.t0[i])
-        nf = self.noise_floor()
+        # the floor scoring the current group (noise_floor() takes a quantile over all blocks)
+        nf = self._frozen[0] if self._frozen is not None else None
         return {'stationary': bool(len(still) and still[-1]), 'hold_seconds': run,
                 'noise_floor': None if nf is None else {'accel_var': nf[0], 'gyro_var': nf[1]},
                 'samples': self.samples}
@@ -388,7 +391,7 @@ class StationaryDetector:
     def _reference(self, quiet, fallback):
         """Return (gyro bias (3,), |g|) from quiet-block rows (gyro mean, |accel mean|)."""
         if len(quiet):
-            med = np.median(quiet, 0)
+            med = _column_median(quiet)
             return med[:3], float(med[3])
         return np.zeros(3), fallback
 
@@ -416,9 +419,9 @@ class StationaryDetector:
                 if floor is not None:
                     thr_a, thr_g = self._thresholds(floor)
                     quiet = (va < thr_a) & (vg < thr_g)
-                    self._quiet.extend(np.c_[b.gm[:m][quiet],
-                                             np.linalg.norm(b.am[:m][quiet], axis=1)])
+                    self._quiet.extend(_quiet_rows(b, slice(0, m), quiet))
                 self._frozen = (floor,) + self._reference(self._quiet.values(), self._g0)
+                self._quiet_at = self._quiet.total
                 self._score_blocks(0, m)
             else:
                 if self._scored % GROUP_BLOCKS == 0:
@@ -429,8 +432,7 @@ class StationaryDetector:
                 self._var_g.extend(b.gv[lo:lo + m].sum(1))
                 if quiet is not None:
                     sl = slice(lo, lo + m)
-                    self._quiet.extend(np.c_[b.gm[sl][quiet],
-                                             np.linalg.norm(b.am[sl][quiet], axis=1)])
+                    self._quiet.extend(_quiet_rows(b, sl, quiet))
             self._scored += m
 
     def _refresh(self):
@@ -439,13 +441,16 @@ class StationaryDetector:
         The gyro bias follows every group; the floor, a quantile over up to FLOOR_BLOCKS
         variances, is taken again once the blocks seen grew by 1/FLOOR_REFRESH (or a group).
         """
-        floor = self._frozen[0]
+        floor, bias, g = self._frozen
         seen = self._var_a.total
         if floor is None or seen - self._floor_at >= max(
                 GROUP_BLOCKS, min(seen, FLOOR_BLOCKS) // FLOOR_REFRESH):
             floor = self._floor_of(self._var_a.values(), self._var_g.values())
             self._floor_at = seen
-        self._frozen = (floor,) + self._reference(self._quiet.values(), self._g0)
+        if self._quiet.total != self._quiet_at:       # else the same median
+            bias, g = self._reference(self._quiet.values(), self._g0)
+            self._quiet_at = self._quiet.total
+        self._frozen = (floor, bias, g)
 
     def _score_blocks(self, lo, hi):
         """Score open blocks ``lo:hi`` with the frozen statistics; return their quiet mask.
@@ -456,12 +461,12 @@ class StationaryDetector:
         b = self._open
         floor, bias, g = self._frozen
         if floor is None:
-            self._score = np.r_[self._score, np.full(hi - lo, np.inf)]
+            self._score = np.concatenate([self._score, np.full(hi - lo, np.inf)])
             return None
         score, quiet = self._scores_of(b, lo, hi, floor, bias, g)
         b.fa[lo:hi], b.fg[lo:hi] = floor
         start = len(self._score)
-        self._score = np.r_[self._score, score[1:]]
+        self._score = np.concatenate([self._score, score[1:]])
         if lo > 0:
             self._score[start - 1] = max(self._score[start - 1], score[0])
         return quiet
@@ -476,7 +481,9 @@ class StationaryDetector:
         va, vg = b.av[sl].sum(1), b.gv[sl].sum(1)
         quiet = (va < thr_a) & (vg < thr_g)
         rot = np.sum((b.gm[sl] - bias) ** 2, 1) / w_rot ** 2
-        score = np.r_[0.0, np.maximum.reduce([va / thr_a, vg / thr_g, rot])]
+        score = np.empty(hi - lo + 1)
+        score[0] = 0.0
+        np.maximum(np.maximum(va / thr_a, vg / thr_g), rot, out=score[1:])
         # mean continuity between neighbours: a jump marks both blocks as moving
         j0 = max(lo - 1, 0)
         if hi - j0 >= 2:
@@ -501,7 +508,7 @@ class StationaryDetector:
             return np.full(len(b), np.inf)
         thr_a, thr_g = self._thresholds(floor)
         quiet = (va < thr_a) & (vg < thr_g)
-        bias, g = self._reference(np.c_[b.gm[quiet], np.linalg.norm(b.am[quiet], axis=1)],
+        bias, g = self._reference(_quiet_rows(b, slice(None), quiet),
                                   float(np.median(np.linalg.norm(b.am, axis=1))))
         return self._scores_of(b, 0, len(b), floor, bias, g)[0][1:]
 
@@ -645,6 +652,23 @@ class StationaryDetector:
             t0=b.t0[starts], t1=b.t1[np.r_[starts[1:], len(b)] - 1], n=n.astype(int),
             accel=wmean(b.am), gyro=wmean(b.gm),
             accel_var=wmean(b.av), gyro_var=wmean(b.gv), temp=temp, temp_rate=rate)
+
+
+def _column_median(x):
+    """Return ``np.median(x, 0)`` of an (n, c) array (the same floats, one partition)."""
+    y = np.array(x.T, order='C')
+    k = len(x) // 2
+    if len(x) % 2:
+        y.partition(k, axis=1)
+        return y[:, k]
+    y.partition([k - 1, k], axis=1)
+    return (y[:, k - 1] + y[:, k]) / 2
+
+
+def _quiet_rows(b, sl, quiet):
+    """Return the rows (mean gyro xyz, |mean accel|) of the quiet blocks of ``b[sl]``."""
+    am = b.am[sl][quiet]
+    return np.concatenate([b.gm[sl][quiet], np.sqrt(np.sum(am * am, 1))[:, None]], 1)
 
 
 def tilt_deg(accel_mean):
