@@ -473,6 +473,7 @@ def calibrate_windows(windows, options=None):
         'hold_consistency': consistency,
         'model_choice': _model_choice(name, why, report),
         'holds': cov['holds'], 'windows': cov['windows'],
+        'distinct_orientations': ctx.n_orientations,
         'faces': {f: cov['faces'][f]['holds'] for f in FACE_NAMES},
         'tilted_holds': cov['tilted_holds'],
         'temperature_span': cov['temperature_span'],
