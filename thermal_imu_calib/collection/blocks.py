@@ -36,10 +36,12 @@ class Ring:
         return self._seen
 
     def clear(self):
+        """Forget every row."""
         self._total = 0
         self._seen = 0
 
     def extend(self, x):
+        """Append rows ``x`` (dropping the oldest beyond ``maxlen``)."""
         x = np.asarray(x, float).reshape((-1,) + self._shape)
         self._seen += len(x)
         if len(x) >= self.maxlen:
@@ -78,6 +80,7 @@ class Blocks:
         self.clear()
 
     def clear(self):
+        """Empty every column."""
         self.t0 = np.zeros(0)
         self.t1 = np.zeros(0)
         self.n = np.zeros(0, int)
@@ -94,10 +97,12 @@ class Blocks:
         return len(self.t0)
 
     def append(self, other):
+        """Append the blocks of ``other`` (another Blocks)."""
         for name in self.names:
             setattr(self, name, np.concatenate([getattr(self, name), getattr(other, name)]))
 
     def take(self, sl):
+        """Return the blocks ``sl`` (slice, index array or mask) as a new Blocks."""
         out = Blocks(self.k)
         for name in self.names:
             setattr(out, name, getattr(self, name)[sl])
@@ -150,9 +155,9 @@ def bridge(score):
 
 
 def decided(score, final):
-    """Return per block 1 (still), 0 (moving) or -1 (not decided yet), as ``bridge`` would
-    on the whole log.
+    """Return per block 1 (still), 0 (moving) or -1 (not decided yet).
 
+    What ``bridge`` would decide on the whole log, as far as the blocks seen decide it.
     A score is final once the next block's jump test is in (or the log ended): the last
     block, if still by its score, is undecided. A moving run that ``bridge`` could bridge
     is undecided until the block after it is final (still: bridged) or the log ends (not

@@ -472,8 +472,11 @@ class StationaryDetector:
         return quiet
 
     def _scores_of(self, b, lo, hi, floor, bias, g):
-        """Return (scores of blocks ``lo - 1:hi`` (the first: its jump to block lo only, or 0
-        when lo = 0), quiet mask of blocks ``lo:hi``) for the given statistics."""
+        """Return (scores of blocks ``lo - 1:hi``, quiet mask of blocks ``lo:hi``).
+
+        For the given statistics; the first score is block ``lo - 1``'s jump to block
+        ``lo`` only (0 when lo = 0).
+        """
         c = self.config
         thr_a, thr_g = self._thresholds(floor)
         w_rot = np.radians(c.rotation_dps)
