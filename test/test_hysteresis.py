@@ -187,3 +187,17 @@ def test_fit_weighting_uniform_in_temperature():
     w = fit_weights(temps, 'temperature', np.ones(len(temps), bool))
     assert w[:39].sum() > 5 * w[40:].sum() / 10
     assert np.all(fit_weights(temps, 'time', np.ones(len(temps), bool)) == 1.0)
+
+
+def test_report_shows_the_validation_and_the_flight_stack_cubic(chamber_log, chamber_cal,
+                                                                tmp_path):
+    """report: held-out residual over time per candidate family, raw/compensated/cubic."""
+    from _html_check import parse_report
+    from thermal_imu_calib.report.build import calibration_page, SECTIONS
+    _, _, w = chamber_log
+    out = tmp_path / 'r.html'
+    calibration_page(chamber_cal.calibration, w).write(str(out), str(tmp_path / 'png'))
+    ids, images = parse_report(out.read_text())
+    assert set(SECTIONS) | {'validation'} <= set(ids)
+    assert {'validation', 'side_by_side', 'coverage'} <= {n for n, _ in images}
+    assert 'ardupilot cubic' in out.read_text()
