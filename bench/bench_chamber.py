@@ -14,6 +14,13 @@ temperatures both legs cover (-17.6..51.2 degC):
 * ``--model offset`` / ``lag`` / ``rvm`` (the families of the previous default);
 * every candidate of ``estimation.hysteresis.candidate_specs`` fitted on the leg.
 
+Then forward in time, as a calibration is used: fitted on the history before a cut (the
+cooling leg and the start of the heating leg: both directions), tested on the heating after
+the cut inside the fitted range; the default, the previous default (``select_single``, the
+one-orientation auto before issue 22), PX4 and ArduPilot. Last, the default's specs (chosen
+on the forward folds of the whole training part) on held-out blocks the selection never
+scored: the first part of the cooling leg, refitted on the rest.
+
 Every calibration is streamed over the whole log from its start (its history terms see
 the history a compensator would) and scored on the test leg as the held-out leg is scored:
 drift RMS = RMS over 30-s blocks of |block mean - leg mean| (3-vector), m/s^2 and rad/s.
@@ -40,6 +47,7 @@ from thermal_imu_calib.estimation.hysteresis import (ARDUPILOT_SPEC,  # noqa: E4
                                                      candidate_specs, Features, fit_spec)
 from thermal_imu_calib.io.csv_logs import read_tofupilot_chamber  # noqa: E402
 from thermal_imu_calib.pipeline import windows_from_columns  # noqa: E402
+from thermal_imu_calib.selection import select  # noqa: E402
 
 #: the training part as copied into the repository (test/fixtures/real/tofupilot_chamber)
 CSV = os.path.join(ROOT, 'test', 'fixtures', 'real', 'tofupilot_chamber',
@@ -93,9 +101,13 @@ def forward_table(w, imu, temp, opts, cuts=(0.6, 0.7, 0.8)):
         key = f'{100 * f:.0f} %'
         out.setdefault('raw', {})[key] = (block_drift(t[test], imu.accel[test]),
                                           block_drift(t[test], imu.gyro[test]))
-        for name, model in (('default (auto)', 'auto'), ('PX4-style cubic', 'px4'),
+        previous = select.select_single(select.make_context(wl, opts)).model
+        for name, model in (('default (auto)', 'auto'),
+                            (f'previous default (select_single: {previous})', previous),
+                            ('PX4-style cubic', 'px4'),
                             ('ArduPilot learner (rising T only)', 'ardupilot')):
             r = calibrate_windows(wl, CalibrateOptions(**{**opts.__dict__, 'model': model}))
+            name = name.split(':')[0] + ')' if name.startswith('previous') else name
             out.setdefault(name, {})[key] = score(r.calibration, imu, temp, test)
         t0 = np.round(np.full(3, 0.5 * (wl.temp.min() + wl.temp.max())), 2)
         out.setdefault('ArduPilot-style cubic (tempcal_IMU.py form)', {})[key] = score(
@@ -106,6 +118,43 @@ def forward_table(w, imu, temp, opts, cuts=(0.6, 0.7, 0.8)):
                                             out['raw']))
     for name, r in out.items():
         print(f'{name:45s} | ' + ' | '.join(f'{a:16.4f} {g:8.5f}' for a, g in r.values()))
+    return out
+
+
+def first_part_table(w, opts):
+    """Score the default's specs (chosen on the forward folds) on other held-out blocks.
+
+    The first part of the cooling leg (25 %, 50 % of its time) is held out and the specs are
+    refitted on the rest (the remaining cooling and all the heating): blocks in the other
+    direction than the history's end, which the selection never scored. Returns and prints
+    {method: {sensor: mean figure}}.
+    """
+    from thermal_imu_calib.estimation.thermal_lag import legs
+    from thermal_imu_calib.selection.time_folds import heldout_figures, select_history
+    ctx = select.make_context(w, opts)
+    chosen = select_history(ctx)['specs']
+    tm = 0.5 * (w.t0 + w.t1)
+    ids, _ = legs(w)
+    first = tm[ids == 0]
+    folds = []
+    for f in (0.25, 0.5):
+        test = tm < first.min() + f * (first.max() - first.min())
+        folds.append((~test, test, f'first {100 * f:.0f} % of the cooling leg'))
+    out = {}
+    for sig, t0 in (('accel', ctx.t0), ('gyro', ctx.gyro_t0)):
+        specs = [chosen[sig], ARDUPILOT_SPEC]
+        figs, raw = heldout_figures(w, [0, 0, 0], sig, specs, np.asarray(t0, float), folds)
+        out.setdefault('raw', {})[sig] = [float(v) for v in raw]
+        out.setdefault('default', {})[sig] = [float(v) for v in figs[chosen[sig]]]
+        out.setdefault('default_spec', {})[sig] = chosen[sig].label()
+        out.setdefault('ArduPilot-style cubic', {})[sig] = [float(v) for v in
+                                                             figs[ARDUPILOT_SPEC]]
+    print('\nthe default\'s specs on blocks the selection never scored: the first 25 % / 50 % '
+          'of the cooling leg held out, refitted on the rest (30-s drift RMS)')
+    for name in ('raw', 'default', 'ArduPilot-style cubic'):
+        print(f'{name:24s} accel ' + ' / '.join(f'{v:.4f}' for v in out[name]['accel'])
+              + '  gyro ' + ' / '.join(f'{v:.5f}' for v in out[name]['gyro']))
+    print(f'(default: accel {out["default_spec"]["accel"]}; gyro {out["default_spec"]["gyro"]})')
     return out
 
 
@@ -183,11 +232,12 @@ def main(argv=None):
     for d, why in chosen.items():
         print(f'auto on {d.split(",")[0][4:]}: {why}')
     fwd = forward_table(w, imu, temp, opts)
+    other = first_part_table(w, opts)
     print(f'{seconds:.1f} s')
     if args.json:
         with open(args.json, 'w') as f:
             json.dump({'overlap_degC': [lo, hi], 'rows': rows, 'auto_reason': chosen,
-                       'forward': fwd,
+                       'forward': fwd, 'first_part_held_out': other,
                        'default_beats_ardupilot': verdict}, f, indent=1)
     return 0 if all(verdict.values()) else 1
 
