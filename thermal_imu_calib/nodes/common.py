@@ -384,3 +384,12 @@ def run_nodes(factories, args=None):
         for node in nodes:
             node.destroy_node()
         rclpy.try_shutdown()
+
+
+def topic_list(value):
+    """Return a topic-list parameter as a list: [] (read as unset) and '' entries are none.
+
+    ROS 2 cannot type an empty array, so ``temperature_topics: []`` arrives unset and the
+    launch file passes ``['']`` for it; both mean no thermal input.
+    """
+    return [t for t in (value or []) if t]

@@ -61,8 +61,9 @@ class CompensatorNode(Node):
             'calibration_file is ignored: the latest calibration of the IMU header frame_id '
             'is loaded at the first message of each frame_id and on ~/reload.', read_only=True)
         self._registry_frame = None
-        self.temperature_topics = list(p.declare(
+        self.temperature_topics = common.topic_list(p.declare(
             'temperature_topics', ['imu/temperature'],
+            'Empty ([] or [\'\']): no thermal input (a temperature-independent calibration). '
             'Thermal input topics to subscribe (sensor_msgs/Temperature unless '
             'temperature_types says otherwise); the calibration file maps its inputs to them '
             'by name (relative names follow namespaces and remaps).',
