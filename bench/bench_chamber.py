@@ -147,8 +147,8 @@ def first_part_table(w, opts):
         out.setdefault('raw', {})[sig] = [float(v) for v in raw]
         out.setdefault('default', {})[sig] = [float(v) for v in figs[chosen[sig]]]
         out.setdefault('default_spec', {})[sig] = chosen[sig].label()
-        out.setdefault('ArduPilot-style cubic', {})[sig] = [float(v) for v in
-                                                             figs[ARDUPILOT_SPEC]]
+        floor = [float(v) for v in figs[ARDUPILOT_SPEC]]
+        out.setdefault('ArduPilot-style cubic', {})[sig] = floor
     print('\nthe default\'s specs on blocks the selection never scored: the first 25 % / 50 % '
           'of the cooling leg held out, refitted on the rest (30-s drift RMS)')
     for name in ('raw', 'default', 'ArduPilot-style cubic'):
