@@ -2,7 +2,8 @@
 
     corrected_i = raw_i - sum_{j=j0..order} c_j,i (B_i - T0_i)^j - sum_k d_k,i h_k,i
 
-B is the model's base input: the reading T, or T through a first-order lag (``base``).
+B is the model's base input: the reading T, or T through a first-order lag (``base``); the
+polynomial part is an ``OffsetPolynomialModel`` in B (``poly``).
 The history terms ``h_k`` are built from lag cascades of the reading (``thermal_input``
 ``history_key``: ``lag:TAU`` one state, ``lag:TAU1:TAU2`` a die-to-case two-state lag):
 
@@ -17,9 +18,9 @@ history term zero. Without ``include_constant`` only the drift relative to T0 is
 
 import numpy as np
 
-from ..input_units import coefficient_unit, reference_description
 from ..thermal_input import parse_history_key
-from .base import input_unit_of, Param, register, require, SensorModel, with_input_unit
+from .base import Param, register, require, SensorModel, with_input_unit
+from .polynomial import OffsetPolynomialModel
 
 TERM_KINDS = ('diff', 'rate')
 
@@ -33,11 +34,9 @@ class HysteresisOffsetModel(SensorModel):
     def __init__(self, t0, coeffs, terms=(), term_coeffs=None, base='', sensor='accel',
                  include_constant=True, coeff_std=None, term_std=None, input_unit='degC',
                  term_spread=None):
-        self.input_unit = str(input_unit)
-        self.t0 = np.asarray(t0, float).reshape(3)
-        self.coeffs = np.asarray(coeffs, float)
-        if self.coeffs.ndim != 2 or self.coeffs.shape[1] != 3:
-            raise ValueError(f'coeffs must be (order+1, 3), got {self.coeffs.shape}')
+        #: the polynomial part (in the base input), an ``OffsetPolynomialModel``
+        self.poly = OffsetPolynomialModel(t0, coeffs, sensor, include_constant, coeff_std,
+                                          input_unit)
         self.terms = [(str(k), str(h)) for k, h in terms]
         for kind, key in self.terms:
             if kind not in TERM_KINDS:
@@ -49,21 +48,26 @@ class HysteresisOffsetModel(SensorModel):
         nt = len(self.terms)
         self.term_coeffs = (np.zeros((nt, 3)) if term_coeffs is None
                             else np.asarray(term_coeffs, float).reshape(nt, 3))
-        self.sensor = sensor
-        self.include_constant = bool(include_constant)
-        if not self.include_constant:
-            self.coeffs[0] = 0.0
-        self.coeff_std = None if coeff_std is None else np.asarray(coeff_std, float)
         self.term_std = None if term_std is None else np.asarray(term_std, float).reshape(nt, 3)
         #: RMS of each history term over the calibration data (its unit): what an unknown
         #: history (a stream just (re)started) may hold
         self.term_spread = (None if term_spread is None
                             else np.asarray(term_spread, float).reshape(nt, 3))
 
+    # the polynomial part's settings, shared with it (the Calibration and the file set them)
+    sensor = property(lambda self: self.poly.sensor,
+                      lambda self, v: setattr(self.poly, 'sensor', v))
+    input_unit = property(lambda self: self.poly.input_unit,
+                          lambda self, v: setattr(self.poly, 'input_unit', v))
+    t0 = property(lambda self: self.poly.t0)
+    coeffs = property(lambda self: self.poly.coeffs)
+    coeff_std = property(lambda self: self.poly.coeff_std)
+    include_constant = property(lambda self: self.poly.include_constant)
+
     @property
     def order(self):
         """Return the polynomial order."""
-        return self.coeffs.shape[0] - 1
+        return self.poly.order
 
     @property
     def history_keys(self):
@@ -85,11 +89,7 @@ class HysteresisOffsetModel(SensorModel):
     def offset(self, temps, aux=None):
         """Return the modelled (n, 3) offset in the sensor unit (history terms included)."""
         base, h = self.features(temps, aux)
-        dt = base - self.t0
-        out = np.zeros_like(dt)
-        for c in self.coeffs[::-1]:
-            out = out * dt + c
-        return out + np.einsum('kna,ka->na', h, self.term_coeffs)
+        return self.poly.offset(base) + np.einsum('kna,ka->na', h, self.term_coeffs)
 
     def correct(self, raw, temps, aux=None):
         """Subtract the modelled offset."""
@@ -101,13 +101,11 @@ class HysteresisOffsetModel(SensorModel):
 
     def predict_std(self, temps, aux=None):
         """Return the 1-sigma offset uncertainty from coefficient stds (correlations ignored)."""
-        if self.coeff_std is None:
-            return None
         base, h = self.features(temps, aux)
-        dt = base - self.t0
-        var = np.zeros_like(dt)
-        for j, s in enumerate(self.coeff_std):
-            var += (s * dt ** j) ** 2
+        std = self.poly.predict_std(base)
+        if std is None:
+            return None
+        var = std ** 2
         if self.term_std is not None:
             var += np.einsum('kna,ka->na', h ** 2, self.term_std ** 2)
         age = ((aux or {}).get('history') or {}).get('_age_s')
@@ -120,13 +118,9 @@ class HysteresisOffsetModel(SensorModel):
         return np.sqrt(var)
 
     def params(self):
-        """Return T0, c0..cN per axis and d0..dK (one per history term) per axis."""
+        """Return T0, c0..cN (powers of B - T0) and d0..dK (one per history term), per axis."""
         u, iu = self.unit, self.input_unit
-        out = {'T0': Param(self.t0, iu, description=reference_description(iu))}
-        for j, c in enumerate(self.coeffs):
-            std = None if self.coeff_std is None else self.coeff_std[j]
-            desc = 'constant offset' if j == 0 else f'offset coefficient of (B-T0)^{j}'
-            out[f'c{j}'] = Param(c, coefficient_unit(u, iu, j), std, desc)
+        out = self.poly.params()
         for k, (kind, key) in enumerate(self.terms):
             std = None if self.term_std is None else self.term_std[k]
             unit = f'{u}/{iu}' if kind == 'diff' else f'{u}/({iu}/s)'
@@ -147,21 +141,17 @@ class HysteresisOffsetModel(SensorModel):
 
     @classmethod
     def from_params(cls, params, meta):
-        """Rebuild from file parameters."""
+        """Rebuild from file parameters (the polynomial part read as an offset polynomial)."""
         where = cls.kind
-        order = int(meta.get('order', 0))
-        t0 = require(params, 'T0', (3,), where)
-        coeffs = np.stack([require(params, f'c{j}', (3,), where) for j in range(order + 1)])
-        stds = [params[f'c{j}'].std for j in range(order + 1)]
+        poly = OffsetPolynomialModel.from_params(params, meta)
         terms = [(str(t.get('kind')), str(t.get('history'))) for t in meta.get('terms') or []]
         d = [require(params, f'd{k}', (3,), where) for k in range(len(terms))]
         dstd = [params[f'd{k}'].std for k in range(len(terms))]
         base = str(meta.get('base', 'T'))
-        return cls(t0, coeffs, terms, np.array(d).reshape(len(terms), 3),
-                   '' if base == 'T' else base,
-                   include_constant=bool(meta.get('include_constant', True)),
-                   coeff_std=None if any(s is None for s in stds) else np.stack(stds),
+        return cls(poly.t0, poly.coeffs, terms, np.array(d).reshape(len(terms), 3),
+                   '' if base == 'T' else base, include_constant=poly.include_constant,
+                   coeff_std=poly.coeff_std,
                    term_std=(None if not terms or any(s is None for s in dstd)
                              else np.stack(dstd)),
-                   input_unit=input_unit_of(params, meta),
+                   input_unit=poly.input_unit,
                    term_spread=meta.get('term_spread') if terms else None)
