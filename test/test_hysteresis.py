@@ -134,7 +134,7 @@ def test_real_chamber_log_default_uses_the_history(chamber_cal):
                  'rate', 'temperature)', 'time)', 'chose'):
         assert word in choice['reason']
     notes = ' '.join(cal.notes)
-    assert 'weighting' in notes and 'Calibration.stream()' in notes
+    assert 'weighting' in notes and 'Calibration.stream()' in notes and 'model choice:' in notes
     back = Calibration.from_yaml(cal.to_yaml())
     assert back.accel.history_keys == cal.accel.history_keys
 

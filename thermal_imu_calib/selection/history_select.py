@@ -46,6 +46,7 @@ def estimate_hysteresis(ctx):
                                     'history_terms': models[sig].history_keys}
         notes.append(f'{sig}: {spec.label()} (weighting: {_weighting_note(spec)}), chosen '
                      f'on held-out blocks of the thermal history ({res["kind"]})')
+    notes.append(f'model choice: {res["reason"]}')
     if any(m.history_keys for m in models.values()):
         notes.append('the models use the temperature history (lagged readings): stream data '
                      'through Calibration.stream(); Calibration.apply alone means thermal '
