@@ -9,19 +9,15 @@ sample for sample what ``Calibration.stream()`` gives offline.
 
 import os
 
-from conftest import replay_flow, wait_count, wait_for
+from conftest import calibrate_compensate_rig, replay_flow, wait_count, wait_for
 import numpy as np
 
-from rclpy.parameter import Parameter
-from sensor_msgs.msg import Imu, Temperature
 from std_srvs.srv import Trigger
 
 from thermal_imu_calib.calibration import Calibration, TemperatureInput
 from thermal_imu_calib.estimation.calibrate import calibrate_windows, CalibrateOptions
 from thermal_imu_calib.io.csv_logs import read_tofupilot_chamber
 from thermal_imu_calib.nodes import common
-from thermal_imu_calib.nodes.calibrator import CalibratorNode
-from thermal_imu_calib.nodes.compensator import CompensatorNode
 from thermal_imu_calib.pipeline import windows_from_columns
 
 CHAMBER = os.path.join(os.path.dirname(__file__), 'fixtures', 'real', 'tofupilot_chamber',
@@ -43,22 +39,8 @@ def test_chamber_log_calibrator_equals_cli_and_compensator_streams(ros, tmp_path
         inputs=[TemperatureInput('imu/temperature')], gravity=G)).calibration
 
     cal_file = tmp_path / 'calibration.yaml'
-    calibrator = ros.add(CalibratorNode(context=ros.context, parameter_overrides=[
-        Parameter('calibration_file', value=str(cal_file)),
-        Parameter('collection_file', value=str(tmp_path / 'collection.jsonl')),
-        Parameter('gravity', value=G)]))
-    compensator = ros.add(CompensatorNode(context=ros.context, parameter_overrides=[
-        Parameter('calibration_file', value=str(cal_file))]))
-    driver = ros.node('player')
-    imu_pub = driver.create_publisher(Imu, 'imu/data_raw', 1000)
-    temp_pub = driver.create_publisher(Temperature, 'imu/temperature', 100)
-    out = []
-    sub = driver.create_subscription(Imu, 'imu/data_compensated',
-                                     lambda m: out.extend([m] + common.drain(sub, 999, driver)),
-                                     10000)
-    ros.wait_matched(imu_pub, 2)
-    ros.wait_matched(temp_pub, 2)
-    wait_for(lambda: compensator.pub.get_subscription_count() >= 1, 10, 'output subscriber')
+    calibrator, compensator, driver, imu_pub, temp_pub, out = calibrate_compensate_rig(
+        ros, tmp_path, G)
 
     n = replay_flow(imu_pub, imu, [(temp_pub, tc.stamp_ns, tc.temperature)], RATE,
                     lambda: calibrator._rate.total, window=WINDOW, what='the calibrator input')
