@@ -308,7 +308,8 @@ ESTIMATOR_MODULES = ['thermal_imu_calib.estimation.standard_fit',
                      'thermal_imu_calib.estimation.baselines',
                      'thermal_imu_calib.selection.select',
                      'thermal_imu_calib.selection.static_select',
-                     'thermal_imu_calib.selection.gyro_select']
+                     'thermal_imu_calib.selection.gyro_select',
+                     'thermal_imu_calib.selection.history_select']
 
 
 def register_estimator(name):
@@ -473,6 +474,7 @@ def calibrate_windows(windows, options=None):
         'hold_consistency': consistency,
         'model_choice': _model_choice(name, why, report),
         'holds': cov['holds'], 'windows': cov['windows'],
+        'distinct_orientations': ctx.n_orientations,
         'faces': {f: cov['faces'][f]['holds'] for f in FACE_NAMES},
         'tilted_holds': cov['tilted_holds'],
         'temperature_span': cov['temperature_span'],
@@ -495,9 +497,15 @@ def calibrate_windows(windows, options=None):
     summary = (f'{kind}: {cov["holds"]} holds ({cov["windows"]} windows), faces '
                f'{_face_text(cov)}, {_span_text(cov, units)}, gravity residual '
                f'{_amax(before):.0f} -> {_amax(after):.1f} ug max')
+    if flat:
+        summary += ' (the temperature input barely moved: treated as none, see notes)'
     if consistency['left_out']:
         summary += (f', {len(consistency["left_out"])} holds left out of the accelerometer '
-                    'fit (pose repeats that disagree, sensor-state epochs; see notes)')
+                    'fit (pose repeats that disagree, sensor-state epochs; held-out holds '
+                    'support it; see notes)')
+    elif consistency.get('not_applied'):
+        summary += (f', {len(consistency["not_applied"])} holds disagree with a repeat of '
+                    'their pose but stay in (held-out holds do not support leaving them out)')
     if 'residual_rms' in fit_stats:
         summary += f', fit residual {fit_stats["residual_rms"]["value"] * 1e6 / g:.1f} ug RMS'
     gyro_text = report.get('gyro_choice', {}).get('text')
@@ -509,6 +517,8 @@ def calibrate_windows(windows, options=None):
 def _model_choice(name, why, report):
     """Return fit.model_choice: the model, why, and the gyro comparison with pose changes."""
     out = {'model': name, 'reason': why}
+    if 'heldout' in report:       # every candidate's held-out figure (one orientation)
+        out['heldout'] = report['heldout']
     gyro = report.get('gyro_choice', {})
     if 'text' in gyro:
         out['gyro'] = {'model': gyro['model'], 'reason': gyro['text'],
