@@ -18,6 +18,7 @@ from .estimation.calibrate import CalibrateOptions, calibrate_windows, model_cho
 from .formats import load_prior
 from .gravity import resolve_gravity
 from .input_units import parse_unit_map
+from .io.output import write_atomic
 
 
 def add_calibrate_parser(sub):
@@ -156,10 +157,9 @@ def calibrate_collected(args, collected, paths):
     windows = merge_windows(collected)
     transitions = merge_transitions(collected)
     if args.save_windows:
-        with open(args.save_windows, 'w') as f:
-            f.write(windows.to_jsonl())
-        with open(args.save_windows + '.transitions.npz', 'wb') as f:
-            save_transitions(f, transitions)
+        write_atomic(args.save_windows, windows.to_jsonl())
+        write_atomic(args.save_windows + cli_checks.TRANSITIONS_SUFFIX,
+                     lambda f: save_transitions(f, transitions))
         print(f'wrote {len(windows)} windows to {args.save_windows} and {len(transitions)} '
               f'pose changes to {args.save_windows}.transitions.npz', file=sys.stderr)
     inputs, mapping = _thermal_inputs(args, topics)

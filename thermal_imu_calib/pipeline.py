@@ -7,7 +7,6 @@ prints what these return. Everything streams in column chunks, so memory is boun
 
 from dataclasses import dataclass, field
 import os
-import shutil
 import sys
 import time
 from typing import Optional
@@ -19,6 +18,7 @@ from .io.align import StreamAligner
 from .io.bag import copy_and_stream, open_log
 from .io.bag_writer import LogWriter
 from .io.log_info import LogError
+from .io.output import staging_dir
 from .input_units import DEGC, parse_unit_map
 from .io.cdr import IMU_MSGTYPE
 from .io.columns import TemperatureColumns
@@ -224,52 +224,12 @@ def compensate_log(src, dst, calibration, imu_topic=None, temperature_topics=Non
     if on_missing not in MISSING_POLICIES:
         raise ValueError(f'on_missing must be one of {MISSING_POLICIES}, not {on_missing!r}')
     dst = os.path.abspath(os.fspath(dst))
-    if os.path.exists(dst):
+    if os.path.lexists(dst):
         raise LogError(f'{dst} exists; remove it or choose another output')
-    base = os.path.basename(dst.rstrip('/'))
-    tmp = os.path.join(os.path.dirname(dst), f'.{base}.partial-{os.getpid()}'
-                       + ('.mcap' if base.endswith('.mcap') else ''))
-    try:
-        stats = _compensate(src, tmp, calibration, imu_topic, temperature_topics, output_topic,
-                            storage, chunk_size, max_gap_s, temperature_timeout, on_missing,
-                            progress, despike)
-        if os.path.exists(dst):
-            raise LogError(f'{dst} appeared while compensating; the result is left in {tmp}')
-        os.rename(tmp, dst)
-        if os.path.isdir(dst):
-            _rename_bag_files(tmp, dst)
-    except BaseException:
-        _remove_partial(tmp)
-        raise
-    return stats
-
-
-def _rename_bag_files(old, new):
-    """Rename the storage files of a rosbag2 directory moved from ``old`` to ``new``.
-
-    rosbag2 names them after the directory (``NAME_0.mcap``); metadata.yaml lists them.
-    """
-    old_stem, new_stem = os.path.basename(old), os.path.basename(new)
-    meta = os.path.join(new, 'metadata.yaml')
-    names = [n for n in os.listdir(new) if n.startswith(old_stem)]
-    for n in names:
-        os.rename(os.path.join(new, n), os.path.join(new, new_stem + n[len(old_stem):]))
-    if names and os.path.isfile(meta):
-        with open(meta) as f:
-            text = f.read()
-        with open(meta, 'w') as f:
-            f.write(text.replace(old_stem, new_stem))
-
-
-def _remove_partial(tmp):
-    """Remove a temporary output (file or bag directory) left by an interrupted write."""
-    try:
-        if os.path.isdir(tmp):
-            shutil.rmtree(tmp, ignore_errors=True)
-        elif os.path.exists(tmp):
-            os.unlink(tmp)
-    except OSError:
-        pass
+    with staging_dir(dst) as tmp:    # a unique temporary beside dst, renamed at the end
+        return _compensate(src, tmp, calibration, imu_topic, temperature_topics, output_topic,
+                           storage, chunk_size, max_gap_s, temperature_timeout, on_missing,
+                           progress, despike)
 
 
 def _compensate(src, dst, calibration, imu_topic, temperature_topics, output_topic, storage,
