@@ -16,7 +16,7 @@ from .compensator import CompensatorNode
 
 def main(args=None):
     """Run both nodes until shutdown."""
-    common.run_nodes([CompensatorNode, CalibratorNode], args)
+    common.exit_process(common.run_nodes([CompensatorNode, CalibratorNode], args))
 
 
 if __name__ == '__main__':

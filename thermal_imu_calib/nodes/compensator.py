@@ -9,8 +9,19 @@ the nearest reading held) and publishes the ``Calibration.apply`` result on
 from ``calibration_file`` (at start and on ``~/reload``) or from the latched
 ``imu/calibration`` topic; a bad one is rejected with its reason and the previous one stays
 active, also when its input units differ from ``temperature_units``.
+
+With ``registry_dir`` (a fleet registry) every IMU unit, told by its header frame_id, gets
+its own model, looked up once (``fleet.registry.valid_at``) and kept, so interleaved units
+never reload; messages of a unit with no calibration are passed through (or dropped, per
+``passthrough_without_calibration``), never compensated with another unit's, and counted
+in /diagnostics. Messages are compensated per unit (order kept within each unit).
+
+Loop guard: an output topic that resolves to the input topic (or a temperature topic) is
+refused at start, and a message equal to one this node published recently (header and
+values, e.g. looped back by a relay) is dropped and counted, never compensated again.
 """
 
+from collections import deque
 from dataclasses import dataclass
 import math
 import os
@@ -31,6 +42,10 @@ from ..thermal_input import CalibrationStream
 
 NODE_NAME = 'thermal_imu_compensator'
 MISSING_POLICIES = ('hold_last', 'passthrough', 'drop')
+#: registry mode: most units (frame_ids) looked up and kept; further ones pass through
+MAX_UNITS = 256
+#: published messages remembered to recognise them if they come back (loop guard)
+SENT_MEMORY = 10000
 
 
 @dataclass(frozen=True)
@@ -60,7 +75,9 @@ class CompensatorNode(Node):
             'Fleet registry (thermal-imu-calib fleet calibrate -o DIR); when set, '
             'calibration_file is ignored: the latest calibration of the IMU header frame_id '
             'is loaded at the first message of each frame_id and on ~/reload.', read_only=True)
-        self._registry_frame = None
+        self._units = {}                  # registry mode: frame_id -> ActiveModel or None
+        self._unit_gates = {}             # per unit despike state
+        self._sent = _Recent(SENT_MEMORY)
         self.temperature_topics = list(p.declare(
             'temperature_topics', ['imu/temperature'],
             'Thermal input topics to subscribe (sensor_msgs/Temperature unless '
@@ -116,7 +133,7 @@ class CompensatorNode(Node):
                        'dropped': 0, 'invalid': 0, 'clamped': 0, 'temperature_held': 0,
                        'temperature_missing': 0, 'frame_mismatch': 0,
                        'calibrations_rejected': 0, 'calibrations_loaded': 0,
-                       'input_lost': 0}
+                       'input_lost': 0, 'uncalibrated_unit': 0, 'own_messages_dropped': 0}
         self.last_rejection = ''
         self._last_stamp_ns = None
         self._rate = common.RateMeter()
@@ -127,12 +144,15 @@ class CompensatorNode(Node):
         self.imu_sub = self.create_subscription(
             Imu, 'imu/data_raw', self._on_imu, common.sensor_qos(in_depth),
             event_callbacks=SubscriptionEventCallbacks(message_lost=self._on_lost))
+
         self._temp_fields = [value for _, value in scalar_types]
         self.temp_subs = [
             self.create_subscription(cls, topic, self._temperature_cb(i, value),
                                      common.sensor_qos(in_depth))
             for i, (topic, (cls, value)) in enumerate(zip(self.temperature_topics,
                                                           scalar_types))]
+        _refuse_loop(self.pub.topic_name,
+                     [self.imu_sub.topic_name] + [t.topic_name for t in self.temp_subs])
         self.cal_sub = self.create_subscription(String, 'imu/calibration', self._on_calibration,
                                                 common.CALIBRATION_QOS)
         self.reload_srv = self.create_service(Trigger, '~/reload', self._on_reload)
@@ -158,24 +178,23 @@ class CompensatorNode(Node):
 
         Returns (ok, message). On failure the previous calibration stays active.
         """
-        columns, reason = common.match_topics(self, cal.temperature_topics,
-                                              self.temperature_topics)
-        if reason:
-            return self._reject(source, reason)
-        reason = self._unit_mismatch(cal, columns)
-        if reason:
-            return self._reject(source, reason)
-        reason = _probe(cal)
+        model, reason = self._model(cal, source)
         if reason:
             return self._reject(source, reason)
         # one reference swap: a message is compensated entirely with the old or the new model
-        self._active = ActiveModel(cal, tuple(columns), cal.id, source, time.time(),
-                                   CalibrationStream(cal))
+        self._active = model
         self.counts['calibrations_loaded'] += 1
-        return True, (f'calibration {cal.id} active from {source}: accel '
-                      f'{cal.accel.kind if cal.accel else "none"}, gyro '
-                      f'{cal.gyro.kind if cal.gyro else "none"}, inputs '
-                      f'{cal.temperature_topics or "none"}')
+        return True, _active_text(model)
+
+    def _model(self, cal, source):
+        """Return (ActiveModel, None) if this node can serve ``cal``'s inputs, else (None, why)."""
+        columns, reason = common.match_topics(self, cal.temperature_topics,
+                                              self.temperature_topics)
+        reason = reason or self._unit_mismatch(cal, columns) or _probe(cal)
+        if reason:
+            return None, reason
+        return ActiveModel(cal, tuple(columns), cal.id, source, time.time(),
+                           CalibrationStream(cal)), None
 
     def _unit_mismatch(self, cal, columns):
         """Return why the calibration's input units differ from ``temperature_units``, or None."""
@@ -196,9 +215,12 @@ class CompensatorNode(Node):
         return False, f'rejected calibration from {source}: {reason}{keep}'
 
     def load_file(self):
-        """(Re)load ``calibration_file`` (or from ``registry_dir``); returns (ok, message)."""
+        """(Re)load ``calibration_file`` (or every known unit from ``registry_dir``).
+
+        Returns (ok, message).
+        """
         if self.registry_dir:
-            return self._load_registry()
+            return self._reload_units()
         path = os.path.expanduser(self.get_parameter('calibration_file').value)
         if not path:
             return self._reject('calibration_file', 'the parameter is empty')
@@ -210,19 +232,51 @@ class CompensatorNode(Node):
             return self._reject(path, f'unreadable ({e.__class__.__name__}: {e})')
         return self.activate(cal, path)
 
-    def _load_registry(self):
-        """Load the latest calibration of the last seen frame_id from ``registry_dir``."""
-        from ..fleet.registry import valid_at
-        from ..fleet.inputs import safe_id
-        if self._registry_frame is None:
-            return False, 'registry_dir: no IMU message yet (its frame_id picks the unit)'
+    def _reload_units(self):
+        """Registry mode: look every unit seen so far up again; returns (ok, summary)."""
+        frames = list(self._units)
+        self._units.clear()
+        for frame in frames:
+            self._unit_model(frame)
+        have = sum(m is not None for m in self._units.values())
+        return True, (f'registry {self.registry_dir}: {have} of {len(frames)} units seen have '
+                      'a calibration' + (f'; without: {self._uncalibrated_text()}'
+                                         if have < len(frames) else ''))
+
+    def _unit_model(self, frame):
+        """Return the ActiveModel of unit ``frame`` (None: no calibration), looked up once."""
+        if frame in self._units:
+            return self._units[frame]
+        if len(self._units) >= MAX_UNITS:
+            self._warn_once('units', f'more than {MAX_UNITS} IMU frame_ids seen: the others '
+                                     'are not looked up in the registry and pass through '
+                                     'uncompensated (counted as uncalibrated_unit)')
+            return None
+        from ..fleet.registry import display_id, valid_at
         root = os.path.expanduser(self.registry_dir)
         try:
-            path = valid_at(root, safe_id(self._registry_frame))
+            path = valid_at(root, frame)
             cal = Calibration.load(path)
-        except (LookupError, CalibrationError, OSError) as e:
-            return self._reject(f'registry {root}', str(e))
-        return self.activate(cal, path)
+            model, reason = self._model(cal, path)
+        except (LookupError, CalibrationError, OSError, ValueError) as e:
+            model, reason = None, str(e)
+        self._units[frame] = model
+        if model is None:
+            self.counts['calibrations_rejected'] += 1
+            self.last_rejection = f'unit {display_id(frame)}: {reason}'
+            self.get_logger().warning(
+                f'IMU unit {display_id(frame)}: no usable calibration in registry {root} '
+                f'({reason}); its messages pass through uncompensated')
+        else:
+            self.counts['calibrations_loaded'] += 1
+            self.get_logger().info(f'IMU unit {display_id(frame)}: ' + _active_text(model))
+        return model
+
+    def _uncalibrated_text(self, limit=5):
+        from ..fleet.registry import display_id
+        names = [display_id(f) for f, m in self._units.items() if m is None]
+        return ', '.join(names[:limit]) + (f' and {len(names) - limit} more'
+                                           if len(names) > limit else '')
 
     def _on_reload(self, request, response):
         response.success, response.message = self.load_file()
@@ -231,6 +285,10 @@ class CompensatorNode(Node):
 
     def _on_calibration(self, msg):
         active = self._active
+        if self.registry_dir:
+            common.log(self, *self._reject('imu/calibration', 'registry_dir is set: each unit '
+                                           'takes its calibration from the registry'))
+            return
         try:
             cal = Calibration.from_yaml(msg.data, 'imu/calibration')
             if active is not None and cal.id == active.id:
@@ -293,37 +351,66 @@ class CompensatorNode(Node):
         self.counts['input_lost'] += info.total_count_change
 
     def _on_imu(self, msg):
-        if self.registry_dir and msg.header.frame_id != self._registry_frame:
-            self._registry_frame = msg.header.frame_id
-            common.log(self, *self.load_file(), failure='warning')
         msgs = [msg]
         msgs.extend(common.drain(self.imu_sub, self.batch_limit - 1, self))
         later = self._take_queued_temperatures(msgs)
         try:
-            self._compensate(msgs)
+            if not self.registry_dir:
+                self._compensate(msgs, self._active)
+            else:
+                units = {}
+                for m in msgs:     # one model per unit: a batch may hold several units
+                    units.setdefault(m.header.frame_id, []).append(m)
+                for frame, group in units.items():
+                    model = self._unit_model(frame)
+                    if model is None:
+                        self.counts['uncalibrated_unit'] += len(group)
+                    else:
+                        self._active = model
+                    self._compensate(group, model, frame)
         finally:
             for i, taken in enumerate(later):
                 self._add_temperatures(i, self._temp_fields[i], taken)
 
-    def _compensate(self, msgs):
-        if self._gate is None:
-            self.process(msgs)
+    def _compensate(self, msgs, active, unit=None):
+        msgs = self._drop_own(msgs)
+        if not msgs:
+            return
+        gate = self._gate
+        if gate is not None and self.registry_dir:
+            gate = self._unit_gates.setdefault(unit, ImuSpikeFilter())
+        if gate is None:
+            self.process(msgs, active=active)
             return
         stamps, accel, gyro = common.imu_to_arrays(msgs)
         obj = np.empty(len(msgs), object)
         obj[:] = msgs
-        out = self._gate.push(AlignedChunk(ImuColumns(stamps, accel, gyro), np.zeros((
+        out = gate.push(AlignedChunk(ImuColumns(stamps, accel, gyro), np.zeros((
             len(msgs), 0)), np.zeros((len(msgs), 0)), {'msg': obj}))
         if len(out):
             self.process(list(out.extra['msg']), (out.imu.stamp_ns, out.imu.accel,
-                                                  out.imu.gyro))
+                                                  out.imu.gyro), active=active)
 
-    def process(self, msgs, arrays=None):
+    def _drop_own(self, msgs):
+        """Return ``msgs`` without those equal to a message this node published (loop guard)."""
+        if not len(self._sent):
+            return msgs
+        keep = [m for m in msgs if _key(m) not in self._sent]
+        if len(keep) != len(msgs):
+            self.counts['own_messages_dropped'] += len(msgs) - len(keep)
+            self._warn_once('own', 'received messages this node published (its output is '
+                                   'routed back to its input): they are dropped, counted as '
+                                   'own_messages_dropped; fix the remapping')
+        return keep
+
+    def process(self, msgs, arrays=None, active=False):
         """Compensate and publish a batch of Imu messages (in arrival order).
 
-        ``arrays`` = (stamps, accel, gyro) replaces the messages' own values (despiked).
+        ``arrays`` = (stamps, accel, gyro) replaces the messages' own values (despiked);
+        ``active`` is the model to use (default: the active calibration).
         """
-        active = self._active  # read once: the whole batch uses one model
+        if active is False:
+            active = self._active  # read once: the whole batch uses one model
         c = self.counts
         n = len(msgs)
         c['received'] += n
@@ -392,6 +479,7 @@ class CompensatorNode(Node):
         for m, s in zip(msgs, send.tolist()):
             if s:
                 self.pub.publish(m)
+                self._sent.add(_key(m))
                 count += 1
         self.counts['published'] += count
         return count
@@ -423,7 +511,15 @@ class CompensatorNode(Node):
             values['spikes_replaced'] = self._gate.counts()['rejected_total']
         values['last_rejection'] = self.last_rejection
         level, msg = common.OK, 'compensating'
-        if active is None:
+        if self.registry_dir:
+            values['units_calibrated'] = sum(m is not None for m in self._units.values())
+            values['units_without_calibration'] = sum(m is None for m in self._units.values())
+            values['units_without_calibration_ids'] = self._uncalibrated_text(20)
+        if self.registry_dir and values['units_without_calibration']:
+            level = common.WARN
+            msg = (f'{values["units_without_calibration"]} unit(s) without calibration passed '
+                   f'through: {self._uncalibrated_text()}')
+        elif active is None:
             level = common.WARN
             msg = ('no calibration loaded: passing through' if self.passthrough_uncalibrated
                    else 'no calibration loaded: dropping all samples')
@@ -441,6 +537,52 @@ class CompensatorNode(Node):
             level, msg, values)])
 
 
+def _active_text(model):
+    cal = model.calibration
+    return (f'calibration {cal.id} active from {model.source}: accel '
+            f'{cal.accel.kind if cal.accel else "none"}, gyro '
+            f'{cal.gyro.kind if cal.gyro else "none"}, inputs '
+            f'{cal.temperature_topics or "none"}')
+
+
+def _refuse_loop(output, inputs):
+    """Raise ValueError when the output topic (resolved) is an input topic: a feedback loop."""
+    if output in inputs:
+        raise ValueError(f'output topic {output} is also an input topic: every compensated '
+                         'message would come back and be compensated again; remap '
+                         'imu/data_compensated and imu/data_raw to different topics')
+
+
+def _key(msg):
+    """Return what identifies a published Imu message: header and the six values."""
+    h, a, w = msg.header, msg.linear_acceleration, msg.angular_velocity
+    return (h.frame_id, h.stamp.sec, h.stamp.nanosec, a.x, a.y, a.z, w.x, w.y, w.z)
+
+
+class _Recent:
+    """The last ``size`` keys added, with O(1) membership."""
+
+    def __init__(self, size):
+        self._order = deque()
+        self._set = set()
+        self.size = size
+
+    def __len__(self):
+        return len(self._set)
+
+    def __contains__(self, key):
+        return key in self._set
+
+    def add(self, key):
+        """Remember ``key``, forgetting the oldest beyond ``size``."""
+        if key in self._set:
+            return
+        self._order.append(key)
+        self._set.add(key)
+        if len(self._order) > self.size:
+            self._set.discard(self._order.popleft())
+
+
 def _probe(cal):
     """Return why ``cal`` cannot compensate one sample mid-range, or None when it can."""
     mid = (np.zeros((1, 0)) if cal.valid_range is None or not cal.inputs
@@ -456,7 +598,7 @@ def _probe(cal):
 
 def main(args=None):
     """Run the compensator node."""
-    common.run_nodes([CompensatorNode], args)
+    common.exit_process(common.run_nodes([CompensatorNode], args))
 
 
 if __name__ == '__main__':
