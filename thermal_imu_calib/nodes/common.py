@@ -382,18 +382,23 @@ def run_nodes(factories, args=None):
     from rclpy.executors import ExternalShutdownException
     nodes = []
     argv = sys.argv if args is None else args
-    try:
+    signalled = _note_signals()     # no KeyboardInterrupt anywhere: rclpy's handler (which
+    try:                            # chains to this one) shuts the context down instead
         rclpy.init(args=args)
     except Exception as e:  # noqa: B902 - e.g. a params file that does not parse
         return _start_failed(_factory_name(factories[0]), e)
     try:
         try:
             for make in factories:
+                if signalled or not rclpy.ok():
+                    return 0        # stopped while starting
                 nodes.append(make())
         except Exception as e:  # noqa: B902 - bad parameters and the like: one line
-            if not rclpy.ok():
+            if signalled or not rclpy.ok():
                 return 0            # stopped while starting
             return _start_failed(_factory_name(make), e)
+        if signalled:
+            return 0
         for path, text in duplicate_keys(params_files(argv)):
             nodes[0].get_logger().warning(f'params file {path}: {text}')
         for node in nodes:
@@ -435,6 +440,18 @@ def _start_failed(name, err):
     print(f'{name}: error: {text[:1000]}; fix the parameter (or argument) and start again',
           file=sys.stderr)
     return 2
+
+
+def _note_signals():
+    """Make SIGINT and SIGTERM only recorded (returned list), never raised; main thread only."""
+    import signal
+    got = []
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        try:
+            signal.signal(sig, lambda signum, frame: got.append(signum))
+        except (ValueError, OSError):     # not the main thread
+            pass
+    return got
 
 
 def _ignore_signals():
