@@ -161,6 +161,8 @@ def cmd_compensate(args):
     print(f'wrote {args.output}: {st["copied"]} messages copied, {st["imu_out"]} compensated '
           f'on {args.output_topic} ({st["out_of_range"]} outside the calibrated temperature '
           f'range, {st["passthrough"]} passed through, {st["dropped"]} dropped'
+          + (f', {st["stamp_jumps"]} after IMU stamps jumped back passed through'
+             if st['stamp_jumps'] else '')
           + (f', {st["spikes"]} spike values replaced' if args.despike else '') + '), '
           f'{st["msgs_per_s"]:,.0f} msgs/s')
     return 0
