@@ -209,6 +209,18 @@ def _bulk_chunks(reader, chunker, batches, on_batch=None) -> Iterator[RawChunk]:
         raise LogError(f'{err}') from err
 
 
+def _check_name(p: Path) -> None:
+    """Refuse a path that is not UTF-8 text: the bag libraries cannot open it (not the data)."""
+    try:
+        str(p).encode('utf-8')
+    except UnicodeEncodeError as e:
+        bad = os.fsencode(str(p))[len(str(p)[:e.start].encode('utf-8', 'surrogateescape'))]
+        shown = str(p).encode('utf-8', 'surrogateescape').decode('utf-8', 'backslashreplace')
+        raise LogError(f'{shown}: the path is not UTF-8 text (byte 0x{bad:02x} at character '
+                       f'{e.start}), which the log readers cannot open; the data was not read: '
+                       'rename the file or directory to a UTF-8 name and try again') from None
+
+
 def _with_wal(p: Path) -> tuple[Path, str]:
     """Return (path to read, note): a checkpointed private copy when a .db3 has a -wal part.
 
@@ -271,6 +283,7 @@ class LogReader:
         p = Path(path).expanduser()
         if p.name == 'metadata.yaml' and p.is_file():
             p = p.parent
+        _check_name(p)
         if not p.exists():
             raise LogError(f'{p}: no such file or directory; pass a rosbag2 directory, a .mcap '
                            'or a .db3 file.')
@@ -427,10 +440,11 @@ class LogReader:
         """
         chunker = _Chunker(self, imu_topic, temperature_topics, chunk_size, keep_raw)
         if hasattr(self._src, 'batches'):
-            yield from _bulk_chunks(self, chunker,
-                                    _guarded(self.path, self._src.batches(chunker.topics)))
+            yield from _named(self.path, _bulk_chunks(
+                self, chunker, _guarded(self.path, self._src.batches(chunker.topics))))
             return
-        yield from _chunked(chunker, _guarded(self.path, self._src.messages(chunker.topics)))
+        yield from _named(self.path, _chunked(
+            chunker, _guarded(self.path, self._src.messages(chunker.topics))))
 
     def info(self, topics: Iterable[str] | None = None) -> LogInfo:
         """Scan the log once and summarise it (counts, log times, header-stamp rates, degC).
@@ -563,8 +577,8 @@ def copy_and_stream(reader: LogReader, writer: LogWriter, imu_topic: str,
 
         def copy_batch(batch):
             writer.copy_batch(batch.take(np.isin(batch.channel, ids)), cmap)
-        yield from _bulk_chunks(reader, chunker, _guarded(reader.path, src.batches(None)),
-                                copy_batch)
+        yield from _named(reader.path, _bulk_chunks(
+            reader, chunker, _guarded(reader.path, src.batches(None)), copy_batch))
         return
     write = writer.write
 
@@ -574,7 +588,8 @@ def copy_and_stream(reader: LogReader, writer: LogWriter, imu_topic: str,
                 write(msg[0], msg[2], msg[3])
             yield msg
 
-    yield from _chunked(chunker, copy(_guarded(reader.path, reader._src.messages(None))))
+    yield from _named(reader.path, _chunked(
+        chunker, copy(_guarded(reader.path, reader._src.messages(None)))))
 
 
 def _guarded(path, messages):
@@ -591,6 +606,17 @@ def _guarded(path, messages):
                        f'({err.__class__.__name__}: {str(err)[:200]}); recover what is '
                        'readable (`mcap recover` for MCAP, `ros2 bag reindex` for a bag) '
                        'and try again.') from err
+
+
+def _named(path, chunks):
+    """Yield from ``chunks``; a decoding error (ValueError, LogError) names the log file."""
+    try:
+        yield from chunks
+    except (ValueError, LogError) as err:
+        text = str(err)
+        if text.startswith(str(path)):
+            raise
+        raise LogError(f'{path}: {text}') from err
 
 
 def _chunked(chunker, messages):
