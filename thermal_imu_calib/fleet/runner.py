@@ -221,7 +221,7 @@ def fleet_client(scheduler=None, workers=None, out=None):
         raise FleetSetupError(f'cannot start a local Dask cluster of {n} worker processes '
                               f'({type(e).__name__}: {str(e)[:200]}); try fewer --workers '
                               'or check the machine\'s memory and open-file limits') from None
-    with cluster, Client(cluster) as client, quiet_shutdown():
+    with cluster, Client(cluster) as client, quiet_shutdown(cluster):
         print(f'dask: LocalCluster of {n} worker processes, dashboard '
               f'{client.dashboard_link}', file=out)
         yield client
@@ -242,18 +242,29 @@ def _sigint_ignored():
 
 
 @contextmanager
-def quiet_shutdown():
-    """On Ctrl-C/SIGTERM, silence Dask's loggers while the cluster is torn down.
+def quiet_shutdown(cluster=None):
+    """On Ctrl-C/SIGTERM, stop the job without Dask's tracebacks and warnings.
 
-    Closing a cluster mid-job makes the scheduler, nannies and client log every lost
-    connection with a traceback; the user asked to stop, so only the CLI's one line shows.
+    Closing a cluster mid-job makes the scheduler, nannies, workers and client log every
+    cancelled task and lost connection; the user asked to stop, so only the CLI's one line
+    shows: this process's Dask loggers are silenced and the LocalCluster's worker processes
+    (``cluster``) are killed before the cluster is closed (their results are not wanted).
     """
     import logging
+    import signal
     try:
         yield
     except KeyboardInterrupt:
         for name in ('distributed', 'tornado', 'asyncio', 'bokeh'):
             logging.getLogger(name).setLevel(logging.CRITICAL + 1)
+        for nanny in (getattr(cluster, 'workers', None) or {}).values():
+            pid = getattr(getattr(getattr(nanny, 'process', None), 'process', None), 'pid',
+                          None)
+            try:
+                if pid:
+                    os.kill(pid, signal.SIGKILL)
+            except OSError:
+                pass
         raise
 
 
