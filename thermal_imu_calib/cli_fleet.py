@@ -217,6 +217,7 @@ def cmd_fleet_compensate(args):
         raise ValueError(f'{existing[0]} exists ({len(existing)} outputs do); remove them or '
                          'choose another -o')
     checked = Outputs(list(args.inputs) + paths + [args.registry])
+    Outputs(checked.inputs).directory(args.output, '-o', 'compensated logs')
     for o in outs:
         checked.log(o, '-o')
     kw = dict(_collect_kw(args), output_topic=args.output_topic,
