@@ -24,8 +24,8 @@ NODES = {'compensator': ('compensator_node', 'thermal_imu_compensator'),
 ARGUMENTS = (
     ('namespace', '', 'namespace of the nodes (and of their relative topics)'),
     ('imu_topic', 'imu/data_raw', 'sensor_msgs/Imu input, remapped onto imu/data_raw'),
-    ('temperature_topics', '', 'YAML list of thermal input topics, e.g. [imu/temperature] '
-                               '(empty: the params file\'s)'),
+    ('temperature_topics', '', 'YAML list of thermal input topics, e.g. [imu/temperature]; '
+                               '[] for none (empty: the params file\'s)'),
     ('params_file', '', 'parameters file for the nodes (empty: config/<node>.yaml of the '
                         'package)'),
     ('calibration_file', '', 'calibration YAML the compensator loads and the calibrator writes '
@@ -66,7 +66,8 @@ def make_nodes(context):
         if not isinstance(topics, list) or not all(isinstance(t, str) for t in topics):
             raise ValueError(f'temperature_topics:={v["temperature_topics"]} is not a list of '
                              'topics, e.g. "[imu/temperature]"')
-        overrides['temperature_topics'] = topics
+        # ROS 2 cannot type an empty array: [''] is the nodes' spelling of "no input"
+        overrides['temperature_topics'] = topics or ['']
     if v['calibration_file'].strip():
         overrides['calibration_file'] = os.path.expanduser(v['calibration_file'])
     actions = []

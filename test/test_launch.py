@@ -125,6 +125,24 @@ def test_imu_topic_and_overrides(launch_module):
         'calibration_file': os.path.expanduser('~/cal.yaml')}]
 
 
+def test_no_temperature_topics(launch_module, ros, tmp_path, monkeypatch):
+    """``temperature_topics:='[]'`` starts both nodes without a thermal input."""
+    import importlib
+    from rclpy.parameter import Parameter
+    _, nodes = _resolve(launch_module, temperature_topics='[]')
+    monkeypatch.setenv('HOME', str(tmp_path))
+    for n in nodes:
+        params_file, overrides = n['parameters']
+        assert overrides['temperature_topics'] == ['']
+        module = importlib.import_module('thermal_imu_calib.nodes.' + n['executable'][:-5])
+        cls = {'compensator_node': 'CompensatorNode', 'calibrator_node': 'CalibratorNode'}
+        node = getattr(module, cls[n['executable']])(
+            context=ros.context, cli_args=['--ros-args', '--params-file', params_file],
+            parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()])
+        ros.add(node)
+        assert node.temperature_topics == []
+
+
 def test_bad_arguments_say_what_is_wrong(launch_module):
     with pytest.raises(ValueError, match='must name some of compensator, calibrator'):
         _resolve(launch_module, nodes='compensater')

@@ -24,11 +24,13 @@ LAYERS = [
     ('estimation', ['estimation']),
     ('selection', ['selection']),
     ('pipelines', ['pipeline', 'evaluate', 'noise', 'sim', 'sim_*', 'report']),
+    ('app', ['app']),
     ('adapters', ['cli', 'cli_*', 'nodes', 'fleet']),
     ('package', ['']),
 ]
 #: layers that must not import a ROS client library
-NO_ROS = {'helpers', 'io', 'models', 'calibration', 'collection', 'estimation', 'selection'}
+NO_ROS = {'helpers', 'io', 'models', 'calibration', 'collection', 'estimation', 'selection',
+          'pipelines', 'app'}
 ROS_MODULES = ('rclpy', 'rosidl_runtime_py', 'launch', 'launch_ros')
 
 

@@ -13,7 +13,6 @@ from conftest import DOMAIN_ID, imu_msg, venv_env, venv_exe, wait_for
 import numpy as np
 import pytest
 
-from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import Imu, Temperature
 from std_msgs.msg import String
@@ -32,8 +31,8 @@ def _diag_values(rig):
     for arr in reversed(rig.diag):
         for st in arr.status:
             if 'thermal compensation' in st.name:
-                return {kv.key: kv.value for kv in st.values} | {'_level': st.level,
-                                                                  '_message': st.message}
+                values = {kv.key: kv.value for kv in st.values}
+                return dict(values, _level=st.level, _message=st.message)
     return None
 
 

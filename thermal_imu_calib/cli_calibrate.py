@@ -7,18 +7,17 @@ calibration is the one ``calibrate`` gives on the same logs. Units: gravity m/s^
 """
 
 import argparse
-import os
 import sys
 
-from . import cli_checks
-from .calibration import TemperatureInput
+from .app import calibrate as app
+from .app.calibrate import CalibrateSettings
 from .cli_checks import UserError
 from .collection.stationary import DetectorConfig
-from .estimation.calibrate import CalibrateOptions, calibrate_windows, model_choices
-from .formats import load_prior
-from .gravity import resolve_gravity
-from .input_units import parse_unit_map
+from .estimation.calibrate import model_choices
 from .io.output import write_atomic
+
+#: the defaults of ``calibrate`` (the node's and the fleet's too)
+DEFAULTS = CalibrateSettings()
 
 
 def add_calibrate_parser(sub):
@@ -29,22 +28,26 @@ def add_calibrate_parser(sub):
     grav = p.add_mutually_exclusive_group()
     grav.add_argument('--gravity', type=float, help='local gravity (m/s^2)')
     grav.add_argument('--latitude', type=float, help='latitude (deg) for WGS84 normal gravity')
-    p.add_argument('--altitude', type=float, default=0.0, help='height (m) with --latitude')
-    p.add_argument('--model', default='auto', choices=model_choices(),
+    p.add_argument('--altitude', type=float, default=DEFAULTS.altitude,
+                   help='height (m) with --latitude')
+    p.add_argument('--model', default=DEFAULTS.model, choices=model_choices(),
                    help='auto: chosen from the data (see the summary); field: seed 000; '
                         'offset: single-orientation drift only; whole_unit: seed 002, gyro '
                         'scale and misalignment from the pose changes between holds')
     p.add_argument('--prior', help='lab calibration (k0, b0, S at T0) the field model refines: a '
                    'thermal_imu_calib YAML, imu_tk *_acc.calib, imucal .json, PX4 .params, '
                    'ArduPilot .parm or Kalibr imu.yaml')
-    p.add_argument('--order', type=int, default=2, choices=(0, 1, 2),
-                   help='temperature polynomial order of the field model (default 2)')
+    p.add_argument('--order', type=int, default=DEFAULTS.order, choices=(0, 1, 2),
+                   help=f'temperature polynomial order of the field model (default '
+                        f'{DEFAULTS.order})')
     p.add_argument('--no-refine', action='store_true', help='skip the joint refinement')
-    p.add_argument('--out-of-range', default='clamp', choices=('clamp', 'extrapolate'),
+    p.add_argument('--out-of-range', default=DEFAULTS.out_of_range,
+                   choices=('clamp', 'extrapolate'),
                    help='outside the valid temperature range: hold the edge value (clamp) or '
                         'evaluate the model (extrapolate); both are counted and flagged')
-    p.add_argument('--range-margin', type=float, default=1.0, metavar='DEGC',
-                   help='valid range = collected temperature range widened by this (default 1)')
+    p.add_argument('--range-margin', type=float, default=DEFAULTS.range_margin,
+                   metavar='DEGC', help='valid range = collected temperature range widened by '
+                                        f'this (default {DEFAULTS.range_margin:g})')
     p.add_argument('--input-unit', action='append', default=[], metavar='TOPIC=UNIT',
                    help='unit of a thermal input, recorded in the calibration: degC (default) '
                         'or a proxy unit such as Hz (e.g. /imu/gyro_resonance=Hz); repeat per '
@@ -86,16 +89,17 @@ def _add_topics(p, imu_required=False):
                         'proxy such as a resonance frequency) or another stamped scalar '
                         '(FluidPressure, Illuminance, RelativeHumidity); repeat for several '
                         'inputs (default: all Temperature topics, or those of the calibration)')
-    p.add_argument('--max-gap', type=float, default=5.0, metavar='S',
+    p.add_argument('--max-gap', type=float, default=DEFAULTS.max_gap_s, metavar='S',
                    help='temperature samples further apart than this are a gap: the nearest '
-                        'sample is held instead of interpolating (s, default 5)')
+                        f'sample is held instead of interpolating (s, default '
+                        f'{DEFAULTS.max_gap_s:g})')
     p.add_argument('--chunk-size', type=int, default=20000, help=argparse.SUPPRESS)
     p.add_argument('--progress', action=argparse.BooleanOptionalAction, default=None,
                    help='progress bar (default: only on a terminal)')
 
 
 def _add_detector(p):
-    d = DetectorConfig()
+    d = DEFAULTS.detector
     g = p.add_argument_group('stationary detector (default: every setting derived from the '
                              'log\'s rate, noise floor and LSB)')
     g.add_argument('--block', type=float, default=None, metavar='S',
@@ -117,7 +121,9 @@ def _add_detector(p):
 def _detector(args):
     c = DetectorConfig(block_s=args.block, min_hold_s=args.min_hold, window_s=args.window,
                        guard_s=args.guard, accel_factor=args.still_factor,
-                       gyro_factor=args.still_factor, rotation_dps=args.rotation_dps)
+                       gyro_factor=args.still_factor, rotation_dps=args.rotation_dps,
+                       mean_sigmas=DEFAULTS.detector.mean_sigmas,
+                       noise_quantile=DEFAULTS.detector.noise_quantile)
     try:
         c.validate()
     except ValueError as e:
@@ -125,91 +131,47 @@ def _detector(args):
     return c
 
 
+def settings_from_args(args):
+    """Return the CalibrateSettings of a ``calibrate`` (or ``fleet calibrate``) Namespace."""
+    return CalibrateSettings(
+        model=args.model, order=args.order, refine=not args.no_refine,
+        out_of_range=args.out_of_range, range_margin=args.range_margin, max_gap_s=args.max_gap,
+        gravity=args.gravity, latitude=args.latitude, altitude=args.altitude, prior=args.prior,
+        frame_id=args.frame_id or '', input_units=list(args.input_unit),
+        input_margins=list(args.input_margin), accel_input=args.accel_input,
+        gyro_input=args.gyro_input, detector=_detector(args))
+
+
 def _gravity(args):
     try:
-        g, src = resolve_gravity(args.gravity, args.latitude, args.altitude)
-    except ValueError as e:
+        return app.resolve(CalibrateSettings(gravity=args.gravity, latitude=args.latitude,
+                                             altitude=getattr(args, 'altitude', 0.0)))
+    except app.SettingsError as e:
         raise UserError(str(e)) from None
-    if not 9.7 <= g <= 9.9:
-        raise UserError(f'gravity {g:.6g} m/s^2 from --latitude/--altitude is not a '
-                        'terrestrial value (9.7..9.9); check --altitude (metres)')
-    return g, src
 
 
 def calibrate_collected(args, collected, paths):
     """Merge the Collected of several logs and estimate as ``calibrate`` does.
 
     ``args`` holds the calibrate options (the Namespace of its parser); ``paths`` are the
-    logs (their names go to ``fit.inputs``; long holds are re-read for the random walk,
-    ``noise.add_random_walk``). Returns the CalibrationResult (not saved), re-read by the
-    nodes' loader first (``cli_checks.validated``: UserError if it would be refused). Shared by
-    ``fleet calibrate`` (cli_fleet), whose reduce step must equal ``calibrate``.
+    logs. The estimation is ``app.calibrate.calibrate_collected``, the one the calibrator
+    node and ``fleet calibrate`` (cli_fleet's reduce step) run too; here only
+    ``--save-windows`` is written on the way. Returns the CalibrationResult (not saved);
+    UserError when it would be refused.
     """
-    from .collection.motion import save_transitions
-    from .pipeline import merge_transitions, merge_windows
-    g, g_src = _gravity(args)
-    prior = load_prior(args.prior) if args.prior else None
-    topics = collected[0].temperature_topics
-    for c in collected[1:]:
-        if c.temperature_topics != topics:
-            raise UserError(f'inputs have different temperature topics ({topics} vs '
-                            f'{c.temperature_topics}); pass --temperature-topic')
-    windows = merge_windows(collected)
-    transitions = merge_transitions(collected)
     if args.save_windows:
+        from .cli_checks import TRANSITIONS_SUFFIX
+        from .collection.motion import save_transitions
+        from .pipeline import merge_transitions, merge_windows
+        windows, transitions = merge_windows(collected), merge_transitions(collected)
         write_atomic(args.save_windows, windows.to_jsonl())
-        write_atomic(args.save_windows + cli_checks.TRANSITIONS_SUFFIX,
+        write_atomic(args.save_windows + TRANSITIONS_SUFFIX,
                      lambda f: save_transitions(f, transitions))
         print(f'wrote {len(windows)} windows to {args.save_windows} and {len(transitions)} '
               f'pose changes to {args.save_windows}.transitions.npz', file=sys.stderr)
-    inputs, mapping = _thermal_inputs(args, topics)
-    opts = CalibrateOptions(model=args.model, gravity=g, gravity_source=g_src, prior=prior,
-                            inputs=inputs, frame_id=args.frame_id or collected[0].frame_id,
-                            out_of_range=args.out_of_range, order=args.order,
-                            refine=not args.no_refine,
-                            min_hold_s=args.min_hold or collected[0].detector["min_hold_s"]
-                            if collected[0].detector else 10.0,
-                            range_margin=args.range_margin, latitude=args.latitude,
-                            transitions=transitions, **mapping)
-    result = calibrate_windows(windows, opts)
-    result.calibration.fit['inputs'] = [os.path.basename(os.path.normpath(p)) for p in paths]
-    result.calibration.fit['detector'] = (collected[0].detector if len(collected) == 1
-                                          else [c.detector for c in collected])
-    from .noise import add_random_walk
-    note = add_random_walk(result.calibration, paths, windows, args.imu_topic)
-    result.calibration.notes += [note] if note else []
-    # never hand on a calibration the nodes' loader would refuse (calibrate and fleet alike)
-    cli_checks.validated(result.calibration, getattr(args, 'output', None) or 'the output')
-    return result
-
-
-def _thermal_inputs(args, topics):
-    """Return the TemperatureInputs (with units) and the axis-mapping options of calibrate."""
     try:
-        units = parse_unit_map(args.input_unit, topics)
-    except ValueError as e:
-        raise UserError(str(e)) from None
-    inputs = [TemperatureInput(t.strip('/').replace('/', '_') or f't{i}', t, u)
-              for i, (t, u) in enumerate(zip(topics, units))]
-    margins = {}
-    for item in args.input_margin:
-        unit, sep, value = item.partition('=')
-        try:
-            margins[unit] = float(value)
-        except ValueError:
-            sep = ''
-        if not sep or margins[unit] < 0:
-            raise UserError(f'--input-margin {item!r} is not UNIT=VALUE with VALUE >= 0 (e.g. '
-                            'Hz=1.5)')
-    mapping = {'unit_margins': margins or None}
-    bare = [t.lstrip('/') for t in topics]
-    for sensor in ('accel', 'gyro'):
-        spec = getattr(args, f'{sensor}_input')
-        if not spec:
-            continue
-        names = [n.strip().lstrip('/') for n in spec.split(',')]
-        if len(names) not in (1, 3) or any(n not in bare for n in names):
-            raise UserError(f'--{sensor}-input {spec!r} must name one or three of the thermal '
-                            f'inputs ({", ".join(topics) or "none"}), comma-separated')
-        mapping[f'{sensor}_input'] = [bare.index(n) for n in names] * (3 // len(names))
-    return inputs, mapping
+        return app.calibrate_collected(settings_from_args(args), collected, paths,
+                                       args.imu_topic)
+    except app.SettingsError as e:
+        output = getattr(args, 'output', None) or 'the output'
+        raise UserError(f'{e} (output {output})') from None

@@ -25,11 +25,13 @@ A block is *moving* when any of these holds:
 
 Thermal drift inside a hold moves the means by far less than either bound, so only motion
 splits a hold. Runs of still blocks become *holds*; ``guard_s`` is trimmed from both ends
-(not where the log itself starts or ends),
-shorter ones than ``min_hold_s`` are dropped, and each hold is cut into windows of
-``window_s`` (estimation.segments.Windows). ``holds`` keeps one record per hold (start,
-duration, stillness score). Memory stays small for hours of data, and the same class runs
-offline (CLI) and live (node). Settings given explicitly (not None / 0) are kept.
+(not where the log itself starts or ends; a derived guard only as far as its blocks' means
+differ from the rest of the hold, ``_settled``), guards and holds measured in samples at the
+derived rate (jittered stamps change nothing), shorter ones than ``min_hold_s`` are
+dropped, and each hold is cut into windows of ``window_s`` (estimation.segments.Windows).
+``holds`` keeps one record per hold (start, duration, stillness score). Memory stays small
+for hours of data, and the same class runs offline (CLI) and live (node). Settings given
+explicitly (not None / 0) are kept.
 
 Cohesive: one streaming algorithm (derive, score blocks, bridge, make holds and windows)
 whose state is shared by every step; split, its parts would pass that state around.
@@ -60,6 +62,9 @@ GUARD_FRACTION = 0.02
 #: ... and at the end of a hold, before a pose change, this fraction
 GUARD_TAIL_FRACTION = 0.05
 GUARD_MAX_S = 1.0
+#: a guard block is kept when the chi-square statistic of its mean against the hold's core
+#: is below this many times its degrees of freedom (``_settled``: mean square error)
+EDGE_Z2_PER_DOF = 2.0
 #: isolated false alarms: runs this short and this marginal between still blocks are still
 BRIDGE_BLOCKS = 2
 BRIDGE_SCORE = 4.0
@@ -459,6 +464,53 @@ class StationaryDetector:
         parts = [w for w in out if w is not None]
         return Windows.concat(parts) if parts else Windows.empty(self.k)
 
+    def _settled(self, b, keep):
+        """Return ``keep`` with the guards undone as far as their blocks agree with the hold.
+
+        ``keep`` marks the blocks inside the derived guards, which are now an upper bound:
+        going outwards from the kept core, each guard block is kept until the first one whose
+        mean accel or gyro differs from the core's, so a guard removes only what the data
+        show to differ (the settling of a placed unit, the start of a turn) and nothing
+        beyond it.  Keeping samples whose mean is off by ``d`` (per axis) lowers the hold
+        mean's error when ``d^2`` is below the noise variance they remove; with ``d``
+        estimated from the block, that is ``z^2 < 2 dof`` for the chi-square statistic of the
+        block-minus-core difference (``EDGE_Z2_PER_DOF``).  The per-sample noise is the
+        floor, or what the scatter of the core's block means implies when that is larger
+        (noise that is not white at the block scale: a ringing mount, bias wander).
+        """
+        nf = self.noise_floor()
+        inner = np.flatnonzero(keep)
+        if nf is None or len(inner) == 0 or len(inner) == len(keep):
+            return keep
+        core = slice(inner[0], inner[-1] + 1)
+        n = b.n.astype(float)
+        out = keep.copy()
+        for j in range(core.start - 1, -1, -1):
+            if not self._agrees(b, n, slice(j, j + 1), core, nf):
+                break
+            out[j] = True
+        for j in range(core.stop, len(keep)):
+            if not self._agrees(b, n, slice(j, j + 1), core, nf):
+                break
+            out[j] = True
+        return out
+
+    @staticmethod
+    def _agrees(b, n, zone, core, nf):
+        """Return True when the mean accel and gyro of blocks ``zone`` agree with ``core``'s."""
+        m = core.stop - core.start
+        n_zone, n_core = float(n[zone].sum()), float(n[core].sum())
+        for mean, floor in ((b.am, nf[0]), (b.gm, nf[1])):
+            ref = np.average(mean[core], 0, n[core])
+            var = floor / 3.0
+            if m >= 2:
+                var = max(var, float(np.sum((mean[core] - ref) ** 2 * n[core, None]))
+                          / (3.0 * (m - 1)))
+            d = np.average(mean[zone], 0, n[zone]) - ref
+            if np.sum(d ** 2) / (var * (1.0 / n_zone + 1.0 / n_core)) > EDGE_Z2_PER_DOF * 3:
+                return False
+        return True
+
     def _make_hold(self, b, score, edge=(False, False)):
         c = self.config
         if len(b) == 0:
@@ -471,12 +523,21 @@ class StationaryDetector:
             run = b.t1[-1] - b.t0[0]
             lead = min(max(guard, GUARD_FRACTION * run), max(guard, GUARD_MAX_S))
             guard = min(max(guard, GUARD_TAIL_FRACTION * run), max(guard, GUARD_MAX_S))
-        t_lo = b.t0[0] + (0.0 if edge[0] else lead)
-        t_hi = b.t1[-1] - (0.0 if edge[1] else guard)
-        keep = (b.t0 >= t_lo - 1e-9) & (b.t1 <= t_hi + 1e-9)
+        # guards and the minimum hold count samples (at the derived rate), not stamp
+        # differences: with jittered stamps (a driver stamping on arrival) a 0.2 s guard
+        # would drop two or three 0.1 s blocks by chance, and a run's first-to-last stamp
+        # span is one sample interval short of the time it covers, so a run of exactly the
+        # minimum hold failed it
+        rate = self.derived['rate_hz']
+        before = np.cumsum(b.n) - b.n
+        after = int(np.sum(b.n)) - np.cumsum(b.n)
+        keep = ((before >= (0 if edge[0] else round(lead * rate)))
+                & (after >= (0 if edge[1] else round(guard * rate))))
+        if 'guard_s' not in self.derived['given']:
+            keep = self._settled(b, keep)
         b = b.take(keep)
         score = score[keep]
-        if len(b) == 0 or b.t1[-1] - b.t0[0] < c.min_hold_s - 1e-9:
+        if len(b) == 0 or np.sum(b.n) < round(c.min_hold_s * rate):
             return None
         hold = self._next_hold
         self._next_hold += 1

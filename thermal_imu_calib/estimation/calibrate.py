@@ -21,12 +21,11 @@ from ..models.field import FieldPolynomialModel
 from ..thermal_input import ThermalFilter
 from .field_estimator import fit_field_model, per_axis_vertical_range
 from .hold_consistency import hold_consistency
+from .observability import ORDER_SPAN
 from .offset_fit import fit_offset_model, time_groups
 from .allan import window_noise
 from ..collection.segments import coverage, distinct_orientations, FACE_NAMES, Windows
 
-#: temperature span (degC) needed for each polynomial order of the field model
-ORDER_SPAN = {1: 1.0, 2: 3.0}
 #: warn when an axis was never vertical within this many degC of the collected range's ends
 EXTRAPOLATION_WARN_DEGC = 2.0
 #: valid-range margin of a proxy input (e.g. Hz) when no degC input is there to scale the
@@ -304,9 +303,11 @@ class Estimate:
 #: model name -> estimator(Context) -> Estimate; see ``register_estimator``
 ESTIMATORS = {}
 #: modules that register further estimators when imported (one line per model family)
-ESTIMATOR_MODULES = ['thermal_imu_calib.estimation.whole_unit_fit',
+ESTIMATOR_MODULES = ['thermal_imu_calib.estimation.standard_fit',
+                     'thermal_imu_calib.estimation.whole_unit_fit',
                      'thermal_imu_calib.estimation.baselines',
                      'thermal_imu_calib.selection.select',
+                     'thermal_imu_calib.selection.static_select',
                      'thermal_imu_calib.selection.gyro_select']
 
 
@@ -342,6 +343,54 @@ def auto_choice(ctx):
 
 #: the ``auto`` policy; replaceable (e.g. by held-out validation across families)
 AUTO_POLICY = [auto_choice]
+
+
+def _apply_hold_rule(ctx, keep):
+    """Return (applied, report) for a rule leaving holds out; replaced by held-out judging."""
+    return True, {}
+
+
+#: ``fn(ctx, keep) -> (applied, report)``: whether a rule's leaving out ``~keep`` stands
+#: (``selection/static_select.judge_rule``: held out, against the standard fit)
+HOLD_RULE_JUDGE = [_apply_hold_rule]
+
+
+def _no_magnitudes(ctx):
+    """Return None: the pose-repeat test then uses its own rough bias and scale fit."""
+    return None
+
+
+#: ``fn(ctx) -> (holds,) |a| of each hold mean after a calibration of all holds, or None``
+#: (installed by ``standard_fit``: the standard fit)
+HOLD_MAGNITUDES = [_no_magnitudes]
+
+
+def _without_flat_temperature(windows, o):
+    """Return (windows, options, notes) with degC inputs that barely moved taken out.
+
+    Several orientations: when every thermal input is a temperature (degC) spanning less
+    than ``ORDER_SPAN[1]`` over the holds, no temperature term can be resolved from it, so
+    the estimation is the one without the inputs (the same calibration as without the
+    topic, temperature-independent) and a note says so. One orientation keeps them: its
+    offset model is what ``auto`` ends at either way (``select.SINGLE_MIN_SPAN``).
+    """
+    k = windows.n_inputs
+    if not k or distinct_orientations(windows) < 2:
+        return windows, o, []
+    units = input_units(o, k)
+    if not all(is_temperature(u) for u in units):
+        return windows, o, []
+    span = float(np.max(np.ptp(windows.temp, axis=0)))
+    if span >= ORDER_SPAN[1]:
+        return windows, o, []
+    w = dataclasses.replace(windows, temp=windows.temp[:, :0],
+                            temp_rate=windows.temp_rate[:, :0])
+    trs = [dataclasses.replace(t, temps=np.asarray(t.temps)[:0]) for t in o.transitions]
+    o = dataclasses.replace(o, inputs=[], accel_input=None, gyro_input=None, transitions=trs)
+    return w, o, [f'the temperature spanned only {span:.2f} degC over the holds (< '
+                  f'{ORDER_SPAN[1]:g} degC, too little for any temperature term): treated as '
+                  'no temperature input, a temperature-independent calibration (the same as '
+                  'without the topic); collect across a warm-up for thermal terms']
 
 
 def make_context(windows, options=None):
@@ -385,15 +434,22 @@ def calibrate_windows(windows, options=None):
     if len(o.inputs) != windows.n_inputs:
         raise ValueError(f'{len(o.inputs)} temperature inputs named but windows carry '
                          f'{windows.n_inputs}')
+    windows, o, flat = _without_flat_temperature(windows, o)
     ctx = make_context(windows, o)
-    keep, consistency = hold_consistency(windows, o.gravity, ctx.ta if ctx.k else None)
+    keep, consistency = hold_consistency(windows, o.gravity, ctx.ta if ctx.k else None,
+                                         magnitudes=HOLD_MAGNITUDES[0](ctx))
     if not np.all(keep):
-        ctx.accel_rows = keep
+        applied, consistency['heldout'] = HOLD_RULE_JUDGE[0](ctx, keep)
+        if applied:
+            ctx.accel_rows = keep
+        else:
+            consistency['not_applied'] = consistency.pop('left_out')
+            consistency['left_out'] = []
     accel_input, gyro_input, units = ctx.accel_input, ctx.gyro_input, input_units(o, ctx.k)
     name, why = ((o.model, 'requested') if o.model != 'auto'
                  else AUTO_POLICY[0](ctx.accel_view()))
     est = ESTIMATORS[name](ctx)
-    notes = _consistency_notes(consistency) + list(est.notes)
+    notes = flat + _consistency_notes(consistency) + list(est.notes)
     report = {'coverage': ctx.coverage, 'distinct_orientations': ctx.n_orientations,
               'model_choice': {'model': name, 'reason': why}, **est.report}
     gyro_model = est.gyro
@@ -433,6 +489,8 @@ def calibrate_windows(windows, options=None):
         fit_stats['rotation_direction_error_deg'] = rot['rotation_direction_error_deg']
     cal.fit = fit_stats
     kind = est.accel.kind if est.accel is not None else 'gyro bias only'
+    if name == 'standard':
+        kind = 'standard static fit (imu_tk)'
     cal.notes = list(cal.notes) + _adequacy_notes(fit_stats, kind)
     summary = (f'{kind}: {cov["holds"]} holds ({cov["windows"]} windows), faces '
                f'{_face_text(cov)}, {_span_text(cov, units)}, gravity residual '
@@ -460,6 +518,12 @@ def _model_choice(name, why, report):
 
 def _consistency_notes(report):
     """Return the notes on the holds ``hold_consistency`` left out of the accel fit."""
+    held = report.get('heldout', {})
+    if report.get('not_applied'):
+        holds = ', '.join(str(h['hold']) for h in report['not_applied'])
+        return [f'pose-repeat test: holds {holds} disagree with a visit of the same pose '
+                f'(fit.hold_consistency), but they are not left out: '
+                f'{held.get("text", "held-out holds do not support it")}']
     out = []
     for h in report['left_out']:
         if 'epoch' in h:
@@ -489,6 +553,8 @@ def _consistency_notes(report):
                    f'{obs["earlier"][0]} earlier, {obs["changed"][0]} changed), so holds '
                    f'{", ".join(map(str, held))} are left out of the accelerometer fit; they '
                    'are still used for the gyro')
+    if out and held.get('text'):
+        out.append(f'pose-repeat test: the holds above are left out because {held["text"]}')
     return out
 
 

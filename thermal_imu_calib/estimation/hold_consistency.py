@@ -75,7 +75,7 @@ CLUSTER_DEG = 5.0
 #: with a temperature input, visits are compared only within this difference (its unit)
 TEMP_MATCH = 0.5
 #: once a pair proves a change, level of the joint test that it lasted (see module doc)
-PERSIST_ALPHA = 0.05
+PERSIST_ALPHA = ALPHA
 #: singular values below this fraction of the largest do not count in ``observability``
 RANK_TOL = 1e-2
 #: a hold of the opposite pose: direction within this angle of the reversed direction, deg
@@ -263,7 +263,7 @@ def _epochs(report, keep, label, up, mag, sigma, tmid, ids, gravity, span_s):
     return keep
 
 
-def hold_consistency(windows, gravity, temps=None, lsb=None):
+def hold_consistency(windows, gravity, temps=None, lsb=None, magnitudes=None):
     """Return (bool mask over windows of the holds kept, report dict).
 
     windows: segments.Windows; gravity m/s^2; temps: (m, 3) per-axis thermal input of the
@@ -271,6 +271,10 @@ def hold_consistency(windows, gravity, temps=None, lsb=None):
     (None: not known). The report lists every hold left out: a failed pose repeat with its
     reference, the difference of |a| (ug) and its z-score; a hold of an epoch left out
     with ``epoch`` set (the test in ``report['epochs']``; epochs only without ``temps``).
+    magnitudes: (holds,) |a| of each hold mean after a calibration fitted to all holds
+    (hold ids in sorted order, m/s^2; e.g. the standard fit), so that the difference of two
+    visits a few degrees apart is not the scale and misalignment error the calibration
+    removes; None: after a rough per-axis bias and scale fit (``rough_magnitudes``).
     """
     ids, mean, var, n, tmid, tm = hold_table(windows, temps)
     report = {'test': f'pose-repeat |a| test: visits within {CLUSTER_DEG:g} deg compared, '
@@ -283,7 +287,7 @@ def hold_consistency(windows, gravity, temps=None, lsb=None):
     if lsb is not None:
         var = np.maximum(var, np.asarray(lsb, float) ** 2 / 12.0)
     up = mean / np.linalg.norm(mean, axis=1)[:, None]
-    mag = rough_magnitudes(mean, gravity)
+    mag = rough_magnitudes(mean, gravity) if magnitudes is None else np.asarray(magnitudes)
     sigma = np.sqrt(np.einsum('hi,hi->h', up ** 2, var) / n + (FLOOR_G * gravity) ** 2)
     cos = up @ up.T
     same = cos >= np.cos(np.radians(CLUSTER_DEG))

@@ -24,6 +24,9 @@ from ..collection.outliers import robust_least_squares
 
 #: posterior/prior standard-deviation ratio below which a parameter counts as determined
 DETERMINED_RATIO = 0.5
+#: temperature span (degC) needed for each polynomial order of a temperature term (a term
+#: whose effect over a smaller span is below what holds resolve is not estimated)
+ORDER_SPAN = {1: 1.0, 2: 3.0}
 
 
 CONVENTION = 'convention'

@@ -40,18 +40,19 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from . import common
-from ..calibration import Calibration, CalibrationError, TemperatureInput
+from ..calibration import CalibrationError, TemperatureInput
 from ..estimation import calibrate as estimation
-from ..estimation.calibrate import (CalibrateOptions, CalibrationRefused, calibrate_windows,
-                                    readiness)
+from ..app import calibrate as app
+from ..app.calibrate import CalibrateSettings
+from ..estimation.calibrate import CalibrationRefused, readiness
 from ..collection.motion import load_transitions, MotionCollector, offset_holds, save_transitions
 from ..collection.segments import FACE_NAMES, Windows
 from ..collection.stationary import DetectorConfig, DetectorSettingsError
-from ..formats import load_prior
 from ..gravity import resolve_gravity
 from ..io.align import StreamAligner
 from ..io.columns import ImuColumns, TemperatureColumns
 from ..io.output import CALIBRATION, Outputs, write_atomic
+from ..pipeline import Collected
 
 NODE_NAME = 'thermal_imu_calibrator'
 #: what ``_write`` says when calibration_file is empty (the node is set up not to write)
@@ -61,21 +62,40 @@ SERVICE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                          reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
 
-#: DetectorConfig fields exposed as parameters: (default, lo, hi, description)
+#: the defaults every calibrate path shares (app.calibrate.CalibrateSettings)
+DEFAULTS = CalibrateSettings()
+_DET = DEFAULTS.detector
+
+
+def _param_default(value, derived=0.0):
+    """Return a detector default as a parameter value: None (derived) becomes ``derived``."""
+    return derived if value is None else float(value)
+
+
+#: DetectorConfig fields exposed as parameters: (default, lo, hi, description); 0 (the guard:
+#: -1) means derived from the first samples, as the command line's options left out
 DETECTOR_PARAMS = {
-    'block_s': (0.0, 0.0, 60.0, 'Block length (s) of the stillness test; 0: derived from the '
-                                'rate (~0.1 s, >= 5 samples).'),
-    'window_s': (0.0, 0.0, 3600.0, 'Length (s) of the windows a hold is cut into; 0: derived.'),
-    'min_hold_s': (0.0, 0.0, 36000.0, 'Minimum segment length (s): shorter holds (after the '
-                                      'guards) are discarded; 0: derived (>= 1 s).'),
-    'guard_s': (-1.0, -1.0, 600.0, 'Seconds trimmed from both ends of each hold; -1: derived.'),
-    'accel_factor': (0.0, 0.0, 1e4, 'A block is still when its accel variance is below this '
-                                    'factor times the noise floor; 0: derived (chi-square).'),
-    'gyro_factor': (0.0, 0.0, 1e4, 'Same for the gyro variance; 0: derived.'),
-    'mean_sigmas': (6.0, 1.0, 1000.0, 'Neighbouring block means may differ by this many '
-                                      'standard errors in a hold.'),
-    'noise_quantile': (0.05, 0.001, 0.9, 'Quantile of block variances taken as noise floor.'),
-    'rotation_dps': (3.0, 0.001, 100.0, 'Rotation rate (deg/s) still counted as held (tremor).'),
+    'block_s': (_param_default(_DET.block_s), 0.0, 60.0,
+                'Block length (s) of the stillness test; 0: derived from the rate (~0.1 s, '
+                '>= 5 samples).'),
+    'window_s': (_param_default(_DET.window_s), 0.0, 3600.0,
+                 'Length (s) of the windows a hold is cut into; 0: derived.'),
+    'min_hold_s': (_param_default(_DET.min_hold_s), 0.0, 36000.0,
+                   'Minimum segment length (s): shorter holds (after the guards) are '
+                   'discarded; 0: derived.'),
+    'guard_s': (_param_default(_DET.guard_s, -1.0), -1.0, 600.0,
+                'Seconds trimmed from both ends of each hold; -1: derived.'),
+    'accel_factor': (_param_default(_DET.accel_factor), 0.0, 1e4,
+                     'A block is still when its accel variance is below this factor times '
+                     'the noise floor; 0: derived (chi-square).'),
+    'gyro_factor': (_param_default(_DET.gyro_factor), 0.0, 1e4,
+                    'Same for the gyro variance; 0: derived.'),
+    'mean_sigmas': (_DET.mean_sigmas, 1.0, 1000.0, 'Neighbouring block means may differ by '
+                                                   'this many standard errors in a hold.'),
+    'noise_quantile': (_DET.noise_quantile, 0.001, 0.9,
+                       'Quantile of block variances taken as noise floor.'),
+    'rotation_dps': (_DET.rotation_dps, 0.001, 100.0,
+                     'Rotation rate (deg/s) still counted as held (tremor).'),
 }
 
 
@@ -94,8 +114,9 @@ class CalibratorNode(Node):
             'collection_file', '~/.ros/thermal_imu_calib/collection.jsonl',
             'JSON-lines file the collected windows are appended to and resumed from at start '
             '(empty: keep them in memory only).', **ro)
-        self.temperature_topics = list(p.declare(
+        self.temperature_topics = common.topic_list(p.declare(
             'temperature_topics', ['imu/temperature'],
+            'Empty ([] or [\'\']): no thermal input (a temperature-independent calibration). '
             'Thermal input topics (sensor_msgs/Temperature unless temperature_types says '
             'otherwise), one model input each, in this order; they are written into the '
             'calibration as the inputs\' topics.', **ro))
@@ -106,14 +127,16 @@ class CalibratorNode(Node):
             'temperature_timeout', 2.0,
             'Seconds (header stamps) a reading may be interpolated over or held; IMU samples '
             'without a temperature that fresh are not collected.', lo=0.001, hi=3600.0, **ro)
-        self.model = p.declare('model', 'auto', 'Model to estimate: auto picks offset for a '
-                               'single orientation, else field; whole_unit (seed 002) also '
-                               'fits gyro scale and misalignment from the pose changes '
-                               'between holds (as does any seed 002 gyro chosen).',
+        self.model = p.declare('model', DEFAULTS.model,
+                               'Model to estimate: auto chooses held out, as the command line '
+                               'does (the standard static fit unless a richer model predicts '
+                               'held-out holds better); whole_unit (seed 002) also fits gyro '
+                               'scale and misalignment from the pose changes between holds.',
                                choices=_model_choices())
-        self.order = p.declare('order', 2, 'Highest polynomial order in temperature (reduced '
-                               'automatically when the span is small).', lo=0, hi=2)
-        self.out_of_range = p.declare('out_of_range', 'clamp',
+        self.order = p.declare('order', DEFAULTS.order, 'Highest polynomial order in '
+                               'temperature (reduced automatically when the span is small).',
+                               lo=0, hi=2)
+        self.out_of_range = p.declare('out_of_range', DEFAULTS.out_of_range,
                                       'Written into the calibration: what the compensator does '
                                       'outside the collected temperature range.',
                                       choices=('clamp', 'extrapolate'))
@@ -125,8 +148,10 @@ class CalibratorNode(Node):
                                       'gravity) when gravity is 0.')
         self.latitude = p.declare('latitude', 45.0, 'Geodetic latitude, degrees.',
                                   lo=-90.0, hi=90.0)
-        self.altitude = p.declare('altitude', 0.0, 'Ellipsoidal height, metres.',
+        self.altitude = p.declare('altitude', DEFAULTS.altitude, 'Ellipsoidal height, metres.',
                                   lo=-1000.0, hi=10000.0)
+        p.declare('range_margin', DEFAULTS.range_margin, 'Valid range = collected '
+                  'temperature range widened by this (degC).', lo=0.0, hi=50.0)
         self.frame_id = p.declare('frame_id', '', 'IMU frame written into the calibration; '
                                   'empty: the header frame_id of the first IMU message.')
         self.prior_file = p.declare('prior_file', '', 'Optional lab calibration (k0, b0, S at '
@@ -139,13 +164,13 @@ class CalibratorNode(Node):
         self.detector_config = DetectorConfig(**det)
         self.detector_config.validate()
         self.max_transitions = p.declare(
-            'max_transitions', 500, 'Most pose changes between holds kept (raw samples, ~70 '
-            'kB each at 200 Hz) for the whole_unit gyro scale/misalignment fit; further ones '
-            'are counted as dropped; 0: keep none.', lo=0, hi=10000, **ro)
+            'max_transitions', DEFAULTS.max_transitions, 'Most pose changes between holds '
+            'kept (raw samples, ~70 kB each at 200 Hz) for the gyro scale/misalignment fit; '
+            'further ones are counted as dropped; 0: keep none.', lo=0, hi=10000, **ro)
         self.max_transition_s = p.declare(
-            'max_transition_s', 30.0, 'Longest pose change kept (s, end of one hold to the '
-            'start of the next); longer ones are dropped and counted.', lo=1.0, hi=600.0,
-            **ro)
+            'max_transition_s', DEFAULTS.max_transition_s, 'Longest pose change kept (s, end '
+            'of one hold to the start of the next); longer ones are dropped and counted.',
+            lo=1.0, hi=600.0, **ro)
         p.declare(
             'report', True, 'After each successful ~/calibrate also write an HTML report '
             '(<calibration_file>.report.html, figures embedded) next to the calibration file, '
@@ -155,8 +180,8 @@ class CalibratorNode(Node):
         period = p.declare('progress_period', 1.0, 'Seconds between ~/progress and '
                            '/diagnostics messages.', lo=0.05, hi=60.0, **ro)
         self.k = len(self.temperature_topics)
-        self.inputs = [TemperatureInput(f't{i}', t, u) for i, (t, u) in enumerate(
-            zip(self.temperature_topics, self.temperature_units))]
+        self.inputs = [TemperatureInput(app.input_name(t, i), t, u) for i, (t, u) in
+                       enumerate(zip(self.temperature_topics, self.temperature_units))]
 
         self._lock = threading.Lock()    # detector, aligner, windows, pending data
         self._busy = threading.Lock()    # held while an estimation runs
@@ -209,11 +234,6 @@ class CalibratorNode(Node):
         self._newest_ns = None
         self._pending_imu = []
         self._pending_temp = [[] for _ in range(self.k)]
-
-    def _min_hold_s(self):
-        """Return the minimum hold (s): as set, else as the live detector derived it."""
-        derived = self.detector.det.config if getattr(self, 'detector', None) else None
-        return self.detector_config.min_hold_s or (derived.min_hold_s if derived else 1.0)
 
     def _collector(self):
         """Return a new stationary detector that also keeps the pose changes between holds."""
@@ -490,31 +510,33 @@ class CalibratorNode(Node):
                                   throttle_duration_sec=10.0)
 
     # ------------------------------------------------------------------ services
+    def settings(self):
+        """Return the CalibrateSettings of the parameters (the CLI's defaults where unset)."""
+        def value(name):
+            return self.get_parameter(name).value
+        g = value('gravity')
+        use_latitude = value('use_latitude')
+        return CalibrateSettings(
+            model=value('model'), order=value('order'), out_of_range=value('out_of_range'),
+            range_margin=value('range_margin'), gravity=g if g > 0 else None,
+            latitude=value('latitude') if use_latitude else None,
+            altitude=value('altitude') if use_latitude else DEFAULTS.altitude,
+            prior=value('prior_file') or None, frame_id=value('frame_id'),
+            input_units=[f'{t}={u}' for t, u in
+                         zip(self.temperature_topics, self.temperature_units)],
+            detector=DetectorConfig(**vars(self.detector_config)),
+            max_transitions=self.max_transitions, max_transition_s=self.max_transition_s)
+
     def options(self, transitions=()):
         """Return the CalibrateOptions built from the parameters (and these pose changes)."""
-        g = self.get_parameter('gravity').value
-        if g > 0:
-            value, source = resolve_gravity(g)
-        elif self.get_parameter('use_latitude').value:
-            lat = self.get_parameter('latitude').value  # deg
-            alt = self.get_parameter('altitude').value
-            value, source = resolve_gravity(None, lat, alt)
-        else:
-            value, source = resolve_gravity()
-        latitude = (self.get_parameter('latitude').value
-                    if self.get_parameter('use_latitude').value else None)
-        prior = None
-        prior_file = self.get_parameter('prior_file').value
-        if prior_file:
-            prior = load_prior(os.path.expanduser(prior_file))
-        return CalibrateOptions(
-            model=self.get_parameter('model').value, gravity=value, gravity_source=source,
-            prior=prior, inputs=list(self.inputs),
-            frame_id=self.get_parameter('frame_id').value or self._seen_frame,
-            out_of_range=self.get_parameter('out_of_range').value,
-            order=self.get_parameter('order').value,
-            min_hold_s=self._min_hold_s(), latitude=latitude,
-            transitions=list(transitions))
+        return app.options(self.settings(), [self._collected(Windows.empty(self.k), [], None)],
+                           transitions)
+
+    def _collected(self, windows, transitions, detector):
+        """Return the live collection as the Collected a log gives (``pipeline``)."""
+        return Collected(windows, self._seen_frame, self._rate.total, 0.0,
+                         list(self.temperature_topics), list(transitions),
+                         detector=detector)
 
     async def _on_calibrate(self, request, response):
         # a coroutine: while the worker thread estimates, the executor keeps serving data
@@ -571,10 +593,11 @@ class CalibratorNode(Node):
             room = max(self.max_transitions - len(transitions), 0)
             transitions = list(transitions) + offset_holds(detector.pop_transitions(),
                                                            offset)[:room]
-            result = calibrate_windows(windows, self.options(transitions))
-            result.calibration.fit['detector'] = detector.det.settings()
-            # the loader the compensator uses: never publish a calibration it would refuse
-            Calibration.from_yaml(result.calibration.to_yaml(), 'the new calibration')
+            # the calibrate of the command line and the fleet (checked by the loader the
+            # compensator uses: never publish a calibration it would refuse)
+            result = app.calibrate_collected(
+                self.settings(), [self._collected(windows, transitions,
+                                                  detector.det.settings())])
         except CalibrationRefused as e:
             return False, f'refused: {e}'
         except (CalibrationError, ValueError) as e:

@@ -542,3 +542,12 @@ def exit_process(code):
         except (OSError, ValueError):
             pass
     os._exit(code)
+
+
+def topic_list(value):
+    """Return a topic-list parameter as a list: [] (read as unset) and '' entries are none.
+
+    ROS 2 cannot type an empty array, so ``temperature_topics: []`` arrives unset and the
+    launch file passes ``['']`` for it; both mean no thermal input.
+    """
+    return [t for t in (value or []) if t]

@@ -78,8 +78,9 @@ class CompensatorNode(Node):
         self._units = {}                  # registry mode: frame_id -> ActiveModel or None
         self._unit_gates = {}             # per unit despike state
         self._sent = _Recent(SENT_MEMORY)
-        self.temperature_topics = list(p.declare(
+        self.temperature_topics = common.topic_list(p.declare(
             'temperature_topics', ['imu/temperature'],
+            'Empty ([] or [\'\']): no thermal input (a temperature-independent calibration). '
             'Thermal input topics to subscribe (sensor_msgs/Temperature unless '
             'temperature_types says otherwise); the calibration file maps its inputs to them '
             'by name (relative names follow namespaces and remaps).',

@@ -1,0 +1,1 @@
+"""Use cases shared by the adapters: the node, the command line and the fleet call these."""

@@ -1,0 +1,172 @@
+"""One calibrate: the settings every adapter shares, and the step from holds to a calibration.
+
+``CalibrateSettings`` holds every option of an estimation with its default, in SI units
+(gravity m/s^2, latitude deg, altitude m, margins degC unless a unit is named, gaps and
+detector lengths s). The command line builds its options from it
+(``cli_calibrate.add_calibrate_parser``), the calibrator node declares its parameters from
+it (``nodes/calibrator.py``) and the shipped ``config/calibrator.yaml`` repeats its values
+(``test/test_defaults.py`` fails when they differ). ``calibrate_collected`` turns the
+holds collected from logs (``pipeline.collect_windows``) or live (the node) into a validated
+calibration: ``thermal-imu-calib calibrate``, ``fleet calibrate`` and ``~/calibrate`` all
+run it, so the same holds give the same calibration whichever path collected them.
+"""
+
+from dataclasses import dataclass, field
+import os
+from typing import List, Optional
+
+from ..calibration import Calibration, CalibrationError, TemperatureInput
+from ..collection.stationary import DetectorConfig
+from ..estimation.calibrate import CalibrateOptions, calibrate_windows
+from ..formats import load_prior
+from ..gravity import resolve_gravity
+from ..input_units import parse_unit_map
+
+#: terrestrial gravity accepted (m/s^2): anything else is a typo or wrong units
+GRAVITY_RANGE = (9.7, 9.9)
+
+
+class SettingsError(ValueError):
+    """A setting no estimation can use; the message says which and what to give instead."""
+
+
+@dataclass
+class CalibrateSettings:
+    """Every option of one calibration with its default (the node's, the CLI's, the fleet's)."""
+
+    #: model family (``estimation.calibrate.model_choices``); auto: chosen held out
+    model: str = 'auto'
+    #: highest temperature polynomial order of the field model (0..2)
+    order: int = 2
+    #: joint refinement of the field model after the two-step estimate
+    refine: bool = True
+    #: outside the valid range: 'clamp' (hold the edge value) or 'extrapolate'
+    out_of_range: str = 'clamp'
+    #: valid range = collected range widened by this (degC)
+    range_margin: float = 1.0
+    #: temperature samples further apart than this (s) are a gap: the nearest is held
+    max_gap_s: float = 5.0
+    #: local gravity (m/s^2); None: from ``latitude``/``altitude``, else standard gravity
+    gravity: Optional[float] = None
+    #: geodetic latitude (deg) for WGS84 normal gravity and the earth rate; None: unknown
+    latitude: Optional[float] = None
+    #: ellipsoidal height (m), with ``latitude``
+    altitude: float = 0.0
+    #: lab calibration file the field model refines (any ``formats.load_prior`` format)
+    prior: Optional[str] = None
+    #: frame_id recorded in the calibration ('': the first IMU message's)
+    frame_id: str = ''
+    #: ``TOPIC=UNIT`` items: unit of each thermal input (unnamed: degC)
+    input_units: List[str] = field(default_factory=list)
+    #: ``UNIT=VALUE`` items: valid-range margin per unit
+    input_margins: List[str] = field(default_factory=list)
+    #: ``TOPIC[,TOPIC,TOPIC]``: the input(s) driving the accelerometer / gyro axes
+    accel_input: Optional[str] = None
+    gyro_input: Optional[str] = None
+    #: stationary detector; every None is derived from the log (rate, noise floor, LSB)
+    detector: DetectorConfig = field(default_factory=DetectorConfig)
+    #: most pose changes between holds kept for the gyro's scale and misalignment
+    max_transitions: int = 500
+    #: longest pose change kept (s, end of one hold to the start of the next)
+    max_transition_s: float = 30.0
+
+
+def resolve(settings):
+    """Return (gravity m/s^2, its source text); SettingsError when it is not terrestrial."""
+    try:
+        g, src = resolve_gravity(settings.gravity, settings.latitude, settings.altitude)
+    except ValueError as e:
+        raise SettingsError(str(e)) from None
+    lo, hi = GRAVITY_RANGE
+    if not lo <= g <= hi:
+        raise SettingsError(f'gravity {g:.6g} m/s^2 is not a terrestrial value ({lo}..{hi}); '
+                            'give it in m/s^2, or check the altitude (metres)')
+    return g, src
+
+
+def input_name(topic, index):
+    """Return the name a thermal input gets in the calibration (from its topic)."""
+    return topic.strip('/').replace('/', '_') or f't{index}'
+
+
+def thermal_inputs(settings, topics):
+    """Return the TemperatureInputs (with units) and the axis-mapping options of ``topics``."""
+    try:
+        units = parse_unit_map(settings.input_units, topics)
+    except ValueError as e:
+        raise SettingsError(str(e)) from None
+    inputs = [TemperatureInput(input_name(t, i), t, u)
+              for i, (t, u) in enumerate(zip(topics, units))]
+    margins = {}
+    for item in settings.input_margins:
+        unit, sep, value = item.partition('=')
+        try:
+            margins[unit] = float(value)
+        except ValueError:
+            sep = ''
+        if not sep or margins[unit] < 0:
+            raise SettingsError(f'input margin {item!r} is not UNIT=VALUE with VALUE >= 0 '
+                                '(e.g. Hz=1.5)')
+    mapping = {'unit_margins': margins or None}
+    bare = [t.lstrip('/') for t in topics]
+    for sensor in ('accel', 'gyro'):
+        spec = getattr(settings, f'{sensor}_input')
+        if not spec:
+            continue
+        names = [n.strip().lstrip('/') for n in spec.split(',')]
+        if len(names) not in (1, 3) or any(n not in bare for n in names):
+            raise SettingsError(f'{sensor} input {spec!r} must name one or three of the '
+                                f'thermal inputs ({", ".join(topics) or "none"}), '
+                                'comma-separated')
+        mapping[f'{sensor}_input'] = [bare.index(n) for n in names] * (3 // len(names))
+    return inputs, mapping
+
+
+def options(settings, collected, transitions=()):
+    """Return the CalibrateOptions of ``settings`` for holds collected as ``collected``."""
+    g, g_src = resolve(settings)
+    prior = load_prior(os.path.expanduser(settings.prior)) if settings.prior else None
+    inputs, mapping = thermal_inputs(settings, collected[0].temperature_topics)
+    det = collected[0].detector or {}
+    return CalibrateOptions(
+        model=settings.model, gravity=g, gravity_source=g_src, prior=prior, inputs=inputs,
+        frame_id=settings.frame_id or collected[0].frame_id,
+        out_of_range=settings.out_of_range, order=settings.order, refine=settings.refine,
+        min_hold_s=settings.detector.min_hold_s or det.get('min_hold_s') or 1.0,
+        range_margin=settings.range_margin, latitude=settings.latitude,
+        transitions=list(transitions), **mapping)
+
+
+def calibrate_collected(settings, collected, paths=(), imu_topic=None):
+    """Estimate one calibration from the holds of one or more collections.
+
+    ``collected``: ``pipeline.Collected`` of each log (or of the live collection), all with
+    the same thermal inputs. ``paths``: the logs, if any (their names go to ``fit.inputs``
+    and long holds are re-read for the random walk, ``noise.add_random_walk``). Returns the
+    CalibrationResult, checked by the loader the compensator uses (SettingsError when it
+    would be refused: nothing usable can be written).
+    """
+    from ..noise import add_random_walk
+    from ..pipeline import merge_transitions, merge_windows
+    topics = collected[0].temperature_topics
+    for c in collected[1:]:
+        if c.temperature_topics != topics:
+            raise SettingsError(f'inputs have different temperature topics ({topics} vs '
+                                f'{c.temperature_topics}); name the topics to use')
+    windows = merge_windows(collected)
+    transitions = merge_transitions(collected)
+    result = calibrate_windows(windows, options(settings, collected, transitions))
+    cal = result.calibration
+    if paths:
+        cal.fit['inputs'] = [os.path.basename(os.path.normpath(p)) for p in paths]
+    cal.fit['detector'] = (collected[0].detector if len(collected) == 1
+                           else [c.detector for c in collected])
+    if paths:
+        note = add_random_walk(cal, paths, windows, imu_topic)
+        cal.notes += [note] if note else []
+    try:
+        Calibration.from_yaml(cal.to_yaml(), 'the new calibration')
+    except CalibrationError as e:
+        raise SettingsError(f'{e}: the data cannot support a usable calibration (see the '
+                            'notes), so nothing was written') from None
+    return result
