@@ -22,7 +22,7 @@ from .io.output import staging_dir
 from .input_units import DEGC, is_temperature, parse_unit_map
 from .io.cdr import IMU_MSGTYPE
 from .io.columns import TemperatureColumns
-from .io.gate import InputGate
+from .io.gate import increasing_rows, InputGate
 from .collection.outliers import ImuSpikeFilter
 from .evaluate import static_metrics, WindowAccumulator, with_signals
 from .collection.motion import MotionCollector, offset_holds
@@ -279,7 +279,7 @@ def _compensate(src, dst, calibration, imu_topic, temperature_topics, output_top
                 # the payloads wait in the store; the aligner carries their row numbers
                 extra = {'imu_log_time_ns': raw.imu_log_time_ns,
                          'imu_row': payloads.add(raw.imu_raw),
-                         'stamp_ok': _increasing(raw.imu.stamp_ns, newest)}
+                         'stamp_ok': increasing_rows(raw.imu.stamp_ns, newest)}
                 for ch in gated(aligner.push_columns(raw.imu, [raw.temps[t] for t in temps],
                                                      extra)):
                     _write_compensated(writer, output_topic, ch, stream, timeout,
@@ -339,22 +339,6 @@ class _PayloadStore:
                 {p.shape[1] for p in parts}) == 1:
             return parts[0] if len(parts) == 1 else np.concatenate(parts)
         return [bytes(x) for p in parts for x in p]
-
-
-def _increasing(stamps, newest):
-    """Return the rows whose header stamp is above every earlier one (``newest``: [ns or None]).
-
-    The rows after a jump back, until the stamps pass the newest before it, are the span
-    ``calibrate`` refuses (``io.gate``): compensate passes them through uncompensated.
-    """
-    stamps = np.asarray(stamps, np.int64)
-    if not len(stamps):
-        return np.ones(0, bool)
-    low = np.iinfo(np.int64).min
-    prev = np.maximum.accumulate(np.concatenate([[low if newest[0] is None else newest[0]],
-                                                 stamps]))[:-1]
-    newest[0] = int(max(prev[-1], stamps[-1]))
-    return stamps > prev
 
 
 def _refuse_unusable(src, stats, calibration, topics):

@@ -43,7 +43,7 @@ class OutputError(ValueError):
 
 
 def shown(path):
-    """Return ``path`` printable on any terminal (bytes that are not UTF-8 as \\xNN)."""
+    """Return ``path`` printable on any terminal (bytes that are not UTF-8 escaped)."""
     text = os.fspath(path)
     if isinstance(text, bytes):
         text = os.fsdecode(text)

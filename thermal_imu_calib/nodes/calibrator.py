@@ -39,7 +39,7 @@ from sensor_msgs.msg import Imu
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from . import common
+from . import common, process
 from ..calibration import CalibrationError, TemperatureInput
 from ..estimation import calibrate as estimation
 from ..app import calibrate as app
@@ -821,7 +821,7 @@ def _atomic_copy(src, dst):
 
 def main(args=None):
     """Run the calibrator node (estimation runs on a worker thread, data keeps flowing)."""
-    common.exit_process(common.run_nodes([CalibratorNode], args))
+    process.exit_process(process.run_nodes([CalibratorNode], args))
 
 
 if __name__ == '__main__':

@@ -10,18 +10,13 @@ from ``calibration_file`` (at start and on ``~/reload``) or from the latched
 ``imu/calibration`` topic; a bad one is rejected with its reason and the previous one stays
 active, also when its input units differ from ``temperature_units``.
 
-With ``registry_dir`` (a fleet registry) every IMU unit, told by its header frame_id, gets
-its own model, looked up once (``fleet.registry.valid_at``) and kept, so interleaved units
-never reload; messages of a unit with no calibration are passed through (or dropped, per
-``passthrough_without_calibration``), never compensated with another unit's, and counted
-in /diagnostics. Messages are compensated per unit (order kept within each unit).
-
-Loop guard: an output topic that resolves to the input topic (or a temperature topic) is
-refused at start, and a message equal to one this node published recently (header and
-values, e.g. looped back by a relay) is dropped and counted, never compensated again.
+With ``registry_dir`` every IMU unit (header frame_id) has its own model, looked up once
+(``units.RegistryUnits``); a unit without one passes through (or is dropped, per
+``passthrough_without_calibration``), counted in /diagnostics; a batch is compensated
+per unit (order kept within each unit). Loop guard (``units``): an output topic that is
+an input is refused at start, and this node's own messages coming back are dropped.
 """
 
-from collections import deque
 from dataclasses import dataclass
 import math
 import os
@@ -34,7 +29,7 @@ from sensor_msgs.msg import Imu
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from . import common
+from . import common, process, units
 from ..calibration import Calibration, CalibrationError
 from ..collection.outliers import ImuSpikeFilter
 from ..io.columns import AlignedChunk, ImuColumns
@@ -42,10 +37,6 @@ from ..thermal_input import CalibrationStream
 
 NODE_NAME = 'thermal_imu_compensator'
 MISSING_POLICIES = ('hold_last', 'passthrough', 'drop')
-#: registry mode: most units (frame_ids) looked up and kept; further ones pass through
-MAX_UNITS = 256
-#: published messages remembered to recognise them if they come back (loop guard)
-SENT_MEMORY = 10000
 
 
 @dataclass(frozen=True)
@@ -75,9 +66,8 @@ class CompensatorNode(Node):
             'Fleet registry (thermal-imu-calib fleet calibrate -o DIR); when set, '
             'calibration_file is ignored: the latest calibration of the IMU header frame_id '
             'is loaded at the first message of each frame_id and on ~/reload.', read_only=True)
-        self._units = {}                  # registry mode: frame_id -> ActiveModel or None
-        self._unit_gates = {}             # per unit despike state
-        self._sent = _Recent(SENT_MEMORY)
+        self._unit_gates = {}             # registry mode: per unit despike state
+        self._sent = units.SentMessages()
         self.temperature_topics = common.topic_list(p.declare(
             'temperature_topics', ['imu/temperature'],
             'Empty ([] or [\'\']): no thermal input (a temperature-independent calibration). '
@@ -136,6 +126,8 @@ class CompensatorNode(Node):
                        'calibrations_rejected': 0, 'calibrations_loaded': 0,
                        'input_lost': 0, 'uncalibrated_unit': 0, 'own_messages_dropped': 0}
         self.last_rejection = ''
+        self.units = (units.RegistryUnits(self.registry_dir, self._model, self.counts,
+                                          self.get_logger()) if self.registry_dir else None)
         self._last_stamp_ns = None
         self._rate = common.RateMeter()
         self._warned = set()
@@ -152,8 +144,8 @@ class CompensatorNode(Node):
                                      common.sensor_qos(in_depth))
             for i, (topic, (cls, value)) in enumerate(zip(self.temperature_topics,
                                                           scalar_types))]
-        _refuse_loop(self.pub.topic_name,
-                     [self.imu_sub.topic_name] + [t.topic_name for t in self.temp_subs])
+        units.refuse_loop(self.pub.topic_name, [s.topic_name for s in [self.imu_sub]
+                                                + self.temp_subs])
         self.cal_sub = self.create_subscription(String, 'imu/calibration', self._on_calibration,
                                                 common.CALIBRATION_QOS)
         self.reload_srv = self.create_service(Trigger, '~/reload', self._on_reload)
@@ -185,7 +177,7 @@ class CompensatorNode(Node):
         # one reference swap: a message is compensated entirely with the old or the new model
         self._active = model
         self.counts['calibrations_loaded'] += 1
-        return True, _active_text(model)
+        return True, units.active_text(model)
 
     def _model(self, cal, source):
         """Return (ActiveModel, None) if this node can serve ``cal``'s inputs, else (None, why)."""
@@ -221,7 +213,7 @@ class CompensatorNode(Node):
         Returns (ok, message).
         """
         if self.registry_dir:
-            return self._reload_units()
+            return self.units.reload()
         path = os.path.expanduser(self.get_parameter('calibration_file').value)
         if not path:
             return self._reject('calibration_file', 'the parameter is empty')
@@ -232,52 +224,6 @@ class CompensatorNode(Node):
         except Exception as e:  # noqa: B902 - never die on a file: reject it, keep the old one
             return self._reject(path, f'unreadable ({e.__class__.__name__}: {e})')
         return self.activate(cal, path)
-
-    def _reload_units(self):
-        """Registry mode: look every unit seen so far up again; returns (ok, summary)."""
-        frames = list(self._units)
-        self._units.clear()
-        for frame in frames:
-            self._unit_model(frame)
-        have = sum(m is not None for m in self._units.values())
-        return True, (f'registry {self.registry_dir}: {have} of {len(frames)} units seen have '
-                      'a calibration' + (f'; without: {self._uncalibrated_text()}'
-                                         if have < len(frames) else ''))
-
-    def _unit_model(self, frame):
-        """Return the ActiveModel of unit ``frame`` (None: no calibration), looked up once."""
-        if frame in self._units:
-            return self._units[frame]
-        if len(self._units) >= MAX_UNITS:
-            self._warn_once('units', f'more than {MAX_UNITS} IMU frame_ids seen: the others '
-                                     'are not looked up in the registry and pass through '
-                                     'uncompensated (counted as uncalibrated_unit)')
-            return None
-        from ..fleet.registry import display_id, valid_at
-        root = os.path.expanduser(self.registry_dir)
-        try:
-            path = valid_at(root, frame)
-            cal = Calibration.load(path)
-            model, reason = self._model(cal, path)
-        except (LookupError, CalibrationError, OSError, ValueError) as e:
-            model, reason = None, str(e)
-        self._units[frame] = model
-        if model is None:
-            self.counts['calibrations_rejected'] += 1
-            self.last_rejection = f'unit {display_id(frame)}: {reason}'
-            self.get_logger().warning(
-                f'IMU unit {display_id(frame)}: no usable calibration in registry {root} '
-                f'({reason}); its messages pass through uncompensated')
-        else:
-            self.counts['calibrations_loaded'] += 1
-            self.get_logger().info(f'IMU unit {display_id(frame)}: ' + _active_text(model))
-        return model
-
-    def _uncalibrated_text(self, limit=5):
-        from ..fleet.registry import display_id
-        names = [display_id(f) for f, m in self._units.items() if m is None]
-        return ', '.join(names[:limit]) + (f' and {len(names) - limit} more'
-                                           if len(names) > limit else '')
 
     def _on_reload(self, request, response):
         response.success, response.message = self.load_file()
@@ -363,7 +309,7 @@ class CompensatorNode(Node):
                 for m in msgs:     # one model per unit: a batch may hold several units
                     units.setdefault(m.header.frame_id, []).append(m)
                 for frame, group in units.items():
-                    model = self._unit_model(frame)
+                    model = self.units.model(frame)
                     if model is None:
                         self.counts['uncalibrated_unit'] += len(group)
                     else:
@@ -377,9 +323,8 @@ class CompensatorNode(Node):
         msgs = self._drop_own(msgs)
         if not msgs:
             return
-        gate = self._gate
-        if gate is not None and self.registry_dir:
-            gate = self._unit_gates.setdefault(unit, ImuSpikeFilter())
+        gate = (self._unit_gates.setdefault(unit, ImuSpikeFilter())   # one per unit
+                if self._gate is not None and self.registry_dir else self._gate)
         if gate is None:
             self.process(msgs, active=active)
             return
@@ -393,15 +338,11 @@ class CompensatorNode(Node):
                                                   out.imu.gyro), active=active)
 
     def _drop_own(self, msgs):
-        """Return ``msgs`` without those equal to a message this node published (loop guard)."""
-        if not len(self._sent):
-            return msgs
-        keep = [m for m in msgs if _key(m) not in self._sent]
-        if len(keep) != len(msgs):
-            self.counts['own_messages_dropped'] += len(msgs) - len(keep)
-            self._warn_once('own', 'received messages this node published (its output is '
-                                   'routed back to its input): they are dropped, counted as '
-                                   'own_messages_dropped; fix the remapping')
+        keep, own = self._sent.drop_own(msgs)    # the loop guard: never compensated twice
+        if own:
+            self.counts['own_messages_dropped'] += own
+            self._warn_once('own', 'received messages this node published (output routed '
+                                   'back to its input): dropped (own_messages_dropped)')
         return keep
 
     def process(self, msgs, arrays=None, active=False):
@@ -480,7 +421,7 @@ class CompensatorNode(Node):
         for m, s in zip(msgs, send.tolist()):
             if s:
                 self.pub.publish(m)
-                self._sent.add(_key(m))
+                self._sent.add(m)
                 count += 1
         self.counts['published'] += count
         return count
@@ -512,14 +453,13 @@ class CompensatorNode(Node):
             values['spikes_replaced'] = self._gate.counts()['rejected_total']
         values['last_rejection'] = self.last_rejection
         level, msg = common.OK, 'compensating'
-        if self.registry_dir:
-            values['units_calibrated'] = sum(m is not None for m in self._units.values())
-            values['units_without_calibration'] = sum(m is None for m in self._units.values())
-            values['units_without_calibration_ids'] = self._uncalibrated_text(20)
-        if self.registry_dir and values['units_without_calibration']:
+        if self.units is not None:
+            values.update(self.units.diagnostics())
+            values['last_rejection'] = self.units.last_rejection or self.last_rejection
+        if self.units is not None and values['units_without_calibration']:
             level = common.WARN
             msg = (f'{values["units_without_calibration"]} unit(s) without calibration passed '
-                   f'through: {self._uncalibrated_text()}')
+                   f'through: {self.units.uncalibrated_text()}')
         elif active is None:
             level = common.WARN
             msg = ('no calibration loaded: passing through' if self.passthrough_uncalibrated
@@ -538,52 +478,6 @@ class CompensatorNode(Node):
             level, msg, values)])
 
 
-def _active_text(model):
-    cal = model.calibration
-    return (f'calibration {cal.id} active from {model.source}: accel '
-            f'{cal.accel.kind if cal.accel else "none"}, gyro '
-            f'{cal.gyro.kind if cal.gyro else "none"}, inputs '
-            f'{cal.temperature_topics or "none"}')
-
-
-def _refuse_loop(output, inputs):
-    """Raise ValueError when the output topic (resolved) is an input topic: a feedback loop."""
-    if output in inputs:
-        raise ValueError(f'output topic {output} is also an input topic: every compensated '
-                         'message would come back and be compensated again; remap '
-                         'imu/data_compensated and imu/data_raw to different topics')
-
-
-def _key(msg):
-    """Return what identifies a published Imu message: header and the six values."""
-    h, a, w = msg.header, msg.linear_acceleration, msg.angular_velocity
-    return (h.frame_id, h.stamp.sec, h.stamp.nanosec, a.x, a.y, a.z, w.x, w.y, w.z)
-
-
-class _Recent:
-    """The last ``size`` keys added, with O(1) membership."""
-
-    def __init__(self, size):
-        self._order = deque()
-        self._set = set()
-        self.size = size
-
-    def __len__(self):
-        return len(self._set)
-
-    def __contains__(self, key):
-        return key in self._set
-
-    def add(self, key):
-        """Remember ``key``, forgetting the oldest beyond ``size``."""
-        if key in self._set:
-            return
-        self._order.append(key)
-        self._set.add(key)
-        if len(self._order) > self.size:
-            self._set.discard(self._order.popleft())
-
-
 def _probe(cal):
     """Return why ``cal`` cannot compensate one sample mid-range, or None when it can."""
     mid = (np.zeros((1, 0)) if cal.valid_range is None or not cal.inputs
@@ -599,7 +493,7 @@ def _probe(cal):
 
 def main(args=None):
     """Run the compensator node."""
-    common.exit_process(common.run_nodes([CompensatorNode], args))
+    process.exit_process(process.run_nodes([CompensatorNode], args))
 
 
 if __name__ == '__main__':
