@@ -167,12 +167,27 @@ def index_row(sensor, cal, time_ns, valid_from_ns, file, logs):
 
 
 def read_index(registry):
-    """Return the index rows (dicts of str) sorted by sensor and time; [] when none."""
+    """Return the index rows (dicts of str) sorted by sensor and time; [] when none.
+
+    Raises ValueError (one line) for a file that is not a registry index (not UTF-8 CSV,
+    no ``sensor``/``time``/``valid_from``/``file`` columns); missing cells read as ''.
+    """
     path = os.path.join(registry, INDEX)
     if not os.path.isfile(path):
         return []
-    with open(path, newline='') as f:
-        rows = list(csv.DictReader(f))
+    try:
+        with open(path, newline='', encoding='utf-8') as f:
+            reader = csv.DictReader(f)
+            missing = [c for c in BASE_COLUMNS[:4] if c not in (reader.fieldnames or [])]
+            if missing:
+                raise ValueError(f'{path}: not a registry index (no {", ".join(missing)} '
+                                 'column); restore it or write the registry again with '
+                                 '`thermal-imu-calib fleet calibrate`')
+            rows = [{k: v or '' for k, v in r.items() if k is not None} for r in reader]
+    except (UnicodeDecodeError, csv.Error) as e:
+        raise ValueError(f'{path}: not a registry index ({type(e).__name__}: '
+                         f'{str(e)[:100]})') from None
+    rows = [dict({c: '' for c in BASE_COLUMNS}, **r) for r in rows]
     return sorted(rows, key=lambda r: (r['sensor'], r['time']))
 
 
