@@ -158,17 +158,22 @@ def test_fuzz_loader_dicts(d):
 
 
 # ------------------------------------------------------------------ bag readers
+def _first(n):
+    """Return a ``write_bag`` edit keeping the first ``n`` IMU samples and their temperatures."""
+    def cut(a):
+        m = int(np.searchsorted(a['temp_stamp_ns'], a['stamp_ns'][n - 1]))
+        for k in ('stamp_ns', 'accel', 'gyro'):
+            a[k] = a[k][:n]
+        a['temp_stamp_ns'], a['temperature'] = a['temp_stamp_ns'][:m], a['temperature'][:m]
+    return cut
+
+
 @pytest.fixture(scope='module')
 def bags(tmp_path_factory):
     """Real logs, small: the first 2000 IMU samples of a simulated recording, both storages."""
     imu, temp = recording(8)
     d = tmp_path_factory.mktemp('fuzzbags')
-
-    def cut(a):
-        n, m = 2000, int(np.searchsorted(a['temp_stamp_ns'], a['stamp_ns'][1999]))
-        for k in ('stamp_ns', 'accel', 'gyro'):
-            a[k] = a[k][:n]
-        a['temp_stamp_ns'], a['temperature'] = a['temp_stamp_ns'][:m], a['temperature'][:m]
+    cut = _first(2000)
     mcap = write_bag(str(d / 'small.mcap'), imu, temp, cut)
     bag = write_bag(str(d / 'small_bag'), imu, temp, cut, storage='sqlite3')
     db3 = next(os.path.join(bag, n) for n in os.listdir(bag) if n.endswith('.db3'))
@@ -371,12 +376,7 @@ def cli_world(tmp_path_factory):
     from thermal_imu_calib.fleet import registry as reg
     imu, temp = recording(8)
     d = tmp_path_factory.mktemp('cliworld')
-
-    def cut(a):
-        n, m = 3000, int(np.searchsorted(a['temp_stamp_ns'], a['stamp_ns'][2999]))
-        for k in ('stamp_ns', 'accel', 'gyro'):
-            a[k] = a[k][:n]
-        a['temp_stamp_ns'], a['temperature'] = a['temp_stamp_ns'][:m], a['temperature'][:m]
+    cut = _first(3000)
     paths = {'B': write_bag(str(d / 'bagdir'), imu, temp, cut, storage='mcap'),
              'C': str(d / 'cal.yaml'), 'W': str(d / 'w.jsonl'), 'R': str(d / 'reg'),
              'T': str(d / 'tmp')}

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import yaml
 
-from _hostile import good_calibration, recording, write_bag
+from _hostile import clean_pair, good_calibration, recording, write_bag
 from thermal_imu_calib.calibration import Calibration, CalibrationError
 from thermal_imu_calib.cli import main
 from thermal_imu_calib.io import cdr
@@ -36,10 +36,7 @@ def rec():
 @pytest.fixture(scope='module')
 def clean(rec, tmp_path_factory):
     d = tmp_path_factory.mktemp('clean')
-    bag = write_bag(str(d / 'clean.mcap'), *rec)
-    cal = str(d / 'clean.yaml')
-    assert main(['calibrate', bag, '-o', cal, '--save-windows', str(d / 'w.jsonl')]) == 0
-    return bag, cal, str(d / 'w.jsonl')
+    return clean_pair(d, rec, '--save-windows', str(d / 'w.jsonl')) + (str(d / 'w.jsonl'),)
 
 
 def _digest(path):

@@ -52,8 +52,7 @@ def fleet_logs(tmp_path_factory):
     return d
 
 
-def test_frame_ids_are_units_exactly_and_never_name_registry_files(fleet_logs, tmp_path,
-                                                                    capfd):
+def test_frame_ids_are_units_exactly_and_never_name_registry_files(fleet_logs, tmp_path, capfd):
     registry = tmp_path / 'reg'
     code = main(['fleet', 'calibrate', str(fleet_logs), '-o', str(registry), '--workers', '1'])
     out, err = capfd.readouterr()
