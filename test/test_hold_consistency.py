@@ -69,8 +69,9 @@ def test_a_simulated_session_whose_state_never_changes_leaves_out_nothing():
 def test_a_bias_step_between_epochs_is_caught():
     # after the six faces the bias steps by 0.8 mg on x (the first +x repeat fails on its
     # own, ~10 sigma) and 0.3 mg on y and z (each y/z repeat alone ~3 sigma, mostly below
-    # the pairwise limit): every stepped hold must go, through the pairwise test or the
-    # joint one (measured: 98 % of seeds), and never a face
+    # the pairwise limit): the stepped holds go through the pairwise test or the joint one
+    # (at the family rate 1e-3 of both tests: 155 of 200 seeds all six, 78 %; at the former
+    # 0.05 of the joint test 196), and never a face
     step = np.array([0.8, 0.3, 0.3]) * 1e-3 * G
     caught = 0
     for seed in range(200):
@@ -83,7 +84,7 @@ def test_a_bias_step_between_epochs_is_caught():
         ep, = rep['epochs']
         if ep['lasting']:
             assert ep['tail_p'] < PERSIST_ALPHA and ep['accel_uses'] == 'earlier'
-    assert caught >= 0.95 * 200, caught
+    assert caught >= 0.7 * 200, caught
 
 
 def test_with_a_temperature_input_only_the_pairs_are_tested():

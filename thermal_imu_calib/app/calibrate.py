@@ -169,4 +169,31 @@ def calibrate_collected(settings, collected, paths=(), imu_topic=None):
     except CalibrationError as e:
         raise SettingsError(f'{e}: the data cannot support a usable calibration (see the '
                             'notes), so nothing was written') from None
+    limits = limitations(cal)
+    if limits:
+        result.summary = f'{limits}; {result.summary}'
     return result
+
+
+def limitations(cal):
+    """Return what the calibration could not include, for the first words of an answer.
+
+    '' when the holds covered several orientations. With one orientation the accelerometer
+    gets at most an offset drift model for that mounting pose (nothing without a
+    temperature input) and the gyro a bias only; the faces to add are named.
+    """
+    fit = cal.fit or {}
+    if fit.get('distinct_orientations', 2) > 1 and cal.accel is not None:
+        return ''
+    faces = fit.get('faces', {})
+    held = [f for f, n in faces.items() if n] or ['one pose']
+    missing = [f for f, n in faces.items() if not n]
+    add = (f'hold the faces {" ".join(missing)} up (each still for a few seconds) and call '
+           'calibrate again') if missing else 'hold more orientations'
+    if cal.accel is None:
+        acc = ('accelerometer NOT calibrated: one orientation ({}) without a temperature '
+               'input cannot separate bias or scale from gravity').format(' '.join(held))
+    else:
+        acc = ('accelerometer: one orientation only ({}): an offset drift model for this '
+               'mounting pose, no bias or scale factor').format(' '.join(held))
+    return f'{acc}; gyro: bias only; to calibrate both {add}'

@@ -134,7 +134,6 @@ class MotionCollector:
         self._tape = None              # samples since the end of the previous hold
         self._prev = None              # (hold id, t1) of the previous hold
         self._frozen = False
-        self._dt = None
 
     def memory_bytes(self):
         """Return the bytes held in sample buffers now (ring, tape, kept transitions)."""
@@ -149,11 +148,11 @@ class MotionCollector:
         gyro = np.asarray(gyro, float)
         temps = np.zeros((len(t), self.k)) if temps is None else \
             np.asarray(temps, float).reshape(len(t), self.k)
-        if len(t) > 1 and self._dt is None:
-            self._dt = float(np.median(np.diff(t)))
         self._ring.append(t, gyro, accel, temps)
         if len(t) and self.lookback_s is not None:
-            self._ring.trim_before(t[-1] - self.lookback_s - (t[-1] - t[0]))
+            # the samples a hold closed later can end in: the detector scores the first
+            # group of blocks only when it is complete
+            self._ring.trim_before(min(t[0], self.det.unscored_since()) - self.lookback_s)
         if self._tape is not None and not self._frozen:
             self._tape.append(t, gyro, accel, temps)
         closed = self.det.update(t, accel, gyro, temps)
@@ -201,16 +200,18 @@ class MotionCollector:
         return tuple(np.concatenate(c) for c in zip(*parts))
 
     def _make(self, h_from, h_to, lo, hi):
+        # too long first: what _after_chunk drops early is counted the same
+        if hi - lo > self.max_transition_s:
+            self.dropped['too_long'] += 1
+            return
         t, g, a, tm = self._segment(lo, hi)
-        dt = self._dt or 0.0
+        # the sample interval of the detector's derived rate (one figure for the whole log)
+        dt = 1.0 / self.det.derived['rate_hz']
         ok = len(t) >= 3 and t[0] <= lo + 2 * dt + 1e-9 and t[-1] >= hi - 2 * dt - 1e-9
-        if ok and dt > 0:
+        if ok:
             ok = float(np.max(np.diff(t))) < 5 * dt
         if not ok:
             self.dropped['incomplete'] += 1
-            return
-        if hi - lo > self.max_transition_s:
-            self.dropped['too_long'] += 1
             return
         if len(self.transitions) >= self.max_transitions:
             self.dropped['over_limit'] += 1
@@ -233,11 +234,12 @@ class MotionCollector:
             self._frozen = False
             end = self._tape.end()
             self._tape.append(*self._ring.select(np.nextafter(end, np.inf)))
-        if not self._frozen and len(self._tape) and self._prev is not None:
-            if self._tape.end() - self._prev[1] > self.max_transition_s + self.lookback_s:
-                self.dropped['too_long'] += 1
-                self._tape = None
-                self._prev = None
+        if self._prev is not None and \
+                self.det.open_since() - self._prev[1] > self.max_transition_s:
+            # the next hold starts after the open blocks: the pose change is too long
+            self.dropped['too_long'] += 1
+            self._tape = None
+            self._prev = None
 
 
 def offset_holds(transitions, offset):

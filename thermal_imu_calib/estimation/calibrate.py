@@ -473,6 +473,7 @@ def calibrate_windows(windows, options=None):
         'hold_consistency': consistency,
         'model_choice': _model_choice(name, why, report),
         'holds': cov['holds'], 'windows': cov['windows'],
+        'distinct_orientations': ctx.n_orientations,
         'faces': {f: cov['faces'][f]['holds'] for f in FACE_NAMES},
         'tilted_holds': cov['tilted_holds'],
         'temperature_span': cov['temperature_span'],
@@ -495,9 +496,15 @@ def calibrate_windows(windows, options=None):
     summary = (f'{kind}: {cov["holds"]} holds ({cov["windows"]} windows), faces '
                f'{_face_text(cov)}, {_span_text(cov, units)}, gravity residual '
                f'{_amax(before):.0f} -> {_amax(after):.1f} ug max')
+    if flat:
+        summary += ' (the temperature input barely moved: treated as none, see notes)'
     if consistency['left_out']:
         summary += (f', {len(consistency["left_out"])} holds left out of the accelerometer '
-                    'fit (pose repeats that disagree, sensor-state epochs; see notes)')
+                    'fit (pose repeats that disagree, sensor-state epochs; held-out holds '
+                    'support it; see notes)')
+    elif consistency.get('not_applied'):
+        summary += (f', {len(consistency["not_applied"])} holds disagree with a repeat of '
+                    'their pose but stay in (held-out holds do not support leaving them out)')
     if 'residual_rms' in fit_stats:
         summary += f', fit residual {fit_stats["residual_rms"]["value"] * 1e6 / g:.1f} ug RMS'
     gyro_text = report.get('gyro_choice', {}).get('text')

@@ -35,6 +35,10 @@ TRI = ((0, 0), (1, 1), (2, 2), (1, 0), (2, 0), (2, 1))
 MISALIGNMENT = ('L[y,x]', 'L[z,x]', 'L[z,y]')
 #: iterations of one least-squares stage before the fit counts as not converged
 MAX_NFEV = 500
+#: ``axis_lever`` an axis needs for its bias and scale to count as determined: one pose
+#: with the axis 45 deg above horizontal and one 45 deg below give 0.71, two at +-37 deg
+#: 0.5; poses on one side of horizontal only give far less (five faces without -x: 0.12)
+MIN_AXIS_LEVER = 0.5
 #: floor (fraction of g) of a hold mean's noise in the observability decision (10 ug)
 MIN_NOISE = 1e-5
 #: smallest singular value of the column-scaled Jacobian, relative to the largest, for the
@@ -142,6 +146,12 @@ def fit_standard(raw, hold, gravity, temps=None, t0=None, bias_order=0, x0=None,
     _require_determined(jac(p)[:, free], n_holds)
     noise = max(MIN_NOISE * gravity, 0.0 if noise is None else float(noise))
     prior = _prior_std(bias_order)
+    weak = weak_axes(raw / np.linalg.norm(raw, axis=1)[:, None])
+    if weak:
+        raise StandardFitError(f'the bias and scale factor of axis {",".join(weak)} are not '
+                               f'determined by the {n_holds} holds: each axis must be held '
+                               'pointing up and pointing down (or tilted well above and '
+                               'below horizontal)')
     cand = free.copy()
     cand[3:6] = True
     while True:
@@ -166,6 +176,24 @@ def fit_standard(raw, hold, gravity, temps=None, t0=None, bias_order=0, x0=None,
     r = np.linalg.norm(model.correct(raw, t0 + dt), axis=1) - gravity
     return StandardFit(model, r, _hold_rms(r, hold), bias_order, int(res.nfev), res.message,
                        undetermined)
+
+
+def axis_lever(up):
+    """Return per axis the smallest singular value of the rows [u_i, u_i^2] (unit vectors).
+
+    The first-order information on an axis' bias and scale: u_i and u_i^2 are the
+    derivatives of |a| with respect to them (up to g). A pose with the axis horizontal adds
+    nothing; one up and one down pose give sqrt(2); poses on one side only, or close to
+    horizontal, little. Several holds of the same pose add in quadrature.
+    """
+    up = np.asarray(up, float)
+    return np.array([np.linalg.svd(np.stack([up[:, i], up[:, i] ** 2], 1),
+                                   compute_uv=False)[-1] for i in range(3)])
+
+
+def weak_axes(up):
+    """Return the axes ('x', 'y', 'z') whose bias and scale the poses ``up`` do not separate."""
+    return ['xyz'[i] for i, v in enumerate(axis_lever(up)) if v < MIN_AXIS_LEVER]
 
 
 def _solve(fun, jac, x0, free):
@@ -305,13 +333,18 @@ def _register():
         try:
             fit = fit_standard_context(ctx)
         except StandardFitError as e:
-            raise CalibrationRefused(str(e).split(': ')[0], str(e).split(': ', 1)[-1]) \
-                from None
+            missing = ' '.join(ctx.coverage['missing'])
+            raise CalibrationRefused(
+                str(e).split(': ')[0] + (f' (faces missing: {missing})' if missing else ''),
+                (f'hold each missing face ({missing}) still for at least '
+                 f'{ctx.options.min_hold_s:.0f} s, or ' if missing else '')
+                + str(e).split(': ', 1)[-1]) from None
         notes = ['standard static fit (imu_tk, Tedaldi et al. 2014): bias, scale and '
                  'misalignment per axis from |a| = g on every hold, each hold weighted the '
                  'same' + (f'; bias polynomial of order {fit.bias_order} in temperature (the '
                            'flight stacks\' form)' if fit.bias_order else
-                           '; temperature-independent')]
+                           '; temperature-independent' + ('' if ctx.k else
+                                                          ' (no temperature input)'))]
         if fit.undetermined:
             notes.append(f'accelerometer misalignment {", ".join(fit.undetermined)} not '
                          'determined by the holds (gravity on the axes only, e.g. six clean '

@@ -29,7 +29,7 @@ from scipy.special import ndtri
 
 from ..estimation.calibrate import (AUTO_POLICY, check_faces_up_and_down, CalibrationRefused,
                                     HOLD_RULE_JUDGE)
-from ..estimation.standard_fit import fit_standard_context, StandardFitError
+from ..estimation.standard_fit import fit_standard_context, StandardFitError, weak_axes
 from ..collection.segments import face_of
 from .select import _field_fit, clamp_to_training, fold_masks
 
@@ -204,7 +204,9 @@ def _available(ctx, name):
         except CalibrationRefused:
             return False
         return True
-    return ctx.n_orientations >= 4
+    ids, means = ctx.accel_view().windows.hold_means()
+    return ctx.n_orientations >= 4 and not weak_axes(
+        means / np.linalg.norm(means, axis=1)[:, None])
 
 
 def auto_policy(ctx):
