@@ -258,3 +258,19 @@ def test_registry_units_each_their_own_model_and_uncalibrated_ones_pass_through(
                  WAIT, 'diagnostics counting the uncalibrated unit')
     assert d['units_calibrated'] == '2' and d['units_without_calibration'] == '1'
     assert 'imu3' in d['units_without_calibration_ids'] and 'imu3' in d['_message']
+
+
+def test_compensator_refuses_a_thermal_calibration_without_inputs(ros, tmp_path):
+    import yaml
+    d = make_cal().to_dict()
+    d['temperature']['inputs'] = []
+    d['temperature'].pop('valid_range', None)
+    bad = tmp_path / 'no_inputs.yaml'
+    bad.write_text(yaml.safe_dump(d))
+    rig = Rig(ros, calibration_file=str(bad))
+    assert rig.node.active is None and rig.node.counts['calibrations_rejected'] == 1
+    assert 'thermal terms' in rig.node.last_rejection
+    rig.cal_pub.publish(String(data=yaml.safe_dump(d)))
+    wait_for(lambda: rig.node.counts['calibrations_rejected'] == 2, WAIT,
+             'the latched calibration to be rejected too')
+    assert rig.node.active is None

@@ -621,9 +621,10 @@ class CalibratorNode(Node):
     def _write(self, cal):
         """Write ``cal`` to calibration_file (checked by ``io.output``); returns (ok, text).
 
-        Refused: a directory, a special file, an existing file that is not a calibration,
-        the prior or the collection file; an unwritable directory fails. The previous file
-        is kept as ``.bak``. ``(False, NOT_CONFIGURED)`` when calibration_file is empty.
+        Refused: a directory, a special file, the prior or the collection file; an
+        unwritable directory fails. The previous file, whatever it holds, is kept as
+        ``.bak`` (so another kind of file is replaced, not lost). ``(False, NOT_CONFIGURED)``
+        when calibration_file is empty.
         """
         path = os.path.expanduser(self.get_parameter('calibration_file').value)
         if not path:
@@ -631,7 +632,8 @@ class CalibratorNode(Node):
         try:
             inputs = [os.path.expanduser(self.get_parameter('prior_file').value),
                       self._collection_path()]
-            Outputs(inputs).file(path, 'calibration_file', 'calibration file', CALIBRATION)
+            Outputs(inputs, force=True).file(path, 'calibration_file', 'calibration file',
+                                             CALIBRATION)
             if os.path.exists(path):
                 _atomic_copy(path, path + '.bak')
             cal.save(path)
