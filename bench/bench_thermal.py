@@ -38,7 +38,8 @@ from thermal_imu_calib import sim
 from thermal_imu_calib.calibration import TemperatureInput
 from thermal_imu_calib.estimation import baselines
 from thermal_imu_calib.selection import select
-from thermal_imu_calib.estimation.calibrate import CalibrateOptions
+from thermal_imu_calib.estimation.calibrate import CalibrateOptions, ESTIMATORS, model_choices
+from thermal_imu_calib.thermal_input import history_windows, parse_history_key
 from thermal_imu_calib.estimation.rvm_fit import fit_rvm_offset, RvmSettings
 from thermal_imu_calib.collection.segments import Windows
 from thermal_imu_calib.estimation.thermal_lag import cv_groups, lagged_axis_temperatures, legs
@@ -123,7 +124,9 @@ def fit_methods(methods, ctx, signals=('accel', 'gyro')):
     tau = np.asarray(sel.lag['tau_s'])
     out = {}
     for m in methods:
-        if m == 'raw':
+        if m == 'auto' and set(signals) == {'accel', 'gyro'}:
+            out[m] = _default_fit(ctx)
+        elif m == 'raw':
             out[m] = (None, None, None, 'raw')
         elif m in ('px4', 'ardupilot'):
             fit = baselines.px4_fit if m == 'px4' else baselines.ardupilot_fit
@@ -144,12 +147,34 @@ def fit_methods(methods, ctx, signals=('accel', 'gyro')):
     return out
 
 
+def _default_fit(ctx):
+    """Return (accel, gyro, tau, name) of the default: ``auto_policy`` and its estimator."""
+    model_choices()                 # loads every registered estimator
+    name, _ = select.auto_policy(ctx)
+    est = ESTIMATORS[name](ctx)
+    filt = est.temperature_filter
+    tau = None if filt is None or filt.is_identity else filt.tau_s
+    if name == 'hysteresis':
+        name = ' / '.join(r['spec'] for r in (est.report['accel_history'],
+                                              est.report['gyro_history']))
+    return est.accel, est.gyro, tau, name
+
+
 def corrected(windows, model, tau, signal):
-    """Return corrected window means of ``signal`` (lag computed over the whole history)."""
+    """Return corrected window means of ``signal`` (lag computed over the whole history).
+
+    History-dependent models get their lagged readings over the whole history too, as
+    ``Calibration.stream()`` computes them sample by sample.
+    """
     y = getattr(windows, signal)
     if model is None:
         return y
-    return model.correct(y, lagged_axis_temperatures(windows, tau, [0, 0, 0]))
+    temps = lagged_axis_temperatures(windows, tau, [0, 0, 0])
+    keys = getattr(model, 'history_keys', ())
+    aux = {'history': {k: history_windows(windows.t0, windows.t1, windows.temp,
+                                          parse_history_key(k))[:, [0, 0, 0]]
+                       for k in keys}} if keys else None
+    return model.correct(y, temps, aux=aux)
 
 
 def rms(x):

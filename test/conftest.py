@@ -222,3 +222,36 @@ def ros():
 def pacer():
     """Return the Pacer class."""
     return Pacer
+
+
+def calibrate_compensate_rig(ros, tmp_path, gravity, temperature_topic='imu/temperature'):
+    """Start calibrator_node and compensator_node on one calibration file, and a player.
+
+    Returns (calibrator, compensator, driver, imu_pub, temp_pub, out): the player node,
+    its publishers on ``imu/data_raw`` and ``temperature_topic`` matched by both nodes, and
+    the list every
+    ``imu/data_compensated`` message is appended to (drained in batches).
+    """
+    from rclpy.parameter import Parameter
+    from sensor_msgs.msg import Imu, Temperature
+    from thermal_imu_calib.nodes import common
+    from thermal_imu_calib.nodes.calibrator import CalibratorNode
+    from thermal_imu_calib.nodes.compensator import CompensatorNode
+    cal_file = tmp_path / 'calibration.yaml'
+    calibrator = ros.add(CalibratorNode(context=ros.context, parameter_overrides=[
+        Parameter('calibration_file', value=str(cal_file)),
+        Parameter('collection_file', value=str(tmp_path / 'collection.jsonl')),
+        Parameter('gravity', value=float(gravity))]))
+    compensator = ros.add(CompensatorNode(context=ros.context, parameter_overrides=[
+        Parameter('calibration_file', value=str(cal_file))]))
+    driver = ros.node('player')
+    imu_pub = driver.create_publisher(Imu, 'imu/data_raw', 1000)
+    temp_pub = driver.create_publisher(Temperature, temperature_topic, 100)
+    out = []
+    sub = driver.create_subscription(Imu, 'imu/data_compensated',
+                                     lambda m: out.extend([m] + common.drain(sub, 999, driver)),
+                                     10000)
+    ros.wait_matched(imu_pub, 2)
+    ros.wait_matched(temp_pub, 2)
+    wait_for(lambda: compensator.pub.get_subscription_count() >= 1, 10, 'output subscriber')
+    return calibrator, compensator, driver, imu_pub, temp_pub, out

@@ -15,18 +15,14 @@ data (the attainable floor), not with raw.
 
 import dataclasses
 
-from conftest import replay_flow, wait_count, wait_for
+from conftest import calibrate_compensate_rig, replay_flow, wait_count, wait_for
 import numpy as np
 
-from rclpy.parameter import Parameter
-from sensor_msgs.msg import Imu, Temperature
 from std_srvs.srv import Trigger
 
 from thermal_imu_calib import sim
 from thermal_imu_calib.calibration import Calibration
 from thermal_imu_calib.nodes import common
-from thermal_imu_calib.nodes.calibrator import CalibratorNode
-from thermal_imu_calib.nodes.compensator import CompensatorNode
 
 
 SEED = 3
@@ -57,24 +53,10 @@ def hold_gravity_error(rec, stamps, accel, shift_ns=0, guard_s=1.5):
 def test_live_calibration_then_compensation_of_a_new_cold_start(ros, tmp_path):
     cal_run, val_run = recordings()
     cal_file = tmp_path / 'calibration.yaml'
-    calibrator = ros.add(CalibratorNode(context=ros.context, parameter_overrides=[
-        Parameter('calibration_file', value=str(cal_file)),
-        Parameter('collection_file', value=str(tmp_path / 'collection.jsonl')),
-        Parameter('gravity', value=float(cal_run.gravity))]))
-    compensator = ros.add(CompensatorNode(context=ros.context, parameter_overrides=[
-        Parameter('calibration_file', value=str(cal_file))]))
-    assert compensator.active is None
-    driver = ros.node('player')
-    imu_pub = driver.create_publisher(Imu, 'imu/data_raw', 1000)
     (topic, temps), = cal_run.temperatures.items()
-    temp_pub = driver.create_publisher(Temperature, topic, 100)
-    out = []
-    sub = driver.create_subscription(Imu, 'imu/data_compensated',
-                                     lambda m: out.extend([m] + common.drain(sub, 999, driver)),
-                                     10000)
-    ros.wait_matched(imu_pub, 2)
-    ros.wait_matched(temp_pub, 2)
-    wait_for(lambda: compensator.pub.get_subscription_count() >= 1, 10, 'output subscriber')
+    calibrator, compensator, driver, imu_pub, temp_pub, out = calibrate_compensate_rig(
+        ros, tmp_path, cal_run.gravity, topic)
+    assert compensator.active is None
 
     # 1. calibration run, back-pressured on both receivers
     imu = cal_run.imu()

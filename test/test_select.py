@@ -33,36 +33,37 @@ def test_auto_is_installed_and_models_registered():
     assert calibrate.AUTO_POLICY[0] is static_select.auto_policy
 
 
-def test_chamber_cycle_picks_a_lag_model_and_says_why(chamber):
+def test_chamber_cycle_picks_a_history_model_and_says_why(chamber):
+    """A cycle (4 legs, 300-s lag): legs held out, a lag found by the held-out figure."""
     cal, est = select.calibrate_thermal(chamber, _opts())
     sel = est.fit['selection']
-    assert sel['model'] in ('lag', 'rvm-lag')
-    assert cal.temperature_filter is not None
-    assert cal.temperature_filter.tau_s[0] == pytest.approx(300.0, rel=0.1)   # simulated 300
+    assert sel['model'] == 'hysteresis' and sel['cv_groups'].startswith('leave one of 4')
+    taus = [float(k.split(':')[1]) for m in (cal.accel, cal.gyro) for k in m.history_keys]
+    assert taus and all(t == pytest.approx(300.0, rel=0.1) for t in taus)   # simulated 300
     table = sel['heldout']
-    assert table['lag']['score'] < 0.15 * table['offset']['score']
-    assert table['rvm-lag']['score'] < 0.15 * table['offset']['score']
-    assert 'rvm' not in table     # the RVM is only tried with the filter the lag search chose
-    for word in ('leave one of 4 temperature legs out', 'raw', 'offset', 'lag', 'rvm-lag',
-                 f'chose {sel["model"]}'):
+    label = 'ardupilot (cubic in T - 35 degC, time-weighted)'
+    for sig in ('accel', 'gyro'):
+        assert table[label][sig] > 5 * min(v[sig] for v in table.values() if sig in v)
+    for word in ('leave one of 4 temperature legs out', 'raw', 'ardupilot cubic', 'chose'):
         assert word in sel['reason']
-    # the file keeps filter, models and the reason
+    # the file keeps models, history terms and the reason
     back = Calibration.from_yaml(cal.to_yaml())
-    assert back.temperature_filter.tau_s[0] == cal.temperature_filter.tau_s[0]
+    assert back.accel.history_keys == cal.accel.history_keys
     assert back.fit['selection']['reason'] == sel['reason']
     # streamed compensation of the windows' own history removes the hysteresis
-    lagged = cal.stream().model_temperatures(0.5 * (chamber.t0 + chamber.t1), chamber.temp)
-    out = cal.apply(chamber.accel, chamber.gyro, lagged)
+    out = cal.stream().apply(0.5 * (chamber.t0 + chamber.t1), chamber.accel, chamber.gyro,
+                             chamber.temp)
     assert np.std(out.accel, 0).max() < 0.1 * np.std(chamber.accel, 0).max()
 
 
-def test_calibrate_windows_auto_picks_a_lag_model_with_its_filter(chamber):
-    """Through calibrate_windows (the CLI and node path) a lag model keeps its filter."""
+def test_calibrate_windows_auto_picks_a_history_model(chamber):
+    """Through calibrate_windows (the CLI and node path): every candidate in model_choice."""
     res = calibrate_windows(chamber, _opts())
     choice = res.report['model_choice']
-    assert select.FILTER_SUPPORTED          # this calibrate.py stores the temperature filter
-    assert choice['model'] in ('lag', 'rvm-lag'), choice
-    assert res.calibration.temperature_filter is not None
+    assert choice['model'] == 'hysteresis', choice
+    assert res.calibration.accel.history_keys
+    heldout = res.calibration.fit['model_choice']['heldout']
+    assert len(heldout) > 80 and 'raw' in heldout
 
 
 def test_no_lag_in_a_plain_warmup():

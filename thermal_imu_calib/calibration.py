@@ -185,7 +185,7 @@ class Calibration:
             temps = np.clip(temps, lo, hi)
         return temps[:, idx], oor
 
-    def apply(self, accel, gyro, temps=None):
+    def apply(self, accel, gyro, temps=None, history=None):
         """Compensate (n, 3) accel [m/s^2] and gyro [rad/s] at (n, k) thermal inputs.
 
         Column j of ``temps`` is input j in its unit (degC, or a proxy's unit such as Hz).
@@ -194,6 +194,8 @@ class Calibration:
         passthrough). Returns a ``Compensated`` with the out-of-range mask. With a
         ``temperature_filter``, ``temps`` are the models' (lagged) inputs: stream data
         through ``stream().apply``; raw readings here mean thermal equilibrium.
+        ``history``: ``{key: (n, k)}`` lagged readings for history-dependent models
+        (``thermal_input.HistoryStream``, filled by ``stream().apply``); None: equilibrium.
         """
         accel = np.asarray(accel, float)
         gyro = np.asarray(gyro, float)
@@ -208,14 +210,29 @@ class Calibration:
         if self.accel is not None:
             ta, o = self.axis_temperatures(temps, 'accel')
             oor |= o
-            a_out = self.accel.correct(accel, ta)
-            a_std = _combine_std(self.accel.predict_std(ta), self.noise_std('accel'), n)
+            ha = self._axis_history(history, self.accel, 'accel')
+            a_out = self.accel.correct(accel, ta, aux=ha)
+            a_std = _combine_std(_model_std(self.accel, ta, ha), self.noise_std('accel'), n)
         if self.gyro is not None:
             tg, o = self.axis_temperatures(temps, 'gyro')
             oor |= o
-            g_out = self.gyro.correct(gyro, tg, aux={'accel': a_out})
-            g_std = _combine_std(self.gyro.predict_std(tg), self.noise_std('gyro'), n)
+            hg = self._axis_history(history, self.gyro, 'gyro')
+            g_out = self.gyro.correct(gyro, tg, aux={'accel': a_out, **(hg or {})})
+            g_std = _combine_std(_model_std(self.gyro, tg, hg), self.noise_std('gyro'), n)
         return Compensated(a_out, g_out, oor, a_std, g_std)
+
+    def _axis_history(self, history, model, which):
+        """Return ``{'history': {key: (n, 3)}}`` for a history-dependent model, else None.
+
+        The lagged readings are mapped to axes and clamped like the readings themselves.
+        """
+        keys = getattr(model, 'history_keys', ())
+        if not keys or not history or not self.inputs:
+            return None
+        out = {k: self.axis_temperatures(history[k], which)[0] for k in keys if k in history}
+        if '_age_s' in history:
+            out['_age_s'] = history['_age_s']
+        return {'history': out}
 
     def noise_std(self, which):
         """Return the (3,) per-sample noise std of 'accel'/'gyro' the covariance uses, or None.
@@ -872,6 +889,13 @@ def _opt_vec(sec):
     if v.size != 3 or np.any(v < 0):
         raise ValueError(f'noise std {v.tolist()} must be 3 finite non-negative values')
     return v.reshape(3)
+
+
+def _model_std(model, temps, aux):
+    """Return the model's predict_std, with its history terms when it has them."""
+    if aux is None:
+        return model.predict_std(temps)
+    return model.predict_std(temps, aux=aux)
 
 
 def _combine_std(model_std, noise_std, n):

@@ -35,6 +35,10 @@ MAX_TAU_S = 86400.0
 #: logs) restarts the filter in equilibrium: the temperature history in between is unknown
 RESTART_GAP_S = 1800.0
 FILTER_KINDS = ('lag',)
+#: history terms: a reading that moves faster than this (degC/s) plus ``STEP_DEGC`` between
+#: two samples is a step of the data (a stale value replaced, a sensor reset), not heat
+MAX_RATE_DEGC_S = 1.0
+STEP_DEGC = 0.5
 
 
 def lag_filter(t, u, tau, state=None):
@@ -207,6 +211,11 @@ class CalibrationStream:
         self.calibration = calibration
         f = getattr(calibration, 'temperature_filter', None)
         self.thermal = None if f is None or f.is_identity else f.stream()
+        keys = [k for m in (getattr(calibration, 'accel', None),
+                            getattr(calibration, 'gyro', None))
+                for k in getattr(m, 'history_keys', ())]
+        n_inputs = len(getattr(calibration, 'inputs', ()) or ())
+        self.history = HistoryStream(keys, n_inputs) if keys and n_inputs else None
 
     def model_temperatures(self, t, temps):
         """Return the models' input temperatures for raw readings (advances the state)."""
@@ -217,11 +226,122 @@ class CalibrationStream:
 
     def apply(self, t, accel, gyro, temps=None):
         """Compensate one batch (rows in time order, t in s); returns ``Compensated``."""
+        history = None
         if temps is not None:
-            temps = self.model_temperatures(t, np.asarray(temps, float).reshape(len(t), -1))
-        return self.calibration.apply(accel, gyro, temps)
+            temps = np.asarray(temps, float).reshape(len(t), -1)
+            if self.history is not None:
+                history = self.history.push(t, temps)
+            temps = self.model_temperatures(t, temps)
+        if history is None:
+            return self.calibration.apply(accel, gyro, temps)
+        return self.calibration.apply(accel, gyro, temps, history=history)
 
     def reset(self):
         """Restart the filter in equilibrium (e.g. after a long temperature dropout)."""
         if self.thermal is not None:
             self.thermal.reset()
+        if self.history is not None:
+            self.history.reset()
+
+
+# ---------------------------------------------------------------------- history terms
+def history_key(taus):
+    """Return the name of a cascade of first-order lags, e.g. 'lag:50' or 'lag:20:200' (s)."""
+    return 'lag:' + ':'.join(f'{float(t):g}' for t in taus)
+
+
+def parse_history_key(key):
+    """Return the tuple of time constants (s) of a ``history_key``; ValueError if malformed."""
+    parts = str(key).split(':')
+    if parts[0] != 'lag' or len(parts) < 2:
+        raise ValueError(f'history term {key!r} must look like lag:TAU or lag:TAU1:TAU2 (s)')
+    taus = tuple(float(p) for p in parts[1:])
+    if not all(np.isfinite(t) and 0 < t <= MAX_TAU_S for t in taus):
+        raise ValueError(f'history term {key!r}: time constants must be in (0, {MAX_TAU_S:g}] s')
+    return taus
+
+
+def history_windows(t0, t1, temp, taus):
+    """Return the (m, k) window temperatures through a cascade of first-order lags ``taus``.
+
+    One lag is ``lag_windows``; two (die-to-case two-state lag) feed the first state into
+    the second. Same restarts as ``lag_windows``.
+    """
+    out = np.asarray(temp, float)
+    for tau in taus:
+        out = lag_windows(t0, t1, out, float(tau))
+    return out
+
+
+class HistoryStream:
+    """Running states of the lag cascades a history-dependent model needs, per input.
+
+    ``push(t, temps)`` returns ``{key: (n, k)}`` lagged readings for each key
+    (``history_key``) and ``'_age_s'``: (n,) seconds since the stream (re)started.
+
+    * Start / restart (``reset``): every state at the first reading (equilibrium), so the
+      history terms start at zero; the model's ``predict_std`` widens by what the unknown
+      history may hold, decaying with the lags' memory (``models.hysteresis``).
+    * A gap: the states run through the temperature interpolated over the gap (a
+      physical history: continuous output).
+    * A step in the reading faster than ``MAX_RATE_DEGC_S`` (plus ``STEP_DEGC``), as when
+      a held (stale) temperature snaps to the live one, is not a thermal history: the
+      states move with the reading, so the history terms keep their value through it.
+    """
+
+    def __init__(self, keys, n_inputs):
+        self.keys = list(dict.fromkeys(keys))
+        self.taus = {k: parse_history_key(k) for k in self.keys}
+        self.n_inputs = int(n_inputs)
+        self.reset()
+
+    def reset(self):
+        """Forget the history: the next sample starts in equilibrium."""
+        self._state = {}
+        self._last = None          # (t, (k,) reading) of the previous sample
+        self._offset = None        # (k,) summed reading steps removed from the history
+        self._t_start = None
+
+    def _continuous(self, t, temps):
+        """Return the readings with implausible steps removed and the (n, k) removed sum."""
+        if self._last is None:
+            t_prev, u_prev = t[0], temps[0]
+            self._offset = np.zeros(temps.shape[1])
+        else:
+            t_prev, u_prev = self._last
+        d = np.diff(temps, axis=0, prepend=u_prev[None, :])
+        dt = np.maximum(np.diff(t, prepend=t_prev), 0.0)
+        step = np.abs(d) > STEP_DEGC + MAX_RATE_DEGC_S * dt[:, None]
+        off = self._offset + np.cumsum(np.where(step, d, 0.0), axis=0)
+        self._last = (float(t[-1]), temps[-1].copy())
+        self._offset = off[-1].copy()
+        return temps - off, off
+
+    def push(self, t, temps):
+        """Return {key: (n, k) lagged readings, '_age_s': (n,)}; rows in time order."""
+        t = np.asarray(t, float)
+        temps = np.asarray(temps, float).reshape(len(t), -1)
+        if not np.all(np.isfinite(temps)):
+            raise ValueError('temperature contains NaN/Inf; resolve missing samples first '
+                             '(the history terms would carry it forever)')
+        if len(t) == 0:
+            return {**{k: temps.copy() for k in self.keys}, '_age_s': np.zeros(0)}
+        if self._t_start is None:
+            self._t_start = float(t[0])
+        smooth, off = self._continuous(t, temps)
+        out = {'_age_s': np.maximum(t - self._t_start, 0.0)}
+        for key in self.keys:
+            u = smooth
+            states = self._state.get(key) or [[None] * temps.shape[1] for _ in self.taus[key]]
+            new = []
+            for s, tau in enumerate(self.taus[key]):
+                y = np.empty_like(u)
+                row = []
+                for j in range(u.shape[1]):
+                    y[:, j], st = lag_filter(t, u[:, j], tau, states[s][j])
+                    row.append(st)
+                new.append(row)
+                u = y
+            self._state[key] = new
+            out[key] = u + off
+        return out

@@ -308,7 +308,8 @@ ESTIMATOR_MODULES = ['thermal_imu_calib.estimation.standard_fit',
                      'thermal_imu_calib.estimation.baselines',
                      'thermal_imu_calib.selection.select',
                      'thermal_imu_calib.selection.static_select',
-                     'thermal_imu_calib.selection.gyro_select']
+                     'thermal_imu_calib.selection.gyro_select',
+                     'thermal_imu_calib.selection.history_select']
 
 
 def register_estimator(name):
@@ -516,6 +517,8 @@ def calibrate_windows(windows, options=None):
 def _model_choice(name, why, report):
     """Return fit.model_choice: the model, why, and the gyro comparison with pose changes."""
     out = {'model': name, 'reason': why}
+    if 'heldout' in report:       # every candidate's held-out figure (one orientation)
+        out['heldout'] = report['heldout']
     gyro = report.get('gyro_choice', {})
     if 'text' in gyro:
         out['gyro'] = {'model': gyro['model'], 'reason': gyro['text'],

@@ -21,8 +21,8 @@ from numpy.polynomial import Polynomial
 
 from ..calibration import Calibration, TemperatureInput
 from ..models.polynomial import OffsetPolynomialModel
-from .common import (check_out, cubic_offset, exact_loss, Exported, ExportRefused, lag_note, num,
-                     offset_refit, parse_params, single_input, summarize_loss)
+from .common import (check_out, cubic_offset, exact_loss, Exported, ExportRefused, history_note,
+                     lag_note, num, offset_refit, parse_params, single_input, summarize_loss)
 
 TEMP_REFERENCE = 35.0
 SCALE = 1e6
@@ -92,7 +92,8 @@ def export(cal, smp, imu=1, header=''):
     """Return ``Exported`` with one .parm file."""
     if not 1 <= imu <= 3:
         raise ExportRefused(f'ArduPilot has INS_TCAL1..3, not {imu}')
-    rows, notes, loss, ranges = [], lag_note(cal, 'ArduPilot'), {}, []
+    rows, loss, ranges = [], {}, []
+    notes = lag_note(cal, 'ArduPilot') + history_note(cal, 'ArduPilot')
     for which in ('accel', 'gyro'):
         if getattr(cal, which) is None:
             continue

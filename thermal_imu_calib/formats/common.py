@@ -249,6 +249,34 @@ def lag_note(cal, fmt):
             f'{fmt} uses the reading itself, so the lag is not exported']
 
 
+def history_note(cal, fmt):
+    """Return notes when a model uses the thermal history, with the loss of dropping it.
+
+    PX4 and ArduPilot hold a cubic of the reading; the exporters refit the model at thermal
+    equilibrium (history terms zero). The calibration's ``fit.selection.export_loss``
+    (``selection.time_folds``) says what that costs on the held-out blocks of the
+    calibration log's own thermal history.
+    """
+    notes = []
+    loss = ((cal.fit or {}).get('selection') or {}).get('export_loss') or {}
+    for which in ('accel', 'gyro'):
+        model = cal.accel if which == 'accel' else cal.gyro
+        keys = getattr(model, 'history_keys', ())
+        if not keys:
+            continue
+        text = (f'{which}: the model uses the thermal history ({", ".join(keys)}); {fmt} '
+                'compensates with the reading only, so the cubic is refitted at thermal '
+                'equilibrium and the history terms are dropped')
+        lo = loss.get(which)
+        if lo:
+            a, b = lo['model'], lo['as_cubic_without_history']
+            text += (f': held-out drift on held-out blocks of the calibration log '
+                     f'{a:.3g} -> {b:.3g} {lo["unit"]} ({100 * (b / a - 1):+.0f} %)'
+                     if a > 0 else '')
+        notes.append(text)
+    return notes
+
+
 def offset_refit(cal, which, smp, columns, fmt):
     """Least-squares fit of an offset polynomial y = raw - L ours on the samples.
 

@@ -213,3 +213,25 @@ def read_bmi270_rows(path):
                 except ValueError:
                     pass
     return np.asarray(rows).reshape(-1, 7), nbytes, nlines
+
+
+def read_tofupilot_chamber(path):
+    """Read the tofupilot climatic-chamber log (tab-separated, one orientation, ~2 Hz).
+
+    Header ``timestamp imu.gyro.x..z imu.acc.x..z imu.status imu.temperature``; timestamp
+    in microseconds, gyro rad/s, acc m/s^2, temperature degC. Returns (ImuColumns with
+    stamps from the timestamp column, TemperatureColumns on the same stamps).
+    """
+    from .columns import TemperatureColumns
+    with _open_text(path) as f:
+        head = f.readline().rstrip('\n').split('\t')
+        need = ['timestamp', 'imu.gyro.x', 'imu.gyro.y', 'imu.gyro.z', 'imu.acc.x',
+                'imu.acc.y', 'imu.acc.z', 'imu.temperature']
+        if any(h not in head for h in need):
+            raise CsvFormatError(f'{path}: header {head} lacks {need}')
+        data = np.loadtxt(f, delimiter='\t', ndmin=2)
+    col = {h: data[:, head.index(h)] for h in need}
+    stamp = np.round((col['timestamp'] - col['timestamp'][0]) * 1e3).astype(np.int64)
+    imu = ImuColumns(stamp, np.column_stack([col[f'imu.acc.{a}'] for a in 'xyz']),
+                     np.column_stack([col[f'imu.gyro.{a}'] for a in 'xyz']), 'imu')
+    return imu, TemperatureColumns(stamp, col['imu.temperature'], 'imu')

@@ -1,13 +1,14 @@
 """Assemble the calibration and noise pages from the figures and the calibration's numbers.
 
 Section ids (stable, the tests look for them): ``summary``, ``timeline``, ``accel``,
-``gyro``, ``gravity``, ``coverage``, ``parameters``, ``notes``; the noise page has
+``gyro``, ``gravity``, ``coverage``, ``parameters``, ``notes`` (and ``validation`` for a
+model chosen on held-out blocks of the thermal history); the noise page has
 ``noise``, ``allan-accel``, ``allan-gyro``.
 """
 
 import numpy as np
 
-from . import figures
+from . import figures, validation
 from .html import Page
 
 SECTIONS = ('summary', 'timeline', 'accel', 'gyro', 'gravity', 'coverage', 'parameters',
@@ -87,6 +88,14 @@ def calibration_page(cal, windows=None, series=None, source=''):
                       f'{which} error against temperature')
         else:
             pg.figure(which, figures.model_curves(cal, which), f'{which} fitted curve')
+    if has and validation.has_validation(cal):
+        pg.h2('Validation on held-out blocks of the thermal history', 'validation')
+        sel = cal.fit['selection']
+        pg.p(sel.get('reason', ''), 'meta')
+        pg.figure('validation', validation.heldout_residuals(cal, windows),
+                  'held-out residual over time of each candidate family')
+        pg.figure('side_by_side', validation.side_by_side(cal, windows),
+                  'raw, compensated and the flight-stack cubic')
     pg.h2('Gravity residual per hold', 'gravity')
     gr = (cal.fit or {}).get('gravity_residual_ug')
     if gr:

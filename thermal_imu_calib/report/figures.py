@@ -11,6 +11,7 @@ from matplotlib.figure import Figure
 import numpy as np
 
 from ..collection.segments import face_of
+from ..thermal_input import history_windows, parse_history_key
 
 UG = 1e6 / 9.80665          # micro-g per m/s^2
 AXES = 'xyz'
@@ -66,7 +67,24 @@ def timeline(windows, series=None, units=None):
     return fig
 
 
+def stream_windows(cal, windows):
+    """Return (accel, gyro) corrected window means with the history over the windows."""
+    hist = {}
+    for m in (cal.accel, cal.gyro):
+        for k in getattr(m, 'history_keys', ()):
+            hist[k] = history_windows(windows.t0, windows.t1, windows.temp,
+                                      parse_history_key(k))
+    temps = windows.temp
+    f = cal.temperature_filter
+    if f is not None and not f.is_identity:
+        temps = f.window_temperatures(windows)
+    res = cal.apply(windows.accel, windows.gyro, temps, history=hist or None)
+    return res.accel, res.gyro
+
+
 def _compensate(cal, windows):
+    if any(getattr(m, 'history_keys', ()) for m in (cal.accel, cal.gyro)):
+        return stream_windows(cal, windows)       # the history over the windows
     temps = windows.temp if cal.inputs else None
     res = cal.apply(windows.accel, windows.gyro, temps)
     return res.accel, res.gyro
@@ -204,7 +222,7 @@ def coverage_map(windows):
                     xytext=(0, -11 if el > 0 else 4))
     if rows:
         dirs = np.array([r[3] / np.linalg.norm(r[3]) for r in rows])
-        az, el = _azel(dirs)
+        az, el = (np.atleast_1d(v) for v in _azel(dirs))
         temps = [float(windows.temp[windows.hold == r[0]].mean()) if windows.n_inputs
                  else 0.0 for r in rows]
         tilted = np.array([r[4] == 'tilted' for r in rows])

@@ -65,6 +65,7 @@ from ..estimation.offset_fit import fit_offset_model
 from ..collection.segments import face_of
 from ..estimation.rvm_fit import fit_rvm_bias_scale, fit_rvm_offset
 from ..estimation.thermal_lag import cv_groups, estimate_tau, lagged_axis_temperatures, tau_or_none
+from .time_folds import select_history, turns_both_ways
 
 #: candidates in order of complexity (parsimony prefers the earlier one on a near tie)
 SINGLE_CANDIDATES = ('offset', 'lag', 'rvm', 'rvm-lag')
@@ -284,6 +285,18 @@ def select_single(ctx, rvm_settings=None, candidates=SINGLE_CANDIDATES,
               f'(score {scores[chosen]:.3f} of raw)')
     return Selection(chosen, reason, tau if chosen.endswith('lag') else None, table,
                      lag.report(), kind, kernels, time.perf_counter() - t_start)
+
+
+def select_single_history(ctx):
+    """Return the Selection of the one-orientation history path (``time_folds``).
+
+    The model is 'hysteresis' (``history_select``), which refits the chosen specs.
+    """
+    res = select_history(ctx)
+    sel = Selection('hysteresis', res['reason'], None, res['table'], None, res['kind'],
+                    seconds=res['seconds'])
+    sel.history = res
+    return sel
 
 
 # ---------------------------------------------------------------------- several orientations
@@ -579,7 +592,7 @@ def auto_policy(ctx):
                 f'temperature spans {span:.2f} degC (< {SINGLE_MIN_SPAN:g}), too little to tell '
                 'a temperature dependence from a drift in time, so no richer shape (lag, rvm) '
                 'is compared: offset polynomial, order by cross-validation')
-        sel = select_single(ctx)
+        sel = select_single_history(ctx) if turns_both_ways(ctx) else select_single(ctx)
     else:
         try:
             check_faces_up_and_down(ctx)

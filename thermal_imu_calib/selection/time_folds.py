@@ -1,0 +1,253 @@
+"""Model choice for one orientation by held-out blocks of the thermal history.
+
+A calibration is used forward in time, on a thermal history it has not seen. Random holds
+or windows do not test that: their neighbours share the history, so memorising it scores
+well. The folds here are contiguous blocks of the history, each fitted on the rest:
+
+* a cycle with three or more temperature legs (``thermal_lag.legs``): each leg is held out
+  in turn (its training part still holds both heating and cooling);
+* otherwise (one turn: cool then heat, or heat then cool): the last part of the history
+  is held out, fitted on everything before it; the cuts lie at ``FORWARD_CUTS`` of the
+  last leg, so every training part holds both directions, as the final calibration does.
+  (A single monotonic leg, a warm-up, is not handled here: ``history_select``.)
+
+Held-out figure (the one the chamber log is scored by): the corrected output averaged over
+``BLOCK_S`` blocks, its change within the held-out part (block mean minus the part's
+mean), RMS over the blocks of the 3-vector norm. Only held-out windows inside the training
+temperature range are scored when there are at least ``MIN_TEST_WINDOWS`` of them (a leg
+is judged over the temperatures both sides cover); else all of them, the models evaluated
+as fitted (a clamped input would score every shape alike: as the raw drift).
+
+Every candidate of ``estimation.hysteresis.candidate_specs`` (order, history terms, lags,
+weighting) gets the mean over the folds of its figure divided by the raw figure; the
+simplest candidate within ``MARGIN`` of the best is chosen per sensor, and never one whose
+figure is worse than the flight stacks' cubic (``ARDUPILOT_SPEC``), which is then chosen.
+"""
+
+import dataclasses
+import time
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+from ..estimation.hysteresis import (ARDUPILOT_SPEC, ARDUPILOT_TREF, candidate_specs,
+                                     Features, fit_spec, predict)
+from ..estimation.thermal_lag import legs
+
+#: held-out figure: averaging block, s (the chamber log's scoring window)
+BLOCK_S = 30.0
+#: forward folds: the last leg after this fraction of its time span is held out
+FORWARD_CUTS = (0.25, 0.5, 0.75)
+#: fewest held-out windows inside the training range for the range to be used
+MIN_TEST_WINDOWS = 12
+#: a richer candidate must be this much better (relative) than a simpler one
+MARGIN = 0.03
+
+
+def turns_both_ways(ctx):
+    """Return True when the windows hold both a heating and a cooling leg.
+
+    Within one monotonic leg (a warm-up) the temperature rate is a function of the
+    temperature, so a history term cannot be told from the temperature shape and a
+    held-out last part is an extrapolation; such logs keep ``select.select_single``
+    (lag search at equal order, contiguous time blocks).
+    """
+    if ctx.k == 0 or len(ctx.windows) == 0:
+        return False
+    _, info = legs(ctx.windows)
+    return len({leg['direction'] for leg in info}) == 2
+
+
+def time_folds(windows, column=0):
+    """Return (list of (train mask, test mask, label), kind) of contiguous history blocks."""
+    tm = 0.5 * (windows.t0 + windows.t1)
+    leg_ids, info = legs(windows, column)
+    folds = []
+    if len(info) >= 3:
+        for leg in info:
+            test = leg_ids == leg['leg']
+            folds.append((~test, test, f'leg {leg["leg"]} ({leg["direction"]} '
+                                       f'{leg["t_min"]:.1f}..{leg["t_max"]:.1f} degC)'))
+        return folds, f'leave one of {len(info)} temperature legs out'
+    last = leg_ids == (info[-1]['leg'] if info else 0)
+    t_lo, t_hi = (tm[last].min(), tm[last].max()) if last.any() else (0.0, 0.0)
+    for f in FORWARD_CUTS:
+        cut = t_lo + f * (t_hi - t_lo)
+        train = tm < cut
+        if train.sum() >= 8 and (~train).sum() >= 2:
+            folds.append((train, ~train, f'after {100 * f:.0f} % of the last leg'))
+    return folds, (f'last part of the history held out, fitted on what came before (cuts at '
+                   f'{", ".join(f"{100 * f:.0f}" for f in FORWARD_CUTS)} % of the last leg)')
+
+
+def block_drift(values, t_mid, rows, block_s=BLOCK_S):
+    """Return the RMS over ``block_s`` blocks of |block mean - mean of the blocks| (norm)."""
+    idx = np.flatnonzero(rows)
+    if len(idx) == 0:
+        return float('nan')
+    t = t_mid[idx]
+    blk = np.floor((t - t.min()) / block_s).astype(int)
+    _, inv = np.unique(blk, return_inverse=True)
+    cnt = np.bincount(inv)
+    means = np.stack([np.bincount(inv, values[idx, a]) / cnt for a in range(values.shape[1])],
+                     axis=1)
+    d = means - means.mean(0)
+    return float(np.sqrt(np.mean(np.sum(d * d, axis=1))))
+
+
+def _scored_rows(temps, train, test):
+    """Return the held-out rows to score: those inside the training range, if enough."""
+    lo, hi = temps[train].min(0), temps[train].max(0)
+    inside = test & np.all((temps >= lo) & (temps <= hi), axis=1)
+    if inside.sum() >= MIN_TEST_WINDOWS:
+        return inside
+    return test
+
+
+def heldout_figures(windows, axis_input, signal, specs, t0, folds):
+    """Return ({spec: [figure per fold]}, [raw figure per fold]) for one sensor."""
+    feats = Features(windows, axis_input)
+    y = getattr(windows, signal)
+    tm = 0.5 * (windows.t0 + windows.t1)
+    raw, out = [], {s: [] for s in specs}
+    for train, test, _ in folds:
+        rows = _scored_rows(feats.temp, train, test)
+        raw.append(block_drift(y, tm, rows))
+        for s in specs:
+            ref = np.full(3, ARDUPILOT_TREF) if s is ARDUPILOT_SPEC else t0
+            coef, _ = fit_spec(feats, s, y, train, ref)
+            out[s].append(block_drift(y - predict(feats, s, coef, ref), tm, rows))
+    return out, raw
+
+
+def export_figures(windows, axis_input, signal, spec, t0, folds):
+    """Return the per-fold figure of ``spec`` written as a flight stack's cubic.
+
+    PX4 and ArduPilot compensate with a cubic of the reading and no history: the exporters
+    (``formats``) refit the model at thermal equilibrium, where the history terms vanish
+    and a lagged input equals the reading. That is the spec's polynomial alone, in T.
+    """
+    feats = Features(windows, axis_input)
+    y = getattr(windows, signal)
+    tm = 0.5 * (windows.t0 + windows.t1)
+    flat = dataclasses.replace(spec, base=(), terms=(), name='')
+    out = []
+    for train, test, _ in folds:
+        rows = _scored_rows(feats.temp, train, test)
+        coef, _ = fit_spec(feats, spec, y, train, t0)
+        out.append(block_drift(y - predict(feats, flat, coef[:spec.order + 1], t0), tm, rows))
+    return out
+
+
+def scaled(spec, factor):
+    """Return ``spec`` with every lag time constant (not the rate's smoothing) times factor."""
+    def sc(taus):
+        return tuple(round(float(t) * factor, 1) for t in taus)
+    terms = tuple((k, t if k == 'rate' else sc(t)) for k, t in spec.terms)
+    return dataclasses.replace(spec, base=sc(spec.base), terms=terms, name='')
+
+
+def refine(windows, axis_input, signal, spec, t0, folds, raw):
+    """Refine the lags of ``spec`` by the held-out figure; returns (spec, figures).
+
+    A bounded 1-D search of a common factor on its time constants (x0.6 .. x1.6, the
+    neighbouring grid cells), scored like the grid (mean over the folds of figure / raw).
+    Specs without a lag are returned unchanged (figures None).
+    """
+    if not spec.base and all(k == 'rate' for k, _ in spec.terms):
+        return spec, None
+    raw = np.asarray(raw, float)
+    ok = raw > 0
+
+    def figures(factor):
+        s = scaled(spec, factor)
+        return s, heldout_figures(windows, axis_input, signal, [s], t0, folds)[0][s]
+
+    def objective(log_f):
+        v = np.asarray(figures(float(np.exp(log_f)))[1])
+        return float(np.mean(v[ok] / raw[ok])) if ok.any() else float(np.mean(v))
+    res = minimize_scalar(objective, bounds=(np.log(0.6), np.log(1.6)), method='bounded',
+                          options={'xatol': 0.02})
+    return figures(float(np.exp(res.x)))
+
+
+def choose(figures, raw):
+    """Return (chosen spec, {spec: score}): simplest within MARGIN of the best, >= floor."""
+    raw = np.asarray(raw, float)
+    ok = raw > 0
+    scores = {s: float(np.mean(np.asarray(v)[ok] / raw[ok])) if ok.any() else float(np.mean(v))
+              for s, v in figures.items()}
+    scores = {s: v for s, v in scores.items() if np.isfinite(v)}
+    best = min(scores.values())
+    floor = scores.get(ARDUPILOT_SPEC, np.inf)
+    pool = [s for s in scores if scores[s] <= best * (1 + MARGIN) and scores[s] <= floor]
+    chosen = min(pool, key=lambda s: (s.n_params, scores[s])) if pool else ARDUPILOT_SPEC
+    return chosen, scores
+
+
+def family(spec):
+    """Return the family of a spec for the summary: its kind of history and weighting."""
+    if spec is ARDUPILOT_SPEC:
+        return 'ardupilot'
+    kinds = {'rate' if k == 'rate' else ('two-state lag' if len(t) > 1 else 'lag difference')
+             for k, t in spec.terms}
+    what = 'lagged T' if spec.base else (' + '.join(sorted(kinds)) if kinds else 'T only')
+    return f'{what} ({spec.weighting})'
+
+
+def family_best(figs):
+    """Return {family: best mean held-out figure} over the candidates (summary text)."""
+    out = {}
+    for s, v in figs.items():
+        f = family(s)
+        if f != 'ardupilot':
+            out[f] = min(out.get(f, np.inf), float(np.mean(v)))
+    return dict(sorted(out.items()))
+
+
+def select_history(ctx, signals=('accel', 'gyro')):
+    """Choose the history model per sensor; returns a dict for Selection and the estimator.
+
+    ``{'specs': {sensor: Spec}, 'table': {label: {sensor: figure, ...}}, 'folds': [...],
+    'kind': str, 'reason': str, 'seconds': float}``
+    """
+    t_start = time.perf_counter()
+    w = ctx.windows
+    folds, kind = time_folds(w)
+    specs = candidate_specs()
+    units = {'accel': 'm/s^2', 'gyro': 'rad/s'}
+    chosen, table, texts, export_loss = {}, {}, [], {}
+    for sig, idx, t0 in (('accel', ctx.accel_input, ctx.t0), ('gyro', ctx.gyro_input,
+                                                              ctx.gyro_t0)):
+        if sig not in signals:
+            continue
+        figs, raw = heldout_figures(w, idx, sig, specs, np.asarray(t0, float), folds)
+        spec, _ = choose(figs, raw)
+        fine, fine_figs = refine(w, idx, sig, spec, np.asarray(t0, float), folds, raw)
+        if fine_figs is not None and fine not in figs:
+            figs[fine] = fine_figs
+        spec, scores = choose(figs, raw)
+        chosen[sig] = spec
+        table.setdefault('raw', {})[sig] = float(np.mean(raw))
+        for s in figs:
+            row = table.setdefault(s.label(), {})
+            row[sig] = float(np.mean(figs[s]))
+            row[f'{sig}_per_fold'] = [float(v) for v in figs[s]]
+            row[f'{sig}_score'] = scores.get(s, float('nan'))
+        ref = np.full(3, ARDUPILOT_TREF) if spec is ARDUPILOT_SPEC else np.asarray(t0, float)
+        exported = export_figures(w, idx, sig, spec, ref, folds)
+        export_loss[sig] = {'model': float(np.mean(figs[spec])),
+                            'as_cubic_without_history': float(np.mean(exported)),
+                            'unit': units[sig], 'per_fold': [float(v) for v in exported]}
+        floor = float(np.mean(figs[ARDUPILOT_SPEC]))
+        best = float(np.mean(figs[spec]))
+        fam = ', '.join(f'{k} {v:.3g}' for k, v in family_best(figs).items())
+        texts.append(f'{sig} ({units[sig]}): raw {np.mean(raw):.3g}, ardupilot cubic '
+                     f'{floor:.3g}; best of each family: {fam}; chose {spec.label()} '
+                     f'{best:.3g} ({len(figs)} candidates, lags refined by the held-out '
+                     'figure)')
+    reason = (f'one orientation; held-out blocks of the thermal history ({kind}; '
+              f'{BLOCK_S:.0f}-s drift RMS, mean over {len(folds)} folds): ' + '; '.join(texts))
+    return {'specs': chosen, 'table': table, 'kind': kind, 'export_loss': export_loss,
+            'folds': [lab for _, _, lab in folds], 'reason': reason,
+            'seconds': time.perf_counter() - t_start}
