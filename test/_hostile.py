@@ -55,6 +55,15 @@ def write_bag(path, imu, temp, edit=None, storage='mcap'):
     return path
 
 
+def clean_pair(d, rec, *calibrate_args):
+    """Write ``rec`` as d/clean.mcap and calibrate it to d/clean.yaml; return both paths."""
+    from thermal_imu_calib.cli import main
+    bag = write_bag(str(d / 'clean.mcap'), *rec)
+    cal = str(d / 'clean.yaml')
+    assert main(['calibrate', bag, '-o', cal, *calibrate_args]) == 0
+    return bag, cal
+
+
 def edited(d, *path_value):
     """Return a deep copy of the mapping ``d`` with ``path -> value`` set (path: tuple of keys)."""
     d = copy.deepcopy(d)

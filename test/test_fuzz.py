@@ -1,8 +1,11 @@
-"""Hypothesis fuzzing of what hostile input reaches: loader, bag readers, node callbacks.
+"""Hypothesis fuzzing of what hostile input reaches: loader, bag readers, node callbacks, CLI.
 
 Targets: the calibration loader (YAML text, and parsed dicts), the log readers (mutated
-bytes of a real MCAP and a real rosbag2 sqlite3 bag) and the compensator's and
-calibrator's callbacks (Imu, Temperature and calibration messages). Allowed outcomes are
+bytes of a real MCAP and a real rosbag2 sqlite3 bag), the compensator's and calibrator's
+callbacks (Imu, Temperature and calibration messages), the CLI's outputs against its
+inputs (every writing subcommand, hostile paths: inputs, special files, foreign files,
+paths inside input directories, the same path spelt another way) and the fleet's inputs
+(sensor ids and hand-edited registry indexes). Allowed outcomes are
 the documented refusals (CalibrationError, LogError); anything else is a crash. Every case
 runs under a hard time limit (SIGALRM; a hang fails the case), and no compensated message
 may carry NaN/Inf.
@@ -155,17 +158,22 @@ def test_fuzz_loader_dicts(d):
 
 
 # ------------------------------------------------------------------ bag readers
+def _first(n):
+    """Return a ``write_bag`` edit keeping the first ``n`` IMU samples and their temperatures."""
+    def cut(a):
+        m = int(np.searchsorted(a['temp_stamp_ns'], a['stamp_ns'][n - 1]))
+        for k in ('stamp_ns', 'accel', 'gyro'):
+            a[k] = a[k][:n]
+        a['temp_stamp_ns'], a['temperature'] = a['temp_stamp_ns'][:m], a['temperature'][:m]
+    return cut
+
+
 @pytest.fixture(scope='module')
 def bags(tmp_path_factory):
     """Real logs, small: the first 2000 IMU samples of a simulated recording, both storages."""
     imu, temp = recording(8)
     d = tmp_path_factory.mktemp('fuzzbags')
-
-    def cut(a):
-        n, m = 2000, int(np.searchsorted(a['temp_stamp_ns'], a['stamp_ns'][1999]))
-        for k in ('stamp_ns', 'accel', 'gyro'):
-            a[k] = a[k][:n]
-        a['temp_stamp_ns'], a['temperature'] = a['temp_stamp_ns'][:m], a['temperature'][:m]
+    cut = _first(2000)
     mcap = write_bag(str(d / 'small.mcap'), imu, temp, cut)
     bag = write_bag(str(d / 'small_bag'), imu, temp, cut, storage='sqlite3')
     db3 = next(os.path.join(bag, n) for n in os.listdir(bag) if n.endswith('.db3'))
@@ -335,3 +343,206 @@ def test_calibrator_survives_stamps_that_imply_no_usable_sample_rate(nodes):
         calib._on_imu(imu_msg(stamp, [0, 0, 9.81], [0, 0, 0]))
         calib._process()
     assert calib.counts.get('detector_restarts', 0) > before
+
+
+# ------------------------------------------------------------------ CLI outputs vs inputs
+#: every output of every writing subcommand: (argv template, output kind); {X} is the path
+#: under test, {B}/{C}/{W}/{R} the command's inputs (log, calibration, windows, registry)
+CLI_OUTPUTS = [
+    (['calibrate', '{B}', '-o', '{X}'], 'file'),
+    (['calibrate', '{B}', '-o', '{T}/c.yaml', '--save-windows', '{X}'], 'file'),
+    (['compensate', '{B}', '--calibration', '{C}', '-o', '{X}'], 'log'),
+    (['simulate', '{X}'], 'log'),
+    (['report', '{C}', '--windows', '{W}', '--html', '{X}'], 'file'),
+    (['report', '{C}', '--windows', '{W}', '--png-dir', '{X}'], 'dir'),
+    (['noise', '{B}', '-o', '{X}'], 'file'),
+    (['noise', '{B}', '--html', '{X}'], 'file'),
+    (['noise', '{B}', '-o', '{X}', '--html', '{X}'], 'file'),
+    (['export', '{C}', '--format', 'px4', '-o', '{X}'], 'file'),
+    (['history', '{R}', '--html', '{X}'], 'file'),
+    (['fleet', 'calibrate', '{B}', '-o', '{X}', '--workers', '1'], 'dir'),
+    (['fleet', 'compensate', '{B}', '--registry', '{R}', '-o', '{X}'], 'dir'),
+]
+#: paths no output may take; those naming an input are hostile for the commands reading it
+HOSTILE = {'input_log': '{B}', 'input_cal': '{C}', 'fifo': None, 'foreign': None,
+           'directory': None, 'registry_index': None, 'in_registry': '{R}',
+           'link_to_input': '{B}', 'in_bag': '{B}'}
+
+
+@pytest.fixture(scope='module')
+def cli_world(tmp_path_factory):
+    """Inputs every command reads, and hostile paths beside them (digested after each case)."""
+    from thermal_imu_calib.cli import main
+    from thermal_imu_calib.fleet import registry as reg
+    imu, temp = recording(8)
+    d = tmp_path_factory.mktemp('cliworld')
+    cut = _first(3000)
+    paths = {'B': write_bag(str(d / 'bagdir'), imu, temp, cut, storage='mcap'),
+             'C': str(d / 'cal.yaml'), 'W': str(d / 'w.jsonl'), 'R': str(d / 'reg'),
+             'T': str(d / 'tmp')}
+    GOOD.save(paths['C'])
+    open(paths['W'], 'w').close()
+    reg.add(paths['R'], [('u1', GOOD, 2 * 10 ** 18, 10 ** 18, ['a'])])
+    hostile = {'input_log': paths['B'], 'input_cal': paths['C'], 'fifo': str(d / 'fifo'),
+               'foreign': str(d / 'notes.txt'), 'directory': str(d / 'adir'),
+               'registry_index': os.path.join(paths['R'], 'index.csv'),
+               'in_registry': os.path.join(paths['R'], 'new.html'),
+               'link_to_input': str(d / 'link'),
+               'in_bag': os.path.join(paths['B'], 'out.yaml')}
+    os.mkfifo(hostile['fifo'])
+    with open(hostile['foreign'], 'w') as f:
+        f.write('precious\n')
+    os.mkdir(hostile['directory'])
+    os.symlink(paths['B'], hostile['link_to_input'])
+    assert main(['info', paths['B']]) == 0
+    return paths, hostile, d
+
+
+def _world_digest(d):
+    out = {}
+    for dp, dn, fn in os.walk(d):
+        for n in sorted(dn + fn):
+            p = os.path.join(dp, n)
+            st = os.lstat(p)
+            if os.path.islink(p):
+                out[p] = ('link', os.readlink(p))
+            elif os.path.isfile(p):
+                with open(p, 'rb') as f:
+                    out[p] = f.read()
+            else:
+                out[p] = ('other', st.st_mode)
+    return out
+
+
+@FUZZ
+@given(st.sampled_from(CLI_OUTPUTS), st.sampled_from(sorted(HOSTILE)),
+       st.sampled_from(['as_is', 'dotdot', 'relative', 'double_slash']),
+       st.text(st.characters(blacklist_characters='/\x00', blacklist_categories=('Cs',)),
+               min_size=1, max_size=20).filter(lambda n: n not in ('.', '..')))
+def test_fuzz_cli_outputs_never_replace_inputs_or_special_files(cli_world, case, hostile,
+                                                                spelling, name):
+    """Any writing subcommand, any hostile output path: refused in one line, nothing changed.
+
+    ``name`` is the new file's name inside an input directory (a bag, the registry).
+    """
+    from thermal_imu_calib.cli import main
+    paths, hostile_paths, d = cli_world
+    template, kind = case
+    if hostile == 'directory' and kind == 'dir':
+        return                                   # a directory is where those outputs go
+    if HOSTILE[hostile] and HOSTILE[hostile] not in template:
+        return                                   # not an input of this command
+    x = hostile_paths[hostile]
+    if hostile in ('in_bag', 'in_registry'):
+        x = os.path.join(os.path.dirname(x), name)
+    if spelling == 'dotdot':                     # the same path spelt another way
+        x = os.path.join(os.path.dirname(x), '..', os.path.basename(os.path.dirname(x)),
+                         os.path.basename(x))
+    elif spelling == 'relative':
+        x = os.path.relpath(x)
+    elif spelling == 'double_slash':
+        x = x.replace(os.sep, os.sep * 2)
+    argv = [a.format(X=x, **paths) for a in template]
+    before = _world_digest(d)
+    import io
+    from contextlib import redirect_stderr, redirect_stdout
+    with time_limit():
+        err, out = io.StringIO(), io.StringIO()
+        with redirect_stderr(err), redirect_stdout(out):
+            code = main(argv)
+    lines = [ln for ln in err.getvalue().splitlines() if ': error: ' in ln]
+    assert code == 2 and len(lines) == 1, (argv, code, out.getvalue(), err.getvalue())
+    assert 'Traceback' not in err.getvalue()
+    assert _world_digest(d) == before, argv
+
+
+# ------------------------------------------------------------------ fleet: ids and registries
+SENSOR_IDS = st.one_of(
+    st.text(min_size=1, max_size=40),
+    st.sampled_from(['robot/imu', 'robot_imu', 'imu\N{GRINNING FACE}', 'imu', 'index.csv',
+                     '..', '.', '.tmp-x', '%2F', 'a%', ' imu', 'imu\n', 'x' * 300]),
+    st.lists(st.sampled_from(['/', '_', '.', '%', 'a', 'Z', '-', ' ', '\u00e9', '\x00']),
+             min_size=1, max_size=20).map(''.join))
+
+
+def _registry_world():
+    import tempfile
+    return tempfile.mkdtemp(prefix='fuzzreg-')
+
+
+@FUZZ
+@given(st.lists(SENSOR_IDS, min_size=1, max_size=4, unique=True))
+def test_fuzz_fleet_sensor_ids_never_merge_or_name_registry_files(ids):
+    """Distinct ids get distinct keys and files; none names index.csv; round trip exact."""
+    from thermal_imu_calib.fleet import registry as reg
+    from thermal_imu_calib.fleet.inputs import GroupBy
+    usable = []
+    for i in ids:
+        try:
+            key = reg.key(i)
+        except ValueError as e:
+            assert len(str(e)) < 400
+            with pytest.raises(ValueError):
+                GroupBy.parse('frame_id').sensor_id('log.mcap', i)
+            continue
+        assert reg.unkey(key) == i and '.' not in key and '/' not in key and key
+        assert GroupBy.parse('frame_id').sensor_id('log.mcap', i) == i
+        usable.append(i)
+    assert len({reg.key(i) for i in usable}) == len(usable)
+    if not usable:
+        return
+    d = _registry_world()
+    try:
+        with time_limit():
+            errors = []
+            written = reg.add(d, [(i, GOOD, (2 + k) * 10 ** 18, 10 ** 18, ['a'])
+                                  for k, i in enumerate(usable)], errors)
+            assert not errors and all(written)
+            assert os.path.isfile(os.path.join(d, reg.INDEX))
+            assert sorted(r['sensor'] for r in reg.read_index(d)) == sorted(usable)
+            for i, path in zip(usable, written):
+                assert reg.valid_at(d, i) == path
+                assert os.path.dirname(path) == os.path.join(d, reg.key(i))
+    finally:
+        shutil.rmtree(d, ignore_errors=True)
+
+
+INDEX_CELLS = st.one_of(st.text(max_size=30), st.sampled_from(
+    ['../x.yaml', '/etc/passwd', 'u1/20250101T000000Z.yaml', 'u2/20250101T000000Z.yaml',
+     'index.csv', 'u1', '20250101T000000Z', 'garbage', '']))
+
+
+@FUZZ
+@given(st.lists(st.tuples(INDEX_CELLS, INDEX_CELLS, INDEX_CELLS, INDEX_CELLS), max_size=5),
+       st.booleans(), SENSOR_IDS)
+def test_fuzz_fleet_registry_contents(rows, header, sensor):
+    """A hand-edited or damaged index: lookups stay inside the sensor's key, errors one line."""
+    import csv
+    import io
+    from thermal_imu_calib.fleet import registry as reg
+    d = _registry_world()
+    try:
+        reg.add(d, [('u1', GOOD, 2 * 10 ** 18, 10 ** 18, ['a'])])
+        buf = io.StringIO()
+        w = csv.writer(buf)
+        if header:
+            w.writerow(['sensor', 'time', 'valid_from', 'file'])
+        w.writerows(rows)
+        with open(os.path.join(d, reg.INDEX), 'w', newline='') as f:
+            f.write(buf.getvalue())
+        with time_limit():
+            for who in ('u1', sensor):
+                try:
+                    path = reg.valid_at(d, who)
+                except (LookupError, ValueError) as e:
+                    assert len(str(e)) < 600
+                    continue
+                assert os.path.dirname(path) in (os.path.join(d, reg.key(who)),
+                                                 os.path.join(d, who)), path
+                assert os.path.realpath(path).startswith(os.path.realpath(d) + os.sep)
+            try:
+                reg.assess(reg.read_index(d))
+            except ValueError as e:
+                assert len(str(e)) < 600
+    finally:
+        shutil.rmtree(d, ignore_errors=True)

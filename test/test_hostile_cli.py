@@ -15,7 +15,7 @@ import time
 import numpy as np
 import pytest
 
-from _hostile import recording, write_bag
+from _hostile import clean_pair, recording, write_bag
 from thermal_imu_calib.calibration import Calibration
 from thermal_imu_calib.cli import main
 from thermal_imu_calib.cli_checks import UserError, validated
@@ -35,11 +35,7 @@ def rec():
 
 @pytest.fixture(scope='module')
 def clean(rec, tmp_path_factory):
-    d = tmp_path_factory.mktemp('clean')
-    bag = write_bag(str(d / 'clean.mcap'), *rec)
-    cal = str(d / 'clean.yaml')
-    assert main(['calibrate', bag, '-o', cal]) == 0
-    return bag, cal
+    return clean_pair(tmp_path_factory.mktemp('clean'), rec)
 
 
 def _digest(path):

@@ -44,7 +44,6 @@ validated, applied and written in one place.
 import datetime
 import hashlib
 import os
-import tempfile
 from dataclasses import dataclass, field
 from typing import List, Optional
 
@@ -320,24 +319,9 @@ class Calibration:
         return yaml.safe_dump(self.to_dict(), sort_keys=False, default_flow_style=None, width=100)
 
     def save(self, path):
-        """Write atomically (temp file + rename); returns the path."""
-        text = self.to_yaml()
-        path = os.fspath(path)
-        d = os.path.dirname(os.path.abspath(path))
-        os.makedirs(d, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix='.calib-', suffix='.yaml', dir=d)
-        try:
-            with os.fdopen(fd, 'w') as f:
-                f.write(text)
-            umask = os.umask(0)
-            os.umask(umask)
-            os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; a calibration is not secret
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
-        return path
+        """Write atomically (``io.output.write_atomic``: temporary + rename); return path."""
+        from .io.output import write_atomic
+        return write_atomic(os.fspath(path), self.to_yaml())
 
     @property
     def id(self):
@@ -539,6 +523,8 @@ def _build(d, where):
         noise_model=noise_model, fit=fit, notes=notes,
         created=_text(d, 'created', '', 'the file'),
         software_version=version, temperature_filter=filt)
+    where[0] = 'temperature.inputs'
+    _check_thermal_without_inputs(cal)
     where[0] = 'the model output over the valid range'
     _check_output(cal)
     return cal
@@ -757,6 +743,33 @@ def _free_form(x, what, kind):
                                 np.generic, np.ndarray)):
             raise ValueError(f'{what} holds {_type_name(v)}, not plain data')
     return x
+
+
+def _check_thermal_without_inputs(cal):
+    """Refuse a model that changes with temperature in a calibration with no thermal input.
+
+    With ``temperature.inputs: []`` every model is evaluated at its reference value
+    (``axis_temperatures``), so thermal terms would silently do nothing: the output would
+    be the same at 22 and 34 degC. Probed per model at T0 and T0 +- 10 (input units).
+    """
+    if cal.inputs:
+        return
+    for name in ('accel', 'gyro'):
+        model = getattr(cal, name)
+        if model is None:
+            continue
+        t0 = np.broadcast_to(np.asarray(getattr(model, 't0', np.zeros(3)), float), (3,))
+        raw = np.vstack([np.eye(3), -np.eye(3)]) * (cal.gravity if name == 'accel' else 1.0)
+        temps = [np.tile(t0 + dt, (6, 1)) for dt in (0.0, -10.0, 10.0)]
+        with np.errstate(all='ignore'):
+            aux = {'accel': raw}
+            out = [np.asarray(model.correct(raw, t, aux=aux), float) for t in temps]
+        scale = np.max(np.abs(out[0])) or 1.0
+        if any(not np.allclose(o, out[0], rtol=0, atol=1e-12 * scale) for o in out[1:]):
+            raise ValueError(f'the {name} model has thermal terms but there is no temperature '
+                             'input: it would run at its reference temperature whatever the '
+                             'real one; add the input(s) it was fitted on (inputs, '
+                             'valid_range) or refit without thermal terms')
 
 
 def _check_output(cal):

@@ -22,6 +22,7 @@ from .collection.stationary import format_holds, format_settings
 from .estimation.calibrate import CalibrationRefused
 from .formats import load_prior
 from .io.log_info import LogError
+from .io.output import Outputs
 from .report import cli as report_cli
 
 EXIT_USAGE = 2
@@ -107,10 +108,7 @@ def cmd_calibrate(args):
     from .pipeline import collect_windows
     _gravity(args)   # a bad --gravity/--latitude is refused before reading any log
     cli_checks.check_distinct_inputs(args.inputs)
-    cli_checks.check_calibration_output(args.output, args.inputs, args.prior, args.force,
-                                        [(args.save_windows, '--save-windows')])
-    if args.save_windows:
-        cli_checks.check_writable_dir(args.save_windows, '--save-windows')
+    cli_checks.calibrate_outputs(args)   # every output checked before any log is read
     if args.prior:
         load_prior(args.prior)   # a bad prior is refused before reading any log
     collected = []
@@ -154,10 +152,8 @@ def _motion_text(collected):
 def cmd_compensate(args):
     """Run the compensate subcommand."""
     from .pipeline import compensate_log
+    Outputs([args.input, args.calibration]).log(args.output, '-o')
     cal = Calibration.load(args.calibration)
-    if os.path.exists(args.output):
-        raise UserError(f'{args.output} exists; remove it or choose another -o')
-    cli_checks.check_writable_dir(args.output, '-o')
     st = compensate_log(args.input, args.output, cal, args.imu_topic, args.temperature_topic,
                         args.output_topic, args.storage, args.chunk_size, args.max_gap,
                         args.temperature_timeout, args.on_missing_temperature, args.progress,
@@ -165,6 +161,8 @@ def cmd_compensate(args):
     print(f'wrote {args.output}: {st["copied"]} messages copied, {st["imu_out"]} compensated '
           f'on {args.output_topic} ({st["out_of_range"]} outside the calibrated temperature '
           f'range, {st["passthrough"]} passed through, {st["dropped"]} dropped'
+          + (f', {st["stamp_jumps"]} after IMU stamps jumped back passed through'
+             if st['stamp_jumps'] else '')
           + (f', {st["spikes"]} spike values replaced' if args.despike else '') + '), '
           f'{st["msgs_per_s"]:,.0f} msgs/s')
     return 0
@@ -209,9 +207,11 @@ def cmd_simulate(args):
     if args.scenario not in sim.SCENARIOS:
         raise UserError(f'unknown scenario {args.scenario!r}; choose one of '
                         f'{", ".join(sim.SCENARIOS)}')
-    if os.path.exists(args.output):
-        raise UserError(f'{args.output} exists; remove it or choose another OUTPUT')
-    cli_checks.check_writable_dir(args.output, 'OUTPUT')
+    out = Outputs()
+    out.log(args.output, 'OUTPUT')
+    from .sim import sidecar_outputs
+    for path, kind, own in sidecar_outputs(args.output, args.gyro_proxy):
+        out.file(path, 'OUTPUT', kind, own)
     if args.gyro_proxy:
         from .sim_proxy import write_proxy_scenario
         info = write_proxy_scenario(args.output, args.scenario, args.seed, storage=args.storage)

@@ -14,6 +14,7 @@ from .app.calibrate import CalibrateSettings
 from .cli_checks import UserError
 from .collection.stationary import DetectorConfig
 from .estimation.calibrate import model_choices
+from .io.output import write_atomic
 
 #: the defaults of ``calibrate`` (the node's and the fleet's too)
 DEFAULTS = CalibrateSettings()
@@ -159,13 +160,13 @@ def calibrate_collected(args, collected, paths):
     UserError when it would be refused.
     """
     if args.save_windows:
+        from .cli_checks import TRANSITIONS_SUFFIX
         from .collection.motion import save_transitions
         from .pipeline import merge_transitions, merge_windows
         windows, transitions = merge_windows(collected), merge_transitions(collected)
-        with open(args.save_windows, 'w') as f:
-            f.write(windows.to_jsonl())
-        with open(args.save_windows + '.transitions.npz', 'wb') as f:
-            save_transitions(f, transitions)
+        write_atomic(args.save_windows, windows.to_jsonl())
+        write_atomic(args.save_windows + TRANSITIONS_SUFFIX,
+                     lambda f: save_transitions(f, transitions))
         print(f'wrote {len(windows)} windows to {args.save_windows} and {len(transitions)} '
               f'pose changes to {args.save_windows}.transitions.npz', file=sys.stderr)
     try:

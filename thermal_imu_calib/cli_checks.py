@@ -11,9 +11,9 @@ import math
 import os
 import re
 import signal
-import tempfile
 
-from .calibration import Calibration, CalibrationError, FORMAT
+from .calibration import Calibration, CalibrationError
+from .io import output
 
 #: a ROS 2 topic name: absolute or relative tokens of [A-Za-z0-9_], not starting with a digit
 _TOPIC_RE = re.compile(r'^~?/?([A-Za-z_][A-Za-z0-9_]*)(/[A-Za-z_][A-Za-z0-9_]*)*$')
@@ -77,15 +77,6 @@ def same_file(a, b):
         return os.path.abspath(a) == os.path.abspath(b)
 
 
-def _inside(path, directory):
-    """Return True when ``path`` lies inside ``directory`` (both resolved)."""
-    try:
-        p, d = os.path.realpath(path), os.path.realpath(directory)
-    except OSError:
-        return False
-    return os.path.commonpath([p, d]) == d and p != d
-
-
 def check_distinct_inputs(paths):
     """Refuse the same log given twice (its windows would be merged twice)."""
     for i, a in enumerate(paths):
@@ -98,62 +89,29 @@ def check_distinct_inputs(paths):
 
 def check_writable_dir(path, what):
     """Refuse an output whose directory cannot be created or written (before computing)."""
-    d = os.path.dirname(os.path.abspath(path))
-    probe = d
-    while not os.path.exists(probe):
-        parent = os.path.dirname(probe)
-        if parent == probe:
-            break
-        probe = parent
-    if not os.path.isdir(probe):
-        raise UserError(f'{what} {path}: {probe} is not a directory; choose another path')
-    try:
-        with tempfile.TemporaryFile(dir=probe):
-            pass
-    except OSError as e:
-        raise UserError(f'{what} {path}: directory {probe} is not writable ({e.strerror or e}); '
-                        'choose another path or fix its permissions') from None
+    output.check_writable_dir(path, what)
 
 
-def check_calibration_output(output, inputs, prior=None, force=False,
-                             extra_outputs=()):
-    """Refuse a calibrate ``-o`` that would destroy an input or an unrelated file.
+def calibrate_outputs(args):
+    """Check every output of ``calibrate`` (-o, --save-windows and its .transitions.npz).
 
-    Refused: any input log (.mcap, .db3, a bag directory or a file inside one, its
-    metadata.yaml), the ``--prior`` file, a directory, and an existing file that is not a
-    calibration file unless ``force``. ``extra_outputs`` (e.g. --save-windows) get the
-    same input check.
+    Refused: any input log (a file, a bag directory or a file inside one), the --prior
+    file, a directory, a special file, two outputs on one path, and an existing file that
+    is not a calibration (or a window file) unless --force. Returns the ``Outputs``.
     """
-    for out, what in [(output, '-o')] + [(p, o) for p, o in extra_outputs if p]:
-        for src in list(inputs) + ([prior] if prior else []):
-            if not os.path.exists(out):
-                break
-            bag_dir = (src if os.path.isdir(src) else os.path.dirname(os.path.abspath(src))
-                       if os.path.basename(src) == 'metadata.yaml' else None)
-            if same_file(out, src) or (bag_dir and _inside(out, bag_dir)):
-                raise UserError(f'{what} {out} is one of the inputs ({src}); writing it would '
-                                'destroy it: choose another output file')
-        if not os.path.exists(out):
-            for src in inputs:
-                if os.path.isdir(src) and _inside(out, src):
-                    raise UserError(f'{what} {out} is inside the input bag {src}; choose an '
-                                    'output outside it')
-        if os.path.isdir(out):
-            raise UserError(f'{what} {out} is a directory; give a file name (e.g. '
-                            f'{os.path.join(out, "calibration.yaml")})')
-        check_writable_dir(out, what)
-    if os.path.exists(output) and not force and not _is_calibration_file(output):
-        raise UserError(f'-o {output} exists and is not a calibration file; refusing to '
-                        'overwrite it: choose another output, or pass --force')
+    out = output.Outputs(list(args.inputs) + [args.prior], args.force)
+    out.file(args.output, '-o', 'calibration file', output.CALIBRATION)
+    if args.save_windows:
+        out.file(args.save_windows, '--save-windows', 'window file (JSON lines)',
+                 WINDOW_MARKERS)
+        out.file(args.save_windows + TRANSITIONS_SUFFIX, '--save-windows', 'transitions file',
+                 output.NPZ)
+    return out
 
 
-def _is_calibration_file(path):
-    try:
-        with open(path, 'rb') as f:
-            head = f.read(4096)
-    except OSError:
-        return False
-    return FORMAT.encode() in head
+#: first bytes of the files ``calibrate --save-windows`` writes
+WINDOW_MARKERS = (b'{"hold"',)
+TRANSITIONS_SUFFIX = '.transitions.npz'
 
 
 def validated(cal, output):

@@ -13,6 +13,7 @@ import yaml
 from .calibration import Calibration
 from .formats import EXTENSIONS, export_calibration, FORMATS
 from .formats.common import loss_text
+from .io.output import Outputs, write_atomic
 
 
 def add_parser(sub):
@@ -76,16 +77,12 @@ def cmd_export(args):
                              args.rostopic, args.update_rate, args.kalibr_model, args.instance,
                              args.accel_id, args.gyro_id)
     stem = args.output or os.path.splitext(args.calibration)[0] + EXTENSIONS[args.format]
-    paths = {suffix: stem + suffix for suffix in out.files}
-    existing = [p for p in paths.values() if os.path.exists(p)]
-    if existing and not args.force:
-        raise ValueError(f'{", ".join(existing)} exists; remove it, choose another -o or pass '
-                         '--force')
-    if os.path.abspath(args.calibration) in map(os.path.abspath, paths.values()):
-        raise ValueError('the output would overwrite the calibration; choose another -o')
+    outputs = Outputs([args.calibration, args.windows, args.noise], args.force)
+    paths = {suffix: outputs.file(stem + suffix, '-o', f'{args.format} file',
+                                  lambda _: False)   # an existing file needs --force
+             for suffix in out.files}
     for suffix, body in out.files.items():
-        with open(paths[suffix], 'w') as f:
-            f.write(body)
+        write_atomic(paths[suffix], body)
     for note in out.notes:
         print(f'note: {note}', file=sys.stderr)
     for which, loss in out.loss.items():

@@ -6,13 +6,12 @@ Dask; registered in ``cli.build_parser`` by ``add_fleet_parsers``.
 
 import functools
 import os
-import shutil
 import sys
-import tempfile
 
 from .fleet import inputs as fin
 from .fleet import registry as reg
-from .fleet.runner import fleet_client, run_fleet
+from .fleet.runner import _reason, check_workers, fleet_client, run_fleet
+from .io.output import HTML, Outputs
 
 EXIT_PARTIAL = 1
 
@@ -74,6 +73,8 @@ def add_fleet_parsers(sub, commands):
     p.add_argument('registry', metavar='REGISTRY_DIR')
     p.add_argument('--sensor', action='append', default=None, metavar='ID')
     p.add_argument('--html', metavar='FILE', help='also write an HTML report')
+    p.add_argument('--force', action='store_true',
+                   help='replace an existing --html file that is not an HTML page')
 
     p = sub.add_parser('simulate-fleet', help='write DIR/<unit>/<log>.mcap for a simulated '
                                               'fleet (some units drift, one has a step)')
@@ -122,7 +123,9 @@ def cmd_fleet_calibrate(args):
         raise ValueError(f'--period {args.period}: give 0 (all logs) or a positive number '
                          'of days')
     _gravity(args)
+    check_workers(args.workers)
     paths = fin.expand_inputs(args.inputs)
+    _check_registry_output(args.output, list(args.inputs) + paths)
     print(f'fleet calibrate: {len(paths)} logs', file=sys.stderr)
     reduce_fn = functools.partial(calibrate_collected, calibrate_args(args))
     with fleet_client(args.scheduler, args.workers) as client:
@@ -134,27 +137,45 @@ def cmd_fleet_calibrate(args):
     for f in failed:
         print(f'FAILED {f.path}: {f.error} (sensor unknown; not used)')
     for u in units:
+        name = reg.display_id(u.sensor)
         for path, why in u.excluded:
-            print(f'FAILED {path}: {why} (sensor {u.sensor}; not used)')
+            print(f'FAILED {path}: {why} (sensor {name}; not used)')
             bad += 1
         if u.error:
-            print(f'{u.sensor}: NOT calibrated ({len(u.logs)} logs): {u.error}')
+            print(f'{name}: NOT calibrated ({len(u.logs)} logs): {u.error}')
             bad += 1
             continue
         cal = u.result.calibration
         cal.notes.extend(f'fleet: log {p} was not used: {why}' for p, why in u.excluded)
         entries.append((u.sensor, cal, u.end_ns, u.start_ns, u.logs))
-    paths_out = reg.add(args.output, entries) if entries else []
+    errors = []
+    paths_out = reg.add(args.output, entries, errors) if entries else []
     for (sensor, cal, *_), out in zip(entries, paths_out):
+        if out is None:
+            continue
         res = (cal.fit or {}).get('residual_rms', {})
-        print(f'{sensor}: {cal.accel.kind if cal.accel else "-"}/'
+        print(f'{reg.display_id(sensor)}: {cal.accel.kind if cal.accel else "-"}/'
               f'{cal.gyro.kind if cal.gyro else "-"}, {cal.fit.get("holds")} holds, residual '
               f'{res.get("value", float("nan")):.3g} m/s^2 -> {out}')
-    print(f'fleet calibrate: {len(entries)} calibrations written to {args.output} '
+    for sensor, why in errors:
+        print(f'{reg.display_id(sensor)}: NOT written: {why}')
+    written = sum(p is not None for p in paths_out)
+    bad += len(errors)
+    print(f'fleet calibrate: {written} calibrations written to {args.output} '
           f'(index {os.path.join(args.output, reg.INDEX)}), {bad} failures')
-    if not entries:
+    if not written:
         return 2
     return EXIT_PARTIAL if bad else 0
+
+
+def _check_registry_output(registry, inputs):
+    """Refuse a registry -o that is an input, inside one, or a directory that is not a registry."""
+    Outputs(inputs).directory(registry, '-o', 'registry')
+    if os.path.isdir(registry) and os.listdir(registry) and not os.path.isfile(
+            os.path.join(registry, reg.INDEX)):
+        raise ValueError(f'-o {registry} is a directory that is not empty and has no '
+                         f'{reg.INDEX}, so it is not a registry; choose a new or empty '
+                         'directory, or an existing registry')
 
 
 def compensate_one(path, out_path, registry, group, kw):
@@ -171,21 +192,13 @@ def compensate_one(path, out_path, registry, group, kw):
         sensor = group.sensor_id(path, frame, imu_topic)
         cal_path = reg.valid_at(registry, sensor, start)
         cal = reg.Calibration.load(cal_path)
-        d = os.path.dirname(os.path.abspath(out_path))
-        os.makedirs(d, exist_ok=True)
-        tmp_dir = tempfile.mkdtemp(prefix='.tmp-', dir=d)
-        try:
-            tmp = os.path.join(tmp_dir, os.path.basename(out_path))
-            st = compensate_log(path, tmp, cal, imu_topic, kw['temperature_topics'],
-                                kw['output_topic'], 'mcap', kw['chunk_size'], kw['max_gap_s'],
-                                None, kw['on_missing'], False, kw['despike'])
-            os.replace(tmp, out_path)
-        finally:
-            shutil.rmtree(tmp_dir, ignore_errors=True)
-        return (path, f'{out_path}: {st["imu_out"]} compensated with {sensor} '
-                      f'{os.path.relpath(cal_path, registry)}', True)
+        st = compensate_log(path, out_path, cal, imu_topic, kw['temperature_topics'],
+                            kw['output_topic'], 'mcap', kw['chunk_size'], kw['max_gap_s'],
+                            None, kw['on_missing'], False, kw['despike'])
+        return (path, f'{out_path}: {st["imu_out"]} compensated with '
+                      f'{reg.display_id(sensor)} {os.path.relpath(cal_path, registry)}', True)
     except Exception as e:   # noqa: B902 - one bad log is reported, the others go on
-        return (path, str(e).strip().replace('\n', ' ') or type(e).__name__, False)
+        return (path, _reason(e, path), False)
 
 
 def cmd_fleet_compensate(args):
@@ -194,16 +207,19 @@ def cmd_fleet_compensate(args):
     if not os.path.isfile(os.path.join(args.registry, reg.INDEX)):
         raise ValueError(f'{args.registry} has no {reg.INDEX}: not a registry written by '
                          '`thermal-imu-calib fleet calibrate`')
+    check_workers(args.workers)
     paths = fin.expand_inputs(args.inputs)
     root = fin.common_root(paths)
     outs = [os.path.join(args.output, os.path.relpath(os.path.abspath(p), root))
             for p in paths]
-    existing = [o for o in outs if os.path.exists(o)]
+    existing = [o for o in outs if os.path.lexists(o)]
     if existing:
         raise ValueError(f'{existing[0]} exists ({len(existing)} outputs do); remove them or '
                          'choose another -o')
-    if any(os.path.realpath(o) == os.path.realpath(p) for o, p in zip(outs, paths)):
-        raise ValueError('-o would overwrite the inputs; choose another OUT_DIR')
+    checked = Outputs(list(args.inputs) + paths + [args.registry])
+    Outputs(checked.inputs).directory(args.output, '-o', 'compensated logs')
+    for o in outs:
+        checked.log(o, '-o')
     kw = dict(_collect_kw(args), output_topic=args.output_topic,
               on_missing=args.on_missing_temperature, despike=args.despike)
     with fleet_client(args.scheduler, args.workers) as client:
@@ -226,6 +242,8 @@ def cmd_fleet_compensate(args):
 def cmd_history(args):
     """Run ``history``: parameters over time with +-1 sigma, and the alarms."""
     from .fleet.history import format_history, write_html
+    if args.html:
+        Outputs([args.registry], args.force).file(args.html, '--html', 'HTML page', HTML)
     rows = reg.read_index(args.registry)
     if not rows:
         raise ValueError(f'{args.registry}: no {reg.INDEX}; run `thermal-imu-calib fleet '
@@ -248,6 +266,7 @@ def cmd_simulate_fleet(args):
     from .fleet.simulate import FleetDesign, simulate_fleet
     if args.units < 1 or args.logs_per_unit < 1:
         raise ValueError('--units and --logs-per-unit must be >= 1')
+    Outputs().directory(args.output, 'DIR', 'simulated fleet')
     if os.path.exists(args.output) and os.listdir(args.output):
         raise ValueError(f'{args.output} exists and is not empty; remove it or choose '
                          'another DIR')

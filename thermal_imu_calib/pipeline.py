@@ -7,7 +7,6 @@ prints what these return. Everything streams in column chunks, so memory is boun
 
 from dataclasses import dataclass, field
 import os
-import shutil
 import sys
 import time
 from typing import Optional
@@ -19,10 +18,11 @@ from .io.align import StreamAligner
 from .io.bag import copy_and_stream, open_log
 from .io.bag_writer import LogWriter
 from .io.log_info import LogError
-from .input_units import DEGC, parse_unit_map
+from .io.output import staging_dir
+from .input_units import DEGC, is_temperature, parse_unit_map
 from .io.cdr import IMU_MSGTYPE
 from .io.columns import TemperatureColumns
-from .io.gate import InputGate
+from .io.gate import increasing_rows, InputGate
 from .collection.outliers import ImuSpikeFilter
 from .evaluate import static_metrics, WindowAccumulator, with_signals
 from .collection.motion import MotionCollector, offset_holds
@@ -224,52 +224,12 @@ def compensate_log(src, dst, calibration, imu_topic=None, temperature_topics=Non
     if on_missing not in MISSING_POLICIES:
         raise ValueError(f'on_missing must be one of {MISSING_POLICIES}, not {on_missing!r}')
     dst = os.path.abspath(os.fspath(dst))
-    if os.path.exists(dst):
+    if os.path.lexists(dst):
         raise LogError(f'{dst} exists; remove it or choose another output')
-    base = os.path.basename(dst.rstrip('/'))
-    tmp = os.path.join(os.path.dirname(dst), f'.{base}.partial-{os.getpid()}'
-                       + ('.mcap' if base.endswith('.mcap') else ''))
-    try:
-        stats = _compensate(src, tmp, calibration, imu_topic, temperature_topics, output_topic,
-                            storage, chunk_size, max_gap_s, temperature_timeout, on_missing,
-                            progress, despike)
-        if os.path.exists(dst):
-            raise LogError(f'{dst} appeared while compensating; the result is left in {tmp}')
-        os.rename(tmp, dst)
-        if os.path.isdir(dst):
-            _rename_bag_files(tmp, dst)
-    except BaseException:
-        _remove_partial(tmp)
-        raise
-    return stats
-
-
-def _rename_bag_files(old, new):
-    """Rename the storage files of a rosbag2 directory moved from ``old`` to ``new``.
-
-    rosbag2 names them after the directory (``NAME_0.mcap``); metadata.yaml lists them.
-    """
-    old_stem, new_stem = os.path.basename(old), os.path.basename(new)
-    meta = os.path.join(new, 'metadata.yaml')
-    names = [n for n in os.listdir(new) if n.startswith(old_stem)]
-    for n in names:
-        os.rename(os.path.join(new, n), os.path.join(new, new_stem + n[len(old_stem):]))
-    if names and os.path.isfile(meta):
-        with open(meta) as f:
-            text = f.read()
-        with open(meta, 'w') as f:
-            f.write(text.replace(old_stem, new_stem))
-
-
-def _remove_partial(tmp):
-    """Remove a temporary output (file or bag directory) left by an interrupted write."""
-    try:
-        if os.path.isdir(tmp):
-            shutil.rmtree(tmp, ignore_errors=True)
-        elif os.path.exists(tmp):
-            os.unlink(tmp)
-    except OSError:
-        pass
+    with staging_dir(dst) as tmp:    # a unique temporary beside dst, renamed at the end
+        return _compensate(src, tmp, calibration, imu_topic, temperature_topics, output_topic,
+                           storage, chunk_size, max_gap_s, temperature_timeout, on_missing,
+                           progress, despike)
 
 
 def _compensate(src, dst, calibration, imu_topic, temperature_topics, output_topic, storage,
@@ -295,7 +255,10 @@ def _compensate(src, dst, calibration, imu_topic, temperature_topics, output_top
             raise LogError(f'output topic {output_topic} already exists in {src}; choose '
                            'another --output-topic')
         stats = {'imu_in': 0, 'imu_out': 0, 'dropped': 0, 'passthrough': 0,
-                 'out_of_range': 0, 'copied': reader.message_count}
+                 'out_of_range': 0, 'copied': reader.message_count, 'stamp_jumps': 0,
+                 'compensated': 0, 'temp_min': np.full(len(temps), np.inf),
+                 'temp_max': np.full(len(temps), -np.inf)}
+        newest = [None]     # the newest IMU header stamp so far (ns)
         aligner = StreamAligner(temps, max_gap_s)
         stream = calibration.stream()  # carries the temperature filter state across chunks
         gate = ImuSpikeFilter() if despike else None
@@ -315,7 +278,8 @@ def _compensate(src, dst, calibration, imu_topic, temperature_topics, output_top
                     bar.update(len(raw.imu))
                 # the payloads wait in the store; the aligner carries their row numbers
                 extra = {'imu_log_time_ns': raw.imu_log_time_ns,
-                         'imu_row': payloads.add(raw.imu_raw)}
+                         'imu_row': payloads.add(raw.imu_raw),
+                         'stamp_ok': increasing_rows(raw.imu.stamp_ns, newest)}
                 for ch in gated(aligner.push_columns(raw.imu, [raw.temps[t] for t in temps],
                                                      extra)):
                     _write_compensated(writer, output_topic, ch, stream, timeout,
@@ -328,6 +292,7 @@ def _compensate(src, dst, calibration, imu_topic, temperature_topics, output_top
                                    stats, payloads)
         if bar is not None:
             bar.close()
+    _refuse_unusable(src, stats, calibration, temps)
     stats['seconds'] = time.perf_counter() - t_start
     stats['spikes'] = gate.counts()['rejected_total'] if despike else 0
     stats['msgs_per_s'] = stats['copied'] / max(stats['seconds'], 1e-9)
@@ -376,11 +341,53 @@ class _PayloadStore:
         return [bytes(x) for p in parts for x in p]
 
 
+def _refuse_unusable(src, stats, calibration, topics):
+    """Refuse a compensation whose stamps or temperatures say the result would be wrong.
+
+    Like ``calibrate`` (``io.gate.check_report``): IMU header stamps not increasing in more
+    than 10 % of the messages. And a log whose temperature readings all lie outside the
+    calibrated range (every sample clamped or extrapolated), with a hint at the unit.
+    """
+    n = stats['imu_in']
+    if n and stats['stamp_jumps'] > 0.1 * n:
+        raise LogError(f'{src}: {stats["stamp_jumps"]} of {n} IMU header stamps do not increase '
+                       '(duplicated or running backwards); the temperature at those samples '
+                       'would be taken from another time: fix the driver\'s clock or '
+                       're-record (calibrate refuses this log too)')
+    if not (stats['compensated'] and stats['out_of_range'] == stats['compensated']):
+        return
+    vr = calibration.valid_range
+    for j, inp in enumerate(calibration.inputs):
+        lo, hi = stats['temp_min'][j], stats['temp_max'][j]
+        if not (np.isfinite(lo) and (hi < vr[j, 0] or lo > vr[j, 1])):
+            continue
+        hint = ''
+        if is_temperature(inp.unit):
+            for name, f in (('Kelvin', lambda v: v - 273.15),
+                            ('degF', lambda v: (v - 32.0) / 1.8)):
+                if f(hi) >= vr[j, 0] - 20 and f(lo) <= vr[j, 1] + 20:
+                    hint = (f'; the values look like {name} ({f(lo):.1f}..{f(hi):.1f} degC '
+                            'converted): publish degC')
+                    break
+        hint = hint or ('; check the unit the topic publishes, or calibrate over this '
+                        'temperature range')
+        raise LogError(f'{src}: every reading of {topics[j]} ({lo:.2f}..{hi:.2f}) lies outside '
+                       f'the calibrated range {vr[j, 0]:.2f}..{vr[j, 1]:.2f} {inp.unit}, so '
+                       'every sample would be clamped' + hint)
+
+
 def _write_compensated(writer, topic, ch, stream, timeout, policy, stats, payloads):
     n = len(ch)
     if n == 0:
         return
     temps, keep, comp = _resolve_missing(ch.temps, ch.temp_age, timeout, policy, None)
+    ok = ch.extra['stamp_ok']
+    stats['stamp_jumps'] += int((~ok).sum())
+    keep |= ~ok               # the span after a jump back passes through uncompensated
+    comp &= ok
+    if np.any(comp) and temps.shape[1]:
+        stats['temp_min'] = np.minimum(stats['temp_min'], temps[comp].min(0))
+        stats['temp_max'] = np.maximum(stats['temp_max'], temps[comp].max(0))
     raws = payloads.take(ch.extra['imu_row'])
     accel = ch.imu.accel.copy()
     gyro = ch.imu.gyro.copy()
@@ -389,6 +396,7 @@ def _write_compensated(writer, topic, ch, stream, timeout, policy, stats, payloa
         accel[comp] = res.accel
         gyro[comp] = res.gyro
         stats['out_of_range'] += int(np.sum(res.out_of_range))
+        stats['compensated'] += int(np.sum(comp))
     finite = np.all(np.isfinite(accel), axis=1) & np.all(np.isfinite(gyro), axis=1)
     keep &= finite
     stats['passthrough'] += int(np.sum(keep & ~comp))

@@ -339,6 +339,21 @@ def _sidecar(output, kind):
     return f'{os.fspath(output).rstrip(os.sep)}.{kind}.yaml'
 
 
+def sidecar_outputs(output, proxy=False):
+    """Return [(path, kind, own)] of the side files ``write_scenario`` writes next to a log.
+
+    ``own`` tells an existing file of that kind (``io.output.Outputs.file``).
+    """
+    from .io.output import CALIBRATION, containing
+    out = [(_sidecar(output, 'truth'), 'calibration file', CALIBRATION),
+           (_sidecar(output, 'prior'), 'calibration file', CALIBRATION),
+           (_sidecar(output, 'schedule'), 'simulation schedule',
+            containing(b'up_convention:'))]
+    if proxy:
+        out.append((_sidecar(output, 'truth_proxy'), 'calibration file', CALIBRATION))
+    return out
+
+
 def write_scenario(output, name, seed=0, storage='mcap', overwrite=False, compression='none',
                    transform=None, **overrides):
     """Simulate ``name`` and write the bag plus truth, prior and schedule files.
@@ -352,6 +367,7 @@ def write_scenario(output, name, seed=0, storage='mcap', overwrite=False, compre
     the paths and a summary dict.
     """
     from .io.bag_writer import write_columns
+    from .io.output import remove_quietly, staging_dir, write_atomic
 
     t_start = time.perf_counter()
     rec = simulate(name, seed, **overrides)
@@ -363,16 +379,18 @@ def write_scenario(output, name, seed=0, storage='mcap', overwrite=False, compre
     cfg = rec.config
     var = cfg.temp_noise ** 2 + cfg.temp_lsb ** 2 / 12
     var = {t: rec.meta.get('temperature_variance', {}).get(t, var) for t in rec.temperatures}
-    counts = write_columns(out, rec.imu_topic, rec.imu_chunks(), rec.temperatures,
-                           storage=storage, overwrite=overwrite, compression=compression,
-                           temperature_variance=var)
+    if overwrite and os.path.lexists(out):
+        remove_quietly(out)
+    with staging_dir(out) as tmp:   # complete or absent, also when interrupted
+        counts = write_columns(tmp, rec.imu_topic, rec.imu_chunks(), rec.temperatures,
+                               storage=storage, compression=compression,
+                               temperature_variance=var)
     paths = {'bag': out, 'truth': _sidecar(out, 'truth'), 'prior': _sidecar(out, 'prior'),
              'schedule': _sidecar(out, 'schedule')}
     rec.truth.save(paths['truth'])
     rec.prior.save(paths['prior'])
-    with open(paths['schedule'], 'w') as f:
-        yaml.safe_dump(rec.schedule_dict(), f, sort_keys=False, default_flow_style=None,
-                       width=100)
+    write_atomic(paths['schedule'], yaml.safe_dump(rec.schedule_dict(), sort_keys=False,
+                                                   default_flow_style=None, width=100))
     summary = rec.summary()
     summary['messages'] = counts
     summary['seconds'] = round(time.perf_counter() - t_start, 3)

@@ -8,6 +8,7 @@ import html
 
 import numpy as np
 
+from ..io.output import write_atomic
 from .registry import _f, AXES
 
 #: (index column, label, scale to display, display unit)
@@ -122,8 +123,6 @@ def write_html(path, rows, alarms, info=None):
                             '<td>' + '<br>'.join(_cell(r, f'{c}.{a}', sc) for a in AXES)
                             + '</td>' for c, _, sc, _ in SHOWN) + '</tr>')
         body.append('</table>')
-    with open(path, 'w') as f:
-        f.write('<!DOCTYPE html><html><head><meta charset="utf-8"><title>fleet history'
-                '</title></head><body style="font-family:sans-serif">' + '\n'.join(body)
-                + '</body></html>\n')
-    return path
+    return write_atomic(path, '<!DOCTYPE html><html><head><meta charset="utf-8"><title>fleet '
+                        'history</title></head><body style="font-family:sans-serif">'
+                        + '\n'.join(body) + '</body></html>\n')

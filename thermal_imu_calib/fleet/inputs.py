@@ -136,7 +136,12 @@ class GroupBy:
         return self.kind + (f':{self.arg}' if self.arg else '')
 
     def sensor_id(self, path, frame_id='', imu_topic=''):
-        """Return the sensor id of a log (raises ValueError with the reason when none)."""
+        """Return the sensor id of a log, exactly as found (ValueError with the reason if none).
+
+        Ids are kept as they are (``robot/imu`` and ``robot_imu`` are two units); the
+        registry stores each under its reversible key (``registry.key``), which also bounds
+        the length: a longer id is refused for its log only.
+        """
         if self.kind == 'frame_id':
             value = frame_id
         elif self.kind == 'topic':
@@ -146,16 +151,13 @@ class GroupBy:
             value = (m.group(1) if m and m.groups() else m.group(0)) if m else ''
         else:
             value = log_metadata(path).get(self.arg, '')
-        value = safe_id(value)
-        if not value:
+        value = str(value or '')
+        if not value.strip():
             raise ValueError(f'no sensor id from --by {self}: the log has an empty or no '
                              f'{self.kind}{" " + self.arg if self.arg else ""}')
+        from .registry import key
+        key(value)      # a unit id must have a registry key (length, UTF-8): else refused
         return value
-
-
-def safe_id(value):
-    """Return ``value`` usable as one directory name ('/' and spaces become '_')."""
-    return re.sub(r'[^A-Za-z0-9._+-]+', '_', str(value).strip()).strip('_.')
 
 
 def log_metadata(path):

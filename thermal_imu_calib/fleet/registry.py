@@ -1,10 +1,19 @@
-"""Calibration registry: REGISTRY_DIR/<sensor>/<ISO time>.yaml plus index.csv, and history.
+"""Calibration registry: REGISTRY_DIR/<sensor key>/<ISO time>.yaml plus index.csv, and history.
 
 In the spirit of imucal's ``management.py``: every calibration is a file named by its
 sensor and time (the end of the newest log it used, UTC, ISO 8601 basic format
 ``YYYYMMDDTHHMMSSZ``) and one row of ``index.csv``: sensor, time, valid_from (start of the
 oldest log), model, holds, temperature span, the key parameters with their 1-sigma
 standard deviations and the residual. The files are what ``calibrate`` writes.
+
+Unit identity: the directory of a sensor is ``key(sensor)``, a reversible encoding of the
+sensor id (the frame_id, by default): letters, digits, ``_`` and ``-`` stay, every other
+byte of its UTF-8 text becomes ``%XX``. Two ids never share a key (``robot/imu`` is
+``robot%2Fimu``, ``robot_imu`` stays), and no key contains a dot, so no id can name the
+registry's own files (``index.csv``, temporary ``.*`` files). The index keeps the id as
+given (``sensor``) next to the file; a row whose file is not under its sensor's key is
+never used. Registries written before keys (sensor names with ``/`` etc. replaced by
+``_``) are still read.
 
 History and alarms (``assess``): a unit's accelerometer bias and scale factor at T0 (db0,
 dk0) are carried to a common temperature (the polynomial terms carry them there, their
@@ -22,13 +31,17 @@ import csv
 from datetime import datetime, timezone
 import io
 import os
-import tempfile
 
 import numpy as np
 
 from ..calibration import Calibration
+from ..io.output import write_atomic
 
 INDEX = 'index.csv'
+#: characters a registry key keeps; every other byte of the UTF-8 sensor id is %XX
+_KEY_SAFE = frozenset(b'ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789_-')
+#: longest key (bytes of a directory name; file systems allow 255)
+MAX_KEY_BYTES = 200
 TIME_FORMAT = '%Y%m%dT%H%M%SZ'
 AXES = 'xyz'
 #: family-wise false-alarm rate of the parameter tests over the whole fleet (all units,
@@ -46,6 +59,63 @@ ALARM_ON = ('b', 'k')
 STD_SCALE = {'b': 1.0, 'k': 1.0}
 BASE_COLUMNS = ('sensor', 'time', 'valid_from', 'file', 'accel_model', 'gyro_model', 'logs',
                 'holds', 'windows', 'temp_min', 'temp_max', 'residual_rms_mps2')
+
+
+def key(sensor):
+    """Return the registry directory name of ``sensor``: its reversible encoding (``unkey``).
+
+    Raises ValueError (a short message) for an empty id, one that is not UTF-8 text, or
+    one whose key would be longer than ``MAX_KEY_BYTES``.
+    """
+    sensor = str(sensor)
+    if not sensor.strip():
+        raise ValueError('the sensor id is empty')
+    try:
+        data = sensor.encode('utf-8')
+    except UnicodeEncodeError:
+        raise ValueError(f'the sensor id {display_id(sensor)} is not UTF-8 text') from None
+    out = ''.join(chr(b) if b in _KEY_SAFE else f'%{b:02X}' for b in data)
+    if len(out) > MAX_KEY_BYTES:
+        raise ValueError(f'the sensor id {display_id(sensor)} ({len(sensor)} characters) is too '
+                         f'long to name a unit (its key has {len(out)} bytes, at most '
+                         f'{MAX_KEY_BYTES}); fix the driver\'s frame_id or choose the unit '
+                         'with --by')
+    return out
+
+
+def unkey(text):
+    """Return the sensor id of a registry key (inverse of ``key``)."""
+    from urllib.parse import unquote_to_bytes
+    return unquote_to_bytes(text).decode('utf-8')
+
+
+def display_id(sensor, limit=60):
+    """Return a sensor id for a one-line message: printable, at most ``limit`` characters."""
+    text = sensor if sensor.isprintable() else repr(sensor)[1:-1]
+    return repr(text[:limit] + '...') if len(text) > limit else repr(text)
+
+
+def _legacy_key(sensor):
+    """Return the directory of a sensor in a registry written before keys, or None."""
+    import re
+    safe = re.fullmatch(r'[A-Za-z0-9._+-]+', sensor) and sensor != INDEX \
+        and not sensor.startswith('.')
+    return sensor if safe else None
+
+
+def _row_file(registry, row):
+    """Return the calibration file of an index row, or None when it is not under its key."""
+    rel = os.path.normpath(row.get('file') or '')
+    top = rel.split(os.sep)[0]
+    try:
+        ok = top == key(row.get('sensor', ''))
+    except ValueError:
+        ok = False
+    if not ok and top != _legacy_key(row.get('sensor', '')):
+        return None
+    if os.path.isabs(rel) or '..' in rel.split(os.sep) or rel.count(os.sep) != 1:
+        return None
+    return os.path.join(registry, rel)
 
 
 def iso(ns):
@@ -96,42 +166,51 @@ def index_row(sensor, cal, time_ns, valid_from_ns, file, logs):
     return row
 
 
-def _atomic_write(path, text):
-    d = os.path.dirname(os.path.abspath(path))
-    os.makedirs(d, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix='.tmp-', dir=d)
-    try:
-        with os.fdopen(fd, 'w', newline='') as f:
-            f.write(text)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
 def read_index(registry):
-    """Return the index rows (dicts of str) sorted by sensor and time; [] when none."""
+    """Return the index rows (dicts of str) sorted by sensor and time; [] when none.
+
+    Raises ValueError (one line) for a file that is not a registry index (not UTF-8 CSV,
+    no ``sensor``/``time``/``valid_from``/``file`` columns); missing cells read as ''.
+    """
     path = os.path.join(registry, INDEX)
     if not os.path.isfile(path):
         return []
-    with open(path, newline='') as f:
-        rows = list(csv.DictReader(f))
+    try:
+        with open(path, newline='', encoding='utf-8') as f:
+            reader = csv.DictReader(f)
+            missing = [c for c in BASE_COLUMNS[:4] if c not in (reader.fieldnames or [])]
+            if missing:
+                raise ValueError(f'{path}: not a registry index (no {", ".join(missing)} '
+                                 'column); restore it or write the registry again with '
+                                 '`thermal-imu-calib fleet calibrate`')
+            rows = [{k: v or '' for k, v in r.items() if k is not None} for r in reader]
+    except (UnicodeDecodeError, csv.Error) as e:
+        raise ValueError(f'{path}: not a registry index ({type(e).__name__}: '
+                         f'{str(e)[:100]})') from None
+    rows = [dict({c: '' for c in BASE_COLUMNS}, **r) for r in rows]
     return sorted(rows, key=lambda r: (r['sensor'], r['time']))
 
 
-def add(registry, entries):
+def add(registry, entries, errors=None):
     """Save calibrations and update index.csv atomically.
 
     entries: (sensor, Calibration, time_ns, valid_from_ns, logs). A calibration of the
-    same sensor and time replaces the old one. Returns the written YAML paths.
+    same sensor and time replaces the old one. Returns the written YAML paths (None for an
+    entry that could not be written when ``errors`` is a list: ``(sensor, reason)`` is
+    appended there and the other entries are still written; else the error is raised).
     """
     rows = {(r['sensor'], r['time']): r for r in read_index(registry)}
     paths = []
     for sensor, cal, time_ns, valid_from_ns, logs in entries:
-        rel = os.path.join(sensor, iso(time_ns) + '.yaml')
-        paths.append(cal.save(os.path.join(registry, rel)))
+        try:
+            rel = os.path.join(key(sensor), iso(time_ns) + '.yaml')
+            paths.append(cal.save(os.path.join(registry, rel)))
+        except (OSError, ValueError) as e:
+            if errors is None:
+                raise
+            errors.append((sensor, str(e)))
+            paths.append(None)
+            continue
         row = index_row(sensor, cal, time_ns, valid_from_ns, rel, logs)
         rows[(row['sensor'], row['time'])] = row
     cols = list(BASE_COLUMNS)
@@ -142,19 +221,20 @@ def add(registry, entries):
     w.writeheader()
     for k in sorted(rows):
         w.writerow(rows[k])
-    _atomic_write(os.path.join(registry, INDEX), buf.getvalue())
+    write_atomic(os.path.join(registry, INDEX), buf.getvalue())
     return paths
 
 
 def calibrations(registry, sensor):
     """Return [(time_ns, path)] of one sensor's calibrations, oldest first (from the files)."""
-    d = os.path.join(registry, sensor)
     out = []
-    if os.path.isdir(d):
-        for name in os.listdir(d):
-            stem = os.path.splitext(name)[0]
+    for name in {key(sensor), _legacy_key(sensor)} - {None}:
+        d = os.path.join(registry, name)
+        if not os.path.isdir(d):
+            continue
+        for f in os.listdir(d):
             try:
-                out.append((parse_time(stem), os.path.join(d, name)))
+                out.append((parse_time(os.path.splitext(f)[0]), os.path.join(d, f)))
             except ValueError:
                 continue
     return sorted(out)
@@ -164,23 +244,26 @@ def valid_at(registry, sensor, t_ns=None):
     """Return the path of the calibration of ``sensor`` valid at ``t_ns`` (None: latest).
 
     Valid at t: the newest calibration whose data started at or before t (index
-    ``valid_from``); a log older than every calibration gets the oldest one. Raises
-    LookupError saying what is missing.
+    ``valid_from``); a log older than every calibration gets the oldest one. Only the
+    sensor's own rows are used (the id exactly as recorded, its file under its key).
+    Raises LookupError saying what is missing.
     """
     rows = [r for r in read_index(registry) if r['sensor'] == sensor]
+    rows = [dict(r, path=_row_file(registry, r)) for r in rows]
+    rows = [r for r in rows if r['path']]
     if not rows:
         files = calibrations(registry, sensor)
         if not files:
-            raise LookupError(f'no calibration of sensor {sensor!r} in {registry}; run '
-                              '`thermal-imu-calib fleet calibrate` on its logs first')
-        rows = [{'valid_from': iso(t), 'time': iso(t), 'file': os.path.relpath(p, registry)}
-                for t, p in files]
+            raise LookupError(f'no calibration of sensor {display_id(sensor)} in '
+                              f'{registry}; run `thermal-imu-calib fleet calibrate` on its logs '
+                              'first')
+        rows = [{'valid_from': iso(t), 'time': iso(t), 'path': p} for t, p in files]
     if t_ns is None:
         chosen = rows[-1]
     else:
         before = [r for r in rows if parse_time(r['valid_from']) <= t_ns]
         chosen = before[-1] if before else rows[0]
-    return os.path.join(registry, chosen['file'])
+    return chosen['path']
 
 
 def load_valid(registry, sensor, t_ns=None):

@@ -61,13 +61,18 @@ class UnitResult:
     warnings: list = field(default_factory=list)   # (path, warning) of its good logs
 
 
+#: longest reason shown on one FAILED line (a 10 kB frame_id must not make a 10 kB line)
+MAX_REASON = 400
+
+
 def _reason(e, path=None):
     from ..io.log_info import LogError
     msg = str(e).strip().replace('\n', ' ') or type(e).__name__
     if path is not None and msg.startswith(f'{path}: '):
         msg = msg[len(f'{path}: '):]      # the FAILED line names the path already
-    return msg if isinstance(e, (ValueError, OSError, LogError)) \
-        or 'Error' not in type(e).__name__ else f'{type(e).__name__}: {msg}'
+    if not (isinstance(e, (ValueError, OSError, LogError)) or 'Error' not in type(e).__name__):
+        msg = f'{type(e).__name__}: {msg}'
+    return msg if len(msg) <= MAX_REASON else msg[:MAX_REASON - 3] + '...'
 
 
 def collect_log(path, group, imu_topic=None, temperature_topics=None, detector=None,
@@ -126,27 +131,141 @@ def reduce_unit(sensor, reduce_fn, heads, *results):
     return out
 
 
+class FleetSetupError(ValueError):
+    """A worker count, scheduler address or cluster that cannot be used; one line."""
+
+
+#: seconds to reach a --scheduler and hear it answer as a Dask scheduler
+CONNECT_TIMEOUT_S = 10.0
+#: most LocalCluster worker processes accepted (per core: more only contend)
+MAX_WORKERS_PER_CORE = 8
+
+
+def check_workers(workers):
+    """Refuse a LocalCluster worker count that is not 1..8 per core (None: one per core)."""
+    if workers is None:
+        return
+    top = MAX_WORKERS_PER_CORE * (os.cpu_count() or 1)
+    if not 1 <= workers <= top:
+        raise FleetSetupError(f'--workers {workers}: give 1..{top} worker processes (this '
+                              f'machine has {os.cpu_count() or 1} cores; default: one per core)')
+
+
+def check_scheduler(address, timeout_s=CONNECT_TIMEOUT_S):
+    """Refuse a --scheduler that is not a Dask scheduler answering within ``timeout_s``.
+
+    One handshake and an ``identity`` request, bounded by ``timeout_s`` as a whole (an
+    HTTP port that never answers, or one whose answer reads as a huge frame, is refused in
+    one line, never a hang or a traceback).
+    """
+    import asyncio
+    from distributed.comm import connect
+    from distributed.comm.addressing import parse_address
+    try:
+        parse_address(address)
+    except (ValueError, TypeError) as e:
+        raise FleetSetupError(f'--scheduler {address!r}: not an address ({e}); give the '
+                              'scheduler\'s address, e.g. tcp://host:8786') from None
+
+    async def probe():
+        comm = await connect(address, timeout=timeout_s)
+        try:
+            await comm.write({'op': 'identity', 'reply': True})
+            return await comm.read()
+        finally:
+            comm.abort()
+    what = None
+    try:
+        reply = asyncio.run(asyncio.wait_for(probe(), timeout_s))
+    except (KeyboardInterrupt, SystemExit):
+        raise
+    except asyncio.TimeoutError:
+        what = f'nothing answered as a Dask scheduler within {timeout_s:g} s'
+    except BaseException as e:   # noqa: B902 - OSError, comm errors, MemoryError of garbage
+        what = f'{type(e).__name__}: {str(e).splitlines()[0][:200] if str(e) else "failed"}'
+    else:
+        if not (isinstance(reply, dict) and reply.get('type') == 'Scheduler'):
+            what = 'it answered, but not as a Dask scheduler'
+    if what:
+        raise FleetSetupError(f'--scheduler {address}: cannot use it ({what}); give the address '
+                              'of a running Dask scheduler (dask scheduler prints it, e.g. '
+                              'tcp://host:8786), or leave --scheduler out for a local cluster')
+
+
 @contextmanager
 def fleet_client(scheduler=None, workers=None, out=None):
     """Yield a ``distributed.Client``: on ``scheduler`` (an address) or a new LocalCluster.
 
     The LocalCluster has ``workers`` single-threaded worker processes (default: one per
     core) and its dashboard on a free port; the dashboard address is printed to ``out``.
+    Both are checked first (``check_workers``, ``check_scheduler``: FleetSetupError, one
+    line). The worker processes ignore SIGINT: Ctrl-C reaches this process only, which
+    closes the cluster quietly (``quiet_shutdown``), so it ends in one line.
     """
     from distributed import Client, LocalCluster
     out = sys.stderr if out is None else out
     if scheduler:
-        with Client(scheduler, timeout='30s') as client:
+        check_scheduler(scheduler)
+        with Client(scheduler, timeout=f'{CONNECT_TIMEOUT_S}s') as client, quiet_shutdown():
             print(f'dask: scheduler {scheduler}, {len(client.scheduler_info()["workers"])} '
                   f'workers, dashboard {client.dashboard_link}', file=out)
             yield client
         return
+    check_workers(workers)
     n = workers or os.cpu_count() or 1
-    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                      dashboard_address=':0') as cluster, Client(cluster) as client:
-        print(f'dask: LocalCluster of {n} worker processes, dashboard {client.dashboard_link}',
-              file=out)
+    try:
+        with _sigint_ignored():    # inherited by the worker processes started here
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                   dashboard_address=':0')
+    except Exception as e:   # noqa: B902 - any failure to start is one line
+        raise FleetSetupError(f'cannot start a local Dask cluster of {n} worker processes '
+                              f'({type(e).__name__}: {str(e)[:200]}); try fewer --workers '
+                              'or check the machine\'s memory and open-file limits') from None
+    with cluster, Client(cluster) as client, quiet_shutdown(cluster):
+        print(f'dask: LocalCluster of {n} worker processes, dashboard '
+              f'{client.dashboard_link}', file=out)
         yield client
+
+
+@contextmanager
+def _sigint_ignored():
+    import signal
+    try:
+        old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except ValueError:        # not the main thread: nothing to change
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
+
+
+@contextmanager
+def quiet_shutdown(cluster=None):
+    """On Ctrl-C/SIGTERM, stop the job without Dask's tracebacks and warnings.
+
+    Closing a cluster mid-job makes the scheduler, nannies, workers and client log every
+    cancelled task and lost connection; the user asked to stop, so only the CLI's one line
+    shows: this process's Dask loggers are silenced and the LocalCluster's worker processes
+    (``cluster``) are killed before the cluster is closed (their results are not wanted).
+    """
+    import logging
+    import signal
+    try:
+        yield
+    except KeyboardInterrupt:
+        for name in ('distributed', 'tornado', 'asyncio', 'bokeh'):
+            logging.getLogger(name).setLevel(logging.CRITICAL + 1)
+        for nanny in (getattr(cluster, 'workers', None) or {}).values():
+            pid = getattr(getattr(getattr(nanny, 'process', None), 'process', None), 'pid',
+                          None)
+            try:
+                if pid:
+                    os.kill(pid, signal.SIGKILL)
+            except OSError:
+                pass
+        raise
 
 
 def _progress(futures, enabled):

@@ -11,12 +11,14 @@ after the fleet epoch, with the IMU ``frame_id`` = unit id. Most units are stabl
 
 import csv
 import dataclasses
+import io
 import os
 
 import numpy as np
 
 from .. import sim
 from ..io.columns import TemperatureColumns
+from ..io.output import write_atomic
 
 FLEET_EPOCH_NS = 1_735_689_600 * 10 ** 9      # 2025-01-01T00:00:00Z
 SCENARIO = 'demo'
@@ -100,18 +102,18 @@ def write_log(out_dir, plan, k, design):
 def write_truth(out_dir, plans, design):
     """Write DIR/fleet_truth.csv: one row per unit (kind, drift, step, step log, axis)."""
     path = os.path.join(out_dir, 'fleet_truth.csv')
-    with open(path, 'w', newline='') as f:
-        w = csv.writer(f)
-        w.writerow(['unit', 'device_seed', 'kind', 'drift_mps2_per_30d', 'step_mps2',
-                    'step_scale', 'step_axis', 'step_log'])
-        for p in plans:
-            w.writerow([p['unit'], p['device_seed'], p['kind'],
-                        design.drift if p['kind'] == 'drifting' else 0.0,
-                        design.step if p['kind'] == 'step' else 0.0,
-                        design.step_scale if p['kind'] == 'step' else 0.0,
-                        p['axis'] if p['kind'] == 'step' else '',
-                        p['step_log'] if p['kind'] == 'step' else ''])
-    return path
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    w.writerow(['unit', 'device_seed', 'kind', 'drift_mps2_per_30d', 'step_mps2',
+                'step_scale', 'step_axis', 'step_log'])
+    for p in plans:
+        w.writerow([p['unit'], p['device_seed'], p['kind'],
+                    design.drift if p['kind'] == 'drifting' else 0.0,
+                    design.step if p['kind'] == 'step' else 0.0,
+                    design.step_scale if p['kind'] == 'step' else 0.0,
+                    p['axis'] if p['kind'] == 'step' else '',
+                    p['step_log'] if p['kind'] == 'step' else ''])
+    return write_atomic(path, buf.getvalue())
 
 
 def simulate_fleet(out_dir, design, client=None):

@@ -58,8 +58,11 @@ def read_calibration(path):
     Raises CalibrationError saying what the file is not.
     """
     path = os.fspath(path)
+    if os.path.isdir(path):
+        raise CalibrationError(f'{path!r} is a directory; pass the calibration file itself')
     if not os.path.isfile(path):
-        raise CalibrationError(f'{path!r} does not exist')
+        raise CalibrationError(f'{path!r} does not exist' if not os.path.lexists(path) else
+                               f'{path!r} is not a regular file; pass a calibration file')
     name = os.path.basename(path)
     try:
         if name.endswith(('_acc.calib', '_gyro.calib')):
@@ -88,6 +91,10 @@ def read_calibration(path):
             return kalibr.read(text, name)
         if isinstance(d, dict) and 'format' in d:
             return Calibration.from_dict(d, path)   # says which format it is not
+    except RecursionError:
+        raise CalibrationError(f'{path}: nested too deeply to be a calibration (JSON/YAML '
+                               'structures inside structures thousands deep); is it the right '
+                               'file?') from None
     except ValueError as e:
         if isinstance(e, CalibrationError):
             raise

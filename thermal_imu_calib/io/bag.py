@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
+import os
 from pathlib import Path
 
 import numpy as np
@@ -208,6 +209,67 @@ def _bulk_chunks(reader, chunker, batches, on_batch=None) -> Iterator[RawChunk]:
         raise LogError(f'{err}') from err
 
 
+def _check_name(p: Path) -> None:
+    """Refuse a path that is not UTF-8 text: the bag libraries cannot open it (not the data)."""
+    try:
+        str(p).encode('utf-8')
+    except UnicodeEncodeError as e:
+        bad = os.fsencode(str(p))[len(str(p)[:e.start].encode('utf-8', 'surrogateescape'))]
+        shown = str(p).encode('utf-8', 'surrogateescape').decode('utf-8', 'backslashreplace')
+        raise LogError(f'{shown}: the path is not UTF-8 text (byte 0x{bad:02x} at character '
+                       f'{e.start}), which the log readers cannot open; the data was not read: '
+                       'rename the file or directory to a UTF-8 name and try again') from None
+
+
+def _with_wal(p: Path) -> tuple[Path, str]:
+    """Return (path to read, note): a checkpointed private copy when a .db3 has a -wal part.
+
+    rosbags opens SQLite ``immutable``, which ignores the write-ahead log, so a .db3 whose
+    last messages are still in ``NAME.db3-wal`` (a recorder still running, or one that
+    stopped without a checkpoint) would be read without them. The log (a bare .db3 or the
+    whole bag directory) is copied with its WAL to a temporary directory, checkpointed
+    there with sqlite3, and read from the copy; the original is never written. A log whose
+    files change while they are copied is still being recorded: refused (LogError).
+    """
+    dbs = [p] if p.suffix == '.db3' else sorted(p.glob('*.db3')) if p.is_dir() else []
+    wals = [Path(f'{d}-wal') for d in dbs if Path(f'{d}-wal').is_file()
+            and Path(f'{d}-wal').stat().st_size > 0]
+    if not wals:
+        return p, ''
+    import shutil
+    import sqlite3
+    import tempfile
+
+    def state():
+        return [(f.stat().st_size, f.stat().st_mtime_ns) for f in dbs + wals]
+    before = state()
+    tmp = Path(tempfile.mkdtemp(prefix='thermal-imu-calib-wal-'))
+    try:
+        dst = tmp / p.name
+        if p.is_dir():
+            shutil.copytree(p, dst, ignore=shutil.ignore_patterns('*-shm'))
+        else:
+            for f in [p] + [w for w in wals]:
+                shutil.copy2(f, tmp / f.name)
+        if state() != before:
+            raise LogError(f'{p}: its SQLite files changed while being read: the log is still '
+                           'being recorded; wait until the recording has stopped, then try '
+                           'again')
+        for d in ([dst] if not p.is_dir() else sorted(dst.glob('*.db3'))):
+            con = sqlite3.connect(str(d))
+            try:
+                con.execute('PRAGMA wal_checkpoint(TRUNCATE)')
+            finally:
+                con.close()
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    size = sum(w.stat().st_size for w in wals)
+    names = ', '.join(w.name for w in wals)
+    return dst, (f'with {size} bytes of its SQLite write-ahead log ({names}: the recorder was '
+                 'still running or did not close the bag) included')
+
+
 def open_log(path) -> LogReader:
     """Open a rosbag2 directory, a bare ``.mcap`` or a bare ``.db3`` file for reading."""
     return LogReader(path)
@@ -221,6 +283,7 @@ class LogReader:
         p = Path(path).expanduser()
         if p.name == 'metadata.yaml' and p.is_file():
             p = p.parent
+        _check_name(p)
         if not p.exists():
             raise LogError(f'{p}: no such file or directory; pass a rosbag2 directory, a .mcap '
                            'or a .db3 file.')
@@ -241,8 +304,12 @@ class LogReader:
                            'files with `rosbags-convert`).')
         self.path = p
         self._scan_cache: LogInfo | None = None
+        self._wal_copy = None
+        read_path, wal = _with_wal(p)
+        if wal:
+            self._wal_copy = read_path
         try:
-            self._src = _RosbagsSource(p)
+            self._src = _RosbagsSource(read_path)
         except LogError:
             raise
         except Exception as err:  # rosbags raises ReaderError, KeyError, OSError, ...
@@ -251,20 +318,20 @@ class LogReader:
                 raise LogError(f'{p}: cannot read this {kind}: {err}; check that it is a '
                                'complete ROS 2 bag (try `ros2 bag info`).') from err
             try:
-                self._src = _McapLibSource(p)
+                self._src = _McapLibSource(read_path)
             except LogError:
                 raise
             except Exception as err2:
                 raise LogError(f'{p}: cannot read this MCAP file: {err}; {err2}; check that '
                                'it is a complete ROS 2 MCAP file (try `mcap info`).') from err2
-        self._src = _bulk_source(p, self._src)
+        self._src = _bulk_source(read_path, self._src)
         if kind == 'rosbag2 directory':
             try:
                 meta = yaml.safe_load((p / 'metadata.yaml').read_text())
                 kind += f" ({meta['rosbag2_bagfile_information']['storage_identifier']})"
             except Exception:  # rosbags already parsed it; this is only a label
                 pass
-        self.storage = kind
+        self.storage = kind + (f', {wal}' if wal else '')
 
     def __enter__(self) -> LogReader:
         return self
@@ -273,8 +340,14 @@ class LogReader:
         self.close()
 
     def close(self) -> None:
-        """Release the underlying files."""
-        self._src.close()
+        """Release the underlying files (and the checkpointed copy of a WAL log)."""
+        try:
+            self._src.close()
+        finally:
+            if self._wal_copy is not None:
+                import shutil
+                shutil.rmtree(os.path.dirname(self._wal_copy), ignore_errors=True)
+                self._wal_copy = None
 
     @property
     def message_count(self) -> int:
@@ -367,10 +440,11 @@ class LogReader:
         """
         chunker = _Chunker(self, imu_topic, temperature_topics, chunk_size, keep_raw)
         if hasattr(self._src, 'batches'):
-            yield from _bulk_chunks(self, chunker,
-                                    _guarded(self.path, self._src.batches(chunker.topics)))
+            yield from _named(self.path, _bulk_chunks(
+                self, chunker, _guarded(self.path, self._src.batches(chunker.topics))))
             return
-        yield from _chunked(chunker, _guarded(self.path, self._src.messages(chunker.topics)))
+        yield from _named(self.path, _chunked(
+            chunker, _guarded(self.path, self._src.messages(chunker.topics))))
 
     def info(self, topics: Iterable[str] | None = None) -> LogInfo:
         """Scan the log once and summarise it (counts, log times, header-stamp rates, degC).
@@ -390,8 +464,14 @@ class LogReader:
         try:
             for topic, _, t, raw in _guarded(self.path, self._src.messages(wanted)):
                 stats[topic].add(t, raw)
-            result = LogInfo(str(self.path), self.storage, self.message_count, self.start_ns,
-                             self.end_ns, {k: v.finish() for k, v in stats.items()})
+            topics = {k: v.finish() for k, v in stats.items()}
+            total = self.message_count
+            index = None
+            if wanted is None:      # every message was read: count them, not the index
+                read = sum(t.count for t in topics.values())
+                total, index = read, (total if read != total else None)
+            result = LogInfo(str(self.path), self.storage, total, self.start_ns,
+                             self.end_ns, topics, index)
         except LogError:
             raise
         except Exception as err:  # a damaged message body (CDR decode of stamps)
@@ -497,8 +577,8 @@ def copy_and_stream(reader: LogReader, writer: LogWriter, imu_topic: str,
 
         def copy_batch(batch):
             writer.copy_batch(batch.take(np.isin(batch.channel, ids)), cmap)
-        yield from _bulk_chunks(reader, chunker, _guarded(reader.path, src.batches(None)),
-                                copy_batch)
+        yield from _named(reader.path, _bulk_chunks(
+            reader, chunker, _guarded(reader.path, src.batches(None)), copy_batch))
         return
     write = writer.write
 
@@ -508,7 +588,8 @@ def copy_and_stream(reader: LogReader, writer: LogWriter, imu_topic: str,
                 write(msg[0], msg[2], msg[3])
             yield msg
 
-    yield from _chunked(chunker, copy(_guarded(reader.path, reader._src.messages(None))))
+    yield from _named(reader.path, _chunked(
+        chunker, copy(_guarded(reader.path, reader._src.messages(None)))))
 
 
 def _guarded(path, messages):
@@ -525,6 +606,17 @@ def _guarded(path, messages):
                        f'({err.__class__.__name__}: {str(err)[:200]}); recover what is '
                        'readable (`mcap recover` for MCAP, `ros2 bag reindex` for a bag) '
                        'and try again.') from err
+
+
+def _named(path, chunks):
+    """Yield from ``chunks``; a decoding error (ValueError, LogError) names the log file."""
+    try:
+        yield from chunks
+    except (ValueError, LogError) as err:
+        text = str(err)
+        if text.startswith(str(path)):
+            raise
+        raise LogError(f'{path}: {text}') from err
 
 
 def _chunked(chunker, messages):

@@ -103,14 +103,12 @@ class InputGate:
             r.imu_stamp_zero += int((imu.stamp_ns == 0).sum())
             # keep strictly increasing stamps only (duplicates and jumps back are dropped)
             st = imu.stamp_ns
-            prev = np.maximum.accumulate(np.concatenate(
-                [[np.iinfo(np.int64).min if self._last_ns is None else self._last_ns],
-                 np.where(ok, st, np.iinfo(np.int64).min)]))[:-1]
-            inc = st > prev
+            newest = [self._last_ns]
+            inc = increasing_rows(np.where(ok, st, np.iinfo(np.int64).min), newest)
             r.imu_stamp_not_increasing += int((ok & ~inc).sum())
             ok &= inc
             if ok.any():
-                self._last_ns = int(st[ok].max())
+                self._last_ns = newest[0]
                 r.imu_last_ns = self._last_ns
                 if r.imu_first_ns is None:
                     r.imu_first_ns = int(st[ok].min())
@@ -139,6 +137,23 @@ class InputGate:
                        imu_raw=None if raw.imu_raw is None else
                        [b for b, k in zip(raw.imu_raw, ok.tolist()) if k],
                        temps=temps)
+
+
+def increasing_rows(stamps, newest):
+    """Return the rows whose stamp is above every earlier one; ``newest`` = [ns or None].
+
+    ``newest[0]`` (the newest stamp before these rows) is updated. The rows after a jump
+    back, until the stamps pass the newest before it, are the span ``calibrate`` drops
+    (and refuses above 10 %) and ``compensate`` passes through uncompensated.
+    """
+    stamps = np.asarray(stamps, np.int64)
+    if not len(stamps):
+        return np.ones(0, bool)
+    low = np.iinfo(np.int64).min
+    prev = np.maximum.accumulate(np.concatenate([[low if newest[0] is None else newest[0]],
+                                                 stamps]))[:-1]
+    newest[0] = int(max(prev[-1], stamps[-1]))
+    return stamps > prev
 
 
 def thermal_problems(report, max_gap_s):

@@ -76,6 +76,8 @@ class LogInfo:
     start_ns: int | None
     end_ns: int | None
     topics: dict[str, TopicStats]
+    #: the index's (metadata.yaml's) total when it differs from the messages read
+    index_count: int | None = None
 
     @property
     def duration_s(self) -> float:
@@ -91,7 +93,9 @@ class LogInfo:
     def format(self) -> str:
         """Render a human-readable multi-line summary."""
         lines = [f'log:      {self.path} ({self.storage})',
-                 f'messages: {self.message_count}   duration: {self.duration_s:.3f} s']
+                 f'messages: {self.message_count}   duration: {self.duration_s:.3f} s'
+                 + (f'   (the index says {self.index_count}: it is out of date; the counts '
+                    'here are the messages read)' if self.index_count is not None else '')]
         width = max([len(n) for n in self.topics] + [5])
         for name, t in sorted(self.topics.items()):
             line = f'  {name:<{width}}  {t.msgtype:<30} {t.count:>9}'

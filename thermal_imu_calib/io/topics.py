@@ -18,9 +18,16 @@ def resolve_topics(reader, imu_topic, temperature_topics):
     types = reader.topic_types()
     if imu_topic is None:
         imus = [t for t, ty in types.items() if ty == IMU_MSGTYPE]
-        if len(imus) != 1:
+        if len(imus) > 1:
             raise LogError(f'{reader.path}: pass --imu-topic; Imu topics present: '
-                           f'{", ".join(imus) or "none"}')
+                           f'{", ".join(imus)}')
+        if not imus:
+            alike = [f'{t} [{ty}]' for t, ty in types.items() if ty.endswith('Imu')]
+            raise LogError(f'{reader.path}: no {IMU_MSGTYPE} topic' + (
+                f'; {", ".join(alike)} carries another schema name (a ROS 1 or renamed type): '
+                'convert the log to ROS 2 types (e.g. rosbags-convert)' if alike else
+                f'; topics present: {reader._describe_topics()}; pass --imu-topic naming '
+                'the IMU topic'))
         imu_topic = imus[0]
     reader.check_topics([imu_topic], IMU_MSGTYPE)
     if temperature_topics is None:

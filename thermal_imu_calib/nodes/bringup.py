@@ -9,14 +9,14 @@ Parameters for both come from the usual ``--ros-args`` (e.g. ``--params-file`` w
 sections ``thermal_imu_compensator`` and ``thermal_imu_calibrator``).
 """
 
-from . import common
+from . import process
 from .calibrator import CalibratorNode
 from .compensator import CompensatorNode
 
 
 def main(args=None):
     """Run both nodes until shutdown."""
-    common.run_nodes([CompensatorNode, CalibratorNode], args)
+    process.exit_process(process.run_nodes([CompensatorNode, CalibratorNode], args))
 
 
 if __name__ == '__main__':

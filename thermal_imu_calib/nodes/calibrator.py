@@ -33,12 +33,13 @@ import time
 import numpy as np
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 from sensor_msgs.msg import Imu
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from . import common
+from . import common, process
 from ..calibration import CalibrationError, TemperatureInput
 from ..estimation import calibrate as estimation
 from ..app import calibrate as app
@@ -50,9 +51,16 @@ from ..collection.stationary import DetectorConfig, DetectorSettingsError
 from ..gravity import resolve_gravity
 from ..io.align import StreamAligner
 from ..io.columns import ImuColumns, TemperatureColumns
+from ..io.output import CALIBRATION, Outputs, write_atomic
 from ..pipeline import Collected
 
 NODE_NAME = 'thermal_imu_calibrator'
+#: what ``_write`` says when calibration_file is empty (the node is set up not to write)
+NOT_CONFIGURED = 'not written (calibration_file is empty)'
+#: ~/calibrate requests queued (reliable, keep last 1000): none is dropped in a burst
+SERVICE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.VOLATILE)
 
 #: the defaults every calibrate path shares (app.calibrate.CalibrateSettings)
 DEFAULTS = CalibrateSettings()
@@ -204,7 +212,10 @@ class CalibratorNode(Node):
                                                           scalar_types))]
         self.create_timer(0.1, self._process, callback_group=data)
         services = ReentrantCallbackGroup()
-        self.create_service(Trigger, '~/calibrate', self._on_calibrate, callback_group=services)
+        # every call answered: a request queue deeper than the default 10 (a burst of calls
+        # while one estimates is each refused with the reason, never dropped unanswered)
+        self.create_service(Trigger, '~/calibrate', self._on_calibrate, callback_group=services,
+                            qos_profile=SERVICE_QOS)
         self.create_service(Trigger, '~/reset', self._on_reset, callback_group=services)
         self.create_service(Trigger, '~/save', self._on_save, callback_group=services)
         self.cal_pub = self.create_publisher(String, 'imu/calibration', common.CALIBRATION_QOS)
@@ -596,20 +607,37 @@ class CalibratorNode(Node):
             return False, f'failed: estimation error {e.__class__.__name__}: {e}'
         self._result = result
         ok, where = self._write(result.calibration)
+        text = f'{result.summary}; id {result.calibration.id}; {where}'
+        if not ok and where != NOT_CONFIGURED:
+            # success only when the file was written: the calibration is kept for ~/save
+            # and not handed to the compensator (it would be lost at the next restart)
+            return False, (f'{text}; not published: fix calibration_file, then call ~/save '
+                           '(or ~/calibrate again)')
         if ok and self.get_parameter('report').value:
             self._reporter.submit(self._report_file, result.calibration, windows)
         self.cal_pub.publish(String(data=result.calibration.to_yaml()))
-        return True, f'{result.summary}; id {result.calibration.id}; {where}'
+        return True, text
 
     def _write(self, cal):
+        """Write ``cal`` to calibration_file (checked by ``io.output``); returns (ok, text).
+
+        Refused: a directory, a special file, the prior or the collection file; an
+        unwritable directory fails. The previous file, whatever it holds, is kept as
+        ``.bak`` (so another kind of file is replaced, not lost). ``(False, NOT_CONFIGURED)``
+        when calibration_file is empty.
+        """
         path = os.path.expanduser(self.get_parameter('calibration_file').value)
         if not path:
-            return False, 'not written (calibration_file is empty)'
+            return False, NOT_CONFIGURED
         try:
+            inputs = [os.path.expanduser(self.get_parameter('prior_file').value),
+                      self._collection_path()]
+            Outputs(inputs, force=True).file(path, 'calibration_file', 'calibration file',
+                                             CALIBRATION)
             if os.path.exists(path):
                 _atomic_copy(path, path + '.bak')
             cal.save(path)
-        except OSError as e:
+        except (OSError, ValueError) as e:
             return False, f'NOT written to {path}: {e}'
         return True, f'written to {path}'
 
@@ -788,21 +816,14 @@ def _atomic_write(path, data):
 
 
 def _atomic_copy(src, dst):
-    d = os.path.dirname(os.path.abspath(dst))
-    fd, tmp = tempfile.mkstemp(prefix='.bak-', dir=d)
-    os.close(fd)
-    try:
-        shutil.copy2(src, tmp)
-        os.replace(tmp, dst)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    """Copy file ``src`` to ``dst`` through the output writer (temporary + rename)."""
+    with open(src, 'rb') as f:
+        write_atomic(dst, lambda out: shutil.copyfileobj(f, out))
 
 
 def main(args=None):
     """Run the calibrator node (estimation runs on a worker thread, data keeps flowing)."""
-    common.run_nodes([CalibratorNode], args)
+    process.exit_process(process.run_nodes([CalibratorNode], args))
 
 
 if __name__ == '__main__':

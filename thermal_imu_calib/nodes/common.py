@@ -361,31 +361,6 @@ class Diagnostics:
         self.pub.publish(arr)
 
 
-def run_nodes(factories, args=None):
-    """Create nodes from ``factories`` and spin them on one SingleThreadedExecutor.
-
-    The Jazzy idiom of ros2/demos: init, spin until Ctrl-C or external shutdown, then
-    destroy every node created and shut down. Why single-threaded: see ``drain``.
-    """
-    import rclpy
-    from rclpy.executors import ExternalShutdownException
-    rclpy.init(args=args)
-    nodes = []
-    try:
-        for make in factories:
-            nodes.append(make())
-        executor = SingleThreadedExecutor()
-        for node in nodes:
-            executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        for node in nodes:
-            node.destroy_node()
-        rclpy.try_shutdown()
-
-
 def topic_list(value):
     """Return a topic-list parameter as a list: [] (read as unset) and '' entries are none.
 

@@ -9,6 +9,12 @@ the nearest reading held) and publishes the ``Calibration.apply`` result on
 from ``calibration_file`` (at start and on ``~/reload``) or from the latched
 ``imu/calibration`` topic; a bad one is rejected with its reason and the previous one stays
 active, also when its input units differ from ``temperature_units``.
+
+With ``registry_dir`` every IMU unit (header frame_id) has its own model, looked up once
+(``units.RegistryUnits``); a unit without one passes through (or is dropped, per
+``passthrough_without_calibration``), counted in /diagnostics; a batch is compensated
+per unit (order kept within each unit). Loop guard (``units``): an output topic that is
+an input is refused at start, and this node's own messages coming back are dropped.
 """
 
 from dataclasses import dataclass
@@ -23,7 +29,7 @@ from sensor_msgs.msg import Imu
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from . import common
+from . import common, process, units
 from ..calibration import Calibration, CalibrationError
 from ..collection.outliers import ImuSpikeFilter
 from ..io.columns import AlignedChunk, ImuColumns
@@ -60,7 +66,8 @@ class CompensatorNode(Node):
             'Fleet registry (thermal-imu-calib fleet calibrate -o DIR); when set, '
             'calibration_file is ignored: the latest calibration of the IMU header frame_id '
             'is loaded at the first message of each frame_id and on ~/reload.', read_only=True)
-        self._registry_frame = None
+        self._unit_gates = {}             # registry mode: per unit despike state
+        self._sent = units.SentMessages()
         self.temperature_topics = common.topic_list(p.declare(
             'temperature_topics', ['imu/temperature'],
             'Empty ([] or [\'\']): no thermal input (a temperature-independent calibration). '
@@ -117,8 +124,10 @@ class CompensatorNode(Node):
                        'dropped': 0, 'invalid': 0, 'clamped': 0, 'temperature_held': 0,
                        'temperature_missing': 0, 'frame_mismatch': 0,
                        'calibrations_rejected': 0, 'calibrations_loaded': 0,
-                       'input_lost': 0}
+                       'input_lost': 0, 'uncalibrated_unit': 0, 'own_messages_dropped': 0}
         self.last_rejection = ''
+        self.units = (units.RegistryUnits(self.registry_dir, self._model, self.counts,
+                                          self.get_logger()) if self.registry_dir else None)
         self._last_stamp_ns = None
         self._rate = common.RateMeter()
         self._warned = set()
@@ -128,12 +137,15 @@ class CompensatorNode(Node):
         self.imu_sub = self.create_subscription(
             Imu, 'imu/data_raw', self._on_imu, common.sensor_qos(in_depth),
             event_callbacks=SubscriptionEventCallbacks(message_lost=self._on_lost))
+
         self._temp_fields = [value for _, value in scalar_types]
         self.temp_subs = [
             self.create_subscription(cls, topic, self._temperature_cb(i, value),
                                      common.sensor_qos(in_depth))
             for i, (topic, (cls, value)) in enumerate(zip(self.temperature_topics,
                                                           scalar_types))]
+        units.refuse_loop(self.pub.topic_name, [s.topic_name for s in [self.imu_sub]
+                                                + self.temp_subs])
         self.cal_sub = self.create_subscription(String, 'imu/calibration', self._on_calibration,
                                                 common.CALIBRATION_QOS)
         self.reload_srv = self.create_service(Trigger, '~/reload', self._on_reload)
@@ -159,24 +171,23 @@ class CompensatorNode(Node):
 
         Returns (ok, message). On failure the previous calibration stays active.
         """
-        columns, reason = common.match_topics(self, cal.temperature_topics,
-                                              self.temperature_topics)
-        if reason:
-            return self._reject(source, reason)
-        reason = self._unit_mismatch(cal, columns)
-        if reason:
-            return self._reject(source, reason)
-        reason = _probe(cal)
+        model, reason = self._model(cal, source)
         if reason:
             return self._reject(source, reason)
         # one reference swap: a message is compensated entirely with the old or the new model
-        self._active = ActiveModel(cal, tuple(columns), cal.id, source, time.time(),
-                                   CalibrationStream(cal))
+        self._active = model
         self.counts['calibrations_loaded'] += 1
-        return True, (f'calibration {cal.id} active from {source}: accel '
-                      f'{cal.accel.kind if cal.accel else "none"}, gyro '
-                      f'{cal.gyro.kind if cal.gyro else "none"}, inputs '
-                      f'{cal.temperature_topics or "none"}')
+        return True, units.active_text(model)
+
+    def _model(self, cal, source):
+        """Return (ActiveModel, None) if this node can serve ``cal``'s inputs, else (None, why)."""
+        columns, reason = common.match_topics(self, cal.temperature_topics,
+                                              self.temperature_topics)
+        reason = reason or self._unit_mismatch(cal, columns) or _probe(cal)
+        if reason:
+            return None, reason
+        return ActiveModel(cal, tuple(columns), cal.id, source, time.time(),
+                           CalibrationStream(cal)), None
 
     def _unit_mismatch(self, cal, columns):
         """Return why the calibration's input units differ from ``temperature_units``, or None."""
@@ -197,9 +208,12 @@ class CompensatorNode(Node):
         return False, f'rejected calibration from {source}: {reason}{keep}'
 
     def load_file(self):
-        """(Re)load ``calibration_file`` (or from ``registry_dir``); returns (ok, message)."""
+        """(Re)load ``calibration_file`` (or every known unit from ``registry_dir``).
+
+        Returns (ok, message).
+        """
         if self.registry_dir:
-            return self._load_registry()
+            return self.units.reload()
         path = os.path.expanduser(self.get_parameter('calibration_file').value)
         if not path:
             return self._reject('calibration_file', 'the parameter is empty')
@@ -211,20 +225,6 @@ class CompensatorNode(Node):
             return self._reject(path, f'unreadable ({e.__class__.__name__}: {e})')
         return self.activate(cal, path)
 
-    def _load_registry(self):
-        """Load the latest calibration of the last seen frame_id from ``registry_dir``."""
-        from ..fleet.registry import valid_at
-        from ..fleet.inputs import safe_id
-        if self._registry_frame is None:
-            return False, 'registry_dir: no IMU message yet (its frame_id picks the unit)'
-        root = os.path.expanduser(self.registry_dir)
-        try:
-            path = valid_at(root, safe_id(self._registry_frame))
-            cal = Calibration.load(path)
-        except (LookupError, CalibrationError, OSError) as e:
-            return self._reject(f'registry {root}', str(e))
-        return self.activate(cal, path)
-
     def _on_reload(self, request, response):
         response.success, response.message = self.load_file()
         common.log(self, response.success, response.message)
@@ -232,6 +232,10 @@ class CompensatorNode(Node):
 
     def _on_calibration(self, msg):
         active = self._active
+        if self.registry_dir:
+            common.log(self, *self._reject('imu/calibration', 'registry_dir is set: each unit '
+                                           'takes its calibration from the registry'))
+            return
         try:
             cal = Calibration.from_yaml(msg.data, 'imu/calibration')
             if active is not None and cal.id == active.id:
@@ -294,37 +298,61 @@ class CompensatorNode(Node):
         self.counts['input_lost'] += info.total_count_change
 
     def _on_imu(self, msg):
-        if self.registry_dir and msg.header.frame_id != self._registry_frame:
-            self._registry_frame = msg.header.frame_id
-            common.log(self, *self.load_file(), failure='warning')
         msgs = [msg]
         msgs.extend(common.drain(self.imu_sub, self.batch_limit - 1, self))
         later = self._take_queued_temperatures(msgs)
         try:
-            self._compensate(msgs)
+            if not self.registry_dir:
+                self._compensate(msgs, self._active)
+            else:
+                units = {}
+                for m in msgs:     # one model per unit: a batch may hold several units
+                    units.setdefault(m.header.frame_id, []).append(m)
+                for frame, group in units.items():
+                    model = self.units.model(frame)
+                    if model is None:
+                        self.counts['uncalibrated_unit'] += len(group)
+                    else:
+                        self._active = model
+                    self._compensate(group, model, frame)
         finally:
             for i, taken in enumerate(later):
                 self._add_temperatures(i, self._temp_fields[i], taken)
 
-    def _compensate(self, msgs):
-        if self._gate is None:
-            self.process(msgs)
+    def _compensate(self, msgs, active, unit=None):
+        msgs = self._drop_own(msgs)
+        if not msgs:
+            return
+        gate = (self._unit_gates.setdefault(unit, ImuSpikeFilter())   # one per unit
+                if self._gate is not None and self.registry_dir else self._gate)
+        if gate is None:
+            self.process(msgs, active=active)
             return
         stamps, accel, gyro = common.imu_to_arrays(msgs)
         obj = np.empty(len(msgs), object)
         obj[:] = msgs
-        out = self._gate.push(AlignedChunk(ImuColumns(stamps, accel, gyro), np.zeros((
+        out = gate.push(AlignedChunk(ImuColumns(stamps, accel, gyro), np.zeros((
             len(msgs), 0)), np.zeros((len(msgs), 0)), {'msg': obj}))
         if len(out):
             self.process(list(out.extra['msg']), (out.imu.stamp_ns, out.imu.accel,
-                                                  out.imu.gyro))
+                                                  out.imu.gyro), active=active)
 
-    def process(self, msgs, arrays=None):
+    def _drop_own(self, msgs):
+        keep, own = self._sent.drop_own(msgs)    # the loop guard: never compensated twice
+        if own:
+            self.counts['own_messages_dropped'] += own
+            self._warn_once('own', 'received messages this node published (output routed '
+                                   'back to its input): dropped (own_messages_dropped)')
+        return keep
+
+    def process(self, msgs, arrays=None, active=False):
         """Compensate and publish a batch of Imu messages (in arrival order).
 
-        ``arrays`` = (stamps, accel, gyro) replaces the messages' own values (despiked).
+        ``arrays`` = (stamps, accel, gyro) replaces the messages' own values (despiked);
+        ``active`` is the model to use (default: the active calibration).
         """
-        active = self._active  # read once: the whole batch uses one model
+        if active is False:
+            active = self._active  # read once: the whole batch uses one model
         c = self.counts
         n = len(msgs)
         c['received'] += n
@@ -393,6 +421,7 @@ class CompensatorNode(Node):
         for m, s in zip(msgs, send.tolist()):
             if s:
                 self.pub.publish(m)
+                self._sent.add(m)
                 count += 1
         self.counts['published'] += count
         return count
@@ -424,7 +453,14 @@ class CompensatorNode(Node):
             values['spikes_replaced'] = self._gate.counts()['rejected_total']
         values['last_rejection'] = self.last_rejection
         level, msg = common.OK, 'compensating'
-        if active is None:
+        if self.units is not None:
+            values.update(self.units.diagnostics())
+            values['last_rejection'] = self.units.last_rejection or self.last_rejection
+        if self.units is not None and values['units_without_calibration']:
+            level = common.WARN
+            msg = (f'{values["units_without_calibration"]} unit(s) without calibration passed '
+                   f'through: {self.units.uncalibrated_text()}')
+        elif active is None:
             level = common.WARN
             msg = ('no calibration loaded: passing through' if self.passthrough_uncalibrated
                    else 'no calibration loaded: dropping all samples')
@@ -457,7 +493,7 @@ def _probe(cal):
 
 def main(args=None):
     """Run the compensator node."""
-    common.run_nodes([CompensatorNode], args)
+    process.exit_process(process.run_nodes([CompensatorNode], args))
 
 
 if __name__ == '__main__':

@@ -4,6 +4,7 @@ import os
 import sys
 
 from ..calibration import Calibration
+from ..io.output import containing, HTML, Outputs, PNG, write_atomic
 
 
 def add_report_args(p):
@@ -16,16 +17,46 @@ def add_report_args(p):
     p.add_argument('--imu-topic', default=None)
     p.add_argument('--html', metavar='OUT.html', help='write a self-contained HTML report')
     p.add_argument('--png-dir', metavar='DIR', help='write the report figures as PNG files')
+    _add_force(p)
+
+
+def _add_force(p):
+    p.add_argument('--force', action='store_true',
+                   help='replace an existing output that is not of its kind (never an input, '
+                        'never a special file)')
+
+
+def _outputs(args, inputs, html):
+    """Check --html/--png-dir (and -o) before anything is computed; returns the Outputs."""
+    out = Outputs(inputs, args.force)
+    if getattr(args, 'output', None):
+        out.file(args.output, '-o', 'Kalibr imu.yaml', containing(b'accelerometer_noise_density'))
+    if html:
+        out.file(html, '--html', 'HTML page', HTML)
+    if args.png_dir:
+        out.directory(args.png_dir, '--png-dir', 'PNG figures')
+    return out
+
+
+def _write_page(page, out, html, png_dir):
+    """Check the PNG files of ``page`` (known once built), then write; returns the paths."""
+    if png_dir:
+        for p in page.png_paths(png_dir):
+            out.file(p, '--png-dir', 'PNG image', PNG)
+    return page.write(html, png_dir)
 
 
 def cmd_report(args, format_calibration, user_error):
     """Run ``report``: text as before, plus the HTML page / PNG figures when asked."""
+    out = _outputs(args, [args.calibration, args.windows] + list(args.log), args.html)
     cal = Calibration.load(args.calibration)
     if not (args.html or args.png_dir):
         print(format_calibration(cal))
         return 0
     windows, series, source = load_windows(args, cal, user_error)
-    paths = write_report(cal, args.html, args.png_dir, windows, series, source)
+    from .build import calibration_page
+    paths = _write_page(calibration_page(cal, windows, series, source), out, args.html,
+                        args.png_dir)
     pngs = [p for p in paths if p.endswith('.png')]
     print('wrote ' + ', '.join(([args.html] if args.html else [])
                                + ([f'{len(pngs)} PNG files in {args.png_dir}'] if pngs else [])))
@@ -71,12 +102,6 @@ def _series(path, topics):
              np.concatenate(parts[t][1]) if parts[t][1] else np.zeros(0)) for t in topics]
 
 
-def write_report(cal, html_path=None, png_dir=None, windows=None, series=None, source=''):
-    """Build the calibration report and write it; returns the paths written."""
-    from .build import calibration_page
-    return calibration_page(cal, windows, series, source).write(html_path, png_dir)
-
-
 def add_noise_parser(sub):
     """Register the ``noise`` subcommand."""
     p = sub.add_parser('noise', help='Allan-deviation noise model (N, K, B) from still data; '
@@ -89,28 +114,24 @@ def add_noise_parser(sub):
                    help='write an HTML page with the Allan plots (default name: '
                         'LOG.noise.html)')
     p.add_argument('--png-dir', metavar='DIR', help='write the Allan plots as PNG files')
+    _add_force(p)
     return p
 
 
 def cmd_noise(args, user_error):
     """Run ``noise``."""
     from ..noise import format_noise, kalibr_yaml, noise_from_log
-    if (args.output and os.path.exists(args.output)
-            and os.path.samefile(args.output, args.input)):
-        raise user_error('-o would overwrite the input log; choose another file')
+    html = None
+    if args.html is not None:
+        html = args.html or os.path.normpath(args.input) + '.noise.html'
+    out = _outputs(args, [args.input], html)    # before the (long) Allan computation
     topic, result = noise_from_log(args.input, args.imu_topic)
     print(format_noise(result, topic))
     if args.output:
-        tmp = args.output + '.tmp'
-        with open(tmp, 'w') as f:
-            f.write(kalibr_yaml(result, topic))
-        os.replace(tmp, args.output)
+        write_atomic(args.output, kalibr_yaml(result, topic))
         print(f'wrote {args.output} (Kalibr imu.yaml, worst axis)', file=sys.stderr)
-    if args.html is not None or args.png_dir:
+    if html or args.png_dir:
         from .build import noise_page
-        html = None
-        if args.html is not None:
-            html = args.html or os.path.normpath(args.input) + '.noise.html'
-        for p in noise_page(result, topic, args.input).write(html, args.png_dir):
+        for p in _write_page(noise_page(result, topic, args.input), out, html, args.png_dir):
             print(f'wrote {p}', file=sys.stderr)
     return 0

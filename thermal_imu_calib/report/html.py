@@ -5,6 +5,8 @@ import html
 import io
 import os
 
+from ..io.output import write_atomic
+
 CSS = """
 body{font-family:DejaVu Sans,Arial,sans-serif;margin:24px auto;max-width:1100px;color:#222}
 h1{font-size:22px;border-bottom:2px solid #446;padding-bottom:4px}
@@ -71,22 +73,19 @@ class Page:
                 f'<h1>{html.escape(self.title)}</h1>\n' + '\n'.join(self.parts)
                 + '\n</body></html>\n')
 
+    def png_paths(self, png_dir):
+        """Return the PNG files ``write`` would write into ``png_dir``."""
+        return [os.path.join(png_dir, name + '.png') for name, _ in self.figures]
+
     def write(self, html_path=None, png_dir=None):
-        """Write the page and/or the figures; returns the paths written."""
+        """Write the page and/or the figures (each atomically); returns the paths written."""
         out = []
         if html_path:
-            d = os.path.dirname(os.path.abspath(html_path))
-            os.makedirs(d, exist_ok=True)
-            tmp = html_path + '.tmp'
-            with open(tmp, 'w') as f:
-                f.write(self.render())
-            os.replace(tmp, html_path)
+            write_atomic(html_path, self.render())
             out.append(html_path)
         if png_dir:
             os.makedirs(png_dir, exist_ok=True)
-            for name, data in self.figures:
-                p = os.path.join(png_dir, name + '.png')
-                with open(p, 'wb') as f:
-                    f.write(data)
+            for (_, data), p in zip(self.figures, self.png_paths(png_dir)):
+                write_atomic(p, data)
                 out.append(p)
         return out

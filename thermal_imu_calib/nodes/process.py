@@ -1,0 +1,192 @@
+"""How a node process starts and ends: one line on a bad start, exit 0 on SIGINT/SIGTERM.
+
+``run_nodes`` is what every node executable's ``main`` runs (see its docstring for what a
+user gets); the helpers warn about parameters given but never declared and about keys given
+twice in a params file.
+"""
+
+import sys
+
+from rclpy.executors import SingleThreadedExecutor
+
+
+def run_nodes(factories, args=None):
+    """Create nodes from ``factories`` and spin them on one SingleThreadedExecutor.
+
+    The Jazzy idiom of ros2/demos: init, spin until Ctrl-C or external shutdown, then
+    destroy every node created and shut down. Why single-threaded: see ``common.drain``. What a
+    user gets (exit status 0 on SIGINT/SIGTERM, 2 on a bad start):
+
+    * a parameter that cannot be used, or any other failure to start, is one line on
+      stderr and exit status 2 (``THERMAL_IMU_CALIB_DEBUG=1`` shows the traceback);
+    * a parameter given for the node (params file or command line) that it does not have,
+      and a key given twice in a params file, are warned about by name;
+    * SIGINT or SIGTERM while data flows ends with exit status 0 and no traceback: rclpy
+      shuts the context down, and a callback caught mid-publish by that (``RCLError:
+      publisher's context is invalid``) is the shutdown, not a failure.
+    Returns the exit status (0 or 2); ``main`` passes it to ``sys.exit``.
+    """
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+    nodes = []
+    argv = sys.argv if args is None else args
+    signalled = _note_signals()     # no KeyboardInterrupt anywhere: rclpy's handler (which
+    try:                            # chains to this one) shuts the context down instead
+        rclpy.init(args=args)
+    except Exception as e:  # noqa: B902 - e.g. a params file that does not parse
+        return _start_failed(_factory_name(factories[0]), e)
+    try:
+        try:
+            for make in factories:
+                if signalled or not rclpy.ok():
+                    return 0        # stopped while starting
+                nodes.append(make())
+        except Exception as e:  # noqa: B902 - bad parameters and the like: one line
+            if signalled or not rclpy.ok():
+                return 0            # stopped while starting
+            return _start_failed(_factory_name(make), e)
+        if signalled:
+            return 0
+        for path, text in duplicate_keys(params_files(argv)):
+            nodes[0].get_logger().warning(f'params file {path}: {text}')
+        for node in nodes:
+            warn_unknown_parameters(node)
+        executor = SingleThreadedExecutor()
+        for node in nodes:
+            executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except Exception:  # noqa: B902 - re-raised unless it is the shutdown itself
+        if rclpy.ok():
+            raise
+    finally:
+        _ignore_signals()          # a second Ctrl-C must not interrupt the cleanup
+        for node in nodes:
+            try:
+                node.destroy_node()
+            except Exception:  # noqa: B902 - best effort on the way out
+                pass
+        rclpy.try_shutdown()
+    return 0
+
+
+def _factory_name(make):
+    return getattr(sys.modules.get(getattr(make, '__module__', '')), 'NODE_NAME',
+                   getattr(make, '__name__', 'node'))
+
+
+def _start_failed(name, err):
+    """Print why a node could not start, in one line; return exit status 2."""
+    import os
+    if os.environ.get('THERMAL_IMU_CALIB_DEBUG'):
+        import traceback
+        traceback.print_exception(err)
+    text = ' '.join(str(err).split()) or type(err).__name__
+    if type(err).__name__ not in ('ValueError',) and not text.startswith('parameter'):
+        text = f'{type(err).__name__}: {text}'
+    print(f'{name}: error: {text[:1000]}; fix the parameter (or argument) and start again',
+          file=sys.stderr)
+    return 2
+
+
+def _note_signals():
+    """Make SIGINT and SIGTERM only recorded (returned list), never raised; main thread only."""
+    import signal
+    got = []
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        try:
+            signal.signal(sig, lambda signum, frame: got.append(signum))
+        except (ValueError, OSError):     # not the main thread
+            pass
+    return got
+
+
+def _ignore_signals():
+    import signal
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        try:
+            signal.signal(sig, signal.SIG_IGN)
+        except (ValueError, OSError):     # not the main thread
+            pass
+
+
+def warn_unknown_parameters(node):
+    """Warn, by name, about parameters given for ``node`` that it does not declare.
+
+    rclpy silently ignores them (a misspelled ``temperature_timout`` in a params file would
+    otherwise leave the default in place unnoticed); the closest declared name is offered.
+    """
+    import difflib
+    declared = set(node._parameters)
+    unknown = sorted(n for n in getattr(node, '_parameter_overrides', {})
+                     if n not in declared and not n.startswith('qos_overrides.'))
+    for name in unknown:
+        close = difflib.get_close_matches(name, sorted(declared), 1)
+        node.get_logger().warning(
+            f'parameter {name!r} is not a parameter of {node.get_name()}: ignored'
+            + (f' (did you mean {close[0]!r}?)' if close else
+               f'; its parameters: {", ".join(sorted(declared))}'))
+    return unknown
+
+
+def params_files(argv):
+    """Return the ``--params-file`` paths of a ROS command line (after ``--ros-args``)."""
+    out, ros = [], False
+    argv = list(argv or [])
+    for i, a in enumerate(argv):
+        if a == '--ros-args':
+            ros = True
+        elif a == '--':
+            ros = False
+        elif ros and a == '--params-file' and i + 1 < len(argv):
+            out.append(argv[i + 1])
+    return out
+
+
+def duplicate_keys(paths):
+    """Yield (path, text) for every mapping key given twice in the YAML files ``paths``.
+
+    rcl keeps one of the two silently; a duplicated node section or parameter is almost
+    always an edit gone wrong. Unreadable files are skipped (rcl reports them).
+    """
+    import yaml
+    for path in paths:
+        try:
+            with open(path, encoding='utf-8') as f:
+                root = yaml.compose(f, Loader=yaml.SafeLoader)
+        except (OSError, UnicodeDecodeError, yaml.YAMLError):
+            continue
+        stack = [(root, '')]
+        while stack:
+            node, where = stack.pop()
+            if isinstance(node, yaml.MappingNode):
+                seen = {}
+                for k, v in node.value:
+                    name = k.value if isinstance(k, yaml.ScalarNode) else str(k.value)
+                    full = f'{where}.{name}' if where else name
+                    if name in seen:
+                        yield path, (f'key {full!r} is given twice (lines {seen[name]} and '
+                                     f'{k.start_mark.line + 1}); one of them is ignored: '
+                                     'keep one')
+                    seen.setdefault(name, k.start_mark.line + 1)
+                    stack.append((v, full))
+            elif isinstance(node, yaml.SequenceNode):
+                stack.extend((v, where) for v in node.value)
+
+
+def exit_process(code):
+    """End the process with ``code`` after ``run_nodes``, without waiting for worker threads.
+
+    An estimation still running on the calibrator's worker thread (or a report child) is
+    abandoned, not awaited: Python would otherwise join the thread at exit, so a SIGTERM
+    during ~/calibrate would hang until the estimation ended. Its outputs are written
+    atomically, so nothing half-written is left at a final name.
+    """
+    import os
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(code)
