@@ -25,7 +25,7 @@ class _Context:
         self.launch_configurations = dict(values)
 
 
-def _stand_ins():
+def stand_ins():
     """Return sys.modules entries for launch, launch.actions, launch.substitutions, launch_ros."""
     launch = types.ModuleType('launch')
     actions = types.ModuleType('launch.actions')
@@ -56,7 +56,11 @@ def _stand_ins():
         def __init__(self, **kwargs):
             self.kwargs = kwargs
 
-    launch.LaunchDescription = LaunchDescription
+    class LaunchContext(_Context):
+        def __init__(self):
+            super().__init__({})
+
+    launch.LaunchDescription, launch.LaunchContext = LaunchDescription, LaunchContext
     actions.DeclareLaunchArgument, actions.OpaqueFunction = DeclareLaunchArgument, OpaqueFunction
     subs.LaunchConfiguration = LaunchConfiguration
     ros_actions.Node = Node
@@ -67,8 +71,8 @@ def _stand_ins():
 
 def resolve(**given):
     """Return the Node keyword arguments the launch file makes for ``name=value`` arguments."""
-    saved = {k: sys.modules.get(k) for k in _stand_ins()}
-    sys.modules.update(_stand_ins())
+    saved = {k: sys.modules.get(k) for k in stand_ins()}
+    sys.modules.update(stand_ins())
     try:
         spec = importlib.util.spec_from_file_location('thermal_imu_calib_launch_bench', LAUNCH)
         mod = importlib.util.module_from_spec(spec)

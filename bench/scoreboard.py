@@ -175,6 +175,20 @@ def _live_dict(r):
             'command': ' '.join(shlex.quote(c) for c in r.command)}
 
 
+def _live_scored(r, rec, imu, temps, g, offline_yaml, drift=True):
+    """Return (the live run's dict with its summary and scores, comparison with offline)."""
+    out = _live_dict(r)
+    if not r.calibration_text:
+        return out, None
+    out.update(summary_of(r.calibration_text))
+    a = calibrated_accel(r.calibration_text, imu, temps)
+    s = interval_score(a, rec.intervals, g)
+    out['score_ug'] = {'rms': s[0], 'max': s[1]}
+    if drift and rec.kind == 'single':
+        out['drift_rms'] = drift_rms(imu.t, a)
+    return out, (compare(offline_yaml, r.calibration_text) if offline_yaml else None)
+
+
 def run_row(rec, work, domain_id, live=True):
     """Return the JSON record of one recording."""
     row = {'recording': rec.name, 'log': rec.log, 'kind': rec.kind, 'gravity': rec.gravity,
@@ -233,27 +247,15 @@ def run_row(rec, work, domain_id, live=True):
         return row
     r = live_run(rec, imu, temps, work, 'log', domain_id,
                  None if rec.temperature_topic else '[]')
-    row['live'] = _live_dict(r)
-    if r.calibration_text:
-        row['live'].update(summary_of(r.calibration_text))
-        a = calibrated_accel(r.calibration_text, imu, temps)
-        s = interval_score(a, rec.intervals, g)
-        row['live']['score_ug'] = {'rms': s[0], 'max': s[1]}
-        if rec.kind == 'single':
-            row['live']['drift_rms'] = drift_rms(imu.t, a)
-        if off['yaml']:
-            row['live_vs_offline'] = compare(off['yaml'], r.calibration_text)
+    row['live'], cmp = _live_scored(r, rec, imu, temps, g, off['yaml'])
+    if cmp is not None:
+        row['live_vs_offline'] = cmp
     if flat_off is not None:
         fimu, ft = rr.read_log(rr.write_flat(rec, work), rec.imu_topic, rr.TEMP_TOPIC)
         r2 = live_run(rec, fimu, ft, work, 'flatT', domain_id)
-        row['live_flat'] = _live_dict(r2)
-        if r2.calibration_text:
-            row['live_flat'].update(summary_of(r2.calibration_text))
-            a = calibrated_accel(r2.calibration_text, fimu, ft)
-            s = interval_score(a, rec.intervals, g)
-            row['live_flat']['score_ug'] = {'rms': s[0], 'max': s[1]}
-            if flat_off['yaml']:
-                row['live_flat_vs_offline'] = compare(flat_off['yaml'], r2.calibration_text)
+        row['live_flat'], cmp = _live_scored(r2, rec, fimu, ft, g, flat_off['yaml'], False)
+        if cmp is not None:
+            row['live_flat_vs_offline'] = cmp
     return row
 
 

@@ -9,70 +9,31 @@ OpaqueFunction and LaunchConfiguration are then the real ones.
 import importlib.util
 import os
 import sys
-import types
 
 import pytest
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+                                'bench'))
+from launch_nodes import stand_ins  # noqa: E402
 
 LAUNCH = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'launch',
                       'thermal_imu_calib.launch.py')
 
 
-class _Recorded:
-    def __init__(self, **kwargs):
-        self.kwargs = kwargs
-
-
-def _fake_launch():
-    launch = types.ModuleType('launch')
-    actions = types.ModuleType('launch.actions')
-    subs = types.ModuleType('launch.substitutions')
-
-    class LaunchDescription:
-        def __init__(self, entities):
-            self.entities = list(entities)
-
-    class DeclareLaunchArgument:
-        def __init__(self, name, default_value='', description=''):
-            self.name, self.default_value, self.description = name, default_value, description
-
-    class OpaqueFunction:
-        def __init__(self, function):
-            self.function = function
-
-    class LaunchConfiguration:
-        def __init__(self, name):
-            self.name = name
-
-        def perform(self, context):
-            return context.launch_configurations[self.name]
-
-    class LaunchContext:
-        def __init__(self):
-            self.launch_configurations = {}
-    launch.LaunchDescription, launch.LaunchContext = LaunchDescription, LaunchContext
-    actions.DeclareLaunchArgument, actions.OpaqueFunction = DeclareLaunchArgument, OpaqueFunction
-    subs.LaunchConfiguration = LaunchConfiguration
-    launch.actions, launch.substitutions = actions, subs
-    return {'launch': launch, 'launch.actions': actions, 'launch.substitutions': subs}
-
-
 @pytest.fixture
 def launch_module(monkeypatch):
-    """Import the launch file with a recording launch_ros.actions.Node."""
-    ros = types.ModuleType('launch_ros')
-    ros_actions = types.ModuleType('launch_ros.actions')
-    ros_actions.Node = _Recorded
-    ros.actions = ros_actions
-    monkeypatch.setitem(sys.modules, 'launch_ros', ros)
-    monkeypatch.setitem(sys.modules, 'launch_ros.actions', ros_actions)
+    """Import the launch file with a recording launch_ros.actions.Node (bench/launch_nodes)."""
+    fakes = stand_ins()
+    for name in ('launch_ros', 'launch_ros.actions'):
+        monkeypatch.setitem(sys.modules, name, fakes[name])
     try:
         import launch
         real = hasattr(launch, 'LaunchDescription')   # not the repository's launch/ folder
     except ImportError:
         real = False
     if not real:
-        for name, mod in _fake_launch().items():
-            monkeypatch.setitem(sys.modules, name, mod)
+        for name in ('launch', 'launch.actions', 'launch.substitutions'):
+            monkeypatch.setitem(sys.modules, name, fakes[name])
     spec = importlib.util.spec_from_file_location('thermal_imu_calib_launch', LAUNCH)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
