@@ -21,8 +21,12 @@ BENCHES = [
     ('bench_mems.py', []),
     ('bench_real_data.py', []),
     ('bench_thermal.py', []),
+    ('bench_chamber.py', []),
     ('bench_proxy.py', []),
+    ('scoreboard.py', []),     # every shared real recording, offline and live (~17 min)
 ]
+#: scripts that name their outputs by a base path instead of --json FILE
+OUT_BASE = {'scoreboard.py'}
 
 
 def main():
@@ -37,8 +41,9 @@ def main():
             continue
         print(f'\n## {name}\n', flush=True)
         t0 = time.perf_counter()
-        r = subprocess.run([sys.executable, path, *extra, '--json',
-                            os.path.join(RESULTS, f'{name}.json')])
+        out = (['--out', os.path.join(RESULTS, name)] if script in OUT_BASE
+               else ['--json', os.path.join(RESULTS, f'{name}.json')])
+        r = subprocess.run([sys.executable, path, *extra, *out])
         print(f'\n({name}: {time.perf_counter() - t0:.0f} s, exit {r.returncode})', flush=True)
         if r.returncode not in (0, 1):  # 1: ran, but an acceptance target was missed
             failed.append(name)
