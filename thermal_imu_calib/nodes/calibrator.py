@@ -51,7 +51,7 @@ from ..collection.stationary import DetectorConfig, DetectorSettingsError
 from ..gravity import resolve_gravity
 from ..io.align import StreamAligner
 from ..io.columns import ImuColumns, TemperatureColumns
-from ..io.output import CALIBRATION, Outputs, write_atomic
+from ..io.output import CALIBRATION, OutputError, Outputs, write_atomic
 from ..pipeline import Collected
 
 NODE_NAME = 'thermal_imu_calibrator'
@@ -257,9 +257,12 @@ class CalibratorNode(Node):
     def _write_inputs_signature(self):
         path = self._collection_path()
         if path:
-            os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-            _atomic_write(path + '.inputs.json',
-                          json.dumps(self._inputs_signature(), indent=1) + '\n')
+            try:
+                os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+                write_atomic(path + '.inputs.json',
+                             json.dumps(self._inputs_signature(), indent=1) + '\n')
+            except (OSError, OutputError) as e:
+                self._degrade(e)
 
     def _signature_mismatch(self, path):
         """Return why the collection at ``path`` has other thermal inputs (None: same)."""
@@ -280,7 +283,7 @@ class CalibratorNode(Node):
     def _resume(self):
         try:
             self._resume_file()
-        except OSError as e:
+        except (OSError, OutputError) as e:
             self._degrade(e)
 
     def _degrade(self, err):
@@ -330,7 +333,7 @@ class CalibratorNode(Node):
         self.windows = win
         self._hold_offset = int(win.hold.max()) + 1 if len(win) else 0
         # rewrite only the complete records, so appends never follow a torn last line
-        _atomic_write(path, win.to_jsonl())
+        write_atomic(path, win.to_jsonl())
         self._write_inputs_signature()
         self.get_logger().info(f'resumed {len(win)} windows ({len(win.hold_ids)} holds) from '
                                f'{path}')
@@ -392,9 +395,9 @@ class CalibratorNode(Node):
             os.makedirs(tdir, exist_ok=True)
             buf = io.BytesIO()
             save_transitions(buf, [tr])
-            _atomic_write(os.path.join(tdir, f'{tr.hold_from:06d}-{tr.hold_to:06d}.npz'),
-                          buf.getvalue())
-        except OSError as e:
+            write_atomic(os.path.join(tdir, f'{tr.hold_from:06d}-{tr.hold_to:06d}.npz'),
+                         buf.getvalue())
+        except (OSError, OutputError) as e:
             self._degrade(e)
 
     def _store(self, win, detector, offset):
@@ -797,22 +800,6 @@ def _check_gravity(value):
     except ValueError as e:
         return str(e)
     return None
-
-
-def _atomic_write(path, data):
-    """Write str or bytes ``data`` to ``path`` via a temporary file and a rename."""
-    d = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix='.collection-', dir=d)
-    try:
-        with os.fdopen(fd, 'wb' if isinstance(data, bytes) else 'w') as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def _atomic_copy(src, dst):
