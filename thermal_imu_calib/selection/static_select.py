@@ -24,6 +24,8 @@ down when the data had it. The summary and ``fit.model_choice`` list every candi
 held-out figure, and ``fit.hold_consistency.heldout`` what a rule would have gained.
 """
 
+import dataclasses
+
 import numpy as np
 from scipy.special import ndtri
 
@@ -70,12 +72,17 @@ def heldout_folds(windows, max_folds=MAX_FOLDS):
 
 
 def _fit(ctx, name, train):
-    """Return an accel model fitted on the ``train`` windows (None: it cannot be fitted)."""
+    """Return an accel model fitted on the ``train`` windows (None: it cannot be fitted).
+
+    ``name`` is a family, optionally with a suffix after '-' (``standard-kept``: the same
+    family on other rows, see ``heldout_residuals``).
+    """
+    family = name.split('-')[0]
     try:
-        if name == 'standard':
+        if family == 'standard':
             return fit_standard_context(ctx, train).model
         sub = ctx.subset(train & (ctx.accel_rows if ctx.accel_rows is not None else True))
-        if name == 'field':
+        if family == 'field':
             check_faces_up_and_down(sub)
             return _field_fit(ctx, sub.windows, sub.ta, refine=False).model
         from ..estimation.whole_unit_fit import fit_whole_unit_context
@@ -91,7 +98,6 @@ def heldout_residuals(ctx, names, accel_rows=None):
     given, further restricts what it may train on) and applied to the held-out windows,
     inputs clamped to the training range; the residual of a hold is that of its mean.
     """
-    import dataclasses
     w, o = ctx.windows, ctx.options
     folds, n = heldout_folds(w)
     ids = w.hold_ids
