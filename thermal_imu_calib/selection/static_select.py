@@ -43,7 +43,7 @@ MIN_HELDOUT = 3
 MAX_FOLDS = 24
 
 
-def heldout_folds(windows, max_folds=MAX_FOLDS):
+def heldout_folds(windows, max_folds=MAX_FOLDS, within=None):
     """Return (fold per window, number of folds); -1: the hold always trains.
 
     A hold is held out alone (leave one hold out) when leaving it loses no face: a tilted
@@ -52,21 +52,30 @@ def heldout_folds(windows, max_folds=MAX_FOLDS):
     keeps those visits in training. So every training set has each axis up and down when
     the data had it, and as many of the repeated visits (other temperatures, other times)
     as possible: two face-wise folds would leave each face once and test extrapolation.
+    ``within`` (bool mask over windows): a fit that trains only on those rows is compared
+    too, so a hold among them counts as repeated only when its face is repeated among them.
     """
     ids, means = windows.hold_means()
     faces = [face_of(m) for m in means]
     count = {f: faces.count(f) for f in set(faces)}
+    inside = (np.ones(len(ids), bool) if within is None
+              else np.isin(ids, np.unique(windows.hold[within])))
+    inner = [f for f, i in zip(faces, inside) if i]
+    count_in = {f: inner.count(f) for f in set(inner)}
     order = np.argsort([windows.t0[windows.hold == h].min() for h in ids])
-    foldable = [j for j in order if faces[j] == 'tilted' or count[faces[j]] > 1]
+    foldable = [j for j in order if faces[j] == 'tilted' or (
+        count[faces[j]] > 1 and (not inside[j] or count_in[faces[j]] > 1))]
     n = min(len(foldable), max_folds)
     fold_of = np.full(len(ids), -1)
     for r, j in enumerate(foldable):
         fold_of[j] = r % n
     for f in range(n):
-        members = [faces[j] for j in np.flatnonzero(fold_of == f)]
-        for face in set(members) - {'tilted'}:
-            if members.count(face) == count[face]:
-                fold_of[[j for j in np.flatnonzero(fold_of == f) if faces[j] == face]] = -1
+        members = np.flatnonzero(fold_of == f)
+        for face in {faces[j] for j in members} - {'tilted'}:
+            mine = [j for j in members if faces[j] == face]
+            mine_in = [j for j in mine if inside[j]]
+            if len(mine) == count[face] or (mine_in and len(mine_in) == count_in[face]):
+                fold_of[mine] = -1
     pos = np.searchsorted(ids, windows.hold)
     return fold_of[pos], n
 
@@ -91,15 +100,16 @@ def _fit(ctx, name, train):
         return None
 
 
-def heldout_residuals(ctx, names, accel_rows=None):
+def heldout_residuals(ctx, names, accel_rows=None, within=None):
     """Return ({name: per-hold held-out |a| - g (m/s^2), NaN where not held out}, hold ids).
 
     Each candidate is refitted on the training holds of every fold (``accel_rows``, if
     given, further restricts what it may train on) and applied to the held-out windows,
     inputs clamped to the training range; the residual of a hold is that of its mean.
+    ``within``: the rows the most restricted candidate trains on (``heldout_folds``).
     """
     w, o = ctx.windows, ctx.options
-    folds, n = heldout_folds(w)
+    folds, n = heldout_folds(w, within=within if within is not None else ctx.accel_rows)
     ids = w.hold_ids
     pos = np.searchsorted(ids, w.hold)
     out = {name: np.full(len(ids), np.nan) for name in names}
@@ -159,7 +169,7 @@ def judge_rule(ctx, keep):
     """
     g = ctx.options.gravity
     res, ids = heldout_residuals(ctx, ['standard', 'standard-kept'],
-                                 {'standard-kept': keep})
+                                 {'standard-kept': keep}, within=keep)
     z, n = paired_test(res['standard'], res['standard-kept'])
     limit = float(-ndtri(ALPHA))
     applied = bool(np.isfinite(z) and z > limit)
