@@ -91,13 +91,13 @@ def hold_weights(hold):
     return 1.0 / counts[inv]
 
 
-def fit_standard(raw, hold, gravity, temps=None, t0=None, bias_order=0, x0=None, noise=None):
+def fit_standard(raw, hold, gravity, temps=None, t0=None, bias_order=0, noise=None):
     """Fit the standard model to window means; return a ``StandardFit``.
 
     raw: (m, 3) mean raw specific force per window (m/s^2); hold: (m,) hold ids; gravity:
     m/s^2; temps: (m, 3) per-axis temperature (degC) or None; t0: (3,) reference (degC);
-    bias_order: highest power of (T - T0) in the bias (0 without temperature); x0: an
-    earlier solution's parameters to start from (same order); noise: standard error of a
+    bias_order: highest power of (T - T0) in the bias (0 without temperature); noise:
+    standard error of a
     hold's mean |a| (m/s^2; None: ``MIN_NOISE`` g), what decides which misalignments the
     holds determine (posterior/prior std ratio below ``DETERMINED_RATIO``).
     """
@@ -110,14 +110,22 @@ def fit_standard(raw, hold, gravity, temps=None, t0=None, bias_order=0, x0=None,
         dt = np.asarray(temps, float) - t0
     sw = np.sqrt(hold_weights(hold))
     n_par = 6 + 3 * (bias_order + 1)
-    n_holds = len(np.unique(hold))
+    ids, inv = np.unique(hold, return_inverse=True)
+    n_holds = len(ids)
     if n_holds < 6:
         raise StandardFitError(f'{n_holds} holds cannot determine the bias and scale of '
                                'three axes: hold each axis up and down (the six faces), and '
                                'some tilted poses for the misalignment')
-    if x0 is None:
-        scale = gravity / np.median(np.linalg.norm(raw, axis=1))
-        x0 = np.concatenate([np.full(3, scale), np.zeros(3), np.zeros(3 * (bias_order + 1))])
+    # the lever of the poses, one per hold (window sums point where the hold's mean does)
+    per_hold = np.stack([np.bincount(inv, raw[:, i]) for i in range(3)], 1)
+    weak = weak_axes(per_hold / np.linalg.norm(per_hold, axis=1)[:, None])
+    if weak:
+        raise StandardFitError(f'the bias and scale factor of axis {",".join(weak)} are not '
+                               f'determined by the {n_holds} holds: each axis must be held '
+                               'pointing up and pointing down (or tilted well above and '
+                               'below horizontal)')
+    scale = gravity / np.median(np.linalg.norm(raw, axis=1))
+    x0 = np.concatenate([np.full(3, scale), np.zeros(3), np.zeros(3 * (bias_order + 1))])
 
     def fun(p):
         L, b = _unpack(p, bias_order)
@@ -137,7 +145,6 @@ def fit_standard(raw, hold, gravity, temps=None, t0=None, bias_order=0, x0=None,
             J[:, 6 + 3 * o:9 + 3 * o] = -uL * dt ** o
         return sw[:, None] * J
 
-    x0 = np.asarray(x0, float)
     # bias and scale (and the bias' temperature terms) first: determined by any set of
     # poses with each axis up and down; then each misalignment the data determine
     free = np.ones(n_par, bool)
@@ -146,12 +153,6 @@ def fit_standard(raw, hold, gravity, temps=None, t0=None, bias_order=0, x0=None,
     _require_determined(jac(p)[:, free], n_holds)
     noise = max(MIN_NOISE * gravity, 0.0 if noise is None else float(noise))
     prior = _prior_std(bias_order)
-    weak = weak_axes(raw / np.linalg.norm(raw, axis=1)[:, None])
-    if weak:
-        raise StandardFitError(f'the bias and scale factor of axis {",".join(weak)} are not '
-                               f'determined by the {n_holds} holds: each axis must be held '
-                               'pointing up and pointing down (or tilted well above and '
-                               'below horizontal)')
     cand = free.copy()
     cand[3:6] = True
     while True:
@@ -167,8 +168,7 @@ def fit_standard(raw, hold, gravity, temps=None, t0=None, bias_order=0, x0=None,
         res, p = _solve(fun, jac, p, cand)
     J = jac(p)
     _require_determined(J[:, cand], n_holds)
-    res.x = p
-    L, b = _unpack(res.x, bias_order)
+    L, b = _unpack(p, bias_order)
     if np.linalg.det(L) <= 0:
         raise StandardFitError('the standard fit found a mirrored axis (negative scale): '
                                'check the sign conventions of the IMU data')
