@@ -116,10 +116,10 @@ class CalibratorNode(Node):
             '(empty: keep them in memory only).', **ro)
         self.temperature_topics = common.topic_list(p.declare(
             'temperature_topics', ['imu/temperature'],
-            'Empty ([] or [\'\']): no thermal input (a temperature-independent calibration). '
             'Thermal input topics (sensor_msgs/Temperature unless temperature_types says '
             'otherwise), one model input each, in this order; they are written into the '
-            'calibration as the inputs\' topics.', **ro))
+            'calibration as the inputs\' topics; empty ([] or [\'\']): no thermal input (a '
+            'temperature-independent calibration).', **ro))
         self.temperature_units, scalar_types = common.declare_thermal_inputs(
             p, self.temperature_topics, ' Written into the calibration; by default the gyro '
             'follows the one non-degC input and the accelerometer the degC ones.')

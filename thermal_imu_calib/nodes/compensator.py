@@ -70,11 +70,10 @@ class CompensatorNode(Node):
         self._sent = units.SentMessages()
         self.temperature_topics = common.topic_list(p.declare(
             'temperature_topics', ['imu/temperature'],
-            'Empty ([] or [\'\']): no thermal input (a temperature-independent calibration). '
             'Thermal input topics to subscribe (sensor_msgs/Temperature unless '
             'temperature_types says otherwise); the calibration file maps its inputs to them '
-            'by name (relative names follow namespaces and remaps).',
-            read_only=True))
+            'by name (relative names follow namespaces and remaps); empty ([] or [\'\']): '
+            'no thermal input.', read_only=True))
         self.temperature_timeout = p.declare(
             'temperature_timeout', 2.0,
             'Seconds (by header stamp) after which a temperature reading is stale; readings '

@@ -90,8 +90,8 @@ def _fit(ctx, name, train):
     try:
         if family == 'standard':
             return fit_standard_context(ctx, train).model
-        sub = ctx.subset(train & (ctx.accel_rows if ctx.accel_rows is not None else True))
         if family == 'field':
+            sub = ctx.subset(train & (ctx.accel_rows if ctx.accel_rows is not None else True))
             check_faces_up_and_down(sub)
             return _field_fit(ctx, sub.windows, sub.ta, refine=False).model
         from ..estimation.whole_unit_fit import fit_whole_unit_context
