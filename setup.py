@@ -40,7 +40,7 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'thermal-imu-calib = thermal_imu_calib.cli_entry:main',
+            'thermal-imu-calib = thermal_imu_calib.cli.entry:main',
             'compensator_node = thermal_imu_calib.nodes.compensator:main',
             'calibrator_node = thermal_imu_calib.nodes.calibrator:main',
             'bringup = thermal_imu_calib.nodes.bringup:main',

@@ -31,7 +31,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
 from thermal_imu_calib import cli  # noqa: E402
-from thermal_imu_calib.cli_fleet import calibrate_args  # noqa: E402
+from thermal_imu_calib.cli.fleet import calibrate_args  # noqa: E402
 from thermal_imu_calib.fleet import registry as reg  # noqa: E402
 from thermal_imu_calib.fleet.inputs import expand_inputs, GroupBy  # noqa: E402
 from thermal_imu_calib.fleet.runner import run_fleet  # noqa: E402

@@ -235,7 +235,7 @@ def end_to_end(path, tmp, repeat) -> dict:
     """CPU of rosbags' raw iteration and of ``calibrate --model field|auto``, in turn."""
     script = os.path.join(os.path.dirname(sys.executable), 'thermal-imu-calib')
     cli = ([script] if os.path.exists(script) else
-           [sys.executable, '-m', 'thermal_imu_calib.cli_entry']) + ['calibrate', str(path)]
+           [sys.executable, '-m', 'thermal_imu_calib.cli.entry']) + ['calibrate', str(path)]
     if os.path.exists(f'{path}.prior.yaml'):
         cli += ['--prior', f'{path}.prior.yaml']
     raw = [sys.executable, '-c', _ROSBAGS_RAW, str(path)]

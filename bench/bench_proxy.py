@@ -1,7 +1,7 @@
 """Gyro thermal proxy: calibrate the gyro on its resonance frequency (Hz) vs the die temperature.
 
 Device: ``sim.draw_device('mems', seed)``, die temperature published at 1 Hz in 0.125-degC
-steps (``mems-coldstart``). ``sim_proxy.with_resonance_proxy`` adds the gyro's drive-mode
+steps (``mems-coldstart``). ``sim.proxy.with_resonance_proxy`` adds the gyro's drive-mode
 resonance frequency f = 25 kHz - 1.5 Hz/degC T_gyro (0.01-Hz steps, 0.005-Hz noise, 10 Hz)
 on ``/imu/gyro_resonance``. Calibration: one ``mems-coldstart`` (3 x (six faces + 2 corner-up
 poses), 60-90 s holds); once with the die temperature as the only input, once with both
@@ -31,7 +31,7 @@ from thermal_imu_calib.estimation.calibrate import (CalibrateOptions,  # noqa: E
                                                     calibrate_windows)
 from thermal_imu_calib.evaluate import WindowAccumulator  # noqa: E402
 from thermal_imu_calib.pipeline import windows_from_columns  # noqa: E402
-from thermal_imu_calib.sim_proxy import (proxy_truth, ResonanceProxy,  # noqa: E402
+from thermal_imu_calib.sim.proxy import (proxy_truth, ResonanceProxy,  # noqa: E402
                                          with_resonance_proxy)
 
 DIE, PROXY = '/imu/temperature', ResonanceProxy().topic

@@ -1,4 +1,4 @@
-"""The console script starts with one BLAS thread unless the user chose (cli_entry)."""
+"""The console script starts with one BLAS thread unless the user chose (cli.entry)."""
 
 import os
 import shutil
@@ -7,7 +7,7 @@ import sys
 
 CHILD = '''
 import os
-from thermal_imu_calib import cli_entry
+from thermal_imu_calib.cli import entry as cli_entry
 try:
     cli_entry.main(['--version'])
 except SystemExit:
@@ -38,4 +38,4 @@ def test_the_installed_console_script_goes_through_the_entry_module():
                           path=os.path.dirname(sys.executable) + os.pathsep + os.environ['PATH'])
     assert script is not None, 'thermal-imu-calib is not installed next to this python'
     with open(script) as f:
-        assert 'thermal_imu_calib.cli_entry' in f.read()
+        assert 'thermal_imu_calib.cli.entry' in f.read()

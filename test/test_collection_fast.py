@@ -6,7 +6,7 @@ one-layout Imu decode, equal-size gathers, window views, zlib-ng's CRC, chi-squa
 quantiles from scipy.special) has its plain version here.  Every comparison is exact
 (bit for bit): the unit pieces on random data, and ``collect_windows(motion=True)`` with
 every reference swapped in against the shipped path on the simulated sessions of
-``sim_scenarios`` and the real fixtures written as bags, at several chunk sizes.
+``sim.scenarios`` and the real fixtures written as bags, at several chunk sizes.
 """
 
 from collections import deque
@@ -196,7 +196,7 @@ def assert_same(a, b, where=''):
 # ------------------------------------------------------------------ whole path, exact
 @pytest.fixture(scope='module')
 def logs(tmp_path_factory):
-    """The sim_scenarios sessions and the real fixtures, written as .mcap logs."""
+    """The sim.scenarios sessions and the real fixtures, written as .mcap logs."""
     d = tmp_path_factory.mktemp('logs')
     make_real_bags.main(str(d))
     out = sorted(str(d / f) for f in os.listdir(d) if f.endswith('.mcap'))

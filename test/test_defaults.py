@@ -15,7 +15,7 @@ import pytest
 import yaml
 
 from thermal_imu_calib.app.calibrate import CalibrateSettings
-from thermal_imu_calib.cli_calibrate import calibrate_defaults, settings_from_args
+from thermal_imu_calib.cli.calibrate import calibrate_defaults, settings_from_args
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 NODES = {'calibrator.yaml': ('thermal_imu_calib.nodes.calibrator', 'CalibratorNode'),

@@ -1,4 +1,4 @@
-"""The default detector on the simulated sessions that fail like real data (sim_scenarios).
+"""The default detector on the simulated sessions that fail like real data (sim.scenarios).
 
 Holds are scored against the simulator's schedule (precision and recall >= 0.95), and the
 calibration from the detected holds against the true parameters on the same holds.

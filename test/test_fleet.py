@@ -209,7 +209,7 @@ def test_separate_scheduler_and_two_workers(fleet, tmp_path, capsys):
 def test_worker_killed_mid_job_loses_nothing(fleet, tmp_path):
     from distributed import Client, LocalCluster
     from thermal_imu_calib.fleet.runner import run_fleet
-    from thermal_imu_calib.cli_fleet import calibrate_args
+    from thermal_imu_calib.cli.fleet import calibrate_args
     import functools
     units = ('u00', 'u04', 'u06')
     logs = [p for u in units for p in _unit_logs(fleet, u)]

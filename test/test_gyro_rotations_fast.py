@@ -2,7 +2,7 @@
 
 ``gyro_rotations._group_starts`` (the merged increment groups of every pose change, found
 for all transitions at once) against the sample-by-sample loop it replaced, bit for bit, on
-random increments and on the pose changes of the ``sim_scenarios`` sessions and the real
+random increments and on the pose changes of the ``sim.scenarios`` sessions and the real
 fixtures written as bags and collected as the CLI does (``collect_windows(motion=True)``);
 the column-wise ``rotations.cross``/``sum_sq`` against numpy, bit for bit; held-out refits
 (``estimate_only``) against the full fit; ``decide_determined`` from a normal matrix against

@@ -18,10 +18,10 @@ import pytest
 from _hostile import clean_pair, recording, write_bag
 from thermal_imu_calib.calibration import Calibration
 from thermal_imu_calib.cli import main
-from thermal_imu_calib.cli_checks import UserError, validated
+from thermal_imu_calib.cli.checks import UserError, validated
 from thermal_imu_calib.io.bag_writer import write_columns
 
-#: the installed console script, as users run it (through cli_entry). Not ``python -m
+#: the installed console script, as users run it (through cli.entry). Not ``python -m
 #: thermal_imu_calib.cli``: under runpy, CPython 3.11 sometimes re-raises a SIGINT the CLI has
 #: already handled at exit (exit status -2 after printing "interrupted"; 16 of 60 runs here,
 #: 0 of 120 through the console script)

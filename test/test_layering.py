@@ -23,9 +23,9 @@ LAYERS = [
     ('collection', ['collection']),
     ('estimation', ['estimation']),
     ('selection', ['selection']),
-    ('pipelines', ['pipeline', 'evaluate', 'noise', 'sim', 'sim_*', 'report']),
+    ('pipelines', ['pipeline', 'evaluate', 'noise', 'sim', 'report']),
     ('app', ['app']),
-    ('adapters', ['cli', 'cli_*', 'nodes', 'fleet']),
+    ('adapters', ['cli', 'nodes', 'fleet']),
     ('package', ['']),
 ]
 #: layers that must not import a ROS client library

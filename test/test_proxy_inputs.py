@@ -26,7 +26,7 @@ from thermal_imu_calib.io.columns import TemperatureColumns
 from thermal_imu_calib.models.field import FieldPolynomialModel
 from thermal_imu_calib.models.polynomial import OffsetPolynomialModel
 from thermal_imu_calib.pipeline import collect_windows
-from thermal_imu_calib.sim_proxy import proxy_truth, ResonanceProxy, with_resonance_proxy
+from thermal_imu_calib.sim.proxy import proxy_truth, ResonanceProxy, with_resonance_proxy
 
 PROXY = '/imu/gyro_resonance'
 

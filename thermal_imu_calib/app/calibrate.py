@@ -3,7 +3,7 @@
 ``CalibrateSettings`` holds every option of an estimation with its default, in SI units
 (gravity m/s^2, latitude deg, altitude m, margins degC unless a unit is named, gaps and
 detector lengths s). The command line builds its options from it
-(``cli_calibrate.add_calibrate_parser``), the calibrator node declares its parameters from
+(``cli.calibrate.add_calibrate_parser``), the calibrator node declares its parameters from
 it (``nodes/calibrator.py``) and the shipped ``config/calibrator.yaml`` repeats its values
 (``test/test_defaults.py`` fails when they differ). ``calibrate_collected`` turns the
 holds collected from logs (``pipeline.collect_windows``) or live (the node) into a validated

@@ -11,8 +11,8 @@ it cannot stop the job.
 
 Reduce: the caller's ``reduce_fn(collected_list, paths) -> CalibrationResult`` runs once per
 sensor (and ``period``) on a worker, with the map results passed as futures (they move
-worker to worker, not through the client). ``cli_fleet`` passes
-``cli_calibrate.calibrate_collected``: the very code of ``calibrate``.
+worker to worker, not through the client). ``cli.fleet`` passes
+``cli.calibrate.calibrate_collected``: the very code of ``calibrate``.
 
 A worker that dies mid-job loses its results; the scheduler recomputes them from the
 task graph (``distributed.scheduler.allowed-failures`` retries), so nothing is lost.

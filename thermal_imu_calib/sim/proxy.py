@@ -25,12 +25,12 @@ import zlib
 
 import numpy as np
 
-from . import sim
-from .calibration import TemperatureInput
-from .io.columns import TemperatureColumns
-from .models.polynomial import OffsetPolynomialModel
-from .models.whole_unit import WholeUnitGyroModel
-from .thermal_input import ThermalFilter
+from . import simulate as sim
+from ..calibration import TemperatureInput
+from ..io.columns import TemperatureColumns
+from ..models.polynomial import OffsetPolynomialModel
+from ..models.whole_unit import WholeUnitGyroModel
+from ..thermal_input import ThermalFilter
 
 
 @dataclass(frozen=True)

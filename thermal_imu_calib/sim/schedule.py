@@ -14,7 +14,7 @@ import numpy as np
 from scipy.signal import lfilter, lfilter_zi
 from scipy.spatial.transform import Rotation
 
-from .sim_devices import DEG
+from .devices import DEG
 
 
 FACES = {'+x': (1, 0, 0), '-x': (-1, 0, 0), '+y': (0, 1, 0),
@@ -76,7 +76,7 @@ class ScenarioConfig:
     chunk_size: int = 60_000
     #: > 0: the first hold lasts this long (s; an imu_tk-style initial rest)
     initial_hold_s: float = 0.0
-    #: > 0: hand tremor, rotation-rate RMS in deg/s (sim_scenarios.tremor)
+    #: > 0: hand tremor, rotation-rate RMS in deg/s (sim.scenarios.tremor)
     tremor_dps: float = 0.0
 
 

@@ -10,10 +10,10 @@ import sys
 
 import yaml
 
-from .calibration import Calibration
-from .formats import EXTENSIONS, export_calibration, FORMATS
-from .formats.common import loss_text
-from .io.output import Outputs, write_atomic
+from ..calibration import Calibration
+from ..formats import EXTENSIONS, export_calibration, FORMATS
+from ..formats.common import loss_text
+from ..io.output import Outputs, write_atomic
 
 
 def add_parser(sub):
@@ -51,7 +51,7 @@ def add_parser(sub):
 
 
 def _windows(path):
-    from .collection.segments import Windows
+    from ..collection.segments import Windows
     with open(path) as f:
         w = Windows.from_jsonl(f.read())
     if not len(w):

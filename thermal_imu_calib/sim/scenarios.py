@@ -14,8 +14,8 @@ Every sensor is quantised like a 16-bit part: the ``mems`` device's accel (+-4 g
 
 import numpy as np
 
-from .sim_devices import _rng
-from .sim_schedule import ScenarioConfig, SIX_FACES, TILTED
+from .devices import _rng
+from .schedule import ScenarioConfig, SIX_FACES, TILTED
 
 #: temperature LSB of a 16-bit die-temperature register, degC
 TEMP_LSB_16BIT = 1.0 / 512.0

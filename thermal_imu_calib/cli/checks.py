@@ -12,8 +12,8 @@ import os
 import re
 import signal
 
-from .calibration import Calibration, CalibrationError
-from .io import output
+from ..calibration import Calibration, CalibrationError
+from ..io import output
 
 #: a ROS 2 topic name: absolute or relative tokens of [A-Za-z0-9_], not starting with a digit
 _TOPIC_RE = re.compile(r'^~?/?([A-Za-z_][A-Za-z0-9_]*)(/[A-Za-z_][A-Za-z0-9_]*)*$')

@@ -1,7 +1,7 @@
 """What ``calibrate`` and ``fleet calibrate`` share: the options, and one estimation step.
 
 ``calibrate_collected`` turns the Collected of several logs into a validated calibration;
-``cli.cmd_calibrate`` and the fleet's reduce step (``cli_fleet``) both call it, so a fleet
+``cli.cmd_calibrate`` and the fleet's reduce step (``cli.fleet``) both call it, so a fleet
 calibration is the one ``calibrate`` gives on the same logs. Units: gravity m/s^2,
 --max-gap and detector lengths in s, --rotation-dps in deg/s.
 """
@@ -9,12 +9,12 @@ calibration is the one ``calibrate`` gives on the same logs. Units: gravity m/s^
 import argparse
 import sys
 
-from .app import calibrate as app
-from .app.calibrate import CalibrateSettings
-from .cli_checks import UserError
-from .collection.stationary import DetectorConfig
-from .estimation.calibrate import model_choices
-from .io.output import write_atomic
+from ..app import calibrate as app
+from ..app.calibrate import CalibrateSettings
+from .checks import UserError
+from ..collection.stationary import DetectorConfig
+from ..estimation.calibrate import model_choices
+from ..io.output import write_atomic
 
 #: the defaults of ``calibrate`` (the node's and the fleet's too)
 DEFAULTS = CalibrateSettings()
@@ -155,14 +155,14 @@ def calibrate_collected(args, collected, paths):
 
     ``args`` holds the calibrate options (the Namespace of its parser); ``paths`` are the
     logs. The estimation is ``app.calibrate.calibrate_collected``, the one the calibrator
-    node and ``fleet calibrate`` (cli_fleet's reduce step) run too; here only
+    node and ``fleet calibrate`` (cli.fleet's reduce step) run too; here only
     ``--save-windows`` is written on the way. Returns the CalibrationResult (not saved);
     UserError when it would be refused.
     """
     if args.save_windows:
-        from .cli_checks import TRANSITIONS_SUFFIX
-        from .collection.motion import save_transitions
-        from .pipeline import merge_transitions, merge_windows
+        from .checks import TRANSITIONS_SUFFIX
+        from ..collection.motion import save_transitions
+        from ..pipeline import merge_transitions, merge_windows
         windows, transitions = merge_windows(collected), merge_transitions(collected)
         write_atomic(args.save_windows, windows.to_jsonl())
         write_atomic(args.save_windows + TRANSITIONS_SUFFIX,

@@ -23,8 +23,8 @@ import dataclasses
 
 import numpy as np
 
-from .sim_devices import _rng, accel_forward
-from .sim_schedule import first_order_lag
+from .devices import _rng, accel_forward
+from .schedule import first_order_lag
 
 
 @dataclasses.dataclass(frozen=True)

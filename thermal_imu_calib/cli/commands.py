@@ -12,18 +12,19 @@ import sys
 
 import numpy as np
 
-from . import __version__, cli_checks, cli_export
-from .calibration import Calibration, CalibrationError
-from .cli_calibrate import (_add_detector, _add_topics, _detector, _gravity,
-                            add_calibrate_parser, calibrate_collected)
-from .cli_checks import UserError
-from .cli_format import format_calibration, format_evaluation
-from .collection.stationary import format_holds, format_settings
-from .estimation.calibrate import CalibrationRefused
-from .formats import load_prior
-from .io.log_info import LogError
-from .io.output import Outputs
-from .report import cli as report_cli
+from .. import __version__
+from . import checks as cli_checks, export as cli_export
+from ..calibration import Calibration, CalibrationError
+from .calibrate import (_add_detector, _add_topics, _detector, _gravity,
+                        add_calibrate_parser, calibrate_collected)
+from .checks import UserError
+from .format import format_calibration, format_evaluation
+from ..collection.stationary import format_holds, format_settings
+from ..estimation.calibrate import CalibrationRefused
+from ..formats import load_prior
+from ..io.log_info import LogError
+from ..io.output import Outputs
+from ..report import cli as report_cli
 
 EXIT_USAGE = 2
 
@@ -91,7 +92,7 @@ def build_parser():
     report_cli.add_report_args(p)
     report_cli.add_noise_parser(sub)
     cli_export.add_parser(sub)
-    from .cli_fleet import add_fleet_parsers   # fleet calibrate/compensate, history, ...
+    from .fleet import add_fleet_parsers   # fleet calibrate/compensate, history, ...
     add_fleet_parsers(sub, COMMANDS)
     return ap
 
@@ -104,8 +105,8 @@ def cmd_calibrate(args):
     ``auto``) chose it or an accelerometer-only model did (``gyro_select``); the collector
     costs ~0.09 s CPU per 375k messages, not measurable in a calibrate run.
     """
-    from .io.gate import check_report
-    from .pipeline import collect_windows
+    from ..io.gate import check_report
+    from ..pipeline import collect_windows
     _gravity(args)   # a bad --gravity/--latitude is refused before reading any log
     cli_checks.check_distinct_inputs(args.inputs)
     cli_checks.calibrate_outputs(args)   # every output checked before any log is read
@@ -151,7 +152,7 @@ def _motion_text(collected):
 
 def cmd_compensate(args):
     """Run the compensate subcommand."""
-    from .pipeline import compensate_log
+    from ..pipeline import compensate_log
     Outputs([args.input, args.calibration]).log(args.output, '-o')
     cal = Calibration.load(args.calibration)
     st = compensate_log(args.input, args.output, cal, args.imu_topic, args.temperature_topic,
@@ -170,7 +171,7 @@ def cmd_compensate(args):
 
 def cmd_evaluate(args):
     """Run the evaluate subcommand."""
-    from .pipeline import evaluate_log
+    from ..pipeline import evaluate_log
     g, _ = _gravity(args)
     cals = {}
     for path in args.calibration:
@@ -198,7 +199,7 @@ def cmd_evaluate(args):
 
 def cmd_simulate(args):
     """Run the simulate subcommand."""
-    from . import sim
+    from .. import sim
     if args.list:
         for name, sc in sim.SCENARIOS.items():
             doc = (getattr(sc, 'description', '') or '').strip().splitlines()
@@ -209,11 +210,11 @@ def cmd_simulate(args):
                         f'{", ".join(sim.SCENARIOS)}')
     out = Outputs()
     out.log(args.output, 'OUTPUT')
-    from .sim import sidecar_outputs
+    from ..sim import sidecar_outputs
     for path, kind, own in sidecar_outputs(args.output, args.gyro_proxy):
         out.file(path, 'OUTPUT', kind, own)
     if args.gyro_proxy:
-        from .sim_proxy import write_proxy_scenario
+        from ..sim.proxy import write_proxy_scenario
         info = write_proxy_scenario(args.output, args.scenario, args.seed, storage=args.storage)
     else:
         info = sim.write_scenario(args.output, args.scenario, args.seed, storage=args.storage)
@@ -226,11 +227,11 @@ def cmd_simulate(args):
 
 def cmd_info(args):
     """Run the info subcommand."""
-    from .io.bag import open_log
+    from ..io.bag import open_log
     with open_log(args.input) as reader:
         print(reader.info().format())
     if args.holds:
-        from .pipeline import collect_windows
+        from ..pipeline import collect_windows
         c = collect_windows(args.input, args.imu_topic, args.temperature_topic, _detector(args),
                             args.chunk_size, args.max_gap, args.progress)
         print(f'{len(c.holds)} stationary holds')

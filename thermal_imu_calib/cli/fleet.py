@@ -8,10 +8,10 @@ import functools
 import os
 import sys
 
-from .fleet import inputs as fin
-from .fleet import registry as reg
-from .fleet.runner import _reason, check_workers, fleet_client, run_fleet
-from .io.output import HTML, Outputs
+from ..fleet import inputs as fin
+from ..fleet import registry as reg
+from ..fleet.runner import _reason, check_workers, fleet_client, run_fleet
+from ..io.output import HTML, Outputs
 
 EXIT_PARTIAL = 1
 
@@ -31,8 +31,8 @@ def _add_cluster(p):
 
 def add_fleet_parsers(sub, commands):
     """Add the fleet subcommands to ``sub`` and their handlers to ``commands``."""
-    from .cli_calibrate import _add_detector, _add_topics
-    from .estimation.calibrate import model_choices
+    from .calibrate import _add_detector, _add_topics
+    from ..estimation.calibrate import model_choices
     fleet = sub.add_parser('fleet', help='calibrate or compensate many logs of many sensors '
                                          'on a Dask cluster')
     fsub = fleet.add_subparsers(dest='fleet_cmd', required=True)
@@ -96,7 +96,7 @@ def cmd_fleet(args):
 
 def calibrate_args(args):
     """Return the ``calibrate`` Namespace (its defaults) with the fleet options applied."""
-    from .cli_calibrate import calibrate_defaults
+    from .calibrate import calibrate_defaults
     cargs = calibrate_defaults()
     for k, v in vars(args).items():
         if hasattr(cargs, k) and k not in ('inputs', 'output', 'cmd'):
@@ -106,7 +106,7 @@ def calibrate_args(args):
 
 
 def _collect_kw(args):
-    from .cli_calibrate import _detector
+    from .calibrate import _detector
     kw = {'imu_topic': args.imu_topic, 'temperature_topics': args.temperature_topic,
           'chunk_size': args.chunk_size, 'max_gap_s': args.max_gap}
     if hasattr(args, 'min_hold'):    # fleet calibrate: calibrate's detector and input gate
@@ -117,7 +117,7 @@ def _collect_kw(args):
 
 def cmd_fleet_calibrate(args):
     """Run ``fleet calibrate``: map logs, reduce per sensor, write the registry."""
-    from .cli_calibrate import _gravity, calibrate_collected
+    from .calibrate import _gravity, calibrate_collected
     group = fin.GroupBy.parse(args.by)
     if args.period < 0:
         raise ValueError(f'--period {args.period}: give 0 (all logs) or a positive number '
@@ -180,9 +180,9 @@ def _check_registry_output(registry, inputs):
 
 def compensate_one(path, out_path, registry, group, kw):
     """Task: compensate one log with its unit's calibration; returns (path, text, ok)."""
-    from .io.bag import open_log
-    from .io.topics import resolve_topics
-    from .pipeline import compensate_log
+    from ..io.bag import open_log
+    from ..io.topics import resolve_topics
+    from ..pipeline import compensate_log
     try:
         with open_log(path) as reader:
             start = int(reader.start_ns or 0)
@@ -225,7 +225,7 @@ def cmd_fleet_compensate(args):
     with fleet_client(args.scheduler, args.workers) as client:
         futs = [client.submit(compensate_one, p, o, os.path.abspath(args.registry), group, kw,
                               pure=False) for p, o in zip(paths, outs)]
-        from .fleet.runner import _progress
+        from ..fleet.runner import _progress
         _progress(futs, args.progress)
         results = client.gather(futs)
     bad = 0
@@ -241,7 +241,7 @@ def cmd_fleet_compensate(args):
 
 def cmd_history(args):
     """Run ``history``: parameters over time with +-1 sigma, and the alarms."""
-    from .fleet.history import format_history, write_html
+    from ..fleet.history import format_history, write_html
     if args.html:
         Outputs([args.registry], args.force).file(args.html, '--html', 'HTML page', HTML)
     rows = reg.read_index(args.registry)
@@ -263,7 +263,7 @@ def cmd_history(args):
 
 def cmd_simulate_fleet(args):
     """Run ``simulate-fleet``."""
-    from .fleet.simulate import FleetDesign, simulate_fleet
+    from ..fleet.simulate import FleetDesign, simulate_fleet
     if args.units < 1 or args.logs_per_unit < 1:
         raise ValueError('--units and --logs-per-unit must be >= 1')
     Outputs().directory(args.output, 'DIR', 'simulated fleet')

@@ -15,7 +15,7 @@ import sys
 def main(argv=None):
     """Run ``thermal-imu-calib`` (``argv`` as for ``cli.main``)."""
     os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
-    from .cli import main as cli_main
+    from .commands import main as cli_main
     return cli_main(argv)
 
 

@@ -22,8 +22,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .models.polynomial import OffsetPolynomialModel
-from .models.whole_unit import WholeUnitGyroModel
+from ..models.polynomial import OffsetPolynomialModel
+from ..models.whole_unit import WholeUnitGyroModel
 
 
 G0 = 9.80665                 # m/s^2 per g, to convert datasheet densities

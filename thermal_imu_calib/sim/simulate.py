@@ -42,20 +42,20 @@ from typing import Dict, List, Optional
 import numpy as np
 import yaml
 
-from .calibration import Calibration, TemperatureInput
-from .thermal_input import ThermalFilter
-from .gravity import normal_gravity
-from .io.columns import ImuColumns, TemperatureColumns
-from .models.field import FieldPolynomialModel
+from ..calibration import Calibration, TemperatureInput
+from ..thermal_input import ThermalFilter
+from ..gravity import normal_gravity
+from ..io.columns import ImuColumns, TemperatureColumns
+from ..models.field import FieldPolynomialModel
 
-from .sim_scenarios import SCENARIOS as _MORE  # noqa: E402 (needs ScenarioConfig above)
+from .scenarios import SCENARIOS as _MORE  # noqa: E402 (needs ScenarioConfig above)
 
-from .sim_devices import (_rng, accel_forward, DEG, DeviceParams,  # noqa: F401  (re-exported)
-                          DEVICES, DeviceSpec, draw_device, EARTH_RATE, G0, gyro_forward,
-                          THERMAL_COLUMNS)
-from .sim_schedule import (_build_schedule, _kinematics, _Segments,  # noqa: F401  (re-exported)
-                           _thermal_track, _ThermalTrack, FACES, first_order_lag, Hold,
-                           ScenarioConfig, SCENARIOS, SIX_FACES, TILTED)
+from .devices import (_rng, accel_forward, DEG, DeviceParams,  # noqa: F401  (re-exported)
+                      DEVICES, DeviceSpec, draw_device, EARTH_RATE, G0, gyro_forward,
+                      THERMAL_COLUMNS)
+from .schedule import (_build_schedule, _kinematics, _Segments,  # noqa: F401  (re-exported)
+                       _thermal_track, _ThermalTrack, FACES, first_order_lag, Hold,
+                       ScenarioConfig, SCENARIOS, SIX_FACES, TILTED)
 
 
 #: 2025-01-01T00:00:00Z; recordings start within 30 days of it
@@ -93,7 +93,7 @@ class SimRecording:
     frame_id: str = 'imu_link'
     _segments: Optional[_Segments] = field(default=None, repr=False)
     _thermal: Optional[_ThermalTrack] = field(default=None, repr=False)
-    #: errors outside the model families (``sim_unmodelled``): ``fn(TruthChunk)`` returns
+    #: errors outside the model families (``sim.unmodelled``): ``fn(TruthChunk)`` returns
     #: (accel (n, 3) m/s^2, gyro (n, 3) rad/s) added to the raw output before quantisation
     extra_error: Optional[object] = field(default=None, repr=False)
 
@@ -166,7 +166,7 @@ class SimRecording:
             gyr = gyro_forward(tc.angular_rate, tg, dev.t0, dev.gyro_coeffs, dev.gyro_m,
                                dev.gyro_g, tc.specific_force) + sig_g * noise[:, 3:]
             if self.config.tremor_dps > 0:
-                from .sim_scenarios import tremor
+                from .scenarios import tremor
                 acc, gyr = tremor(self, tc, acc, gyr)
             if self.extra_error is not None:
                 da, dg = self.extra_error(tc)
@@ -344,7 +344,7 @@ def sidecar_outputs(output, proxy=False):
 
     ``own`` tells an existing file of that kind (``io.output.Outputs.file``).
     """
-    from .io.output import CALIBRATION, containing
+    from ..io.output import CALIBRATION, containing
     out = [(_sidecar(output, 'truth'), 'calibration file', CALIBRATION),
            (_sidecar(output, 'prior'), 'calibration file', CALIBRATION),
            (_sidecar(output, 'schedule'), 'simulation schedule',
@@ -363,11 +363,11 @@ def write_scenario(output, name, seed=0, storage='mcap', overwrite=False, compre
     ``<output>.truth.yaml``, ``<output>.prior.yaml`` and ``<output>.schedule.yaml``.
     ``compression='zstd'`` shrinks the log ~8x for ~50% more write time; ``overrides`` are
     passed to ``simulate``; ``transform`` (SimRecording -> SimRecording, e.g.
-    ``sim_proxy.with_resonance_proxy``) edits the recording before it is written. Returns
+    ``sim.proxy.with_resonance_proxy``) edits the recording before it is written. Returns
     the paths and a summary dict.
     """
-    from .io.bag_writer import write_columns
-    from .io.output import remove_quietly, staging_dir, write_atomic
+    from ..io.bag_writer import write_columns
+    from ..io.output import remove_quietly, staging_dir, write_atomic
 
     t_start = time.perf_counter()
     rec = simulate(name, seed, **overrides)
