@@ -20,7 +20,7 @@ A block is *moving* when any of these holds:
 
 Thermal drift inside a hold moves the means by far less than either bound, so only motion
 splits a hold. Runs of still blocks become *holds* (``holds.make_hold``: guards trimmed,
-short ones dropped, each cut into windows of ``window_s``, estimation.segments.Windows).
+short ones dropped, each cut into windows of ``window_s``, ``segments.Windows``).
 ``holds`` keeps one record per hold (start, duration, stillness score). Memory stays small
 for hours of data, and the same class runs offline (CLI) and live (node).
 
