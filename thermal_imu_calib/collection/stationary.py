@@ -1,17 +1,12 @@
 """Streaming stationary detection whose settings are derived from the log itself.
 
 Nothing needs tuning: from the first ``DERIVE_SAMPLES`` samples the detector measures the
-sample rate and the quantisation step (LSB) of each sensor, and derives
-
-* the *block*: ``block_n`` samples (about ``BLOCK_TARGET_S``, at least ``MIN_BLOCK_N``), so
-  a 1 Hz chamber log and a 2 kHz IMU both get blocks with a defined variance;
-* minimum hold, guard and window lengths from the block length (a 1 s hold at >= 50 Hz;
-  the guard grows to GUARD_FRACTION of a long still run, at most GUARD_MAX_S);
-* variance thresholds from the chi-square spread of a block variance with that many
-  samples, relative to the noise floor (the ``noise_quantile`` of the block variances seen
-  before, corrected for the chi-square bias, never below the quantisation noise LSB^2/12),
-  so a navigation-grade triad and a hobby MEMS chip run the same code; the floor keeps
-  adapting as the log goes on.
+sample rate and the quantisation step (LSB) of each sensor and derives its block length,
+hold, guard and window lengths and variance factors (``detector_config.DetectorConfig``).
+The variance thresholds are those factors times the noise floor: the ``noise_quantile`` of
+the block variances seen before, corrected for the chi-square bias, never below the
+quantisation noise LSB^2/12, so a navigation-grade triad and a hobby MEMS chip run the same
+code; the floor keeps adapting as the log goes on.
 
 A block is *moving* when any of these holds:
 
@@ -24,14 +19,10 @@ A block is *moving* when any of these holds:
   *and* by more than gravity turned at ``rotation_dps`` over one block (a slow tilt).
 
 Thermal drift inside a hold moves the means by far less than either bound, so only motion
-splits a hold. Runs of still blocks become *holds*; ``guard_s`` is trimmed from both ends
-(not where the log itself starts or ends; a derived guard only as far as its blocks' means
-differ from the rest of the hold, ``_settled``), guards and holds measured in samples at the
-derived rate (jittered stamps change nothing), shorter ones than ``min_hold_s`` are
-dropped, and each hold is cut into windows of ``window_s`` (estimation.segments.Windows).
+splits a hold. Runs of still blocks become *holds* (``holds.make_hold``: guards trimmed,
+short ones dropped, each cut into windows of ``window_s``, ``segments.Windows``).
 ``holds`` keeps one record per hold (start, duration, stillness score). Memory stays small
-for hours of data, and the same class runs offline (CLI) and live (node). Settings given
-explicitly (not None / 0) are kept.
+for hours of data, and the same class runs offline (CLI) and live (node).
 
 The output is a function of the sample stream only, never of how it was cut into chunks
 (the node gets live batches of any size, the CLI 20,000 messages re-cut by the aligner):
@@ -44,130 +35,27 @@ is emitted only when its end is decided (``blocks.decided``: the last block's ju
 in and a gap after it is too long or too strong to be bridged, or bridged). The floor's
 quantile over up to FLOOR_BLOCKS variances is taken again at a group start once the blocks
 seen grew by 1/FLOOR_REFRESH, the bias at every group start.
-
-Cohesive: one streaming algorithm (derive, score blocks, bridge, make holds and windows)
-whose state is shared by every step; split, its parts would pass that state around.
 """
 
-import dataclasses
-from dataclasses import dataclass
-from typing import Optional
-
 import numpy as np
-from scipy.special import gammaincinv
 
 from .blocks import Blocks, bridge, decided, mean_var, Ring
-from .segments import face_of, Windows
+from .detector_config import (chi2_ppf, DERIVED, DetectorConfig,  # noqa: F401  (re-exported)
+                              DetectorSettingsError, format_settings, quantisation_step)
+from .holds import format_holds, make_hold, tilt_deg  # noqa: F401  (re-exported)
+from .segments import Windows
 
 #: samples used to measure the rate and the quantisation step before detection starts
 DERIVE_SAMPLES = 200
-#: target block duration (s) and fewest samples per block
-BLOCK_TARGET_S = 0.1
-MIN_BLOCK_N = 5
-#: a still block's variance stays below its chi-square quantile (1 - BLOCK_FALSE_ALARM)
-#: times VARIANCE_MARGIN (non-white noise, tremor) times the noise floor
-BLOCK_FALSE_ALARM = 1e-3
-VARIANCE_MARGIN = 3.0
 #: blocks per group: a block is scored with the noise floor and gyro bias frozen at the
 #: start of its group (from the groups before); the first group with its own statistics
 GROUP_BLOCKS = 200
 #: ... the floor is taken again once the blocks seen grew by 1/FLOOR_REFRESH
 FLOOR_REFRESH = 8
-#: a derived guard is this fraction of the still run, between guard_s and GUARD_MAX_S
-GUARD_FRACTION = 0.02
-#: ... and at the end of a hold, before a pose change, this fraction
-GUARD_TAIL_FRACTION = 0.05
-GUARD_MAX_S = 1.0
-#: a guard block is kept when the chi-square statistic of its mean against the hold's core
-#: is below this many times its degrees of freedom (``_settled``: mean square error)
-EDGE_Z2_PER_DOF = 2.0
 #: quiet-block gyro means kept for the bias reference
 BIAS_BLOCKS = 2000
 #: block variances kept for the noise floor
 FLOOR_BLOCKS = 200_000
-DERIVED = ('block_s', 'window_s', 'min_hold_s', 'guard_s', 'accel_factor', 'gyro_factor')
-
-
-class DetectorSettingsError(ValueError):
-    """The settings derived from the IMU's sample rate are out of range (implausible stamps)."""
-
-
-@dataclass
-class DetectorConfig:
-    """Stationary detector settings (seconds, dimensionless factors); None or 0: derived."""
-
-    block_s: Optional[float] = None
-    window_s: Optional[float] = None
-    min_hold_s: Optional[float] = None
-    guard_s: Optional[float] = None
-    accel_factor: Optional[float] = None
-    gyro_factor: Optional[float] = None
-    mean_sigmas: float = 6.0
-    noise_quantile: float = 0.05
-    #: rotation rate (deg/s) below which the unit counts as held (hand tremor, slow drift)
-    rotation_dps: float = 3.0
-    #: absolute floors for the noise estimate (quantised sensors can read exactly constant)
-    min_accel_var: float = 1e-10
-    min_gyro_var: float = 1e-12
-
-    def validate(self):
-        """Raise ValueError with the offending field when a setting is out of range."""
-        checks = [('block_s', 0.001, 60), ('window_s', 0.01, 3600), ('min_hold_s', 0.05, 36000),
-                  ('guard_s', 0.0, 600), ('accel_factor', 1.0, 1e4), ('gyro_factor', 1.0, 1e4),
-                  ('mean_sigmas', 1.0, 1000), ('noise_quantile', 0.001, 0.9),
-                  ('rotation_dps', 0.001, 100)]
-        for name, lo, hi in checks:
-            v = getattr(self, name)
-            if v is None or (name in DERIVED and v == 0 and name != 'guard_s'):
-                continue
-            if not lo <= v <= hi:
-                raise ValueError(f'detector {name}={v} is outside [{lo}, {hi}]')
-        if self.window_s and self.block_s and self.window_s < self.block_s:
-            raise ValueError(f'window_s ({self.window_s}) must be >= block_s ({self.block_s})')
-
-    def derive(self, rate_hz, accel_lsb=0.0, gyro_lsb=0.0):
-        """Return (resolved DetectorConfig, block_n) for a log at ``rate_hz``."""
-        given = {k: v for k, v in vars(self).items() if v is not None and
-                 not (k in DERIVED and k != 'guard_s' and v == 0)}
-        if 'block_s' in given:
-            block_n = max(3, int(round(given['block_s'] * rate_hz)))
-        else:
-            block_n = max(MIN_BLOCK_N, int(round(BLOCK_TARGET_S * rate_hz)))
-        block_s = block_n / rate_hz
-        dof = 3 * (block_n - 1)
-        factor = VARIANCE_MARGIN * float(chi2_ppf(1 - BLOCK_FALSE_ALARM, dof)
-                                         / chi2_ppf(self.noise_quantile, dof))
-        auto = {'block_s': block_s, 'min_hold_s': max(0.5, 5 * block_s),
-                'guard_s': max(0.2, 2 * block_s), 'window_s': max(5.0, 2 * block_s),
-                'accel_factor': factor, 'gyro_factor': factor}
-        auto.update({k: v for k, v in given.items() if k in DERIVED})
-        auto['window_s'] = max(auto['window_s'], block_s)
-        return dataclasses.replace(self, **auto), block_n
-
-
-def chi2_ppf(p, dof):
-    """Return the chi-square quantile at ``p`` with ``dof`` degrees of freedom.
-
-    What ``scipy.stats.chi2.ppf`` computes (``2 gammaincinv(dof/2, p)``, the same float),
-    without importing scipy.stats (about 0.3 s of start-up).
-    """
-    return 2 * gammaincinv(dof / 2, p)
-
-
-def quantisation_step(x):
-    """Return the LSB of each column (0 when the values are not on a regular grid)."""
-    x = np.asarray(x, float)
-    out = np.zeros(x.shape[1])
-    for i in range(x.shape[1]):
-        d = np.abs(np.diff(x[:, i]))
-        d = d[d > 1e-12 * max(1.0, float(np.max(np.abs(x[:, i]))))]
-        if len(d) < 3:
-            continue
-        q = float(np.min(d))
-        ratio = d / q
-        if np.median(np.abs(ratio - np.round(ratio))) < 0.02:
-            out[i] = q
-    return out
 
 
 class StationaryDetector:
@@ -547,114 +435,16 @@ class StationaryDetector:
         parts = [w for w in out if w is not None]
         return Windows.concat(parts) if parts else Windows.empty(self.k)
 
-    def _settled(self, b, keep):
-        """Return ``keep`` with the guards undone as far as their blocks agree with the hold.
-
-        ``keep`` marks the blocks inside the derived guards, which are now an upper bound:
-        going outwards from the kept core, each guard block is kept until the first one whose
-        mean accel or gyro differs from the core's, so a guard removes only what the data
-        show to differ (the settling of a placed unit, the start of a turn) and nothing
-        beyond it.  Keeping samples whose mean is off by ``d`` (per axis) lowers the hold
-        mean's error when ``d^2`` is below the noise variance they remove; with ``d``
-        estimated from the block, that is ``z^2 < 2 dof`` for the chi-square statistic of the
-        block-minus-core difference (``EDGE_Z2_PER_DOF``).  The per-sample noise is the
-        floor the run's last block was scored with, or what the scatter of the core's block
-        means implies when that is larger (noise that is not white at the block scale: a
-        ringing mount, bias wander).
-        """
-        nf = (float(b.fa[-1]), float(b.fg[-1]))
-        inner = np.flatnonzero(keep)
-        if len(inner) == 0 or len(inner) == len(keep):
-            return keep
-        core = slice(inner[0], inner[-1] + 1)
-        n = b.n.astype(float)
-        out = keep.copy()
-        for j in range(core.start - 1, -1, -1):
-            if not self._agrees(b, n, slice(j, j + 1), core, nf):
-                break
-            out[j] = True
-        for j in range(core.stop, len(keep)):
-            if not self._agrees(b, n, slice(j, j + 1), core, nf):
-                break
-            out[j] = True
-        return out
-
-    @staticmethod
-    def _agrees(b, n, zone, core, nf):
-        """Return True when the mean accel and gyro of blocks ``zone`` agree with ``core``'s."""
-        m = core.stop - core.start
-        n_zone, n_core = float(n[zone].sum()), float(n[core].sum())
-        for mean, floor in ((b.am, nf[0]), (b.gm, nf[1])):
-            ref = np.average(mean[core], 0, n[core])
-            var = floor / 3.0
-            if m >= 2:
-                var = max(var, float(np.sum((mean[core] - ref) ** 2 * n[core, None]))
-                          / (3.0 * (m - 1)))
-            d = np.average(mean[zone], 0, n[zone]) - ref
-            if np.sum(d ** 2) / (var * (1.0 / n_zone + 1.0 / n_core)) > EDGE_Z2_PER_DOF * 3:
-                return False
-        return True
-
     def _make_hold(self, b, score, edge=(False, False)):
-        c = self.config
-        if len(b) == 0:
+        """Return the Windows of a still run (None: too short), its record kept in ``holds``."""
+        made = make_hold(b, score, self._next_hold, self.config, self.derived['rate_hz'],
+                         'guard_s' not in self.derived['given'], self.k, edge)
+        if made is None:
             return None
-        guard = lead = c.guard_s
-        if 'guard_s' not in self.derived['given']:
-            # derived guard: grows with the hold up to GUARD_MAX_S; at the end of a hold, where
-            # a pose change begins slowly before the blocks see it (a hand starting to turn
-            # the unit), by GUARD_TAIL_FRACTION of the run, at the start by GUARD_FRACTION
-            run = b.t1[-1] - b.t0[0]
-            lead = min(max(guard, GUARD_FRACTION * run), max(guard, GUARD_MAX_S))
-            guard = min(max(guard, GUARD_TAIL_FRACTION * run), max(guard, GUARD_MAX_S))
-        # guards and the minimum hold count samples (at the derived rate), not stamp
-        # differences: with jittered stamps (a driver stamping on arrival) a 0.2 s guard
-        # would drop two or three 0.1 s blocks by chance, and a run's first-to-last stamp
-        # span is one sample interval short of the time it covers, so a run of exactly the
-        # minimum hold failed it
-        rate = self.derived['rate_hz']
-        before = np.cumsum(b.n) - b.n
-        after = int(np.sum(b.n)) - np.cumsum(b.n)
-        keep = ((before >= (0 if edge[0] else round(lead * rate)))
-                & (after >= (0 if edge[1] else round(guard * rate))))
-        if 'guard_s' not in self.derived['given']:
-            keep = self._settled(b, keep)
-        b = b.take(keep)
-        score = score[keep]
-        if len(b) == 0 or np.sum(b.n) < round(c.min_hold_s * rate):
-            return None
-        hold = self._next_hold
+        windows, record = made
         self._next_hold += 1
-        per = max(1, int(round(c.window_s / c.block_s)))
-        groups = np.arange(len(b)) // per
-        if groups[-1] > 0 and np.sum(groups == groups[-1]) < (per + 1) // 2:
-            groups[groups == groups[-1]] -= 1  # merge a short tail into the previous window
-        starts = np.flatnonzero(np.r_[True, groups[1:] != groups[:-1]])
-        n = np.add.reduceat(b.n, starts)
-        w = b.n[:, None].astype(float)
-
-        def wmean(x):
-            return np.add.reduceat(x * w, starts, axis=0) / n[:, None]
-
-        m = len(starts)
-        temp = wmean(b.tm) if self.k else np.zeros((m, 0))
-        rate = np.zeros((m, self.k))
-        if self.k:
-            ends = np.r_[starts[1:], len(b)]
-            for j, (s, e) in enumerate(zip(starts, ends)):
-                if e - s >= 2:
-                    tt = b.tt[s:e] - b.tt[s:e].mean()
-                    rate[j] = (tt @ (b.tm[s:e] - b.tm[s:e].mean(0))) / max(tt @ tt, 1e-12)
-        mean_a = np.average(b.am, 0, b.n)
-        self.holds.append({'hold': hold, 'start': float(b.t0[0]),
-                           'duration': float(b.t1[-1] - b.t0[0]), 'face': face_of(mean_a),
-                           'tilt_deg': tilt_deg(mean_a),
-                           'stillness': float(np.clip(1.0 - np.quantile(score, 0.95), 0, 1))})
-        return Windows(
-            hold=np.full(m, hold, int),
-            t0=b.t0[starts], t1=b.t1[np.r_[starts[1:], len(b)] - 1], n=n.astype(int),
-            accel=wmean(b.am), gyro=wmean(b.gm),
-            accel_var=wmean(b.av), gyro_var=wmean(b.gv), temp=temp, temp_rate=rate)
+        self.holds.append(record)
+        return windows
 
 
 def _column_median(x):
@@ -674,12 +464,6 @@ def _quiet_rows(b, sl, quiet):
     return np.concatenate([b.gm[sl][quiet], np.sqrt(np.sum(am * am, 1))[:, None]], 1)
 
 
-def tilt_deg(accel_mean):
-    """Return the angle (deg) between the gravity-up direction and the nearest sensor axis."""
-    u = np.abs(np.asarray(accel_mean, float))
-    return float(np.degrees(np.arccos(np.clip(u.max() / np.linalg.norm(u), -1.0, 1.0))))
-
-
 def detect(chunks, config=None, n_inputs=0):
     """Run the detector over an iterable of AlignedChunk and return all windows."""
     det = StationaryDetector(config, n_inputs)
@@ -688,36 +472,3 @@ def detect(chunks, config=None, n_inputs=0):
         parts.append(det.update(ch.imu.t, ch.imu.accel, ch.imu.gyro, ch.temps))
     parts.append(det.finish())
     return Windows.concat(parts) if any(len(p) for p in parts) else Windows.empty(n_inputs)
-
-
-def format_settings(settings):
-    """Render derived detector settings (``StationaryDetector.settings``) in one line."""
-    if not settings:
-        return 'detector: no data'
-    s = settings
-    given = set(s.get('given', []))
-
-    def mark(k):
-        return '' if k in given else '*'
-
-    pairs = (('accel', 'accel_lsb'), ('gyro', 'gyro_lsb'))
-    lsb = ', '.join(f'{name} LSB {s[k]:.3g}' for name, k in pairs if s.get(k))
-    noise = ''
-    if 'accel_noise_std' in s:
-        noise = (f', noise floor {s["accel_noise_std"]:.3g} m/s^2 / '
-                 f'{s["gyro_noise_std"]:.3g} rad/s')
-    return (f'detector ({s["rate_hz"]:.4g} Hz{", " + lsb if lsb else ""}{noise}): block '
-            f'{s["block_samples"]} samples = {s["block_s"]:.3g} s{mark("block_s")}, min hold '
-            f'{s["min_hold_s"]:.3g} s{mark("min_hold_s")}, guard {s["guard_s"]:.3g} s'
-            f'{mark("guard_s")}, window {s["window_s"]:.3g} s{mark("window_s")}, variance '
-            f'factors {s["accel_factor"]:.3g}{mark("accel_factor")}/{s["gyro_factor"]:.3g}'
-            f'{mark("gyro_factor")}, rotation {s["rotation_dps"]:g} deg/s  (* derived)')
-
-
-def format_holds(holds):
-    """Render hold records (``StationaryDetector.holds``) as a table for people."""
-    out = ['  hold   start [s]  duration [s]  face     tilt [deg]  stillness']
-    for h in holds:
-        out.append(f'  {h["hold"]:4d}  {h["start"]:10.2f}  {h["duration"]:12.2f}  '
-                   f'{h["face"]:7s}  {h["tilt_deg"]:10.1f}  {h["stillness"]:9.2f}')
-    return '\n'.join(out)

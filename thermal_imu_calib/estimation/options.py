@@ -1,0 +1,155 @@
+"""What one estimation run is asked and gives back, and how its inputs map to the axes.
+
+``CalibrateOptions`` (SI units) and ``CalibrationResult``; ``CalibrationRefused`` says what
+is wrong and what to collect. The temperature (or proxy) inputs: their units, the default
+axis mapping (``default_input_map``), the gyro's reference input, and the valid range a
+calibration gets (the collected range widened by ``input_margins``).
+"""
+
+from dataclasses import dataclass, field
+from typing import List, Optional
+
+import numpy as np
+
+from ..calibration import Calibration, TemperatureInput
+from ..gravity import STANDARD_GRAVITY
+from ..input_units import DEGC, is_temperature
+
+#: valid-range margin of a proxy input (e.g. Hz) when no degC input is there to scale the
+#: degC margin by: this fraction of the collected span on both sides (1 degC of a 17-degC
+#: warm-up is 6 %)
+PROXY_MARGIN_FRACTION = 0.05
+
+
+class CalibrationRefused(Exception):
+    """Estimation refused: ``reason`` says what is wrong, ``advice`` what to collect."""
+
+    def __init__(self, reason, advice=''):
+        super().__init__(f'{reason}. {advice}'.strip())
+        self.reason = reason
+        self.advice = advice
+
+
+@dataclass
+class CalibrateOptions:
+    """Settings of one estimation run (SI units)."""
+
+    model: str = 'auto'
+    gravity: float = STANDARD_GRAVITY
+    gravity_source: str = 'standard gravity 9.80665 m/s^2'
+    prior: Optional[Calibration] = None
+    inputs: List[TemperatureInput] = field(default_factory=list)
+    accel_input: Optional[List[int]] = None
+    gyro_input: Optional[List[int]] = None
+    frame_id: str = ''
+    out_of_range: str = 'clamp'
+    order: int = 2
+    refine: bool = True
+    min_hold_s: float = 10.0
+    #: the valid range is the collected range widened by this much on both sides (degC):
+    #: a low-order polynomial is trustworthy just past its data, a clamp at the exact data
+    #: edge is not (the next warm-up often ends a little higher)
+    range_margin: float = 1.0
+    #: margins by unit, {unit: margin in that unit} (e.g. {'Hz': 2.0}); a proxy unit not
+    #: named here gets ``range_margin`` scaled by the ratio of its collected span to the
+    #: degC inputs' (see ``input_margins``)
+    unit_margins: Optional[dict] = None
+    #: geodetic latitude (deg) when known: the gyro fit removes earth rotation with it
+    latitude: Optional[float] = None
+    #: pose changes between holds (``gyro_fit.Transition``, e.g. from
+    #: ``gyro_fit.MotionCollector``; hold ids as in the windows): the ``whole_unit``
+    #: estimator fits gyro scale and misalignment (Omega1, Omega2, Omega3) from them
+    transitions: list = field(default_factory=list)
+    #: accelerometer residual of ``whole_unit``: 'norm' (|a| - g per window) or 'vector'
+    whole_unit_residual: str = 'norm'
+    #: prior means and stds of ``whole_unit`` (``whole_unit_fit.Priors``; None: the
+    #: consumer-MEMS defaults)
+    whole_unit_priors: Optional[object] = None
+
+
+@dataclass
+class CalibrationResult:
+    """A new calibration, a one-line human summary and a machine-readable report."""
+
+    calibration: Calibration
+    summary: str
+    report: dict
+
+
+def _default_axis_inputs(k):
+    if k == 0:
+        return [0, 0, 0]
+    return [0, 1, 2] if k == 3 else [0, 0, 0]
+
+
+def input_units(options, k):
+    """Return the unit of each of the k inputs (degC when the options name none)."""
+    units = [getattr(i, 'unit', DEGC) for i in options.inputs]
+    return units if len(units) == k else [DEGC] * k
+
+
+def default_input_map(units):
+    """Return the default (accel_input, gyro_input) axis mapping for inputs of ``units``.
+
+    The accelerometer follows the degC inputs: three of them drive the x, y, z axes, else
+    the first drives all three. The gyro follows the one non-degC input (a thermal proxy
+    such as its resonance frequency) when there is exactly one, else input 0. With only
+    degC inputs this is the mapping of files written before proxies.
+    """
+    k = len(units)
+    temps = [j for j, u in enumerate(units) if is_temperature(u)]
+    proxies = [j for j, u in enumerate(units) if not is_temperature(u)]
+    if len(temps) == k:
+        accel = _default_axis_inputs(k)
+    elif len(temps) == 3:
+        accel = temps
+    else:
+        accel = [temps[0] if temps else 0] * 3
+    gyro = [proxies[0]] * 3 if len(proxies) == 1 else [0, 0, 0]
+    return accel, gyro
+
+
+def gyro_reference(units, gyro_input, tg, t0):
+    """Return the gyro models' (3,) reference input: ``t0`` for degC, else mid-range of tg.
+
+    A proxy has no relation to the accelerometer's reference temperature; its reference
+    is the middle of its collected range (rounded to 0.01 of its unit).
+    """
+    if not units or all(is_temperature(units[i]) for i in gyro_input):
+        return t0
+    return np.round((tg.min(0) + tg.max(0)) / 2.0, 2)
+
+
+def input_margins(windows, options):
+    """Return the (k,) valid-range margin of each input, in its unit.
+
+    An input whose unit is in ``unit_margins`` gets that; other degC inputs get
+    ``range_margin``; other proxies ``range_margin`` degC expressed in their unit through
+    the ratio of their collected span to the median span of the degC inputs (exact for a
+    proxy linear in the same temperature), else, without a degC input,
+    ``PROXY_MARGIN_FRACTION`` of their span.
+    """
+    k = windows.n_inputs
+    units = input_units(options, k)
+    explicit = options.unit_margins or {}
+    span = np.ptp(windows.temp, axis=0) if len(windows) else np.zeros(k)
+    t_span = [span[j] for j, u in enumerate(units) if is_temperature(u) and span[j] > 0]
+    out = np.full(k, float(options.range_margin))
+    for j, u in enumerate(units):
+        if u in explicit:
+            out[j] = float(explicit[u])
+        elif is_temperature(u):
+            continue
+        elif t_span:
+            out[j] = options.range_margin * span[j] / float(np.median(t_span))
+        else:
+            out[j] = PROXY_MARGIN_FRACTION * span[j]
+    return out
+
+
+def valid_range(windows, options):
+    """Return the (k, 2) valid range: the collected range widened by ``input_margins``."""
+    if not windows.n_inputs:
+        return None
+    m = input_margins(windows, options)
+    return np.stack([windows.temp.min(0) - m, windows.temp.max(0) + m], 1)
