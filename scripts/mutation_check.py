@@ -57,9 +57,9 @@ BREAKS = {
         ['test/test_select.py', 'test/test_thermal_lag.py', 'test/test_cli_pipeline.py']),
     'min-hold': (
         "make the detector's minimum hold 3x longer",
-        [(f'{PKG}/collection/stationary.py',
-          'b.t1[-1] - b.t0[0] < c.min_hold_s - 1e-9:',
-          'b.t1[-1] - b.t0[0] < 3 * c.min_hold_s - 1e-9:  # MUTANT')],
+        [(f'{PKG}/collection/holds.py',
+          'np.sum(b.n) < round(c.min_hold_s * rate):',
+          'np.sum(b.n) < round(3 * c.min_hold_s * rate):  # MUTANT')],
         ['test/test_core_estimation.py', 'test/test_cli_pipeline.py']),
     'skip-gyro': (
         'make the compensator skip the gyro correction',
