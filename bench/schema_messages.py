@@ -4,16 +4,16 @@ Breaks one field at a time of a small valid calibration (field-polynomial accel,
 gyro, one temperature input, noise and an Allan noise model) and prints, per case, the
 message of ``Calibration.from_dict`` (or ``ACCEPTED``). With ``--jsonschema`` it also prints
 what the JSON Schema of the same file (``schema_jsonschema.py`` beside this file) says about
-each case, raw (``best_match``) and formatted as the loader would print it; with
-``--pydantic`` what a pydantic model of the file says (``schema_pydantic.py``).
+each case, worded as the loader would print it.
 
 Usage::
 
-    python bench/schema_messages.py [--json OUT.json] [--compare BEFORE.json]
-                                    [--jsonschema] [--pydantic]
+    python bench/schema_messages.py [--json OUT.json] [--compare BEFORE.json] [--jsonschema]
 
 ``--compare`` prints the cases whose message changed against an earlier run (e.g. made on
-the commit before the schema moved). docs/architecture.md ("The calibration file's schema")
+the commit before the schema moved). ``--jsonschema`` needs ``pip install jsonschema`` (not
+a dependency of the package; the measurement used 4.26.0, and 4.10.3 for the
+distribution's version). docs/architecture.md ("The calibration file's schema")
 reports the comparison.
 """
 
@@ -203,20 +203,19 @@ def main(argv=None):
     ap.add_argument('--json', help='write {case: message} here')
     ap.add_argument('--compare', help='an earlier --json: print the cases that changed')
     ap.add_argument('--jsonschema', action='store_true', help='also print jsonschema\'s')
-    ap.add_argument('--pydantic', action='store_true', help='also print pydantic\'s')
     args = ap.parse_args(argv)
     msgs = loader_messages()
     protos = []
     if args.jsonschema:
         import schema_jsonschema
         protos.append(('jsonschema', schema_jsonschema.messages(cases())))
-    if args.pydantic:
-        import schema_pydantic
-        protos.append(('pydantic', schema_pydantic.messages(cases())))
     for name, msg in msgs.items():
         print(f'## {name}\n  loader: {msg}')
         for label, other in protos:
             print(f'  {label}: {other[name]}')
+    for label, other in protos:
+        same = sum(other[k] == msgs[k] for k in msgs)
+        print(f'{label}: {same} of {len(msgs)} messages identical to the loader\'s')
     if args.json:
         with open(args.json, 'w') as f:
             json.dump(msgs, f, indent=1)
