@@ -18,14 +18,19 @@ reports the comparison.
 """
 
 import argparse
+import ast
 import copy
+import io
 import json
 import os
+import subprocess
 import sys
+import tokenize
 
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
 sys.path.insert(0, HERE)
 
 NAN = float('nan')
@@ -197,13 +202,77 @@ def loader_messages():
     return out
 
 
+def code_lines(src, ranges=None):
+    """Count lines with code: not blank, not a comment, not a docstring (within ``ranges``)."""
+    doc = set()
+    for node in ast.walk(ast.parse(src)):
+        body = getattr(node, 'body', None)
+        if isinstance(node, (ast.Module, ast.FunctionDef, ast.ClassDef)) and body and \
+                isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant) \
+                and isinstance(body[0].value.value, str):
+            doc.update(range(body[0].lineno, body[0].end_lineno + 1))
+    skip = (tokenize.COMMENT, tokenize.NL, tokenize.NEWLINE, tokenize.INDENT, tokenize.DEDENT,
+            tokenize.ENDMARKER)
+    lines = {n for t in tokenize.generate_tokens(io.StringIO(src).readline)
+             if t.type not in skip for n in range(t.start[0], t.end[0] + 1)} - doc
+    return len([n for n in lines if ranges is None or any(a <= n <= b for a, b in ranges)])
+
+
+def ranges_of(src, names):
+    """Return the line ranges of the top-level definitions (and class methods) ``names``."""
+    out = []
+    for node in ast.parse(src).body:
+        for n in [node] + [m for m in getattr(node, 'body', []) if isinstance(node, ast.ClassDef)]:
+            name = getattr(n, 'name', None) or getattr(getattr(n, 'targets', [None])[0], 'id',
+                                                       None)
+            if name in names:
+                out.append((n.lineno - len(getattr(n, 'decorator_list', [])), n.end_lineno))
+    return out
+
+
+#: what checked the file in calibration.py of 43cdb78 (its YAML text limits and
+#: plausibility checks, moved unchanged, are counted apart)
+OLD_CHECKS = ['from_dict', '_build', '_type_name', '_short', '_mapping', '_list', '_text',
+              '_number', '_numbers', '_check_model_section', '_free_form', '_check_range_units',
+              '_noise_model', '_opt_vec', 'GRAVITY_BOUNDS', 'FORMAT', 'OUT_OF_RANGE_POLICIES',
+              'NOISE_UNITS']
+RULES = ['_at', '_inputs', '_valid_range', '_filter', '_models', '_noise', '_plain_fields',
+         'RULES']
+
+
+def line_counts():
+    """Print the code lines of the file's checks: 43cdb78, the own table, jsonschema."""
+    old = subprocess.run(['git', 'show', '43cdb78:thermal_imu_calib/calibration.py'], cwd=ROOT,
+                         capture_output=True, text=True, check=True).stdout
+    print(f'43cdb78 calibration.py: {len(old.splitlines())} lines; the file\'s checks '
+          f'{code_lines(old, ranges_of(old, OLD_CHECKS))} code lines')
+    pkg = os.path.join(ROOT, 'thermal_imu_calib', 'calibration')
+    sch = open(os.path.join(pkg, 'schema.py')).read()
+    rules, load = code_lines(sch, ranges_of(sch, RULES)), code_lines(sch, ranges_of(sch, ['load']))
+    spec = code_lines(open(os.path.join(pkg, 'spec.py')).read())
+    table = code_lines(sch) - rules - load
+    print(f'own table: spec.py {spec} + table and imports {table} + RULES {rules} + load {load}'
+          f' = {spec + table + rules + load} code lines')
+    js = open(os.path.join(HERE, 'schema_jsonschema.py')).read()
+    n = code_lines(js) - code_lines(js, ranges_of(js, ['messages']))
+    print(f'jsonschema: {n} + RULES {rules} = {n + rules} code lines')
+    for f in sorted(os.listdir(pkg)):
+        if f.endswith('.py'):
+            text = open(os.path.join(pkg, f)).read()
+            print(f'  calibration/{f}: {len(text.splitlines())} lines, {code_lines(text)} code')
+
+
 def main(argv=None):
     """Print the loader's message per case; optionally the library prototypes' too."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--json', help='write {case: message} here')
     ap.add_argument('--compare', help='an earlier --json: print the cases that changed')
     ap.add_argument('--jsonschema', action='store_true', help='also print jsonschema\'s')
+    ap.add_argument('--lines', action='store_true', help='print the code line counts only')
     args = ap.parse_args(argv)
+    if args.lines:
+        line_counts()
+        return 0
     msgs = loader_messages()
     protos = []
     if args.jsonschema:
