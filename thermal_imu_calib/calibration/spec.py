@@ -29,7 +29,10 @@ def wrong(path, what, value):
 
 
 class Spec:
-    """A field: ``check(value, path)`` returns it normalised or raises ValueError."""
+    """A field: ``check(value, path)`` returns it normalised or raises ValueError.
+
+    Subclasses define ``_check`` (and ``_absent`` when an absent field is not its default).
+    """
 
     what = 'a value'
 
@@ -41,15 +44,17 @@ class Spec:
         if key not in d or (self.null and d[key] is None):
             if self.default is REQUIRED:
                 raise ValueError(f'{path} is missing; it must be {self.what}')
-            return self.absent(path)
+            return self._absent(path)
         return self.check(d[key], path)
 
-    def absent(self, path):
-        """Return the value of an absent field (a copy: defaults are never shared)."""
-        return copy.copy(self.default)
-
     def check(self, value, path):
-        """Return ``value`` (subclasses check and normalise it)."""
+        """Return ``value`` checked and normalised; ValueError naming ``path`` otherwise."""
+        return self._check(value, path)
+
+    def _absent(self, path):
+        return copy.copy(self.default)    # a copy: defaults are never shared
+
+    def _check(self, value, path):
         return value
 
 
@@ -63,7 +68,7 @@ class Text(Spec):
         super().__init__(default, **kw)
         self.numbers, self.what = numbers, what
 
-    def check(self, value, path):
+    def _check(self, value, path):
         if isinstance(value, str):
             return value
         if self.numbers and not isinstance(value, bool) and isinstance(
@@ -81,7 +86,7 @@ class Number(Spec):
         super().__init__(default, **kw)
         self.positive, self.within = positive, within
 
-    def check(self, value, path):
+    def _check(self, value, path):
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise wrong(path, self.what, value)
         v = float(value)
@@ -108,7 +113,7 @@ class Numbers(Spec):
         super().__init__(default, **kw)
         self.size, self.nonnegative = size, nonnegative
 
-    def check(self, value, path):
+    def _check(self, value, path):
         stack, seen = [value], 0
         while stack:                   # iterative: a list nested 10^5 deep is refused, fast
             x = stack.pop()
@@ -147,7 +152,7 @@ class Choice(Spec):
         self.options = tuple(options)
         self.what = f'one of {self.options}'
 
-    def check(self, value, path):
+    def _check(self, value, path):
         if not isinstance(value, str) or value not in self.options:
             raise ValueError(f'{path} {short(value)} is not one of {self.options}')
         return value
@@ -160,7 +165,7 @@ class Indices(Spec):
         super().__init__(default, **kw)
         self.n, self.what = n, f'a list of {n} input indices'
 
-    def check(self, value, path):
+    def _check(self, value, path):
         if not isinstance(value, list) or len(value) != self.n or not all(
                 isinstance(i, int) and not isinstance(i, bool) for i in value):
             raise wrong(path, self.what, value)
@@ -177,10 +182,10 @@ class Mapping(Spec):
         super().__init__(**kw)
         self.fields, self.what, self.rule, self.optional = fields, what, rule, optional
 
-    def absent(self, path):
+    def _absent(self, path):
         return None if self.optional else self.check({}, path)
 
-    def check(self, value, path):
+    def _check(self, value, path):
         if not isinstance(value, dict):
             raise wrong(path, self.what, value)
         out = {key: spec.read(value, key, f'{path}.{key}' if path else key)
@@ -197,7 +202,7 @@ class MapOf(Spec):
         super().__init__(REQUIRED, **kw)
         self.item, self.what = item, what
 
-    def check(self, value, path):
+    def _check(self, value, path):
         if not isinstance(value, dict) or not value:
             raise wrong(path, self.what, value)
         for key in value:
@@ -215,10 +220,10 @@ class ListOf(Spec):
         super().__init__(None, **kw)
         self.item = item
 
-    def absent(self, path):
+    def _absent(self, path):
         return []
 
-    def check(self, value, path):
+    def _check(self, value, path):
         if not isinstance(value, list):
             raise wrong(path, self.what, value)
         return [self.item.check(v, f'{path}[{j}]') for j, v in enumerate(value)]
@@ -229,7 +234,7 @@ class TextOrList(Spec):
 
     what = 'text or a list of text'
 
-    def check(self, value, path):
+    def _check(self, value, path):
         items = value if isinstance(value, list) else [value]
         if not all(isinstance(u, str) for u in items):
             raise wrong(path, self.what, value)
@@ -243,7 +248,7 @@ class Valued(Spec):
         super().__init__(None, **kw)
         self.item, self.what = item, f'{item.what} or a mapping with value'
 
-    def check(self, value, path):
+    def _check(self, value, path):
         if isinstance(value, dict):
             return self.item.read(value, 'value', f'{path}.value')
         return self.item.check(value, path)
@@ -262,10 +267,10 @@ class FreeForm(Spec):
         self.kind, self.optional = kind, optional
         self.what = 'a mapping' if kind is dict else 'a list'
 
-    def absent(self, path):
+    def _absent(self, path):
         return None if self.optional else self.kind()
 
-    def check(self, value, path):
+    def _check(self, value, path):
         if not isinstance(value, self.kind):
             raise wrong(path, self.what, value)
         stack, seen = [(value, 0)], 0
@@ -291,6 +296,6 @@ class Notes(FreeForm):
         super().__init__(list)
         self.what = 'a list or text'
 
-    def check(self, value, path):
-        notes = [value] if isinstance(value, str) else super().check(value, path)
+    def _check(self, value, path):
+        notes = [value] if isinstance(value, str) else super()._check(value, path)
         return [str(n) for n in notes]
