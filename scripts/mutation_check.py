@@ -34,7 +34,7 @@ PKG = 'thermal_imu_calib'
 BREAKS = {
     'model-std': (
         'drop the model-std term from the covariance',
-        [(f'{PKG}/calibration.py',
+        [(f'{PKG}/calibration/core.py',
           '        var = var + np.asarray(model_std) ** 2\n',
           '        pass  # MUTANT: model std dropped\n')],
         ['test/test_core_models.py', 'test/test_lab.py', 'test/test_rvm.py',
@@ -63,7 +63,7 @@ BREAKS = {
         ['test/test_core_estimation.py', 'test/test_cli_pipeline.py']),
     'skip-gyro': (
         'make the compensator skip the gyro correction',
-        [(f'{PKG}/calibration.py',
+        [(f'{PKG}/calibration/core.py',
           "            g_out = self.gyro.correct(gyro, tg, aux={'accel': a_out})\n",
           '            g_out = gyro  # MUTANT: gyro correction skipped\n')],
         ['test/test_core_models.py', 'test/test_covariance.py', 'test/test_node_compensator.py']),

@@ -1,0 +1,68 @@
+"""What every part of the calibration package shares: its error, its input type, its limits."""
+
+from dataclasses import dataclass
+
+from ..input_units import DEGC, normalize_unit
+
+FORMAT = 'thermal_imu_calib/1'
+OUT_OF_RANGE_POLICIES = ('clamp', 'extrapolate')
+#: a calibration file is a few kB; these bound what a hostile one can cost before it is read
+MAX_FILE_BYTES = 4 * 2 ** 20
+#: deepest nesting of YAML mappings/sequences accepted (a real file nests < 10 deep)
+MAX_DEPTH = 64
+#: most YAML nodes after alias expansion (an alias bomb expands to billions)
+MAX_NODES = 200_000
+#: gravity values a file may carry, m/s^2 (cf. gravity.resolve_gravity)
+GRAVITY_BOUNDS = (9.7, 9.9)
+#: units of the Allan noise-model entries of the ``noise`` section
+NOISE_UNITS = {'accel_noise_density': 'm/s^2/sqrt(Hz)', 'gyro_noise_density': 'rad/s/sqrt(Hz)',
+               'accel_random_walk': 'm/s^3/sqrt(Hz)', 'gyro_random_walk': 'rad/s^2/sqrt(Hz)',
+               'rate_hz': 'Hz', 'horizon_s': 's'}
+
+
+class CalibrationError(ValueError):
+    """A calibration file or object that cannot be used; the message says why and what to do."""
+
+
+@dataclass
+class TemperatureInput:
+    """One thermal input the models use (a topic in ROS, a column offline).
+
+    ``unit`` is degC for a temperature, or a proxy's unit (e.g. Hz); Kelvin and Fahrenheit
+    raise ValueError (convert to degC).
+    """
+
+    name: str
+    topic: str = 'imu/temperature'
+    unit: str = DEGC
+
+    def __post_init__(self):
+        self.unit = normalize_unit(self.unit, f'temperature input {self.name!r}')
+
+
+def out_unit(name):
+    """Return the SI unit of the accel or gyro output."""
+    return 'm/s^2' if name == 'accel' else 'rad/s'
+
+
+def type_name(x):
+    """Name the YAML type of a value for a message: 'text', 'a list', 'nothing', ..."""
+    if x is None:
+        return 'nothing'
+    if isinstance(x, bool):
+        return 'a boolean'
+    if isinstance(x, str):
+        return 'text'
+    if isinstance(x, (int, float)):
+        return 'a number'
+    if isinstance(x, dict):
+        return 'a mapping'
+    if isinstance(x, (list, tuple)):
+        return 'a list'
+    return f'a {type(x).__name__}'
+
+
+def short(x, n=60, use_repr=True):
+    """Return ``repr(x)`` (or ``str``) cut to ``n`` characters for a message."""
+    s = repr(x) if use_repr else str(x)
+    return s if len(s) <= n else s[:n] + '...'

@@ -1,0 +1,334 @@
+"""The Calibration object: one IMU's models, thermal inputs and validity, applied and written.
+
+``Calibration.apply`` is the one vectorised entry point the CLI and both nodes use;
+``to_yaml``/``save`` write the versioned file and ``load``/``from_yaml``/``from_dict`` read
+it back through its schema (``schema.py``: every field and check of the file).
+"""
+
+import datetime
+import hashlib
+import os
+from dataclasses import dataclass, field
+from typing import List, Optional
+
+import numpy as np
+import yaml
+
+from .. import __version__
+from ..gravity import STANDARD_GRAVITY
+from ..input_units import DEGC, is_temperature
+from ..models import SensorModel
+from ..thermal_input import CalibrationStream, ThermalFilter
+from . import schema
+from .base import CalibrationError, FORMAT, NOISE_UNITS, TemperatureInput
+from .yaml_text import parse_yaml, read_file
+
+
+@dataclass
+class Compensated:
+    """Result of ``Calibration.apply``: corrected columns plus per-row flags."""
+
+    accel: np.ndarray
+    gyro: np.ndarray
+    #: (n,) bool, True where a temperature was outside the valid range (clamped or extrapolated)
+    out_of_range: np.ndarray
+    #: (n, 3) 1-sigma accel uncertainty in m/s^2 (model + white noise) or None
+    accel_std: Optional[np.ndarray] = None
+    #: (n, 3) 1-sigma gyro uncertainty in rad/s or None
+    gyro_std: Optional[np.ndarray] = None
+
+
+@dataclass
+class Calibration:
+    """A thermal calibration: models for accel and/or gyro, their inputs and validity."""
+
+    accel: Optional[SensorModel] = None
+    gyro: Optional[SensorModel] = None
+    inputs: List[TemperatureInput] = field(default_factory=list)
+    #: (k, 2) valid range per input, in each input's unit (degC, or a proxy's unit)
+    valid_range: Optional[np.ndarray] = None
+    out_of_range: str = 'clamp'
+    accel_input: List[int] = field(default_factory=lambda: [0, 0, 0])
+    gyro_input: List[int] = field(default_factory=lambda: [0, 0, 0])
+    frame_id: str = ''
+    gravity: float = STANDARD_GRAVITY
+    gravity_source: str = 'standard gravity 9.80665 m/s^2'
+    #: white-noise 1-sigma per sample, per axis: accel m/s^2, gyro rad/s
+    accel_noise_std: Optional[np.ndarray] = None
+    gyro_noise_std: Optional[np.ndarray] = None
+    fit: dict = field(default_factory=dict)
+    notes: List[str] = field(default_factory=list)
+    created: str = ''
+    software_version: str = __version__
+    #: optional lag of the temperature inputs (thermal_input); None: the reading is the input
+    temperature_filter: Optional[ThermalFilter] = None
+    #: Allan noise model (``estimation.allan``): per axis ``{accel,gyro}_noise_density`` N
+    #: (unit/sqrt(Hz)) and ``{accel,gyro}_random_walk`` K (unit/s/sqrt(Hz)), plus
+    #: ``rate_hz`` and ``horizon_s``; see ``noise_std``
+    noise_model: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        for which in ('accel', 'gyro'):
+            model = getattr(self, which)
+            if model is None or not self.inputs:
+                continue
+            unit = self.model_input_unit(which)
+            if model.input_unit != unit:
+                if model.input_unit != DEGC:
+                    raise CalibrationError(
+                        f'the {which} model is a function of an input in '
+                        f'{model.input_unit} but its axes are mapped to inputs in {unit}; '
+                        'map it to inputs of its unit')
+                model.input_unit = unit   # fitted on these inputs: their unit is its unit
+
+    @property
+    def input_units(self):
+        """Return the unit of each input, in input order."""
+        return [i.unit for i in self.inputs]
+
+    def model_input_unit(self, which):
+        """Return the unit of the inputs the 'accel' or 'gyro' axes are mapped to.
+
+        Raises CalibrationError when the three axes are mapped to inputs of different units.
+        """
+        idx = self.accel_input if which == 'accel' else self.gyro_input
+        if not self.inputs:
+            return DEGC
+        units = sorted({self.inputs[i].unit for i in idx if 0 <= i < len(self.inputs)})
+        if len(units) != 1:
+            raise CalibrationError(f'the {which} axes are mapped to inputs of different units '
+                                   f'({", ".join(units) or "none"}); map all three axes to '
+                                   'inputs of one unit')
+        return units[0]
+
+    # ------------------------------------------------------------------ apply
+    def axis_temperatures(self, temps, which):
+        """Map (n, k) thermal inputs to (n, 3) per-axis inputs for 'accel'/'gyro'.
+
+        Returns (per_axis, out_of_range_mask). With no inputs the model's reference
+        temperature is used (temperature-independent calibration).
+        """
+        model = self.accel if which == 'accel' else self.gyro
+        idx = self.accel_input if which == 'accel' else self.gyro_input
+        temps = np.asarray(temps, float)
+        n = temps.shape[0]
+        if not self.inputs:
+            t0 = getattr(model, 't0', np.zeros(3))
+            return np.broadcast_to(t0, (n, 3)).copy(), np.zeros(n, bool)
+        if temps.ndim != 2 or temps.shape[1] != len(self.inputs):
+            raise CalibrationError(
+                f'got {temps.shape[1] if temps.ndim == 2 else "?"} temperature columns, the '
+                f'calibration expects {len(self.inputs)} '
+                f'({", ".join(i.topic for i in self.inputs)})')
+        lo, hi = self.valid_range[:, 0], self.valid_range[:, 1]
+        oor = np.any((temps < lo) | (temps > hi), axis=1)
+        if self.out_of_range == 'clamp':
+            temps = np.clip(temps, lo, hi)
+        return temps[:, idx], oor
+
+    def apply(self, accel, gyro, temps=None, history=None):
+        """Compensate (n, 3) accel [m/s^2] and gyro [rad/s] at (n, k) thermal inputs.
+
+        Column j of ``temps`` is input j in its unit (degC, or a proxy's unit such as Hz).
+
+        NaN temperatures are not allowed here; resolve missing temperature first (hold or
+        passthrough). Returns a ``Compensated`` with the out-of-range mask. With a
+        ``temperature_filter``, ``temps`` are the models' (lagged) inputs: stream data
+        through ``stream().apply``; raw readings here mean thermal equilibrium.
+        ``history``: ``{key: (n, k)}`` lagged readings for history-dependent models
+        (``thermal_input.HistoryStream``, filled by ``stream().apply``); None: equilibrium.
+        """
+        accel = np.asarray(accel, float)
+        gyro = np.asarray(gyro, float)
+        n = accel.shape[0]
+        if temps is None:
+            temps = np.zeros((n, 0))
+        temps = np.asarray(temps, float).reshape(n, -1)
+        if temps.size and not np.all(np.isfinite(temps)):
+            raise CalibrationError('temperature contains NaN/Inf; resolve missing samples first')
+        oor = np.zeros(n, bool)
+        a_out, g_out, a_std, g_std = accel, gyro, None, None
+        if self.accel is not None:
+            ta, o = self.axis_temperatures(temps, 'accel')
+            oor |= o
+            ha = self._axis_history(history, self.accel, 'accel')
+            a_out = self.accel.correct(accel, ta, aux=ha)
+            a_std = _combine_std(_model_std(self.accel, ta, ha), self.noise_std('accel'), n)
+        if self.gyro is not None:
+            tg, o = self.axis_temperatures(temps, 'gyro')
+            oor |= o
+            hg = self._axis_history(history, self.gyro, 'gyro')
+            g_out = self.gyro.correct(gyro, tg, aux={'accel': a_out, **(hg or {})})
+            g_std = _combine_std(_model_std(self.gyro, tg, hg), self.noise_std('gyro'), n)
+        return Compensated(a_out, g_out, oor, a_std, g_std)
+
+    def _axis_history(self, history, model, which):
+        """Return ``{'history': {key: (n, 3)}}`` for a history-dependent model, else None.
+
+        The lagged readings are mapped to axes and clamped like the readings themselves.
+        """
+        keys = getattr(model, 'history_keys', ())
+        if not keys or not history or not self.inputs:
+            return None
+        out = {k: self.axis_temperatures(history[k], which)[0] for k in keys if k in history}
+        if '_age_s' in history:
+            out['_age_s'] = history['_age_s']
+        return {'history': out}
+
+    def noise_std(self, which):
+        """Return the (3,) per-sample noise std of 'accel'/'gyro' the covariance uses, or None.
+
+        White part: ``noise.<which>_std``, else N sqrt(rate_hz). With a random walk K the
+        bias wander over ``horizon_s`` (the span of the calibration data: what the thermal
+        model could not follow) is added: sqrt(white^2 + K^2 horizon_s / 3), the Allan
+        variance of a random walk at that tau.
+        """
+        white = self.accel_noise_std if which == 'accel' else self.gyro_noise_std
+        nm = self.noise_model or {}
+        dens = nm.get(f'{which}_noise_density')
+        if white is None and dens is not None and nm.get('rate_hz'):
+            white = np.asarray(dens, float) * np.sqrt(float(nm['rate_hz']))
+        walk = nm.get(f'{which}_random_walk')
+        if walk is None or not nm.get('horizon_s'):
+            return white
+        var = np.asarray(walk, float) ** 2 * float(nm['horizon_s']) / 3.0
+        return np.sqrt(var + (0.0 if white is None else np.asarray(white, float) ** 2))
+
+    def stream(self):
+        """Return a ``CalibrationStream``: ``apply`` batch after batch with the filter state."""
+        return CalibrationStream(self)
+
+    # ------------------------------------------------------------------ file
+    @property
+    def temperature_topics(self):
+        """Return the topics of the temperature inputs, in input order."""
+        return [i.topic for i in self.inputs]
+
+    def to_dict(self):
+        """Return the file content as plain Python types."""
+        d = self._core_dict()
+        d['fit'] = _plain(self.fit)
+        d['notes'] = list(self.notes)
+        return d
+
+    def _core_dict(self):
+        """Return the file content without the free-form ``fit`` and ``notes``."""
+        units = self.input_units
+        d = {
+            'format': FORMAT,
+            'software': {'name': 'thermal_imu_calib', 'version': self.software_version},
+            'created': self.created or _now(),
+            'sensor': {'frame_id': self.frame_id},
+            'units': {'accel': 'm/s^2', 'gyro': 'rad/s', 'temperature': 'degC', 'time': 's',
+                      **({} if all(map(is_temperature, units)) else
+                         {'thermal_inputs': 'per input, see temperature.inputs[].unit'})},
+            'gravity': {'value': float(self.gravity), 'unit': 'm/s^2',
+                        'source': self.gravity_source},
+            'temperature': {
+                'inputs': [{'name': i.name, 'topic': i.topic, 'unit': i.unit}
+                           for i in self.inputs],
+                'valid_range': None if self.valid_range is None else {
+                    'min': self.valid_range[:, 0].tolist(),
+                    'max': self.valid_range[:, 1].tolist(),
+                    'unit': units[0] if len(set(units)) == 1 else units},
+                'out_of_range': self.out_of_range,
+            },
+        }
+        if self.temperature_filter is not None:
+            d['temperature']['filter'] = self.temperature_filter.to_dict()
+        for name, model, idx in (('accel', self.accel, self.accel_input),
+                                 ('gyro', self.gyro, self.gyro_input)):
+            if model is not None:
+                sec = model.to_dict()
+                sec['temperature_input'] = [int(i) for i in idx]
+                d[name] = sec
+        noise = {}
+        if self.accel_noise_std is not None:
+            noise['accel_std'] = {'value': np.asarray(self.accel_noise_std).tolist(),
+                                  'unit': 'm/s^2', 'description': 'white noise 1-sigma per sample'}
+        if self.gyro_noise_std is not None:
+            noise['gyro_std'] = {'value': np.asarray(self.gyro_noise_std).tolist(),
+                                 'unit': 'rad/s', 'description': 'white noise 1-sigma per sample'}
+        for key, value in (self.noise_model or {}).items():
+            noise[key] = {'value': _plain(value), 'unit': NOISE_UNITS.get(key, '')}
+        if noise:
+            d['noise'] = noise
+        return d
+
+    def to_yaml(self):
+        """Return the file text."""
+        return yaml.safe_dump(self.to_dict(), sort_keys=False, default_flow_style=None, width=100)
+
+    def save(self, path):
+        """Write atomically (``io.output.write_atomic``: temporary + rename); return path."""
+        from ..io.output import write_atomic
+        return write_atomic(os.fspath(path), self.to_yaml())
+
+    @property
+    def id(self):
+        """Return a short content hash identifying this calibration (for diagnostics).
+
+        It covers what compensates (models, inputs, ranges, gravity, noise), not the
+        free-form ``fit`` and ``notes``: those never enter the hot path.
+        """
+        d = self._core_dict()
+        d.pop('created', None)
+        return hashlib.sha1(yaml.safe_dump(d, sort_keys=True).encode()).hexdigest()[:10]
+
+    @staticmethod
+    def from_yaml(text, source='calibration'):
+        """Parse and validate file text (str or UTF-8 bytes); raises CalibrationError.
+
+        Size, nesting depth and alias expansion are limited (``MAX_FILE_BYTES``,
+        ``MAX_DEPTH``, ``MAX_NODES``) before anything walks the document.
+        """
+        return Calibration.from_dict(parse_yaml(text, source), source)
+
+    @staticmethod
+    def load(path):
+        """Load and validate a calibration file."""
+        return Calibration.from_yaml(read_file(path), os.fspath(path))
+
+    @staticmethod
+    def from_dict(d, source='calibration'):
+        """Validate a parsed file and build the object (``schema.load``).
+
+        Every schema violation (wrong type, missing key, implausible value, a model that
+        misbehaves somewhere in the valid range) raises CalibrationError naming the field.
+        """
+        return schema.load(d, source, Calibration)
+
+
+def _model_std(model, temps, aux):
+    """Return the model's predict_std, with its history terms when it has them."""
+    if aux is None:
+        return model.predict_std(temps)
+    return model.predict_std(temps, aux=aux)
+
+
+def _combine_std(model_std, noise_std, n):
+    if model_std is None and noise_std is None:
+        return None
+    var = np.zeros((n, 3))
+    if model_std is not None:
+        var = var + np.asarray(model_std) ** 2
+    if noise_std is not None:
+        var = var + np.asarray(noise_std) ** 2
+    return np.sqrt(var)
+
+
+def _now():
+    return datetime.datetime.now(datetime.timezone.utc).replace(microsecond=0).isoformat()
+
+
+def _plain(x):
+    """Convert numpy scalars/arrays inside nested containers to plain Python for YAML."""
+    if isinstance(x, dict):
+        return {str(k): _plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_plain(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _plain(x.tolist())
+    if isinstance(x, np.generic):
+        return x.item()
+    return x
