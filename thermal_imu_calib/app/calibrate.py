@@ -146,8 +146,8 @@ def calibrate_collected(settings, collected, paths=(), imu_topic=None):
     CalibrationResult, checked by the loader the compensator uses (SettingsError when it
     would be refused: nothing usable can be written).
     """
-    from ..noise import add_random_walk
-    from ..pipeline import merge_transitions, merge_windows
+    from .noise import add_random_walk
+    from ..collection.collected import merge_transitions, merge_windows
     topics = collected[0].temperature_topics
     for c in collected[1:]:
         if c.temperature_topics != topics:

@@ -162,7 +162,7 @@ def calibrate_collected(args, collected, paths):
     if args.save_windows:
         from .checks import TRANSITIONS_SUFFIX
         from ..collection.motion import save_transitions
-        from ..pipeline import merge_transitions, merge_windows
+        from ..collection.collected import merge_transitions, merge_windows
         windows, transitions = merge_windows(collected), merge_transitions(collected)
         write_atomic(args.save_windows, windows.to_jsonl())
         write_atomic(args.save_windows + TRANSITIONS_SUFFIX,

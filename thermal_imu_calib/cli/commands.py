@@ -106,7 +106,7 @@ def cmd_calibrate(args):
     costs ~0.09 s CPU per 375k messages, not measurable in a calibrate run.
     """
     from ..io.gate import check_report
-    from ..pipeline import collect_windows
+    from ..app.collect import collect_windows
     _gravity(args)   # a bad --gravity/--latitude is refused before reading any log
     cli_checks.check_distinct_inputs(args.inputs)
     cli_checks.calibrate_outputs(args)   # every output checked before any log is read
@@ -152,7 +152,7 @@ def _motion_text(collected):
 
 def cmd_compensate(args):
     """Run the compensate subcommand."""
-    from ..pipeline import compensate_log
+    from ..app.compensate import compensate_log
     Outputs([args.input, args.calibration]).log(args.output, '-o')
     cal = Calibration.load(args.calibration)
     st = compensate_log(args.input, args.output, cal, args.imu_topic, args.temperature_topic,
@@ -171,7 +171,7 @@ def cmd_compensate(args):
 
 def cmd_evaluate(args):
     """Run the evaluate subcommand."""
-    from ..pipeline import evaluate_log
+    from ..app.evaluate import evaluate_log
     g, _ = _gravity(args)
     cals = {}
     for path in args.calibration:
@@ -231,7 +231,7 @@ def cmd_info(args):
     with open_log(args.input) as reader:
         print(reader.info().format())
     if args.holds:
-        from ..pipeline import collect_windows
+        from ..app.collect import collect_windows
         c = collect_windows(args.input, args.imu_topic, args.temperature_topic, _detector(args),
                             args.chunk_size, args.max_gap, args.progress)
         print(f'{len(c.holds)} stationary holds')

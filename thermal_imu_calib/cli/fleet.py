@@ -182,7 +182,7 @@ def compensate_one(path, out_path, registry, group, kw):
     """Task: compensate one log with its unit's calibration; returns (path, text, ok)."""
     from ..io.bag import open_log
     from ..io.topics import resolve_topics
-    from ..pipeline import compensate_log
+    from ..app.compensate import compensate_log
     try:
         with open_log(path) as reader:
             start = int(reader.start_ns or 0)

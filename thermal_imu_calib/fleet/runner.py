@@ -86,7 +86,7 @@ def collect_log(path, group, imu_topic=None, temperature_topics=None, detector=N
     from ..io.bag import open_log
     from ..io.gate import check_report
     from ..io.topics import resolve_topics
-    from ..pipeline import collect_windows
+    from ..app.collect import collect_windows
     t = time.perf_counter()
     res = LogResult(os.fspath(path))
     try:

@@ -52,7 +52,7 @@ from ..gravity import resolve_gravity
 from ..io.align import StreamAligner
 from ..io.columns import ImuColumns, TemperatureColumns
 from ..io.output import CALIBRATION, OutputError, Outputs, write_atomic
-from ..pipeline import Collected
+from ..collection.collected import Collected
 
 NODE_NAME = 'thermal_imu_calibrator'
 #: what ``_write`` says when calibration_file is empty (the node is set up not to write)

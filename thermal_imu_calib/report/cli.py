@@ -67,7 +67,8 @@ def load_windows(args, cal, user_error):
     """Return (Windows or None, temperature series or None, source text)."""
     from ..collection.segments import Windows
     if args.log:
-        from ..pipeline import collect_windows, merge_windows
+        from ..app.collect import collect_windows
+        from ..collection.collected import merge_windows
         topics = cal.temperature_topics or None
         collected = [collect_windows(p, args.imu_topic, topics) for p in args.log]
         return (merge_windows(collected), _series(args.log[0], topics),
@@ -120,7 +121,8 @@ def add_noise_parser(sub):
 
 def cmd_noise(args, user_error):
     """Run ``noise``."""
-    from ..noise import format_noise, kalibr_yaml, noise_from_log
+    from ..estimation.noise_model import format_noise, kalibr_yaml
+    from ..app.noise import noise_from_log
     html = None
     if args.html is not None:
         html = args.html or os.path.normpath(args.input) + '.noise.html'
