@@ -23,14 +23,17 @@ LAYERS = [
     ('collection', ['collection']),
     ('estimation', ['estimation']),
     ('selection', ['selection']),
-    ('pipelines', ['sim', 'report']),
+    # below the use cases: the simulator, the report pages, the fleet's inputs and registry
+    ('support', ['sim', 'report', 'fleet']),
+    # one module per use case (calibrate, collect, compensate, evaluate, noise, fleet steps)
     ('app', ['app']),
-    ('adapters', ['cli', 'nodes', 'fleet', 'report.cli']),
+    # parse, call one use case, format: the command line, the ROS nodes, the Dask runner
+    ('adapters', ['cli', 'nodes', 'fleet.runner', 'report.cli']),
     ('package', ['']),
 ]
 #: layers that must not import a ROS client library
 NO_ROS = {'helpers', 'io', 'models', 'calibration', 'collection', 'estimation', 'selection',
-          'pipelines', 'app'}
+          'support', 'app'}
 ROS_MODULES = ('rclpy', 'rosidl_runtime_py', 'launch', 'launch_ros')
 
 

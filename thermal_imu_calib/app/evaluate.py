@@ -6,8 +6,11 @@ those windows (``collection.metrics.WindowAccumulator``), so every label is judg
 same data; the figures are ``collection.metrics.static_metrics`` (micro-g, rad/s).
 """
 
+import os
+
 import numpy as np
 
+from ..calibration import Calibration
 from ..collection.feed import DEFAULT_MAX_GAP_S
 from ..collection.metrics import static_metrics, WindowAccumulator, with_signals
 from ..io.bag import open_log
@@ -91,3 +94,28 @@ def _select_inputs(cal, topics, temps):
                            f'topics read ({", ".join(topics) or "none"})')
         idx.append(norm.index(name))
     return temps[:, idx]
+
+
+def evaluate_files(path, calibration_files, imu_topic=None, temperature_topics=None,
+                   detector=None, gravity=9.80665, average_s=300.0, chunk_size=20000,
+                   max_gap_s=DEFAULT_MAX_GAP_S, progress=None):
+    """Evaluate the calibration files on a log: ``evaluate_log`` labelled by file name.
+
+    A label is the file's name without extension (``'`` added to tell equal names apart).
+    Refused (LogError) when the log has no stationary hold to judge on.
+    """
+    cals = {}
+    for file in calibration_files:
+        label = os.path.splitext(os.path.basename(file))[0]
+        while label in cals:
+            label += "'"
+        cals[label] = Calibration.load(file)
+    res = evaluate_log(path, cals, imu_topic, temperature_topics, detector, gravity, average_s,
+                       chunk_size, max_gap_s, progress)
+    if res['holds'] == 0:
+        raise LogError(f'{path}: no stationary holds found, so there is nothing to '
+                       'evaluate; evaluate needs a log with the IMU held still in several '
+                       'poses, each for at least the minimum hold (derived from the log; '
+                       f'`thermal-imu-calib info {path} --holds` shows it and what the '
+                       'detector finds, --min-hold S overrides it)')
+    return res

@@ -10,7 +10,7 @@ Importing this package loads nothing else, so the console script can limit BLAS 
 before numpy is imported (``entry``); ``main`` and the other names load ``commands`` on use.
 """
 
-_LAZY = ('build_parser', 'cmd_calibrate', 'calibrate_collected', 'COMMANDS', 'EXIT_USAGE')
+_LAZY = ('build_parser', 'cmd_calibrate', 'COMMANDS', 'EXIT_USAGE')
 
 
 def main(argv=None):
