@@ -117,6 +117,14 @@ def test_every_module_has_a_layer():
                          f'in test/test_layering.py and to docs/architecture.md')
 
 
+def test_every_layer_prefix_names_a_module():
+    """No stale prefix: a layer names modules that exist (a moved module moves its prefix)."""
+    modules = _modules()
+    stale = [p for _, prefixes in LAYERS for p in prefixes
+             if p and not any(m == p or m.startswith(p + '.') for m in modules)]
+    assert not stale, f'LAYERS names modules that do not exist: {stale}'
+
+
 def test_no_upward_imports():
     modules, graph, _ = _graph()
     bad = []
