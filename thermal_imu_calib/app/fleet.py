@@ -152,6 +152,16 @@ def calibrate_unit(settings, imu_topic, collected, paths):
     return calibrate_collected(settings, collected, paths, imu_topic)
 
 
+def registry_entry(unit):
+    """Return the registry entry (sensor, calibration, end ns, start ns, logs) of a unit.
+
+    The logs of the unit that could not be used are noted in its calibration.
+    """
+    cal = unit.result.calibration
+    cal.notes.extend(f'fleet: log {p} was not used: {why}' for p, why in unit.excluded)
+    return (unit.sensor, cal, unit.end_ns, unit.start_ns, unit.logs)
+
+
 def compensate_unit_log(path, out_path, registry, group, kw):
     """Task: compensate one log with its unit's calibration; returns (path, text, ok)."""
     try:

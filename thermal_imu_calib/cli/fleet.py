@@ -156,9 +156,7 @@ def cmd_fleet_calibrate(args):
             print(f'{name}: NOT calibrated ({len(u.logs)} logs): {u.error}')
             bad += 1
             continue
-        cal = u.result.calibration
-        cal.notes.extend(f'fleet: log {p} was not used: {why}' for p, why in u.excluded)
-        entries.append((u.sensor, cal, u.end_ns, u.start_ns, u.logs))
+        entries.append(app_fleet.registry_entry(u))
     errors = []
     paths_out = reg.add(args.output, entries, errors) if entries else []
     for (sensor, cal, *_), out in zip(entries, paths_out):

@@ -25,7 +25,7 @@ import zlib
 
 import numpy as np
 
-from . import simulate as sim
+from .simulate import write_scenario
 from ..calibration import TemperatureInput
 from ..io.columns import TemperatureColumns
 from ..models.polynomial import OffsetPolynomialModel
@@ -130,7 +130,7 @@ def write_proxy_scenario(output, name, seed=0, proxy=ResonanceProxy(), **kwargs)
         made.append(with_resonance_proxy(rec, proxy))
         return made[-1]
 
-    info = sim.write_scenario(output, name, seed, transform=add, **kwargs)
+    info = write_scenario(output, name, seed, transform=add, **kwargs)
     info['truth_proxy'] = f'{info["bag"]}.truth_proxy.yaml'
     proxy_truth(made[0], proxy).save(info['truth_proxy'])
     return info
