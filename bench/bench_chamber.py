@@ -46,7 +46,7 @@ from thermal_imu_calib.estimation.hysteresis import (ARDUPILOT_SPEC,  # noqa: E4
                                                      ARDUPILOT_TREF, build_model,
                                                      candidate_specs, Features, fit_spec)
 from thermal_imu_calib.io.csv_logs import read_tofupilot_chamber  # noqa: E402
-from thermal_imu_calib.pipeline import windows_from_columns  # noqa: E402
+from thermal_imu_calib.collection.feed import windows_from_columns  # noqa: E402
 from thermal_imu_calib.selection import select  # noqa: E402
 
 #: the training part as copied into the repository (test/fixtures/real/tofupilot_chamber)

@@ -31,7 +31,8 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
 from thermal_imu_calib import cli  # noqa: E402
-from thermal_imu_calib.cli.fleet import calibrate_args  # noqa: E402
+from thermal_imu_calib.app.fleet import calibrate_unit  # noqa: E402
+from thermal_imu_calib.cli.fleet import fleet_settings  # noqa: E402
 from thermal_imu_calib.fleet import registry as reg  # noqa: E402
 from thermal_imu_calib.fleet.inputs import expand_inputs, GroupBy  # noqa: E402
 from thermal_imu_calib.fleet.runner import run_fleet  # noqa: E402
@@ -47,7 +48,7 @@ def _worker_usage():
 def _calibrate(paths, workers, period=0.0):
     from distributed import Client, LocalCluster
     args = cli.build_parser().parse_args(['fleet', 'calibrate', '-', '-o', '-'])
-    reduce_fn = functools.partial(cli.calibrate_collected, calibrate_args(args))
+    reduce_fn = functools.partial(calibrate_unit, fleet_settings(args), None)
     with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                       dashboard_address=':0') as cluster, Client(cluster) as client:
         client.wait_for_workers(workers)
@@ -195,7 +196,7 @@ def alarms(args):
     """Alarm rates over seeds: false alarms on stable units, detection of the others."""
     from distributed import Client, LocalCluster
     cargs = cli.build_parser().parse_args(['fleet', 'calibrate', '-', '-o', '-'])
-    reduce_fn = functools.partial(cli.calibrate_collected, calibrate_args(cargs))
+    reduce_fn = functools.partial(calibrate_unit, fleet_settings(cargs), None)
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     todo = [s for s in seeds if not os.path.isfile(os.path.join(cache_dir(
         args.cache, args.units, args.logs_per_unit, s), 'reg', reg.INDEX))]

@@ -10,9 +10,9 @@ run, each stage with wall and CPU (process) time, messages/s and MB/s of the inp
   made against;
 * ``bulk read (chunks)``: ``io.mcap_read`` decompress + CRC + parse every message record;
 * ``stream Imu+temperature``: ``LogReader.stream`` to IMU/temperature columns;
-* ``calibrate read+detect+collect``: ``pipeline.collect_windows(motion=True)``, what
+* ``calibrate read+detect+collect``: ``app.collect.collect_windows(motion=True)``, what
   ``calibrate`` does before fitting;
-* ``compensate end to end``: ``pipeline.compensate_log`` (read, copy every message,
+* ``compensate end to end``: ``app.compensate.compensate_log`` (read, copy every message,
   compensate, write a bare .mcap);
 * ``write (LogWriter.write_many)`` vs ``mcap library add_message``: the Imu messages
   written again.
@@ -113,7 +113,8 @@ def run(path, calibration, tmp, repeat=1) -> dict:
     from thermal_imu_calib.calibration import Calibration
     from thermal_imu_calib.io.bag import open_log
     from thermal_imu_calib.io.bag_writer import LogWriter
-    from thermal_imu_calib.pipeline import collect_windows, compensate_log
+    from thermal_imu_calib.app.collect import collect_windows
+    from thermal_imu_calib.app.compensate import compensate_log
 
     imu, temps, total = _topics(path)
     size_mb = os.path.getsize(path) / 1e6
@@ -168,7 +169,7 @@ def run(path, calibration, tmp, repeat=1) -> dict:
 
 def collect_stages(path, imu, temps) -> dict:
     """CPU seconds per component of ``collect_windows(motion=True)`` (one run)."""
-    from thermal_imu_calib import pipeline
+    from thermal_imu_calib.app import collect
     from thermal_imu_calib.collection import motion, stationary
     from thermal_imu_calib.io import align, bag, gate
 
@@ -208,7 +209,7 @@ def collect_stages(path, imu, temps) -> dict:
         wrap(motion.MotionCollector, name, 'motion+detector')
     try:
         c = time.process_time()
-        pipeline.collect_windows(path, imu, temps, motion=True, progress=False)
+        collect.collect_windows(path, imu, temps, motion=True, progress=False)
         acc['total'] = time.process_time() - c
     finally:
         for owner, name, f in saved:
@@ -267,7 +268,8 @@ def end_to_end(path, tmp, repeat) -> dict:
 _RSS_CHILD = r'''
 import sys, time
 from thermal_imu_calib.calibration import Calibration
-from thermal_imu_calib.pipeline import collect_windows, compensate_log
+from thermal_imu_calib.app.collect import collect_windows
+from thermal_imu_calib.app.compensate import compensate_log
 what, path, cal, dst = sys.argv[1:5]
 t = time.perf_counter()
 if what == 'calibrate':

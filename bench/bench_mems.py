@@ -40,7 +40,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from thermal_imu_calib import sim  # noqa: E402
 from thermal_imu_calib.estimation.calibrate import (CalibrateOptions,  # noqa: E402
                                                     calibrate_windows)
-from thermal_imu_calib.evaluate import WindowAccumulator  # noqa: E402
+from thermal_imu_calib.collection.metrics import WindowAccumulator  # noqa: E402
 from thermal_imu_calib.collection.motion import collect_motion  # noqa: E402
 from thermal_imu_calib.collection.segments import Windows  # noqa: E402
 from thermal_imu_calib.collection.stationary import DetectorConfig  # noqa: E402

@@ -27,7 +27,8 @@ from thermal_imu_calib import sim
 from thermal_imu_calib.calibration import Calibration
 from thermal_imu_calib.estimation.calibrate import CalibrateOptions, calibrate_windows
 from thermal_imu_calib.calibration import TemperatureInput
-from thermal_imu_calib.pipeline import collect_windows, evaluate_log
+from thermal_imu_calib.app.collect import collect_windows
+from thermal_imu_calib.app.evaluate import evaluate_log
 
 
 VARIANTS = {'recommended': ('nav-coldstart', 'nav-validation'),

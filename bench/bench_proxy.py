@@ -29,8 +29,8 @@ from thermal_imu_calib import sim  # noqa: E402
 from thermal_imu_calib.calibration import TemperatureInput  # noqa: E402
 from thermal_imu_calib.estimation.calibrate import (CalibrateOptions,  # noqa: E402
                                                     calibrate_windows)
-from thermal_imu_calib.evaluate import WindowAccumulator  # noqa: E402
-from thermal_imu_calib.pipeline import windows_from_columns  # noqa: E402
+from thermal_imu_calib.collection.metrics import WindowAccumulator  # noqa: E402
+from thermal_imu_calib.collection.feed import windows_from_columns  # noqa: E402
 from thermal_imu_calib.sim.proxy import (proxy_truth, ResonanceProxy,  # noqa: E402
                                          with_resonance_proxy)
 

@@ -43,7 +43,7 @@ from thermal_imu_calib.thermal_input import history_windows, parse_history_key
 from thermal_imu_calib.estimation.rvm_fit import fit_rvm_offset, RvmSettings
 from thermal_imu_calib.collection.segments import Windows
 from thermal_imu_calib.estimation.thermal_lag import cv_groups, lagged_axis_temperatures, legs
-from thermal_imu_calib.pipeline import windows_from_columns
+from thermal_imu_calib.collection.feed import windows_from_columns
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 BMI_DIRS = (os.path.join(os.path.dirname(ROOT), 'shared', 'data', 'real', 'bmi270_hot_cold'),

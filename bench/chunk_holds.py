@@ -22,7 +22,8 @@ from thermal_imu_calib.collection.segments import Windows  # noqa: E402
 from thermal_imu_calib.io.bag import open_log  # noqa: E402
 from thermal_imu_calib.io.gate import InputGate  # noqa: E402
 from thermal_imu_calib.io.topics import resolve_topics  # noqa: E402
-from thermal_imu_calib.pipeline import _aligned, DEFAULT_MAX_GAP_S  # noqa: E402
+from thermal_imu_calib.app.collect import aligned_chunks  # noqa: E402
+from thermal_imu_calib.collection.feed import DEFAULT_MAX_GAP_S  # noqa: E402
 
 SIZES = ['20000', '777', '50', '10', '1', 'random']
 
@@ -33,7 +34,7 @@ def aligned_columns(path, imu_topic=None):
         imu, temps = resolve_topics(reader, imu_topic, None)
         gate = InputGate({t: '' for t in temps})
         parts = [(c.imu.t, c.imu.accel, c.imu.gyro, c.temps)
-                 for c in _aligned(reader, imu, temps, 20000, DEFAULT_MAX_GAP_S, gate=gate)]
+                 for c in aligned_chunks(reader, imu, temps, 20000, DEFAULT_MAX_GAP_S, gate=gate)]
     return tuple(np.concatenate(c) for c in zip(*parts))
 
 

@@ -8,7 +8,7 @@ from thermal_imu_calib.calibration import TemperatureInput
 from thermal_imu_calib.estimation.calibrate import CalibrateOptions
 from thermal_imu_calib.collection.segments import Windows
 from thermal_imu_calib.io.csv_logs import read_bmi270_rows
-from thermal_imu_calib.pipeline import windows_from_columns
+from thermal_imu_calib.collection.feed import windows_from_columns
 
 G = 9.80665
 

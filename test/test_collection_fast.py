@@ -24,7 +24,7 @@ from thermal_imu_calib import sim
 from thermal_imu_calib.collection import blocks, motion, stationary
 from thermal_imu_calib.io import align, cdr, mcap_read
 from thermal_imu_calib.io.columns import AlignedChunk, ImuColumns, TemperatureColumns
-from thermal_imu_calib.pipeline import collect_windows
+from thermal_imu_calib.app.collect import collect_windows
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, 'bench'))

@@ -10,7 +10,7 @@ import pytest
 from thermal_imu_calib import sim
 from thermal_imu_calib.estimation.calibrate import CalibrateOptions, calibrate_windows
 from thermal_imu_calib.collection.motion import MotionCollector
-from thermal_imu_calib.pipeline import feed_columns
+from thermal_imu_calib.collection.feed import feed_columns
 
 
 def run(rec):

@@ -209,12 +209,13 @@ def test_separate_scheduler_and_two_workers(fleet, tmp_path, capsys):
 def test_worker_killed_mid_job_loses_nothing(fleet, tmp_path):
     from distributed import Client, LocalCluster
     from thermal_imu_calib.fleet.runner import run_fleet
-    from thermal_imu_calib.cli.fleet import calibrate_args
+    from thermal_imu_calib.app.fleet import calibrate_unit
+    from thermal_imu_calib.cli.fleet import fleet_settings
     import functools
     units = ('u00', 'u04', 'u06')
     logs = [p for u in units for p in _unit_logs(fleet, u)]
     args = cli.build_parser().parse_args(['fleet', 'calibrate', *logs, '-o', '-'])
-    reduce_fn = functools.partial(cli.calibrate_collected, calibrate_args(args))
+    reduce_fn = functools.partial(calibrate_unit, fleet_settings(args), None)
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                       dashboard_address=':0') as cluster, Client(cluster) as client:
         pids = client.run(os.getpid)

@@ -18,7 +18,7 @@ import pytest
 from thermal_imu_calib import rotations, sim
 from thermal_imu_calib.estimation import gyro_rotations as gr
 from thermal_imu_calib.estimation.observability import decide_determined, Layout
-from thermal_imu_calib.pipeline import collect_windows
+from thermal_imu_calib.app.collect import collect_windows
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, 'bench'))

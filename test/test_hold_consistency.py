@@ -16,7 +16,7 @@ from thermal_imu_calib.collection.segments import Windows
 from thermal_imu_calib.estimation.calibrate import CalibrateOptions, calibrate_windows
 from thermal_imu_calib.estimation.hold_consistency import (hold_consistency, observability,
                                                            PERSIST_ALPHA)
-from thermal_imu_calib.pipeline import feed_columns
+from thermal_imu_calib.collection.feed import feed_columns
 
 G = 9.81
 SD = 0.015                                              # m/s^2 per sample (1.5 mg)

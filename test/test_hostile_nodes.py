@@ -22,7 +22,7 @@ from _hostile import bad_calibrations, good_calibration, recording
 from thermal_imu_calib.nodes import common
 from thermal_imu_calib.nodes.calibrator import CalibratorNode
 from thermal_imu_calib.nodes.compensator import CompensatorNode
-from thermal_imu_calib.pipeline import windows_from_columns
+from thermal_imu_calib.collection.feed import windows_from_columns
 
 S = 1_000_000_000
 T0_NS = 1_700_000_000 * S

@@ -13,7 +13,7 @@ from thermal_imu_calib.formats import export_calibration
 from thermal_imu_calib.io.csv_logs import read_tofupilot_chamber
 from thermal_imu_calib.models import model_from_dict
 from thermal_imu_calib.models.hysteresis import HysteresisOffsetModel
-from thermal_imu_calib.pipeline import windows_from_columns
+from thermal_imu_calib.collection.feed import windows_from_columns
 from thermal_imu_calib.selection.time_folds import block_drift, choose, time_folds
 from thermal_imu_calib.thermal_input import history_windows, HistoryStream
 

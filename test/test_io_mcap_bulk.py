@@ -347,7 +347,7 @@ def test_sqlite3_write_many_equals_per_message_writes(tmp_path, compression):
 def test_compensate_bulk_path_gives_the_per_message_path_bytes(tmp_path):
     from thermal_imu_calib import sim
     from thermal_imu_calib.calibration import Calibration
-    from thermal_imu_calib.pipeline import compensate_log
+    from thermal_imu_calib.app.compensate import compensate_log
     src = tmp_path / 'demo.mcap'
     sim.write_scenario(str(src), 'demo', 0)
     cal = Calibration.load(str(src) + '.truth.yaml')

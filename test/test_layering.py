@@ -23,14 +23,17 @@ LAYERS = [
     ('collection', ['collection']),
     ('estimation', ['estimation']),
     ('selection', ['selection']),
-    ('pipelines', ['pipeline', 'evaluate', 'noise', 'sim', 'report']),
+    # below the use cases: the simulator, the report pages, the fleet's inputs and registry
+    ('support', ['sim', 'report', 'fleet']),
+    # one module per use case (calibrate, collect, compensate, evaluate, noise, fleet steps)
     ('app', ['app']),
-    ('adapters', ['cli', 'nodes', 'fleet']),
+    # parse, call one use case, format: the command line, the ROS nodes, the Dask runner
+    ('adapters', ['cli', 'nodes', 'fleet.runner', 'report.cli']),
     ('package', ['']),
 ]
 #: layers that must not import a ROS client library
 NO_ROS = {'helpers', 'io', 'models', 'calibration', 'collection', 'estimation', 'selection',
-          'pipelines', 'app'}
+          'support', 'app'}
 ROS_MODULES = ('rclpy', 'rosidl_runtime_py', 'launch', 'launch_ros')
 
 
@@ -114,6 +117,14 @@ def test_every_module_has_a_layer():
                          f'in test/test_layering.py and to docs/architecture.md')
 
 
+def test_every_layer_prefix_names_a_module():
+    """No stale prefix: a layer names modules that exist (a moved module moves its prefix)."""
+    modules = _modules()
+    stale = [p for _, prefixes in LAYERS for p in prefixes
+             if p and not any(m == p or m.startswith(p + '.') for m in modules)]
+    assert not stale, f'LAYERS names modules that do not exist: {stale}'
+
+
 def test_no_upward_imports():
     modules, graph, _ = _graph()
     bad = []
@@ -184,9 +195,9 @@ def test_modules_are_short_or_say_why():
 
 def test_the_checker_sees_a_violation(tmp_path):
     """The rules can fail: an upward import and an rclpy import are both reported."""
-    modules = {'io.fake': None, 'pipeline': None}
+    modules = {'io.fake': None, 'app.collect': None}
     path = tmp_path / 'fake.py'
-    path.write_text('import rclpy\nfrom ..pipeline import collect_windows\n')
+    path.write_text('import rclpy\nfrom ..app.collect import collect_windows\n')
     deps, ros = _imports('io.fake', str(path), False, modules)
-    assert deps == {'pipeline'} and ros == {'rclpy'}
-    assert _layer('pipeline') > _layer('io.fake')
+    assert deps == {'app.collect'} and ros == {'rclpy'}
+    assert _layer('app.collect') > _layer('io.fake')

@@ -25,7 +25,7 @@ from thermal_imu_calib.collection.motion import load_transitions, save_transitio
 from thermal_imu_calib.collection.segments import Windows
 from thermal_imu_calib.nodes import common
 from thermal_imu_calib.nodes.calibrator import CalibratorNode
-from thermal_imu_calib.pipeline import windows_from_columns
+from thermal_imu_calib.collection.feed import windows_from_columns
 
 
 RATE = 2000.0     # IMU messages per second (20x the 100 Hz recordings)

@@ -18,7 +18,7 @@ from thermal_imu_calib.calibration import Calibration, TemperatureInput
 from thermal_imu_calib.estimation.calibrate import calibrate_windows, CalibrateOptions
 from thermal_imu_calib.io.csv_logs import read_tofupilot_chamber
 from thermal_imu_calib.nodes import common
-from thermal_imu_calib.pipeline import windows_from_columns
+from thermal_imu_calib.collection.feed import windows_from_columns
 
 CHAMBER = os.path.join(os.path.dirname(__file__), 'fixtures', 'real', 'tofupilot_chamber',
                        'imu_chamber_train.csv.gz')

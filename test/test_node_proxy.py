@@ -114,7 +114,7 @@ def test_bad_unit_parameters_are_refused(ros):
 
 def test_calibrator_writes_the_proxy_units(ros, tmp_path):
     from thermal_imu_calib import sim
-    from thermal_imu_calib.pipeline import windows_from_columns
+    from thermal_imu_calib.collection.feed import windows_from_columns
     from thermal_imu_calib.sim.proxy import with_resonance_proxy
     rec = with_resonance_proxy(sim.simulate('demo', 6))
     windows = windows_from_columns(rec.imu_chunks(), [rec.temperatures['/imu/temperature'],

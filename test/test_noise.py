@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 import yaml
 
-from thermal_imu_calib import noise, sim
+from thermal_imu_calib import sim
+from thermal_imu_calib.app import noise
 from thermal_imu_calib.cli import main
 from thermal_imu_calib.estimation import allan
 from thermal_imu_calib.io.bag_writer import write_columns
@@ -144,7 +145,7 @@ def test_calibrate_stores_n_and_the_compensator_covariance_uses_n_and_k(tmp_path
 
 def test_add_random_walk_from_the_holds_of_a_long_log(tmp_path):
     from thermal_imu_calib.calibration import Calibration
-    from thermal_imu_calib.pipeline import collect_windows
+    from thermal_imu_calib.app.collect import collect_windows
     log = str(tmp_path / 'still.mcap')
     _write_still_bag(log, 0.5, 11)
     windows = collect_windows(log).windows

@@ -18,7 +18,8 @@ from thermal_imu_calib.cli import main
 from thermal_imu_calib.collection.motion import load_transitions, save_transitions, Transition
 from thermal_imu_calib.collection.segments import Windows
 from thermal_imu_calib.io.columns import ImuColumns
-from thermal_imu_calib.pipeline import collect_windows, merge_transitions, merge_windows
+from thermal_imu_calib.app.collect import collect_windows
+from thermal_imu_calib.collection.collected import merge_transitions, merge_windows
 from thermal_imu_calib.rotations import integrate_rotation
 
 

@@ -25,7 +25,7 @@ from thermal_imu_calib.io.bag_writer import write_columns
 from thermal_imu_calib.io.columns import TemperatureColumns
 from thermal_imu_calib.models.field import FieldPolynomialModel
 from thermal_imu_calib.models.polynomial import OffsetPolynomialModel
-from thermal_imu_calib.pipeline import collect_windows
+from thermal_imu_calib.app.collect import collect_windows
 from thermal_imu_calib.sim.proxy import proxy_truth, ResonanceProxy, with_resonance_proxy
 
 PROXY = '/imu/gyro_resonance'
@@ -325,8 +325,8 @@ def test_lag_applies_to_the_temperature_not_to_the_proxy():
     The resonance frequency follows the gyro's own (lagged) temperature: the lag search
     lags only the degC input, and the gyro on the proxy needs none.
     """
-    from thermal_imu_calib.evaluate import WindowAccumulator
-    from thermal_imu_calib.pipeline import windows_from_columns
+    from thermal_imu_calib.collection.metrics import WindowAccumulator
+    from thermal_imu_calib.collection.feed import windows_from_columns
 
     def windows(rec):
         return windows_from_columns(rec.imu_chunks(), [rec.temperatures['/imu/temperature'],

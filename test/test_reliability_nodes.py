@@ -58,7 +58,7 @@ def test_twenty_concurrent_calibrate_calls_are_all_answered(ros, tmp_path):
 def collection_text():
     """Return the windows of a short simulated warm-up (six faces) as a collection file."""
     from thermal_imu_calib import sim
-    from thermal_imu_calib.pipeline import windows_from_columns
+    from thermal_imu_calib.collection.feed import windows_from_columns
     rec = sim.simulate('demo', 5, hold_s=(14.0, 15.0), transition_s=(1.5, 2.0), repetitions=1)
     win = windows_from_columns(rec.imu_chunks(), rec.temperatures.values())
     assert len(win) > 0

@@ -11,7 +11,7 @@ from thermal_imu_calib.estimation.thermal_lag import (estimate_tau, legs, rate_f
                                                       tau_or_none)
 from thermal_imu_calib.io.bag import open_log
 from thermal_imu_calib.models.polynomial import OffsetPolynomialModel
-from thermal_imu_calib.pipeline import compensate_log
+from thermal_imu_calib.app.compensate import compensate_log
 from thermal_imu_calib.thermal_input import (CalibrationStream, lag_filter, lag_windows,
                                              ThermalFilter)
 

@@ -1,26 +1,38 @@
-"""One calibrate: the settings every adapter shares, and the step from holds to a calibration.
+"""Calibrate: the use case every adapter shares, from logs or a live collection to a file.
 
 ``CalibrateSettings`` holds every option of an estimation with its default, in SI units
 (gravity m/s^2, latitude deg, altitude m, margins degC unless a unit is named, gaps and
 detector lengths s). The command line builds its options from it
 (``cli.calibrate.add_calibrate_parser``), the calibrator node declares its parameters from
-it (``nodes/calibrator.py``) and the shipped ``config/calibrator.yaml`` repeats its values
-(``test/test_defaults.py`` fails when they differ). ``calibrate_collected`` turns the
-holds collected from logs (``pipeline.collect_windows``) or live (the node) into a validated
-calibration: ``thermal-imu-calib calibrate``, ``fleet calibrate`` and ``~/calibrate`` all
-run it, so the same holds give the same calibration whichever path collected them.
+it (``nodes/calibrator_params.py``) and the shipped ``config/calibrator.yaml`` repeats its
+values (``test/test_defaults.py`` fails when they differ).
+
+``calibrate_logs`` is ``thermal-imu-calib calibrate``: it reads each log (``read_log``: the
+windows, pose changes and input-gate warnings, as ``fleet calibrate``'s map step reads
+them), estimates (``calibrate_collected``) and writes the file (``write_calibration``).
+``calibrate_collected`` turns the holds collected from logs or live (the node's
+``~/calibrate``) into a validated calibration with its random walk
+(``app.noise.add_random_walk``): the same holds give the same calibration whichever path
+collected them.
 """
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 import os
+import shutil
 from typing import List, Optional
 
 from ..calibration import Calibration, CalibrationError, TemperatureInput
+from ..collection.collected import Collected, merge_transitions, merge_windows
+from ..collection.motion import save_transitions
 from ..collection.stationary import DetectorConfig
 from ..estimation.calibrate import CalibrateOptions, calibrate_windows
 from ..formats import load_prior
 from ..gravity import resolve_gravity
 from ..input_units import parse_unit_map
+from ..io.gate import check_report
+from ..io.output import CALIBRATION, Outputs, write_atomic
+from .collect import collect_windows
+from .noise import add_random_walk
 
 #: terrestrial gravity accepted (m/s^2): anything else is a typo or wrong units
 GRAVITY_RANGE = (9.7, 9.9)
@@ -137,17 +149,123 @@ def options(settings, collected, transitions=()):
         transitions=list(transitions), **mapping)
 
 
+#: the pose changes ``save_collection`` writes go to ``<windows file><this>``
+TRANSITIONS_SUFFIX = '.transitions.npz'
+
+
+@dataclass
+class LogRead:
+    """What reading one log gave: its collection and the input gate's warnings (for people)."""
+
+    path: str
+    collected: Collected
+    warnings: List[str] = field(default_factory=list)
+
+
+@dataclass
+class CalibrateRun:
+    """What ``calibrate_logs`` did: the estimate (``CalibrationResult``) and what it read."""
+
+    result: object
+    logs: List[LogRead]
+    #: (windows, pose changes) written by ``save_windows``; None when not asked
+    saved: Optional[tuple] = None
+
+
+def check(settings):
+    """Refuse settings no estimation can use before any log is read (SettingsError)."""
+    resolve(settings)
+    if settings.prior:
+        load_prior(os.path.expanduser(settings.prior))
+
+
+def collect(settings, path, imu_topic=None, temperature_topics=None, chunk_size=20000,
+            progress=None):
+    """Collect one log's holds and pose changes as ``calibrate`` does; a Collected.
+
+    The detector, the gap and the input units are the settings'; the input gate drops what
+    no sensor gives and counts it (``Collected.gate``).
+    """
+    return collect_windows(path, imu_topic, temperature_topics, replace(settings.detector),
+                           chunk_size, settings.max_gap_s, progress, motion=True,
+                           input_units=list(settings.input_units))
+
+
+def read_log(settings, path, imu_topic=None, temperature_topics=None, chunk_size=20000,
+             progress=None):
+    """Collect one log (``collect``) and gate it; returns a LogRead.
+
+    A log no calibration can come from is refused (``io.gate.check_report``: LogError);
+    what the gate dropped and counted is in ``LogRead.warnings``.
+    """
+    c = collect(settings, path, imu_topic, temperature_topics, chunk_size, progress)
+    return LogRead(path, c, check_report(path, c.gate, settings.max_gap_s))
+
+
+def save_collection(path, collected):
+    """Write the merged windows (JSON lines) and pose changes (``.transitions.npz``).
+
+    Returns (windows, pose changes) written.
+    """
+    windows, transitions = merge_windows(collected), merge_transitions(collected)
+    write_atomic(path, windows.to_jsonl())
+    write_atomic(path + TRANSITIONS_SUFFIX, lambda f: save_transitions(f, transitions))
+    return len(windows), len(transitions)
+
+
+def calibrate_logs(settings, paths, output=None, imu_topic=None, temperature_topics=None,
+                   chunk_size=20000, progress=None, save_windows=None, on_log=None):
+    """Calibrate from logs: read each, estimate from all, write ``output``; a CalibrateRun.
+
+    ``on_log(LogRead)`` is called as each log has been read (what the adapter reports while
+    the next one is read). With ``save_windows`` the merged windows and pose changes are
+    written before the estimate (``save_collection``). The pose changes between holds are
+    always collected: the gyro fits its scale and misalignment from them when the model
+    chosen has those terms (~0.09 s CPU per 375k messages). Refusals: SettingsError,
+    LogError, CalibrationRefused; nothing is written then.
+    """
+    check(settings)
+    logs = []
+    for path in paths:
+        read = read_log(settings, path, imu_topic, temperature_topics, chunk_size, progress)
+        if on_log is not None:
+            on_log(read)
+        logs.append(read)
+    collected = [r.collected for r in logs]
+    saved = save_collection(save_windows, collected) if save_windows else None
+    result = calibrate_collected(settings, collected, paths, imu_topic)
+    if output:
+        write_calibration(result.calibration, output)
+    return CalibrateRun(result, logs, saved)
+
+
+def write_calibration(cal, path, inputs=(), keep_backup=False):
+    """Write ``cal`` to ``path`` (atomically, ``Calibration.save``).
+
+    With ``keep_backup`` (the node's calibration_file) ``path`` is checked first
+    (``io.output.Outputs``: not a directory, a special file or one of ``inputs``) and the
+    previous file, whatever it holds, is kept as ``<path>.bak``. OSError/ValueError when it
+    cannot be written.
+    """
+    if keep_backup:
+        Outputs(list(inputs), force=True).file(
+            path, 'calibration_file', 'calibration file', CALIBRATION)
+        if os.path.exists(path):
+            with open(path, 'rb') as f:
+                write_atomic(path + '.bak', lambda out: shutil.copyfileobj(f, out))
+    cal.save(path)
+
+
 def calibrate_collected(settings, collected, paths=(), imu_topic=None):
     """Estimate one calibration from the holds of one or more collections.
 
-    ``collected``: ``pipeline.Collected`` of each log (or of the live collection), all with
-    the same thermal inputs. ``paths``: the logs, if any (their names go to ``fit.inputs``
-    and long holds are re-read for the random walk, ``noise.add_random_walk``). Returns the
+    ``collected``: the ``collection.collected.Collected`` of each log (or of the live
+    collection), all with the same thermal inputs. ``paths``: the logs, if any (their names
+    go to ``fit.inputs`` and long holds are re-read for the random walk,
+    ``app.noise.add_random_walk``). Returns the
     CalibrationResult, checked by the loader the compensator uses (SettingsError when it
     would be refused: nothing usable can be written).
     """
-    from ..noise import add_random_walk
-    from ..pipeline import merge_transitions, merge_windows
     topics = collected[0].temperature_topics
     for c in collected[1:]:
         if c.temperature_topics != topics:

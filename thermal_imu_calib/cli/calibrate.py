@@ -1,20 +1,18 @@
-"""What ``calibrate`` and ``fleet calibrate`` share: the options, and one estimation step.
+"""The options ``calibrate`` and ``fleet calibrate`` share, parsed into one CalibrateSettings.
 
-``calibrate_collected`` turns the Collected of several logs into a validated calibration;
-``cli.cmd_calibrate`` and the fleet's reduce step (``cli.fleet``) both call it, so a fleet
-calibration is the one ``calibrate`` gives on the same logs. Units: gravity m/s^2,
+``settings_from_args`` turns the parsed options into the ``app.calibrate.CalibrateSettings``
+the use case runs with (the calibrator node builds the same from its parameters), so a
+fleet calibration is the one ``calibrate`` gives on the same logs. Units: gravity m/s^2,
 --max-gap and detector lengths in s, --rotation-dps in deg/s.
 """
 
 import argparse
-import sys
 
 from ..app import calibrate as app
 from ..app.calibrate import CalibrateSettings
 from .checks import UserError
 from ..collection.stationary import DetectorConfig
 from ..estimation.calibrate import model_choices
-from ..io.output import write_atomic
 
 #: the defaults of ``calibrate`` (the node's and the fleet's too)
 DEFAULTS = CalibrateSettings()
@@ -148,30 +146,3 @@ def _gravity(args):
                                              altitude=getattr(args, 'altitude', 0.0)))
     except app.SettingsError as e:
         raise UserError(str(e)) from None
-
-
-def calibrate_collected(args, collected, paths):
-    """Merge the Collected of several logs and estimate as ``calibrate`` does.
-
-    ``args`` holds the calibrate options (the Namespace of its parser); ``paths`` are the
-    logs. The estimation is ``app.calibrate.calibrate_collected``, the one the calibrator
-    node and ``fleet calibrate`` (cli.fleet's reduce step) run too; here only
-    ``--save-windows`` is written on the way. Returns the CalibrationResult (not saved);
-    UserError when it would be refused.
-    """
-    if args.save_windows:
-        from .checks import TRANSITIONS_SUFFIX
-        from ..collection.motion import save_transitions
-        from ..pipeline import merge_transitions, merge_windows
-        windows, transitions = merge_windows(collected), merge_transitions(collected)
-        write_atomic(args.save_windows, windows.to_jsonl())
-        write_atomic(args.save_windows + TRANSITIONS_SUFFIX,
-                     lambda f: save_transitions(f, transitions))
-        print(f'wrote {len(windows)} windows to {args.save_windows} and {len(transitions)} '
-              f'pose changes to {args.save_windows}.transitions.npz', file=sys.stderr)
-    try:
-        return app.calibrate_collected(settings_from_args(args), collected, paths,
-                                       args.imu_topic)
-    except app.SettingsError as e:
-        output = getattr(args, 'output', None) or 'the output'
-        raise UserError(f'{e} (output {output})') from None

@@ -12,6 +12,7 @@ import os
 import re
 import signal
 
+from ..app.calibrate import TRANSITIONS_SUFFIX
 from ..calibration import Calibration, CalibrationError
 from ..io import output
 
@@ -111,7 +112,6 @@ def calibrate_outputs(args):
 
 #: first bytes of the files ``calibrate --save-windows`` writes
 WINDOW_MARKERS = (b'{"hold"',)
-TRANSITIONS_SUFFIX = '.transitions.npz'
 
 
 def validated(cal, output):

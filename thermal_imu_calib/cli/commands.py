@@ -7,21 +7,19 @@ input gets one line on stderr saying what was wrong and what to do, and exit sta
 
 import argparse
 import json
-import os
 import sys
-
-import numpy as np
 
 from .. import __version__
 from . import checks as cli_checks, export as cli_export
 from ..calibration import Calibration, CalibrationError
+from ..app import calibrate as app_calibrate
 from .calibrate import (_add_detector, _add_topics, _detector, _gravity,
-                        add_calibrate_parser, calibrate_collected)
+                        add_calibrate_parser, settings_from_args)
 from .checks import UserError
-from .format import format_calibration, format_evaluation
+from .format import (format_calibrate_run, format_calibration, format_evaluation,
+                     format_log_read, format_saved_windows)
 from ..collection.stationary import format_holds, format_settings
 from ..estimation.calibrate import CalibrationRefused
-from ..formats import load_prior
 from ..io.log_info import LogError
 from ..io.output import Outputs
 from ..report import cli as report_cli
@@ -98,61 +96,22 @@ def build_parser():
 
 
 def cmd_calibrate(args):
-    """Run the calibrate subcommand.
-
-    The pose changes between holds (raw samples, bounded memory) are always collected: the
-    seed 002 gyro fits its scale and misalignment from them, whether ``whole_unit`` (or
-    ``auto``) chose it or an accelerometer-only model did (``gyro_select``); the collector
-    costs ~0.09 s CPU per 375k messages, not measurable in a calibrate run.
-    """
-    from ..io.gate import check_report
-    from ..pipeline import collect_windows
-    _gravity(args)   # a bad --gravity/--latitude is refused before reading any log
+    """Run the calibrate subcommand: one ``app.calibrate.calibrate_logs`` over the logs."""
     cli_checks.check_distinct_inputs(args.inputs)
     cli_checks.calibrate_outputs(args)   # every output checked before any log is read
-    if args.prior:
-        load_prior(args.prior)   # a bad prior is refused before reading any log
-    collected = []
-    for path in args.inputs:
-        c = collect_windows(path, args.imu_topic, args.temperature_topic, _detector(args),
-                            args.chunk_size, args.max_gap, args.progress, motion=True,
-                            input_units=args.input_unit)
-        print(f'{path}: {c.imu_messages} Imu messages in {c.seconds:.1f} s '
-              f'({c.imu_messages / max(c.seconds, 1e-9):,.0f} msgs/s), '
-              f'{len(np.unique(c.windows.hold))} stationary holds' + _motion_text(c),
-              file=sys.stderr)
-        print('  ' + format_settings(c.detector), file=sys.stderr)
-        if args.save_windows:
-            print(format_holds(c.holds), file=sys.stderr)
-        for warning in check_report(path, c.gate, args.max_gap):
-            print(f'  warning: {warning}', file=sys.stderr)
-        collected.append(c)
-    result = calibrate_collected(args, collected, args.inputs)
-    result.calibration.save(args.output)
-    if args.json:
-        print(json.dumps({'summary': result.summary, 'output': args.output,
-                          'calibration': result.calibration.to_dict()}, indent=1, default=str))
-    else:
-        print(result.summary)
-        for note in result.calibration.notes:
-            print(f'  note: {note}')
-        print(f'wrote {args.output}')
+    run = app_calibrate.calibrate_logs(
+        settings_from_args(args), args.inputs, args.output, args.imu_topic,
+        args.temperature_topic, args.chunk_size, args.progress, args.save_windows,
+        on_log=lambda read: print(format_log_read(read, args.save_windows), file=sys.stderr))
+    if run.saved:
+        print(format_saved_windows(run.saved, args.save_windows), file=sys.stderr)
+    print(format_calibrate_run(run, args.output, args.json))
     return 0
-
-
-def _motion_text(collected):
-    """Return ', N pose changes (M too long dropped)' for a Collected ('' if not collected)."""
-    if collected.motion is None:
-        return ''
-    dropped = ', '.join(f'{n} {why.replace("_", " ")}'
-                        for why, n in collected.motion['dropped'].items() if n)
-    return f', {len(collected.transitions)} pose changes' + (
-        f' ({dropped} dropped)' if dropped else '')
 
 
 def cmd_compensate(args):
     """Run the compensate subcommand."""
-    from ..pipeline import compensate_log
+    from ..app.compensate import compensate_log
     Outputs([args.input, args.calibration]).log(args.output, '-o')
     cal = Calibration.load(args.calibration)
     st = compensate_log(args.input, args.output, cal, args.imu_topic, args.temperature_topic,
@@ -170,24 +129,12 @@ def cmd_compensate(args):
 
 
 def cmd_evaluate(args):
-    """Run the evaluate subcommand."""
-    from ..pipeline import evaluate_log
+    """Run the evaluate subcommand (``app.evaluate.evaluate_files``)."""
+    from ..app.evaluate import evaluate_files
     g, _ = _gravity(args)
-    cals = {}
-    for path in args.calibration:
-        label = os.path.splitext(os.path.basename(path))[0]
-        while label in cals:
-            label += "'"
-        cals[label] = Calibration.load(path)
-    res = evaluate_log(args.input, cals, args.imu_topic, args.temperature_topic,
-                       _detector(args), g, args.average, args.chunk_size, args.max_gap,
-                       args.progress)
-    if res['holds'] == 0:
-        raise UserError(f'{args.input}: no stationary holds found, so there is nothing to '
-                        'evaluate; evaluate needs a log with the IMU held still in several '
-                        'poses, each for at least the minimum hold (derived from the log; '
-                        f'`thermal-imu-calib info {args.input} --holds` shows it and what the '
-                        'detector finds, --min-hold S overrides it)')
+    res = evaluate_files(args.input, args.calibration, args.imu_topic, args.temperature_topic,
+                         _detector(args), g, args.average, args.chunk_size, args.max_gap,
+                         args.progress)
     if args.json:
         print(json.dumps(res, indent=1))
         return 0
@@ -231,7 +178,7 @@ def cmd_info(args):
     with open_log(args.input) as reader:
         print(reader.info().format())
     if args.holds:
-        from ..pipeline import collect_windows
+        from ..app.collect import collect_windows
         c = collect_windows(args.input, args.imu_topic, args.temperature_topic, _detector(args),
                             args.chunk_size, args.max_gap, args.progress)
         print(f'{len(c.holds)} stationary holds')

@@ -1,16 +1,18 @@
 """Fleet subcommands of ``thermal-imu-calib``: fleet calibrate/compensate, history, simulate-fleet.
 
-Thin adapters over ``thermal_imu_calib.fleet`` (inputs, runner, registry, simulate) and
-Dask; registered in ``cli.build_parser`` by ``add_fleet_parsers``.
+Thin adapters: the steps are ``app.fleet``'s (map, reduce, compensate one log), run on
+Dask by ``fleet.runner``; ``fleet/`` holds the inputs, the registry, the history and the
+fleet simulator. Registered in ``cli.build_parser`` by ``add_fleet_parsers``.
 """
 
 import functools
 import os
 import sys
 
+from ..app import fleet as app_fleet
 from ..fleet import inputs as fin
 from ..fleet import registry as reg
-from ..fleet.runner import _reason, check_workers, fleet_client, run_fleet
+from ..fleet.runner import _progress, check_workers, fleet_client, run_fleet
 from ..io.output import HTML, Outputs
 
 EXIT_PARTIAL = 1
@@ -105,19 +107,26 @@ def calibrate_args(args):
     return cargs
 
 
+def fleet_settings(args):
+    """Return the CalibrateSettings of ``fleet calibrate`` (``calibrate``'s, with its options)."""
+    from .calibrate import settings_from_args
+    return settings_from_args(calibrate_args(args))
+
+
 def _collect_kw(args):
-    from .calibrate import _detector
+    """Return what every map step gets: the topics, the chunk size (and gap, to compensate)."""
     kw = {'imu_topic': args.imu_topic, 'temperature_topics': args.temperature_topic,
-          'chunk_size': args.chunk_size, 'max_gap_s': args.max_gap}
+          'chunk_size': args.chunk_size}
     if hasattr(args, 'min_hold'):    # fleet calibrate: calibrate's detector and input gate
-        kw['detector'] = _detector(args)
-        kw['input_units'] = calibrate_args(args).input_unit
+        kw['settings'] = fleet_settings(args)
+    else:
+        kw['max_gap_s'] = args.max_gap
     return kw
 
 
 def cmd_fleet_calibrate(args):
     """Run ``fleet calibrate``: map logs, reduce per sensor, write the registry."""
-    from .calibrate import _gravity, calibrate_collected
+    from .calibrate import _gravity
     group = fin.GroupBy.parse(args.by)
     if args.period < 0:
         raise ValueError(f'--period {args.period}: give 0 (all logs) or a positive number '
@@ -127,10 +136,12 @@ def cmd_fleet_calibrate(args):
     paths = fin.expand_inputs(args.inputs)
     _check_registry_output(args.output, list(args.inputs) + paths)
     print(f'fleet calibrate: {len(paths)} logs', file=sys.stderr)
-    reduce_fn = functools.partial(calibrate_collected, calibrate_args(args))
+    collect_kw = _collect_kw(args)
+    reduce_fn = functools.partial(app_fleet.calibrate_unit, collect_kw['settings'],
+                                  args.imu_topic)
     with fleet_client(args.scheduler, args.workers) as client:
-        units, failed = run_fleet(client, paths, group, reduce_fn, _collect_kw(args),
-                                  args.period, args.progress)
+        units, failed = run_fleet(client, paths, group, reduce_fn, collect_kw, args.period,
+                                  args.progress)
     entries, bad = [], len(failed)
     for path, warning in (w for u in units for w in u.warnings):
         print(f'{path}: warning: {warning}', file=sys.stderr)
@@ -145,9 +156,7 @@ def cmd_fleet_calibrate(args):
             print(f'{name}: NOT calibrated ({len(u.logs)} logs): {u.error}')
             bad += 1
             continue
-        cal = u.result.calibration
-        cal.notes.extend(f'fleet: log {p} was not used: {why}' for p, why in u.excluded)
-        entries.append((u.sensor, cal, u.end_ns, u.start_ns, u.logs))
+        entries.append(app_fleet.registry_entry(u))
     errors = []
     paths_out = reg.add(args.output, entries, errors) if entries else []
     for (sensor, cal, *_), out in zip(entries, paths_out):
@@ -178,29 +187,6 @@ def _check_registry_output(registry, inputs):
                          'directory, or an existing registry')
 
 
-def compensate_one(path, out_path, registry, group, kw):
-    """Task: compensate one log with its unit's calibration; returns (path, text, ok)."""
-    from ..io.bag import open_log
-    from ..io.topics import resolve_topics
-    from ..pipeline import compensate_log
-    try:
-        with open_log(path) as reader:
-            start = int(reader.start_ns or 0)
-            imu_topic, _ = resolve_topics(reader, kw['imu_topic'], [])
-            first = next(reader.stream(imu_topic, [], 1), None)
-        frame = first.imu.frame_id if first is not None else ''
-        sensor = group.sensor_id(path, frame, imu_topic)
-        cal_path = reg.valid_at(registry, sensor, start)
-        cal = reg.Calibration.load(cal_path)
-        st = compensate_log(path, out_path, cal, imu_topic, kw['temperature_topics'],
-                            kw['output_topic'], 'mcap', kw['chunk_size'], kw['max_gap_s'],
-                            None, kw['on_missing'], False, kw['despike'])
-        return (path, f'{out_path}: {st["imu_out"]} compensated with '
-                      f'{reg.display_id(sensor)} {os.path.relpath(cal_path, registry)}', True)
-    except Exception as e:   # noqa: B902 - one bad log is reported, the others go on
-        return (path, _reason(e, path), False)
-
-
 def cmd_fleet_compensate(args):
     """Run ``fleet compensate``: each log with its unit's calibration valid at its time."""
     group = fin.GroupBy.parse(args.by)
@@ -223,9 +209,9 @@ def cmd_fleet_compensate(args):
     kw = dict(_collect_kw(args), output_topic=args.output_topic,
               on_missing=args.on_missing_temperature, despike=args.despike)
     with fleet_client(args.scheduler, args.workers) as client:
-        futs = [client.submit(compensate_one, p, o, os.path.abspath(args.registry), group, kw,
-                              pure=False) for p, o in zip(paths, outs)]
-        from ..fleet.runner import _progress
+        futs = [client.submit(app_fleet.compensate_unit_log, p, o,
+                              os.path.abspath(args.registry), group, kw, pure=False)
+                for p, o in zip(paths, outs)]
         _progress(futs, args.progress)
         results = client.gather(futs)
     bad = 0

@@ -4,7 +4,11 @@ Units: gravity residuals in micro-g, drift in micro-g/degC, gyro rates in rad/s,
 the units their files carry.
 """
 
+import json
+
 import numpy as np
+
+from ..collection.stationary import format_holds, format_settings
 
 
 def format_calibration(cal):
@@ -70,3 +74,47 @@ def format_evaluation(res):
         cells = '  '.join(f'{fn(r[lb]):>{c}}' for lb, c in zip(labels, cols))
         out.append(f'{name:<{w0}}  {cells}')
     return '\n'.join(out)
+
+
+def format_log_read(read, holds=False):
+    """Return the lines ``calibrate`` prints as a log has been read (an app LogRead).
+
+    Messages, rate, holds and pose changes; the detector's settings; with ``holds`` the
+    hold list; the input gate's warnings.
+    """
+    c = read.collected
+    lines = [f'{read.path}: {c.imu_messages} Imu messages in {c.seconds:.1f} s '
+             f'({c.imu_messages / max(c.seconds, 1e-9):,.0f} msgs/s), '
+             f'{len(np.unique(c.windows.hold))} stationary holds' + _motion_text(c),
+             '  ' + format_settings(c.detector)]
+    if holds:
+        lines.append(format_holds(c.holds))
+    lines += [f'  warning: {w}' for w in read.warnings]
+    return '\n'.join(lines)
+
+
+def _motion_text(collected):
+    """Return ', N pose changes (M too long dropped)' for a Collected ('' if not collected)."""
+    if collected.motion is None:
+        return ''
+    dropped = ', '.join(f'{n} {why.replace("_", " ")}'
+                        for why, n in collected.motion['dropped'].items() if n)
+    return f', {len(collected.transitions)} pose changes' + (
+        f' ({dropped} dropped)' if dropped else '')
+
+
+def format_saved_windows(saved, path):
+    """Return the line saying what ``--save-windows`` wrote ((windows, pose changes))."""
+    return (f'wrote {saved[0]} windows to {path} and {saved[1]} pose changes to '
+            f'{path}.transitions.npz')
+
+
+def format_calibrate_run(run, output, as_json=False):
+    """Return what ``calibrate`` prints on stdout: the summary and notes, or the JSON report."""
+    result = run.result
+    if as_json:
+        return json.dumps({'summary': result.summary, 'output': output,
+                           'calibration': result.calibration.to_dict()}, indent=1,
+                          default=str)
+    return '\n'.join([result.summary] + [f'  note: {n}' for n in result.calibration.notes]
+                     + [f'wrote {output}'])

@@ -1,134 +1,22 @@
 """Fleet map/reduce on Dask: one task per log, one estimation per sensor (and period).
 
-Map (``collect_log``): stream one log and keep what ``calibrate`` keeps, its window
-statistics and pose changes (``pipeline.Collected``: kilobytes; samples never travel), plus
-the sensor id and the log's time span. The map applies the input gate ``calibrate``
-applies (``io.gate.check_report``: no usable IMU data, broken stamps, temperature inputs
-that cannot support a thermal fit), so a log ``calibrate`` would refuse never enters its
-unit's reduction; what the gate dropped and counted comes back as ``warnings``. A log that
-cannot be read or is refused is a ``LogResult`` with ``error`` set, never an exception, so
-it cannot stop the job.
-
-Reduce: the caller's ``reduce_fn(collected_list, paths) -> CalibrationResult`` runs once per
-sensor (and ``period``) on a worker, with the map results passed as futures (they move
-worker to worker, not through the client). ``cli.fleet`` passes
-``cli.calibrate.calibrate_collected``: the very code of ``calibrate``.
+The steps are the use cases of ``app.fleet``: the map (``collect_log``) reads one log as
+``calibrate`` reads it and returns its windows and pose changes (kilobytes; samples never
+travel); the reduce (``reduce_unit``) runs the caller's ``reduce_fn(collected_list, paths)
+-> CalibrationResult`` once per sensor (and ``period``) on a worker, with the map results
+passed as futures (they move worker to worker, not through the client). ``cli.fleet``
+passes ``app.fleet.calibrate_unit``: the very estimation of ``calibrate``. This module
+only starts the cluster, submits the steps and gathers them.
 
 A worker that dies mid-job loses its results; the scheduler recomputes them from the
 task graph (``distributed.scheduler.allowed-failures`` retries), so nothing is lost.
 """
 
 from contextlib import contextmanager
-from dataclasses import dataclass, field
 import os
 import sys
-import time
 
-NS_PER_DAY = 86400 * 10 ** 9
-
-
-@dataclass
-class LogResult:
-    """What the map step returns for one log."""
-
-    path: str
-    sensor: str = ''
-    start_ns: int = 0
-    end_ns: int = 0
-    imu_topic: str = ''
-    collected: object = None       # pipeline.Collected, None on error
-    error: str = ''
-    seconds: float = 0.0
-    warnings: list = field(default_factory=list)   # the input gate's 'dropped and counted'
-
-    def header(self):
-        """Return this result without the windows (what the client needs to group)."""
-        return LogResult(self.path, self.sensor, self.start_ns, self.end_ns, self.imu_topic,
-                         None, self.error, self.seconds, list(self.warnings))
-
-
-@dataclass
-class UnitResult:
-    """What the reduce step returns for one sensor (and period)."""
-
-    sensor: str
-    logs: list
-    start_ns: int
-    end_ns: int
-    result: object = None          # estimation.calibrate.CalibrationResult, None on error
-    error: str = ''
-    excluded: list = field(default_factory=list)   # (path, reason) of this unit's bad logs
-    warnings: list = field(default_factory=list)   # (path, warning) of its good logs
-
-
-#: longest reason shown on one FAILED line (a 10 kB frame_id must not make a 10 kB line)
-MAX_REASON = 400
-
-
-def _reason(e, path=None):
-    from ..io.log_info import LogError
-    msg = str(e).strip().replace('\n', ' ') or type(e).__name__
-    if path is not None and msg.startswith(f'{path}: '):
-        msg = msg[len(f'{path}: '):]      # the FAILED line names the path already
-    if not (isinstance(e, (ValueError, OSError, LogError)) or 'Error' not in type(e).__name__):
-        msg = f'{type(e).__name__}: {msg}'
-    return msg if len(msg) <= MAX_REASON else msg[:MAX_REASON - 3] + '...'
-
-
-def collect_log(path, group, imu_topic=None, temperature_topics=None, detector=None,
-                chunk_size=20000, max_gap_s=5.0, input_units=()):
-    """Map task: stream one log and gate it; returns a LogResult (``error`` set, not raised).
-
-    ``input_units`` are ``calibrate``'s ``--input-unit`` items (default: every temperature
-    input in degC, bounded to -80..200 as ``calibrate`` does). The log is refused, as
-    ``calibrate`` refuses it, when ``io.gate.check_report`` raises.
-    """
-    from ..io.bag import open_log
-    from ..io.gate import check_report
-    from ..io.topics import resolve_topics
-    from ..pipeline import collect_windows
-    t = time.perf_counter()
-    res = LogResult(os.fspath(path))
-    try:
-        if group.kind in ('path', 'metadata'):   # known even when the log is unreadable
-            res.sensor = group.sensor_id(path)
-        with open_log(path) as reader:
-            res.start_ns, res.end_ns = int(reader.start_ns or 0), int(reader.end_ns or 0)
-            res.imu_topic, _ = resolve_topics(reader, imu_topic, temperature_topics)
-        c = collect_windows(path, res.imu_topic, temperature_topics, detector, chunk_size,
-                            max_gap_s, progress=False, motion=True,
-                            input_units=list(input_units))
-        res.sensor = res.sensor or group.sensor_id(path, c.frame_id, res.imu_topic)
-        res.warnings = check_report(os.fspath(path), c.gate, max_gap_s)
-        if c.imu_messages == 0:
-            raise ValueError('the log has no Imu messages')
-        res.collected = c
-    except Exception as e:   # noqa: B902 - a bad log is data: reported, never raised
-        res.error = _reason(e, os.fspath(path))
-    res.seconds = time.perf_counter() - t
-    return res
-
-
-def header(res):
-    """Small task: the LogResult without its windows."""
-    return res.header()
-
-
-def reduce_unit(sensor, reduce_fn, heads, *results):
-    """Reduce task: merge the logs of one unit (in time order) and estimate."""
-    good = [r for r in results if not r.error]
-    out = UnitResult(sensor, [r.path for r in good], min(h.start_ns for h in heads),
-                     max(h.end_ns for h in heads),
-                     excluded=[(r.path, r.error) for r in results if r.error],
-                     warnings=[(r.path, w) for r in good for w in r.warnings])
-    if not good:
-        out.error = 'no readable log'
-        return out
-    try:
-        out.result = reduce_fn([r.collected for r in good], [r.path for r in good])
-    except Exception as e:   # noqa: B902 - a refused unit is reported, the others go on
-        out.error = _reason(e)
-    return out
+from ..app.fleet import collect_log, header, period_key, reduce_unit
 
 
 class FleetSetupError(ValueError):
@@ -275,16 +163,6 @@ def _progress(futures, enabled):
         from distributed import progress
         progress(futures)
         print(file=sys.stderr)
-
-
-def period_key(heads, period_days):
-    """Return path -> (sensor, period index) for the logs of each sensor (0 days: one)."""
-    first = {}
-    for h in heads:
-        first[h.sensor] = min(first.get(h.sensor, h.start_ns), h.start_ns)
-    step = max(period_days, 0) * NS_PER_DAY
-    return {h.path: (h.sensor, int((h.start_ns - first[h.sensor]) // step) if step else 0)
-            for h in heads}
 
 
 def run_fleet(client, paths, group, reduce_fn, collect_kw=None, period_days=0.0,

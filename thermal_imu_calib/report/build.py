@@ -145,7 +145,7 @@ def _noise_rows(cal):
 
 def noise_page(result, topic, source=''):
     """Return the ``Page`` of a noise analysis (``noise.analyse`` result)."""
-    from ..noise import per_axis
+    from ..estimation.noise_model import per_axis
     pg = Page(f'IMU noise model: {topic}')
     pg.h2('Noise figures (Allan deviation)', 'noise')
     pg.p(f'{source}: {result["kind"]}, {result["segments"]} still segment(s), '

@@ -1,8 +1,14 @@
-"""The ``report`` options and the ``noise`` subcommand of ``thermal-imu-calib``."""
+"""The ``report`` options and the ``noise`` subcommand of ``thermal-imu-calib``.
+
+Adapters: the windows a report draws come from ``app.report.report_windows``, the noise
+figures from ``app.noise.noise_from_log``; this module checks the outputs first, then
+formats and writes.
+"""
 
 import os
 import sys
 
+from ..app.report import report_windows
 from ..calibration import Calibration
 from ..io.output import containing, HTML, Outputs, PNG, write_atomic
 
@@ -53,7 +59,10 @@ def cmd_report(args, format_calibration, user_error):
     if not (args.html or args.png_dir):
         print(format_calibration(cal))
         return 0
-    windows, series, source = load_windows(args, cal, user_error)
+    try:
+        windows, series, source = report_windows(cal, args.log, args.windows, args.imu_topic)
+    except ValueError as e:
+        raise user_error(str(e)) from None
     from .build import calibration_page
     paths = _write_page(calibration_page(cal, windows, series, source), out, args.html,
                         args.png_dir)
@@ -61,45 +70,6 @@ def cmd_report(args, format_calibration, user_error):
     print('wrote ' + ', '.join(([args.html] if args.html else [])
                                + ([f'{len(pngs)} PNG files in {args.png_dir}'] if pngs else [])))
     return 0
-
-
-def load_windows(args, cal, user_error):
-    """Return (Windows or None, temperature series or None, source text)."""
-    from ..collection.segments import Windows
-    if args.log:
-        from ..pipeline import collect_windows, merge_windows
-        topics = cal.temperature_topics or None
-        collected = [collect_windows(p, args.imu_topic, topics) for p in args.log]
-        return (merge_windows(collected), _series(args.log[0], topics),
-                ', '.join(args.log))
-    if args.windows:
-        if not os.path.isfile(args.windows):
-            raise user_error(f'--windows {args.windows!r} does not exist; write it with '
-                             'calibrate --save-windows FILE')
-        with open(args.windows) as f:
-            w = Windows.from_jsonl(f.read(), len(cal.inputs))
-        if len(w) and w.n_inputs != len(cal.inputs):
-            raise user_error(f'{args.windows} has {w.n_inputs} thermal inputs, the '
-                             f'calibration {len(cal.inputs)}; pass the windows of this '
-                             'calibration')
-        return w, None, args.windows
-    return None, None, ''
-
-
-def _series(path, topics):
-    """Return [(t [s], value)] per temperature topic of the first log (None on failure)."""
-    import numpy as np
-    from ..io.bag import open_log
-    from ..io.topics import resolve_topics
-    with open_log(path) as reader:
-        imu, topics = resolve_topics(reader, None, topics)
-        parts = {t: ([], []) for t in topics}
-        for raw in reader.stream(imu, topics):
-            for t, col in raw.temps.items():
-                parts[t][0].append(col.stamp_ns)
-                parts[t][1].append(col.temperature)
-    return [(np.concatenate(parts[t][0]) * 1e-9 if parts[t][0] else np.zeros(0),
-             np.concatenate(parts[t][1]) if parts[t][1] else np.zeros(0)) for t in topics]
 
 
 def add_noise_parser(sub):
@@ -120,7 +90,8 @@ def add_noise_parser(sub):
 
 def cmd_noise(args, user_error):
     """Run ``noise``."""
-    from ..noise import format_noise, kalibr_yaml, noise_from_log
+    from ..estimation.noise_model import format_noise, kalibr_yaml
+    from ..app.noise import noise_from_log
     html = None
     if args.html is not None:
         html = args.html or os.path.normpath(args.input) + '.noise.html'

@@ -1,18 +1,18 @@
-"""Noise model of a log: still segments -> Allan deviation per axis -> N, K, B; Kalibr file.
+"""Noise model of still IMU data: still segments -> Allan deviation per axis -> N, K, B.
 
-Glue between the log reader, the stationary detector and ``estimation.allan``. A long still
-recording is one segment; a calibration log gives one segment per stationary hold (the
-holds' Allan variances are averaged per tau). Units are SI (see ``estimation.allan``).
+Pure functions over arrays (``app.noise`` reads the logs): ``still_segments`` finds the
+still parts (a long still recording is one segment; a calibration log gives one per
+stationary hold, whose Allan variances are averaged per tau), ``analyse`` fits the noise
+figures (``estimation.allan``), ``kalibr_yaml`` / ``format_noise`` write them for Kalibr and
+for people. Units are SI (see ``estimation.allan``).
 """
 
 import numpy as np
 import yaml
 
-from .estimation import allan
-from .collection.stationary import DetectorConfig, StationaryDetector
-from .io.bag import open_log
-from .io.log_info import LogError
-from .io.topics import resolve_topics
+from ..collection.stationary import DetectorConfig, StationaryDetector
+from ..io.log_info import LogError
+from . import allan
 
 #: a still recording: the detector's holds cover this much of the log in one orientation
 STILL_COVERAGE = 0.9
@@ -26,27 +26,6 @@ MIN_SEGMENT_S = 5.0
 #: outputs where the stationary detector's floor is 0
 STILL_ACCEL_BAND = 0.5
 STILL_GYRO_BAND = 0.02
-
-
-def read_imu(path, imu_topic=None, chunk_size=50000, relative=True):
-    """Return (imu_topic, t [s], accel (n,3) m/s^2, gyro (n,3) rad/s) of a log, stamp-sorted.
-
-    ``t`` starts at 0 with ``relative``, else it is the header stamp in seconds.
-    """
-    ts, acc, gyr = [], [], []
-    with open_log(path) as reader:
-        imu_topic, _ = resolve_topics(reader, imu_topic, [])
-        for raw in reader.stream(imu_topic, [], chunk_size):
-            ts.append(raw.imu.stamp_ns)
-            acc.append(raw.imu.accel)
-            gyr.append(raw.imu.gyro)
-    if not ts or not sum(len(t) for t in ts):
-        raise LogError(f'{path}: no messages on {imu_topic}')
-    stamp = np.concatenate(ts)
-    order = np.argsort(stamp, kind='stable')
-    t0 = stamp[order][0] if relative else 0
-    return (imu_topic, (stamp[order] - t0) * 1e-9, np.concatenate(acc)[order],
-            np.concatenate(gyr)[order])
 
 
 def still_segments(t, accel, gyro, detector=None):
@@ -124,12 +103,6 @@ def analyse(t, accel, gyro, rate_hz=None, detector=None):
                               rate)
     return {'rate_hz': rate, 'kind': kind, 'segments': len(segs),
             'still_seconds': float(sum(b - a for a, b in segs) / rate), 'axes': model}
-
-
-def noise_from_log(path, imu_topic=None, detector=None):
-    """Read a log and return (imu_topic, result of ``analyse``)."""
-    topic, t, accel, gyro = read_imu(path, imu_topic)
-    return topic, analyse(t, accel, gyro, detector=detector)
 
 
 def _k_bound(ax):
@@ -215,67 +188,3 @@ def format_noise(result, topic):
         out.append('  <: the record is too short to see the +1/2 slope; K is an upper bound '
                    '(the steepest +1/2 line under the curve). Record >= 1-2 h still for K.')
     return '\n'.join(out)
-
-
-def _compensated(path, imu_topic, cal, chunk_size=50000):
-    """Return (t [s], accel, gyro) of a log compensated with ``cal`` (its thermal inputs)."""
-    from .pipeline import _aligned, DEFAULT_MAX_GAP_S
-    ts, acc, gyr = [], [], []
-    stream = cal.stream()
-    with open_log(path) as reader:
-        imu_topic, temps = resolve_topics(reader, imu_topic, cal.temperature_topics or None)
-        for ch in _aligned(reader, imu_topic, temps, chunk_size, DEFAULT_MAX_GAP_S):
-            ok = np.all(np.isfinite(ch.temps), axis=1) if ch.temps.size else np.ones(
-                len(ch), bool)
-            if not ok.any():
-                continue
-            t = ch.imu.t[ok]
-            res = stream.apply(t, ch.imu.accel[ok], ch.imu.gyro[ok],
-                               ch.temps[ok] if cal.inputs else None)
-            ts.append(t)
-            acc.append(res.accel)
-            gyr.append(res.gyro)
-    if not ts:
-        raise LogError(f'{path}: no IMU samples with a temperature to compensate')
-    return np.concatenate(ts), np.concatenate(acc), np.concatenate(gyr)
-
-
-#: ``calibrate`` looks for the random walk K only when a hold is at least this long (s)
-K_MIN_HOLD_S = 1200.0
-
-
-def add_random_walk(cal, paths, windows, imu_topic=None):
-    """Add K (and the horizon) to ``cal.noise_model`` from the holds of long logs.
-
-    Only when the longest hold lasts ``K_MIN_HOLD_S``; the samples are compensated with
-    ``cal`` first, so the thermal drift of a warm-up is not taken for a random walk; per
-    sensor only when all three axes show the +1/2 slope. Returns a note for people, or ''
-    when nothing was looked for.
-    """
-    if not len(windows):
-        return ''
-    spans = [(windows.t0[windows.hold == h].min(), windows.t1[windows.hold == h].max())
-             for h in windows.hold_ids]
-    if max(b - a for a, b in spans) < K_MIN_HOLD_S:
-        return ''
-    acc_segs, gyr_segs, rate = [], [], None
-    for path in paths:
-        t, acc, gyr = _compensated(path, imu_topic, cal)
-        rate = rate or sample_rate(t)
-        for a, b in spans:
-            i0, i1 = np.searchsorted(t, a), np.searchsorted(t, b, 'right')
-            if (i1 - i0) / rate >= MIN_SEGMENT_S:
-                acc_segs.append(acc[i0:i1])
-                gyr_segs.append(gyr[i0:i1])
-    model = allan.noise_model(acc_segs, gyr_segs, rate)
-    found = []
-    for sensor, axes in model.items():
-        if all(a.k_observable for a in axes):
-            cal.noise_model[f'{sensor}_random_walk'] = np.array([a.K for a in axes])
-            found.append(sensor)
-    if not found:
-        return ('noise: the holds are long but show no random-walk slope; no random walk '
-                'stored (see `thermal-imu-calib noise`)')
-    cal.noise_model['horizon_s'] = round(float(windows.t1.max() - windows.t0.min()), 1)
-    return (f'noise: {" and ".join(found)} random walk K from the Allan deviation of the '
-            'holds stored; the covariance adds K^2 horizon_s / 3')

@@ -1,0 +1,397 @@
+"""The calibrator node's live collection: holds and pose changes kept, persisted, resumed.
+
+``LiveCollection`` is mixed into ``nodes.calibrator.CalibratorNode``: the IMU and
+temperature callbacks queue messages, ``_process`` aligns them to IMU header stamps
+(``io.align.StreamAligner``) and runs the stationary detector online
+(``collection.motion.MotionCollector``); each closed hold's window statistics are appended
+to ``collection_file`` (JSON lines) and each pose change between holds is written as one
+``.npz`` into ``<collection_file>.transitions/``, so a restarted node resumes where it
+stopped (``_resume``). ``snapshot`` / ``snapshot_collected`` give the calibrate use case a
+``collection.collected.Collected``, as a log gives one, without closing anything in the
+live collection. Times: IMU header stamps (ns in messages, s in the windows).
+"""
+
+import copy
+import io
+import json
+import os
+import time
+
+import numpy as np
+
+from . import common
+from ..collection.collected import Collected
+from ..collection.motion import load_transitions, MotionCollector, offset_holds, save_transitions
+from ..collection.segments import Windows
+from ..collection.stationary import DetectorConfig, DetectorSettingsError
+from ..io.align import StreamAligner
+from ..io.columns import ImuColumns, TemperatureColumns
+from ..io.output import OutputError, write_atomic
+
+
+class LiveCollection:
+    """Collection state of the calibrator node (a mixin: it uses the node's logger)."""
+
+    # ------------------------------------------------------------------ collection state
+    def _new_collection(self):
+        self.detector = self._collector()
+        self.aligner = StreamAligner(self.k, self.temperature_timeout)
+        self.windows = Windows.empty(self.k)
+        self.transitions = []            # replaced, never mutated: snapshots stay consistent
+        self.transitions_dropped = {'too_long': 0, 'incomplete': 0, 'over_limit': 0}
+        self._hold_offset = 0
+        self._newest_ns = None
+        self._pending_imu = []
+        self._pending_temp = [[] for _ in range(self.k)]
+
+    def _collector(self):
+        """Return a new stationary detector that also keeps the pose changes between holds."""
+        return MotionCollector(DetectorConfig(**vars(self.detector_config)), self.k,
+                               max_transition_s=self.max_transition_s)
+
+    def _collection_path(self):
+        if getattr(self, '_collection_error', None):
+            return ''
+        return os.path.expanduser(self.collection_file) if self.collection_file else ''
+
+    def _transitions_dir(self):
+        path = self._collection_path()
+        return path + '.transitions' if path else ''
+
+    def _inputs_signature(self):
+        """Return what the collected windows' thermal columns mean (topics and units)."""
+        return {'temperature_topics': list(self.temperature_topics),
+                'temperature_units': list(self.temperature_units)}
+
+    def _write_inputs_signature(self):
+        path = self._collection_path()
+        if path:
+            try:
+                os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+                write_atomic(path + '.inputs.json',
+                             json.dumps(self._inputs_signature(), indent=1) + '\n')
+            except (OSError, OutputError) as e:
+                self._degrade(e)
+
+    def _signature_mismatch(self, path):
+        """Return why the collection at ``path`` has other thermal inputs (None: same)."""
+        try:
+            with open(path + '.inputs.json') as f:
+                old = json.load(f)
+        except FileNotFoundError:
+            return None                  # written by an older version: only k is checked
+        except (OSError, ValueError) as e:
+            return f'its {path}.inputs.json is unreadable ({e})'
+        new = self._inputs_signature()
+        if old != new:
+            return (f'it was collected with temperature inputs {old.get("temperature_topics")} '
+                    f'in {old.get("temperature_units")}, this node has '
+                    f'{new["temperature_topics"]} in {new["temperature_units"]}')
+        return None
+
+    def _resume(self):
+        try:
+            self._resume_file()
+        except (OSError, OutputError) as e:
+            self._degrade(e)
+
+    def _degrade(self, err):
+        """Collect in memory only when the collection file cannot be read or written."""
+        path = self._collection_path()
+        self._collection_error = f'{err.__class__.__name__}: {err}'
+        self.get_logger().error(f'collection file {path} cannot be used ({err}); collecting '
+                                'in memory only (set collection_file to a writable path to '
+                                'keep the collection across restarts)')
+
+    def _resume_file(self):
+        path = self._collection_path()
+        if not path or not os.path.exists(path):
+            self._write_inputs_signature()
+            return
+        with open(path, 'rb') as f:
+            data = f.read()
+        text, skipped, total = _good_records(data, self.k)
+        try:
+            win = Windows.from_jsonl(text, self.k)
+            if total and not skipped and len(win) == 0:
+                raise ValueError('no record could be read')
+            if total and skipped == total:
+                raise ValueError(f'none of its {total} records could be read')
+        except (KeyError, TypeError, ValueError, IndexError) as e:
+            win, why = None, f'unreadable ({e.__class__.__name__}: {e})'
+        else:
+            if skipped:
+                self.get_logger().warning(f'collection file {path}: skipped {skipped} of '
+                                          f'{total} records that could not be read (not '
+                                          'UTF-8, not JSON, or missing a field)')
+            why = (None if len(win) == 0 or win.n_inputs == self.k else
+                   f'it has {win.n_inputs} temperature inputs, this node {self.k}')
+            why = why or self._signature_mismatch(path)
+        if why:
+            aside = f'{path}.incompatible-{int(time.time())}'
+            os.replace(path, aside)
+            tdir = self._transitions_dir()
+            if os.path.isdir(tdir):
+                os.replace(tdir, aside + '.transitions')
+            if os.path.exists(path + '.inputs.json'):
+                os.replace(path + '.inputs.json', aside + '.inputs.json')
+            self._write_inputs_signature()
+            self.get_logger().error(f'collection file {path} not resumed: {why}; moved to '
+                                    f'{aside}, starting a new collection')
+            return
+        self.windows = win
+        self._hold_offset = int(win.hold.max()) + 1 if len(win) else 0
+        # rewrite only the complete records, so appends never follow a torn last line
+        write_atomic(path, win.to_jsonl())
+        self._write_inputs_signature()
+        self.get_logger().info(f'resumed {len(win)} windows ({len(win.hold_ids)} holds) from '
+                               f'{path}')
+
+    def _resume_transitions(self):
+        """Load the pose changes persisted next to the collection file.
+
+        Those whose holds were not resumed (killed between the two writes) are removed: the
+        next holds reuse their ids. Unreadable files are renamed ``*.unreadable``.
+        """
+        tdir = self._transitions_dir()
+        if not tdir or not os.path.isdir(tdir):
+            return
+        holds = set(self.windows.hold_ids.tolist())
+        kept, stale = [], 0
+        for name in sorted(os.listdir(tdir)):
+            path = os.path.join(tdir, name)
+            if name.startswith('.'):     # a temporary file of a write that was cut short
+                os.unlink(path)
+                continue
+            if not name.endswith('.npz'):
+                continue
+            try:
+                trs = load_transitions(path)
+            except ValueError as e:
+                os.replace(path, path + '.unreadable')
+                self.get_logger().error(f'pose change not resumed: {e}; renamed to '
+                                        f'{path}.unreadable (one pose change lost)')
+                continue
+            if all(t.hold_from in holds and t.hold_to in holds and len(t.temps) == self.k
+                   for t in trs):
+                kept.extend(trs)
+            else:
+                stale += 1
+                os.unlink(path)
+        self.transitions = sorted(kept, key=lambda t: t.hold_to)[:self.max_transitions]
+        self.get_logger().info(f'resumed {len(self.transitions)} pose changes from {tdir}' + (
+            f' ({stale} removed: their holds were not in the collection file)' if stale
+            else ''))
+
+    def _persist(self, win):
+        path = self._collection_path()
+        if not path:
+            return
+        try:
+            os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+            with open(path, 'a') as f:
+                f.write(win.to_jsonl())
+                f.flush()
+                os.fsync(f.fileno())
+        except OSError as e:
+            self._degrade(e)
+
+    def _persist_transition(self, tr):
+        tdir = self._transitions_dir()
+        if not tdir:
+            return
+        try:
+            os.makedirs(tdir, exist_ok=True)
+            buf = io.BytesIO()
+            save_transitions(buf, [tr])
+            write_atomic(os.path.join(tdir, f'{tr.hold_from:06d}-{tr.hold_to:06d}.npz'),
+                         buf.getvalue())
+        except (OSError, OutputError) as e:
+            self._degrade(e)
+
+    def _store(self, win, detector, offset):
+        """Add closed holds and the pose changes ``detector`` made, with ids offset; persist.
+
+        Windows are written before the pose changes that refer to them (see
+        ``_resume_transitions``); beyond ``max_transitions`` pose changes are counted only.
+        """
+        if len(win):
+            win.hold = win.hold + offset
+            self._persist(win)
+            self.windows = Windows.concat([self.windows, win])
+        new = offset_holds(detector.pop_transitions(), offset)
+        room = max(self.max_transitions - len(self.transitions), 0)
+        self.transitions_dropped['over_limit'] += max(len(new) - room, 0)
+        for tr in new[:room]:
+            self._persist_transition(tr)
+        if new[:room]:
+            self.transitions = self.transitions + new[:room]
+
+    # ------------------------------------------------------------------ data
+    def _temperature_cb(self, index, value='temperature'):
+        def cb(msg):
+            # drained too, so temperature keeps pace with batched IMU data under load
+            for m in [msg] + common.drain(self.temp_subs[index], 100, self):
+                v = getattr(m, value)
+                if not np.isfinite(v):
+                    self.counts['temperature_invalid'] += 1
+                    continue
+                self.counts['temperature_readings'] += 1
+                with self._lock:
+                    self._pending_temp[index].append((common.stamp_to_ns(m.header.stamp), v))
+        return cb
+
+    def _on_imu(self, msg):
+        msgs = [msg]
+        msgs.extend(common.drain(self.imu_sub, 999, self))
+        if not self._seen_frame:
+            self._seen_frame = msg.header.frame_id
+        stamps, accel, gyro = common.imu_to_arrays(msgs)
+        self._rate.add(len(msgs))
+        with self._lock:
+            self._pending_imu.append((stamps, accel, gyro))
+
+    def _process(self):
+        with self._lock:
+            pending, self._pending_imu = self._pending_imu, []
+            temps, self._pending_temp = self._pending_temp, [[] for _ in range(self.k)]
+            if not pending and not any(temps):
+                return
+            imu = ImuColumns(*(np.concatenate(c) for c in zip(*pending))) if pending \
+                else ImuColumns.empty()
+            tcols = [TemperatureColumns(np.array([s for s, _ in t], np.int64),
+                                        np.array([v for _, v in t], float)) for t in temps]
+            if len(imu):
+                self._check_time(int(imu.stamp_ns.min()))
+                self._newest_ns = max(self._newest_ns or 0, int(imu.stamp_ns.max()))
+            for chunk in self.aligner.push_columns(imu, tcols):
+                self._collect(chunk)
+
+    def _check_time(self, stamp_ns):
+        """Close the open hold and restart detection when header stamps jump back.
+
+        A replayed bag restarting or a second recording must not be merged into the hold
+        in progress; the windows collected so far are kept.
+        """
+        if self._newest_ns is None or stamp_ns >= self._newest_ns - int(common.JUMP_S * 1e9):
+            return
+        for chunk in self.aligner.finish():
+            self._collect(chunk)
+        try:
+            self._store(self.detector.finish(), self.detector, self._hold_offset)
+        except DetectorSettingsError as e:
+            self._detector_failed(e)
+        self._hold_offset = int(self.windows.hold.max()) + 1 if len(self.windows) else 0
+        for why, n in self.detector.dropped.items():
+            self.transitions_dropped[why] += n
+        self.detector = self._collector()   # no pose change across the jump
+        self.aligner = StreamAligner(self.k, self.temperature_timeout)
+        self._newest_ns = None
+        self.counts['time_resets'] = self.counts.get('time_resets', 0) + 1
+        self.get_logger().warning('IMU header stamps jumped back by more than '
+                                  f'{common.JUMP_S:.0f} s: closed the hold in progress and '
+                                  'restarted detection (collected windows kept)')
+
+    def _collect(self, chunk):
+        imu = chunk.imu
+        finite = np.isfinite(imu.accel).all(1) & np.isfinite(imu.gyro).all(1)
+        use = _usable(chunk, self.k, self.temperature_timeout)
+        self.counts['invalid'] += int((~finite).sum())
+        self.counts['stale_temperature'] += int((finite & ~use).sum())
+        self.counts['samples'] += int(use.sum())
+        if not use.any():
+            return
+        try:
+            win = self.detector.update(imu.t[use], imu.accel[use], imu.gyro[use],
+                                       chunk.temps[use])
+        except DetectorSettingsError as e:
+            self._detector_failed(e)
+            return
+        self._store(win, self.detector, self._hold_offset)
+
+    def _detector_failed(self, err):
+        """Restart detection after samples whose stamps give no usable detector settings.
+
+        The samples since the last restart are dropped (counted in ``detector_restarts``);
+        the windows and pose changes collected before are kept.
+        """
+        self.detector = self._collector()
+        self._hold_offset = int(self.windows.hold.max()) + 1 if len(self.windows) else 0
+        self.counts['detector_restarts'] = self.counts.get('detector_restarts', 0) + 1
+        self.get_logger().warning(f'stationary detection restarted, samples dropped: {err}',
+                                  throttle_duration_sec=10.0)
+
+    # ------------------------------------------------------------------ snapshots
+    def snapshot(self):
+        """Return a consistent copy of the collection for one estimate (taken under the lock).
+
+        What arrived since the last timer tick is taken in first. The windows and pose
+        changes are never mutated in place, so they are shared; the detector and aligner
+        are copied (``snapshot_collected`` finishes the copies).
+        """
+        self._process()
+        with self._lock:
+            return (self.windows, self.transitions, copy.deepcopy(self.detector),
+                    copy.deepcopy(self.aligner), self._hold_offset)
+
+    def snapshot_collected(self, windows, transitions, detector, aligner, offset):
+        """Return the Collected of a ``snapshot``, its open hold closed in the copies.
+
+        Finishing the copied ``detector`` and ``aligner`` adds the samples still waiting for
+        a newer temperature reading and the hold in progress (if long enough), and the pose
+        change into it, without closing anything in the live collection.
+        """
+        parts = []
+        for chunk in aligner.finish():
+            use = _usable(chunk, self.k, self.temperature_timeout)
+            if use.any():
+                imu = chunk.imu
+                parts.append(detector.update(imu.t[use], imu.accel[use], imu.gyro[use],
+                                             chunk.temps[use]))
+        parts.append(detector.finish())
+        tail = Windows.concat(parts)
+        if len(tail):
+            tail.hold = tail.hold + offset
+            windows = Windows.concat([windows, tail])
+        room = max(self.max_transitions - len(transitions), 0)
+        transitions = list(transitions) + offset_holds(detector.pop_transitions(),
+                                                       offset)[:room]
+        return self._collected(windows, transitions, detector.det.settings())
+
+    def _collected(self, windows, transitions, detector):
+        """Return the live collection as the Collected a log gives (``app.collect``)."""
+        return Collected(windows, self._seen_frame, self._rate.total, 0.0,
+                         list(self.temperature_topics), list(transitions),
+                         detector=detector)
+
+
+def _good_records(data, k):
+    """Return (text of the readable records, records skipped, records seen) of a collection.
+
+    A record (one line) is skipped when it is not UTF-8, not JSON or lacks a field the
+    windows table needs; the others are kept (one bad line no longer loses the collection).
+    """
+    good, skipped, total = [], 0, 0
+    for line in data.splitlines():
+        if not line.strip():
+            continue
+        total += 1
+        try:
+            text = line.decode('utf-8')
+            win = Windows.from_jsonl(text, k)
+            if len(win) != 1 or win.n_inputs != k:
+                raise ValueError('not one record of this node\'s inputs')
+        except Exception:  # noqa: B902 - any bad record is skipped and counted
+            skipped += 1
+            continue
+        good.append(text)
+    return '\n'.join(good) + ('\n' if good else ''), skipped, total
+
+
+def _usable(chunk, k, timeout):
+    """Rows of an AlignedChunk with finite IMU data and every temperature fresher than timeout."""
+    imu = chunk.imu
+    use = np.isfinite(imu.accel).all(1) & np.isfinite(imu.gyro).all(1)
+    if k:
+        use &= (chunk.temp_age <= timeout).all(1)
+    return use
