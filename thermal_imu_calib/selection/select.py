@@ -41,6 +41,7 @@ from .multi_select import (_field_fit, fit_rvm_multi, heldout_multi,  # noqa: F4
 from .single_select import (fit_single, heldout_single,  # noqa: F401  (re-exported)
                             LAG_MIN_IMPROVEMENT, select_single, select_single_history,
                             SINGLE_CANDIDATES, SINGLE_MARGIN)
+from .one_way_select import select_one_way
 from .time_folds import turns_both_ways
 from .whole_unit_select import (heldout_whole_unit, KEEP_RATIO,  # noqa: F401  (re-exported)
                                 select_whole_unit, WHOLE_UNIT_GYRO_SLACK, WHOLE_UNIT_MARGIN,
@@ -75,7 +76,13 @@ def auto_policy(ctx):
                 f'temperature spans {span:.2f} degC (< {SINGLE_MIN_SPAN:g}), too little to tell '
                 'a temperature dependence from a drift in time, so no richer shape (lag, rvm) '
                 'is compared: offset polynomial, order by cross-validation')
-        sel = select_single_history(ctx) if turns_both_ways(ctx) else select_single(ctx)
+        if turns_both_ways(ctx):
+            sel = select_single_history(ctx)
+        else:
+            sel = select_single(ctx)
+            res, note = select_one_way(ctx, sel, fit_single)
+            sel.reason += f'; {note}'
+            sel = sel if res is None else select_single_history(ctx, res)
     else:
         try:
             check_faces_up_and_down(ctx)

@@ -170,12 +170,13 @@ def select_single(ctx, rvm_settings=None, candidates=SINGLE_CANDIDATES,
                      lag.report(), kind, kernels, time.perf_counter() - t_start)
 
 
-def select_single_history(ctx):
+def select_single_history(ctx, res=None):
     """Return the Selection of the one-orientation history path (``time_folds``).
 
-    The model is 'hysteresis' (``history_select``), which refits the chosen specs.
+    The model is 'hysteresis' (``history_select``), which refits the chosen specs
+    (``res``: already chosen, e.g. by ``one_way_select``).
     """
-    res = select_history(ctx)
+    res = res or select_history(ctx)
     sel = Selection('hysteresis', res['reason'], None, res['table'], None, res['kind'],
                     seconds=res['seconds'])
     sel.history = res

@@ -1,0 +1,229 @@
+"""``--model auto`` for one orientation on a history that runs one way (a warm-up, one leg).
+
+Within one monotonic leg the temperature rate has one sign, so a term in the thermal
+history (the lag difference, the rate) is fitted from the rate's variation only and flips
+sign on the other direction; such logs keep the lag decision of the previous path
+(``select.select_single``: ``thermal_lag.estimate_tau`` at equal order, contiguous time
+blocks, used above 10 %), whose choice is the *incumbent* here. The issue-22 rules apply
+on top of it:
+
+* the flight stacks' cubic (``ARDUPILOT_SPEC``, ArduPilot's form for one orientation) is
+  always a candidate, and so are offset polynomials of order 1..3 in the input the lag
+  search chose (the reading, or the reading through its lag), each time-weighted or uniform
+  in temperature (``estimation.hysteresis.fit_weights``);
+* every candidate is scored on **held-out contiguous temperature bands** inside the range:
+  the span is cut into ``N_BANDS`` equal bands and each interior band (not the coldest or
+  the hottest one, which would be an extrapolation, clamped in use) is held out in turn and
+  predicted from a fit on the rest. In one leg a band is also a contiguous block of time;
+* figure per fold: the corrected held-out output minus the training part's mean corrected
+  output (one pose: the constant is not observable), averaged over ``BLOCK_S`` blocks, RMS
+  of the 3-vector norm; so a level error across the band counts, as it does when a leg is
+  tested against another one; every fold divided by the raw figure, mean over the folds;
+* per sensor, the pool is the candidates within ``MARGIN`` of the best that are not worse
+  than the cubic. The incumbent stays when it is in the pool of both sensors; otherwise
+  each sensor gets the simplest spec of its pool (the cubic when the pool is empty), fitted
+  by ``history_select`` (model ``hysteresis``).
+
+``fit.model_choice`` lists every candidate's per-fold figure (``heldout``).
+"""
+
+import time
+
+import numpy as np
+
+from ..estimation.hysteresis import (ARDUPILOT_SPEC, ARDUPILOT_TREF, Features, fit_spec,
+                                     predict, Spec)
+from ..estimation.thermal_lag import lagged_axis_temperatures
+from .time_folds import BLOCK_S, MARGIN, MIN_TEST_WINDOWS
+
+#: the temperature span is cut into this many equal bands; the interior ones are held out
+#: (the granularity of the previous path's six time blocks, without its two end blocks)
+N_BANDS = 6
+#: name of the previous path's choice in the tables
+INCUMBENT = 'incumbent'
+
+
+def band_folds(windows, column=0, n_bands=N_BANDS):
+    """Return (list of (train, test, label), kind): interior temperature bands held out."""
+    if windows.n_inputs == 0 or len(windows) == 0:
+        return [], 'no temperature'
+    temp = windows.temp[:, column]
+    lo, hi = float(temp.min()), float(temp.max())
+    if hi <= lo:
+        return [], 'no temperature span'
+    band = np.minimum(((temp - lo) / (hi - lo) * n_bands).astype(int), n_bands - 1)
+    folds = []
+    for b in range(1, n_bands - 1):
+        test = band == b
+        if test.sum() >= MIN_TEST_WINDOWS and (~test).sum() >= 8:
+            a, z = lo + b * (hi - lo) / n_bands, lo + (b + 1) * (hi - lo) / n_bands
+            folds.append((~test, test, f'band {a:.1f}..{z:.1f} degC'))
+    return folds, (f'{len(folds)} interior temperature bands of {n_bands} equal ones held '
+                   'out, each fitted on the rest')
+
+
+def level_drift(corrected, windows, train, test, block_s=BLOCK_S):
+    """Return the held-out figure: RMS over ``block_s`` blocks of |block mean - train mean|.
+
+    ``corrected``: (m, 3) corrected window means; the training mean is weighted by the
+    windows' sample counts. The blocks are cut in the held-out windows' mid times.
+    """
+    idx = np.flatnonzero(test)
+    if len(idx) == 0 or not np.any(train):
+        return float('nan')
+    ref = np.average(corrected[train], axis=0, weights=windows.n[train])
+    tm = 0.5 * (windows.t0[idx] + windows.t1[idx])
+    blk = np.floor((tm - tm.min()) / block_s).astype(int)
+    _, inv = np.unique(blk, return_inverse=True)
+    cnt = np.bincount(inv)
+    d = np.stack([np.bincount(inv, corrected[idx, a] - ref[a]) / cnt for a in range(3)],
+                 axis=1)
+    return float(np.sqrt(np.mean(np.sum(d * d, axis=1))))
+
+
+def candidate_specs(tau):
+    """Return (eligible specs simplest first, floor spec, specs reported only).
+
+    Without a lag: the flight stacks' cubic (``ARDUPILOT_SPEC``, the floor) and offset
+    polynomials of order 1..3 in the reading, time-weighted or uniform in temperature.
+    With the lag the lag search chose: the same polynomials in the lagged reading, the floor
+    being ArduPilot's form (cubic, time-weighted) in that input; the cubic in the reading
+    is reported but not eligible, since bands of one leg cannot tell the reading from its
+    lag (the lag was decided on time blocks).
+    """
+    base = () if tau is None else (round(float(np.max(tau)), 1),)
+    out = [] if base else [ARDUPILOT_SPEC]
+    for weighting in ('time', 'temperature'):
+        for order in (1, 2, 3):
+            out.append(Spec(order, base, (), weighting))
+    floor = ARDUPILOT_SPEC if not base else Spec(3, base, (), 'time')
+    out = sorted(out, key=lambda s: (s.n_params, s is not ARDUPILOT_SPEC))
+    return out, floor, ([ARDUPILOT_SPEC] if base else [])
+
+
+def export_figures(windows, axis_input, signal, spec, t0, folds):
+    """Return the per-fold figure of ``spec`` refitted as the exporters write it (in T).
+
+    A spec in a lagged input is exported as the same polynomial in the reading (thermal
+    equilibrium); specs in the reading export unchanged.
+    """
+    feats = Features(windows, axis_input)
+    y = getattr(windows, signal)
+    flat = Spec(spec.order, (), (), spec.weighting)
+    out = []
+    for train, test, _ in folds:
+        coef, _ = fit_spec(feats, spec, y, train, t0)
+        out.append(level_drift(y - predict(feats, flat, coef, t0), windows, train, test))
+    return out
+
+
+def _incumbent_figures(ctx, sel, fit_single, folds):
+    """Return {sensor: [figure per fold]} of the previous path's choice, or None."""
+    family = {'offset': 'poly', 'lag': 'poly', 'rvm': 'rvm', 'rvm-lag': 'rvm'}.get(sel.model)
+    if family is None:
+        return None
+    w = ctx.windows
+    tau = sel.tau_s if sel.model.endswith('lag') else None
+    out = {'accel': [], 'gyro': []}
+    temps = {'accel': lagged_axis_temperatures(w, tau, ctx.accel_input),
+             'gyro': lagged_axis_temperatures(w, tau, ctx.gyro_input)}
+    for train, test, _ in folds:
+        acc, gyr, _ = fit_single(ctx, family, tau, w.select(train),
+                                 kernels=sel.kernels.get(sel.model))
+        for sig, m in (('accel', acc), ('gyro', gyr)):
+            y = getattr(w, sig)
+            out[sig].append(level_drift(m.correct(y, temps[sig]), w, train, test))
+    return out
+
+
+def _spec_figures(windows, axis_input, signal, specs, t0, folds):
+    feats = Features(windows, axis_input)
+    y = getattr(windows, signal)
+    out = {s: [] for s in specs}
+    for train, test, _ in folds:
+        for s in specs:
+            ref = np.full(3, ARDUPILOT_TREF) if s is ARDUPILOT_SPEC else t0
+            coef, _ = fit_spec(feats, s, y, train, ref)
+            out[s].append(level_drift(y - predict(feats, s, coef, ref), windows, train, test))
+    return out
+
+
+def _scores(figs, raw):
+    raw = np.asarray(raw, float)
+    ok = raw > 0
+    return {k: float(np.mean(np.asarray(v)[ok] / raw[ok])) if ok.any() else float(np.mean(v))
+            for k, v in figs.items()}
+
+
+def select_one_way(ctx, incumbent, fit_single):
+    """Decide between the previous path's choice and the spec candidates on held-out bands.
+
+    ``incumbent``: the ``Selection`` of ``select.select_single``; ``fit_single``: its fit
+    helper (passed in: ``select`` imports this module). Returns (None, note) when the
+    incumbent stays (the note is appended to its reason by the caller), else (res, note)
+    with ``res`` the dict ``history_select.estimate_hysteresis`` refits
+    (``{'specs', 'table', 'kind', 'folds', 'reason', 'seconds', 'export_loss'}``).
+    """
+    t_start = time.perf_counter()
+    w = ctx.windows
+    folds, kind = band_folds(w)
+    if len(folds) < 2:
+        return None, f'one-way history: {kind}; fewer than 2 held-out bands, kept'
+    lag = incumbent.tau_s if incumbent.model.endswith('lag') else None
+    specs, floor_spec, shown = candidate_specs(lag)
+    inc = _incumbent_figures(ctx, incumbent, fit_single, folds)
+    units = {'accel': 'm/s^2', 'gyro': 'rad/s'}
+    table, pools, picks, texts, export_loss = {}, {}, {}, [], {}
+    for sig, idx, t0 in (('accel', ctx.accel_input, ctx.t0),
+                         ('gyro', ctx.gyro_input, ctx.gyro_t0)):
+        y = getattr(w, sig)
+        t0 = np.asarray(t0, float)
+        raw = [level_drift(y, w, tr, te) for tr, te, _ in folds]
+        figs = _spec_figures(w, idx, sig, specs + shown, t0, folds)
+        if inc is not None:
+            figs[INCUMBENT] = inc[sig]
+        scores = {k: v for k, v in _scores(figs, raw).items() if np.isfinite(v)}
+        eligible = {k: v for k, v in scores.items() if k not in shown}
+        best = min(eligible.values())
+        floor = eligible.get(floor_spec, np.inf)
+        pools[sig] = [k for k in eligible if eligible[k] <= best * (1 + MARGIN)
+                      and eligible[k] <= floor]
+        spec_pool = [k for k in pools[sig] if k != INCUMBENT]
+        picks[sig] = (min(spec_pool, key=lambda s: (s.n_params, scores[s])) if spec_pool
+                      else floor_spec)
+        table.setdefault('raw', {})[sig] = float(np.mean(raw))
+        table['raw'][f'{sig}_per_fold'] = [float(v) for v in raw]
+        for k, v in figs.items():
+            label = (f'{INCUMBENT} ({incumbent.model})' if k == INCUMBENT else k.label())
+            row = table.setdefault(label, {})
+            row[sig] = float(np.mean(v))
+            row[f'{sig}_per_fold'] = [float(x) for x in v]
+            row[f'{sig}_score'] = scores.get(k, float('nan'))
+        if picks[sig].base:
+            ref = t0
+            exported = export_figures(w, idx, sig, picks[sig], ref, folds)
+            export_loss[sig] = {'model': float(np.mean(figs[picks[sig]])),
+                                'as_cubic_without_history': float(np.mean(exported)),
+                                'unit': units[sig],
+                                'per_fold': [float(v) for v in exported]}
+        parts = ', '.join(f'{(incumbent.model if k == INCUMBENT else k.label())} '
+                          f'{scores[k]:.3f}' for k in sorted(eligible, key=eligible.get)[:4])
+        texts.append(f'{sig}: raw {np.mean(raw):.3g} {units[sig]}; best (score of raw) '
+                     f'{parts}; floor {floor_spec.label()} {floor:.3f}' +
+                     ''.join(f'; {k.label()} {scores[k]:.3f} (reported only: the lag '
+                             'search chose the lagged input)' for k in shown if k in scores))
+    keep = inc is not None and all(INCUMBENT in pools[s] for s in pools)
+    verdict = (f'kept {incumbent.model}' if keep else
+               'chose ' + ', '.join(f'{s} {p.label()}' for s, p in picks.items()))
+    note = (f'one-way history, {kind} ({len(folds)} folds, {BLOCK_S:.0f}-s drift against '
+            f'the training mean): ' + '; '.join(texts) + f'; {verdict} (candidates within '
+            f'{100 * MARGIN:.0f} % of the best and not worse than the floor; the previous '
+            'choice stays when it qualifies for both sensors)')
+    if keep:
+        incumbent.table['one_way'] = table
+        return None, note
+    res = {'specs': picks, 'table': table, 'kind': kind,
+           'folds': [lab for _, _, lab in folds], 'reason': f'{incumbent.reason}; {note}',
+           'seconds': incumbent.seconds + time.perf_counter() - t_start,
+           'export_loss': export_loss}
+    return res, note
