@@ -137,6 +137,7 @@ def test_real_chamber_log_default_uses_the_history(chamber_cal):
     assert 'weighting' in notes and 'Calibration.stream()' in notes and 'model choice:' in notes
     back = Calibration.from_yaml(cal.to_yaml())
     assert back.accel.history_keys == cal.accel.history_keys
+    np.testing.assert_allclose(back.gyro.restart_spread, cal.gyro.restart_spread)
 
 
 @pytest.mark.parametrize('fmt', ['px4', 'ardupilot'])
@@ -162,16 +163,25 @@ def test_streaming_restart_gap_and_stale_temperature(chamber_log, chamber_cal):
     gap = cal.stream().apply(t[keep], imu.accel[keep], imu.gyro[keep], temp[keep])
     assert np.all(np.abs(gap.accel[3000] - full.accel[3600]) < full.accel_std[3600])
     assert np.all(np.abs(gap.gyro[3000] - full.gyro[3600]) < full.gyro_std[3600])
-    # a restart forgets the history: the step against the never-restarted stream, in units
-    # of the restarted stream's own 1-sigma, restarting every 125 s: median 1.0 (accel and
-    # gyro), at most 2.0 (accel, the fastest ramp: 6 degC/min at the start). The strict
-    # 1-sigma target is a MISS, reported in docs/thermal_models.md; 2 sigma holds
+    # a restart forgets the history and starts at equilibrium; the restarted stream's own
+    # 1-sigma covers what the history added over the calibration (restart_spread), decaying
+    # with the lags' memory: restarting every 125 s along the log, the restarted output
+    # stays within 1 sigma of the never-restarted one, at the restart and after it
+    assert cal.accel.restart_spread is not None and cal.gyro.restart_spread is not None
     ratios = []
     for i0 in range(100, len(t), 250):
         r = cal.stream().apply(t[i0:], imu.accel[i0:], imu.gyro[i0:], temp[i0:])
-        ratios.append([np.max(np.abs(r.accel[0] - full.accel[i0]) / r.accel_std[0]),
-                       np.max(np.abs(r.gyro[0] - full.gyro[i0]) / r.gyro_std[0])])
-    assert np.max(ratios) < 2.1 and np.all(np.median(ratios, axis=0) < 1.1)
+        ratios.append([np.max(np.abs(r.accel - full.accel[i0:]) / r.accel_std),
+                       np.max(np.abs(r.gyro - full.gyro[i0:]) / r.gyro_std)])
+    assert np.max(ratios) <= 1.0
+    # ... and the widening is forgotten: five memories (sums of the lags) on, the std is back
+    # within 10 % of the never-restarted stream's
+    i0 = 100
+    r = cal.stream().apply(t[i0:], imu.accel[i0:], imu.gyro[i0:], temp[i0:])
+    for which, model in (('accel', cal.accel), ('gyro', cal.gyro)):
+        later = np.flatnonzero(t[i0:] - t[i0] > 5 * model.memory_s)[0]
+        np.testing.assert_allclose(getattr(r, f'{which}_std')[later],
+                                   getattr(full, f'{which}_std')[i0 + later], rtol=0.1)
     # the same calibration streamed in small batches (the node) equals one batch (the CLI)
     s = cal.stream()
     parts = [s.apply(t[a:a + 97], imu.accel[a:a + 97], imu.gyro[a:a + 97], temp[a:a + 97])

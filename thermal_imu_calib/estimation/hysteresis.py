@@ -157,19 +157,37 @@ def predict(feats, spec, coef, t0):
     return np.einsum('map,pa->ma', feats.design(spec, t0), coef)
 
 
+def restart_spread(feats, spec, coef, t0):
+    """Return (3,) the largest |offset with its history - offset at equilibrium| (sensor unit).
+
+    Over the calibration windows: what the thermal history (history terms and a lagged base
+    input) added to the modelled offset. A stream that (re)starts does not know that
+    history and starts at equilibrium, so its offset may be off by up to this much.
+    """
+    p = spec.order + 1
+    full = predict(feats, spec, coef, t0)
+    flat = Spec(spec.order, (), (), spec.weighting)
+    eq = predict(feats, flat, coef[:p], t0)
+    return np.max(np.abs(full - eq), axis=0) if len(full) else np.zeros(3)
+
+
 def build_model(spec, coef, std, t0, sensor, include_constant, feats=None):
     """Return the HysteresisOffsetModel of a fitted spec.
 
     With ``feats`` (the calibration windows' Features) the model keeps each history term's
-    RMS over them, which its ``predict_std`` uses after a stream (re)start.
+    RMS over them and the largest offset the history added (``restart_spread``), which its
+    ``predict_std`` uses after a stream (re)start.
     """
     p = spec.order + 1
     terms = [(k, history_key(t)) for k, t in spec.terms]
-    spread = None
+    spread = restart = None
     if feats is not None and terms:
         h = feats.design(spec, t0)[..., p:]
         spread = np.sqrt(np.mean(h ** 2, axis=0)).T
+    if feats is not None and (terms or spec.base):
+        restart = restart_spread(feats, spec, coef, t0)
     return HysteresisOffsetModel(t0, coef[:p], terms, coef[p:], history_key(spec.base)
                                  if spec.base else '', sensor=sensor,
                                  include_constant=include_constant, coeff_std=std[:p],
-                                 term_std=std[p:], term_spread=spread)
+                                 term_std=std[p:], term_spread=spread,
+                                 restart_spread=restart)

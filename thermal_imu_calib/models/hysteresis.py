@@ -33,7 +33,7 @@ class HysteresisOffsetModel(SensorModel):
 
     def __init__(self, t0, coeffs, terms=(), term_coeffs=None, base='', sensor='accel',
                  include_constant=True, coeff_std=None, term_std=None, input_unit='degC',
-                 term_spread=None):
+                 term_spread=None, restart_spread=None):
         #: the polynomial part (in the base input), an ``OffsetPolynomialModel``
         self.poly = OffsetPolynomialModel(t0, coeffs, sensor, include_constant, coeff_std,
                                           input_unit)
@@ -53,6 +53,10 @@ class HysteresisOffsetModel(SensorModel):
         #: history (a stream just (re)started) may hold
         self.term_spread = (None if term_spread is None
                             else np.asarray(term_spread, float).reshape(nt, 3))
+        #: (3,) the largest offset the thermal history added over the calibration data
+        #: (sensor unit): how far a stream that (re)starts at equilibrium may be off
+        self.restart_spread = (None if restart_spread is None
+                               else np.asarray(restart_spread, float).reshape(3))
 
     # the polynomial part's settings, shared with it (the Calibration and the file set them)
     sensor = property(lambda self: self.poly.sensor,
@@ -109,13 +113,23 @@ class HysteresisOffsetModel(SensorModel):
         if self.term_std is not None:
             var += np.einsum('kna,ka->na', h ** 2, self.term_std ** 2)
         age = ((aux or {}).get('history') or {}).get('_age_s')
-        if self.term_spread is not None and age is not None:
-            # a (re)started stream does not know the history before it: each term may be
-            # off by its spread, forgotten as the lag cascade's memory passes
+        if age is not None and self.restart_spread is not None:
+            # a (re)started stream does not know the history before it and starts at
+            # equilibrium: its offset may be off by what the history added during the
+            # calibration, forgotten as the longest lag cascade's memory passes
+            mem = np.exp(-np.asarray(age, float) / self.memory_s)
+            var += (mem[:, None] * self.restart_spread) ** 2
+        elif self.term_spread is not None and age is not None:
+            # files without restart_spread: each term may be off by its RMS spread
             for k, (_, key) in enumerate(self.terms):
                 mem = np.exp(-np.asarray(age, float) / sum(parse_history_key(key)))
                 var += (mem[:, None] * self.term_coeffs[k] * self.term_spread[k]) ** 2
         return np.sqrt(var)
+
+    @property
+    def memory_s(self):
+        """Return the longest memory (s) of the lag cascades: the sum of their constants."""
+        return max((sum(parse_history_key(k)) for k in self.history_keys), default=1.0)
 
     def params(self):
         """Return T0, c0..cN (powers of B - T0) and d0..dK (one per history term), per axis."""
@@ -136,7 +150,9 @@ class HysteresisOffsetModel(SensorModel):
                                 'base': self.base or 'T',
                                 'terms': [{'kind': k, 'history': h} for k, h in self.terms],
                                 **({} if self.term_spread is None else
-                                   {'term_spread': self.term_spread.tolist()})},
+                                   {'term_spread': self.term_spread.tolist()}),
+                                **({} if self.restart_spread is None else
+                                   {'restart_spread': self.restart_spread.tolist()})},
                                self.input_unit)
 
     @classmethod
@@ -154,4 +170,5 @@ class HysteresisOffsetModel(SensorModel):
                    term_std=(None if not terms or any(s is None for s in dstd)
                              else np.stack(dstd)),
                    input_unit=poly.input_unit,
-                   term_spread=meta.get('term_spread') if terms else None)
+                   term_spread=meta.get('term_spread') if terms else None,
+                   restart_spread=meta.get('restart_spread'))
