@@ -10,6 +10,8 @@ spec of each sensor is refitted on every window. ``fit.model_choice`` and
 import numpy as np
 
 from ..estimation.calibrate import CalibrationRefused, Estimate, register_estimator
+from ..estimation.rvm_fit import fit_rvm_offset
+from ..estimation.thermal_lag import cv_groups
 from ..estimation.hysteresis import (ARDUPILOT_SPEC, ARDUPILOT_TREF, build_model, Features,
                                      fit_spec)
 from .time_folds import select_history
@@ -36,6 +38,16 @@ def estimate_hysteresis(ctx):
     for sig, idx, t0 in (('accel', ctx.accel_input, ctx.t0),
                          ('gyro', ctx.gyro_input, ctx.gyro_t0)):
         spec = res['specs'][sig]
+        if spec == 'rvm':     # the one-way path's RVM (seed 003) in the reading
+            kernels = (res.get('rvm_kernels') or {}).get(sig)
+            models[sig], report[f'{sig}_offset'] = fit_rvm_offset(
+                ctx.windows, ctx.windows.temp[:, idx], sig, sig, cv_groups(ctx.windows)[0],
+                offset_only=sig == 'accel', t_ref=t0, kernels=kernels)
+            report[f'{sig}_history'] = {'spec': 'rvm', 'weighting': 'rvm',
+                                        'history_terms': []}
+            notes.append(f'{sig}: rvm (seed 003) in the reading, chosen on held-out blocks '
+                         f'of the thermal history ({res["kind"]})')
+            continue
         ref = np.full(3, ARDUPILOT_TREF) if spec is ARDUPILOT_SPEC else np.asarray(t0, float)
         feats = Features(ctx.windows, idx)
         rows = np.ones(len(ctx.windows), bool)
@@ -47,7 +59,7 @@ def estimate_hysteresis(ctx):
         notes.append(f'{sig}: {spec.label()} (weighting: {_weighting_note(spec)}), chosen '
                      f'on held-out blocks of the thermal history ({res["kind"]})')
     notes.append(f'model choice: {res["reason"]}')
-    if any(m.history_keys for m in models.values()):
+    if any(getattr(m, 'history_keys', ()) for m in models.values()):
         notes.append('the models use the temperature history (lagged readings): stream data '
                      'through Calibration.stream(); Calibration.apply alone means thermal '
                      'equilibrium')

@@ -41,6 +41,15 @@ from .time_folds import BLOCK_S, MARGIN, MIN_TEST_WINDOWS
 N_BANDS = 6
 #: name of the previous path's choice in the tables
 INCUMBENT = 'incumbent'
+#: the RVM family (a candidate when the lag search chose no lag)
+RVM = 'rvm'
+
+
+def _label(key, incumbent):
+    """Return a candidate's name in the tables and the summary."""
+    if key == INCUMBENT:
+        return f'{INCUMBENT} ({incumbent.model})'
+    return RVM if key == RVM else key.label()
 
 
 def band_folds(windows, column=0, n_bands=N_BANDS):
@@ -117,23 +126,33 @@ def export_figures(windows, axis_input, signal, spec, t0, folds):
     return out
 
 
-def _incumbent_figures(ctx, sel, fit_single, folds):
-    """Return {sensor: [figure per fold]} of the previous path's choice, or None."""
-    family = {'offset': 'poly', 'lag': 'poly', 'rvm': 'rvm', 'rvm-lag': 'rvm'}.get(sel.model)
-    if family is None:
+def _family_figures(ctx, name, tau, kernels, fit_single, folds):
+    """Return {sensor: [figure per fold]} of a family of the previous path, or None.
+
+    ``kernels``: the RVM kernels chosen on every window; only their presence is used (the
+    family was fitted), each fold searches its own.
+    """
+    family = {'offset': 'poly', 'lag': 'poly', 'rvm': 'rvm', 'rvm-lag': 'rvm'}.get(name)
+    if family is None or (family == 'rvm' and not kernels):
         return None
     w = ctx.windows
-    tau = sel.tau_s if sel.model.endswith('lag') else None
+    tau = tau if name.endswith('lag') else None
     out = {'accel': [], 'gyro': []}
     temps = {'accel': lagged_axis_temperatures(w, tau, ctx.accel_input),
              'gyro': lagged_axis_temperatures(w, tau, ctx.gyro_input)}
     for train, test, _ in folds:
-        acc, gyr, _ = fit_single(ctx, family, tau, w.select(train),
-                                 kernels=sel.kernels.get(sel.model))
+        # the RVM's kernels are searched again on the training part of each fold: kernels
+        # chosen on every window would have seen the held-out band
+        acc, gyr, _ = fit_single(ctx, family, tau, w.select(train))
         for sig, m in (('accel', acc), ('gyro', gyr)):
             y = getattr(w, sig)
             out[sig].append(level_drift(m.correct(y, temps[sig]), w, train, test))
     return out
+
+
+def _complexity(key):
+    """Return the parsimony rank: a spec's parameter count; the RVM after every spec."""
+    return key.n_params if isinstance(key, Spec) else 100
 
 
 def _spec_figures(windows, axis_input, signal, specs, t0, folds):
@@ -171,7 +190,12 @@ def select_one_way(ctx, incumbent, fit_single):
         return None, f'one-way history: {kind}; fewer than 2 held-out bands, kept'
     lag = incumbent.tau_s if incumbent.model.endswith('lag') else None
     specs, floor_spec, shown = candidate_specs(lag)
-    inc = _incumbent_figures(ctx, incumbent, fit_single, folds)
+    inc = _family_figures(ctx, incumbent.model, incumbent.tau_s,
+                          incumbent.kernels.get(incumbent.model), fit_single, folds)
+    # the RVM (seed 003) in the reading, with the kernels the previous path chose for it;
+    # not in a lagged input: its filter would also lag the other sensor's history model
+    rvm = (_family_figures(ctx, RVM, None, incumbent.kernels.get(RVM), fit_single, folds)
+           if lag is None and incumbent.model != RVM else None)
     units = {'accel': 'm/s^2', 'gyro': 'rad/s'}
     table, pools, picks, texts, export_loss = {}, {}, {}, [], {}
     for sig, idx, t0 in (('accel', ctx.accel_input, ctx.t0),
@@ -182,6 +206,8 @@ def select_one_way(ctx, incumbent, fit_single):
         figs = _spec_figures(w, idx, sig, specs + shown, t0, folds)
         if inc is not None:
             figs[INCUMBENT] = inc[sig]
+        if rvm is not None:
+            figs[RVM] = rvm[sig]
         scores = {k: v for k, v in _scores(figs, raw).items() if np.isfinite(v)}
         eligible = {k: v for k, v in scores.items() if k not in shown}
         best = min(eligible.values())
@@ -189,24 +215,24 @@ def select_one_way(ctx, incumbent, fit_single):
         pools[sig] = [k for k in eligible if eligible[k] <= best * (1 + MARGIN)
                       and eligible[k] <= floor]
         spec_pool = [k for k in pools[sig] if k != INCUMBENT]
-        picks[sig] = (min(spec_pool, key=lambda s: (s.n_params, scores[s])) if spec_pool
+        picks[sig] = (min(spec_pool, key=lambda s: (_complexity(s), scores[s])) if spec_pool
                       else floor_spec)
         table.setdefault('raw', {})[sig] = float(np.mean(raw))
         table['raw'][f'{sig}_per_fold'] = [float(v) for v in raw]
         for k, v in figs.items():
-            label = (f'{INCUMBENT} ({incumbent.model})' if k == INCUMBENT else k.label())
+            label = _label(k, incumbent)
             row = table.setdefault(label, {})
             row[sig] = float(np.mean(v))
             row[f'{sig}_per_fold'] = [float(x) for x in v]
             row[f'{sig}_score'] = scores.get(k, float('nan'))
-        if picks[sig].base:
+        if isinstance(picks[sig], Spec) and picks[sig].base:
             ref = t0
             exported = export_figures(w, idx, sig, picks[sig], ref, folds)
             export_loss[sig] = {'model': float(np.mean(figs[picks[sig]])),
                                 'as_cubic_without_history': float(np.mean(exported)),
                                 'unit': units[sig],
                                 'per_fold': [float(v) for v in exported]}
-        parts = ', '.join(f'{(incumbent.model if k == INCUMBENT else k.label())} '
+        parts = ', '.join(f'{_label(k, incumbent)} '
                           f'{scores[k]:.3f}' for k in sorted(eligible, key=eligible.get)[:4])
         texts.append(f'{sig}: raw {np.mean(raw):.3g} {units[sig]}; best (score of raw) '
                      f'{parts}; floor {floor_spec.label()} {floor:.3f}' +
@@ -214,7 +240,7 @@ def select_one_way(ctx, incumbent, fit_single):
                              'search chose the lagged input)' for k in shown if k in scores))
     keep = inc is not None and all(INCUMBENT in pools[s] for s in pools)
     verdict = (f'kept {incumbent.model}' if keep else
-               'chose ' + ', '.join(f'{s} {p.label()}' for s, p in picks.items()))
+               'chose ' + ', '.join(f'{s} {_label(p, incumbent)}' for s, p in picks.items()))
     note = (f'one-way history, {kind} ({len(folds)} folds, {BLOCK_S:.0f}-s drift against '
             f'the training mean): ' + '; '.join(texts) + f'; {verdict} (candidates within '
             f'{100 * MARGIN:.0f} % of the best and not worse than the floor; the previous '
@@ -225,5 +251,5 @@ def select_one_way(ctx, incumbent, fit_single):
     res = {'specs': picks, 'table': table, 'kind': kind,
            'folds': [lab for _, _, lab in folds], 'reason': f'{incumbent.reason}; {note}',
            'seconds': incumbent.seconds + time.perf_counter() - t_start,
-           'export_loss': export_loss}
+           'export_loss': export_loss, 'rvm_kernels': incumbent.kernels.get(RVM)}
     return res, note
