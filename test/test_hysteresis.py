@@ -211,3 +211,60 @@ def test_report_shows_the_validation_and_the_flight_stack_cubic(chamber_log, cha
     assert set(SECTIONS) | {'validation'} <= set(ids)
     assert {'validation', 'side_by_side', 'coverage'} <= {n for n, _ in images}
     assert 'ardupilot cubic' in out.read_text()
+
+
+@pytest.fixture(scope='module')
+def cooling_leg(chamber_log):
+    """The chamber log's first leg alone (51.6 -> -17.6 degC): a history that runs one way."""
+    imu, tc, w = chamber_log
+    t_turn = imu.stamp_ns[np.argmin(tc.temperature)] * 1e-9
+    return w.select(0.5 * (w.t0 + w.t1) <= t_turn)
+
+
+def test_one_way_folds_are_interior_temperature_bands(cooling_leg):
+    from thermal_imu_calib.selection.one_way_select import band_folds
+    from thermal_imu_calib.selection.time_folds import turns_both_ways
+    from thermal_imu_calib.selection import select
+    w = cooling_leg
+    assert not turns_both_ways(select.make_context(w, options()))
+    folds, kind = band_folds(w)
+    assert len(folds) == 4 and 'interior temperature bands' in kind
+    temp = w.temp[:, 0]
+    for train, test, _ in folds:
+        # held out inside the range: the coldest and the hottest window stay in training
+        assert train[np.argmin(temp)] and train[np.argmax(temp)]
+        assert temp[train].min() < temp[test].min() and temp[test].max() < temp[train].max()
+
+
+def test_one_way_default_never_loses_to_the_cubic_on_held_out_bands(cooling_leg):
+    """One leg: the cubic, both weightings and the RVM are candidates, judged held out."""
+    o = options()
+    o.inputs = [TemperatureInput('/imu/temperature')]
+    cal = calibrate_windows(cooling_leg, o).calibration
+    reason = cal.fit['model_choice']['reason']
+    assert 'interior temperature bands' in reason and 'floor ardupilot' in reason
+    table = cal.fit['selection']['heldout']
+    bands = table.get('one_way', table)
+    floor = bands['ardupilot (cubic in T - 35 degC, time-weighted)']
+    assert any('temperature-weighted' in k for k in bands)
+    assert any('time-weighted' in k for k in bands) and 'rvm' in bands
+    verdict = reason.split('; kept ')[-1] if '; kept ' in reason else \
+        reason.split('; chose ')[-1].split(' (candidates')[0]
+    for sig in ('accel', 'gyro'):
+        if '; kept ' in reason:
+            label = f'incumbent ({verdict.split(" ")[0]})'
+        else:
+            label = next(k for k in bands if f'{sig} {k}' in verdict)
+        assert bands[label][f'{sig}_score'] <= floor[f'{sig}_score']
+
+
+def test_one_way_warm_up_keeps_the_lag_its_lag_search_found():
+    """A simulated warm-up with a 240-s lag: bands of one leg cannot tell T from its lag, so
+    the lag search decides the input and every eligible candidate takes the lagged reading."""
+    from _thermal_data import sim_windows
+    from thermal_imu_calib import sim
+    cal = calibrate_windows(sim_windows(sim.simulate('lag-warmup', 0)), options()).calibration
+    lagged = [cal.temperature_filter is not None and not cal.temperature_filter.is_identity]
+    lagged += [bool(getattr(m, 'base', '')) for m in (cal.accel, cal.gyro)]
+    assert any(lagged), cal.fit['model_choice']['reason']
+    assert 'reported only' in cal.fit['model_choice']['reason']

@@ -1,7 +1,8 @@
 """Report figures of a thermal log's validation: held-out blocks and the flight-stack cubic.
 
 For a calibration whose model was chosen on held-out blocks of the thermal history
-(``selection.time_folds``, ``fit.selection.folds``):
+(``selection.time_folds``, or the interior temperature bands of a one-way history,
+``selection.one_way_select``; ``fit.selection.folds``):
 
 * ``heldout_residuals``: every fold's held-out part, each candidate family's best spec (as
   in the summary), the ArduPilot-style cubic and raw refitted on the fold's training part;
@@ -16,6 +17,7 @@ import numpy as np
 
 from ..estimation.hysteresis import (ARDUPILOT_SPEC, ARDUPILOT_TREF, candidate_specs,
                                      Features, fit_spec, predict)
+from ..selection.one_way_select import band_folds
 from ..selection.time_folds import BLOCK_S, family, heldout_figures, time_folds
 from .figures import _subplots, COLORS, stream_windows
 
@@ -54,9 +56,16 @@ def _family_specs(windows, axis_input, signal, t0, folds):
     return [(f, s) for f, s in sorted(best.items())]
 
 
+def _folds(cal, windows):
+    """Return the folds the calibration was chosen on: history blocks or interior bands."""
+    groups = str(((cal.fit or {}).get('selection') or {}).get('cv_groups', ''))
+    return band_folds(windows) if 'interior temperature bands' in groups else \
+        time_folds(windows)
+
+
 def heldout_residuals(cal, windows):
     """Figure: per fold and sensor, each family's held-out 30-s drift against time."""
-    folds, kind = time_folds(windows)
+    folds, kind = _folds(cal, windows)
     tm = 0.5 * (windows.t0 + windows.t1)
     t_rel = tm - tm.min()
     fig, grid = _subplots(2, 1, figsize=(11, 7), sharex=True)
@@ -92,7 +101,7 @@ def heldout_residuals(cal, windows):
         ax.legend(fontsize=6, ncol=2, loc='upper left')
     grid[1].set_xlabel('time since the first window [s] (dotted: start of a held-out part)')
     grid[0].set_title(f'Held-out blocks of the thermal history ({kind}): each family\'s best '
-                      'candidate fitted on what came before', fontsize=9)
+                      'candidate fitted on the rest', fontsize=9)
     return fig
 
 

@@ -34,22 +34,18 @@ import numpy as np
 from ..estimation.hysteresis import (ARDUPILOT_SPEC, ARDUPILOT_TREF, Features, fit_spec,
                                      predict, Spec)
 from ..estimation.thermal_lag import lagged_axis_temperatures
-from .time_folds import BLOCK_S, MARGIN, MIN_TEST_WINDOWS
+from .time_folds import BLOCK_S, complexity, label, MARGIN, MIN_TEST_WINDOWS, RVM
 
 #: the temperature span is cut into this many equal bands; the interior ones are held out
 #: (the granularity of the previous path's six time blocks, without its two end blocks)
 N_BANDS = 6
 #: name of the previous path's choice in the tables
 INCUMBENT = 'incumbent'
-#: the RVM family (a candidate when the lag search chose no lag)
-RVM = 'rvm'
 
 
 def _label(key, incumbent):
     """Return a candidate's name in the tables and the summary."""
-    if key == INCUMBENT:
-        return f'{INCUMBENT} ({incumbent.model})'
-    return RVM if key == RVM else key.label()
+    return f'{INCUMBENT} ({incumbent.model})' if key == INCUMBENT else label(key)
 
 
 def band_folds(windows, column=0, n_bands=N_BANDS):
@@ -150,11 +146,6 @@ def _family_figures(ctx, name, tau, kernels, fit_single, folds):
     return out
 
 
-def _complexity(key):
-    """Return the parsimony rank: a spec's parameter count; the RVM after every spec."""
-    return key.n_params if isinstance(key, Spec) else 100
-
-
 def _spec_figures(windows, axis_input, signal, specs, t0, folds):
     feats = Features(windows, axis_input)
     y = getattr(windows, signal)
@@ -179,7 +170,8 @@ def select_one_way(ctx, incumbent, fit_single):
 
     ``incumbent``: the ``Selection`` of ``select.select_single``; ``fit_single``: its fit
     helper (passed in: ``select`` imports this module). Returns (None, note) when the
-    incumbent stays (the note is appended to its reason by the caller), else (res, note)
+    incumbent stays, or becomes the RVM for both sensors (the note is appended to its reason
+    by the caller), else (res, note)
     with ``res`` the dict ``history_select.estimate_hysteresis`` refits
     (``{'specs', 'table', 'kind', 'folds', 'reason', 'seconds', 'export_loss'}``).
     """
@@ -215,7 +207,7 @@ def select_one_way(ctx, incumbent, fit_single):
         pools[sig] = [k for k in eligible if eligible[k] <= best * (1 + MARGIN)
                       and eligible[k] <= floor]
         spec_pool = [k for k in pools[sig] if k != INCUMBENT]
-        picks[sig] = (min(spec_pool, key=lambda s: (_complexity(s), scores[s])) if spec_pool
+        picks[sig] = (min(spec_pool, key=lambda s: (complexity(s), scores[s])) if spec_pool
                       else floor_spec)
         table.setdefault('raw', {})[sig] = float(np.mean(raw))
         table['raw'][f'{sig}_per_fold'] = [float(v) for v in raw]
@@ -245,7 +237,11 @@ def select_one_way(ctx, incumbent, fit_single):
             f'the training mean): ' + '; '.join(texts) + f'; {verdict} (candidates within '
             f'{100 * MARGIN:.0f} % of the best and not worse than the floor; the previous '
             'choice stays when it qualifies for both sensors)')
-    if keep:
+    if keep or all(p == RVM for p in picks.values()):
+        # the previous path's Selection, or the same turned to its RVM (its estimator
+        # reuses the kernels chosen on every window)
+        if not keep:
+            incumbent.model, incumbent.tau_s = RVM, None
         incumbent.table['one_way'] = table
         return None, note
     res = {'specs': picks, 'table': table, 'kind': kind,

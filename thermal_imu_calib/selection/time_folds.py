@@ -31,8 +31,9 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from ..estimation.hysteresis import (ARDUPILOT_SPEC, ARDUPILOT_TREF, candidate_specs,
-                                     Features, fit_spec, predict)
-from ..estimation.thermal_lag import legs
+                                     Features, fit_spec, predict, Spec)
+from ..estimation.rvm_fit import fit_rvm_offset
+from ..estimation.thermal_lag import cv_groups, legs
 
 #: held-out figure: averaging block, s (the chamber log's scoring window)
 BLOCK_S = 30.0
@@ -42,6 +43,18 @@ FORWARD_CUTS = (0.25, 0.5, 0.75)
 MIN_TEST_WINDOWS = 12
 #: a richer candidate must be this much better (relative) than a simpler one
 MARGIN = 0.03
+#: the RVM family (seed 003, in the reading) among the candidates: ranked after every spec
+RVM = 'rvm'
+
+
+def label(key):
+    """Return a candidate's name: a spec's label, or 'rvm'."""
+    return key.label() if isinstance(key, Spec) else str(key)
+
+
+def complexity(key):
+    """Return the parsimony rank: a spec's parameter count; the RVM after every spec."""
+    return key.n_params if isinstance(key, Spec) else 100
 
 
 def turns_both_ways(ctx):
@@ -120,6 +133,24 @@ def heldout_figures(windows, axis_input, signal, specs, t0, folds):
     return out, raw
 
 
+def rvm_figures(windows, axis_input, signal, t0, folds):
+    """Return [figure per fold] of the RVM in the reading, kernels searched in each fold.
+
+    Scored like the specs (the rows of ``_scored_rows``, the model evaluated as fitted).
+    """
+    temps = windows.temp[:, list(axis_input)]
+    y = getattr(windows, signal)
+    tm = 0.5 * (windows.t0 + windows.t1)
+    out = []
+    for train, test, _ in folds:
+        rows = _scored_rows(temps, train, test)
+        wt = windows.select(train)
+        model, _ = fit_rvm_offset(wt, temps[train], signal, signal, cv_groups(wt)[0],
+                                  offset_only=signal == 'accel', t_ref=t0)
+        out.append(block_drift(model.correct(y, temps), tm, rows))
+    return out
+
+
 def export_figures(windows, axis_input, signal, spec, t0, folds):
     """Return the per-fold figure of ``spec`` written as a flight stack's cubic.
 
@@ -152,9 +183,10 @@ def refine(windows, axis_input, signal, spec, t0, folds, raw):
 
     A bounded 1-D search of a common factor on its time constants (x0.6 .. x1.6, the
     neighbouring grid cells), scored like the grid (mean over the folds of figure / raw).
-    Specs without a lag are returned unchanged (figures None).
+    Specs without a lag (and the RVM) are returned unchanged (figures None).
     """
-    if not spec.base and all(k == 'rate' for k, _ in spec.terms):
+    if not isinstance(spec, Spec) or (not spec.base
+                                      and all(k == 'rate' for k, _ in spec.terms)):
         return spec, None
     raw = np.asarray(raw, float)
     ok = raw > 0
@@ -181,7 +213,7 @@ def choose(figures, raw):
     best = min(scores.values())
     floor = scores.get(ARDUPILOT_SPEC, np.inf)
     pool = [s for s in scores if scores[s] <= best * (1 + MARGIN) and scores[s] <= floor]
-    chosen = min(pool, key=lambda s: (s.n_params, scores[s])) if pool else ARDUPILOT_SPEC
+    chosen = min(pool, key=lambda s: (complexity(s), scores[s])) if pool else ARDUPILOT_SPEC
     return chosen, scores
 
 
@@ -189,6 +221,8 @@ def family(spec):
     """Return the family of a spec for the summary: its kind of history and weighting."""
     if spec is ARDUPILOT_SPEC:
         return 'ardupilot'
+    if not isinstance(spec, Spec):
+        return label(spec)
     kinds = {'rate' if k == 'rate' else ('two-state lag' if len(t) > 1 else 'lag difference')
              for k, t in spec.terms}
     what = 'lagged T' if spec.base else (' + '.join(sorted(kinds)) if kinds else 'T only')
@@ -222,6 +256,7 @@ def select_history(ctx, signals=('accel', 'gyro')):
         if sig not in signals:
             continue
         figs, raw = heldout_figures(w, idx, sig, specs, np.asarray(t0, float), folds)
+        figs[RVM] = rvm_figures(w, idx, sig, np.asarray(t0, float), folds)
         spec, _ = choose(figs, raw)
         fine, fine_figs = refine(w, idx, sig, spec, np.asarray(t0, float), folds, raw)
         if fine_figs is not None and fine not in figs:
@@ -230,20 +265,21 @@ def select_history(ctx, signals=('accel', 'gyro')):
         chosen[sig] = spec
         table.setdefault('raw', {})[sig] = float(np.mean(raw))
         for s in figs:
-            row = table.setdefault(s.label(), {})
+            row = table.setdefault(label(s), {})
             row[sig] = float(np.mean(figs[s]))
             row[f'{sig}_per_fold'] = [float(v) for v in figs[s]]
             row[f'{sig}_score'] = scores.get(s, float('nan'))
         ref = np.full(3, ARDUPILOT_TREF) if spec is ARDUPILOT_SPEC else np.asarray(t0, float)
-        exported = export_figures(w, idx, sig, spec, ref, folds)
-        export_loss[sig] = {'model': float(np.mean(figs[spec])),
-                            'as_cubic_without_history': float(np.mean(exported)),
-                            'unit': units[sig], 'per_fold': [float(v) for v in exported]}
+        if isinstance(spec, Spec):
+            exported = export_figures(w, idx, sig, spec, ref, folds)
+            export_loss[sig] = {'model': float(np.mean(figs[spec])),
+                                'as_cubic_without_history': float(np.mean(exported)),
+                                'unit': units[sig], 'per_fold': [float(v) for v in exported]}
         floor = float(np.mean(figs[ARDUPILOT_SPEC]))
         best = float(np.mean(figs[spec]))
         fam = ', '.join(f'{k} {v:.3g}' for k, v in family_best(figs).items())
         texts.append(f'{sig} ({units[sig]}): raw {np.mean(raw):.3g}, ardupilot cubic '
-                     f'{floor:.3g}; best of each family: {fam}; chose {spec.label()} '
+                     f'{floor:.3g}; best of each family: {fam}; chose {label(spec)} '
                      f'{best:.3g} ({len(figs)} candidates, lags refined by the held-out '
                      'figure)')
     reason = (f'one orientation; held-out blocks of the thermal history ({kind}; '
