@@ -1,6 +1,6 @@
 """Issue-5 acceptance: held-out thermal drift of raw, PX4/ArduPilot-style cubics and our models.
 
-Three data sets, one table each (markdown on stdout, ``--json FILE`` for the figures):
+Four experiments, one table each (markdown on stdout, ``--json FILE`` for the figures):
 
 1. ``chamber-cycle`` (simulated, several seeds): one pose, two 10..50 degC cycles at
    1 degC/min, errors following the reading through a 300-s lag, so heating and cooling
@@ -15,6 +15,11 @@ Three data sets, one table each (markdown on stdout, ``--json FILE`` for the fig
 3. Real BMI270 hot/cold soak (``../shared/data/real/bmi270_hot_cold``, else the repo's
    fixture slices): gyroscope bias only (the two soaks have different orientations), two
    nearly isothermal points; each soak is cut in halves and one half is left out.
+4. Restarts of the compensator's stream (``Calibration.stream``): the default calibrated on
+   one recording streams another one (the chamber cycle of the next seed; the lag warm-up's
+   fast warm-up and cycle), restarted 25 times along it; the step against the
+   never-restarted stream, at and after the restart, in units of the restarted stream's
+   own 1-sigma (``predict_std``).
 
 Also the RVM training time on 3 h of segment statistics (accelerometer and gyroscope,
 grid search included). Equivalent CLI for one recording::
@@ -38,7 +43,9 @@ from thermal_imu_calib import sim
 from thermal_imu_calib.calibration import TemperatureInput
 from thermal_imu_calib.estimation import baselines
 from thermal_imu_calib.selection import select
-from thermal_imu_calib.estimation.calibrate import CalibrateOptions, ESTIMATORS, model_choices
+from thermal_imu_calib.estimation.calibrate import (calibrate_windows, CalibrateOptions,
+                                                    ESTIMATORS, model_choices)
+from thermal_imu_calib.io.columns import ImuColumns
 from thermal_imu_calib.thermal_input import history_windows, parse_history_key
 from thermal_imu_calib.estimation.rvm_fit import fit_rvm_offset, RvmSettings
 from thermal_imu_calib.collection.segments import Windows
@@ -160,6 +167,56 @@ def _default_fit(ctx):
     return est.accel, est.gyro, tau, name
 
 
+def _warmup_tests(seed):
+    """Return {name: SimRecording}: other recordings of the lag-warmup device."""
+    base = sim.SCENARIOS['lag-warmup']
+    return {
+        'fast warm-up': sim.simulate(dataclasses.replace(
+            base, name='lag-warmup-fast', tau_s=300.0, t_amb=20.5), seed),
+        '21-38 degC cycle': sim.simulate(dataclasses.replace(
+            base, name='lag-cycle', profile='cycle', cycles=1, cycle_lo=21.5, cycle_hi=38.0,
+            ramp_degc_per_min=1.0, dwell_s=300.0, case_tau_s=60.0), seed),
+    }
+
+
+def restart_steps(cal, rec, n_restarts=25, max_rows=40000):
+    """Return the largest restart step (accel, gyro) in the restarted stream's 1-sigma.
+
+    ``rec`` is streamed whole (rows decimated to at most ``max_rows``) and again from each
+    of ``n_restarts`` restarts; the step is |restarted - whole| / restarted std, max over
+    the axes and every row from the restart on.
+    """
+    imu = ImuColumns.concat(list(rec.imu_chunks()))
+    tc = rec.temperatures[rec.config.temp_topics[0]]
+    step = max(1, len(imu.stamp_ns) // max_rows)
+    t = imu.stamp_ns[::step] * 1e-9
+    acc, gyr = imu.accel[::step], imu.gyro[::step]
+    temp = np.interp(t, tc.stamp_ns * 1e-9, tc.temperature)[:, None]
+    whole = cal.stream().apply(t, acc, gyr, temp)
+    out = np.zeros(2)
+    for i0 in range(100, len(t), max(1, len(t) // n_restarts)):
+        r = cal.stream().apply(t[i0:], acc[i0:], gyr[i0:], temp[i0:])
+        if r.accel_std is None or r.gyro_std is None:
+            return None
+        out = np.maximum(out, [np.max(np.abs(r.accel - whole.accel[i0:]) / r.accel_std),
+                               np.max(np.abs(r.gyro - whole.gyro[i0:]) / r.gyro_std)])
+    return out.tolist()
+
+
+def restarts(seed):
+    """Return {test: {'model', 'steps'}}: restart steps of the default on other recordings."""
+    out = {}
+    for train, tests in (('chamber-cycle', {'chamber-cycle, next seed':
+                                            sim.simulate('chamber-cycle', seed + 1)}),
+                         ('lag-warmup', _warmup_tests(seed))):
+        cal = calibrate_windows(sim_windows(sim.simulate(train, seed)),
+                                options()).calibration
+        model = cal.fit['model_choice']['model']
+        for name, rec in tests.items():
+            out[f'{train} -> {name}'] = {'model': model, 'steps': restart_steps(cal, rec)}
+    return out
+
+
 def corrected(windows, model, tau, signal):
     """Return corrected window means of ``signal`` (lag computed over the whole history).
 
@@ -233,15 +290,8 @@ def lag_warmup(seed, methods):
     """Calibrate on lag-warmup, evaluate on a fast warm-up and a cycle of the same device."""
     t0 = time.perf_counter()
     train = sim_windows(sim.simulate('lag-warmup', seed))
-    base = sim.SCENARIOS['lag-warmup']
     # same seed and device family: the same IMU; another scenario name: another recording
-    tests = {
-        'fast warm-up': sim_windows(sim.simulate(dataclasses.replace(
-            base, name='lag-warmup-fast', tau_s=300.0, t_amb=20.5), seed)),
-        '21-38 degC cycle': sim_windows(sim.simulate(dataclasses.replace(
-            base, name='lag-cycle', profile='cycle', cycles=1, cycle_lo=21.5, cycle_hi=38.0,
-            ramp_degc_per_min=1.0, dwell_s=300.0, case_tau_s=60.0), seed)),
-    }
+    tests = {k: sim_windows(rec) for k, rec in _warmup_tests(seed).items()}
     ctx = select.make_context(train, options())
     ctx.filter_ok = True
     res = {name: {} for name in tests}
@@ -340,6 +390,7 @@ def main(argv=None):
         figures['lag_warmup'].append(lag_warmup(s, methods))
         print(f'lag-warmup seed {s}: {figures["lag_warmup"][-1]["seconds"]:.0f} s',
               file=sys.stderr)
+    figures['restarts'] = [restarts(s) for s in seeds]
     figures['bmi270'] = bmi270(methods)
     w = sim_windows(sim.simulate('chamber-cycle', seeds[0]))
     figures['rvm_timing'] = rvm_timing(w)
@@ -393,6 +444,23 @@ def main(argv=None):
               for t in tests) + '); auto chose '
           + ', '.join(r['auto_chose'] for r in figures['lag_warmup']))
 
+    print('\n### Compensator restarts (simulated, calibrated on one recording, streamed on '
+          'another)\n')
+    print('Largest step of a restarted stream against the never-restarted one, at and after '
+          'each of 25 restarts, in the restarted stream\'s own 1-sigma (accel / gyro).\n')
+    print('| calibrated on -> streamed | ' + ' | '.join(f'seed {s}' for s in seeds) + ' |')
+    print('|---|' + '---|' * len(seeds))
+    ok_restart = True
+    for name in figures['restarts'][0]:
+        cells = []
+        for r in figures['restarts']:
+            st = r[name]['steps']
+            cells.append('n/a' if st is None else
+                         f'{st[0]:.2f} / {st[1]:.2f} ({r[name]["model"]})')
+            ok_restart &= st is None or max(st) <= 1.0
+        print(f'| {name} | ' + ' | '.join(cells) + ' |')
+    print('\nAcceptance: no restart step beyond 1 sigma: ' + ('PASS' if ok_restart else 'MISS'))
+
     b = figures['bmi270']
     if b is not None:
         print('\n### Real BMI270 hot/cold soak: gyro bias (two soaks, halves left out)\n')
@@ -418,6 +486,7 @@ def main(argv=None):
     total = time.perf_counter() - t_all
     print(f'\nbench time {total:.0f} s', file=sys.stderr)
     figures['pass'] = {'auto_vs_cubics': bool(ok), 'lag_vs_temperature': bool(ok_lag),
+                       'restart_within_1_sigma': bool(ok_restart),
                        'rvm_time': bool(rt['seconds'] < 10)}
     if args.json:
         with open(args.json, 'w') as f:
