@@ -185,7 +185,8 @@ def test_single_orientation_offset_only_beats_cubic_on_held_out_data():
     assert len(np.unique(w.hold)) == 1
     res = calibrate_windows(w, CalibrateOptions(inputs=[TemperatureInput('t', '/t')]))
     cal = res.calibration
-    assert cal.accel.kind == 'offset_polynomial' and cal.accel.meta()['offset_only']
+    assert cal.accel.kind in ('offset_polynomial', 'hysteresis_offset', 'rvm') \
+        and cal.accel.meta()['offset_only']
     assert any('offset-only' in n for n in cal.notes)
     # held out: every 4th window; fit ours (refit on train) and a plain cubic on train
     test = (np.arange(len(w)) % 4) == 0

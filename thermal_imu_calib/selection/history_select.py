@@ -63,8 +63,9 @@ def estimate_hysteresis(ctx):
         notes.append('the models use the temperature history (lagged readings): stream data '
                      'through Calibration.stream(); Calibration.apply alone means thermal '
                      'equilibrium')
-    notes.append('one orientation: the accelerometer model removes the drift relative to '
-                 'its output at the reference temperature; valid for this mounting pose only')
+    notes.append('offset-only model for one orientation: the accelerometer model removes the '
+                 'drift relative to its output at the reference temperature; valid for this '
+                 'mounting pose only')
     fit = {'pose': 'single orientation (offset-only)',
            'selection': {'model': 'hysteresis', 'reason': res['reason'],
                          'cv_groups': res['kind'], 'folds': res['folds'],

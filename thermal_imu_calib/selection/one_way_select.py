@@ -31,9 +31,11 @@ import time
 
 import numpy as np
 
+from ..estimation.calibrate import input_units
 from ..estimation.hysteresis import (ARDUPILOT_SPEC, ARDUPILOT_TREF, Features, fit_spec,
                                      predict, Spec)
 from ..estimation.thermal_lag import lagged_axis_temperatures
+from ..input_units import is_temperature
 from .time_folds import BLOCK_S, complexity, label, MARGIN, MIN_TEST_WINDOWS, RVM
 
 #: the temperature span is cut into this many equal bands; the interior ones are held out
@@ -177,6 +179,10 @@ def select_one_way(ctx, incumbent, fit_single):
     """
     t_start = time.perf_counter()
     w = ctx.windows
+    if not all(is_temperature(u) for u in input_units(ctx.options, ctx.k)):
+        return None, ('one-way history with an input that is not a temperature (a proxy): '
+                      'the flight stacks\' cubic and the band candidates are temperature '
+                      'models, kept')
     folds, kind = band_folds(w)
     if len(folds) < 2:
         return None, f'one-way history: {kind}; fewer than 2 held-out bands, kept'
