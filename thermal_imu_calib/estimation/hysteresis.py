@@ -20,6 +20,7 @@ from typing import Tuple
 import numpy as np
 
 from ..models.hysteresis import HysteresisOffsetModel
+from ..models.polynomial import OffsetPolynomialModel
 from ..thermal_input import history_key, history_windows
 
 #: temperature-uniform weighting: the span is cut into this many equal bins
@@ -172,13 +173,18 @@ def restart_spread(feats, spec, coef, t0):
 
 
 def build_model(spec, coef, std, t0, sensor, include_constant, feats=None):
-    """Return the HysteresisOffsetModel of a fitted spec.
+    """Return the model of a fitted spec: HysteresisOffsetModel, or OffsetPolynomialModel.
+
+    A spec without history terms or lagged input is a plain offset polynomial.
 
     With ``feats`` (the calibration windows' Features) the model keeps each history term's
     RMS over them and the largest offset the history added (``restart_spread``), which its
     ``predict_std`` uses after a stream (re)start.
     """
     p = spec.order + 1
+    if not spec.terms and not spec.base:
+        # no thermal history: the plain offset polynomial (same file, exports and apply)
+        return OffsetPolynomialModel(t0, coef[:p], sensor, include_constant, std[:p])
     terms = [(k, history_key(t)) for k, t in spec.terms]
     spread = restart = None
     if feats is not None and terms:

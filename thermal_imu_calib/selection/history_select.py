@@ -55,10 +55,14 @@ def estimate_hysteresis(ctx):
         models[sig] = build_model(spec, coef, std, ref, sig, include_constant=sig == 'gyro',
                                   feats=feats)
         report[f'{sig}_history'] = {'spec': spec.label(), 'weighting': spec.weighting,
-                                    'history_terms': models[sig].history_keys}
+                                    'history_terms': getattr(models[sig], 'history_keys', [])}
         notes.append(f'{sig}: {spec.label()} (weighting: {_weighting_note(spec)}), chosen '
                      f'on held-out blocks of the thermal history ({res["kind"]})')
     notes.append(f'model choice: {res["reason"]}')
+    poly = not getattr(models['gyro'], 'history_keys', ()) and models['gyro'].kind == \
+        'offset_polynomial'
+    notes.append(('gyroscope: bias polynomial' if poly else 'gyroscope: bias model') +
+                 ' from stationary windows; earth rotation is not removed (up to 7.3e-5 rad/s)')
     if any(getattr(m, 'history_keys', ()) for m in models.values()):
         notes.append('the models use the temperature history (lagged readings): stream data '
                      'through Calibration.stream(); Calibration.apply alone means thermal '
