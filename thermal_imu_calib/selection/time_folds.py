@@ -19,9 +19,10 @@ is judged over the temperatures both sides cover); else all of them, the models 
 as fitted (a clamped input would score every shape alike: as the raw drift).
 
 Every candidate of ``estimation.hysteresis.candidate_specs`` (order, history terms, lags,
-weighting), and the RVM in the reading (``RVM``, kernels searched inside each fold), gets the mean over the folds of its figure divided by the raw figure; the
-simplest candidate within ``MARGIN`` of the best is chosen per sensor, and never one whose
-figure is worse than the flight stacks' cubic (``ARDUPILOT_SPEC``), which is then chosen.
+weighting), and the RVM in the reading (``RVM``, kernels searched inside each fold), gets
+the mean over the folds of its figure divided by the raw figure; the simplest candidate
+within ``MARGIN`` of the best is chosen per sensor, and never one whose figure is worse
+than the flight stacks' cubic (``ARDUPILOT_SPEC``), which is then chosen.
 """
 
 import dataclasses
