@@ -25,7 +25,7 @@ LAYERS = [
     ('selection', ['selection']),
     ('pipelines', ['pipeline', 'evaluate', 'noise', 'sim', 'report']),
     ('app', ['app']),
-    ('adapters', ['cli', 'nodes', 'fleet']),
+    ('adapters', ['cli', 'nodes', 'fleet', 'lifelong']),
     ('package', ['']),
 ]
 #: layers that must not import a ROS client library
