@@ -39,7 +39,7 @@ from sensor_msgs.msg import Imu
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from . import common, process
+from . import common, lifelong as lifelong_mode, process
 from ..calibration import CalibrationError, TemperatureInput
 from ..estimation import calibrate as estimation
 from ..app import calibrate as app
@@ -179,6 +179,7 @@ class CalibratorNode(Node):
                              'input subscriptions.', lo=1, hi=100000, **ro)
         period = p.declare('progress_period', 1.0, 'Seconds between ~/progress and '
                            '/diagnostics messages.', lo=0.05, hi=60.0, **ro)
+        self.lifelong = lifelong_mode.declare(self, p)   # None unless lifelong: true
         self.k = len(self.temperature_topics)
         self.inputs = [TemperatureInput(app.input_name(t, i), t, u) for i, (t, u) in
                        enumerate(zip(self.temperature_topics, self.temperature_units))]
@@ -222,6 +223,8 @@ class CalibratorNode(Node):
         self.progress_pub = self.create_publisher(String, '~/progress', 10)
         self.diagnostics = common.Diagnostics(self)
         self.create_timer(period, self._report, callback_group=MutuallyExclusiveCallbackGroup())
+        if self.lifelong is not None:
+            self.lifelong.start()
 
     # ------------------------------------------------------------------ collection state
     def _new_collection(self):
@@ -410,6 +413,8 @@ class CalibratorNode(Node):
             win.hold = win.hold + offset
             self._persist(win)
             self.windows = Windows.concat([self.windows, win])
+            if self.lifelong is not None:
+                self.lifelong.on_windows(win)
         new = offset_holds(detector.pop_transitions(), offset)
         room = max(self.max_transitions - len(self.transitions), 0)
         self.transitions_dropped['over_limit'] += max(len(new) - room, 0)
@@ -745,11 +750,13 @@ class CalibratorNode(Node):
             level, msg = common.WARN, 'no fresh temperature; ' + msg
         self.diagnostics.publish([common.diagnostic_status(
             f'{self.get_name()}: thermal calibration', self.get_fully_qualified_name(), level,
-            msg, values)])
+            msg, values)] + (self.lifelong.statuses() if self.lifelong is not None else []))
 
     def destroy_node(self):
         """Stop the estimation worker, then destroy the node."""
         self._worker.shutdown(wait=False, cancel_futures=True)
+        if self.lifelong is not None:
+            self.lifelong.shutdown()
         return super().destroy_node()
 
 
