@@ -272,6 +272,102 @@ def _write(path, obj):
                   else str(x))
 
 
+def real_pieces(name):
+    """Return (ImuColumns, TemperatureColumns, piece seconds) of a real recording.
+
+    The recordings are static throughout; cut into pieces (the detector restarted between
+    them, as a robot that drives off and stops again) they become a sequence of holds.
+    """
+    from thermal_imu_calib.io.columns import ImuColumns, TemperatureColumns
+    from thermal_imu_calib.io.csv_logs import read_bmi270_rows, read_tofupilot_chamber
+    real = os.environ.get('THERMAL_REAL_DATA', os.path.join(
+        os.path.dirname(os.path.dirname(HERE)), 'shared', 'data', 'real'))
+    fix = os.path.join(os.path.dirname(HERE), 'test', 'fixtures', 'real')
+    if name == 'chamber':
+        path = os.path.join(real, 'tofupilot_chamber', 'imu_chamber_train.csv')
+        if not os.path.exists(path):
+            path = os.path.join(fix, 'tofupilot_chamber', 'imu_chamber_train.csv.gz')
+        imu, temp = read_tofupilot_chamber(path)
+        t0 = 1_700_000_000 * 10 ** 9
+        return (ImuColumns(imu.stamp_ns + t0, imu.accel, imu.gyro, 'imu'),
+                TemperatureColumns(temp.stamp_ns + t0, temp.temperature, 'imu'), 120.0, path)
+    parts, paths, t = [], [], 1_700_000_000 * 10 ** 9
+    for f in ('BMI_270_cold_test_.csv', 'BMI_270_hot_test.csv'):   # cold soak, then hot
+        path = os.path.join(real, 'bmi270_hot_cold', f)
+        if not os.path.exists(path):
+            path = os.path.join(fix, 'bmi270', f)
+        x = read_bmi270_rows(path)[0]
+        stamp = t + np.round(np.arange(len(x)) * 1e9 / 80.0).astype(np.int64)
+        t = int(stamp[-1]) + 3600 * 10 ** 9           # an hour later
+        parts.append((stamp, x))
+        paths.append(path)
+    stamp = np.concatenate([p[0] for p in parts])
+    x = np.concatenate([p[1] for p in parts])
+    return (ImuColumns(stamp, x[:, 1:4] * 4.0 * 9.80665, np.radians(x[:, 4:7]), 'imu'),
+            TemperatureColumns(stamp, x[:, 0], 'imu'), 5.0, ' + '.join(paths))
+
+
+def run_real(name, work, piece_s=None):
+    """Play a real recording through lifelong mode; judge every swap on the later holds."""
+    from thermal_imu_calib.io.columns import TemperatureColumns
+    from thermal_imu_calib.lifelong import gate
+    imu, temp, piece, path = real_pieces(name)
+    piece = piece_s or piece
+    d = os.path.join(work, name)
+    shutil.rmtree(d, ignore_errors=True)
+    life = Lifelong(d, CalibrateSettings(), 1, ['/imu/temperature'], 'imu',
+                    registry_dir=os.path.join(d, 'registry'))
+    feeder = Feeder(life, None)
+    t = (imu.stamp_ns - imu.stamp_ns[0]) * 1e-9
+    pid = np.floor(t / piece).astype(int)
+    actives = [(-np.inf, None)]
+    for p in np.unique(pid):
+        m = pid == p
+        lo, hi = imu.stamp_ns[m][0], imu.stamp_ns[m][-1]
+        tm = (temp.stamp_ns >= lo) & (temp.stamp_ns <= hi)
+        tc = TemperatureColumns(temp.stamp_ns[tm], temp.temperature[tm], 'imu')
+        feeder.push(imu.slice(m), [tc])
+        feeder.finish()
+        feeder.restart()
+        for dec in feeder.decisions:
+            if dec['action'] == 'swap':
+                actives.append((dec['time'], life.active))
+        feeder.decisions = []
+    # every hold ever collected (raw; the store keeps them all at this size)
+    holds = life.store.recent
+    swaps = []
+    for (ts, new), (_, old) in zip(actives[1:], actives[:-1]):
+        later = holds.select(holds.t0 > ts) if len(holds) else holds
+        row = {'time_s': ts - imu.stamp_ns[0] * 1e-9, 'id': new.id, 'later_holds': 0}
+        if len(later) and len(later.hold_ids) >= 2:
+            sn, so = (gate.score(c, later, new.gravity) for c in (new, old))
+            swap, fig = gate.decide(so, sn)
+            row.update(later_holds=int(len(later.hold_ids)), figures=fig,
+                       harmful=bool(fig['gyro']['verdict'] == 'worse'
+                                    or fig['accel']['verdict'] == 'worse'
+                                    or fig['net_margins'] < -1.0),
+                       text=gate.describe(fig))
+        swaps.append(row)
+    return {'recording': name, 'path': path, 'piece_s': piece,
+            'holds': life.store.total_holds, 'decisions': life.decisions(),
+            'swaps': swaps, 'harmful_swaps': sum(bool(s.get('harmful')) for s in swaps)}
+
+
+def real(args):
+    work = args.work or tempfile.mkdtemp(prefix='bench_lifelong_real_')
+    rows = []
+    for name in ('bmi270', 'chamber'):
+        r = run_real(name, work)
+        rows.append(r)
+        print(f'{name}: {r["holds"]} holds, decisions '
+              f'{[d["action"] for d in r["decisions"]]}, swaps {len(r["swaps"])}, harmful '
+              f'{r["harmful_swaps"]}')
+        for s in r['swaps']:
+            print(f'  swap at {s["time_s"]:.0f} s ({s["later_holds"]} later holds): '
+                  f'{s.get("text", "no later holds to judge it on")}')
+    _write(args.output, {'command': ' '.join(sys.argv), 'rows': rows})
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest='cmd')
@@ -281,9 +377,14 @@ def main():
     mo.add_argument('--days', type=float, default=30.0)
     mo.add_argument('--work', default='')
     mo.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_month.json'))
+    re_ = sub.add_parser('real')
+    re_.add_argument('--work', default='')
+    re_.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_real.json'))
     args = p.parse_args(sys.argv[1:] or ['month'])
     if args.cmd in (None, 'month'):
         month(args)
+    else:
+        real(args)
     print(f'max RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB')
 
 

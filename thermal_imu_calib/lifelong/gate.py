@@ -7,9 +7,10 @@ reduced to its sample-weighted mean:
 * gyro error: ``|mean gyro|`` (rad/s): a still gyro reads the earth rate only
   (<= 7.3e-5 rad/s, the same for every calibration compared);
 * accelerometer error: ``|mean accel| - g`` (m/s^2) *centred* on its median over the
-  held-out holds: in one mounting pose bias and scale are not separable from gravity and
-  the single-orientation (offset) model leaves a constant that depends on its reference
-  temperature, so only the change between holds is compared;
+  held-out holds in the mounting pose (the gyro is judged on all of them): in one
+  mounting pose bias and scale are not separable from gravity and the single-orientation
+  (offset) model leaves a constant that depends on its reference temperature, so only the
+  change between holds is compared;
 * noise: the standard error of each hold mean (``sqrt(var / n)``, per-sample variance of
   its windows), the floor no calibration can go below.
 
@@ -64,14 +65,19 @@ def _rms(x):
     return float(np.sqrt(np.mean(np.square(x)))) if len(x) else float('nan')
 
 
-def score(cal, windows, gravity):
-    """Return {'gyro_rms', 'accel_rms', 'noise_gyro', 'noise_accel', 'holds', errors}."""
+def score(cal, windows, gravity, accel_windows=None):
+    """Return {'gyro_rms', 'accel_rms', 'noise_gyro', 'noise_accel', 'holds', errors}.
+
+    The gyro is scored on every hold of ``windows``, the accelerometer on those of
+    ``accel_windows`` (default: the same; the node passes the holds in the mounting pose).
+    """
     e = hold_errors(cal, windows, gravity)
-    acc = e['accel'] - np.median(e['accel']) if len(e['accel']) else e['accel']
-    return {'holds': int(len(e['ids'])), 'gyro_rms': _rms(e['gyro']),
-            'accel_rms': _rms(acc), 'noise_gyro': _rms(e['se_gyro']),
-            'noise_accel': _rms(e['se_accel']), 'gyro': e['gyro'], 'accel': acc,
-            'errors': e}
+    ea = e if accel_windows is None else hold_errors(cal, accel_windows, gravity)
+    acc = ea['accel'] - np.median(ea['accel']) if len(ea['accel']) else ea['accel']
+    return {'holds': int(len(e['ids'])), 'accel_holds': int(len(ea['ids'])),
+            'gyro_rms': _rms(e['gyro']), 'accel_rms': _rms(acc),
+            'noise_gyro': _rms(e['se_gyro']), 'noise_accel': _rms(ea['se_accel']),
+            'gyro': e['gyro'], 'accel': acc, 'errors': e}
 
 
 def decide(active, new, sigmas=2.0):
@@ -80,6 +86,12 @@ def decide(active, new, sigmas=2.0):
     verdict = {}
     for which in ('gyro', 'accel'):
         a, n = active[which], new[which]
+        if len(n) == 0:
+            fig[which] = {'active_rms': float('nan'), 'new_rms': float('nan'), 'gain': 0.0,
+                          'margin': 0.0, 'noise': 0.0, 'paired_se': float('inf'),
+                          'verdict': 'same'}
+            verdict[which] = 'same'
+            continue
         paired = np.abs(a) - np.abs(n)
         se = float(np.std(paired, ddof=1) / np.sqrt(len(paired))) if len(paired) > 1 \
             else float('inf')
@@ -90,7 +102,7 @@ def decide(active, new, sigmas=2.0):
                       'gain': gain, 'margin': margin, 'noise': new[f'noise_{which}'],
                       'paired_se': se, 'verdict': verdict[which]}
     net = sum(fig[w]['gain'] / fig[w]['margin'] for w in ('gyro', 'accel')
-              if fig[w]['margin'] > 0)
+              if fig[w]['margin'] > 0 and np.isfinite(fig[w]['margin']))
     fig['net_margins'] = float(net)
     swap = 'better' in verdict.values() and net > 1.0
     return swap, fig

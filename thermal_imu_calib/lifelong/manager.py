@@ -229,8 +229,8 @@ class Lifelong:
         held = self.store.newest_holds(c.holdout_holds)
         now = float(self.store.recent.t1.max()) if len(self.store.recent) else 0.0
         fit = main_pose(self.store.windows(now, exclude=held), self.config.pose_deg)
-        holdout = main_pose(self.store.holds(held), self.config.pose_deg,
-                            reference=_pose_of(fit))
+        holdout = self.store.holds(held)
+        holdout_pose = main_pose(holdout, self.config.pose_deg, reference=_pose_of(fit))
         self.state['holds_at_estimate'] = self.store.total_holds
         self.state['estimates'] += 1
         decision = {'time': now, 'reason': reason, 'fit_windows': len(fit),
@@ -246,8 +246,8 @@ class Lifelong:
             return self._finish(decision)
         new = result.calibration
         g = new.gravity
-        s_new = gate.score(new, holdout, g)
-        s_act = gate.score(self.active, holdout, g)
+        s_new = gate.score(new, holdout, g, holdout_pose)
+        s_act = gate.score(self.active, holdout, g, holdout_pose)
         swap, fig = gate.decide(s_act, s_new, c.swap_sigmas)
         decision['figures'] = fig
         decision['model'] = new.accel.kind if new.accel is not None else 'gyro only'
@@ -255,7 +255,7 @@ class Lifelong:
         versus = 'the active calibration' if self.active is not None else 'the raw output'
         text = gate.describe(fig)
         if swap:
-            self._activate(new, now, s_new, holdout, fit)
+            self._activate(new, now, s_new, holdout_pose, fit)
             decision.update(action='swap', id=new.id,
                             text=f'new calibration {new.id} replaces {versus}: {text}')
         else:
