@@ -237,3 +237,20 @@ def test_blocked_and_pushed_stops_are_not_collected(tmp_path):
         f2.push(seg.imu, [seg.temperature])
     f2.finish()
     assert life2.store.total_holds > life.store.total_holds
+
+
+def test_simulate_robot_month_writes_a_log_with_hints(tmp_path):
+    from thermal_imu_calib.io.bag import open_log
+    from thermal_imu_calib.sim.robot_month import write_robot_month
+    r = write_robot_month(tmp_path / 'rm.mcap', 4, days=0.3)
+    with open_log(str(tmp_path / 'rm.mcap')) as rd:
+        text = rd.info().format()
+    assert '/cmd_vel' in text and 'geometry_msgs/msg/Twist' in text
+    assert r['summary']['messages']['/imu/data_raw'] == r['summary']['imu_samples']
+    assert os.path.exists(r['side'])
+
+
+def test_simulate_lists_robot_month(capsys):
+    from thermal_imu_calib import cli
+    assert cli.main(['simulate', '-', '--list']) == 0
+    assert 'robot-month' in capsys.readouterr().out

@@ -308,3 +308,70 @@ def _attitude(heading_deg, tilt_deg, azimuth):
 def _direction(rng):
     v = rng.standard_normal(3)
     return v / np.linalg.norm(v)
+
+
+#: ``simulate --scenario`` names this module provides (beyond ``sim.SCENARIOS``)
+SCENARIOS = {'robot-month': RobotMonthConfig()}
+CMD_VEL_TOPIC = '/cmd_vel'
+
+
+def _twist_cdr(still):
+    """Return the CDR bytes of a geometry_msgs/Twist: zero when still, else 0.5 m/s ahead."""
+    import struct
+    return b'\x00\x01\x00\x00' + struct.pack('<6d', 0.0 if still else 0.5, 0, 0, 0, 0, 0)
+
+
+def write_robot_month(output, seed=0, storage='mcap', compression='zstd', **overrides):
+    """Write the robot month as a log (IMU, temperature, cmd_vel) plus its side file.
+
+    The log holds the sampled stops only (``segments``; the driving between them is not
+    sampled), ``/cmd_vel`` (geometry_msgs/Twist, header-less: log time = the IMU stamp it
+    belongs to) at 2 Hz around each stop and once at its start, zstd-compressed by default
+    (a month is ~2 M IMU messages, ~100 MB). ``<output>.robot_month.yaml`` holds the
+    summary, the stops, the knock and the restarts and the true calibration at the start;
+    replay it through ``calibrator_node`` with ``lifelong: true`` and ``cmd_vel_topic:
+    /cmd_vel``. Returns the paths and the summary.
+    """
+    import os
+    import time
+    import yaml
+    from ..io import cdr
+    from ..io.bag_writer import LogWriter
+    from ..io.cdr import IMU_MSGTYPE, TEMPERATURE_MSGTYPE
+    from ..io.output import staging_dir, write_atomic
+    t_start = time.perf_counter()
+    m = robot_month(seed, **overrides)
+    cfg = m.config
+    out = os.fspath(output).rstrip(os.sep)
+    os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
+    counts = {cfg.imu_topic: 0, cfg.temp_topic: 0, CMD_VEL_TOPIC: 0}
+    with staging_dir(out) as tmp:
+        with LogWriter(tmp, storage, compression=compression) as w:
+            w.add_topic(cfg.imu_topic, IMU_MSGTYPE)
+            w.add_topic(cfg.temp_topic, TEMPERATURE_MSGTYPE)
+            w.add_topic(CMD_VEL_TOPIC, 'geometry_msgs/msg/Twist')
+            for seg in m.segments():
+                ev = [(int(s), 0, r) for s, r in zip(seg.imu.stamp_ns, cdr.encode_imu(seg.imu))]
+                ev += [(int(s), 1, r) for s, r in zip(seg.temperature.stamp_ns,
+                                                      cdr.encode_temperature(seg.temperature))]
+                ev += [(int(round(t * 1e9)), 2, _twist_cdr(still)) for t, still in seg.hints]
+                ev.sort(key=lambda e: (e[0], e[1]))
+                topics = (cfg.imu_topic, cfg.temp_topic, CMD_VEL_TOPIC)
+                for stamp, k, raw in ev:
+                    w.write(topics[k], stamp, raw)
+                    counts[topics[k]] += 1
+    truth = m.true_calibration(0.0)
+    side = f'{out}.robot_month.yaml'
+    info = dict(m.summary(), messages=counts, seconds=round(time.perf_counter() - t_start, 1))
+    write_atomic(side, yaml.safe_dump({
+        'summary': info, 'knock_s': float(m.knock_t),
+        'knock_accel_mps2': m.knock_accel.tolist(), 'knock_gyro_rad_s': m.knock_gyro.tolist(),
+        'ageing_accel_mps2_per_day': m.age_accel.tolist(),
+        'ageing_gyro_rad_s_per_day': m.age_gyro.tolist(),
+        'restart_s': [float(x) for x in m.restart_times],
+        'stops': [{'t0_s': float(s.t0), 't1_s': float(s.t1), 'slope_deg': float(s.slope_deg),
+                   'push_s': [float(x) for x in s.push] if s.push else None,
+                   'blocked': bool(s.blocked)}
+                  for s in m.stops],
+        'truth_at_start': truth.to_dict()}, sort_keys=False, width=100))
+    return {'bag': out, 'side': side, 'summary': info}
