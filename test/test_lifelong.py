@@ -199,6 +199,8 @@ def test_lifelong_loop_swaps_logs_and_restarts(tmp_path):
     rows = registry.read_index(str(tmp_path / 'reg'))
     assert len(rows) == len(swaps) and {r['sensor'] for r in rows} == {'imu_link'}
     assert registry.load_valid(str(tmp_path / 'reg'), 'imu_link').id == life.active.id
+    from thermal_imu_calib import cli
+    assert cli.main(['history', str(tmp_path / 'reg')]) == 0
     # the active calibration compensates the gyro of later stops far better than raw
     seg = [s for s in m.segments(0.9 * m.config.days * DAY) if s.still.sum() > 100][0]
     st = seg.still

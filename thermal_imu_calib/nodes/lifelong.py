@@ -18,7 +18,9 @@ value), never more than one at a time; the holds arriving meanwhile are queued a
 after it. A swap publishes the new calibration latched on ``imu/calibration`` and writes
 ``calibration_file`` (as ~/calibrate does). /diagnostics gets one more status: the
 active model's age, the present temperature against its valid range (WARN outside it),
-its error on the newest holds, the number of holds and the temperature coverage.
+its error on the newest holds, the number of holds and the temperature coverage. The
+node's own collection (what ~/calibrate uses) is cut to its newest ``NODE_HOLDS`` holds, so
+memory and collection_file stay bounded over weeks.
 """
 
 from concurrent.futures import ThreadPoolExecutor
@@ -26,15 +28,19 @@ import os
 import threading
 
 from geometry_msgs.msg import Twist
+import numpy as np
 from nav_msgs.msg import Odometry
 from std_msgs.msg import Bool, String
 
 from . import common
 from ..lifelong.hints import HintGate, HintSource, twist_still
+from ..io.output import OutputError, write_atomic
 from ..lifelong.manager import Lifelong, LifelongConfig
 
 #: nice increment of the re-estimation thread
 NICE = 10
+#: most holds the node's own collection keeps in lifelong mode (the store has the rest)
+NODE_HOLDS = 400
 
 
 def declare(node, p):
@@ -172,6 +178,7 @@ class LifelongMode:
         """Take the windows of closed holds (called under the node's lock: quick)."""
         if not len(win):
             return
+        self._bound_node_collection()
         n0 = len(win.hold_ids)
         kept = self.gate.filter(win)
         self.counts['holds_refused_by_hints'] += n0 - (len(kept.hold_ids) if len(kept) else 0)
@@ -181,6 +188,27 @@ class LifelongMode:
             return
         self._pending.append(kept)
         self._flush()
+
+    def _bound_node_collection(self):
+        """Keep the node's own collection (for ~/calibrate) to the newest holds.
+
+        In lifelong mode the node runs for weeks: its collection and collection_file are cut
+        to the newest ``NODE_HOLDS`` x 3/4 holds when they pass ``NODE_HOLDS`` (the
+        lifelong store keeps the rest, compacted). Called under the node's lock.
+        """
+        node = self.node
+        ids = node.windows.hold_ids if len(node.windows) else []
+        if len(ids) <= NODE_HOLDS:
+            return
+        keep = ids[-(NODE_HOLDS * 3 // 4):]
+        node.windows = node.windows.select(np.isin(node.windows.hold, keep))
+        node.transitions = [t for t in node.transitions if t.hold_from in set(keep.tolist())]
+        path = node._collection_path()
+        if path:
+            try:
+                write_atomic(path, node.windows.to_jsonl())
+            except (OSError, OutputError) as e:
+                node._degrade(e)
 
     def _flush(self):
         if not self._lock.acquire(blocking=False):
