@@ -23,6 +23,9 @@ lifelong mode (every swap and alarm listed).
 
     nice -n 10 .venv/bin/python bench/bench_lifelong.py month --seeds 20
     nice -n 10 .venv/bin/python bench/bench_lifelong.py real
+    # seeds in two processes, then one file:
+    ... month --seeds 10 --output a.json & ... month --seeds 10 --first-seed 10 --output b.json
+    nice -n 10 .venv/bin/python bench/bench_lifelong.py merge a.json b.json
 
 Results: bench/results/bench_lifelong_month.json, bench_lifelong_real.json.
 """
@@ -368,6 +371,40 @@ def real(args):
     _write(args.output, {'command': ' '.join(sys.argv), 'rows': rows})
 
 
+def history_alarms(reg, knock_day):
+    """Return what ``thermal-imu-calib history`` flags on a lifelong registry."""
+    from thermal_imu_calib.fleet import registry
+    from thermal_imu_calib.sim.robot_month import MONTH_EPOCH_NS
+    rows = registry.read_index(reg)
+    alarms, info = registry.assess(rows)
+    knock = MONTH_EPOCH_NS + int(knock_day * DAY * 1e9) if np.isfinite(knock_day) else None
+    flagged = [a for v in alarms.values() for a in v]
+    return {'calibrations': len(rows), 'alarms': flagged,
+            'threshold_sigma': info['threshold_sigma'],
+            'changes_after_knock': [a for a in flagged if knock and 'changed' in a and
+                                    registry.parse_time(a.split('-> ')[1][:16]) >= knock]}
+
+
+def merge(args):
+    """Merge month result files (seeds run in parallel processes) into one."""
+    rows, commands = [], []
+    for path in args.inputs:
+        with open(path) as f:
+            d = json.load(f)
+        rows += d['rows']
+        commands.append(d['command'])
+    rows.sort(key=lambda r: r['seed'])
+    for r in rows:                       # the registry's drift alarms (history) per seed
+        for work in args.work:
+            reg = os.path.join(work, f'seed{r["seed"]}', 'registry')
+            if os.path.isdir(reg):
+                r['history_alarms'] = history_alarms(reg, r['knock']['day'])
+    _write(args.output, {'command': ' ; '.join(commands), 'days': rows[0]['summary']['days'],
+                         'seeds': [r['seed'] for r in rows], 'rows': rows,
+                         'summary': summarise(rows)})
+    print(json.dumps(summarise(rows), indent=1))
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest='cmd')
@@ -380,9 +417,16 @@ def main():
     re_ = sub.add_parser('real')
     re_.add_argument('--work', default='')
     re_.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_real.json'))
+    me = sub.add_parser('merge')
+    me.add_argument('inputs', nargs='+')
+    me.add_argument('--work', action='append', default=[],
+                    help='month --work directories: add the registry history alarms')
+    me.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_month.json'))
     args = p.parse_args(sys.argv[1:] or ['month'])
     if args.cmd in (None, 'month'):
         month(args)
+    elif args.cmd == 'merge':
+        merge(args)
     else:
         real(args)
     print(f'max RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB')
