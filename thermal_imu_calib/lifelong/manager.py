@@ -125,7 +125,7 @@ class Lifelong:
             write_atomic(path, ''.join(lines))
 
     def decisions(self, last=None):
-        """Return the logged decisions (dicts), oldest first."""
+        """Return the logged decision records (dicts), oldest first."""
         try:
             with open(self._path('decisions.jsonl')) as f:
                 out = [json.loads(x) for x in f if x.strip()]

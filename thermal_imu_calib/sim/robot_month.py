@@ -187,7 +187,7 @@ class RobotMonth:
 
     # ------------------------------------------------------------------ truth
     def temperature(self, t):
-        """Return the true sensor temperature (degC) at times ``t`` (s since the start)."""
+        """Return the true sensor reading in degC at ``t`` (s since the start of the month)."""
         return np.interp(t, np.arange(len(self.temp_grid)) * self.grid_dt, self.temp_grid)
 
     def bias_change(self, t):
