@@ -14,6 +14,7 @@ import numpy as np
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import Imu, Temperature
 from std_msgs.msg import String
+from std_srvs.srv import Trigger
 
 from thermal_imu_calib.nodes.calibrator import CalibratorNode
 from thermal_imu_calib.sim.robot_month import robot_month
@@ -105,3 +106,15 @@ def test_holds_during_commanded_motion_are_not_collected(ros, tmp_path):
     values = {kv.key: kv.value for kv in st.values}
     assert int(values['holds_refused_by_hints']) >= 1
     assert np.isfinite(float(values['raw_windows']))
+    # the services keep working: ~/calibrate on the node's own collection (one pose, two
+    # holds: an offset model), ~/save writes it, ~/reset clears that collection and leaves
+    # the lifelong store alone
+    resp = ros.call(player, Trigger, '/thermal_imu_calibrator/calibrate', timeout=WAIT)
+    assert resp.success and 'offset' in resp.message, resp.message
+    assert (tmp_path / 'cal.yaml').exists()
+    resp = ros.call(player, Trigger, '/thermal_imu_calibrator/save', timeout=WAIT)
+    assert resp.success, resp.message
+    holds = life.holds()
+    resp = ros.call(player, Trigger, '/thermal_imu_calibrator/reset', timeout=WAIT)
+    assert resp.success and len(node.windows) == 0
+    assert life.holds() == holds and len(life.life.store.recent) > 0
