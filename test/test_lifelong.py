@@ -18,7 +18,7 @@ from thermal_imu_calib.lifelong import gate
 from thermal_imu_calib.lifelong.feed import Feeder
 from thermal_imu_calib.lifelong.hints import HintGate, HintSource, twist_still
 from thermal_imu_calib.lifelong.manager import Lifelong, LifelongConfig, main_pose
-from thermal_imu_calib.lifelong.store import CLUSTER_BASE, HoldStore, StoreConfig
+from thermal_imu_calib.lifelong.store import HoldStore, StoreConfig
 from thermal_imu_calib.sim.robot_month import DAY, robot_month
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -92,7 +92,10 @@ def test_store_bounds_compaction_and_restart(tmp_path, month_windows):
     assert st.total_holds == len(ids)
     assert len(st.bins) > 0 and st.clusters
     w = st.windows(now=float(win.t1.max()))
-    assert (w.hold >= CLUSTER_BASE).any() and (w.hold < CLUSTER_BASE).any()
+    # one pseudo-hold per cluster first, then the raw holds; ids ascending (as a log's)
+    assert len(w) == len(st.bins) + len(st.recent)
+    assert len(w.hold_ids) == len(st.clusters) + len(st.recent.hold_ids)
+    assert np.all(np.diff(w.hold_ids) > 0) and w.hold_ids[0] == 0
     # compacted statistics keep the samples' weight (no fading within 1.5 days: > 90 %)
     assert w.n.sum() > 0.9 * win.n.sum()
     lo, hi = st.temperature_span()

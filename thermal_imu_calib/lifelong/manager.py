@@ -40,7 +40,7 @@ from ..io.output import write_atomic
 from ..pipeline import Collected
 from . import gate
 from ..collection.segments import Windows
-from .store import CLUSTER_BASE, HoldStore, StoreConfig
+from .store import HoldStore, StoreConfig
 
 MAX_DECISIONS = 2000
 
@@ -244,6 +244,10 @@ class Lifelong:
         except (CalibrationRefused, SettingsError, CalibrationError, ValueError) as e:
             decision.update(action='refused', text=f'no new calibration: {e}')
             return self._finish(decision)
+        except Exception as e:  # noqa: B902 - an estimator bug must not end the loop
+            decision.update(action='failed', text=f'estimation failed ({e.__class__.__name__}: '
+                                                  f'{e}); the active calibration stays')
+            return self._finish(decision)
         new = result.calibration
         g = new.gravity
         s_new = gate.score(new, holdout, g, holdout_pose)
@@ -255,7 +259,7 @@ class Lifelong:
         versus = 'the active calibration' if self.active is not None else 'the raw output'
         text = gate.describe(fig)
         if swap:
-            self._activate(new, now, s_new, holdout_pose, fit)
+            self._activate(new, now, s_new, holdout_pose, held)
             decision.update(action='swap', id=new.id,
                             text=f'new calibration {new.id} replaces {versus}: {text}')
         else:
@@ -272,14 +276,14 @@ class Lifelong:
         self.state['last_decision'] = decision['text']
         self._record(decision)
         self._save_state()
-        self.log('info' if decision['action'] != 'refused' else 'warn',
+        self.log('info' if decision['action'] in ('swap', 'keep') else 'warn',
                  f'lifelong {decision["action"]} ({decision["reason"]}): {decision["text"]}')
         return decision
 
     def _save_cal(self, cal, name):
         write_atomic(self._path(name), cal.to_yaml())
 
-    def _activate(self, cal, now, s_new, holdout, fit):
+    def _activate(self, cal, now, s_new, holdout, held):
         self.active = cal
         self.candidate = None
         if os.path.exists(self._path('candidate.yaml')):
@@ -287,7 +291,9 @@ class Lifelong:
         self._save_cal(cal, 'active.yaml')
         # the alarm's reference: the error the calibration leaves on the raw holds it was
         # fitted on (all their temperatures) and on the held-out ones, whichever is larger
-        raw = fit.select(fit.hold < CLUSTER_BASE) if len(fit) else fit
+        rec = self.store.recent
+        raw = main_pose(rec.select(~np.isin(rec.hold, held)), self.config.pose_deg) \
+            if len(rec) else rec
         both = gate.hold_errors(cal, Windows.concat([raw, holdout]), cal.gravity)
         med = float(np.median(both['accel']))
         self.state.update(active_since=now,

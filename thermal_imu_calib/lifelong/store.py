@@ -15,8 +15,8 @@ Bounds (defaults): at most 300 raw holds / 20000 raw windows (~0.5 kB per window
 at most ``max_clusters`` x (temperature span / ``bin_degc``) compacted bins (32 x 60 = 1920
 rows, ~1 MB); the whole directory stays under ~12 MB and memory under a few MB.
 
-For a fit the compacted bins become windows again: one pseudo-hold per cluster
-(``CLUSTER_BASE`` + cluster id), one window per bin, ``n`` = the faded weight. Holds
+For a fit the compacted bins become windows again: one pseudo-hold per cluster, one
+window per bin, ``n`` = the faded weight. Holds
 compacted into one cluster share one unknown orientation in the fit: the cluster width
 bounds the error this adds (1 - cos(cluster_deg) of g: 1.5e-4 m/s^2 at 0.5 deg).
 ``cut(t)`` starts a new epoch (after a knock): everything before ``t`` is dropped.
@@ -339,7 +339,10 @@ class HoldStore:
     def windows(self, now=None, exclude=()):
         """Return all the store's windows for a fit (compacted bins faded to ``now``).
 
-        ``exclude``: raw hold ids left out (the held-out holds of the swap gate).
+        ``exclude``: raw hold ids left out (the held-out holds of the swap gate). Hold ids
+        are renumbered 0, 1, ... in order of appearance, compacted clusters (the oldest
+        data) first, then the raw holds, oldest first, as a log gives them (the estimators
+        rely on ascending ids).
         """
         bins = _Bins.from_dict(self.bins.to_dict(), self.k)
         if now is not None:
@@ -347,8 +350,17 @@ class HoldStore:
             bins.keep(bins.w >= self.config.min_weight)
         raw = self.recent.select(~np.isin(self.recent.hold, list(exclude))) \
             if len(self.recent) else self.recent
-        out = Windows.concat([bins.windows(), raw])
-        return out if len(out) else Windows.empty(self.k)
+        comp = bins.windows()
+        if len(comp):
+            comp = comp.select(np.lexsort((bins.bin, bins.cluster)))
+        out = Windows.concat([comp, raw])
+        if not len(out):
+            return Windows.empty(self.k)
+        first = {}
+        for h in out.hold:
+            first.setdefault(int(h), len(first))
+        out.hold = np.array([first[int(h)] for h in out.hold], int)
+        return out
 
     def newest_holds(self, count):
         """Return the ids of the newest ``count`` raw holds, oldest first."""
