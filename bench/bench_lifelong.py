@@ -405,6 +405,38 @@ def merge(args):
     print(json.dumps(summarise(rows), indent=1))
 
 
+def node_rss(args):
+    """Start calibrator_node in lifelong mode on a copy of a month's lifelong directory.
+
+    Reports the node process's RSS once it has loaded the state and published the active
+    calibration (what a robot's node holds after a month), and the directory's size.
+    """
+    import subprocess
+    d = os.path.join(tempfile.mkdtemp(prefix='bench_lifelong_node_'), 'life')
+    shutil.copytree(args.dir, d)
+    proc = subprocess.Popen([sys.executable, '-m', 'thermal_imu_calib.nodes.calibrator',
+                             '--ros-args', '-p', 'lifelong:=true', '-p',
+                             f'lifelong_dir:={d}', '-p', 'frame_id:=imu_link', '-p',
+                             f'collection_file:={d}/collection.jsonl', '-p',
+                             f'calibration_file:={d}/calibration.yaml'],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    rss, t0 = 0.0, time.monotonic()
+    try:
+        while time.monotonic() - t0 < args.seconds:
+            time.sleep(1.0)
+            with open(f'/proc/{proc.pid}/status') as f:
+                for line in f:
+                    if line.startswith('VmRSS:'):
+                        rss = max(rss, int(line.split()[1]) / 1024)
+    finally:
+        proc.terminate()
+        out = proc.communicate(timeout=30)[0]
+    res = {'dir': args.dir, 'dir_mb': dir_bytes(args.dir) / 2 ** 20, 'node_rss_mb': rss,
+           'log': out.strip().splitlines()[-5:]}
+    print(json.dumps(res, indent=1))
+    _write(args.output, res)
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest='cmd')
@@ -422,11 +454,17 @@ def main():
     me.add_argument('--work', action='append', default=[],
                     help='month --work directories: add the registry history alarms')
     me.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_month.json'))
+    no = sub.add_parser('node')
+    no.add_argument('--dir', required=True, help='a month\'s lifelong directory')
+    no.add_argument('--seconds', type=float, default=20.0)
+    no.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_node.json'))
     args = p.parse_args(sys.argv[1:] or ['month'])
     if args.cmd in (None, 'month'):
         month(args)
     elif args.cmd == 'merge':
         merge(args)
+    elif args.cmd == 'node':
+        node_rss(args)
     else:
         real(args)
     print(f'max RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB')
