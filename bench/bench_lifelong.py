@@ -437,6 +437,32 @@ def node_rss(args):
     _write(args.output, res)
 
 
+def table(args):
+    """Print the markdown tables of docs/lifelong.md from a merged month result."""
+    with open(args.input) as f:
+        d = json.load(f)
+    mr = 1e3
+    print('| seed | gyro first day | last week | true model | last/first | last/true | '
+          'accel first day | last week | last/first | per-sample gyro last/true | swaps '
+          '(next day worse: gyro, accel) | knock day, alarm delay h, false alarms | gyro day '
+          'before / 2nd day after knock | peak RSS MB | peak dir MB | s |')
+    print('|' + '---|' * 16)
+    for r in d['rows']:
+        a, t, ra, k = r['active'], r['true'], r['ratios'], r['knock']
+        delay = 'none' if k['alarm_delay_h'] is None else f'{k["alarm_delay_h"]:.1f}'
+        print(f'| {r["seed"]} | {a["gyro_first_day"] * mr:.3f} | {a["gyro_last_week"] * mr:.3f} '
+              f'| {t["gyro_last_week"] * mr:.3f} | {ra["gyro_last_week_over_first_day"]:.2f} | '
+              f'{ra["gyro_last_week_over_true"]:.1f} | {a["accel_first_day"] * mr:.1f} | '
+              f'{a["accel_last_week"] * mr:.1f} | {ra["accel_last_week_over_first_day"]:.2f} | '
+              f'{ra["gyro_sample_last_week_over_true"]:.2f} | {r["swaps_total"]} '
+              f'({r["swaps_worse_gyro"]}, {r["swaps_worse_accel"]}) | {k["day"]:.1f}, {delay}, '
+              f'{k["alarms_before"]} | {k["gyro_day_before"] * mr:.3f} / '
+              f'{k["gyro_second_day_after"] * mr:.3f} | {r["peak_rss_mb"]:.0f} | '
+              f'{r["peak_dir_mb"]:.1f} | {r["seconds"]:.0f} |')
+    print()
+    print(json.dumps(d['summary'], indent=1))
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest='cmd')
@@ -458,6 +484,8 @@ def main():
     no.add_argument('--dir', required=True, help='a month\'s lifelong directory')
     no.add_argument('--seconds', type=float, default=20.0)
     no.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_node.json'))
+    ta = sub.add_parser('table')
+    ta.add_argument('input')
     args = p.parse_args(sys.argv[1:] or ['month'])
     if args.cmd in (None, 'month'):
         month(args)
@@ -465,6 +493,8 @@ def main():
         merge(args)
     elif args.cmd == 'node':
         node_rss(args)
+    elif args.cmd == 'table':
+        table(args)
     else:
         real(args)
     print(f'max RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB')
