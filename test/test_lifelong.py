@@ -259,3 +259,26 @@ def test_simulate_lists_robot_month(capsys):
     from thermal_imu_calib import cli
     assert cli.main(['simulate', '-', '--list']) == 0
     assert 'robot-month' in capsys.readouterr().out
+
+
+def test_knock_raises_an_alarm_then_a_new_calibration_recovers(tmp_path):
+    m = robot_month(1, days=2.0, knock_day=(1.0, 1.1))
+    life = Lifelong(str(tmp_path), CalibrateSettings(), 1, [TOPIC], 'imu_link')
+    feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
+    for seg in m.segments():
+        feeder.push(seg.imu, [seg.temperature], [('cmd_vel', t, s) for t, s in seg.hints])
+    base = m.start_ns * 1e-9
+    dec = life.decisions()
+    alarms = [d['time'] - base for d in dec if d['action'] == 'alarm']
+    assert alarms and min(alarms) >= m.knock_t, (alarms, m.knock_t)    # no false alarm
+    assert min(alarms) - m.knock_t < 0.5 * DAY
+    assert any(d['action'] == 'swap' and d['time'] - base > min(alarms) for d in dec)
+    # recovered: the active calibration removes the knocked gyro bias on the last stops
+    errs = []
+    for seg in m.segments(1.8 * DAY):
+        st = seg.still
+        if st.sum() < 100:
+            continue
+        res = life.active.apply(seg.imu.accel[st], seg.imu.gyro[st], seg.temp_true[st][:, None])
+        errs.append(np.linalg.norm(np.mean(res.gyro - seg.angular_rate[st], 0)))
+    assert np.sqrt(np.mean(np.square(errs))) < 0.2 * np.linalg.norm(m.knock_gyro)
