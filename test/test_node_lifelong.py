@@ -106,6 +106,7 @@ def test_holds_during_commanded_motion_are_not_collected(ros, tmp_path):
     values = {kv.key: kv.value for kv in st.values}
     assert int(values['holds_refused_by_hints']) >= 1
     assert np.isfinite(float(values['raw_windows']))
+    assert 0.0 <= float(values['temperature_degC']) <= 40.0          # the present reading
     # the services keep working: ~/calibrate on the node's own collection (one pose, two
     # holds: an offset model), ~/save writes it, ~/reset clears that collection and leaves
     # the lifelong store alone

@@ -254,6 +254,9 @@ class LifelongMode:
                                              common.OK, 'waiting for the first hold',
                                              dict(self.counts, **self.gate.counts))]
         now = self._now_s()
+        present = self._present_temperature()
+        if present is not None:
+            self.last_temperature = present
         with_lock = self._lock.acquire(timeout=0.05)
         try:
             st = self.life.status(self.last_temperature, now)
@@ -285,6 +288,14 @@ class LifelongMode:
             msg += '; change alarm: re-estimating from the holds after it'
         return [common.diagnostic_status(name, node.get_fully_qualified_name(), level, msg,
                                          values)]
+
+    def _present_temperature(self):
+        """Return the newest reading of the first thermal input the aligner holds, or None."""
+        try:
+            v = self.node.aligner.tracks[0]._v
+            return float(v[-1]) if len(v) else None
+        except (AttributeError, IndexError):
+            return None
 
     def shutdown(self):
         """Stop the worker (an estimate in progress finishes in the background)."""
