@@ -165,15 +165,27 @@ def evaluate(m, stops, timeline, decisions, noise_g, base):
 
     def rms(x, sel):
         return float(np.sqrt(np.mean(x[sel] ** 2))) if sel.any() else float('nan')
+
+    def centred(name, sel):
+        """RMS of the accel error with the period's median removed (drift within it)."""
+        a = np.array([x[1] for x in err[name]])[sel]
+        return float(np.sqrt(np.mean(np.sum((a - np.median(a, 0)) ** 2, 1)))) \
+            if len(a) else float('nan')
     for name, (g, a, _) in figures.items():
         out[name] = {'gyro_first_day': rms(g, first), 'gyro_last_week': rms(g, last),
                      'accel_first_day': rms(a, first), 'accel_last_week': rms(a, last),
+                     'accel_drift_first_day': centred(name, first),
+                     'accel_drift_last_week': centred(name, last),
                      'gyro_sample_first_day': float(np.hypot(rms(g, first), noise_g)),
                      'gyro_sample_last_week': float(np.hypot(rms(g, last), noise_g))}
     act, tru = out['active'], out['true']
     out['ratios'] = {
         'gyro_last_week_over_first_day': act['gyro_last_week'] / act['gyro_first_day'],
         'accel_last_week_over_first_day': act['accel_last_week'] / act['accel_first_day'],
+        'accel_drift_last_week_over_first_day':
+            act['accel_drift_last_week'] / act['accel_drift_first_day'],
+        'accel_drift_last_week_over_true':
+            act['accel_drift_last_week'] / max(tru['accel_drift_last_week'], 1e-12),
         'gyro_last_week_over_true': act['gyro_last_week'] / tru['gyro_last_week'],
         'accel_last_week_over_true': act['accel_last_week'] / max(tru['accel_last_week'],
                                                                   1e-12),
@@ -194,13 +206,19 @@ def evaluate(m, stops, timeline, decisions, noise_g, base):
         go = np.sqrt(np.mean([np.sum(x[0] ** 2) for x in e_old]))
         an = np.sqrt(np.mean([np.sum((x[1] - c_act) ** 2) for x in e_new]))
         ao = np.sqrt(np.mean([np.sum((x[1] - c_act) ** 2) for x in e_old]))
+        # the drift within the next day (each calibration's own median removed)
+        dn, do = (float(np.sqrt(np.mean(np.sum((v - np.median(v, 0)) ** 2, 1))))
+                  for v in (np.array([x[1] for x in e_new]), np.array([x[1] for x in e_old])))
         swaps.append({'day': ts / DAY, 'stops': len(sel), 'gyro_new': gn, 'gyro_old': go,
                       'accel_new': an, 'accel_old': ao,
-                      'gyro_worse': bool(gn > go), 'accel_worse': bool(an > ao)})
+                      'accel_drift_new': dn, 'accel_drift_old': do,
+                      'gyro_worse': bool(gn > go), 'accel_worse': bool(an > ao),
+                      'accel_drift_worse': bool(dn > do)})
     out['swaps'] = swaps
     out['swaps_total'] = len(timeline) - 1
     out['swaps_worse_gyro'] = sum(s['gyro_worse'] for s in swaps)
     out['swaps_worse_accel'] = sum(s['accel_worse'] for s in swaps)
+    out['swaps_worse_accel_drift'] = sum(s['accel_drift_worse'] for s in swaps)
     # the knock
     k = m.knock_t
     alarms = [d['time'] - base for d in decisions if d['action'] == 'alarm']
@@ -258,6 +276,11 @@ def summarise(rows):
         'swaps': int(sum(r['swaps_total'] for r in rows)),
         'swaps_worse_next_day_gyro': int(sum(r['swaps_worse_gyro'] for r in rows)),
         'swaps_worse_next_day_accel': int(sum(r['swaps_worse_accel'] for r in rows)),
+        'swaps_worse_next_day_accel_drift': int(sum(r.get('swaps_worse_accel_drift', 0)
+                                                    for r in rows)),
+        'seeds_meeting_accel_drift_half_first_day': int(sum(
+            r['ratios'].get('accel_drift_last_week_over_first_day', np.inf) <= 0.5
+            for r in rows)),
         'knock_detected_within_day': int(sum(d is not None and d <= 24 for d in delay)),
         'false_alarms_before_knock': int(sum(r['knock']['alarms_before'] for r in rows)),
         'recovered_second_day': int(sum(
@@ -385,6 +408,55 @@ def history_alarms(reg, knock_day):
                                     registry.parse_time(a.split('-> ')[1][:16]) >= knock]}
 
 
+def reeval_seed(work_seed, seed, days):
+    """Score a finished month again from its lifelong directory (registry = the timeline)."""
+    from thermal_imu_calib.calibration import Calibration
+    from thermal_imu_calib.fleet import registry
+    m = robot_month(seed, days=days)
+    spec = m.device.spec
+    rate = m.config.imu_rate
+    noise_g = np.sqrt(3 * (spec.gyro_noise_density ** 2 * rate + spec.gyro_lsb ** 2 / 12))
+    base = m.start_ns * 1e-9
+    rows = registry.read_index(os.path.join(work_seed, 'registry'))
+    timeline = [(-np.inf, None)] + [
+        (registry.parse_time(r['time']) * 1e-9 - base,
+         Calibration.load(os.path.join(work_seed, 'registry', r['file']))) for r in rows]
+    stops = []
+    for seg in m.segments():
+        ch = stop_chunks(seg)
+        if ch is None or seg.stop.blocked:
+            continue
+        cal = [c for t, c in timeline if t <= seg.stop.t0][-1]
+        stops.append((seg.stop.t0, cal, ch))
+    decisions = []
+    with open(os.path.join(work_seed, 'decisions.jsonl')) as f:
+        decisions = [json.loads(x) for x in f if x.strip()]
+    return evaluate(m, stops, timeline, decisions, noise_g, base)
+
+
+def reeval(args):
+    """Re-score month result files from their --work directories (same metrics for all)."""
+    rows = []
+    for path in args.inputs:
+        with open(path) as f:
+            rows += json.load(f)['rows']
+    out = []
+    for r in sorted(rows, key=lambda r: r['seed']):
+        for work in args.work:
+            d = os.path.join(work, f'seed{r["seed"]}')
+            if os.path.isdir(os.path.join(d, 'registry')):
+                new = reeval_seed(d, r['seed'], r['summary']['days'])
+                keep = {k: r[k] for k in ('seed', 'seconds', 'peak_rss_mb', 'peak_dir_mb',
+                                          'summary', 'store', 'registry_rows')}
+                out.append(new | keep | {'history_alarms': history_alarms(
+                    os.path.join(d, 'registry'), r['knock']['day'])})
+                print(f'seed {r["seed"]} re-scored', flush=True)
+                break
+    _write(args.output, {'command': ' '.join(sys.argv), 'seeds': [x['seed'] for x in out],
+                         'rows': out, 'summary': summarise(out)})
+    print(json.dumps(summarise(out), indent=1))
+
+
 def merge(args):
     """Merge month result files (seeds run in parallel processes) into one."""
     rows, commands = [], []
@@ -484,6 +556,10 @@ def main():
     no.add_argument('--dir', required=True, help='a month\'s lifelong directory')
     no.add_argument('--seconds', type=float, default=20.0)
     no.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_node.json'))
+    rv = sub.add_parser('reeval')
+    rv.add_argument('inputs', nargs='+')
+    rv.add_argument('--work', action='append', default=[])
+    rv.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_month.json'))
     ta = sub.add_parser('table')
     ta.add_argument('input')
     args = p.parse_args(sys.argv[1:] or ['month'])
@@ -495,6 +571,8 @@ def main():
         node_rss(args)
     elif args.cmd == 'table':
         table(args)
+    elif args.cmd == 'reeval':
+        reeval(args)
     else:
         real(args)
     print(f'max RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB')
