@@ -130,6 +130,11 @@ class LifelongMode:
                                  self.registry_dir, self.config, log=self._log)
             if self.life.active is not None:
                 n.cal_pub.publish(String(data=self.life.active.to_yaml()))
+            st = self.life.store.summary()
+            n.get_logger().info(
+                f'lifelong: {st["holds_total"]} holds so far ({st["raw_holds"]} raw, '
+                f'{st["compacted_bins"]} compacted bins) in {self.dir}; active calibration '
+                f'{self.life.active.id if self.life.active is not None else "none yet"}')
         return self.life
 
     def start(self):
