@@ -532,6 +532,22 @@ def table(args):
               f'{k["gyro_second_day_after"] * mr:.3f} | {r["peak_rss_mb"]:.0f} | '
               f'{r["peak_dir_mb"]:.1f} | {r["seconds"]:.0f} |')
     print()
+    print('| seed | accel drift first day | last week | true model | last/first | days from '
+          'knock to gyro error <= 2x pre-knock | swaps worse next day by > 25 %: gyro, accel '
+          'drift |')
+    print('|' + '---|' * 7)
+    for r in d['rows']:
+        a, t, k = r['active'], r['true'], r['knock']
+        kd = int(np.floor(k['day']))
+        rec = next((i - kd for i, v in enumerate(r['daily_gyro'])
+                    if i > kd and v <= 2 * k['gyro_day_before']), None)
+        g25 = sum(s['gyro_new'] > 1.25 * s['gyro_old'] for s in r['swaps'])
+        a25 = sum(s['accel_drift_new'] > 1.25 * s['accel_drift_old'] for s in r['swaps'])
+        print(f'| {r["seed"]} | {a["accel_drift_first_day"] * mr:.1f} | '
+              f'{a["accel_drift_last_week"] * mr:.1f} | {t["accel_drift_last_week"] * mr:.2f} | '
+              f'{r["ratios"]["accel_drift_last_week_over_first_day"]:.2f} | {rec} | {g25}, '
+              f'{a25} |')
+    print()
     print(json.dumps(d['summary'], indent=1))
 
 
