@@ -161,6 +161,12 @@ def test_swap_gate_on_real_calibrations(month_windows):
     swap, fig = gate.decide(s_true, s_raw)           # worse: kept
     assert not swap and fig['gyro']['verdict'] == 'worse'
     assert 'mdeg/s' in gate.describe(fig)
+    # no held-out hold in the mounting pose: the accelerometer is not judged (seed 2 of the
+    # month bench ended on this)
+    empty = holdout.select(np.zeros(len(holdout), bool))
+    s_t, s_r = (gate.score(c, holdout, truth.gravity, empty) for c in (truth, None))
+    swap, fig = gate.decide(s_r, s_t)
+    assert swap and fig['accel']['verdict'] == 'same' and s_t['accel_holds'] == 0
 
 
 def test_lifelong_loop_swaps_logs_and_restarts(tmp_path):

@@ -32,9 +32,11 @@ def hold_errors(cal, windows, gravity):
 
     ``cal`` None: the raw output.
     """
-    ids = windows.hold_ids
+    ids = windows.hold_ids if len(windows) else np.zeros(0, int)
     temps = windows.temp if windows.n_inputs else None
-    if cal is None:
+    if not len(windows):
+        acc, gyr = windows.accel, windows.gyro
+    elif cal is None:
         acc, gyr = windows.accel, windows.gyro
     else:
         if temps is not None and cal.temperature_filter is not None:
