@@ -25,8 +25,9 @@ LAYERS = [
     ('selection', ['selection']),
     # below the use cases: the simulator, the report pages, the fleet's inputs and registry
     ('support', ['sim', 'report', 'fleet']),
-    # one module per use case (calibrate, collect, compensate, evaluate, noise, fleet steps)
-    ('app', ['app']),
+    # one module per use case (calibrate, collect, compensate, evaluate, noise, fleet steps,
+    # lifelong calibration)
+    ('app', ['app', 'lifelong']),
     # parse, call one use case, format: the command line, the ROS nodes, the Dask runner
     ('adapters', ['cli', 'nodes', 'fleet.runner', 'report.cli']),
     ('package', ['']),

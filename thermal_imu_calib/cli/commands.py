@@ -147,14 +147,23 @@ def cmd_evaluate(args):
 def cmd_simulate(args):
     """Run the simulate subcommand."""
     from .. import sim
+    from ..sim import robot_month
     if args.list:
-        for name, sc in sim.SCENARIOS.items():
+        for name, sc in {**sim.SCENARIOS, **robot_month.SCENARIOS}.items():
             doc = (getattr(sc, 'description', '') or '').strip().splitlines()
             print(f'{name:18s} {doc[0] if doc else ""}')
         return 0
+    if args.scenario in robot_month.SCENARIOS:      # stops only, with cmd_vel hints
+        out = Outputs()
+        out.log(args.output, 'OUTPUT')
+        info = robot_month.write_robot_month(args.output, args.seed, storage=args.storage)
+        print(f'wrote {args.output} and {info["side"]} (scenario {args.scenario}, seed '
+              f'{args.seed}): {info["summary"]["stops"]} stops, '
+              f'{info["summary"]["imu_samples"]} IMU samples')
+        return 0
     if args.scenario not in sim.SCENARIOS:
         raise UserError(f'unknown scenario {args.scenario!r}; choose one of '
-                        f'{", ".join(sim.SCENARIOS)}')
+                        f'{", ".join(list(sim.SCENARIOS) + list(robot_month.SCENARIOS))}')
     out = Outputs()
     out.log(args.output, 'OUTPUT')
     from ..sim import sidecar_outputs

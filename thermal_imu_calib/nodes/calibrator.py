@@ -99,6 +99,8 @@ class CalibratorNode(LiveCollection, Node):
         self.progress_pub = self.create_publisher(String, '~/progress', 10)
         self.diagnostics = common.Diagnostics(self)
         self.create_timer(period, self._report, callback_group=MutuallyExclusiveCallbackGroup())
+        if self.lifelong is not None:
+            self.lifelong.start()
 
     # ------------------------------------------------------------------ services
     def settings(self):
@@ -292,11 +294,13 @@ class CalibratorNode(LiveCollection, Node):
             level, msg = common.WARN, 'no fresh temperature; ' + msg
         self.diagnostics.publish([common.diagnostic_status(
             f'{self.get_name()}: thermal calibration', self.get_fully_qualified_name(), level,
-            msg, values)])
+            msg, values)] + (self.lifelong.statuses() if self.lifelong is not None else []))
 
     def destroy_node(self):
         """Stop the estimation worker, then destroy the node."""
         self._worker.shutdown(wait=False, cancel_futures=True)
+        if self.lifelong is not None:
+            self.lifelong.shutdown()
         return super().destroy_node()
 
 

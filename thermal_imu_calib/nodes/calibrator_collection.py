@@ -219,6 +219,8 @@ class LiveCollection:
             win.hold = win.hold + offset
             self._persist(win)
             self.windows = Windows.concat([self.windows, win])
+            if self.lifelong is not None:
+                self.lifelong.on_windows(win)
         new = offset_holds(detector.pop_transitions(), offset)
         room = max(self.max_transitions - len(self.transitions), 0)
         self.transitions_dropped['over_limit'] += max(len(new) - room, 0)

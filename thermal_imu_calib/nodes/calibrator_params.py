@@ -8,7 +8,7 @@ calibrate use case runs with (``test/test_defaults.py`` checks both against
 m/s^2, latitude deg, altitude m, margins degC, detector lengths s.
 """
 
-from . import common
+from . import common, lifelong as lifelong_mode
 from ..app import calibrate as app
 from ..app.calibrate import CalibrateSettings
 from ..calibration import TemperatureInput
@@ -133,6 +133,7 @@ def declare(node):
                          'input subscriptions.', lo=1, hi=100000, **ro)
     period = p.declare('progress_period', 1.0, 'Seconds between ~/progress and '
                        '/diagnostics messages.', lo=0.05, hi=60.0, **ro)
+    node.lifelong = lifelong_mode.declare(node, p)   # None unless lifelong: true
     node.k = len(node.temperature_topics)
     node.inputs = [TemperatureInput(app.input_name(t, i), t, u) for i, (t, u) in
                    enumerate(zip(node.temperature_topics, node.temperature_units))]

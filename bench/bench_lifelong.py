@@ -1,0 +1,598 @@
+"""Lifelong calibration over a simulated robot month (and real logs): accuracy, swaps, bounds.
+
+``month`` (default): for each seed, ``sim.robot_month`` (30 days, 10 Hz IMU during the
+stops) is fed through the lifelong path the node runs (``lifelong.feed.Feeder``: the
+temperature aligner, the stationary detector, the cmd_vel hint gate, ``Lifelong`` with the
+node's default settings, re-estimates on the same thread), restarting the lifelong state
+from its directory at the month's restart times. Every stop is scored with the
+calibration active when it began, with the true model and with the raw output:
+
+* gyro error: |mean(compensated - true rate)| over the stop's still samples (rad/s);
+* accel error: |mean(compensated - true specific force) - c| (m/s^2) where c is the
+  month's median of that error for the same policy (one mounting pose: the constant is
+  not observable from stops and is removed once, like a levelling of the mount);
+* per-sample error: sqrt(systematic^2 + white noise^2) of the gyro (what a consumer sees
+  sample by sample; the true model's is the noise alone).
+
+Reported per seed: first-day and last-week RMS of these, their ratios (targets: last week
+<= 0.5 x first day and <= 1.5 x the true model), for every swap the next day's error with
+the new and with the replaced calibration (no swap may make it worse), the knock: alarm
+delay and the error the day before vs the second day after it, the largest process RSS and
+the lifelong directory's size over the month. ``real``: the real recordings through
+lifelong mode (every swap and alarm listed).
+
+    nice -n 10 .venv/bin/python bench/bench_lifelong.py month --seeds 20
+    nice -n 10 .venv/bin/python bench/bench_lifelong.py real
+    # seeds in two processes, then one file:
+    ... month --seeds 10 --output a.json & ... month --seeds 10 --first-seed 10 --output b.json
+    nice -n 10 .venv/bin/python bench/bench_lifelong.py merge a.json b.json
+
+Results: bench/results/bench_lifelong_month.json, bench_lifelong_real.json.
+"""
+
+import argparse
+import json
+import os
+import resource
+import shutil
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.dirname(HERE))
+
+from thermal_imu_calib.app.calibrate import CalibrateSettings  # noqa: E402
+from thermal_imu_calib.lifelong.feed import Feeder  # noqa: E402
+from thermal_imu_calib.lifelong.hints import HintGate, HintSource  # noqa: E402
+from thermal_imu_calib.lifelong.manager import Lifelong  # noqa: E402
+from thermal_imu_calib.sim.robot_month import DAY, robot_month  # noqa: E402
+
+RESULTS = os.path.join(HERE, 'results')
+CHUNK_S = 30.0
+
+
+def rss_mb():
+    """Return this process's resident set size now (MB)."""
+    with open('/proc/self/statm') as f:
+        return int(f.read().split()[1]) * os.sysconf('SC_PAGE_SIZE') / 2 ** 20
+
+
+def dir_bytes(path):
+    return sum(os.path.getsize(os.path.join(dp, f)) for dp, _, fs in os.walk(path) for f in fs)
+
+
+def stop_chunks(seg):
+    """Return the still samples of a stop as <= CHUNK_S chunk means (raw, truth, temp)."""
+    still = np.flatnonzero(seg.still)
+    if not len(still):
+        return None
+    t = (seg.imu.stamp_ns[still] - seg.imu.stamp_ns[0]) * 1e-9
+    cid = np.floor((t - t[0]) / CHUNK_S).astype(int)
+    n = np.bincount(cid).astype(float)
+    keep = n > 0
+
+    def mean(x):
+        x = x[still]
+        x = x.reshape(len(x), -1)
+        return np.stack([np.bincount(cid, x[:, j]) for j in range(x.shape[1])], 1)[keep] \
+            / n[keep, None]
+    return {'n': n[keep], 'accel': mean(seg.imu.accel), 'gyro': mean(seg.imu.gyro),
+            'f': mean(seg.specific_force), 'w': mean(seg.angular_rate),
+            'temp': mean(seg.temp_true)}
+
+
+def stop_error(cal, ch):
+    """Return (gyro error vector (3,), accel error vector (3,)) of one stop, sample-weighted."""
+    if cal is None:
+        a, g = ch['accel'], ch['gyro']
+    else:
+        res = cal.apply(ch['accel'], ch['gyro'], ch['temp'])
+        a, g = res.accel, res.gyro
+    w = ch['n'] / ch['n'].sum()
+    return w @ (g - ch['w']), w @ (a - ch['f'])
+
+
+def run_seed(seed, days, work, **overrides):
+    m = robot_month(seed, days=days, **overrides)
+    spec = m.device.spec
+    rate = m.config.imu_rate
+    noise_g = np.sqrt(3 * (spec.gyro_noise_density ** 2 * rate + spec.gyro_lsb ** 2 / 12))
+    d = os.path.join(work, f'seed{seed}')
+    shutil.rmtree(d, ignore_errors=True)
+    settings = CalibrateSettings()
+    log = []
+
+    def make():
+        return Lifelong(d, settings, 1, [m.config.temp_topic], m.config.frame_id,
+                        registry_dir=os.path.join(d, 'registry'),
+                        log=lambda level, text: log.append((level, text)))
+    life = make()
+    feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
+    timeline = [(-np.inf, None)]            # (activated at s since start, calibration)
+    stops = []
+    restarts = list(m.restart_times)
+    peak_rss, peak_disk, t_run = rss_mb(), 0, time.perf_counter()
+    base = m.start_ns * 1e-9
+    for seg in m.segments():
+        s = seg.stop
+        while restarts and restarts[0] < s.t0:
+            restarts.pop(0)
+            life = make()                   # restart: state from the directory only
+            feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
+        ch = stop_chunks(seg)
+        if ch is not None and not s.blocked:
+            stops.append((s.t0, timeline[-1][1], ch))
+        feeder.push(seg.imu, [seg.temperature], [('cmd_vel', t, still)
+                                                 for t, still in seg.hints])
+        for dec in feeder.decisions:
+            if dec['action'] == 'swap':
+                timeline.append((dec['time'] - base, life.active))
+        feeder.decisions = []
+        peak_rss = max(peak_rss, rss_mb())
+        peak_disk = max(peak_disk, dir_bytes(d))
+    seconds = time.perf_counter() - t_run
+    decisions = life.decisions()
+    return evaluate(m, stops, timeline, decisions, noise_g, base) | {
+        'seed': seed, 'seconds': round(seconds, 1), 'peak_rss_mb': round(peak_rss, 1),
+        'peak_dir_mb': round(peak_disk / 2 ** 20, 2), 'summary': m.summary(),
+        'store': life.store.summary(), 'registry_rows': _registry_rows(d)}
+
+
+def _registry_rows(d):
+    from thermal_imu_calib.fleet import registry
+    return len(registry.read_index(os.path.join(d, 'registry')))
+
+
+def evaluate(m, stops, timeline, decisions, noise_g, base):
+    t = np.array([s[0] for s in stops])
+    truth = [m.true_calibration(t0) for t0, _, _ in stops]
+    err = {'active': [stop_error(cal, ch) for _, cal, ch in stops],
+           'true': [stop_error(tc, ch) for tc, (_, _, ch) in zip(truth, stops)],
+           'raw': [stop_error(None, ch) for _, _, ch in stops]}
+    out = {}
+    figures = {}
+    for name, e in err.items():
+        g = np.array([x[0] for x in e])
+        a = np.array([x[1] for x in e])
+        c = np.median(a, axis=0)
+        figures[name] = (np.linalg.norm(g, axis=1), np.linalg.norm(a - c, axis=1), c)
+    days = m.config.days
+    first = t < DAY
+    last = t >= (days - 7) * DAY
+
+    def rms(x, sel):
+        return float(np.sqrt(np.mean(x[sel] ** 2))) if sel.any() else float('nan')
+
+    def centred(name, sel):
+        """RMS of the accel error with the period's median removed (drift within it)."""
+        a = np.array([x[1] for x in err[name]])[sel]
+        return float(np.sqrt(np.mean(np.sum((a - np.median(a, 0)) ** 2, 1)))) \
+            if len(a) else float('nan')
+    for name, (g, a, _) in figures.items():
+        out[name] = {'gyro_first_day': rms(g, first), 'gyro_last_week': rms(g, last),
+                     'accel_first_day': rms(a, first), 'accel_last_week': rms(a, last),
+                     'accel_drift_first_day': centred(name, first),
+                     'accel_drift_last_week': centred(name, last),
+                     'gyro_sample_first_day': float(np.hypot(rms(g, first), noise_g)),
+                     'gyro_sample_last_week': float(np.hypot(rms(g, last), noise_g))}
+    act, tru = out['active'], out['true']
+    out['ratios'] = {
+        'gyro_last_week_over_first_day': act['gyro_last_week'] / act['gyro_first_day'],
+        'accel_last_week_over_first_day': act['accel_last_week'] / act['accel_first_day'],
+        'accel_drift_last_week_over_first_day':
+            act['accel_drift_last_week'] / act['accel_drift_first_day'],
+        'accel_drift_last_week_over_true':
+            act['accel_drift_last_week'] / max(tru['accel_drift_last_week'], 1e-12),
+        'gyro_last_week_over_true': act['gyro_last_week'] / tru['gyro_last_week'],
+        'accel_last_week_over_true': act['accel_last_week'] / max(tru['accel_last_week'],
+                                                                  1e-12),
+        'gyro_sample_last_week_over_first_day':
+            act['gyro_sample_last_week'] / act['gyro_sample_first_day'],
+        'gyro_sample_last_week_over_true':
+            act['gyro_sample_last_week'] / tru['gyro_sample_last_week']}
+    # swaps: the next day's error with the new and with the replaced calibration
+    c_act = figures['active'][2]
+    swaps = []
+    for (ts, new), (_, old) in zip(timeline[2:], timeline[1:-1]):
+        sel = [i for i, (t0, _, _) in enumerate(stops) if ts <= t0 < ts + DAY]
+        if not sel:
+            continue
+        e_new = [stop_error(new, stops[i][2]) for i in sel]
+        e_old = [stop_error(old, stops[i][2]) for i in sel]
+        gn = np.sqrt(np.mean([np.sum(x[0] ** 2) for x in e_new]))
+        go = np.sqrt(np.mean([np.sum(x[0] ** 2) for x in e_old]))
+        an = np.sqrt(np.mean([np.sum((x[1] - c_act) ** 2) for x in e_new]))
+        ao = np.sqrt(np.mean([np.sum((x[1] - c_act) ** 2) for x in e_old]))
+        # the drift within the next day (each calibration's own median removed)
+        dn, do = (float(np.sqrt(np.mean(np.sum((v - np.median(v, 0)) ** 2, 1))))
+                  for v in (np.array([x[1] for x in e_new]), np.array([x[1] for x in e_old])))
+        swaps.append({'day': ts / DAY, 'stops': len(sel), 'gyro_new': gn, 'gyro_old': go,
+                      'accel_new': an, 'accel_old': ao,
+                      'accel_drift_new': dn, 'accel_drift_old': do,
+                      'gyro_worse': bool(gn > go), 'accel_worse': bool(an > ao),
+                      'accel_drift_worse': bool(dn > do)})
+    out['swaps'] = swaps
+    out['swaps_total'] = len(timeline) - 1
+    out['swaps_worse_gyro'] = sum(s['gyro_worse'] for s in swaps)
+    out['swaps_worse_accel'] = sum(s['accel_worse'] for s in swaps)
+    out['swaps_worse_accel_drift'] = sum(s['accel_drift_worse'] for s in swaps)
+    # the knock
+    k = m.knock_t
+    alarms = [d['time'] - base for d in decisions if d['action'] == 'alarm']
+    after = [a for a in alarms if a >= k]
+    g = figures['active'][0]
+    out['knock'] = {'day': k / DAY, 'alarms_before': sum(a < k for a in alarms),
+                    'alarm_delay_h': (after[0] - k) / 3600 if after else None,
+                    'gyro_day_before': rms(g, (t >= k - DAY) & (t < k)),
+                    'gyro_day_after': rms(g, (t >= k) & (t < k + DAY)),
+                    'gyro_second_day_after': rms(g, (t >= k + DAY) & (t < k + 2 * DAY)),
+                    'true_gyro_day_before': rms(figures['true'][0], (t >= k - DAY) & (t < k))}
+    out['daily_gyro'] = [rms(g, (t >= dd * DAY) & (t < (dd + 1) * DAY))
+                         for dd in range(int(np.ceil(days)))]
+    out['decisions'] = {a: sum(d['action'] == a for d in decisions)
+                        for a in ('swap', 'keep', 'refused', 'alarm')}
+    return out
+
+
+def month(args):
+    work = args.work or tempfile.mkdtemp(prefix='bench_lifelong_')
+    rows = []
+    for seed in range(args.first_seed, args.first_seed + args.seeds):
+        r = run_seed(seed, args.days, work)
+        rows.append(r)
+        ra, kn = r['ratios'], r['knock']
+        print(f'seed {seed}: {r["seconds"]:.0f} s, gyro first day '
+              f'{r["active"]["gyro_first_day"] * 1e3:.3f} last week '
+              f'{r["active"]["gyro_last_week"] * 1e3:.3f} true '
+              f'{r["true"]["gyro_last_week"] * 1e3:.3f} mrad/s (ratios '
+              f'{ra["gyro_last_week_over_first_day"]:.2f}, {ra["gyro_last_week_over_true"]:.1f}'
+              f'); accel ratios {ra["accel_last_week_over_first_day"]:.2f}; swaps '
+              f'{r["swaps_total"]} (worse next day: gyro {r["swaps_worse_gyro"]}, accel '
+              f'{r["swaps_worse_accel"]}); knock day {kn["day"]:.1f} alarm delay '
+              f'{kn["alarm_delay_h"]} h, false alarms {kn["alarms_before"]}; RSS '
+              f'{r["peak_rss_mb"]} MB, dir {r["peak_dir_mb"]} MB', flush=True)
+        _write(args.output, {'command': ' '.join(sys.argv), 'days': args.days,
+                             'seeds': [x['seed'] for x in rows], 'rows': rows,
+                             'summary': summarise(rows)})
+    print(json.dumps(summarise(rows), indent=1))
+
+
+def summarise(rows):
+    def col(f):
+        return np.array([f(r) for r in rows], float)
+    ra = {k: col(lambda r, k=k: r['ratios'][k]) for k in rows[0]['ratios']}
+    delay = [r['knock']['alarm_delay_h'] for r in rows]
+    return {
+        'seeds': len(rows),
+        'ratio_median_max': {k: [float(np.median(v)), float(np.max(v))] for k, v in ra.items()},
+        'seeds_meeting_gyro_half_first_day': int(np.sum(
+            ra['gyro_last_week_over_first_day'] <= 0.5)),
+        'seeds_meeting_gyro_1_5_true': int(np.sum(ra['gyro_last_week_over_true'] <= 1.5)),
+        'seeds_meeting_sample_1_5_true': int(np.sum(
+            ra['gyro_sample_last_week_over_true'] <= 1.5)),
+        'swaps': int(sum(r['swaps_total'] for r in rows)),
+        'swaps_worse_next_day_gyro': int(sum(r['swaps_worse_gyro'] for r in rows)),
+        'swaps_worse_next_day_accel': int(sum(r['swaps_worse_accel'] for r in rows)),
+        'swaps_worse_next_day_accel_drift': int(sum(r.get('swaps_worse_accel_drift', 0)
+                                                    for r in rows)),
+        'seeds_meeting_accel_drift_half_first_day': int(sum(
+            r['ratios'].get('accel_drift_last_week_over_first_day', np.inf) <= 0.5
+            for r in rows)),
+        'knock_detected_within_day': int(sum(d is not None and d <= 24 for d in delay)),
+        'false_alarms_before_knock': int(sum(r['knock']['alarms_before'] for r in rows)),
+        'recovered_second_day': int(sum(
+            r['knock']['gyro_second_day_after'] <= 2 * r['knock']['gyro_day_before']
+            for r in rows)),
+        'peak_rss_mb_max': float(max(r['peak_rss_mb'] for r in rows)),
+        'peak_dir_mb_max': float(max(r['peak_dir_mb'] for r in rows)),
+        'seconds_per_seed': float(np.mean([r['seconds'] for r in rows]))}
+
+
+def _write(path, obj):
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    with open(path, 'w') as f:
+        json.dump(obj, f, indent=1, default=lambda x: x.tolist() if hasattr(x, 'tolist')
+                  else str(x))
+
+
+def real_pieces(name):
+    """Return (ImuColumns, TemperatureColumns, piece seconds) of a real recording.
+
+    The recordings are static throughout; cut into pieces (the detector restarted between
+    them, as a robot that drives off and stops again) they become a sequence of holds.
+    """
+    from thermal_imu_calib.io.columns import ImuColumns, TemperatureColumns
+    from thermal_imu_calib.io.csv_logs import read_bmi270_rows, read_tofupilot_chamber
+    real = os.environ.get('THERMAL_REAL_DATA', os.path.join(
+        os.path.dirname(os.path.dirname(HERE)), 'shared', 'data', 'real'))
+    fix = os.path.join(os.path.dirname(HERE), 'test', 'fixtures', 'real')
+    if name == 'chamber':
+        path = os.path.join(real, 'tofupilot_chamber', 'imu_chamber_train.csv')
+        if not os.path.exists(path):
+            path = os.path.join(fix, 'tofupilot_chamber', 'imu_chamber_train.csv.gz')
+        imu, temp = read_tofupilot_chamber(path)
+        t0 = 1_700_000_000 * 10 ** 9
+        return (ImuColumns(imu.stamp_ns + t0, imu.accel, imu.gyro, 'imu'),
+                TemperatureColumns(temp.stamp_ns + t0, temp.temperature, 'imu'), 120.0, path)
+    parts, paths, t = [], [], 1_700_000_000 * 10 ** 9
+    for f in ('BMI_270_cold_test_.csv', 'BMI_270_hot_test.csv'):   # cold soak, then hot
+        path = os.path.join(real, 'bmi270_hot_cold', f)
+        if not os.path.exists(path):
+            path = os.path.join(fix, 'bmi270', f)
+        x = read_bmi270_rows(path)[0]
+        stamp = t + np.round(np.arange(len(x)) * 1e9 / 80.0).astype(np.int64)
+        t = int(stamp[-1]) + 3600 * 10 ** 9           # an hour later
+        parts.append((stamp, x))
+        paths.append(path)
+    stamp = np.concatenate([p[0] for p in parts])
+    x = np.concatenate([p[1] for p in parts])
+    return (ImuColumns(stamp, x[:, 1:4] * 4.0 * 9.80665, np.radians(x[:, 4:7]), 'imu'),
+            TemperatureColumns(stamp, x[:, 0], 'imu'), 5.0, ' + '.join(paths))
+
+
+def run_real(name, work, piece_s=None):
+    """Play a real recording through lifelong mode; judge every swap on the later holds."""
+    from thermal_imu_calib.io.columns import TemperatureColumns
+    from thermal_imu_calib.lifelong import gate
+    imu, temp, piece, path = real_pieces(name)
+    piece = piece_s or piece
+    d = os.path.join(work, name)
+    shutil.rmtree(d, ignore_errors=True)
+    life = Lifelong(d, CalibrateSettings(), 1, ['/imu/temperature'], 'imu',
+                    registry_dir=os.path.join(d, 'registry'))
+    feeder = Feeder(life, None)
+    t = (imu.stamp_ns - imu.stamp_ns[0]) * 1e-9
+    pid = np.floor(t / piece).astype(int)
+    actives = [(-np.inf, None)]
+    for p in np.unique(pid):
+        m = pid == p
+        lo, hi = imu.stamp_ns[m][0], imu.stamp_ns[m][-1]
+        tm = (temp.stamp_ns >= lo) & (temp.stamp_ns <= hi)
+        tc = TemperatureColumns(temp.stamp_ns[tm], temp.temperature[tm], 'imu')
+        feeder.push(imu.slice(m), [tc])
+        feeder.finish()
+        feeder.restart()
+        for dec in feeder.decisions:
+            if dec['action'] == 'swap':
+                actives.append((dec['time'], life.active))
+        feeder.decisions = []
+    # every hold ever collected (raw; the store keeps them all at this size)
+    holds = life.store.recent
+    swaps = []
+    for (ts, new), (_, old) in zip(actives[1:], actives[:-1]):
+        later = holds.select(holds.t0 > ts) if len(holds) else holds
+        row = {'time_s': ts - imu.stamp_ns[0] * 1e-9, 'id': new.id, 'later_holds': 0}
+        if len(later) and len(later.hold_ids) >= 2:
+            sn, so = (gate.score(c, later, new.gravity) for c in (new, old))
+            swap, fig = gate.decide(so, sn)
+            row.update(later_holds=int(len(later.hold_ids)), figures=fig,
+                       harmful=bool(fig['gyro']['verdict'] == 'worse'
+                                    or fig['accel']['verdict'] == 'worse'
+                                    or fig['net_margins'] < -1.0),
+                       text=gate.describe(fig))
+        swaps.append(row)
+    return {'recording': name, 'path': path, 'piece_s': piece,
+            'holds': life.store.total_holds, 'decisions': life.decisions(),
+            'swaps': swaps, 'harmful_swaps': sum(bool(s.get('harmful')) for s in swaps)}
+
+
+def real(args):
+    work = args.work or tempfile.mkdtemp(prefix='bench_lifelong_real_')
+    rows = []
+    for name in ('bmi270', 'chamber'):
+        r = run_real(name, work)
+        rows.append(r)
+        print(f'{name}: {r["holds"]} holds, decisions '
+              f'{[d["action"] for d in r["decisions"]]}, swaps {len(r["swaps"])}, harmful '
+              f'{r["harmful_swaps"]}')
+        for s in r['swaps']:
+            print(f'  swap at {s["time_s"]:.0f} s ({s["later_holds"]} later holds): '
+                  f'{s.get("text", "no later holds to judge it on")}')
+    _write(args.output, {'command': ' '.join(sys.argv), 'rows': rows})
+
+
+def history_alarms(reg, knock_day):
+    """Return what ``thermal-imu-calib history`` flags on a lifelong registry."""
+    from thermal_imu_calib.fleet import registry
+    from thermal_imu_calib.sim.robot_month import MONTH_EPOCH_NS
+    rows = registry.read_index(reg)
+    alarms, info = registry.assess(rows)
+    knock = MONTH_EPOCH_NS + int(knock_day * DAY * 1e9) if np.isfinite(knock_day) else None
+    flagged = [a for v in alarms.values() for a in v]
+    return {'calibrations': len(rows), 'alarms': flagged,
+            'threshold_sigma': info['threshold_sigma'],
+            'changes_after_knock': [a for a in flagged if knock and 'changed' in a and
+                                    registry.parse_time(a.split('-> ')[1][:16]) >= knock]}
+
+
+def reeval_seed(work_seed, seed, days):
+    """Score a finished month again from its lifelong directory (registry = the timeline)."""
+    from thermal_imu_calib.calibration import Calibration
+    from thermal_imu_calib.fleet import registry
+    m = robot_month(seed, days=days)
+    spec = m.device.spec
+    rate = m.config.imu_rate
+    noise_g = np.sqrt(3 * (spec.gyro_noise_density ** 2 * rate + spec.gyro_lsb ** 2 / 12))
+    base = m.start_ns * 1e-9
+    rows = registry.read_index(os.path.join(work_seed, 'registry'))
+    timeline = [(-np.inf, None)] + [
+        (registry.parse_time(r['time']) * 1e-9 - base,
+         Calibration.load(os.path.join(work_seed, 'registry', r['file']))) for r in rows]
+    stops = []
+    for seg in m.segments():
+        ch = stop_chunks(seg)
+        if ch is None or seg.stop.blocked:
+            continue
+        cal = [c for t, c in timeline if t <= seg.stop.t0][-1]
+        stops.append((seg.stop.t0, cal, ch))
+    decisions = []
+    with open(os.path.join(work_seed, 'decisions.jsonl')) as f:
+        decisions = [json.loads(x) for x in f if x.strip()]
+    return evaluate(m, stops, timeline, decisions, noise_g, base)
+
+
+def reeval(args):
+    """Re-score month result files from their --work directories (same metrics for all)."""
+    rows = []
+    for path in args.inputs:
+        with open(path) as f:
+            rows += json.load(f)['rows']
+    out = []
+    for r in sorted(rows, key=lambda r: r['seed']):
+        for work in args.work:
+            d = os.path.join(work, f'seed{r["seed"]}')
+            if os.path.isdir(os.path.join(d, 'registry')):
+                new = reeval_seed(d, r['seed'], r['summary']['days'])
+                keep = {k: r[k] for k in ('seed', 'seconds', 'peak_rss_mb', 'peak_dir_mb',
+                                          'summary', 'store', 'registry_rows')}
+                out.append(new | keep | {'history_alarms': history_alarms(
+                    os.path.join(d, 'registry'), r['knock']['day'])})
+                print(f'seed {r["seed"]} re-scored', flush=True)
+                break
+    _write(args.output, {'command': ' '.join(sys.argv), 'seeds': [x['seed'] for x in out],
+                         'rows': out, 'summary': summarise(out)})
+    print(json.dumps(summarise(out), indent=1))
+
+
+def merge(args):
+    """Merge month result files (seeds run in parallel processes) into one."""
+    rows, commands = [], []
+    for path in args.inputs:
+        with open(path) as f:
+            d = json.load(f)
+        rows += d['rows']
+        commands.append(d['command'])
+    rows.sort(key=lambda r: r['seed'])
+    for r in rows:                       # the registry's drift alarms (history) per seed
+        for work in args.work:
+            reg = os.path.join(work, f'seed{r["seed"]}', 'registry')
+            if os.path.isdir(reg):
+                r['history_alarms'] = history_alarms(reg, r['knock']['day'])
+    _write(args.output, {'command': ' ; '.join(commands), 'days': rows[0]['summary']['days'],
+                         'seeds': [r['seed'] for r in rows], 'rows': rows,
+                         'summary': summarise(rows)})
+    print(json.dumps(summarise(rows), indent=1))
+
+
+def node_rss(args):
+    """Start calibrator_node in lifelong mode on a copy of a month's lifelong directory.
+
+    Reports the node process's RSS once it has loaded the state and published the active
+    calibration (what a robot's node holds after a month), and the directory's size.
+    """
+    import subprocess
+    d = os.path.join(tempfile.mkdtemp(prefix='bench_lifelong_node_'), 'life')
+    shutil.copytree(args.dir, d)
+    proc = subprocess.Popen([sys.executable, '-m', 'thermal_imu_calib.nodes.calibrator',
+                             '--ros-args', '-p', 'lifelong:=true', '-p',
+                             f'lifelong_dir:={d}', '-p', 'frame_id:=imu_link', '-p',
+                             f'collection_file:={d}/collection.jsonl', '-p',
+                             f'calibration_file:={d}/calibration.yaml'],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    rss, t0 = 0.0, time.monotonic()
+    try:
+        while time.monotonic() - t0 < args.seconds:
+            time.sleep(1.0)
+            with open(f'/proc/{proc.pid}/status') as f:
+                for line in f:
+                    if line.startswith('VmRSS:'):
+                        rss = max(rss, int(line.split()[1]) / 1024)
+    finally:
+        proc.terminate()
+        out = proc.communicate(timeout=30)[0]
+    res = {'dir': args.dir, 'dir_mb': dir_bytes(args.dir) / 2 ** 20, 'node_rss_mb': rss,
+           'log': out.strip().splitlines()[-5:]}
+    print(json.dumps(res, indent=1))
+    _write(args.output, res)
+
+
+def table(args):
+    """Print the markdown tables of docs/lifelong.md from a merged month result."""
+    with open(args.input) as f:
+        d = json.load(f)
+    mr = 1e3
+    print('| seed | gyro first day | last week | true model | last/first | last/true | '
+          'accel first day | last week | last/first | per-sample gyro last/true | swaps '
+          '(next day worse: gyro, accel) | knock day, alarm delay h, false alarms | gyro day '
+          'before / 2nd day after knock | peak RSS MB | peak dir MB | s |')
+    print('|' + '---|' * 16)
+    for r in d['rows']:
+        a, t, ra, k = r['active'], r['true'], r['ratios'], r['knock']
+        delay = 'none' if k['alarm_delay_h'] is None else f'{k["alarm_delay_h"]:.1f}'
+        print(f'| {r["seed"]} | {a["gyro_first_day"] * mr:.3f} | {a["gyro_last_week"] * mr:.3f} '
+              f'| {t["gyro_last_week"] * mr:.3f} | {ra["gyro_last_week_over_first_day"]:.2f} | '
+              f'{ra["gyro_last_week_over_true"]:.1f} | {a["accel_first_day"] * mr:.1f} | '
+              f'{a["accel_last_week"] * mr:.1f} | {ra["accel_last_week_over_first_day"]:.2f} | '
+              f'{ra["gyro_sample_last_week_over_true"]:.2f} | {r["swaps_total"]} '
+              f'({r["swaps_worse_gyro"]}, {r["swaps_worse_accel"]}) | {k["day"]:.1f}, {delay}, '
+              f'{k["alarms_before"]} | {k["gyro_day_before"] * mr:.3f} / '
+              f'{k["gyro_second_day_after"] * mr:.3f} | {r["peak_rss_mb"]:.0f} | '
+              f'{r["peak_dir_mb"]:.1f} | {r["seconds"]:.0f} |')
+    print()
+    print('| seed | accel drift first day | last week | true model | last/first | days from '
+          'knock to gyro error <= 2x pre-knock | swaps worse next day by > 25 %: gyro, accel '
+          'drift |')
+    print('|' + '---|' * 7)
+    for r in d['rows']:
+        a, t, k = r['active'], r['true'], r['knock']
+        kd = int(np.floor(k['day']))
+        rec = next((i - kd for i, v in enumerate(r['daily_gyro'])
+                    if i > kd and v <= 2 * k['gyro_day_before']), None)
+        g25 = sum(s['gyro_new'] > 1.25 * s['gyro_old'] for s in r['swaps'])
+        a25 = sum(s['accel_drift_new'] > 1.25 * s['accel_drift_old'] for s in r['swaps'])
+        print(f'| {r["seed"]} | {a["accel_drift_first_day"] * mr:.1f} | '
+              f'{a["accel_drift_last_week"] * mr:.1f} | {t["accel_drift_last_week"] * mr:.2f} | '
+              f'{r["ratios"]["accel_drift_last_week_over_first_day"]:.2f} | {rec} | {g25}, '
+              f'{a25} |')
+    print()
+    print(json.dumps(d['summary'], indent=1))
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = p.add_subparsers(dest='cmd')
+    mo = sub.add_parser('month')
+    mo.add_argument('--seeds', type=int, default=20)
+    mo.add_argument('--first-seed', type=int, default=0)
+    mo.add_argument('--days', type=float, default=30.0)
+    mo.add_argument('--work', default='')
+    mo.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_month.json'))
+    re_ = sub.add_parser('real')
+    re_.add_argument('--work', default='')
+    re_.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_real.json'))
+    me = sub.add_parser('merge')
+    me.add_argument('inputs', nargs='+')
+    me.add_argument('--work', action='append', default=[],
+                    help='month --work directories: add the registry history alarms')
+    me.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_month.json'))
+    no = sub.add_parser('node')
+    no.add_argument('--dir', required=True, help='a month\'s lifelong directory')
+    no.add_argument('--seconds', type=float, default=20.0)
+    no.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_node.json'))
+    rv = sub.add_parser('reeval')
+    rv.add_argument('inputs', nargs='+')
+    rv.add_argument('--work', action='append', default=[])
+    rv.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_month.json'))
+    ta = sub.add_parser('table')
+    ta.add_argument('input')
+    args = p.parse_args(sys.argv[1:] or ['month'])
+    if args.cmd in (None, 'month'):
+        month(args)
+    elif args.cmd == 'merge':
+        merge(args)
+    elif args.cmd == 'node':
+        node_rss(args)
+    elif args.cmd == 'table':
+        table(args)
+    elif args.cmd == 'reeval':
+        reeval(args)
+    else:
+        real(args)
+    print(f'max RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB')
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,290 @@
+"""Lifelong core (no ROS): hold store bounds and restarts, motion hints, swap gate, loop.
+
+Real numbers throughout: windows come from the stationary detector run on the simulated
+robot month (``sim.robot_month``), calibrations from ``app.calibrate.calibrate_collected``.
+"""
+
+import ast
+import json
+import os
+
+import numpy as np
+import pytest
+
+from thermal_imu_calib.app.calibrate import CalibrateSettings
+from thermal_imu_calib.collection.segments import Windows
+from thermal_imu_calib.fleet import registry
+from thermal_imu_calib.lifelong import gate
+from thermal_imu_calib.lifelong.feed import Feeder
+from thermal_imu_calib.lifelong.hints import HintGate, HintSource, twist_still
+from thermal_imu_calib.lifelong.manager import Lifelong, LifelongConfig, main_pose
+from thermal_imu_calib.lifelong.store import HoldStore, StoreConfig
+from thermal_imu_calib.sim.robot_month import DAY, robot_month
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+TOPIC = '/imu/temperature'
+
+
+@pytest.fixture(scope='module')
+def month_windows():
+    """Return (RobotMonth of 1.5 days, the windows its stops give, per stop)."""
+    m = robot_month(3, days=1.5)
+    from thermal_imu_calib.collection.stationary import DetectorConfig, StationaryDetector
+    from thermal_imu_calib.io.align import StreamAligner
+    det, al = StationaryDetector(DetectorConfig(), 1), StreamAligner(1, 2.0)
+    parts = []
+    for seg in m.segments():
+        for a in al.push_columns(seg.imu, [seg.temperature]):
+            parts.append(det.update(a.imu.t, a.imu.accel, a.imu.gyro, a.temps))
+    parts.append(det.finish())
+    return m, Windows.concat(parts)
+
+
+def test_core_imports_no_ros():
+    bad = []
+    base = os.path.join(ROOT, 'thermal_imu_calib', 'lifelong')
+    for name in os.listdir(base):
+        if name.endswith('.py'):
+            tree = ast.parse(open(os.path.join(base, name)).read())
+            for node in ast.walk(tree):
+                mods = [a.name for a in node.names] if isinstance(node, ast.Import) else (
+                    [node.module or ''] if isinstance(node, ast.ImportFrom) else [])
+                bad += [f'{name}: {m}' for m in mods if m.split('.')[0] in (
+                    'rclpy', 'geometry_msgs', 'nav_msgs', 'std_msgs', 'sensor_msgs')]
+    assert not bad, bad
+
+
+def test_robot_month_is_what_it_says():
+    m = robot_month(0, days=4)
+    s = m.summary()
+    dur = np.array([st.t1 - st.t0 for st in m.stops])
+    assert 10.0 <= dur.min() and dur.max() <= 600.0
+    assert 30 * 4 * 0.8 <= s['stops'] <= 60 * 4
+    assert 0.0 <= s['temperature_degC'][0] and s['temperature_degC'][1] <= 40.0
+    assert s['slopes'] > 0 and s['blocked'] > 0 and s['pushes'] > 0
+    # deterministic per seed; another seed is another month
+    assert robot_month(0, days=4).summary() == s
+    assert robot_month(1, days=4).summary() != s
+    seg = next(x for x in m.segments() if x.stop.push is not None)
+    assert not seg.still[(seg.imu.t >= seg.stop.push[0] + m.start_ns * 1e-9)
+                         & (seg.imu.t < seg.stop.push[1] + m.start_ns * 1e-9)].any()
+    # ageing and the knock move the true biases
+    assert m.knock_t == np.inf                   # 4 days: before the knock (day 12-22)
+    k = robot_month(0, days=4, knock_day=(2.0, 3.0))
+    (a0, g0), (a1, g1) = k.bias_change([k.knock_t - 1]), k.bias_change([k.knock_t + 1])
+    assert np.linalg.norm(g1 - g0) >= 2e-3 and np.linalg.norm(a1 - a0) >= 0.03
+    stop = k.stops[len(k.stops) // 2]
+    seg = k.segment(stop)
+    raw = k.true_calibration(stop.t0).apply(seg.imu.accel[seg.still], seg.imu.gyro[seg.still],
+                                            seg.temp_true[seg.still][:, None])
+    # the true calibration at that time compensates the stop to the noise
+    assert np.linalg.norm(np.mean(raw.gyro - seg.angular_rate[seg.still], 0)) < 1e-4
+
+
+def test_store_bounds_compaction_and_restart(tmp_path, month_windows):
+    _, win = month_windows
+    cfg = StoreConfig(max_recent_holds=10, max_recent_windows=400)
+    st = HoldStore(str(tmp_path / 's'), 1, cfg)
+    ids = win.hold_ids
+    for h in ids:
+        st.add(win.select(win.hold == h))
+        assert len(st.recent.hold_ids) <= 10 and len(st.recent) <= 400
+    assert st.total_holds == len(ids)
+    assert len(st.bins) > 0 and st.clusters
+    w = st.windows(now=float(win.t1.max()))
+    # one pseudo-hold per cluster first, then the raw holds; ids ascending (as a log's)
+    assert len(w) == len(st.bins) + len(st.recent)
+    assert len(w.hold_ids) == len(st.clusters) + len(st.recent.hold_ids)
+    assert np.all(np.diff(w.hold_ids) > 0) and w.hold_ids[0] == 0
+    # compacted statistics keep the samples' weight (no fading within 1.5 days: > 90 %)
+    assert w.n.sum() > 0.9 * win.n.sum()
+    lo, hi = st.temperature_span()
+    assert lo == pytest.approx(win.temp[:, 0].min(), abs=0.5)
+    assert hi == pytest.approx(win.temp[:, 0].max(), abs=0.5)
+    size = st.disk_bytes()
+    # restart: the same holds, counters and bins from the directory
+    again = HoldStore(str(tmp_path / 's'), 1, cfg)
+    assert again.total_holds == st.total_holds and again.next_hold == st.next_hold
+    assert len(again.recent) == len(st.recent) and len(again.bins) == len(st.bins)
+    np.testing.assert_allclose(again.windows(float(win.t1.max())).accel, w.accel)
+    # a torn last line (killed mid-append) is dropped, the rest kept
+    with open(tmp_path / 's' / 'recent.jsonl', 'a') as f:
+        f.write('{"hold": 99999, "t0": 1.0, "t1"')
+    assert len(HoldStore(str(tmp_path / 's'), 1, cfg).recent) == len(st.recent)
+    assert size < 400 * 700 + 200_000          # the stated bound: ~0.5 kB per raw window
+    # a cut drops everything before it
+    t_cut = float(np.median(st.recent.t0))
+    st.cut(t_cut)
+    assert len(st.bins) == 0 and (st.recent.t0 >= t_cut).all()
+
+
+def test_store_refuses_other_inputs(tmp_path, month_windows):
+    _, win = month_windows
+    HoldStore(str(tmp_path), 1).add(win.select(win.hold == win.hold_ids[0]))
+    with pytest.raises(ValueError, match='thermal inputs'):
+        HoldStore(str(tmp_path), 2)
+
+
+def test_hint_gate_intervals_and_filter(month_windows):
+    _, win = month_windows
+    g = HintGate([HintSource('cmd_vel', True, 1.0), HintSource('still', False, 1.0)])
+    assert g.intervals('cmd_vel') == [(-np.inf, np.inf)]       # silent command: still
+    assert g.intervals('still') == []                            # silent Bool: unknown
+    g.add('still', 100.0, True)
+    for t in np.arange(100.0, 200.0, 0.5):                       # a Bool at 2 Hz
+        g.add('still', t, True)
+    assert len(g.events['still']) == 1                           # one segment, not 200
+    g.add('cmd_vel', 150.0, False)                               # driving 150..151
+    assert g.intervals('still') == [(100.0, 200.5)]
+    ok = g.still_over([110.0, 149.0, 150.5, 152.0, 199.0],
+                      [120.0, 150.2, 150.8, 160.0, 201.0])
+    assert ok.tolist() == [True, False, False, True, False]
+    assert twist_still([0, 0, 0], [0, 0, 5e-4]) and not twist_still([0.2, 0, 0], [0, 0, 0])
+    # windows: without sources all pass; with a hint saying drive nothing passes
+    assert len(HintGate().filter(win)) == len(win)
+    drive = HintGate([HintSource('still', False, 1e9)])
+    drive.add('still', float(win.t0.min()) - 1, False)
+    assert len(drive.filter(win)) == 0 and drive.counts['windows_refused'] == len(win)
+
+
+def test_swap_gate_on_real_calibrations(month_windows):
+    m, win = month_windows
+    truth = m.true_calibration(0.5 * DAY)
+    holdout = main_pose(win.select(np.isin(win.hold, win.hold_ids[-10:])), 2.0)
+    s_true = gate.score(truth, holdout, truth.gravity)
+    s_raw = gate.score(None, holdout, truth.gravity)
+    swap, fig = gate.decide(s_raw, s_true)
+    assert swap and fig['gyro']['verdict'] == 'better'
+    assert s_true['gyro_rms'] < 0.1 * s_raw['gyro_rms']
+    swap, fig = gate.decide(s_true, s_true)          # the same model: never a swap
+    assert not swap and fig['gyro']['verdict'] == 'same'
+    swap, fig = gate.decide(s_true, s_raw)           # worse: kept
+    assert not swap and fig['gyro']['verdict'] == 'worse'
+    assert 'mdeg/s' in gate.describe(fig)
+    # no held-out hold in the mounting pose: the accelerometer is not judged (seed 2 of the
+    # month bench ended on this)
+    empty = holdout.select(np.zeros(len(holdout), bool))
+    s_t, s_r = (gate.score(c, holdout, truth.gravity, empty) for c in (truth, None))
+    swap, fig = gate.decide(s_r, s_t)
+    assert swap and fig['accel']['verdict'] == 'same' and s_t['accel_holds'] == 0
+
+
+def test_lifelong_loop_swaps_logs_and_restarts(tmp_path):
+    m = robot_month(3, days=1.2)
+    d = str(tmp_path / 'life')
+    logs = []
+    cfg = LifelongConfig(new_holds=25)
+
+    def make():
+        return Lifelong(d, CalibrateSettings(), 1, [TOPIC], 'imu_link',
+                        registry_dir=str(tmp_path / 'reg'), config=cfg,
+                        log=lambda level, text: logs.append(text))
+    life = make()
+    feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
+    half = m.config.days * DAY / 2
+    for seg in m.segments(0, half):
+        feeder.push(seg.imu, [seg.temperature], [('cmd_vel', t, s) for t, s in seg.hints])
+    # restart: the state comes back from the directory
+    total = life.store.total_holds
+    active = life.active
+    life = make()
+    assert life.store.total_holds == total
+    assert (life.active is None) == (active is None)
+    feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
+    for seg in m.segments(half):
+        feeder.push(seg.imu, [seg.temperature], [('cmd_vel', t, s) for t, s in seg.hints])
+    decisions = life.decisions()
+    swaps = [x for x in decisions if x['action'] == 'swap']
+    assert swaps, decisions
+    for x in decisions:                           # every decision with its figures
+        assert x['reason'] and x['text']
+        if x['action'] in ('swap', 'keep'):
+            f = x['figures']['gyro']
+            assert {'active_rms', 'new_rms', 'margin', 'verdict'} <= set(f)
+            assert (x['action'] == 'swap') == (
+                'better' in (f['verdict'], x['figures']['accel']['verdict'])
+                and x['figures']['net_margins'] > 1.0)
+    # the registry holds every activated calibration: history works for one robot
+    rows = registry.read_index(str(tmp_path / 'reg'))
+    assert len(rows) == len(swaps) and {r['sensor'] for r in rows} == {'imu_link'}
+    assert registry.load_valid(str(tmp_path / 'reg'), 'imu_link').id == life.active.id
+    from thermal_imu_calib import cli
+    assert cli.main(['history', str(tmp_path / 'reg')]) == 0
+    # the active calibration compensates the gyro of later stops far better than raw
+    seg = [s for s in m.segments(0.9 * m.config.days * DAY) if s.still.sum() > 100][0]
+    st = seg.still
+    temps = seg.temp_true[st][:, None]
+    res = life.active.apply(seg.imu.accel[st], seg.imu.gyro[st], temps)
+    err = np.linalg.norm(np.mean(res.gyro - seg.angular_rate[st], 0))
+    raw = np.linalg.norm(np.mean(seg.imu.gyro[st] - seg.angular_rate[st], 0))
+    assert err < 0.3 * raw, (err, raw)
+    st_ = life.status(temperature=20.0, now=float(life.store.recent.t1.max()))
+    assert st_['active'] == life.active.id and st_['holds_total'] == life.store.total_holds
+    assert 'recent_gyro_rms_rad_s' in st_ and 'in_range' in st_
+    assert json.loads(open(os.path.join(d, 'state.json')).read())['swaps'] == len(swaps)
+
+
+def test_blocked_and_pushed_stops_are_not_collected(tmp_path):
+    """Stops while the command says drive are refused; a push splits the hold."""
+    m = robot_month(0, days=2)
+    blocked = [s for s in m.stops if s.blocked and s.t1 - s.t0 > 60]
+    assert blocked
+    life = Lifelong(str(tmp_path), CalibrateSettings(), 1, [TOPIC], 'imu_link')
+    gate_ = HintGate([HintSource('cmd_vel', True, 1.0)])
+    feeder = Feeder(life, gate_, estimate=False)
+    for seg in m.segments():
+        feeder.push(seg.imu, [seg.temperature], [('cmd_vel', t, s) for t, s in seg.hints])
+    feeder.finish()
+    rec = life.store.recent
+    base = m.start_ns * 1e-9
+    for s in blocked:
+        inside = (rec.t0 >= base + s.t0 - 1) & (rec.t1 <= base + s.t1 + 1)
+        assert not inside.any(), f'blocked stop {s.index} collected'
+    assert gate_.counts['windows_refused'] > 0
+    # without hints the blocked stops are collected (the detector alone decides)
+    life2 = Lifelong(str(tmp_path / 'nohints'), CalibrateSettings(), 1, [TOPIC], 'imu_link')
+    f2 = Feeder(life2, None, estimate=False)
+    for seg in m.segments():
+        f2.push(seg.imu, [seg.temperature])
+    f2.finish()
+    assert life2.store.total_holds > life.store.total_holds
+
+
+def test_simulate_robot_month_writes_a_log_with_hints(tmp_path):
+    from thermal_imu_calib.io.bag import open_log
+    from thermal_imu_calib.sim.robot_month import write_robot_month
+    r = write_robot_month(tmp_path / 'rm.mcap', 4, days=0.3)
+    with open_log(str(tmp_path / 'rm.mcap')) as rd:
+        text = rd.info().format()
+    assert '/cmd_vel' in text and 'geometry_msgs/msg/Twist' in text
+    assert r['summary']['messages']['/imu/data_raw'] == r['summary']['imu_samples']
+    assert os.path.exists(r['side'])
+
+
+def test_simulate_lists_robot_month(capsys):
+    from thermal_imu_calib import cli
+    assert cli.main(['simulate', '-', '--list']) == 0
+    assert 'robot-month' in capsys.readouterr().out
+
+
+def test_knock_raises_an_alarm_then_a_new_calibration_recovers(tmp_path):
+    m = robot_month(1, days=2.0, knock_day=(1.0, 1.1))
+    life = Lifelong(str(tmp_path), CalibrateSettings(), 1, [TOPIC], 'imu_link')
+    feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
+    for seg in m.segments():
+        feeder.push(seg.imu, [seg.temperature], [('cmd_vel', t, s) for t, s in seg.hints])
+    base = m.start_ns * 1e-9
+    dec = life.decisions()
+    alarms = [d['time'] - base for d in dec if d['action'] == 'alarm']
+    assert alarms and min(alarms) >= m.knock_t, (alarms, m.knock_t)    # no false alarm
+    assert min(alarms) - m.knock_t < 0.5 * DAY
+    assert any(d['action'] == 'swap' and d['time'] - base > min(alarms) for d in dec)
+    # recovered: the active calibration removes the knocked gyro bias on the last stops
+    errs = []
+    for seg in m.segments(1.8 * DAY):
+        st = seg.still
+        if st.sum() < 100:
+            continue
+        res = life.active.apply(seg.imu.accel[st], seg.imu.gyro[st], seg.temp_true[st][:, None])
+        errs.append(np.linalg.norm(np.mean(res.gyro - seg.angular_rate[st], 0)))
+    assert np.sqrt(np.mean(np.square(errs))) < 0.2 * np.linalg.norm(m.knock_gyro)

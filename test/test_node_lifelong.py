@@ -1,0 +1,121 @@
+"""Lifelong mode of calibrator_node over real DDS, with a cmd_vel motion hint.
+
+A robot-month stop commanded still (Twist zero) is collected; the next stop, during which
+the command says drive (the robot is blocked), is found still by the detector but not
+collected. Messages are counted at the node, every wait is on a condition.
+"""
+
+import json
+
+from conftest import replay_flow, wait_count, wait_for
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import Twist
+import numpy as np
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import Imu, Temperature
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+
+from thermal_imu_calib.nodes.calibrator import CalibratorNode
+from thermal_imu_calib.sim.robot_month import robot_month
+
+RATE = 2000.0
+WAIT = 120.0
+
+
+def _stops(m, n=2):
+    """Return ``n`` consecutive plain stops (no push, not blocked) of 60-200 s."""
+    ok = [s for s in m.stops if s.push is None and not s.blocked and 60 < s.t1 - s.t0 < 200]
+    return ok[:n]
+
+
+def test_holds_during_commanded_motion_are_not_collected(ros, tmp_path):
+    m = robot_month(2, days=1.0)
+    a, b, c = (m.segment(s) for s in _stops(m, 3))
+    node = ros.add(CalibratorNode(context=ros.context, parameter_overrides=[
+        Parameter(k, value=v) for k, v in {
+            'lifelong': True, 'lifelong_dir': str(tmp_path / 'life'),
+            'cmd_vel_topic': 'cmd_vel', 'hint_timeout': 600.0, 'frame_id': 'imu_link',
+            'calibration_file': str(tmp_path / 'cal.yaml'),
+            'collection_file': str(tmp_path / 'collection.jsonl'),
+            'progress_period': 0.2, 'report': False}.items()]))
+    player = ros.node('player')
+    imu_pub = player.create_publisher(Imu, 'imu/data_raw', 1000)
+    temp_pub = player.create_publisher(Temperature, '/imu/temperature', 100)
+    cmd_pub = player.create_publisher(Twist, 'cmd_vel', 10)
+    progress, diags = [], []
+    player.create_subscription(String, '/thermal_imu_calibrator/progress',
+                               lambda msg: progress.append(json.loads(msg.data)), 10)
+    player.create_subscription(DiagnosticArray, '/diagnostics', diags.append, 10)
+    for pub in (imu_pub, temp_pub, cmd_pub):
+        ros.wait_matched(pub, timeout=WAIT)
+    life = node.lifelong
+    assert life is not None
+
+    def received():
+        return progress[-1]['imu_received'] if progress else 0
+
+    def play(seg, i0=0, i1=None):
+        imu = seg.imu.slice(slice(i0, i1))
+        tc = seg.temperature
+        sel = (tc.stamp_ns >= imu.stamp_ns[0]) & (tc.stamp_ns <= imu.stamp_ns[-1])
+        n = replay_flow(imu_pub, imu, [(temp_pub, tc.stamp_ns[sel], tc.temperature[sel])],
+                        RATE, received, what='IMU messages at the calibrator')
+        last = int(imu.stamp_ns[-1])
+        wait_for(lambda: node._newest_ns is not None and node._newest_ns >= last, WAIT,
+                 'the calibrator to process what was sent')
+        return n
+
+    def command(still):
+        before = life.counts['hint_messages']
+        msg = Twist()
+        if not still:
+            msg.linear.x = 0.5
+        cmd_pub.publish(msg)
+        wait_for(lambda: life.counts['hint_messages'] > before, WAIT, 'the cmd_vel hint')
+
+    sent = play(a, 0, 20)                       # driving up to stop A
+    command(still=True)                         # stopped: commanded still
+    sent += play(a, 20)
+    sent += play(b, 0, 20)                      # driving to stop B
+    command(still=False)                        # the command says drive (it keeps coming)
+    sent += play(b, 20)                         # ...but the robot is blocked at stop B
+    sent += play(c, 0, 30)                      # driving on closes stop B's hold
+    base = m.start_ns * 1e-9
+    in_b = (base + b.stop.t0 - 1, base + b.stop.t1 + 1)
+
+    def collected_b():
+        w = node.windows
+        return len(w) and ((w.t0 >= in_b[0]) & (w.t1 <= in_b[1])).any()
+    wait_for(collected_b, WAIT, 'the detector to close stop B (the node\'s own collection)')
+    wait_for(lambda: life.holds() >= 1, WAIT, 'stop A in the lifelong store')
+    wait_count(received, sent, 'IMU messages at the calibrator')
+    store = life.life.store.recent
+    in_a = (base + a.stop.t0 - 1, base + a.stop.t1 + 1)
+    assert ((store.t0 >= in_a[0]) & (store.t1 <= in_a[1])).any(), 'stop A not collected'
+    assert not ((store.t0 >= in_b[0]) & (store.t1 <= in_b[1])).any(), \
+        'a hold during commanded motion was collected'
+    assert life.counts['holds_refused_by_hints'] >= 1
+    assert life.gate.counts['windows_refused'] >= 1
+    # /diagnostics carries the lifelong status with the hold count
+    st = wait_for(lambda: next((s for d in reversed(diags) for s in d.status
+                                if s.name.endswith('lifelong calibration')
+                                and any(kv.key == 'holds_total' and int(kv.value) >= 1
+                                        for kv in s.values)), None), WAIT,
+                  'a lifelong diagnostics status with holds')
+    values = {kv.key: kv.value for kv in st.values}
+    assert int(values['holds_refused_by_hints']) >= 1
+    assert np.isfinite(float(values['raw_windows']))
+    assert 0.0 <= float(values['temperature_degC']) <= 40.0          # the present reading
+    # the services keep working: ~/calibrate on the node's own collection (one pose, two
+    # holds: an offset model), ~/save writes it, ~/reset clears that collection and leaves
+    # the lifelong store alone
+    resp = ros.call(player, Trigger, '/thermal_imu_calibrator/calibrate', timeout=WAIT)
+    assert resp.success and 'offset' in resp.message, resp.message
+    assert (tmp_path / 'cal.yaml').exists()
+    resp = ros.call(player, Trigger, '/thermal_imu_calibrator/save', timeout=WAIT)
+    assert resp.success, resp.message
+    holds = life.holds()
+    resp = ros.call(player, Trigger, '/thermal_imu_calibrator/reset', timeout=WAIT)
+    assert resp.success and len(node.windows) == 0
+    assert life.holds() == holds and len(life.life.store.recent) > 0

@@ -1,0 +1,65 @@
+"""Feed columns (a simulation, a log) through detector, hint gate and lifelong loop.
+
+The same path the node takes, without ROS: IMU and temperature columns are aligned
+(``io.align.StreamAligner``), the stationary detector closes holds, the hint gate keeps
+the windows the robot was commanded still for, ``Lifelong.add`` stores them and, when
+``due``, ``Lifelong.estimate`` runs (here on the caller's thread).
+"""
+
+from ..collection.stationary import DetectorConfig, StationaryDetector
+from ..io.align import StreamAligner
+
+
+class Feeder:
+    """Detector, aligner and hint gate in front of a ``manager.Lifelong``."""
+
+    def __init__(self, lifelong, hints=None, detector=None, temperature_timeout=2.0,
+                 estimate=True):
+        self.lifelong = lifelong
+        self.hints = hints
+        self.k = lifelong.k
+        self.config = detector or DetectorConfig()
+        self.timeout = float(temperature_timeout)
+        self.estimate = estimate
+        self.decisions = []
+        self.restart()
+
+    def restart(self):
+        """Start detection afresh (a node restart: the open hold is lost)."""
+        self.detector = StationaryDetector(DetectorConfig(**vars(self.config)), self.k)
+        self.aligner = StreamAligner(self.k, self.timeout)
+
+    def push(self, imu, temperatures=(), hint_events=()):
+        """Feed ImuColumns, one TemperatureColumns per input, [(name, stamp s, still)]."""
+        if self.hints is not None:
+            for name, stamp, still in hint_events:
+                self.hints.add(name, stamp, still)
+        for chunk in self.aligner.push_columns(imu, list(temperatures)):
+            use = (chunk.temp_age <= self.timeout).all(1) if self.k else None
+            imu_c = chunk.imu
+            if use is not None and not use.all():
+                if not use.any():
+                    continue
+                win = self.detector.update(imu_c.t[use], imu_c.accel[use], imu_c.gyro[use],
+                                           chunk.temps[use])
+            else:
+                win = self.detector.update(imu_c.t, imu_c.accel, imu_c.gyro, chunk.temps)
+            self._take(win)
+
+    def finish(self):
+        """Close the hold in progress."""
+        for chunk in self.aligner.finish():
+            self._take(self.detector.update(chunk.imu.t, chunk.imu.accel, chunk.imu.gyro,
+                                            chunk.temps))
+        self._take(self.detector.finish())
+
+    def _take(self, win):
+        if not len(win):
+            return
+        if self.hints is not None:
+            win = self.hints.filter(win)
+        self.lifelong.add(win)
+        if self.estimate:
+            why = self.lifelong.due()
+            if why:
+                self.decisions.append(self.lifelong.estimate(why))

@@ -1,0 +1,122 @@
+"""The swap gate: score calibrations on held-out holds, decide whether a new one replaces.
+
+Per held-out hold (windows of one unknown orientation, ``collection.segments.Windows``)
+the calibration compensates the window means at their temperatures and the hold is
+reduced to its sample-weighted mean:
+
+* gyro error: ``|mean gyro|`` (rad/s): a still gyro reads the earth rate only
+  (<= 7.3e-5 rad/s, the same for every calibration compared);
+* accelerometer error: ``|mean accel| - g`` (m/s^2) *centred* on its median over the
+  held-out holds in the mounting pose (the gyro is judged on all of them): in one
+  mounting pose bias and scale are not separable from gravity and the single-orientation
+  (offset) model leaves a constant that depends on its reference temperature, so only the
+  change between holds is compared;
+* noise: the standard error of each hold mean (``sqrt(var / n)``, per-sample variance of
+  its windows), the floor no calibration can go below.
+
+``decide``: per sensor the *margin* is the noise of the comparison: the larger of the RMS
+standard error of the hold means and ``sigmas`` times the standard error of the paired
+per-hold difference. The new calibration replaces the active one only when, on holds it
+did not see, its RMS error is lower by more than the margin for the gyro or the
+accelerometer (verdict 'better'), and the two gains in units of their margins add up to
+more than one margin (a large gain of one sensor outweighs a small loss of the other;
+a loss as large as the gain keeps the active one).
+Without an active calibration the raw output is the reference.
+"""
+
+import numpy as np
+
+
+def hold_errors(cal, windows, gravity):
+    """Return per-hold arrays: ids, t (s, end), temp (degC), gyro, accel, se_gyro, se_accel.
+
+    ``cal`` None: the raw output.
+    """
+    ids = windows.hold_ids if len(windows) else np.zeros(0, int)
+    temps = windows.temp if windows.n_inputs else None
+    if not len(windows):
+        acc, gyr = windows.accel, windows.gyro
+    elif cal is None:
+        acc, gyr = windows.accel, windows.gyro
+    else:
+        if temps is not None and cal.temperature_filter is not None:
+            temps = cal.temperature_filter.window_temperatures(windows)
+        res = cal.apply(windows.accel, windows.gyro, temps)
+        acc, gyr = res.accel, res.gyro
+    h = len(ids)
+    out = {'ids': ids, 't': np.zeros(h), 'temp': np.full(h, np.nan), 'gyro': np.zeros(h),
+           'accel': np.zeros(h), 'se_gyro': np.zeros(h), 'se_accel': np.zeros(h),
+           'gyro_vec': np.zeros((h, 3))}
+    for j, hid in enumerate(ids):
+        m = windows.hold == hid
+        w = windows.n[m].astype(float)
+        n = w.sum()
+        g = np.average(gyr[m], 0, w)
+        out['gyro_vec'][j] = g
+        out['gyro'][j] = np.linalg.norm(g)
+        out['accel'][j] = np.linalg.norm(np.average(acc[m], 0, w)) - gravity
+        out['se_gyro'][j] = np.sqrt(np.mean(np.average(windows.gyro_var[m], 0, w)) / n)
+        out['se_accel'][j] = np.sqrt(np.mean(np.average(windows.accel_var[m], 0, w)) / n)
+        out['t'][j] = float(windows.t1[m].max())
+        if windows.n_inputs:
+            out['temp'][j] = float(np.average(windows.temp[m, 0], weights=w))
+    return out
+
+
+def _rms(x):
+    return float(np.sqrt(np.mean(np.square(x)))) if len(x) else float('nan')
+
+
+def score(cal, windows, gravity, accel_windows=None):
+    """Return {'gyro_rms', 'accel_rms', 'noise_gyro', 'noise_accel', 'holds', errors}.
+
+    The gyro is scored on every hold of ``windows``, the accelerometer on those of
+    ``accel_windows`` (default: the same; the node passes the holds in the mounting pose).
+    """
+    e = hold_errors(cal, windows, gravity)
+    ea = e if accel_windows is None else hold_errors(cal, accel_windows, gravity)
+    acc = ea['accel'] - np.median(ea['accel']) if len(ea['accel']) else ea['accel']
+    return {'holds': int(len(e['ids'])), 'accel_holds': int(len(ea['ids'])),
+            'gyro_rms': _rms(e['gyro']), 'accel_rms': _rms(acc),
+            'noise_gyro': _rms(e['se_gyro']), 'noise_accel': _rms(ea['se_accel']),
+            'gyro': e['gyro'], 'accel': acc, 'errors': e}
+
+
+def decide(active, new, sigmas=2.0):
+    """Return (swap: bool, figures dict) from two ``score`` results on the same holds."""
+    fig = {'holds': new['holds']}
+    verdict = {}
+    for which in ('gyro', 'accel'):
+        a, n = active[which], new[which]
+        if len(n) == 0:
+            fig[which] = {'active_rms': float('nan'), 'new_rms': float('nan'), 'gain': 0.0,
+                          'margin': 0.0, 'noise': 0.0, 'paired_se': float('inf'),
+                          'verdict': 'same'}
+            verdict[which] = 'same'
+            continue
+        paired = np.abs(a) - np.abs(n)
+        se = float(np.std(paired, ddof=1) / np.sqrt(len(paired))) if len(paired) > 1 \
+            else float('inf')
+        margin = max(new[f'noise_{which}'], sigmas * se)
+        gain = active[f'{which}_rms'] - new[f'{which}_rms']
+        verdict[which] = 'better' if gain > margin else ('worse' if -gain > margin else 'same')
+        fig[which] = {'active_rms': active[f'{which}_rms'], 'new_rms': new[f'{which}_rms'],
+                      'gain': gain, 'margin': margin, 'noise': new[f'noise_{which}'],
+                      'paired_se': se, 'verdict': verdict[which]}
+    net = sum(fig[w]['gain'] / fig[w]['margin'] for w in ('gyro', 'accel')
+              if fig[w]['margin'] > 0 and np.isfinite(fig[w]['margin']))
+    fig['net_margins'] = float(net)
+    swap = 'better' in verdict.values() and net > 1.0
+    return swap, fig
+
+
+def describe(fig):
+    """Return the figures of a decision as one line (units: gyro mdeg/s, accel mm/s^2)."""
+    parts = []
+    for which, scale, unit in (('gyro', np.degrees(1.0) * 1e3, 'mdeg/s'),
+                               ('accel', 1e3, 'mm/s^2')):
+        f = fig[which]
+        parts.append(f'{which} RMS {f["active_rms"] * scale:.3g} -> {f["new_rms"] * scale:.3g}'
+                     f' {unit} (margin {f["margin"] * scale:.2g}: {f["verdict"]})')
+    return (f'{fig["holds"]} held-out holds: ' + '; '.join(parts)
+            + f'; net gain {fig.get("net_margins", 0.0):+.1f} margins')

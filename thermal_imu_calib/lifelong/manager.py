@@ -1,0 +1,379 @@
+"""The lifelong loop: holds in, re-estimate when due, swap only when proven, history out.
+
+``Lifelong`` owns a directory::
+
+    holds/        the bounded hold store (``store.HoldStore``)
+    active.yaml   the calibration in use (the node publishes it)
+    candidate.yaml the newest estimate that did not pass the swap gate
+    state.json    counters (holds at the last estimate, the active's held-out figures)
+    decisions.jsonl every decision with its figures (the newest ``MAX_DECISIONS`` kept)
+
+and, when ``registry_dir`` is given, adds every calibration it activates to a registry in
+the fleet format (``fleet.registry``: ``history``, drift alarms and the compensator's
+registry mode then work for one robot; ``valid_from`` is the time it was activated).
+
+When to re-estimate (``due``): the first time enough holds are in; when the collected
+temperatures extend the active calibration's valid range by ``range_extension_degc``;
+when ``new_holds`` holds came in since the last estimate; after a change alarm. The
+estimate is ``app.calibrate.calibrate_collected`` (the command line's calibrate) on the
+store's windows without the newest ``holdout_holds`` holds, which the swap gate
+(``gate.decide``) scores both calibrations on.
+
+Change alarm (a knock): every new hold inside the active valid range is scored with the
+active calibration; when the last ``alarm_holds`` of them all exceed ``alarm_factor``
+times the active's held-out error (floored at ``alarm_floor`` times their noise), the
+store is cut at the first of them (older data no longer describe the sensor), an alarm is
+logged and a re-estimate from the holds after the cut follows. No ROS import.
+"""
+
+from dataclasses import dataclass, field
+import json
+import os
+import time
+
+import numpy as np
+
+from ..app.calibrate import calibrate_collected, SettingsError
+from ..calibration import Calibration, CalibrationError
+from ..estimation.calibrate import CalibrationRefused
+from ..io.output import write_atomic
+from ..pipeline import Collected
+from . import gate
+from ..collection.segments import Windows
+from .store import HoldStore, StoreConfig
+
+MAX_DECISIONS = 2000
+
+
+@dataclass
+class LifelongConfig:
+    """When to re-estimate and how sure a swap must be (degC, holds, sigmas)."""
+
+    range_extension_degc: float = 3.0
+    new_holds: int = 40
+    holdout_holds: int = 8
+    min_holds: int = 6
+    swap_sigmas: float = 2.0
+    alarm_holds: int = 5
+    alarm_factor: float = 5.0
+    alarm_floor: float = 5.0
+    #: one orientation family: fit only the holds within this angle of the mounting pose
+    pose_deg: float = 2.0
+    store: StoreConfig = field(default_factory=StoreConfig)
+
+
+class Lifelong:
+    """Lifelong calibration state of one IMU (see the module docstring)."""
+
+    def __init__(self, directory, settings, k, topics, frame_id='', sensor='',
+                 registry_dir='', config=None, log=None):
+        self.dir = os.path.expanduser(directory)
+        self.settings = settings
+        self.k = int(k)
+        self.topics = list(topics)
+        self.frame_id = frame_id
+        self.sensor = sensor or frame_id or 'imu'
+        self.registry_dir = os.path.expanduser(registry_dir) if registry_dir else ''
+        self.config = config or LifelongConfig()
+        self.log = log or (lambda level, text: None)
+        os.makedirs(self.dir, exist_ok=True)
+        self.store = HoldStore(os.path.join(self.dir, 'holds'), self.k, self.config.store)
+        for note in self.store.notes:
+            self.log('warn', note)
+        self.active = self._load_cal('active.yaml')
+        self.candidate = self._load_cal('candidate.yaml')
+        self.state = {'holds_at_estimate': 0, 'active_since': None, 'active_gyro_rms': None,
+                      'active_accel_rms': None, 'active_noise': None, 'alarms': 0,
+                      'alarm_pending': False, 'swaps': 0, 'kept': 0, 'estimates': 0,
+                      'last_decision': ''}
+        try:
+            with open(self._path('state.json')) as f:
+                self.state.update(json.load(f))
+        except FileNotFoundError:
+            pass
+        except (OSError, ValueError) as e:
+            self.log('warn', f'{self._path("state.json")} unreadable ({e}); counters reset')
+        self.track = []            # [(t, gyro err, accel err, noise g, noise a)] new holds
+        self.recent_scores = None  # the active's score on the newest holds (diagnostics)
+
+    # ------------------------------------------------------------------ files
+    def _path(self, name):
+        return os.path.join(self.dir, name)
+
+    def _load_cal(self, name):
+        path = self._path(name)
+        if not os.path.exists(path):
+            return None
+        try:
+            return Calibration.load(path)
+        except (OSError, CalibrationError, ValueError) as e:
+            self.log('error', f'{path} not loaded ({e}); moved aside')
+            os.replace(path, path + f'.unreadable-{int(time.time())}')
+            return None
+
+    def _save_state(self):
+        write_atomic(self._path('state.json'), json.dumps(self.state, indent=1))
+
+    def _record(self, decision):
+        path = self._path('decisions.jsonl')
+        line = json.dumps(decision, separators=(',', ':'), default=_plain) + '\n'
+        with open(path, 'a') as f:
+            f.write(line)
+        if os.path.getsize(path) > 600 * MAX_DECISIONS:
+            with open(path) as f:
+                lines = f.readlines()[-MAX_DECISIONS:]
+            write_atomic(path, ''.join(lines))
+
+    def decisions(self, last=None):
+        """Return the logged decision records (dicts), oldest first."""
+        try:
+            with open(self._path('decisions.jsonl')) as f:
+                out = [json.loads(x) for x in f if x.strip()]
+        except FileNotFoundError:
+            return []
+        return out[-last:] if last else out
+
+    # ------------------------------------------------------------------ holds
+    def add(self, windows):
+        """Add the (gated) windows of closed holds; check them against the active model."""
+        if not len(windows):
+            return []
+        ids = self.store.add(windows)
+        if self.active is not None:
+            self._check_change(self.store.holds(ids))
+        return ids
+
+    def _check_change(self, windows):
+        cal = self.active
+        e = gate.hold_errors(cal, windows, cal.gravity)
+        lo, hi = (cal.valid_range[0] if cal.valid_range is not None and self.k
+                  else (-np.inf, np.inf))
+        base_acc = self.state.get('active_accel_median') or 0.0
+        for j in range(len(e['ids'])):
+            if not lo <= e['temp'][j] <= hi and self.k:
+                continue
+            self.track.append((float(e['t'][j]), float(e['gyro'][j]),
+                               float(e['accel'][j] - base_acc), float(e['se_gyro'][j]),
+                               float(e['se_accel'][j])))
+        self.track = self.track[-200:]
+        c = self.config
+        if len(self.track) < c.alarm_holds or self.state.get('active_gyro_rms') is None \
+                or self.state.get('alarm_pending'):
+            return
+        last = np.array(self.track[-c.alarm_holds:])
+        out = {}
+        for col, which in ((1, 'gyro'), (2, 'accel')):
+            base = self.state.get(f'active_{which}_rms') or 0.0
+            floor = c.alarm_floor * float(np.median(last[:, col + 2]))
+            limit = max(c.alarm_factor * base, floor)
+            if np.all(np.abs(last[:, col]) > limit):
+                out[which] = (float(np.median(np.abs(last[:, col]))), limit)
+        if out:
+            t_cut = self._first_hold_start(float(last[0, 0]))
+            text = '; '.join(f'{w} error {v:.3g} > {lim:.3g} on the last {c.alarm_holds} '
+                             'holds in range' for w, (v, lim) in out.items())
+            self.state['alarms'] += 1
+            self.state['alarm_pending'] = True
+            self.track = []
+            self.store.cut(t_cut)
+            decision = {'time': float(last[-1, 0]), 'action': 'alarm',
+                        'reason': f'the active calibration no longer fits: {text}; holds '
+                                  f'before t={t_cut:.0f} s dropped, re-estimating from the '
+                                  'holds after it', 'figures': out}
+            self.state['last_decision'] = decision['reason']
+            self._record(decision)
+            self._save_state()
+            self.log('error', 'lifelong ALARM: ' + decision['reason'])
+
+    def _first_hold_start(self, t_end):
+        """Return the start (s) of the raw hold ending at ``t_end``."""
+        rec = self.store.recent
+        m = np.isclose(rec.t1, t_end) if len(rec) else np.zeros(0, bool)
+        if not m.any():
+            return t_end
+        h = rec.hold[m][0]
+        return float(rec.t0[rec.hold == h].min())
+
+    # ------------------------------------------------------------------ when
+    def due(self):
+        """Return why a re-estimate is due now ('' when it is not)."""
+        c, s = self.config, self.state
+        raw = len(self.store.recent.hold_ids) if len(self.store.recent) else 0
+        enough = self.store.total_holds and raw + (1 if len(self.store.bins) else 0) >= \
+            c.min_holds + c.holdout_holds
+        if not enough:
+            return ''
+        if s.get('alarm_pending'):
+            return 'change alarm'
+        if self.active is None:
+            if self.store.total_holds - s['holds_at_estimate'] >= c.min_holds or \
+                    not s['estimates']:
+                return 'no active calibration'
+            return ''
+        new = self.store.total_holds - s['holds_at_estimate']
+        if new >= c.new_holds:
+            return f'{new} new holds'
+        span = self.store.temperature_span()
+        if span and self.active.valid_range is not None and self.k and new >= c.min_holds:
+            lo, hi = self.active.valid_range[0]
+            ext = max(lo - span[0], span[1] - hi)
+            if ext >= c.range_extension_degc:
+                return (f'collected {span[0]:.1f}..{span[1]:.1f} degC extends the valid range '
+                        f'{lo:.1f}..{hi:.1f} by {ext:.1f} degC')
+        return ''
+
+    # ------------------------------------------------------------------ estimate
+    def estimate(self, reason='requested'):
+        """Re-estimate and pass the swap gate; return the decision dict (also logged)."""
+        c = self.config
+        held = self.store.newest_holds(c.holdout_holds)
+        now = float(self.store.recent.t1.max()) if len(self.store.recent) else 0.0
+        fit = main_pose(self.store.windows(now, exclude=held), self.config.pose_deg)
+        holdout = self.store.holds(held)
+        holdout_pose = main_pose(holdout, self.config.pose_deg, reference=_pose_of(fit))
+        self.state['holds_at_estimate'] = self.store.total_holds
+        self.state['estimates'] += 1
+        decision = {'time': now, 'reason': reason, 'fit_windows': len(fit),
+                    'fit_holds': int(len(fit.hold_ids)) if len(fit) else 0,
+                    'heldout_holds': int(len(held))}
+        try:
+            if len(fit) == 0 or len(fit.hold_ids) < c.min_holds // 2 or len(held) < 2:
+                raise CalibrationRefused('too few holds', 'wait for more stops')
+            collected = Collected(fit, self.frame_id, 0, 0.0, list(self.topics), [])
+            result = calibrate_collected(self.settings, [collected])
+        except (CalibrationRefused, SettingsError, CalibrationError, ValueError) as e:
+            decision.update(action='refused', text=f'no new calibration: {e}')
+            return self._finish(decision)
+        except Exception as e:  # noqa: B902 - an estimator bug must not end the loop
+            decision.update(action='failed', text=f'estimation failed ({e.__class__.__name__}: '
+                                                  f'{e}); the active calibration stays')
+            return self._finish(decision)
+        new = result.calibration
+        g = new.gravity
+        s_new = gate.score(new, holdout, g, holdout_pose)
+        s_act = gate.score(self.active, holdout, g, holdout_pose)
+        swap, fig = gate.decide(s_act, s_new, c.swap_sigmas)
+        decision['figures'] = fig
+        decision['model'] = new.accel.kind if new.accel is not None else 'gyro only'
+        decision['summary'] = result.summary
+        versus = 'the active calibration' if self.active is not None else 'the raw output'
+        text = gate.describe(fig)
+        if swap:
+            self._activate(new, now, s_new, holdout_pose, held)
+            decision.update(action='swap', id=new.id,
+                            text=f'new calibration {new.id} replaces {versus}: {text}')
+        else:
+            self.candidate = new
+            self._save_cal(new, 'candidate.yaml')
+            self.state['kept'] += 1
+            decision.update(action='keep', id=new.id,
+                            text=f'kept {versus}; new calibration {new.id} is a candidate: '
+                                 f'{text}')
+        self.state['alarm_pending'] = False
+        return self._finish(decision)
+
+    def _finish(self, decision):
+        self.state['last_decision'] = decision['text']
+        self._record(decision)
+        self._save_state()
+        self.log('info' if decision['action'] in ('swap', 'keep') else 'warn',
+                 f'lifelong {decision["action"]} ({decision["reason"]}): {decision["text"]}')
+        return decision
+
+    def _save_cal(self, cal, name):
+        write_atomic(self._path(name), cal.to_yaml())
+
+    def _activate(self, cal, now, s_new, holdout, held):
+        self.active = cal
+        self.candidate = None
+        if os.path.exists(self._path('candidate.yaml')):
+            os.unlink(self._path('candidate.yaml'))
+        self._save_cal(cal, 'active.yaml')
+        # the alarm's reference: the error the calibration leaves on the raw holds it was
+        # fitted on (all their temperatures) and on the held-out ones, whichever is larger
+        rec = self.store.recent
+        raw = main_pose(rec.select(~np.isin(rec.hold, held)), self.config.pose_deg) \
+            if len(rec) else rec
+        both = gate.hold_errors(cal, Windows.concat([raw, holdout]), cal.gravity)
+        med = float(np.median(both['accel']))
+        self.state.update(active_since=now,
+                          active_gyro_rms=max(s_new['gyro_rms'], gate._rms(both['gyro'])),
+                          active_accel_rms=max(s_new['accel_rms'],
+                                               gate._rms(both['accel'] - med)),
+                          active_accel_median=med,
+                          active_noise=s_new['noise_gyro'], swaps=self.state['swaps'] + 1)
+        self.track = []
+        if self.registry_dir:
+            from ..fleet import registry
+            t_ns = int(now * 1e9)
+            try:
+                registry.add(self.registry_dir, [(self.sensor, cal, t_ns, t_ns, [])])
+            except (OSError, ValueError) as e:
+                self.log('error', f'registry {self.registry_dir} not updated: {e}')
+
+    # ------------------------------------------------------------------ status
+    def status(self, temperature=None, now=None):
+        """Return the figures /diagnostics shows: age, range, held-out error, coverage."""
+        s = self.state
+        out = dict(self.store.summary())
+        out.update(swaps=s['swaps'], kept=s['kept'], alarms=s['alarms'],
+                   estimates=s['estimates'], last_decision=s['last_decision'],
+                   active=self.active.id if self.active is not None else '',
+                   candidate=self.candidate.id if self.candidate is not None else '')
+        if self.active is not None and s.get('active_since') is not None and now is not None:
+            out['active_age_s'] = float(now - s['active_since'])
+        if self.active is not None and self.active.valid_range is not None and self.k:
+            lo, hi = self.active.valid_range[0]
+            out['valid_range'] = [float(lo), float(hi)]
+            if temperature is not None:
+                out['in_range'] = bool(lo <= temperature <= hi)
+        if self.active is not None:
+            held = self.store.holds(self.store.newest_holds(self.config.holdout_holds))
+            if len(held):
+                sc = gate.score(self.active, held, self.active.gravity)
+                out['recent_gyro_rms_rad_s'] = sc['gyro_rms']
+                out['recent_accel_rms_mps2'] = sc['accel_rms']
+        return out
+
+
+def _pose_of(windows):
+    """Return the sample-weighted mean gravity-up direction of the most common pose."""
+    if not len(windows):
+        return None
+    _, means = windows.hold_means()
+    u = means / np.linalg.norm(means, axis=1, keepdims=True)
+    w = np.array([windows.n[windows.hold == h].sum() for h in windows.hold_ids], float)
+    # the hold whose direction has the most sample weight within 2 deg of it
+    close = (u @ u.T) > np.cos(np.radians(2.0))
+    ref = u[int(np.argmax(close @ w))]
+    m = u @ ref > np.cos(np.radians(2.0))
+    v = w[m] @ u[m]
+    return v / np.linalg.norm(v)
+
+
+def main_pose(windows, pose_deg, reference=None):
+    """Return the windows of the holds within ``pose_deg`` of the mounting pose.
+
+    Only when the holds form one orientation family (``distinct_orientations`` 1: a robot
+    on its wheels, level or on slopes): the single-orientation models describe one pose,
+    and holds on a slope would look like drift to them. With several orientations (or no
+    holds) the windows are returned as they are.
+    """
+    from ..collection.segments import distinct_orientations
+    if not len(windows) or (reference is None and distinct_orientations(windows) > 1):
+        return windows
+    ref = _pose_of(windows) if reference is None else reference
+    if ref is None:
+        return windows
+    ids, means = windows.hold_means()
+    u = means / np.linalg.norm(means, axis=1, keepdims=True)
+    keep = ids[u @ ref >= np.cos(np.radians(pose_deg))]
+    return windows.select(np.isin(windows.hold, keep))
+
+
+def _plain(x):
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    return str(x)
