@@ -37,7 +37,7 @@ from ..app.calibrate import calibrate_collected, SettingsError
 from ..calibration import Calibration, CalibrationError
 from ..estimation.calibrate import CalibrationRefused
 from ..io.output import write_atomic
-from ..pipeline import Collected
+from ..collection.collected import Collected
 from . import gate
 from ..collection.segments import Windows
 from .store import HoldStore, StoreConfig
