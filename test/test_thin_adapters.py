@@ -72,6 +72,12 @@ def test_the_node_calibrate_callback_is_a_few_lines_over_calibrate_collected():
     assert 'self._estimate' in ast.unparse(callback)
 
 
+def test_the_node_progress_asks_the_calibrate_use_case():
+    """~/progress says what calibrate would do through app.calibrate, with its settings."""
+    calls = _calls(_function('nodes/calibrator.py', 'progress', 'CalibratorNode'))
+    assert 'app.readiness' in calls and 'readiness' not in calls, calls
+
+
 def test_the_fleet_reduce_is_the_same_calibrate():
     assert _calls(_function('app/fleet.py', 'calibrate_unit')) == ['calibrate_collected']
     assert 'app_fleet.calibrate_unit' in ast.unparse(

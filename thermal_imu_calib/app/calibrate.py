@@ -25,7 +25,7 @@ from ..calibration import Calibration, CalibrationError, TemperatureInput
 from ..collection.collected import Collected, merge_transitions, merge_windows
 from ..collection.motion import save_transitions
 from ..collection.stationary import DetectorConfig
-from ..estimation.calibrate import CalibrateOptions, calibrate_windows
+from ..estimation.calibrate import CalibrateOptions, calibrate_windows, readiness as _readiness
 from ..formats import load_prior
 from ..gravity import resolve_gravity
 from ..input_units import parse_unit_map
@@ -291,6 +291,16 @@ def calibrate_collected(settings, collected, paths=(), imu_topic=None):
     if limits:
         result.summary = f'{limits}; {result.summary}'
     return result
+
+
+def readiness(settings, windows):
+    """Say whether ``calibrate_collected`` would succeed on ``windows`` now, and what to hold.
+
+    The calibrator node's ``~/progress``: the coverage rules of the estimator the settings'
+    model would run, no fitting (``estimation.calibrate.readiness``). Returns its dict:
+    ready, mode, reason, next_pose, coverage.
+    """
+    return _readiness(windows, model=settings.model)
 
 
 def limitations(cal):

@@ -42,7 +42,7 @@ from .calibrator_collection import LiveCollection
 from ..app import calibrate as app
 from ..calibration import CalibrationError
 from ..collection.segments import FACE_NAMES, Windows
-from ..estimation.calibrate import CalibrationRefused, readiness
+from ..estimation.calibrate import CalibrationRefused
 
 NODE_NAME = 'thermal_imu_calibrator'
 #: what ``_write`` says when calibration_file is empty (the node is set up not to write)
@@ -256,7 +256,7 @@ class CalibratorNode(LiveCollection, Node):
             status = self.detector.status()
             dropped = sum(self.transitions_dropped.values()) + sum(
                 self.detector.dropped.values())
-        ready = readiness(windows, model=self.get_parameter('model').value)
+        ready = app.readiness(self.settings(), windows)
         cov = ready['coverage']
         return {
             'segments': cov['holds'], 'windows': cov['windows'],
