@@ -22,7 +22,7 @@ from jsonschema.exceptions import best_match
 import numpy as np
 
 from thermal_imu_calib.calibration import plausible, schema
-from thermal_imu_calib.calibration.base import (CalibrationError, FORMAT, GRAVITY_BOUNDS,
+from thermal_imu_calib.calibration.base import (CalibrationError, GRAVITY_BOUNDS,
                                                 short, type_name)
 from thermal_imu_calib.gravity import STANDARD_GRAVITY
 
@@ -191,13 +191,7 @@ def normalize(sch, x, path=''):
 
 def load(d, source, factory):
     """``calibration.schema.load`` with jsonschema in place of the spec table."""
-    if not isinstance(d, dict):
-        raise CalibrationError(f'{source}: expected a YAML mapping at the top level, got '
-                               f'{type_name(d)}')
-    fmt = d.get('format')
-    if not isinstance(fmt, str) or fmt != FORMAT:
-        raise CalibrationError(f'{source}: format {short(fmt)} is not {FORMAT!r}; this is '
-                               'not a thermal_imu_calib file or it needs a newer version')
+    schema.check_format(d, source)
     err = best_match(VALIDATOR.iter_errors(d))
     if err is not None:
         raise CalibrationError(f'{source}: {message(err)}')

@@ -37,21 +37,14 @@ NAN = float('nan')
 
 
 def good_calibration():
-    """Return a small valid calibration with every optional section filled."""
-    from thermal_imu_calib.calibration import Calibration, TemperatureInput
-    from thermal_imu_calib.models.field import FieldPolynomialModel
-    from thermal_imu_calib.models.polynomial import OffsetPolynomialModel
-    th = np.zeros((3, 6))
-    th[:, 0], th[:, 1], th[:, 3], th[:, 4] = 2e-3, -5e-5, 0.05, 2e-3
-    return Calibration(
-        accel=FieldPolynomialModel([30.0] * 3, th, thermal_std=np.full((3, 6), 1e-6)),
-        gyro=OffsetPolynomialModel([30.0] * 3, np.array([[1e-3, 1e-4, 0.0]] * 3), 'gyro'),
-        inputs=[TemperatureInput('t0', 'imu/temperature')],
-        valid_range=np.array([[20.0, 40.0]]), frame_id='imu_link',
-        accel_noise_std=np.array([1e-3, 2e-3, 3e-3]), gyro_noise_std=np.array([1e-4] * 3),
-        noise_model={'gyro_noise_density': np.array([1e-4] * 3), 'rate_hz': 100.0,
-                     'horizon_s': 3600.0},
-        notes=['a note'], fit={'holds': 3}, created='2026-11-27T00:00:00+00:00')
+    """Return test/_hostile.py's valid calibration with the noise model and a fixed date."""
+    import dataclasses
+    sys.path.insert(0, os.path.join(ROOT, 'test'))
+    from _hostile import good_calibration as base
+    return dataclasses.replace(
+        base(), noise_model={'gyro_noise_density': np.array([1e-4] * 3), 'rate_hz': 100.0,
+                             'horizon_s': 3600.0},
+        created='2026-11-27T00:00:00+00:00')
 
 
 def _set(path, value):

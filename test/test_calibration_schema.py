@@ -7,36 +7,29 @@ it must be. A file with every optional section round trips unchanged.
 """
 
 import copy
+import dataclasses
 import re
 
 import numpy as np
 import pytest
 import yaml
 
-from thermal_imu_calib.calibration import Calibration, CalibrationError, TemperatureInput
+from _hostile import good_calibration
+from thermal_imu_calib.calibration import Calibration, CalibrationError
 from thermal_imu_calib.calibration import schema, spec
-from thermal_imu_calib.models.field import FieldPolynomialModel
-from thermal_imu_calib.models.polynomial import OffsetPolynomialModel
 from thermal_imu_calib.thermal_input import ThermalFilter
 
 
 def full_calibration():
     """Return a valid calibration with every optional section of the file filled."""
-    th = np.zeros((3, 6))
-    th[:, 0], th[:, 1], th[:, 3], th[:, 4] = 2e-3, -5e-5, 0.05, 2e-3
-    return Calibration(
-        accel=FieldPolynomialModel([30.0] * 3, th, thermal_std=np.full((3, 6), 1e-6)),
-        gyro=OffsetPolynomialModel([30.0] * 3, np.array([[1e-3, 1e-4, 0.0]] * 3), 'gyro'),
-        inputs=[TemperatureInput('t0', 'imu/temperature')],
-        valid_range=np.array([[20.0, 40.0]]), frame_id='imu_link',
-        accel_noise_std=np.array([1e-3, 2e-3, 3e-3]), gyro_noise_std=np.array([1e-4] * 3),
+    return dataclasses.replace(
+        good_calibration(),
         noise_model={'accel_noise_density': np.array([1e-4] * 3),
                      'gyro_noise_density': np.array([1e-5] * 3),
                      'accel_random_walk': np.array([1e-6] * 3),
                      'gyro_random_walk': np.array([1e-7] * 3), 'rate_hz': 100.0,
                      'horizon_s': 3600.0},
-        temperature_filter=ThermalFilter(np.array([120.0])),
-        notes=['a note'], fit={'holds': 3}, created='2026-11-27T00:00:00+00:00')
+        temperature_filter=ThermalFilter(np.array([120.0])), created='2026-11-27T00:00:00+00:00')
 
 
 #: a value of the wrong type for each kind of field

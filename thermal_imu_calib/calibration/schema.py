@@ -226,12 +226,8 @@ RULES = [('temperature.inputs', _inputs), ('temperature.valid_range', _valid_ran
          ('the file', _plain_fields)]
 
 
-def load(d, source, factory):
-    """Check a parsed file against SCHEMA and RULES and return ``factory(**fields)``.
-
-    ``factory`` is the Calibration class; the object built is checked over its valid range
-    (``plausible``). Every violation raises CalibrationError '``source``: FIELD ...'.
-    """
+def check_format(d, source):
+    """Refuse a parsed file that is not a mapping of this format (CalibrationError)."""
     if not isinstance(d, dict):
         raise CalibrationError(f'{source}: expected a YAML mapping at the top level, got '
                                f'{type_name(d)}')
@@ -239,6 +235,15 @@ def load(d, source, factory):
     if not isinstance(fmt, str) or fmt != FORMAT:
         raise CalibrationError(f'{source}: format {short(fmt)} is not {FORMAT!r}; this is '
                                'not a thermal_imu_calib file or it needs a newer version')
+
+
+def load(d, source, factory):
+    """Check a parsed file against SCHEMA and RULES and return ``factory(**fields)``.
+
+    ``factory`` is the Calibration class; the object built is checked over its valid range
+    (``plausible``). Every violation raises CalibrationError '``source``: FIELD ...'.
+    """
+    check_format(d, source)
     field = 'the file'
     try:
         doc, out = SCHEMA.check(d, ''), {}
