@@ -77,7 +77,7 @@ def test_local_cluster_equals_calibrate(fleet, tmp_path, capsys):
     assert sorted(r['sensor'] for r in rows) == [f'u{i:02d}' for i in range(DESIGN.units)]
     for r in rows:
         assert int(r['logs']) == DESIGN.logs_per_unit
-        assert float(r['accel.db0.x_std']) > 0 and float(r['temp_max']) > float(r['temp_min'])
+        assert float(r['accel.alarm_b0.x_std']) > 0 and float(r['temp_max']) > float(r['temp_min'])
         assert r['time'] > r['valid_from']
     for unit in ('u00', 'u03', 'u07'):
         assert _plain(_latest(registry, unit)) == _plain(_reference(fleet, unit, tmp_path))

@@ -15,14 +15,17 @@ given (``sensor``) next to the file; a row whose file is not under its sensor's 
 never used. Registries written before keys (sensor names with ``/`` etc. replaced by
 ``_``) are still read.
 
-History and alarms (``assess``): a unit's accelerometer bias and scale factor at T0 (db0,
-dk0) are carried to a common temperature (the polynomial terms carry them there, their
-stds propagated as independent) and tested per axis: every change between consecutive
-calibrations (step test) and the slope over all of the unit's calibrations (trend test,
-constant vs line), each as z = value / sigma. All tests of the fleet form one family: a
-unit is flagged when any |z| passes the Sidak threshold that keeps the family-wise
-false-alarm rate of the whole fleet at ``FAMILY_RATE`` (1 %) when the stds are honest
-(checked on simulated fleets, ``STD_SCALE``). A
+History and alarms (``assess``): a unit's accelerometer bias and scale factor, read off
+every model family the same way (``models/alarm_terms.py``: their value and temperature
+coefficients about the model's T0, index columns ``accel.alarm_b0.x`` ..
+``accel.alarm_k2.z`` with stds; registries written before them: the field model's db0,
+dk0 and polynomial), are carried to a common temperature (stds propagated as independent)
+and tested per axis: every change between a calibration and the unit's previous one of
+the same model family (step test) and the slope over all of the unit's calibrations of
+its latest family (trend test, constant vs line), each as z = value / sigma. All tests
+of the fleet form one family: a unit is flagged when any |z| passes the Sidak threshold
+that keeps the family-wise false-alarm rate of the whole fleet at ``FAMILY_RATE`` (1 %)
+when the stds are honest (checked on simulated fleets, ``STD_SCALE``). A
 latest residual more than ``RESIDUAL_MADS`` robust standard deviations above the fleet
 median is ``out of family``. No ROS import.
 """
@@ -36,6 +39,7 @@ import numpy as np
 
 from ..calibration import Calibration
 from ..io.output import write_atomic
+from ..models.alarm_terms import bias_scale_terms
 
 INDEX = 'index.csv'
 #: characters a registry key keeps; every other byte of the UTF-8 sensor id is %XX
@@ -50,8 +54,11 @@ FAMILY_RATE = 0.01
 RESIDUAL_MADS = 5.0
 #: alarm lines listed per unit (the strongest tests; the others are counted)
 SHOWN_ALARMS = 4
-#: parameters tested: the accelerometer bias and scale factor at T0 ('b' -> db0, 'k' -> dk0)
+#: parameters tested: the accelerometer bias and scale factor at a common temperature
+#: ('b' -> db0, 'k' -> dk0 in the alarm texts)
 ALARM_ON = ('b', 'k')
+#: index column stem of the family-independent alarm terms (``alarm_columns``)
+ALARM_STEM = 'accel.alarm_'
 #: factor on the fit's std of d{name}0 (1: the fit's own). Checked on the stable units of
 #: 20 simulated fleets (bench_fleet.py alarms, 8 x 3, seeds 0-19): their z with the fit's
 #: std are N(0, 1) (Kolmogorov-Smirnov p 0.52-0.88; std 1.05 +- 0.03 over 477 changes, 1.02-
@@ -148,6 +155,27 @@ def key_parameters(cal):
                 out[f'{which}.{name}.{a}'] = float(v[i])
                 if p.std is not None:
                     out[f'{which}.{name}.{a}_std'] = float(np.asarray(p.std, float)[i])
+    out.update(alarm_columns(cal))
+    return out
+
+
+def alarm_columns(cal):
+    """Return the index columns of the accelerometer's bias and scale terms (any family).
+
+    ``accel.alarm_T0.x``, ``accel.alarm_b0.x`` (m/s^2), ``accel.alarm_b1.x`` (m/s^2/degC),
+    ``accel.alarm_b2.x``, ``accel.alarm_k0.x`` (1) .. with ``_std``; {} when the model has
+    no forward model or no stds (``models.alarm_terms.bias_scale_terms``).
+    """
+    terms = bias_scale_terms(cal.accel) if cal.accel is not None else None
+    if terms is None:
+        return {}
+    out = {}
+    for i, a in enumerate(AXES):
+        out[f'{ALARM_STEM}T0.{a}'] = float(terms['T0'][i])
+        for name in ALARM_ON:
+            for j in range(3):
+                out[f'{ALARM_STEM}{name}{j}.{a}'] = float(terms[name][i, j])
+                out[f'{ALARM_STEM}{name}{j}.{a}_std'] = float(terms[f'{name}_std'][i, j])
     return out
 
 
@@ -278,16 +306,31 @@ def _f(row, key):
         return np.nan
 
 
+def _has_alarm_terms(row):
+    return np.isfinite(_f(row, f'{ALARM_STEM}T0.x'))
+
+
+def reference(row, axis):
+    """Return the T0 (degC) of an index row's alarm terms on ``axis`` ('x', 'y', 'z')."""
+    if _has_alarm_terms(row):
+        return _f(row, f'{ALARM_STEM}T0.{axis}')
+    return _f(row, f'accel.T0.{axis}')
+
+
 def at_temperature(row, name, t_ref):
     """Return (value, std) per axis of accel bias ('b') or scale ('k') at ``t_ref`` degC.
 
-    value = d{name}0 + {name}1 dT + {name}2 dT^2 with dT = t_ref - T0 (field polynomial
-    columns of the index); std from the three stds as independent.
+    value = c0 + c1 dT + c2 dT^2 with dT = t_ref - T0: the alarm-term columns of any
+    family, or (registries written before them) the field model's d{name}0, {name}1,
+    {name}2; std from the three stds as independent.
     """
+    new = _has_alarm_terms(row)
+    cols = ([f'alarm_{name}{j}' for j in range(3)] if new
+            else [f'd{name}0', f'{name}1', f'{name}2'])
     val, var = np.zeros(3), np.zeros(3)
     for i, a in enumerate(AXES):
-        dt = t_ref[i] - _f(row, f'accel.T0.{a}')
-        for j, c in enumerate((f'd{name}0', f'{name}1', f'{name}2')):
+        dt = t_ref[i] - reference(row, a)
+        for j, c in enumerate(cols):
             v, s = _f(row, f'accel.{c}.{a}'), _f(row, f'accel.{c}.{a}_std')
             if j and not np.isfinite(v):
                 continue   # lower-order models leave the column empty
@@ -312,8 +355,7 @@ def compare(prev, cur, names=ALARM_ON, std_scale=None):
     ``STD_SCALE``; 1 for names it lacks).
     """
     scale = STD_SCALE if std_scale is None else std_scale
-    t_ref = np.array([(_f(prev, f'accel.T0.{a}') + _f(cur, f'accel.T0.{a}')) / 2
-                      for a in AXES])
+    t_ref = np.array([(reference(prev, a) + reference(cur, a)) / 2 for a in AXES])
     out = {}
     for name in names:
         v0, s0 = at_temperature(prev, name, t_ref)
@@ -330,7 +372,7 @@ def trend(rows, name, std_scale=None):
     z is N(0, 1): z^2 is the chi-square drop from a constant to a line (1 dof).
     """
     scale = (STD_SCALE if std_scale is None else std_scale).get(name, 1.0)
-    t_ref = np.array([np.mean([_f(r, f'accel.T0.{a}') for r in rows]) for a in AXES])
+    t_ref = np.array([np.mean([reference(r, a) for r in rows]) for a in AXES])
     t = np.array([parse_time(r['time']) for r in rows], float) / 86400e9   # days
     vs = np.array([at_temperature(r, name, t_ref) for r in rows])          # (n, 2, 3)
     x, w = vs[:, 0], 1.0 / (scale * vs[:, 1]) ** 2                         # (n, 3)
@@ -355,13 +397,18 @@ def family_threshold(n_tests, family_rate=FAMILY_RATE):
 def unit_tests(rows, std_scale=None):
     """Return [(label, z)] of one unit's tests: every consecutive change and the trend.
 
-    For each alarmed parameter (``ALARM_ON``) and axis: the change between consecutive
-    calibrations of the same accelerometer model, and (>= 3 calibrations of one model)
-    the slope over all of them. Non-finite z (a missing std) are left out.
+    For each alarmed parameter (``ALARM_ON``) and axis: the change between a calibration
+    and the unit's previous one of the same accelerometer model family (a unit whose
+    family changes keeps one chain per family), and (>= 3 calibrations of the latest
+    family) the slope over all of them. Non-finite z (a missing std, a scale factor an
+    offset model does not fit) are left out.
     """
     out = []
-    for prev, cur in zip(rows, rows[1:]):
-        if prev['accel_model'] != cur['accel_model']:
+    last = {}
+    for cur in rows:
+        prev = last.get(cur['accel_model'])
+        last[cur['accel_model']] = cur
+        if prev is None:
             continue
         for name, z in compare(prev, cur, ALARM_ON, std_scale).items():
             out += [(f'{name} {a} changed {prev["time"]} -> {cur["time"]}', z[i])
@@ -410,8 +457,9 @@ def assess(rows, family_rate=FAMILY_RATE, residual_mads=RESIDUAL_MADS, std_scale
                 out[s].append(f'latest residual {v:.3g} m/s^2 out of family (fleet median '
                               f'{med:.3g}, {(v - med) / mad:.1f} robust sigma above)')
     notes = {s: [f'accel model changed {p["accel_model"] or "-"} -> {c["accel_model"] or "-"} '
-                 f'{p["time"]} -> {c["time"]}: parameters not comparable, not tested (pin the '
-                 'family, e.g. fleet calibrate --model field, to compare them)'
+                 f'{p["time"]} -> {c["time"]}: that change is not tested (each family is '
+                 'compared with its own previous calibration; pin the family, e.g. fleet '
+                 'calibrate --model field, to test every step)'
                  for p, c in zip(rs, rs[1:]) if p['accel_model'] != c['accel_model']]
              for s, rs in by.items()}
     info = {'tests': n, 'threshold_sigma': z_c, 'family_rate': family_rate, 'notes': notes,

@@ -31,14 +31,12 @@ from scipy.special import ndtri
 
 from ..estimation.calibrate import (AUTO_POLICY, check_faces_up_and_down, CalibrationRefused,
                                     HOLD_RULE_JUDGE)
-from ..estimation.standard_fit import fit_standard_context, StandardFitError, weak_axes
+from ..estimation.standard_fit import weak_axes
 from ..collection.segments import face_of
-from .select import _field_fit, clamp_to_training, fold_masks
+from .paired import _fit, ALPHA, MIN_HELDOUT, paired_test  # noqa: F401  (re-exported)
+from .select import clamp_to_training, fold_masks
+from .standard_floor import judge_family
 
-#: one-sided level of the paired held-out test a richer model or a rule must pass
-ALPHA = 0.05
-#: fewest held-out holds a comparison needs (fewer: no evidence, the standard fit stays)
-MIN_HELDOUT = 3
 #: most folds (refits per candidate); more foldable holds share folds round robin
 MAX_FOLDS = 24
 
@@ -80,26 +78,6 @@ def heldout_folds(windows, max_folds=MAX_FOLDS, within=None):
     return fold_of[pos], n
 
 
-def _fit(ctx, name, train):
-    """Return an accel model fitted on the ``train`` windows (None: it cannot be fitted).
-
-    ``name`` is a family, optionally with a suffix after '-' (``standard-kept``: the same
-    family on other rows, see ``heldout_residuals``).
-    """
-    family = name.split('-')[0]
-    try:
-        if family == 'standard':
-            return fit_standard_context(ctx, train).model
-        if family == 'field':
-            sub = ctx.subset(train & (ctx.accel_rows if ctx.accel_rows is not None else True))
-            check_faces_up_and_down(sub)
-            return _field_fit(ctx, sub.windows, sub.ta, refine=False).model
-        from ..estimation.whole_unit_fit import fit_whole_unit_context
-        return fit_whole_unit_context(ctx, train).accel.model
-    except (StandardFitError, CalibrationRefused, ValueError, np.linalg.LinAlgError):
-        return None
-
-
 def heldout_residuals(ctx, names, accel_rows=None, within=None):
     """Return ({name: per-hold held-out |a| - g (m/s^2), NaN where not held out}, hold ids).
 
@@ -131,26 +109,6 @@ def heldout_residuals(ctx, names, accel_rows=None, within=None):
             out[name][held] = np.linalg.norm(mean[held] / wsum[held, None], axis=1) \
                 - o.gravity
     return out, ids
-
-
-def paired_test(r_ref, r_cand, mask=None):
-    """Return (z, n) of the paired test over the ``n`` holds both have held out.
-
-    z: how far the candidate's held-out squared residuals are below the reference's, in
-    standard errors of the mean paired difference.
-    """
-    ok = np.isfinite(r_ref) & ~np.isnan(r_cand)
-    if mask is not None:
-        ok &= mask
-    if ok.sum() < MIN_HELDOUT:
-        return float('nan'), int(ok.sum())
-    if not np.all(np.isfinite(r_cand[ok])):
-        return float('-inf'), int(ok.sum())
-    d = r_ref[ok] ** 2 - r_cand[ok] ** 2
-    sd = float(np.std(d, ddof=1))
-    z = float(np.mean(d) / (sd / np.sqrt(len(d)))) if sd > 0 else (
-        float('inf') if np.mean(d) > 0 else 0.0)
-    return z, int(ok.sum())
 
 
 def _rms(r, mask=None):
@@ -230,16 +188,22 @@ def auto_policy(ctx):
 
     One orientation: ``select.auto_policy`` (offset models). Several orientations with a
     temperature input that spans enough for thermal terms and every axis held up and down:
-    the thermal families as before (``select.select_multi``, ``select.select_whole_unit``):
-    hold folds cannot validate thermal terms (a held-out visit of a face leaves that face
-    at one temperature, so every family extrapolates), which needs validation over the
-    thermal history. Otherwise (no temperature, a flat one, or faces missing) the standard
-    fit, replaced only by a family that predicts held-out holds better (``select_static``).
+    the thermal families as before (``select.select_multi``, ``select.select_whole_unit``),
+    then the chosen one judged against the standard fit with its bias polynomial in
+    temperature over the thermal history (``standard_floor.judge_family``: contiguous runs
+    of holds held out, scored inside the training temperatures). Otherwise (no
+    temperature, a flat one, or faces missing) the standard fit, replaced only by a family
+    that predicts held-out holds better (``select_static``).
     When ``field`` wins, its thermal variants are chosen as before (``select_multi``).
     """
     from .select import auto_policy as thermal_policy, select_multi, Selection
-    if ctx.n_orientations == 1 or (ctx.k and _available(ctx, 'field')):
+    if ctx.n_orientations == 1:
         return thermal_policy(ctx)
+    if ctx.k and _available(ctx, 'field'):
+        thermal_policy(ctx)
+        sel = judge_family(ctx, ctx.thermal_selection)
+        ctx.thermal_selection = sel
+        return sel.model, sel.reason
     name, why, table = select_static(ctx)
     if name == 'field':
         sel = select_multi(ctx)

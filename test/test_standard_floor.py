@@ -1,0 +1,130 @@
+"""Several orientations across a temperature span: the standard fit is a candidate too.
+
+The thermal family ``auto`` chooses must predict runs of holds it did not see (in time)
+better than the standard fit with its bias polynomial in temperature, or the standard fit
+is returned (``selection/standard_floor.py``). Synthetic sessions whose truth is one or the
+other model, and registry alarms that work for every family (``models/alarm_terms.py``).
+"""
+
+import numpy as np
+import pytest
+
+from _thermal_data import make_windows, options
+from thermal_imu_calib.calibration import Calibration
+from thermal_imu_calib.estimation.calibrate import calibrate_windows
+from thermal_imu_calib.fleet import registry as reg
+from thermal_imu_calib.models.alarm_terms import bias_scale_terms
+from thermal_imu_calib.models.field import FieldPolynomialModel
+from thermal_imu_calib.models.whole_unit import WholeUnitAccelModel
+from thermal_imu_calib.selection.standard_floor import MIN_FACE_VISITS, time_runs
+
+G = 9.80665
+FACES = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
+
+
+def _session(scale_slope, visits=5, seed=0):
+    """Six faces visited ``visits`` times along a 20 -> 40 degC warm-up, 3 windows a hold.
+
+    Truth: raw = b(T) + k(T) * f with a bias polynomial in T, a fixed 2e-3 scale error and
+    a misalignment, and a scale factor changing by ``scale_slope`` per degC.
+    """
+    rng = np.random.default_rng(seed)
+    order = np.concatenate([rng.permutation(6) for _ in range(visits)])
+    n_holds = len(order)
+    t = np.repeat(np.arange(n_holds) * 120.0, 3) + np.tile([0.0, 5.0, 10.0], n_holds)
+    temp = 20.0 + 20.0 * (1 - np.exp(-t / t.max() * 3)) / (1 - np.exp(-3))
+    hold = np.repeat(np.arange(n_holds), 3)
+    f = G * FACES[order][hold]
+    s = np.array([[1.0, 0, 0], [4e-4, 1.0, 0], [-3e-4, 5e-4, 1.0]])
+    dt = (temp - 30.0)[:, None]
+    bias = np.array([0.05, -0.08, 0.12]) + 2e-3 * dt + 4e-5 * dt ** 2
+    k = 1 + np.array([2e-3, -1e-3, 1.5e-3]) + scale_slope * dt
+    accel = bias + k * (f @ s.T)
+    return make_windows(t, temp, accel, np.zeros_like(accel), hold=hold, n=500,
+                        sigma_a=2e-3, rng=rng)
+
+
+def test_time_runs_keep_every_face_twice():
+    w = _session(0.0)
+    folds, n = time_runs(w)
+    assert n == 5
+    ids, means = w.hold_means()
+    for f in range(n):
+        train = np.unique(w.hold[folds != f])
+        faces = np.argmax(np.abs(means[np.isin(ids, train)]), 1) * 2 + (
+            means[np.isin(ids, train)][np.arange(len(train)),
+                                      np.argmax(np.abs(means[np.isin(ids, train)]), 1)] < 0)
+        assert np.bincount(faces, minlength=6).min() >= MIN_FACE_VISITS
+    # each face twice in 12 holds: no run can leave without a face falling below twice
+    assert time_runs(_session(0.0, visits=2))[1] == 0
+
+
+def test_standard_fit_wins_when_it_is_the_truth():
+    res = calibrate_windows(_session(0.0), options())
+    choice = res.report['model_choice']
+    assert choice['model'] == 'standard', choice['reason']
+    assert 'against the standard fit (5 contiguous runs' in choice['reason']
+    assert 'does not predict them better by more than the noise' in choice['reason']
+    assert res.calibration.accel.kind == 'whole_unit_accel'
+    assert res.calibration.accel.offset_order == 2       # bias polynomial in temperature
+
+
+def test_thermal_family_kept_when_held_out_runs_say_so():
+    res = calibrate_windows(_session(1e-4), options())
+    choice = res.report['model_choice']
+    assert choice['model'] != 'standard', choice['reason']
+    assert 'predicts them better by more than the noise: kept' in choice['reason']
+    z = float(choice['reason'].split('paired z ')[1].split(' ')[0])
+    assert z > 1.64
+
+
+def test_no_run_to_hold_out_keeps_the_family_and_says_so():
+    res = calibrate_windows(_session(1e-4, visits=2), options())
+    choice = res.report['model_choice']
+    assert choice['model'] != 'standard'
+    assert 'not judged against the standard fit' in choice['reason']
+
+
+def test_alarm_terms_of_the_field_model_are_its_parameters():
+    rng = np.random.default_rng(1)
+    th = rng.normal(0, 1e-3, (3, 6))
+    std = np.abs(rng.normal(0, 1e-4, (3, 6))) + 1e-6
+    m = FieldPolynomialModel([25.0, 26.0, 27.0], th, thermal_std=std)
+    t = bias_scale_terms(m)
+    np.testing.assert_allclose(t['T0'], [25.0, 26.0, 27.0])
+    np.testing.assert_allclose(t['b'], th[:, 3:], atol=1e-12)
+    np.testing.assert_allclose(t['k'][:, 0], 1 + th[:, 0], atol=1e-12)
+    np.testing.assert_allclose(t['k'][:, 1:], th[:, 1:3], atol=1e-11)
+    np.testing.assert_allclose(t['b_std'], std[:, 3:], rtol=1e-6)
+    np.testing.assert_allclose(t['k_std'], std[:, :3], rtol=1e-5)
+
+
+def _whole_unit(bias, std=1e-4):
+    m1 = np.diag([1 / 1.002, 1 / 0.999, 1 / 1.001])
+    return WholeUnitAccelModel([30.0] * 3, np.array([bias, [1e-3] * 3]), m1=m1,
+                               std={'ct0': np.full(3, std), 'ct1': np.full(3, 1e-5),
+                                    'A1': np.full((3, 3), 1e-5)})
+
+
+def test_alarm_terms_of_the_standard_fit_and_a_chain_per_family():
+    t = bias_scale_terms(_whole_unit([0.1, 0.2, 0.3]))
+    np.testing.assert_allclose(t['b'][:, 0], [0.1, 0.2, 0.3], atol=1e-12)
+    np.testing.assert_allclose(t['b'][:, 1], 1e-3, atol=1e-12)
+    np.testing.assert_allclose(t['k'][:, 0], [1.002, 0.999, 1.001], rtol=1e-9)
+    assert np.all(t['b_std'][:, 0] >= 1e-4 * (1 - 1e-9)) and np.all(t['k_std'][:, 0] > 0)
+    field = FieldPolynomialModel([30.0] * 3, np.zeros((3, 6)),
+                                 thermal_std=np.full((3, 6), 1e-4))
+    # standard, field, standard with x's bias moved by 2 mg (14 sigma of the difference):
+    # the two standard fits are compared across the field calibration between them
+    cals = [_whole_unit([0.1, 0.2, 0.3]), field, _whole_unit([0.1 + 2e-3, 0.2, 0.3])]
+    rows = [reg.index_row('u', Calibration(accel=m), (1_700_000_000 + 86400 * i) * 10 ** 9,
+                          (1_700_000_000 + 86400 * i - 3600) * 10 ** 9, f'u/{i}.yaml', ['a'])
+            for i, m in enumerate(cals)]
+    rows = [{k: str(v) for k, v in r.items()} for r in rows]
+    tests = reg.unit_tests(rows)
+    changes = [(lbl, z) for lbl, z in tests if 'changed' in lbl]
+    bx = [z for lbl, z in changes if lbl.startswith('db0 x')]
+    assert len(bx) == 1 and bx[0] == pytest.approx(2e-3 / np.sqrt(2 * 1e-4 ** 2), rel=0.05)
+    alarms, info = reg.assess(rows)
+    assert any('db0 x changed' in a for a in alarms['u'])
+    assert any('that change is not tested' in n for n in info['notes']['u'])
