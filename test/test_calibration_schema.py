@@ -29,7 +29,9 @@ def full_calibration():
                      'accel_random_walk': np.array([1e-6] * 3),
                      'gyro_random_walk': np.array([1e-7] * 3), 'rate_hz': 100.0,
                      'horizon_s': 3600.0},
-        temperature_filter=ThermalFilter(np.array([120.0])), created='2026-11-27T00:00:00+00:00')
+        temperature_filter=ThermalFilter(np.array([120.0]), restart_spread={
+            'accel': [1e-3, 2e-3, 3e-3], 'gyro': [1e-4, 2e-4, 3e-4]}),
+        created='2026-11-27T00:00:00+00:00')
 
 
 #: a value of the wrong type for each kind of field
@@ -70,7 +72,8 @@ FIELDS = list(_fields(schema.SCHEMA, '', GOOD))
 def test_the_walk_covers_every_section_of_the_file():
     paths = {p for p, _, _ in FIELDS}
     for p in ('temperature.inputs[0].unit', 'temperature.valid_range.max',
-              'temperature.filter.tau_s', 'accel.parameters.T0.std', 'gyro.temperature_input',
+              'temperature.filter.tau_s', 'temperature.filter.restart_spread.gyro.value',
+              'accel.parameters.T0.std', 'gyro.temperature_input',
               'noise.gyro_random_walk.value', 'noise.horizon_s.value', 'gravity.value', 'fit',
               'notes', 'created', 'software.version', 'sensor.frame_id', 'accel.meta'):
         assert p in paths, p

@@ -168,12 +168,7 @@ def test_streaming_restart_gap_and_stale_temperature(chamber_log, chamber_cal):
     # with the lags' memory: restarting every 125 s along the log, the restarted output
     # stays within 1 sigma of the never-restarted one, at the restart and after it
     assert cal.accel.restart_spread is not None and cal.gyro.restart_spread is not None
-    ratios = []
-    for i0 in range(100, len(t), 250):
-        r = cal.stream().apply(t[i0:], imu.accel[i0:], imu.gyro[i0:], temp[i0:])
-        ratios.append([np.max(np.abs(r.accel - full.accel[i0:]) / r.accel_std),
-                       np.max(np.abs(r.gyro - full.gyro[i0:]) / r.gyro_std)])
-    assert np.max(ratios) <= 1.0
+    assert np.max(_restart_ratios(cal, t, imu, temp, full)) <= 1.0
     # ... and the widening is forgotten: five memories (sums of the lags) on, the std is back
     # within 10 % of the never-restarted stream's
     i0 = 100
@@ -188,6 +183,66 @@ def test_streaming_restart_gap_and_stale_temperature(chamber_log, chamber_cal):
              for a in range(0, len(t), 97)]
     np.testing.assert_allclose(np.concatenate([p.accel for p in parts]), full.accel,
                                rtol=0, atol=1e-12)
+
+
+def _restart_ratios(cal, t, imu, temp, full):
+    """Return (restarts, 2): the largest |restarted - whole| / restarted 1-sigma, accel / gyro.
+
+    The stream is restarted every 250 rows (125 s) along the log; max over the axes and
+    every row from the restart on.
+    """
+    out = []
+    for i0 in range(100, len(t), 250):
+        r = cal.stream().apply(t[i0:], imu.accel[i0:], imu.gyro[i0:], temp[i0:])
+        out.append([np.max(np.abs(r.accel - full.accel[i0:]) / r.accel_std),
+                    np.max(np.abs(r.gyro - full.gyro[i0:]) / r.gyro_std)])
+    return np.array(out)
+
+
+def test_streaming_restart_of_the_lag_family(chamber_log):
+    """The older lag family (temperature.filter + offset polynomial) restarts honestly too.
+
+    Its filter restarts at the reading; the 1-sigma covers the largest offset the lag made
+    over the calibration (the filter's restart_spread, in the file), decaying with tau.
+    """
+    imu, tc, w = chamber_log
+    o = options()
+    o.inputs = [TemperatureInput('/imu/temperature')]
+    o.model = 'lag'
+    cal = calibrate_windows(w, o).calibration
+    f = cal.temperature_filter
+    assert f is not None and not f.is_identity
+    assert set(f.restart_spread) == {'accel', 'gyro'}
+    # measured, not assumed: the models at the lagged input against them at the reading
+    at_lag = cal.apply(w.accel, w.gyro, f.window_temperatures(w))
+    at_eq = cal.apply(w.accel, w.gyro, w.temp)
+    np.testing.assert_allclose(f.restart_spread['accel'],
+                               np.max(np.abs(at_lag.accel - at_eq.accel), 0))
+    assert np.all(f.restart_spread['gyro'] > 0)
+    t = imu.stamp_ns * 1e-9
+    temp = tc.temperature[:, None]
+    full = cal.stream().apply(t, imu.accel, imu.gyro, temp)
+    assert np.max(_restart_ratios(cal, t, imu, temp, full)) <= 1.0
+    # without it (a file written before restart_spread, still loaded) the restarted stream
+    # steps by several of its own sigma on this log: the widening is what covers it
+    old = cal.to_dict()
+    del old['temperature']['filter']['restart_spread']
+    old = Calibration.from_dict(old)
+    assert old.temperature_filter.restart_spread is None
+    assert np.max(_restart_ratios(old, t, imu, temp, full)) > 2.0
+    # the file keeps it; the widening is forgotten: five time constants on, the std is
+    # back within 1 % of the never-restarted stream's
+    back = Calibration.from_yaml(cal.to_yaml())
+    for which in ('accel', 'gyro'):
+        np.testing.assert_allclose(back.temperature_filter.restart_spread[which],
+                                   f.restart_spread[which])
+    i0 = 100
+    r = back.stream().apply(t[i0:], imu.accel[i0:], imu.gyro[i0:], temp[i0:])
+    later = np.flatnonzero(t[i0:] - t[i0] > 5 * f.tau_s[0])[0]
+    for which in ('accel', 'gyro'):
+        assert np.all(getattr(r, f'{which}_std')[0] > getattr(full, f'{which}_std')[i0])
+        np.testing.assert_allclose(getattr(r, f'{which}_std')[later],
+                                   getattr(full, f'{which}_std')[i0 + later], rtol=0.01)
 
 
 def test_fit_weighting_uniform_in_temperature():

@@ -1,5 +1,7 @@
 """Thermal lag: the lag filter, its file section and streaming, tau estimation, legs."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 import yaml
@@ -97,6 +99,23 @@ def test_filter_file_section_and_errors():
         Calibration.from_dict(d)
     with pytest.raises(ValueError, match='NaN'):
         ThermalFilter([10.0]).stream().push(np.arange(3.0), np.array([[1.0], [np.nan], [2]]))
+    # the restart spread: optional (files before it load without it), per sensor, >= 0
+    assert back.temperature_filter.restart_spread is None
+    cal.temperature_filter = dataclasses.replace(cal.temperature_filter,
+                                                 restart_spread={'gyro': [1e-4, 2e-4, 3e-4]})
+    sec = yaml.safe_load(cal.to_yaml())['temperature']['filter']['restart_spread']
+    assert sec['gyro'] == {'value': [1e-4, 2e-4, 3e-4], 'unit': 'rad/s'} and 'accel' not in sec
+    back = Calibration.from_yaml(cal.to_yaml())
+    np.testing.assert_array_equal(back.temperature_filter.restart_spread['gyro'],
+                                  [1e-4, 2e-4, 3e-4])
+    assert back.id == cal.id != _cal(250.0).id
+    d = cal.to_dict()
+    d['temperature']['filter']['restart_spread']['gyro']['value'] = [1e-4, -2e-4, 3e-4]
+    with pytest.raises(CalibrationError, match='restart_spread.gyro.value .* negative'):
+        Calibration.from_dict(d)
+    d['temperature']['filter']['restart_spread'] = {'gyro': [1e-4, 2e-4]}
+    with pytest.raises(CalibrationError, match='restart_spread.gyro .* expected 3'):
+        Calibration.from_dict(d)
 
 
 def test_stream_apply_chunks_and_equilibrium():
@@ -117,6 +136,15 @@ def test_stream_apply_chunks_and_equilibrium():
     assert temp[-1, 0] - lagged[-1, 0] == pytest.approx(6.0, abs=0.01)
     expect = cal.apply(acc, gyr, lagged)
     np.testing.assert_allclose(one.gyro, expect.gyro, atol=1e-12)
+    # a restart spread widens the restarted stream's 1-sigma by spread * exp(-age / tau)
+    assert one.gyro_std is None
+    cal.temperature_filter = dataclasses.replace(cal.temperature_filter,
+                                                 restart_spread={'gyro': [1e-3, 2e-3, 0.0]})
+    wide = cal.stream().apply(t, acc, gyr, temp)
+    np.testing.assert_allclose(wide.gyro_std, np.exp(-t / 300.0)[:, None] * [1e-3, 2e-3, 0.0],
+                               rtol=1e-12, atol=0)
+    np.testing.assert_array_equal(wide.gyro, one.gyro)
+    assert wide.accel_std is None
     # without a filter the stream is apply itself; apply alone = thermal equilibrium
     plain = _cal()
     np.testing.assert_array_equal(plain.stream().apply(t, acc, gyr, temp).accel,

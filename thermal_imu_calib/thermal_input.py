@@ -11,7 +11,9 @@ To first order ``T_lag = T - tau * dT/dt``: the same thing as a model in tempera
 its rate with one shared coefficient per input, without differentiating a quantised
 signal. File section (``temperature.filter``, one tau per input)::
 
-    filter: {kind: lag, tau_s: [300.0], unit: s}
+    filter: {kind: lag, tau_s: [300.0], unit: s,
+             restart_spread: {accel: {value: [...], unit: m/s^2},    # optional
+                              gyro: {value: [...], unit: rad/s}}}
 
 Because the lag has memory, it must run over the whole temperature history: the offline
 paths and the live compensator push every batch through one ``ThermalStream`` (via
@@ -20,12 +22,21 @@ paths and the live compensator push every batch through one ``ThermalStream`` (v
 recording. ``Calibration.apply`` alone, without a stream, evaluates the models at thermal
 equilibrium (``T_lag = T``).
 
+A stream that (re)starts does not know the lagged state it should have: its output may be
+off by what the lag changed in the models' output. ``restart_spread`` (per sensor, (3,)
+in the sensor's unit; measured on the calibration windows, ``estimation.thermal_lag``)
+is the largest such change over the calibration data; the stream reports its age
+(``ThermalStream.age_s``) and ``Calibration.apply`` widens the 1-sigma by it, decaying
+``exp(-age / tau)`` with each axis' input, as the restarted state's error does. Files
+written before it have no ``restart_spread``: no widening.
+
 The discretisation is exact for a temperature that is piecewise linear between samples,
 for any (also irregular) sample spacing, so 5-s window means and 200-Hz IMU rows give the
 same lagged temperature.
 """
 
 from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
 
@@ -35,6 +46,8 @@ MAX_TAU_S = 86400.0
 #: logs) restarts the filter in equilibrium: the temperature history in between is unknown
 RESTART_GAP_S = 1800.0
 FILTER_KINDS = ('lag',)
+#: the sensors a ``restart_spread`` may name, and their units
+SPREAD_UNITS = {'accel': 'm/s^2', 'gyro': 'rad/s'}
 #: history terms: a reading that moves faster than this (degC/s) plus ``STEP_DEGC`` between
 #: two samples is a step of the data (a stale value replaced, a sensor reset), not heat
 MAX_RATE_DEGC_S = 1.0
@@ -89,6 +102,10 @@ class ThermalFilter:
 
     tau_s: np.ndarray
     kind: str = 'lag'
+    #: {'accel': (3,) m/s^2, 'gyro': (3,) rad/s} (either may be absent) or None: the
+    #: largest change of the output the lag made over the calibration data, how far a
+    #: stream (re)started in equilibrium may be off
+    restart_spread: Optional[dict] = None
 
     def __post_init__(self):
         self.tau_s = np.atleast_1d(np.asarray(self.tau_s, float))
@@ -99,6 +116,21 @@ class ThermalFilter:
                 or np.any(self.tau_s < 0) or np.any(self.tau_s > MAX_TAU_S):
             raise ValueError(f'temperature filter tau_s {self.tau_s.tolist()} must be finite, '
                              f'in 0..{MAX_TAU_S:g} s (one value per temperature input)')
+        spread = {}
+        for which, v in (self.restart_spread or {}).items():
+            if which not in SPREAD_UNITS:
+                raise ValueError(f'temperature filter restart_spread names {which!r}; it may '
+                                 f'name {tuple(SPREAD_UNITS)}')
+            if isinstance(v, dict):
+                v = v.get('value')
+            if v is None:
+                continue
+            v = np.asarray(v, float).reshape(-1)
+            if v.shape != (3,) or not np.all(np.isfinite(v)) or np.any(v < 0):
+                raise ValueError(f'temperature filter restart_spread.{which} {v.tolist()} '
+                                 'must be three finite values >= 0 (one per axis)')
+            spread[which] = v
+        self.restart_spread = spread or None
 
     @property
     def n_inputs(self):
@@ -112,9 +144,17 @@ class ThermalFilter:
 
     def to_dict(self):
         """Return the ``temperature.filter`` file section."""
-        return {'kind': self.kind, 'tau_s': self.tau_s.tolist(), 'unit': 's',
-                'description': 'first-order lag per temperature input: the models see '
-                               'T_lag with tau dT_lag/dt = T - T_lag'}
+        d = {'kind': self.kind, 'tau_s': self.tau_s.tolist(), 'unit': 's',
+             'description': 'first-order lag per temperature input: the models see '
+                            'T_lag with tau dT_lag/dt = T - T_lag'}
+        if self.restart_spread:
+            d['restart_spread'] = {
+                **{k: {'value': v.tolist(), 'unit': SPREAD_UNITS[k]}
+                   for k, v in self.restart_spread.items()},
+                'description': 'largest |output at T_lag - output at T| over the calibration '
+                               'data: a stream restarted in equilibrium widens its 1-sigma '
+                               'by it, decaying exp(-age / tau)'}
+        return d
 
     @staticmethod
     def from_dict(d, n_inputs):
@@ -123,7 +163,13 @@ class ThermalFilter:
             raise ValueError('temperature.filter needs "kind" and "tau_s"')
         if str(d.get('unit', 's')) != 's':
             raise ValueError(f'temperature.filter unit {d.get("unit")!r} must be s')
-        f = ThermalFilter(np.asarray(d['tau_s'], float), str(d.get('kind', 'lag')))
+        spread = d.get('restart_spread') or None
+        if spread is not None:
+            if not isinstance(spread, dict):
+                raise ValueError('temperature.filter.restart_spread must be a mapping of '
+                                 f'{" and ".join(SPREAD_UNITS)} to three values each')
+            spread = {k: v for k, v in spread.items() if k in SPREAD_UNITS}
+        f = ThermalFilter(np.asarray(d['tau_s'], float), str(d.get('kind', 'lag')), spread)
         if f.n_inputs != n_inputs:
             raise ValueError(f'temperature.filter has {f.n_inputs} tau_s for {n_inputs} '
                              'temperature inputs')
@@ -168,10 +214,19 @@ class ThermalStream:
     def __init__(self, thermal_filter):
         self.filter = thermal_filter
         self._state = None
+        self._t_start = None
 
     def reset(self):
         """Forget the history: the next sample starts in equilibrium."""
         self._state = None
+        self._t_start = None
+
+    def age_s(self, t):
+        """Return (n,) seconds since the stream (re)started at times ``t`` (0 before it)."""
+        t = np.asarray(t, float)
+        if self._t_start is None:
+            return np.zeros(t.shape)
+        return np.maximum(t - self._t_start, 0.0)
 
     def push(self, t, temps):
         """Return the (n, k) model-input temperatures for readings ``temps`` at times ``t`` (s).
@@ -190,6 +245,8 @@ class ThermalStream:
                              '(the lag filter would carry it forever)')
         if len(t) == 0:
             return temps.copy()
+        if self._t_start is None:
+            self._t_start = float(t[0])
         out = np.empty_like(temps)
         states = self._state or [None] * k
         new = []
@@ -225,16 +282,22 @@ class CalibrationStream:
         return self.thermal.push(t, temps)
 
     def apply(self, t, accel, gyro, temps=None):
-        """Compensate one batch (rows in time order, t in s); returns ``Compensated``."""
-        history = None
+        """Compensate one batch (rows in time order, t in s); returns ``Compensated``.
+
+        With a filter the calibration also gets the filter's age (``filter_age``): its
+        1-sigma covers the restart (``ThermalFilter.restart_spread``).
+        """
+        history, extra = None, {}
         if temps is not None:
             temps = np.asarray(temps, float).reshape(len(t), -1)
             if self.history is not None:
                 history = self.history.push(t, temps)
             temps = self.model_temperatures(t, temps)
-        if history is None:
-            return self.calibration.apply(accel, gyro, temps)
-        return self.calibration.apply(accel, gyro, temps, history=history)
+            if self.thermal is not None and temps.shape[1]:
+                extra['filter_age'] = self.thermal.age_s(t)
+        if history is not None:
+            extra['history'] = history
+        return self.calibration.apply(accel, gyro, temps, **extra)
 
     def reset(self):
         """Restart the filter in equilibrium (e.g. after a long temperature dropout)."""

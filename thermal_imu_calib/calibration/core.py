@@ -126,7 +126,7 @@ class Calibration:
             temps = np.clip(temps, lo, hi)
         return temps[:, idx], oor
 
-    def apply(self, accel, gyro, temps=None, history=None):
+    def apply(self, accel, gyro, temps=None, history=None, filter_age=None):
         """Compensate (n, 3) accel [m/s^2] and gyro [rad/s] at (n, k) thermal inputs.
 
         Column j of ``temps`` is input j in its unit (degC, or a proxy's unit such as Hz).
@@ -137,6 +137,9 @@ class Calibration:
         through ``stream().apply``; raw readings here mean thermal equilibrium.
         ``history``: ``{key: (n, k)}`` lagged readings for history-dependent models
         (``thermal_input.HistoryStream``, filled by ``stream().apply``); None: equilibrium.
+        ``filter_age``: (n,) s since the stream's filter (re)started in equilibrium (filled
+        by ``stream().apply``): the 1-sigma adds the filter's ``restart_spread`` decaying
+        ``exp(-age / tau)``; None: no restart term.
         """
         accel = np.asarray(accel, float)
         gyro = np.asarray(gyro, float)
@@ -153,13 +156,15 @@ class Calibration:
             oor |= o
             ha = self._axis_history(history, self.accel, 'accel')
             a_out = self.accel.correct(accel, ta, aux=ha)
-            a_std = _combine_std(_model_std(self.accel, ta, ha), self.noise_std('accel'), n)
+            a_std = _combine_std(_model_std(self.accel, ta, ha), self.noise_std('accel'), n,
+                                 self.restart_std('accel', filter_age))
         if self.gyro is not None:
             tg, o = self.axis_temperatures(temps, 'gyro')
             oor |= o
             hg = self._axis_history(history, self.gyro, 'gyro')
             g_out = self.gyro.correct(gyro, tg, aux={'accel': a_out, **(hg or {})})
-            g_std = _combine_std(_model_std(self.gyro, tg, hg), self.noise_std('gyro'), n)
+            g_std = _combine_std(_model_std(self.gyro, tg, hg), self.noise_std('gyro'), n,
+                                 self.restart_std('gyro', filter_age))
         return Compensated(a_out, g_out, oor, a_std, g_std)
 
     def _axis_history(self, history, model, which):
@@ -174,6 +179,23 @@ class Calibration:
         if '_age_s' in history:
             out['_age_s'] = history['_age_s']
         return {'history': out}
+
+    def restart_std(self, which, age):
+        """Return the (n, 3) 1-sigma a (re)started filter adds to 'accel'/'gyro', or None.
+
+        The restarted lag starts at the reading instead of the lagged state it should have;
+        that difference decays as exp(-age / tau) (tau of each axis' input), and so does the
+        output error it makes, at most the filter's ``restart_spread`` (sensor unit).
+        """
+        f = self.temperature_filter
+        spread = (f.restart_spread or {}).get(which) if f is not None else None
+        if spread is None or age is None:
+            return None
+        idx = self.accel_input if which == 'accel' else self.gyro_input
+        tau = f.tau_s[idx]
+        age = np.asarray(age, float)[:, None]
+        mem = np.where(tau > 0, np.exp(-age / np.where(tau > 0, tau, 1.0)), 0.0)
+        return mem * spread
 
     def noise_std(self, which):
         """Return the (3,) per-sample noise std of 'accel'/'gyro' the covariance uses, or None.
@@ -306,14 +328,13 @@ def _model_std(model, temps, aux):
     return model.predict_std(temps, aux=aux)
 
 
-def _combine_std(model_std, noise_std, n):
-    if model_std is None and noise_std is None:
+def _combine_std(model_std, noise_std, n, restart_std=None):
+    if model_std is None and noise_std is None and restart_std is None:
         return None
     var = np.zeros((n, 3))
-    if model_std is not None:
-        var = var + np.asarray(model_std) ** 2
-    if noise_std is not None:
-        var = var + np.asarray(noise_std) ** 2
+    for std in (model_std, noise_std, restart_std):
+        if std is not None:
+            var = var + np.asarray(std) ** 2
     return np.sqrt(var)
 
 

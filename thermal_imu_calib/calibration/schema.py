@@ -12,7 +12,8 @@ A file looks like::
       inputs: [{name: t0, topic: imu/temperature, unit: degC}]
       valid_range: {min: [20.1], max: [41.7], unit: degC}
       out_of_range: clamp            # or extrapolate
-      filter: {kind: lag, tau_s: [300.0], unit: s}   # optional (thermal_input)
+      filter: {kind: lag, tau_s: [300.0], unit: s,   # optional (thermal_input)
+               restart_spread: {accel: {value: [...], unit: m/s^2}, gyro: ...}}  # optional
     accel: {kind: field_polynomial, temperature_input: [0, 0, 0], parameters: {...}}
     gyro: {kind: offset_polynomial, temperature_input: [0, 0, 0], parameters: {...}}
     noise: {accel_std: [...], gyro_std: [...], unit: ...}
@@ -96,7 +97,10 @@ SCHEMA = Mapping({
                                what='a mapping with min and max', optional=True),
         'out_of_range': Choice(OUT_OF_RANGE_POLICIES, 'clamp', null=False),
         'filter': Mapping({'kind': Text('lag', numbers=False), 'tau_s': Numbers(REQUIRED),
-                           'unit': Text('s', numbers=False)},
+                           'unit': Text('s', numbers=False),
+                           # optional (files before it: no widening after a restart)
+                           'restart_spread': Mapping({'accel': AXES, 'gyro': AXES},
+                                                     optional=True)},
                           what='a mapping with kind, tau_s and unit', optional=True)}),
     'accel': MODEL,
     'gyro': MODEL,

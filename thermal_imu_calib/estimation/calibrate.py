@@ -31,6 +31,7 @@ from .context import (AUTO_POLICY, auto_choice, Context, Estimate,  # noqa: F401
 from .hold_rules import (consistency_notes, HOLD_MAGNITUDES,  # noqa: F401
                          HOLD_RULE_JUDGE, leave_out_holds)
 from .observability import ORDER_SPAN
+from .thermal_lag import with_restart_spread
 from .options import (CalibrateOptions, CalibrationRefused,  # noqa: F401
                       CalibrationResult, default_input_map, gyro_reference, input_margins,
                       input_units, PROXY_MARGIN_FRACTION, valid_range)
@@ -143,6 +144,7 @@ def calibrate_windows(windows, options=None):
         accel_noise_std=np.sqrt(np.median(windows.accel_var, axis=0)),
         gyro_noise_std=np.sqrt(np.median(windows.gyro_var, axis=0)), notes=notes,
         temperature_filter=est.temperature_filter, noise_model=window_noise(windows))
+    with_restart_spread(cal, windows)
     before, after = gravity_residuals(ctx.accel_view().windows, cal, g)
     fit_stats = dict(est.fit)
     fit_stats.update({

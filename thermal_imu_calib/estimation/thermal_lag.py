@@ -14,6 +14,7 @@ equivalent "temperature and its rate" regression (offset = p(T) + c dT/dt, to fi
 c = -tau p'(T)) as a cross-check of the lag found.
 """
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Optional
 
@@ -237,3 +238,31 @@ def tau_or_none(est: Optional[LagEstimate], min_improvement=0.05):
     if est is None or not np.any(est.tau_s > 0) or est.improvement < min_improvement:
         return None
     return est.tau_s
+
+
+def filter_restart_spread(cal, windows):
+    """Return {sensor: (3,)}: the largest |output at T_lag - output at T| over the windows.
+
+    What the calibration's ``temperature_filter`` changes in its own output over the
+    calibration data (the models at the lagged temperature against the same models at
+    equilibrium, window means as raw input; m/s^2 and rad/s). A stream that (re)starts
+    sets the lag to the reading, so its output may be off by up to this much, forgotten
+    with the filter's time constant (``Calibration.restart_std``). None without a filter.
+    """
+    f = cal.temperature_filter
+    if f is None or f.is_identity or len(windows) == 0 or not cal.inputs:
+        return None
+    lagged = f.window_temperatures(windows)
+    at_lag = cal.apply(windows.accel, windows.gyro, lagged)
+    at_eq = cal.apply(windows.accel, windows.gyro, windows.temp)
+    return {which: np.max(np.abs(getattr(at_lag, which) - getattr(at_eq, which)), axis=0)
+            for which in ('accel', 'gyro') if getattr(cal, which) is not None}
+
+
+def with_restart_spread(cal, windows):
+    """Return ``cal`` with its filter's ``restart_spread`` measured on ``windows`` (in place)."""
+    spread = filter_restart_spread(cal, windows)
+    if spread is not None:
+        cal.temperature_filter = dataclasses.replace(cal.temperature_filter,
+                                                     restart_spread=spread)
+    return cal

@@ -30,7 +30,8 @@ from ..estimation.calibrate import (AUTO_POLICY, CalibrateOptions, CalibrationRe
                                     make_context, ORDER_SPAN, register_estimator, valid_range)
 from ..estimation.offset_fit import fit_offset_model
 from ..estimation.rvm_fit import fit_rvm_offset
-from ..estimation.thermal_lag import cv_groups, estimate_tau, lagged_axis_temperatures
+from ..estimation.thermal_lag import (cv_groups, estimate_tau, lagged_axis_temperatures,
+                                      with_restart_spread)
 from ..thermal_input import ThermalFilter
 from .heldout import (_filter_ok, _hold_folds, _lagged_inputs,  # noqa: F401  (re-exported)
                       _weighted_rms, _whole_unit_folds, clamp_to_training, FILTER_SUPPORTED,
@@ -53,15 +54,18 @@ SINGLE_MIN_SPAN = ORDER_SPAN[1]
 
 
 def calibration_from(ctx, est):
-    """Return the Calibration an Estimate makes (models, filter, inputs, range, noise)."""
+    """Return the Calibration an Estimate makes (models, filter, inputs, range, noise).
+
+    The filter's ``restart_spread`` is measured on the context's windows.
+    """
     o, w = ctx.options, ctx.windows
-    return Calibration(
+    return with_restart_spread(Calibration(
         accel=est.accel, gyro=est.gyro, inputs=list(o.inputs), valid_range=valid_range(w, o),
         out_of_range=o.out_of_range, accel_input=ctx.accel_input, gyro_input=ctx.gyro_input,
         frame_id=o.frame_id, gravity=o.gravity, gravity_source=o.gravity_source,
         accel_noise_std=np.sqrt(np.median(w.accel_var, axis=0)),
         gyro_noise_std=np.sqrt(np.median(w.gyro_var, axis=0)), notes=list(est.notes),
-        fit=dict(est.fit), temperature_filter=getattr(est, 'temperature_filter', None))
+        fit=dict(est.fit), temperature_filter=getattr(est, 'temperature_filter', None)), w)
 
 
 def auto_policy(ctx):
