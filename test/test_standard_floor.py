@@ -50,10 +50,9 @@ def test_time_runs_keep_every_face_twice():
     assert n == 5
     ids, means = w.hold_means()
     for f in range(n):
-        train = np.unique(w.hold[folds != f])
-        faces = np.argmax(np.abs(means[np.isin(ids, train)]), 1) * 2 + (
-            means[np.isin(ids, train)][np.arange(len(train)),
-                                      np.argmax(np.abs(means[np.isin(ids, train)]), 1)] < 0)
+        kept = means[np.isin(ids, np.unique(w.hold[folds != f]))]
+        axis = np.argmax(np.abs(kept), 1)
+        faces = axis * 2 + (kept[np.arange(len(kept)), axis] < 0)
         assert np.bincount(faces, minlength=6).min() >= MIN_FACE_VISITS
     # each face twice in 12 holds: no run can leave without a face falling below twice
     assert time_runs(_session(0.0, visits=2))[1] == 0

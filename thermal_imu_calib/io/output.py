@@ -24,8 +24,10 @@ No ROS import.
 from contextlib import contextmanager
 import os
 import shutil
+import signal
 import stat
 import tempfile
+import threading
 
 #: bytes read from an existing file to tell its kind
 SNIFF_BYTES = 65536
@@ -261,9 +263,11 @@ def write_atomic(path, data):
                           'choose a regular file name')
     d = os.path.dirname(os.path.abspath(target))
     os.makedirs(d, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f'.{os.path.basename(target)[:80]}.', suffix='.partial',
-                               dir=d)
+    tmp = None
     try:
+        with _signals_held():
+            fd, tmp = tempfile.mkstemp(prefix=f'.{os.path.basename(target)[:80]}.',
+                                       suffix='.partial', dir=d)
         with os.fdopen(fd, 'wb') as f:
             if callable(data):
                 data(f)
@@ -274,7 +278,8 @@ def write_atomic(path, data):
         os.chmod(tmp, _mode())       # mkstemp makes 0600; outputs are not secret
         os.replace(tmp, target)
     except BaseException:
-        remove_quietly(tmp)
+        if tmp is not None:
+            remove_quietly(tmp)
         raise
     return path
 
@@ -292,16 +297,39 @@ def staging_dir(path):
     path = os.path.abspath(os.fspath(path).rstrip(os.sep) or os.sep)
     d = os.path.dirname(path)
     os.makedirs(d, exist_ok=True)
-    holder = tempfile.mkdtemp(prefix=f'.{os.path.basename(path)[:80]}.partial-', dir=d)
-    tmp = os.path.join(holder, os.path.basename(path))
+    holder = None
     try:
+        with _signals_held():
+            holder = tempfile.mkdtemp(prefix=f'.{os.path.basename(path)[:80]}.partial-',
+                                      dir=d)
+        tmp = os.path.join(holder, os.path.basename(path))
         yield tmp
         if os.path.lexists(path):
             raise OutputError(f'{shown(path)} appeared while it was being written; nothing '
                               'was replaced: remove it or choose another output')
         os.rename(tmp, path)
     finally:
-        remove_quietly(holder)
+        if holder is not None:
+            remove_quietly(holder)
+
+
+@contextmanager
+def _signals_held():
+    """Hold SIGINT and SIGTERM while a temporary is created and its name is taken.
+
+    An interruption between the ``mkdtemp``/``mkstemp`` system call and the assignment of
+    its result (the moment a watcher sees the temporary appear) would leave it behind; held
+    there, the signal is delivered once the name is assigned, inside the caller's ``try``
+    whose clean-up removes it.
+    """
+    held = (signal.SIGINT, signal.SIGTERM)
+    main = threading.current_thread() is threading.main_thread()
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, held) if main else None
+    try:
+        yield
+    finally:
+        if old is not None:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 def remove_quietly(path):

@@ -1,0 +1,75 @@
+"""The standard fit as a candidate across a temperature span, judged on the next log.
+
+For each unit of a simulated fleet (``FleetDesign(units, logs_per_unit=3, seed)``) the
+first two logs are calibrated together with ``auto`` (which now judges the thermal family
+against the standard fit with its bias polynomial in T, ``selection/standard_floor.py``),
+with ``--model field`` and with ``--model standard``; each calibration is applied to the
+unit's third log (``evaluate``: every still hold the detector finds there) and scored by
+the gravity residual RMS of the hold means, micro-g. The unit ages between logs (the
+fleet simulator's drifting and step units), so the third log also tests what ageing does.
+
+    nice -n 10 .venv/bin/python bench/standard_floor.py [--units 3] [--seeds 0] \
+        [--json bench/results/standard_floor.json]
+"""
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.dirname(HERE))
+
+from thermal_imu_calib.app.calibrate import calibrate_logs, CalibrateSettings  # noqa: E402
+from thermal_imu_calib.app.evaluate import evaluate_files  # noqa: E402
+from thermal_imu_calib.fleet.simulate import FleetDesign, read_truth, simulate_fleet  # noqa
+
+
+def unit_row(logs, tmp, sensor):
+    """Return the choice and the third-log residuals of one unit's calibrations."""
+    files, row = [], {'unit': sensor}
+    for model in ('auto', 'field', 'standard'):
+        out = os.path.join(tmp, f'{sensor}_{model}.yaml')
+        run = calibrate_logs(CalibrateSettings(model=model), logs[:2], out)
+        files.append(out)
+        if model == 'auto':
+            choice = run.result.calibration.fit['model_choice']
+            row['auto_chose'] = choice['model']
+            row['auto_reason_tail'] = choice['reason'].split('; against the standard fit')[-1][
+                :300]
+    ev = evaluate_files(logs[2], files)
+    for model, f in zip(('auto', 'field', 'standard'), files):
+        label = os.path.splitext(os.path.basename(f))[0]
+        row[f'{model}_next_log_ug'] = ev['results'][label]['gravity_residual_ug']['rms']
+    row['raw_next_log_ug'] = ev['results']['raw']['gravity_residual_ug']['rms']
+    return row
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+    ap.add_argument('--units', type=int, default=3)
+    ap.add_argument('--seeds', type=int, nargs='+', default=[0])
+    ap.add_argument('--json', default=None)
+    args = ap.parse_args()
+    rows = []
+    for seed in args.seeds:
+        with tempfile.TemporaryDirectory() as tmp:
+            design = FleetDesign(units=args.units, logs_per_unit=3, seed=seed)
+            paths = sorted(simulate_fleet(os.path.join(tmp, 'fleet'), design))
+            truth = read_truth(os.path.join(tmp, 'fleet'))
+            for sensor in sorted(truth):
+                logs = sorted(p for p in paths if os.sep + sensor + os.sep in p)
+                row = dict(unit_row(logs, tmp, sensor), seed=seed, kind=truth[sensor]['kind'])
+                rows.append(row)
+                print(f"seed {seed} {sensor} ({row['kind']}): auto chose {row['auto_chose']}; "
+                      f"next log |a|-g RMS: raw {row['raw_next_log_ug']:.0f}, auto "
+                      f"{row['auto_next_log_ug']:.0f}, field {row['field_next_log_ug']:.0f}, "
+                      f"standard {row['standard_next_log_ug']:.0f} ug", flush=True)
+    if args.json:
+        with open(args.json, 'w') as f:
+            json.dump({'units': args.units, 'seeds': args.seeds, 'rows': rows}, f, indent=1)
+
+
+if __name__ == '__main__':
+    main()
