@@ -135,7 +135,7 @@ def test_holds_during_commanded_motion_are_not_collected(ros, tmp_path):
     archives = list((tmp_path / 'life' / 'archive').iterdir())
     assert len(archives) == 1 and re.fullmatch(r'\d{8}T\d{6}Z', archives[0].name)
     assert (archives[0] / 'holds' / 'recent.jsonl').read_bytes() == stored
-    for text in (f'moved the {holds} holds', f'{archives[0]}/ (kept there, not deleted)',
+    for text in (f'moved the {holds} hold', f'{archives[0]}/ (kept there, not deleted)',
                  f'the active calibration {active_id} stays active'):
         assert text in resp.message, resp.message
     assert life.holds() == 0 and life.life.active.id == active_id

@@ -200,7 +200,8 @@ class Lifelong:
         self.track = []
         self.state.update(holds_at_estimate=0, alarm_pending=False,
                           resets=self.state.get('resets', 0) + 1)
-        moved = (f'moved the {before["holds_total"]} holds collected so far '
+        n = before['holds_total']
+        moved = (f'moved the {n} hold{"s" if n != 1 else ""} collected so far '
                  f'({before["raw_holds"]} raw, {before["compacted_bins"]} compacted bins) to '
                  f'{dest}/ (kept there, not deleted)' if dest else 'nothing collected yet')
         kept = (f'the active calibration {self.active.id} stays active until a new one '
