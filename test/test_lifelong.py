@@ -334,3 +334,21 @@ def test_reset_archives_the_store_and_keeps_the_active(tmp_path, month_windows):
     with pytest.raises(ArchiveFull, match='move or delete the ones no longer needed'):
         life.reset()
     assert life.store.total_holds == 1 and len(list((d / 'archive').iterdir())) == MAX_ARCHIVES
+
+
+def test_archive_collection_of_a_directory_not_loaded(tmp_path, month_windows):
+    """The node resets before its first hold: the earlier run's store and candidate move."""
+    from thermal_imu_calib.lifelong.manager import archive_collection
+    _, win = month_windows
+    d = tmp_path / 'life'
+    life = Lifelong(str(d), CalibrateSettings(), 1, [TOPIC], 'imu_link')
+    life.add(win.select(np.isin(win.hold, win.hold_ids[:3])))
+    (d / 'candidate.yaml').write_text('a candidate of the earlier run\n')
+    recent = (d / 'holds' / 'recent.jsonl').read_bytes()
+    dest = archive_collection(str(d), when=0.0)
+    assert dest == str(d / 'archive' / '19700101T000000Z')
+    assert (d / 'archive' / '19700101T000000Z' / 'holds' / 'recent.jsonl').read_bytes() == recent
+    assert (d / 'archive' / '19700101T000000Z' / 'candidate.yaml').exists()
+    assert not (d / 'holds').exists() and not (d / 'candidate.yaml').exists()
+    assert Lifelong(str(d), CalibrateSettings(), 1, [TOPIC], 'imu_link').store.total_holds == 0
+    assert archive_collection(str(d)) == ''          # an empty store: nothing to move
