@@ -19,7 +19,9 @@ Reported per seed: first-day and last-week RMS of these, their ratios (targets: 
 the new and with the replaced calibration (no swap may make it worse), the knock: alarm
 delay and the error the day before vs the second day after it, the largest process RSS and
 the lifelong directory's size over the month. ``real``: the real recordings through
-lifelong mode (every swap and alarm listed).
+lifelong mode (every swap and alarm listed). ``dds``: the month played through DDS into
+``calibrator_node`` in its own process, its RSS and the lifelong directory sampled over
+the replay (``dds`` below).
 
     nice -n 10 .venv/bin/python bench/bench_lifelong.py month --seeds 20
     nice -n 10 .venv/bin/python bench/bench_lifelong.py real
@@ -27,7 +29,10 @@ lifelong mode (every swap and alarm listed).
     ... month --seeds 10 --output a.json & ... month --seeds 10 --first-seed 10 --output b.json
     nice -n 10 .venv/bin/python bench/bench_lifelong.py merge a.json b.json
 
-Results: bench/results/bench_lifelong_month.json, bench_lifelong_real.json.
+    nice -n 10 .venv/bin/python bench/bench_lifelong.py dds --days 30 --max-seconds 4200
+
+Results: bench/results/bench_lifelong_month.json, bench_lifelong_real.json,
+bench_lifelong_dds.json.
 """
 
 import argparse
@@ -509,6 +514,229 @@ def node_rss(args):
     _write(args.output, res)
 
 
+def _proc_status(pid):
+    """Return {'rss_mb', 'hwm_mb'} of process ``pid`` from /proc (MB; {} when gone)."""
+    out = {}
+    try:
+        with open(f'/proc/{pid}/status') as f:
+            for line in f:
+                if line.startswith('VmRSS:'):
+                    out['rss_mb'] = int(line.split()[1]) / 1024
+                elif line.startswith('VmHWM:'):
+                    out['hwm_mb'] = int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return out
+
+
+def _dds_events(seg, base_ns):
+    """Return the stop's messages in header-stamp order: (stamp ns, kind, index, sync).
+
+    kind 0: IMU sample, 1: temperature reading, 2: cmd_vel hint. ``sync`` marks the hints
+    the node must stamp right (a change of the command, the segment's last one): before
+    them the replay waits until the node has taken in every IMU message sent.
+    """
+    ev = [(int(s), 0, i, False) for i, s in enumerate(seg.imu.stamp_ns)]
+    ev += [(int(s), 1, i, False) for i, s in enumerate(seg.temperature.stamp_ns)]
+    prev = None
+    for i, (t, still) in enumerate(seg.hints):
+        sync = still != prev or i == len(seg.hints) - 1
+        ev.append((base_ns + int(round((t - base_ns * 1e-9) * 1e9)), 2, i, sync))
+        prev = still
+    ev.sort(key=lambda e: (e[0], e[1]))
+    return ev
+
+
+def dds(args):
+    """Replay robot-month days through DDS into calibrator_node; sample its RSS and directory.
+
+    calibrator_node runs in its own process (``python -m thermal_imu_calib.nodes.calibrator``,
+    lifelong mode with the /cmd_vel hint, the default settings otherwise); this process
+    generates the month (``sim.robot_month``, the stops only, 10 Hz) and publishes every
+    IMU message, temperature reading and cmd_vel command in header-stamp order, as fast as
+    the node takes them: at most ``--window`` IMU messages in flight (counted by the node's
+    ~/progress ``imu_received``), below its input queue depth, so nothing is dropped. The
+    node stamps a Twist with the newest IMU stamp it processed: before a change of the
+    command the replay waits until the node has taken in all IMU sent and two more
+    ~/progress ticks. The node is not restarted (the month's restarts are not replayed).
+    The node process's RSS (``/proc/<pid>/status`` VmRSS, VmHWM) is sampled every
+    ``--sample-s`` seconds and at the end of every simulated day, with the lifelong
+    directory's size and the store counts /diagnostics reports; the JSON is rewritten after
+    every day, so a run cut by ``--max-seconds`` keeps what it replayed.
+    """
+    import subprocess
+    import threading
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import Twist
+    from sensor_msgs.msg import Imu, Temperature
+    from std_msgs.msg import String
+    from thermal_imu_calib.nodes.player import imu_msg, temperature_msg
+
+    m = robot_month(args.seed)
+    cfg = m.config
+    work = args.work or tempfile.mkdtemp(prefix='bench_lifelong_dds_')
+    d = os.path.join(work, 'life')
+    shutil.rmtree(d, ignore_errors=True)
+    os.makedirs(d)
+    log_path = os.path.join(work, 'node.log')
+    cmd = [sys.executable, '-m', 'thermal_imu_calib.nodes.calibrator', '--ros-args',
+           '-p', 'lifelong:=true', '-p', f'lifelong_dir:={d}', '-p', 'cmd_vel_topic:=/cmd_vel',
+           '-p', f'frame_id:={cfg.frame_id}', '-p', f'collection_file:={work}/collection.jsonl',
+           '-p', f'calibration_file:={work}/calibration.yaml', '-p', 'report:=false',
+           '-p', f'progress_period:={args.progress_period}']
+    log_file = open(log_path, 'w')
+    proc = subprocess.Popen(cmd, stdout=log_file, stderr=subprocess.STDOUT)
+    rclpy.init()
+    node = rclpy.create_node('bench_lifelong_player')
+    imu_pub = node.create_publisher(Imu, cfg.imu_topic, 1000)
+    temp_pub = node.create_publisher(Temperature, cfg.temp_topic, 1000)
+    cmd_pub = node.create_publisher(Twist, '/cmd_vel', 100)
+    state = {'received': 0, 'ticks': 0, 'life': {}}
+    cond = threading.Condition()
+
+    def on_progress(msg):
+        p = json.loads(msg.data)
+        with cond:
+            state['received'] = p['imu_received']
+            state['ticks'] += 1
+            cond.notify_all()
+
+    def on_diag(msg):
+        for s in msg.status:
+            if s.name.endswith('lifelong calibration'):
+                state['life'] = {kv.key: kv.value for kv in s.values}
+    node.create_subscription(String, '/thermal_imu_calibrator/progress', on_progress, 100)
+    node.create_subscription(DiagnosticArray, '/diagnostics', on_diag, 100)
+    ex = SingleThreadedExecutor()
+    ex.add_node(node)
+    spinner = threading.Thread(target=ex.spin, daemon=True)
+    spinner.start()
+
+    def wait(pred, what, timeout=args.timeout):
+        with cond:
+            if not cond.wait_for(pred, timeout):
+                raise RuntimeError(f'timed out after {timeout} s waiting for {what} '
+                                   f'(node log: {log_path})')
+    samples, days, stop_sampling = [], [], threading.Event()
+    t_start = time.monotonic()
+
+    def sampler():
+        while not stop_sampling.wait(args.sample_s):
+            st = _proc_status(proc.pid)
+            if st:
+                samples.append((round(time.monotonic() - t_start, 1),
+                                round(st['rss_mb'], 1)))
+    wait(lambda: state['ticks'] > 0, 'the node\'s first ~/progress', 120.0)
+    for pub in (imu_pub, temp_pub, cmd_pub):
+        t0 = time.monotonic()
+        while pub.get_subscription_count() == 0:
+            if time.monotonic() - t0 > 120.0:
+                raise RuntimeError(f'no subscriber on {pub.topic_name}')
+            time.sleep(0.05)
+    start_rss = _proc_status(proc.pid)
+    threading.Thread(target=sampler, daemon=True).start()
+    base_ns = m.start_ns
+    sent = {'imu': 0, 'temperature': 0, 'cmd_vel': 0}
+    twist_drive, twist_still = Twist(), Twist()
+    twist_drive.linear.x = 0.5
+    out = {'command': ' '.join(sys.argv), 'seed': args.seed, 'node_command': ' '.join(cmd),
+           'month': m.summary(), 'start_node_rss_mb': start_rss, 'days': days,
+           'rss_samples': samples}
+
+    def caught_up(extra_ticks=0):
+        n = sent['imu']
+        wait(lambda: state['received'] >= n, 'the node to take in the IMU messages sent')
+        if extra_ticks:
+            t = state['ticks']
+            wait(lambda: state['ticks'] >= t + extra_ticks, 'two more ~/progress ticks')
+
+    def record(day, last_t):
+        caught_up()
+        st = _proc_status(proc.pid)
+        row = {'day': day, 'replayed_to_day': round(last_t / DAY, 3),
+               'wall_s': round(time.monotonic() - t_start, 1), 'imu_sent': sent['imu'],
+               'imu_received': state['received'], 'node_rss_mb': round(st.get('rss_mb', 0), 1),
+               'node_peak_rss_mb': round(st.get('hwm_mb', 0), 1),
+               'dir_mb': round(dir_bytes(d) / 2 ** 20, 3),
+               'bench_rss_mb': round(rss_mb(), 1)}
+        row.update({k: state['life'].get(k) for k in (
+            'holds_total', 'raw_holds', 'raw_windows', 'compacted_bins', 'clusters', 'swaps',
+            'kept', 'alarms', 'estimates', 'disk_bytes')})
+        days.append(row)
+        print(json.dumps(row), flush=True)
+        out.update(wall_s=row['wall_s'], replayed_days=row['replayed_to_day'], sent=dict(sent))
+        _write(args.output, out)
+
+    day, last_t, cut = 0, 0.0, ''
+    try:
+        for s in m.stops:
+            if s.t0 >= args.days * DAY:
+                break
+            if time.monotonic() - t_start > args.max_seconds:
+                cut = f'stopped by --max-seconds {args.max_seconds:.0f}'
+                break
+            while s.t0 >= (day + 1) * DAY:
+                record(day, last_t)
+                day += 1
+            seg = m.segment(s)
+            accel, gyro = seg.imu.accel.tolist(), seg.imu.gyro.tolist()
+            temps = seg.temperature.temperature.tolist()
+            for stamp, kind, i, sync in _dds_events(seg, base_ns):
+                if kind == 0:
+                    if sent['imu'] - state['received'] >= args.window:
+                        n = sent['imu'] - args.window // 2
+                        wait(lambda: state['received'] >= n, 'the node to take in IMU')
+                    imu_pub.publish(imu_msg(stamp, accel[i], gyro[i], cfg.frame_id))
+                    sent['imu'] += 1
+                elif kind == 1:
+                    temp_pub.publish(temperature_msg(stamp, temps[i], cfg.frame_id))
+                    sent['temperature'] += 1
+                else:
+                    if sync:
+                        caught_up(extra_ticks=2)
+                    cmd_pub.publish(twist_still if seg.hints[i][1] else twist_drive)
+                    sent['cmd_vel'] += 1
+            last_t = s.t1 + cfg.pad_s
+        record(day, last_t)
+        # the node's last estimate may still run: wait for the estimates to settle
+        out['stopped'] = cut or f'replayed {args.days:g} days'
+    finally:
+        stop_sampling.set()
+        st = _proc_status(proc.pid)
+        out['end_node_peak_rss_mb'] = round(st.get('hwm_mb', 0), 1)
+        out['peak_dir_mb'] = max((r['dir_mb'] for r in days), default=0)
+        proc.send_signal(2)
+        try:
+            proc.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+        log_file.close()
+        out['node_exit'] = proc.returncode
+        with open(log_path) as f:
+            lines = f.read().splitlines()
+        out['node_log_tail'] = lines[-8:]
+        out['decisions'] = {}
+        try:
+            with open(os.path.join(d, 'decisions.jsonl')) as f:
+                for x in f:
+                    if x.strip():
+                        a = json.loads(x)['action']
+                        out['decisions'][a] = out['decisions'].get(a, 0) + 1
+        except OSError:
+            pass
+        out['sent'] = dict(sent)
+        _write(args.output, out)
+        ex.shutdown()
+        spinner.join(timeout=10)
+        node.destroy_node()
+        rclpy.shutdown()
+    print(json.dumps({k: out[k] for k in ('replayed_days', 'wall_s', 'sent', 'stopped',
+                                          'end_node_peak_rss_mb', 'peak_dir_mb',
+                                          'decisions') if k in out}, indent=1))
+
+
 def table(args):
     """Print the markdown tables of docs/lifelong.md from a merged month result."""
     with open(args.input) as f:
@@ -572,6 +800,18 @@ def main():
     no.add_argument('--dir', required=True, help='a month\'s lifelong directory')
     no.add_argument('--seconds', type=float, default=20.0)
     no.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_node.json'))
+    dd = sub.add_parser('dds', help='replay days of a robot month through DDS into '
+                        'calibrator_node; sample its RSS')
+    dd.add_argument('--seed', type=int, default=0)
+    dd.add_argument('--days', type=float, default=30.0)
+    dd.add_argument('--max-seconds', type=float, default=np.inf,
+                    help='stop after the stop in progress when the replay took this long')
+    dd.add_argument('--window', type=int, default=400, help='IMU messages in flight at most')
+    dd.add_argument('--progress-period', type=float, default=0.1)
+    dd.add_argument('--sample-s', type=float, default=2.0)
+    dd.add_argument('--timeout', type=float, default=600.0)
+    dd.add_argument('--work', default='')
+    dd.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_dds.json'))
     rv = sub.add_parser('reeval')
     rv.add_argument('inputs', nargs='+')
     rv.add_argument('--work', action='append', default=[])
@@ -589,6 +829,8 @@ def main():
         table(args)
     elif args.cmd == 'reeval':
         reeval(args)
+    elif args.cmd == 'dds':
+        dds(args)
     else:
         real(args)
     print(f'max RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB')

@@ -288,3 +288,67 @@ def test_knock_raises_an_alarm_then_a_new_calibration_recovers(tmp_path):
         res = life.active.apply(seg.imu.accel[st], seg.imu.gyro[st], seg.temp_true[st][:, None])
         errs.append(np.linalg.norm(np.mean(res.gyro - seg.angular_rate[st], 0)))
     assert np.sqrt(np.mean(np.square(errs))) < 0.2 * np.linalg.norm(m.knock_gyro)
+
+
+def test_reset_archives_the_store_and_keeps_the_active(tmp_path, month_windows):
+    """~/reset's core: the holds move to archive/<UTC time>/ byte for byte, bounded."""
+    from thermal_imu_calib.lifelong.manager import ArchiveFull, MAX_ARCHIVES
+    _, win = month_windows
+    ids = win.hold_ids
+    d = tmp_path / 'life'
+    logs = []
+
+    def make():
+        return Lifelong(str(d), CalibrateSettings(), 1, [TOPIC], 'imu_link',
+                        log=lambda level, text: logs.append(text))
+    life = make()
+    assert life.reset()['text'].startswith('collection restarted: nothing collected yet')
+    assert not (d / 'archive').exists()                  # nothing to move: no archive
+    life.add(win.select(np.isin(win.hold, ids[:30])))
+    assert life.estimate('test')['action'] == 'swap'     # first estimate vs the raw output
+    active = life.active.id
+    total = life.store.total_holds
+    before = {p.name: p.read_bytes() for p in (d / 'holds').iterdir()}
+    assert before['recent.jsonl']
+    dec = life.reset(when=1_800_000_000.0)
+    dest = d / 'archive' / '20270115T080000Z'
+    assert dec['archive'] == str(dest) and dec['action'] == 'reset'
+    assert {p.name: p.read_bytes() for p in (dest / 'holds').iterdir()} == before
+    assert f'moved the {total} holds' in dec['text'] and str(dest) in dec['text']
+    assert f'active calibration {active} stays active' in dec['text']
+    assert logs[-1] == 'lifelong reset: ' + dec['text']
+    assert life.store.total_holds == 0 and not len(life.store.recent)
+    assert life.active.id == active and (d / 'active.yaml').exists()
+    assert life.decisions()[-1]['action'] == 'reset' and life.due() == ''
+    # a restart finds the fresh collection and the same active calibration
+    life = make()
+    assert life.store.total_holds == 0 and life.active.id == active
+    life.add(win.select(np.isin(win.hold, ids[30:32])))
+    assert life.store.total_holds == 2
+    # bounded: MAX_ARCHIVES archives; one more reset is refused and changes nothing
+    for i in range(MAX_ARCHIVES - 1):
+        life.reset(when=1_800_000_000.0 + i)
+        life.add(win.select(win.hold == ids[33 + i]))
+    names = sorted(p.name for p in (d / 'archive').iterdir())
+    assert len(names) == MAX_ARCHIVES and names[0] == '20270115T080000Z'
+    with pytest.raises(ArchiveFull, match='move or delete the ones no longer needed'):
+        life.reset()
+    assert life.store.total_holds == 1 and len(list((d / 'archive').iterdir())) == MAX_ARCHIVES
+
+
+def test_archive_collection_of_a_directory_not_loaded(tmp_path, month_windows):
+    """The node resets before its first hold: the earlier run's store and candidate move."""
+    from thermal_imu_calib.lifelong.manager import archive_collection
+    _, win = month_windows
+    d = tmp_path / 'life'
+    life = Lifelong(str(d), CalibrateSettings(), 1, [TOPIC], 'imu_link')
+    life.add(win.select(np.isin(win.hold, win.hold_ids[:3])))
+    (d / 'candidate.yaml').write_text('a candidate of the earlier run\n')
+    recent = (d / 'holds' / 'recent.jsonl').read_bytes()
+    dest = archive_collection(str(d), when=0.0)
+    assert dest == str(d / 'archive' / '19700101T000000Z')
+    assert (d / 'archive' / '19700101T000000Z' / 'holds' / 'recent.jsonl').read_bytes() == recent
+    assert (d / 'archive' / '19700101T000000Z' / 'candidate.yaml').exists()
+    assert not (d / 'holds').exists() and not (d / 'candidate.yaml').exists()
+    assert Lifelong(str(d), CalibrateSettings(), 1, [TOPIC], 'imu_link').store.total_holds == 0
+    assert archive_collection(str(d)) == ''          # an empty store: nothing to move

@@ -2,20 +2,25 @@
 
 A robot-month stop commanded still (Twist zero) is collected; the next stop, during which
 the command says drive (the robot is blocked), is found still by the detector but not
-collected. Messages are counted at the node, every wait is on a condition.
+collected. ~/calibrate, ~/save and ~/reset keep working; ~/reset archives the lifelong store
+and keeps the active calibration, and the next stop goes into the fresh store. Messages are
+counted at the node, every wait is on a condition.
 """
 
 import json
+import re
 
 from conftest import replay_flow, wait_count, wait_for
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Twist
 import numpy as np
+from rcl_interfaces.msg import Log
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import Imu, Temperature
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
+from thermal_imu_calib.calibration import Calibration
 from thermal_imu_calib.nodes.calibrator import CalibratorNode
 from thermal_imu_calib.sim.robot_month import robot_month
 
@@ -31,7 +36,11 @@ def _stops(m, n=2):
 
 def test_holds_during_commanded_motion_are_not_collected(ros, tmp_path):
     m = robot_month(2, days=1.0)
-    a, b, c = (m.segment(s) for s in _stops(m, 3))
+    a, b, c, e = (m.segment(s) for s in _stops(m, 4))
+    # the lifelong state of an earlier run: an active calibration (the true one)
+    (tmp_path / 'life').mkdir()
+    m.true_calibration(a.stop.t0).save(str(tmp_path / 'life' / 'active.yaml'))
+    active_id = Calibration.load(str(tmp_path / 'life' / 'active.yaml')).id
     node = ros.add(CalibratorNode(context=ros.context, parameter_overrides=[
         Parameter(k, value=v) for k, v in {
             'lifelong': True, 'lifelong_dir': str(tmp_path / 'life'),
@@ -47,6 +56,8 @@ def test_holds_during_commanded_motion_are_not_collected(ros, tmp_path):
     player.create_subscription(String, '/thermal_imu_calibrator/progress',
                                lambda msg: progress.append(json.loads(msg.data)), 10)
     player.create_subscription(DiagnosticArray, '/diagnostics', diags.append, 10)
+    logs = []
+    player.create_subscription(Log, '/rosout', lambda msg: logs.append(msg.msg), 100)
     for pub in (imu_pub, temp_pub, cmd_pub):
         ros.wait_matched(pub, timeout=WAIT)
     life = node.lifelong
@@ -108,14 +119,35 @@ def test_holds_during_commanded_motion_are_not_collected(ros, tmp_path):
     assert np.isfinite(float(values['raw_windows']))
     assert 0.0 <= float(values['temperature_degC']) <= 40.0          # the present reading
     # the services keep working: ~/calibrate on the node's own collection (one pose, two
-    # holds: an offset model), ~/save writes it, ~/reset clears that collection and leaves
-    # the lifelong store alone
+    # holds: an offset model), ~/save writes it
     resp = ros.call(player, Trigger, '/thermal_imu_calibrator/calibrate', timeout=WAIT)
     assert resp.success and 'offset' in resp.message, resp.message
     assert (tmp_path / 'cal.yaml').exists()
     resp = ros.call(player, Trigger, '/thermal_imu_calibrator/save', timeout=WAIT)
     assert resp.success, resp.message
+    # ~/reset clears the node's collection and starts the lifelong one afresh: the store
+    # moves to archive/<UTC time>/ as it was, the active calibration stays active
     holds = life.holds()
+    stored = (tmp_path / 'life' / 'holds' / 'recent.jsonl').read_bytes()
+    assert holds >= 1 and stored and life.life.active.id == active_id
     resp = ros.call(player, Trigger, '/thermal_imu_calibrator/reset', timeout=WAIT)
-    assert resp.success and len(node.windows) == 0
-    assert life.holds() == holds and len(life.life.store.recent) > 0
+    assert resp.success and len(node.windows) == 0, resp.message
+    archives = list((tmp_path / 'life' / 'archive').iterdir())
+    assert len(archives) == 1 and re.fullmatch(r'\d{8}T\d{6}Z', archives[0].name)
+    assert (archives[0] / 'holds' / 'recent.jsonl').read_bytes() == stored
+    for text in (f'moved the {holds} hold', f'{archives[0]}/ (kept there, not deleted)',
+                 f'the active calibration {active_id} stays active'):
+        assert text in resp.message, resp.message
+    assert life.holds() == 0 and life.life.active.id == active_id
+    assert (tmp_path / 'life' / 'active.yaml').exists()
+    wait_for(lambda: any(x.startswith('lifelong reset: collection restarted') and
+                         str(archives[0]) in x for x in logs), WAIT, 'the reset in the log')
+    # the collection goes on into the fresh store: stop C, commanded still
+    command(still=True)
+    sent += play(c, 30)
+    sent += play(e, 0, 30)                      # driving on closes stop C's hold
+    wait_for(lambda: life.holds() >= 1, WAIT, 'stop C in the fresh lifelong store')
+    in_c = (base + c.stop.t0 - 1, base + c.stop.t1 + 1)
+    store = life.life.store.recent
+    assert ((store.t0 >= in_c[0]) & (store.t1 <= in_c[1])).all()
+    assert (archives[0] / 'holds' / 'recent.jsonl').read_bytes() == stored

@@ -7,6 +7,7 @@
     candidate.yaml the newest estimate that did not pass the swap gate
     state.json    counters (holds at the last estimate, the active's held-out figures)
     decisions.jsonl every decision with its figures (the newest ``MAX_DECISIONS`` kept)
+    archive/<UTC time>/ what a reset moved aside (``holds/``, ``candidate.yaml``)
 
 and, when ``registry_dir`` is given, adds every calibration it activates to a registry in
 the fleet format (``fleet.registry``: ``history``, drift alarms and the compensator's
@@ -23,7 +24,12 @@ Change alarm (a knock): every new hold inside the active valid range is scored w
 active calibration; when the last ``alarm_holds`` of them all exceed ``alarm_factor``
 times the active's held-out error (floored at ``alarm_floor`` times their noise), the
 store is cut at the first of them (older data no longer describe the sensor), an alarm is
-logged and a re-estimate from the holds after the cut follows. No ROS import.
+logged and a re-estimate from the holds after the cut follows.
+
+Reset (``reset``, the node's ``~/reset``): the collection starts afresh without losing
+data: the hold store and the candidate move into ``archive/<UTC time>/`` (at most
+``MAX_ARCHIVES`` archives; one more is refused, saying what to do), the active
+calibration, the counters, the decisions and the registry stay. No ROS import.
 """
 
 from dataclasses import dataclass, field
@@ -43,6 +49,48 @@ from ..collection.segments import Windows
 from .store import HoldStore, StoreConfig
 
 MAX_DECISIONS = 2000
+#: archives a reset may leave in ``<lifelong_dir>/archive`` (each at most the store's bound,
+#: ~12 MB): one more reset is refused until one is moved away or deleted
+MAX_ARCHIVES = 5
+ARCHIVE = 'archive'
+
+
+class ArchiveFull(Exception):
+    """A reset would make more than ``MAX_ARCHIVES`` archives (the message says what to do)."""
+
+
+def archive_collection(directory, when=None, max_archives=MAX_ARCHIVES):
+    """Move the hold store and the candidate of a lifelong directory aside; return the path.
+
+    ``<directory>/holds/`` and ``candidate.yaml`` move (``os.replace``: nothing is copied or
+    deleted) into ``<directory>/archive/<UTC time of when (s), default now>/``; the active
+    calibration, ``state.json``, ``decisions.jsonl`` and the registry stay. Returns '' when
+    there is nothing to move (no hold stored, no candidate). Raises ``ArchiveFull`` when
+    ``max_archives`` archives exist already, ``OSError`` when the files cannot be moved.
+    """
+    directory = os.path.expanduser(directory)
+    holds = os.path.join(directory, 'holds')
+    stored = os.path.isdir(holds) and any(                # an empty store has empty files
+        os.path.getsize(os.path.join(holds, n)) for n in os.listdir(holds))
+    names = (['holds'] if stored else []) + (
+        ['candidate.yaml'] if os.path.exists(os.path.join(directory, 'candidate.yaml')) else [])
+    if not names:
+        return ''
+    root = os.path.join(directory, ARCHIVE)
+    old = sorted(os.listdir(root)) if os.path.isdir(root) else []
+    if len(old) >= max_archives:
+        raise ArchiveFull(f'{root} holds {len(old)} archives of earlier resets already (at most '
+                          f'{max_archives}, oldest {old[0]}): move or delete the ones no longer '
+                          'needed, then reset again')
+    when = time.time() if when is None else when
+    label = time.strftime('%Y%m%dT%H%M%SZ', time.gmtime(when))
+    dest, i = os.path.join(root, label), 1
+    while os.path.exists(dest):                  # two resets within a second
+        dest, i = os.path.join(root, f'{label}-{i}'), i + 1
+    os.makedirs(dest)
+    for n in names:
+        os.replace(os.path.join(directory, n), os.path.join(dest, n))
+    return dest
 
 
 @dataclass
@@ -132,6 +180,42 @@ class Lifelong:
         except FileNotFoundError:
             return []
         return out[-last:] if last else out
+
+    # ------------------------------------------------------------------ reset
+    def reset(self, when=None):
+        """Start the collection afresh; the old one is archived, nothing is deleted.
+
+        The store (and the candidate) move into ``archive/<UTC time>/``
+        (``archive_collection``); the active calibration stays active, the state's counters
+        and the decisions stay, the next re-estimate waits for new holds. Returns the
+        decision dict (action 'reset', logged); raises ``ArchiveFull`` or ``OSError`` with
+        nothing changed.
+        """
+        before = self.store.summary()
+        rec = self.store.recent
+        newest = float(rec.t1.max()) if len(rec) else None
+        dest = archive_collection(self.dir, when)
+        self.store = HoldStore(os.path.join(self.dir, 'holds'), self.k, self.config.store)
+        self.candidate = None
+        self.track = []
+        self.state.update(holds_at_estimate=0, alarm_pending=False,
+                          resets=self.state.get('resets', 0) + 1)
+        n = before['holds_total']
+        moved = (f'moved the {n} hold{"s" if n != 1 else ""} collected so far '
+                 f'({before["raw_holds"]} raw, {before["compacted_bins"]} compacted bins) to '
+                 f'{dest}/ (kept there, not deleted)' if dest else 'nothing collected yet')
+        kept = (f'the active calibration {self.active.id} stays active until a new one '
+                'passes the swap gate' if self.active is not None
+                else 'no active calibration yet')
+        decision = {'time': newest, 'action': 'reset',
+                    'wall_time': time.time() if when is None else float(when),
+                    'reason': 'requested', 'archive': dest, 'archived': before,
+                    'text': f'collection restarted: {moved}; {kept}'}
+        self.state['last_decision'] = decision['text']
+        self._record(decision)
+        self._save_state()
+        self.log('info', f'lifelong reset: {decision["text"]}')
+        return decision
 
     # ------------------------------------------------------------------ holds
     def add(self, windows):

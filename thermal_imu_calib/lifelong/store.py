@@ -341,8 +341,8 @@ class HoldStore:
 
         ``exclude``: raw hold ids left out (the held-out holds of the swap gate). Hold ids
         are renumbered 0, 1, ... in order of appearance, compacted clusters (the oldest
-        data) first, then the raw holds, oldest first, as a log gives them (the estimators
-        rely on ascending ids).
+        data) first, then the raw holds, oldest first, as a log gives them (small ids in
+        time order; the estimators take hold ids in any order).
         """
         bins = _Bins.from_dict(self.bins.to_dict(), self.k)
         if now is not None:

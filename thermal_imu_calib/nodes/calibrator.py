@@ -15,8 +15,10 @@ Services (std_srvs/Trigger): ``~/calibrate`` runs the calibrate use case of the 
 line and the fleet (``app.calibrate.calibrate_collected``) on a snapshot of the collection,
 on a worker thread, writes ``calibration_file`` atomically (previous kept as ``.bak``,
 ``app.calibrate.write_calibration``) and publishes it latched on ``imu/calibration``;
-``~/reset`` clears the collection; ``~/save`` writes the current model. ``~/progress``
-(JSON) and ``/diagnostics`` report coverage and what to hold next.
+``~/reset`` clears the collection (in lifelong mode it also moves the lifelong store into
+an archive and keeps the active calibration, ``nodes.lifelong``); ``~/save`` writes the
+current model. ``~/progress`` (JSON) and ``/diagnostics`` report coverage and what to hold
+next.
 """
 
 from concurrent.futures import ThreadPoolExecutor
@@ -231,6 +233,13 @@ class CalibratorNode(LiveCollection, Node):
         return response
 
     def _on_reset(self, request, response):
+        life = ''
+        if self.lifelong is not None:     # first: a refusal there leaves everything as it was
+            ok, life = self.lifelong.reset()
+            if not ok:
+                response.success, response.message = False, life
+                self.get_logger().warning(f'~/reset {life}')
+                return response
         with self._lock:
             n, h, t = len(self.windows), len(self.windows.hold_ids), len(self.transitions)
             self._new_collection()
@@ -244,7 +253,7 @@ class CalibratorNode(LiveCollection, Node):
             self._write_inputs_signature()
         response.success = True
         response.message = f'cleared {n} windows ({h} holds) and {t} pose changes' + (
-            f'; removed {path} and {tdir}/' if path else '')
+            f'; removed {path} and {tdir}/' if path else '') + (f'; {life}' if life else '')
         self.get_logger().info(response.message)
         return response
 

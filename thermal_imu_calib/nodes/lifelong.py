@@ -20,7 +20,9 @@ after it. A swap publishes the new calibration latched on ``imu/calibration`` an
 active model's age, the present temperature against its valid range (WARN outside it),
 its error on the newest holds, the number of holds and the temperature coverage. The
 node's own collection (what ~/calibrate uses) is cut to its newest ``NODE_HOLDS`` holds, so
-memory and collection_file stay bounded over weeks.
+memory and collection_file stay bounded over weeks. ``~/reset`` starts the lifelong
+collection afresh too (``reset``): the store is archived, never deleted, and the active
+calibration stays active.
 """
 
 from concurrent.futures import ThreadPoolExecutor
@@ -35,7 +37,7 @@ from std_msgs.msg import Bool, String
 from . import common
 from ..lifelong.hints import HintGate, HintSource, twist_still
 from ..io.output import OutputError, write_atomic
-from ..lifelong.manager import Lifelong, LifelongConfig
+from ..lifelong.manager import archive_collection, ArchiveFull, Lifelong, LifelongConfig
 
 #: nice increment of the re-estimation thread
 NICE = 10
@@ -244,6 +246,35 @@ class LifelongMode:
         finally:
             self._busy = False
         self._flush()
+
+    def reset(self):
+        """Start the lifelong collection afresh (``~/reset``); return (ok, message).
+
+        The store moves into ``<lifelong_dir>/archive/<UTC time>/`` (``Lifelong.reset``:
+        nothing is deleted); the active calibration stays active and published. Refused,
+        with nothing changed, while a re-estimate runs or when the archives are full.
+        Windows queued during an estimate are stored (and archived) first.
+        """
+        if not self._lock.acquire(timeout=1.0):
+            return False, ('refused: a lifelong re-estimate is running; call ~/reset again '
+                           'when it has finished (its decision is logged)')
+        try:
+            if self.life is not None:
+                while self._pending:
+                    self.life.add(self._pending.pop(0))
+                return True, 'lifelong ' + self.life.reset()['text']
+            dest = archive_collection(self.dir)   # not loaded yet: no hold since the start
+            return True, ('lifelong collection restarted: ' + (
+                f'moved the holds of earlier runs to {dest}/ (kept there, not deleted)'
+                if dest else 'nothing collected yet') + '; the active calibration (if any) '
+                'stays active')
+        except ArchiveFull as e:
+            return False, f'refused: {e}'
+        except OSError as e:
+            return False, (f'failed: the lifelong store in {self.dir} could not be moved aside '
+                           f'({e}); fix the directory, then call ~/reset again')
+        finally:
+            self._lock.release()
 
     def holds(self):
         """Return the number of holds stored (0 before the first)."""

@@ -74,8 +74,19 @@ def heldout_folds(windows, max_folds=MAX_FOLDS, within=None):
             mine_in = [j for j in mine if inside[j]]
             if len(mine) == count[face] or (mine_in and len(mine_in) == count_in[face]):
                 fold_of[mine] = -1
-    pos = np.searchsorted(ids, windows.hold)
-    return fold_of[pos], n
+    return fold_of[hold_positions(ids, windows.hold)], n
+
+
+def hold_positions(ids, hold):
+    """Return, per window, the index in ``ids`` of its hold id ``hold`` (ids in any order).
+
+    ``ids`` are distinct (``Windows.hold_ids``: order of appearance, which need not be
+    ascending: a store that renumbers, holds merged from several sources); every value of
+    ``hold`` must be among them.
+    """
+    ids = np.asarray(ids)
+    order = np.argsort(ids, kind='stable')
+    return order[np.searchsorted(ids[order], hold)]
 
 
 def heldout_residuals(ctx, names, accel_rows=None, within=None):
@@ -89,7 +100,7 @@ def heldout_residuals(ctx, names, accel_rows=None, within=None):
     w, o = ctx.windows, ctx.options
     folds, n = heldout_folds(w, within=within if within is not None else ctx.accel_rows)
     ids = w.hold_ids
-    pos = np.searchsorted(ids, w.hold)
+    pos = hold_positions(ids, w.hold)
     out = {name: np.full(len(ids), np.nan) for name in names}
     for test, train in fold_masks(folds, n):
         ta = clamp_to_training(ctx.ta, w, train, ctx.accel_input, o.range_margin)
