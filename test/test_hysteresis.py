@@ -323,3 +323,50 @@ def test_one_way_warm_up_keeps_the_lag_its_lag_search_found():
     lagged += [bool(getattr(m, 'base', '')) for m in (cal.accel, cal.gyro)]
     assert any(lagged), cal.fit['model_choice']['reason']
     assert 'reported only' in cal.fit['model_choice']['reason']
+
+
+@pytest.mark.parametrize('family', ['hysteresis', 'lag'])
+def test_a_saved_stream_state_resumes_without_a_restart_step(chamber_log, chamber_cal, family):
+    """A compensator that saved its stream state resumes as if it had never stopped.
+
+    State saved after row 3000 (JSON round trip, what compensator_node writes to
+    ``state_file``), a new stream restored from it: without a gap the output equals the
+    uninterrupted stream; after a 60-s gap it is what the uninterrupted stream gives over a
+    gap (the history run through the interpolated reading), so there is no restart step
+    and no restart widening.
+    """
+    import json
+    imu, tc, w = chamber_log
+    if family == 'lag':
+        o = options()
+        o.inputs = [TemperatureInput('/imu/temperature')]
+        o.model = 'lag'
+        cal = calibrate_windows(w, o).calibration
+    else:
+        cal = chamber_cal.calibration
+    t = imu.stamp_ns * 1e-9
+    temp = tc.temperature[:, None]
+    full = cal.stream().apply(t, imu.accel, imu.gyro, temp)
+    first = cal.stream()
+    first.apply(t[:3000], imu.accel[:3000], imu.gyro[:3000], temp[:3000])
+    saved = json.loads(json.dumps(first.state()))
+    assert saved['t_last'] == pytest.approx(t[2999])
+    resumed = cal.stream()
+    resumed.restore(saved)
+    out = resumed.apply(t[3000:], imu.accel[3000:], imu.gyro[3000:], temp[3000:])
+    np.testing.assert_allclose(out.accel, full.accel[3000:], rtol=0, atol=1e-10)
+    np.testing.assert_allclose(out.gyro, full.gyro[3000:], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(out.accel_std, full.accel_std[3000:], rtol=1e-9)
+    # a 60-s gap (120 rows) while the node was down: the same as a gap in one stream
+    keep = np.r_[0:3000, 3120:len(t)]
+    gap = cal.stream().apply(t[keep], imu.accel[keep], imu.gyro[keep], temp[keep])
+    resumed = cal.stream()
+    resumed.restore(saved)
+    out = resumed.apply(t[3120:], imu.accel[3120:], imu.gyro[3120:], temp[3120:])
+    np.testing.assert_allclose(out.accel, gap.accel[3000:], rtol=0, atol=1e-10)
+    # a state of another calibration is refused, the stream left as it was
+    other = Calibration.from_dict(cal.to_dict())
+    other.temperature_filter = None
+    if family == 'lag':
+        with pytest.raises(ValueError, match='other thermal terms'):
+            other.stream().restore(saved)

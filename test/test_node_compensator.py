@@ -1,5 +1,6 @@
 """Compensator node over real DDS: compensation, reload, policies, rejection, diagnostics."""
 
+import json
 import threading
 
 from conftest import imu_msg, temperature_msg, wait_for
@@ -379,6 +380,48 @@ def test_lagged_temperature_filter_runs_live(ros, tmp_path):
     settled, _ = vec(out[12])
     np.testing.assert_allclose(just_after, expected(cal, 25.0).accel[0], atol=2e-4)
     np.testing.assert_allclose(settled, expected(cal, 35.0).accel[0], atol=1e-6)
+
+
+def test_state_file_resumes_the_lag_after_a_restart(ros, tmp_path):
+    # a 60-s lagged temperature, 30 s after a 25 -> 35 degC step: the filter is half-way.
+    # The node is destroyed (it writes state_file) and a new one started on the same
+    # calibration resumes it: its first output equals what one uninterrupted stream gives
+    # over the 5-s downtime; without the file it restarts at the reading (35 degC)
+    from thermal_imu_calib.thermal_input import ThermalFilter
+    cal = make_cal()
+    cal.temperature_filter = ThermalFilter([60.0])
+    path = str(cal.save(tmp_path / 'cal.yaml'))
+    state = tmp_path / 'state.json'
+    rig = Rig(ros, calibration_file=path, state_file=str(state), state_save_period=0.1)
+    rig.temperature(25.0)
+    rig.send(10, dt=1.0)
+    rig.temperature(35.0)
+    rig.send(31, dt=1.0)
+    rig.receive(41)
+    stamps = [rig.stamp - (41 - i) * S for i in range(41)]
+    ros.remove(rig.node)
+    ros.remove(rig.driver)
+    assert state.is_file()
+    saved = json.loads(state.read_text())
+    assert saved['calibration_id'] == Calibration.load(path).id
+    assert saved['stream']['t_last'] == pytest.approx(stamps[-1] * 1e-9)
+    # the reference: one stream over the same samples and the first one after the restart
+    after = rig.stamp + 5 * S
+    t = np.array(stamps + [after]) * 1e-9
+    temps = np.where(np.arange(len(t)) < 10, 25.0, 35.0)[:, None]
+    loaded = Calibration.load(path)
+    ref = loaded.stream().apply(t, np.tile(ACCEL, (len(t), 1)), np.tile(GYRO, (len(t), 1)),
+                                temps)
+    fresh = loaded.apply(np.array([ACCEL]), np.array([GYRO]), np.array([[35.0]]))
+    rig2 = Rig(ros, calibration_file=path, state_file=str(state))
+    rig2.stamp = after
+    rig2.temperature(35.0)
+    rig2.send(1)
+    out = rig2.receive(1)
+    wait_for(lambda: len(out) >= 1, WAIT, 'the first output after the restart')
+    first, _ = vec(out[0])
+    np.testing.assert_allclose(first, ref.accel[-1], atol=1e-9)
+    assert np.max(np.abs(first - fresh.accel[0])) > 1e-3    # the lag was not forgotten
 
 
 def test_despike_replaces_a_spike_before_compensation(ros, tmp_path):

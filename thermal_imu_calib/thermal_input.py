@@ -52,6 +52,8 @@ SPREAD_UNITS = {'accel': 'm/s^2', 'gyro': 'rad/s'}
 #: two samples is a step of the data (a stale value replaced, a sensor reset), not heat
 MAX_RATE_DEGC_S = 1.0
 STEP_DEGC = 0.5
+#: version of ``CalibrationStream.state`` (what a compensator saves to resume after a restart)
+STATE_VERSION = 1
 
 
 def lag_filter(t, u, tau, state=None):
@@ -256,6 +258,25 @@ class ThermalStream:
         self._state = new
         return out
 
+    def state(self):
+        """Return the running state as plain types (None before the first sample)."""
+        if self._state is None:
+            return None
+        return {'t_start': self._t_start, 'filters': [list(st) for st in self._state]}
+
+    def restore(self, state):
+        """Continue from ``state()`` of a stream of the same filter (ValueError if not)."""
+        if state is None:
+            self.reset()
+            return
+        filters = state.get('filters')
+        if not isinstance(filters, list) or len(filters) != self.filter.n_inputs or not all(
+                isinstance(f, list) and len(f) == 3 for f in filters):
+            raise ValueError(f'the saved lag state has {len(filters or [])} inputs, the '
+                             f'filter {self.filter.n_inputs}')
+        self._state = [tuple(float(v) for v in f) for f in filters]
+        self._t_start = float(state['t_start'])
+
 
 class CalibrationStream:
     """Apply a Calibration batch after batch, carrying the thermal filter state.
@@ -305,6 +326,41 @@ class CalibrationStream:
             self.thermal.reset()
         if self.history is not None:
             self.history.reset()
+
+    def state(self):
+        """Return the thermal-history state as plain types (JSON), or None when stateless.
+
+        ``t_last``: the stamp (s) of the newest sample pushed (None before the first). A new
+        stream of the same calibration continues from it with ``restore``: a compensator
+        restarted within the models' memory then needs no restart widening and makes no
+        restart step (the gap is run through like any gap, ``lag_filter``).
+        """
+        if self.thermal is None and self.history is None:
+            return None
+        th = None if self.thermal is None else self.thermal.state()
+        hi = None if self.history is None else self.history.state()
+        stamps = [f[0] for f in (th or {}).get('filters', [])]
+        stamps += [hi['last_t']] if hi is not None else []
+        return {'version': STATE_VERSION, 't_last': max(stamps) if stamps else None,
+                'thermal': th, 'history': hi}
+
+    def restore(self, state):
+        """Continue from ``state()`` of a stream of the same calibration.
+
+        Raises ValueError (saying what differs) when the state does not fit this
+        calibration's filter or history terms; the stream is then unchanged.
+        """
+        if not isinstance(state, dict) or state.get('version') != STATE_VERSION:
+            raise ValueError(f'not a stream state of version {STATE_VERSION}')
+        if (state.get('thermal') is not None) != (self.thermal is not None) or \
+                (state.get('history') is not None) != (self.history is not None):
+            raise ValueError('the saved state has other thermal terms than this calibration')
+        if self.history is not None:
+            self.history.check_state(state['history'])
+        if self.thermal is not None:
+            self.thermal.restore(state['thermal'])
+        if self.history is not None:
+            self.history.restore(state['history'])
 
 
 # ---------------------------------------------------------------------- history terms
@@ -408,3 +464,34 @@ class HistoryStream:
             self._state[key] = new
             out[key] = u + off
         return out
+
+    def state(self):
+        """Return the cascades' states as plain types (None before the first sample)."""
+        if self._last is None:
+            return None
+        return {'keys': list(self.keys), 'n_inputs': self.n_inputs, 't_start': self._t_start,
+                'last_t': self._last[0], 'last_u': self._last[1].tolist(),
+                'offset': self._offset.tolist(),
+                'states': {k: [[list(st) for st in row] for row in v]
+                           for k, v in self._state.items()}}
+
+    def check_state(self, state):
+        """Raise ValueError when ``state`` is not one of these cascades (None is)."""
+        if state is None:
+            return
+        if state.get('keys') != self.keys or state.get('n_inputs') != self.n_inputs:
+            raise ValueError(f'the saved history terms {state.get("keys")} x '
+                             f'{state.get("n_inputs")} inputs differ from this calibration\'s '
+                             f'{self.keys} x {self.n_inputs}')
+
+    def restore(self, state):
+        """Continue from ``state()`` of the same cascades (``check_state`` first)."""
+        self.check_state(state)
+        if state is None:
+            self.reset()
+            return
+        self._t_start = float(state['t_start'])
+        self._last = (float(state['last_t']), np.asarray(state['last_u'], float))
+        self._offset = np.asarray(state['offset'], float)
+        self._state = {k: [[tuple(float(v) for v in st) for st in row] for row in rows]
+                       for k, rows in state['states'].items()}

@@ -15,6 +15,11 @@ With ``registry_dir`` every IMU unit (header frame_id) has its own model, looked
 ``passthrough_without_calibration``), counted in /diagnostics; a batch is compensated
 per unit (order kept within each unit). Loop guard (``units``): an output topic that is
 an input is refused at start, and this node's own messages coming back are dropped.
+With ``state_file`` the thermal-history state outlives a restart (``compensator_state``).
+
+Cohesive: one node's parameters, calibration hand-over, per-batch compensation and
+diagnostics around one shared active model; the maths is in ``calibration`` and
+``thermal_input``, the registry units in ``units``, the saved state in ``compensator_state``.
 """
 
 from dataclasses import dataclass
@@ -30,6 +35,7 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from . import common, process, units
+from .compensator_state import StreamStateFile
 from ..calibration import Calibration, CalibrationError
 from ..collection.outliers import ImuSpikeFilter
 from ..io.columns import AlignedChunk, ImuColumns
@@ -110,6 +116,20 @@ class CompensatorNode(Node):
         self._gate = ImuSpikeFilter() if self.despike else None
         period = p.declare('diagnostics_period', 1.0, 'Seconds between /diagnostics messages.',
                            lo=0.05, hi=60.0, read_only=True)
+        state_file = p.declare(
+            'state_file', '',
+            'JSON file the thermal-history state (lag filters, hysteresis terms) is saved to '
+            'and resumed from after a restart of this node (~ is expanded; empty: none, a '
+            'restart starts the history in equilibrium with a widened 1-sigma). Not used with '
+            'registry_dir.', read_only=True)
+        state_period = p.declare('state_save_period', 5.0,
+                                 'Seconds (wall time) between writes of state_file.',
+                                 lo=0.1, hi=3600.0, read_only=True)
+        state_gap = p.declare(
+            'state_max_gap', 600.0,
+            'Most seconds (header stamps) between the saved state and the first sample after '
+            'a restart for the state to be resumed; the gap is run through with the reading '
+            'interpolated.', lo=0.0, hi=86400.0, read_only=True)
         if len(set(self.temperature_topics)) != len(self.temperature_topics):
             raise ValueError(f'temperature_topics has duplicates: {self.temperature_topics}')
         self.temperature_units, scalar_types = common.declare_thermal_inputs(
@@ -127,6 +147,11 @@ class CompensatorNode(Node):
         self.last_rejection = ''
         self.units = (units.RegistryUnits(self.registry_dir, self._model, self.counts,
                                           self.get_logger()) if self.registry_dir else None)
+        if state_file and self.registry_dir:
+            self.get_logger().warning('state_file is not used with registry_dir (one state '
+                                      'per unit is not kept)')
+        self.state = StreamStateFile('' if self.registry_dir else state_file, state_period,
+                                     state_gap, self.get_logger())
         self._last_stamp_ns = None
         self._rate = common.RateMeter()
         self._warned = set()
@@ -175,6 +200,7 @@ class CompensatorNode(Node):
             return self._reject(source, reason)
         # one reference swap: a message is compensated entirely with the old or the new model
         self._active = model
+        self.state.activated(model)
         self.counts['calibrations_loaded'] += 1
         return True, units.active_text(model)
 
@@ -395,7 +421,9 @@ class CompensatorNode(Node):
                         c['dropped'] += int(stale.sum())
         rows = np.flatnonzero(comp)
         if len(rows):
+            self.state.before(active, stamps[rows[0]] * 1e-9)
             res = active.stream.apply(stamps[rows] * 1e-9, accel[rows], gyro[rows], temps[rows])
+            self.state.after(active)
             good = np.isfinite(res.accel).all(1) & np.isfinite(res.gyro).all(1)
             if not good.all():  # never publish NaN/Inf
                 c['invalid'] += int((~good).sum())
@@ -429,6 +457,14 @@ class CompensatorNode(Node):
         if key not in self._warned:
             self._warned.add(key)
             self.get_logger().warning(text)
+
+    def destroy_node(self):
+        """Write the thermal-history state once more (``state_file``), then destroy."""
+        try:
+            if self.units is None:
+                self.state.after(self._active, force=True)
+        finally:
+            super().destroy_node()
 
     # ------------------------------------------------------------------ diagnostics
     def diagnostics_values(self):
