@@ -404,6 +404,7 @@ def test_state_file_resumes_the_lag_after_a_restart(ros, tmp_path):
     assert state.is_file()
     saved = json.loads(state.read_text())
     assert saved['calibration_id'] == Calibration.load(path).id
+    assert saved['node'] == '/thermal_imu_compensator'
     assert saved['stream']['t_last'] == pytest.approx(stamps[-1] * 1e-9)
     # the reference: one stream over the same samples and the first one after the restart
     after = rig.stamp + 5 * S

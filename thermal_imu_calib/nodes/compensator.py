@@ -151,7 +151,8 @@ class CompensatorNode(Node):
             self.get_logger().warning('state_file is not used with registry_dir (one state '
                                       'per unit is not kept)')
         self.state = StreamStateFile('' if self.registry_dir else state_file, state_period,
-                                     state_gap, self.get_logger())
+                                     state_gap, self.get_logger(),
+                                     self.get_fully_qualified_name())
         self._last_stamp_ns = None
         self._rate = common.RateMeter()
         self._warned = set()

@@ -6,9 +6,9 @@ restarted compensator would start them in equilibrium and widen its 1-sigma by w
 unknown history may hold (``restart_spread``); in a ramp faster than any the calibration
 saw, the step can still exceed that (docs/thermal_models.md). With ``state_file`` the node
 writes the stream state (``CalibrationStream.state``, JSON, atomically) every
-``state_save_period`` seconds of wall time and on shutdown, and a new node of the same
-calibration (same id) resumes from it at its first IMU sample when that sample is at most
-``state_max_gap`` seconds (header stamps) after the saved one: the gap is run through
+``state_save_period`` seconds of wall time and on shutdown, and a new node of the same name
+and calibration (same id) resumes from it at its first IMU sample when that sample is at
+most ``state_max_gap`` seconds (header stamps) after the saved one: the gap is run through
 like any gap in one stream (the reading interpolated), so there is no restart step and no
 restart widening. Otherwise (another calibration, a longer gap, stamps that went back, an
 unreadable file) the stream starts in equilibrium as before and the log says why. No
@@ -28,8 +28,9 @@ KIND = 'thermal_imu_calib/compensator_state'
 class StreamStateFile:
     """Save and resume one compensator's ``CalibrationStream`` state (see the module)."""
 
-    def __init__(self, path, period_s, max_gap_s, logger):
+    def __init__(self, path, period_s, max_gap_s, logger, owner=''):
         self.path = os.path.expanduser(path) if path else ''
+        self.owner = str(owner)
         self.period_s = float(period_s)
         self.max_gap_s = float(max_gap_s)
         self.log = logger
@@ -60,6 +61,11 @@ class StreamStateFile:
             return
         saved = self._saved
         if saved is None:
+            return
+        if saved.get('node', self.owner) != self.owner:
+            self.log.warning(f'state_file {self.path}: written by {saved.get("node")}, not this '
+                             f'node ({self.owner}): not resumed; give each compensator its own '
+                             'state_file')
             return
         if saved.get('calibration_id') != model.id:
             self.log.info(f'state_file {self.path}: saved for calibration '
@@ -102,8 +108,8 @@ class StreamStateFile:
         state = model.stream.state()
         if state is None or state.get('t_last') is None:
             return
-        text = json.dumps({'kind': KIND, 'calibration_id': model.id, 'saved_wall_time':
-                           time.time(), 'stream': state})
+        text = json.dumps({'kind': KIND, 'node': self.owner, 'calibration_id': model.id,
+                           'saved_wall_time': time.time(), 'stream': state})
         try:
             write_atomic(self.path, text)
         except (OSError, OutputError) as e:
