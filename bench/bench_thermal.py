@@ -180,6 +180,17 @@ def _warmup_tests(seed):
     }
 
 
+def _streamed(cal, rec, max_rows):
+    """Return (t, accel, gyro, temp, never-restarted output) of ``rec`` (decimated rows)."""
+    imu = ImuColumns.concat(list(rec.imu_chunks()))
+    tc = rec.temperatures[rec.config.temp_topics[0]]
+    step = max(1, len(imu.stamp_ns) // max_rows)
+    t = imu.stamp_ns[::step] * 1e-9
+    acc, gyr = imu.accel[::step], imu.gyro[::step]
+    temp = np.interp(t, tc.stamp_ns * 1e-9, tc.temperature)[:, None]
+    return t, acc, gyr, temp, cal.stream().apply(t, acc, gyr, temp)
+
+
 def restart_steps(cal, rec, n_restarts=25, max_rows=40000):
     """Return the largest restart step (accel, gyro) in the restarted stream's 1-sigma.
 
@@ -187,13 +198,7 @@ def restart_steps(cal, rec, n_restarts=25, max_rows=40000):
     of ``n_restarts`` restarts; the step is |restarted - whole| / restarted std, max over
     the axes and every row from the restart on.
     """
-    imu = ImuColumns.concat(list(rec.imu_chunks()))
-    tc = rec.temperatures[rec.config.temp_topics[0]]
-    step = max(1, len(imu.stamp_ns) // max_rows)
-    t = imu.stamp_ns[::step] * 1e-9
-    acc, gyr = imu.accel[::step], imu.gyro[::step]
-    temp = np.interp(t, tc.stamp_ns * 1e-9, tc.temperature)[:, None]
-    whole = cal.stream().apply(t, acc, gyr, temp)
+    t, acc, gyr, temp, whole = _streamed(cal, rec, max_rows)
     out = np.zeros(2)
     for i0 in range(100, len(t), max(1, len(t) // n_restarts)):
         r = cal.stream().apply(t[i0:], acc[i0:], gyr[i0:], temp[i0:])
@@ -213,13 +218,7 @@ def resumed_steps(cal, rec, n_restarts=25, max_rows=40000, down_s=10.0, save_per
     run through with the reading interpolated). Same restarts and measure as
     ``restart_steps``.
     """
-    imu = ImuColumns.concat(list(rec.imu_chunks()))
-    tc = rec.temperatures[rec.config.temp_topics[0]]
-    step = max(1, len(imu.stamp_ns) // max_rows)
-    t = imu.stamp_ns[::step] * 1e-9
-    acc, gyr = imu.accel[::step], imu.gyro[::step]
-    temp = np.interp(t, tc.stamp_ns * 1e-9, tc.temperature)[:, None]
-    whole = cal.stream().apply(t, acc, gyr, temp)
+    t, acc, gyr, temp, whole = _streamed(cal, rec, max_rows)
     out = np.zeros(2)
     for i0 in range(100, len(t), max(1, len(t) // n_restarts)):
         saved = int(np.searchsorted(t, t[i0] - down_s - save_period_s, side='right'))
