@@ -360,7 +360,9 @@ def compare(prev, cur, names=ALARM_ON, std_scale=None):
     for name in names:
         v0, s0 = at_temperature(prev, name, t_ref)
         v1, s1 = at_temperature(cur, name, t_ref)
-        out[f'd{name}0'] = (v1 - v0) / (scale.get(name, 1.0) * np.sqrt(s0 ** 2 + s1 ** 2))
+        sd = scale.get(name, 1.0) * np.sqrt(s0 ** 2 + s1 ** 2)
+        # a term a family does not fit (an offset model's scale, std 0): no test (NaN)
+        out[f'd{name}0'] = np.divide(v1 - v0, sd, out=np.full(3, np.nan), where=sd > 0)
     return out
 
 
@@ -375,11 +377,14 @@ def trend(rows, name, std_scale=None):
     t_ref = np.array([np.mean([reference(r, a) for r in rows]) for a in AXES])
     t = np.array([parse_time(r['time']) for r in rows], float) / 86400e9   # days
     vs = np.array([at_temperature(r, name, t_ref) for r in rows])          # (n, 2, 3)
-    x, w = vs[:, 0], 1.0 / (scale * vs[:, 1]) ** 2                         # (n, 3)
+    sd = scale * vs[:, 1]
+    ok = np.all(sd > 0, axis=0)      # an axis whose term has no std (not fitted): no test
+    sd = np.where(ok, sd, 1.0)
+    x, w = vs[:, 0], 1.0 / sd ** 2                                         # (n, 3)
     tm = (w * t[:, None]).sum(0) / w.sum(0)
     sxx = (w * (t[:, None] - tm) ** 2).sum(0)
     slope = (w * (t[:, None] - tm) * x).sum(0) / sxx
-    return slope * np.sqrt(sxx)
+    return np.where(ok, slope * np.sqrt(sxx), np.nan)
 
 
 def family_threshold(n_tests, family_rate=FAMILY_RATE):
