@@ -525,3 +525,16 @@ def test_queued_readings_are_taken_before_an_imu_batch(ros, tmp_path):
         np.testing.assert_allclose(vec(m)[0], expected(cal, 25.0 + k).accel[0], atol=1e-12)
     _, values = rig.diagnostics()
     assert values['input_lost'] == '0' and values['compensated'] == '5'
+
+
+def test_state_file_name_follows_the_node(ros, tmp_path):
+    # {node} in state_file: one configured path, one file per compensator (namespace)
+    from thermal_imu_calib.nodes.compensator_state import file_name
+    assert file_name('/x/{node}.json', '/imu_left/thermal_imu_compensator') == \
+        '/x/imu_left.thermal_imu_compensator.json'
+    node = ros.add(CompensatorNode(context=ros.context, namespace='imu_left',
+                                   parameter_overrides=[
+                                       Parameter('calibration_file', value=''),
+                                       Parameter('state_file',
+                                                 value=str(tmp_path / '{node}.state.json'))]))
+    assert node.state.path == str(tmp_path / 'imu_left.thermal_imu_compensator.state.json')

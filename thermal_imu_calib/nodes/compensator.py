@@ -119,9 +119,10 @@ class CompensatorNode(Node):
         state_file = p.declare(
             'state_file', '',
             'JSON file the thermal-history state (lag filters, hysteresis terms) is saved to '
-            'and resumed from after a restart of this node (~ is expanded; empty: none, a '
-            'restart starts the history in equilibrium with a widened 1-sigma). Not used with '
-            'registry_dir.', read_only=True)
+            'and resumed from after a restart of this node (~ is expanded, {node} is the node '
+            'name, e.g. imu_left.thermal_imu_compensator; empty: none, a restart starts the '
+            'history in equilibrium with a widened 1-sigma). Not used with registry_dir.',
+            read_only=True)
         state_period = p.declare('state_save_period', 5.0,
                                  'Seconds (wall time) between writes of state_file.',
                                  lo=0.1, hi=3600.0, read_only=True)

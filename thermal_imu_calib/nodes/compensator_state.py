@@ -5,7 +5,8 @@ A calibration whose models depend on the thermal history (a ``temperature.filter
 restarted compensator would start them in equilibrium and widen its 1-sigma by what the
 unknown history may hold (``restart_spread``); in a ramp faster than any the calibration
 saw, the step can still exceed that (docs/thermal_models.md). With ``state_file`` the node
-writes the stream state (``CalibrationStream.state``, JSON, atomically) every
+writes the stream state (``CalibrationStream.state``, JSON, atomically; ``{node}`` in the
+path is the node's name, ``file_name``) every
 ``state_save_period`` seconds of wall time and on shutdown, and a new node of the same name
 and calibration (same id) resumes from it at its first IMU sample when that sample is at
 most ``state_max_gap`` seconds (header stamps) after the saved one: the gap is run through
@@ -25,12 +26,20 @@ from ..io.output import OutputError, write_atomic
 KIND = 'thermal_imu_calib/compensator_state'
 
 
+def file_name(path, node):
+    """Return ``path`` with ``{node}`` replaced by the node's name (``/ns/name`` -> ``ns.name``).
+
+    So one configured path serves several compensators (one per IMU namespace).
+    """
+    return path.replace('{node}', node.strip('/').replace('/', '.') or 'node')
+
+
 class StreamStateFile:
     """Save and resume one compensator's ``CalibrationStream`` state (see the module)."""
 
     def __init__(self, path, period_s, max_gap_s, logger, owner=''):
-        self.path = os.path.expanduser(path) if path else ''
         self.owner = str(owner)
+        self.path = os.path.expanduser(file_name(path, self.owner)) if path else ''
         self.period_s = float(period_s)
         self.max_gap_s = float(max_gap_s)
         self.log = logger
