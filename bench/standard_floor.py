@@ -21,6 +21,8 @@ import os
 import sys
 import tempfile
 
+import numpy as np
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
@@ -72,7 +74,6 @@ def main():
                           f"{row['raw_next_log_ug']:.0f}, auto {row['auto_next_log_ug']:.0f}, "
                           f"field {row['field_next_log_ug']:.0f}, standard "
                           f"{row['standard_next_log_ug']:.0f} ug", flush=True)
-    import numpy as np
     ratio = {m: float(np.mean([r[f'{m}_next_log_ug'] / r['field_next_log_ug'] for r in rows]))
              for m in ('auto', 'standard')}
     chose = sum(r['auto_chose'] == 'standard' for r in rows)

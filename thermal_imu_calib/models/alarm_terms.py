@@ -16,6 +16,8 @@ of each coefficient comes from moving each fitted parameter by its std, one at a
 (independent, as the registry treats the field model's stds). No ROS import.
 """
 
+import dataclasses
+
 import numpy as np
 
 #: step of the central differences, in the model's input unit (degC)
@@ -67,29 +69,28 @@ def bias_scale_terms(model):
     t0 = reference_of(model)
     if t0 is None:
         return None
-    try:
-        b, k = _coefficients(model, t0)
-    except (NotImplementedError, ValueError, np.linalg.LinAlgError):
-        return None
     params = model.params()
     fitted = {n: p for n, p in params.items() if p.std is not None}
     if not fitted:
         return None
+    try:
+        b, k = _coefficients(model, t0)
+    except (NotImplementedError, ValueError, np.linalg.LinAlgError):
+        return None
+    if not np.all(np.isfinite(b)) or not np.all(np.isfinite(k)):
+        return None
     var_b, var_k = np.zeros_like(b), np.zeros_like(k)
-    meta = model.meta() if hasattr(model, 'meta') else {}
+    meta = model.meta()
     for name, p in fitted.items():
         value, std = np.asarray(p.value, float), np.asarray(p.std, float)
         for idx in zip(*np.nonzero(np.isfinite(std) & (std > 0))):
-            moved = dict(params)
             v = value.copy()
             v[idx] += std[idx]
-            moved[name] = type(p)(v, p.unit, p.std, p.description)
+            moved = dict(params, **{name: dataclasses.replace(p, value=v)})
             try:
                 db, dk = _coefficients(type(model).from_params(moved, meta), t0)
             except (NotImplementedError, ValueError, np.linalg.LinAlgError):
                 return None
             var_b += (db - b) ** 2
             var_k += (dk - k) ** 2
-    if not np.all(np.isfinite(b)) or not np.all(np.isfinite(k)):
-        return None
     return {'T0': t0, 'b': b, 'b_std': np.sqrt(var_b), 'k': k, 'k_std': np.sqrt(var_k)}

@@ -1,9 +1,10 @@
-"""The paired held-out test and the accelerometer refits the static comparisons share.
+"""The paired held-out test and the pieces the static comparisons share.
 
 ``paired_test``: a one-sided paired test at level ``ALPHA`` on held-out holds (per hold the
 difference of squared residuals of the reference and the candidate); ``_fit``: a family
-refitted on training windows. Used by ``static_select`` (no temperature span) and
-``standard_floor`` (across a temperature span).
+refitted on training windows; ``hold_positions`` and ``hold_magnitudes``: windows to
+holds, and the |a| - g of each hold's mean. Used by ``static_select`` (no temperature
+span) and ``standard_floor`` (across a temperature span).
 """
 
 import numpy as np
@@ -16,6 +17,33 @@ from .multi_select import _field_fit
 ALPHA = 0.05
 #: fewest held-out holds a comparison needs (fewer: no evidence)
 MIN_HELDOUT = 3
+
+
+def hold_positions(ids, hold):
+    """Return, per window, the index in ``ids`` of its hold id ``hold`` (ids in any order).
+
+    ``ids`` are distinct (``Windows.hold_ids``: order of appearance, which need not be
+    ascending: a store that renumbers, holds merged from several sources); every value of
+    ``hold`` must be among them.
+    """
+    ids = np.asarray(ids)
+    order = np.argsort(ids, kind='stable')
+    return order[np.searchsorted(ids[order], hold)]
+
+
+def hold_magnitudes(accel, n, pos, n_holds, gravity):
+    """Return (held, r): per hold whether it has rows, and |mean accel| - g (m/s^2).
+
+    ``accel`` (m, 3) corrected window means with ``n`` (m,) samples each, ``pos`` (m,)
+    their hold positions (``hold_positions``) among ``n_holds``; the hold mean is
+    sample-weighted. ``r`` is 0 where ``held`` is False.
+    """
+    wsum = np.bincount(pos, n, n_holds)
+    mean = np.stack([np.bincount(pos, n * accel[:, i], n_holds) for i in range(3)], 1)
+    held = wsum > 0
+    r = np.zeros(n_holds)
+    r[held] = np.linalg.norm(mean[held] / wsum[held, None], axis=1) - gravity
+    return held, r
 
 
 def _fit(ctx, name, train):

@@ -21,7 +21,7 @@ see:
   they test extrapolation in temperature (on the simulated ``demo`` session, 12 holds,
   they scored the field model 4849 ug against the standard fit's 602 ug, while against
   the simulation's truth the field model is 555 ug RMS and the standard fit 5127 ug).
-* **The decision** is the one-sided paired test of ``static_select`` (level ``ALPHA``):
+* **The decision** is the one-sided paired test of ``paired`` (level ``ALPHA``):
   the family replaces the standard fit only when it predicts the held-out holds better by
   more than the noise.
 
@@ -33,18 +33,18 @@ from scipy.special import ndtri
 
 from ..collection.segments import face_of
 from ..estimation.calibrate import CalibrationRefused, ESTIMATORS, input_margins
-from ..estimation.standard_fit import fit_standard_context, StandardFitError
+from ..estimation.standard_fit import StandardFitError
 from ..estimation.thermal_lag import lagged_axis_temperatures
 from .heldout import clamp_to_training, fold_masks, Selection
-from .paired import _fit, ALPHA, MIN_HELDOUT, paired_test
+from .paired import _fit, ALPHA, hold_magnitudes, hold_positions, MIN_HELDOUT, paired_test
 
 #: contiguous runs of holds (in time) the thermal history is cut into
 N_RUNS = 5
 #: visits of every face the training holds must keep when a run is held out
 MIN_FACE_VISITS = 2
-#: families ``static_select._fit`` refits quickly on training holds (the others through
-#: their registered estimator)
-FAST_FAMILIES = ('field', 'whole_unit')
+#: families ``paired._fit`` refits quickly on training holds (the others through their
+#: registered estimator)
+FAST_FAMILIES = ('standard', 'field', 'whole_unit')
 
 
 def time_runs(windows, n_runs=N_RUNS, min_visits=MIN_FACE_VISITS):
@@ -67,17 +67,11 @@ def time_runs(windows, n_runs=N_RUNS, min_visits=MIN_FACE_VISITS):
         if ok and len(run):
             fold_of[run] = n
             n += 1
-    index = {h: j for j, h in enumerate(ids)}
-    return fold_of[np.array([index[h] for h in windows.hold])], n
+    return fold_of[hold_positions(ids, windows.hold)], n
 
 
 def _family_model(ctx, name, train):
     """Return (accel model, per-window model inputs) of ``name`` fitted on ``train``."""
-    if name == 'standard':
-        try:
-            return fit_standard_context(ctx, train).model, ctx.ta
-        except StandardFitError:
-            return None, None
     if name in FAST_FAMILIES:
         return _fit(ctx, name, train), ctx.ta
     rows = train if ctx.accel_rows is None else train & ctx.accel_rows
@@ -101,21 +95,20 @@ def _inside(ctx, train, test_holds):
                      for h in test_holds])
 
 
-def heldout_against_standard(ctx, name, folds, n, interpolate=True):
+def heldout_against_standard(ctx, name, folds, n):
     """Return ({'standard': r, name: r} per-hold held-out |a| - g in m/s^2, hold ids).
 
-    NaN: the hold was not held out (or lies outside the training temperatures when
-    ``interpolate``); inf: the candidate could not be fitted without it.
+    NaN: the hold was not held out, or lies outside the training temperatures; inf: the
+    candidate could not be fitted without it.
     """
     w, g = ctx.windows, ctx.options.gravity
     ids = w.hold_ids
-    index = {h: j for j, h in enumerate(ids)}
-    pos = np.array([index[h] for h in w.hold])
+    pos = hold_positions(ids, w.hold)
     out = {k: np.full(len(ids), np.nan) for k in ('standard', name)}
     margin = input_margins(w, ctx.options) if ctx.k else 0.0
     for test, train in fold_masks(folds, n):
         held = np.unique(pos[test])
-        keep = _inside(ctx, train, ids[held]) if interpolate else np.ones(len(held), bool)
+        keep = _inside(ctx, train, ids[held])
         if not keep.any():
             continue
         scored = np.isin(pos, held[keep]) & test
@@ -126,12 +119,8 @@ def heldout_against_standard(ctx, name, folds, n, interpolate=True):
                 continue
             tc = clamp_to_training(ta, w, train, ctx.accel_input, margin)
             a = model.correct(w.accel[scored], tc[scored])
-            h = pos[scored]
-            wsum = np.bincount(h, w.n[scored], len(ids))
-            mean = np.stack([np.bincount(h, w.n[scored] * a[:, i], len(ids))
-                             for i in range(3)], 1)
-            got = wsum > 0
-            out[k][got] = np.linalg.norm(mean[got] / wsum[got, None], axis=1) - g
+            got, r = hold_magnitudes(a, w.n[scored], pos[scored], len(ids), g)
+            out[k][got] = r[got]
     return out, ids
 
 
@@ -139,8 +128,8 @@ def judge_family(ctx, sel):
     """Return the Selection after judging ``sel``'s family against the standard fit.
 
     ``sel``: what the thermal policy chose. The standard fit replaces it unless the
-    family predicts held-out holds (time runs, else hold folds) better by more than the
-    noise. Without ``MIN_HELDOUT`` held-out holds the family is kept (no evidence).
+    family predicts the holds of held-out time runs better by more than the noise.
+    Without ``MIN_HELDOUT`` held-out holds the family is kept (no evidence).
     """
     g = ctx.options.gravity
     name = sel.model

@@ -33,7 +33,8 @@ from ..estimation.calibrate import (AUTO_POLICY, check_faces_up_and_down, Calibr
                                     HOLD_RULE_JUDGE)
 from ..estimation.standard_fit import weak_axes
 from ..collection.segments import face_of
-from .paired import _fit, ALPHA, MIN_HELDOUT, paired_test  # noqa: F401  (re-exported)
+from .paired import (_fit, ALPHA, hold_magnitudes, hold_positions,  # noqa: F401
+                     MIN_HELDOUT, paired_test)
 from .select import clamp_to_training, fold_masks
 from .standard_floor import judge_family
 
@@ -77,18 +78,6 @@ def heldout_folds(windows, max_folds=MAX_FOLDS, within=None):
     return fold_of[hold_positions(ids, windows.hold)], n
 
 
-def hold_positions(ids, hold):
-    """Return, per window, the index in ``ids`` of its hold id ``hold`` (ids in any order).
-
-    ``ids`` are distinct (``Windows.hold_ids``: order of appearance, which need not be
-    ascending: a store that renumbers, holds merged from several sources); every value of
-    ``hold`` must be among them.
-    """
-    ids = np.asarray(ids)
-    order = np.argsort(ids, kind='stable')
-    return order[np.searchsorted(ids[order], hold)]
-
-
 def heldout_residuals(ctx, names, accel_rows=None, within=None):
     """Return ({name: per-hold held-out |a| - g (m/s^2), NaN where not held out}, hold ids).
 
@@ -112,13 +101,8 @@ def heldout_residuals(ctx, names, accel_rows=None, within=None):
                 out[name][np.unique(pos[test])] = np.inf
                 continue
             a = model.correct(w.accel[test], ta[test])
-            h = pos[test]
-            wsum = np.bincount(h, w.n[test], len(ids))
-            mean = np.stack([np.bincount(h, w.n[test] * a[:, i], len(ids)) for i in range(3)],
-                            1)
-            held = wsum > 0
-            out[name][held] = np.linalg.norm(mean[held] / wsum[held, None], axis=1) \
-                - o.gravity
+            held, r = hold_magnitudes(a, w.n[test], pos[test], len(ids), o.gravity)
+            out[name][held] = r[held]
     return out, ids
 
 
