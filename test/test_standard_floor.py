@@ -6,10 +6,13 @@ is returned (``selection/standard_floor.py``). Synthetic sessions whose truth is
 other model, and registry alarms that work for every family (``models/alarm_terms.py``).
 """
 
+import re
+
 import numpy as np
 import pytest
 
-from _thermal_data import make_windows, options
+from _thermal_data import make_windows, options, sim_windows
+from thermal_imu_calib import sim
 from thermal_imu_calib.calibration import Calibration
 from thermal_imu_calib.estimation.calibrate import calibrate_windows
 from thermal_imu_calib.fleet import registry as reg
@@ -22,11 +25,12 @@ G = 9.80665
 FACES = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
 
 
-def _session(scale_slope, visits=5, seed=0):
+def _session(scale_slope, visits=5, seed=0, misalign=True):
     """Six faces visited ``visits`` times along a 20 -> 40 degC warm-up, 3 windows a hold.
 
     Truth: raw = b(T) + k(T) * f with a bias polynomial in T, a fixed 2e-3 scale error and
-    a misalignment, and a scale factor changing by ``scale_slope`` per degC.
+    a misalignment (``misalign``; else none), and a scale factor changing by
+    ``scale_slope`` per degC.
     """
     rng = np.random.default_rng(seed)
     order = np.concatenate([rng.permutation(6) for _ in range(visits)])
@@ -35,7 +39,7 @@ def _session(scale_slope, visits=5, seed=0):
     temp = 20.0 + 20.0 * (1 - np.exp(-t / t.max() * 3)) / (1 - np.exp(-3))
     hold = np.repeat(np.arange(n_holds), 3)
     f = G * FACES[order][hold]
-    s = np.array([[1.0, 0, 0], [4e-4, 1.0, 0], [-3e-4, 5e-4, 1.0]])
+    s = np.array([[1.0, 0, 0], [4e-4, 1.0, 0], [-3e-4, 5e-4, 1.0]]) if misalign else np.eye(3)
     dt = (temp - 30.0)[:, None]
     bias = np.array([0.05, -0.08, 0.12]) + 2e-3 * dt + 4e-5 * dt ** 2
     k = 1 + np.array([2e-3, -1e-3, 1.5e-3]) + scale_slope * dt
@@ -77,11 +81,55 @@ def test_thermal_family_kept_when_held_out_runs_say_so():
     assert z > 1.64
 
 
-def test_no_run_to_hold_out_keeps_the_family_and_says_so():
-    res = calibrate_windows(_session(1e-4, visits=2), options())
+def test_no_run_and_no_hold_fold_evidence_returns_the_standard_fit():
+    # each face twice along the warm-up: no time run can be held out; the hold folds at
+    # fixed tilts leave each face at one temperature and do not favour the family
+    for seed in (0, 1):
+        res = calibrate_windows(_session(1e-4, visits=2, seed=seed), options())
+        choice = res.report['model_choice']
+        assert choice['model'] == 'standard', choice['reason']
+        assert 'no run of holds in time can be held out' in choice['reason']
+        assert '2 hold folds (at most one hold per face out)' in choice['reason']
+        assert 'does not predict them better by more than the noise' in choice['reason']
+        assert res.calibration.accel.kind == 'whole_unit_accel'
+
+
+def test_hold_folds_at_fixed_tilts_keep_the_family_the_held_out_holds_support():
+    # the simulated demo: each face held twice; against its truth the field model is ~10x
+    # better than the standard fit, and the held-out holds say so
+    w = sim_windows(sim.simulate('demo', 0))
+    res = calibrate_windows(w, options())
     choice = res.report['model_choice']
-    assert choice['model'] != 'standard'
-    assert 'not judged against the standard fit' in choice['reason']
+    assert choice['model'] == 'field', choice['reason']
+    assert 'no run of holds in time can be held out' in choice['reason']
+    assert 'field predicts them better by more than the noise: kept' in choice['reason']
+    std, fam = re.search(r'over 12 holds, standard ([\d.]+) ug, field ([\d.]+) ug',
+                         choice['reason']).groups()
+    assert float(fam) < 0.5 * float(std)
+
+
+def test_no_held_out_holds_at_all_is_no_evidence_for_the_family():
+    # a family the fixed-tilt frame cannot refit, and no time run: nothing is held out
+    from thermal_imu_calib.selection import standard_floor as sf
+    from thermal_imu_calib.selection.heldout import Selection
+    w = _session(1e-4, visits=2)
+    captured = {}
+    real = sf.judge_family
+
+    def spy(ctx, sel):
+        captured['ctx'] = ctx
+        return real(ctx, sel)
+    import thermal_imu_calib.selection.static_select as ss
+    orig = ss.judge_family
+    ss.judge_family = spy
+    try:
+        calibrate_windows(w, options())
+    finally:
+        ss.judge_family = orig
+    out = sf.judge_family(captured['ctx'], Selection('whole_unit', 'chosen'))
+    assert out.model == 'standard'
+    assert 'no held-out evidence that whole_unit is better' in out.reason
+    assert 'hold every face at least twice, at different temperatures' in out.reason
 
 
 def test_alarm_terms_of_the_field_model_are_its_parameters():
