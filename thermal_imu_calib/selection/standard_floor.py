@@ -20,14 +20,16 @@ see:
   family's thermal part and the *standard form* (constant scale factor, bias polynomial in
   T: the standard fit's thermal model in the same frame) are refitted on the training
   holds, and each held-out window's raw output is turned back into specific force at its
-  clamped temperature: the score, |a| - g of the held-out hold's mean, does not use that
-  hold's tilt. Refitting the whole family instead (its tilts too) was tried and rejected:
-  a held-out visit of a face leaves that face at one temperature, and the refitted tilts
-  absorb it (on the simulated ``demo`` session that scored the field model 4849 ug against
-  the standard fit's 602 ug, while against the simulation's truth the field model is 555
-  ug RMS and the standard fit 5127 ug; at fixed tilts: field 108 ug, standard form 395 ug,
-  paired z 2.06). Families this frame cannot refit (``whole_unit``), or too few held-out
-  holds, are no evidence: the **standard fit** is returned, with a note saying so.
+  clamped temperature: the score, per held-out hold the RMS over its windows of |a| - g
+  (a hold of a warm-up spans a temperature range that its mean would average away), does
+  not use that hold's tilt. Refitting the whole family instead (its tilts too) was tried
+  and rejected: a held-out visit of a face leaves that face at one temperature, and the
+  refitted tilts absorb it (on the simulated ``demo`` session that scored the field
+  model 4849 ug against the standard fit's 602 ug, while against the simulation's truth
+  the field model is 555 ug RMS and the standard fit 5127 ug; at fixed tilts: field 128
+  ug, standard form 400 ug, paired z 2.81). Families this frame cannot refit
+  (``whole_unit``), or too few held-out holds, are no evidence: the **standard fit** is
+  returned, with a note saying so.
 * **The decision** is the one-sided paired test of ``paired`` (level ``ALPHA``):
   the family replaces the standard fit only when it predicts the held-out holds better by
   more than the noise.
@@ -154,13 +156,14 @@ def _polynomial_correct(raw, y, f, dt, dtc, train, test, b0, k0, order, thermal_
 
 
 def heldout_hold_folds(ctx, sel):
-    """Return ({'standard': r, family: r} per-hold held-out |a| - g (m/s^2), folds).
+    """Return ({'standard': r, family: r} per-hold held-out residual (m/s^2), folds).
 
     Hold folds (``heldout._hold_folds``: at most one hold per face out) at the hold tilts
     of one field fit on all holds. Per fold the family (field, lagged field: polynomial by
     linear least squares; RVM: its kernels) and the standard form (constant scale factor,
     bias polynomial in T, in the raw temperature) are refitted on the training holds and
-    correct the held-out windows at their temperatures clamped to the training range. NaN:
+    correct the held-out windows at their temperatures clamped to the training range; a
+    hold's residual is the sample-weighted RMS of its windows' |a| - g. NaN:
     not held out (fewer than 2 folds, or a family outside ``TILT_FAMILIES``).
     """
     w, g, name = ctx.windows, ctx.options.gravity, sel.model
@@ -197,8 +200,13 @@ def heldout_hold_folds(ctx, sel):
                     w.accel[:, ax], y[:, ax], f[:, ax], ta[:, ax] - ctx.t0[ax],
                     tc[:, ax] - ctx.t0[ax], train, test, b0[ax], k0[ax], order,
                     k != 'standard') for ax in range(3)], 1) @ s_inv.T
-            got, r = hold_magnitudes(a, w.n[test], pos[test], len(ids), g)
-            out[k][got] = r[got]
+            # per hold: RMS over its windows of |a| - g (a hold of a warm-up spans a
+            # temperature range, which its mean would average away)
+            nt, pt = w.n[test].astype(float), pos[test]
+            e2 = (np.linalg.norm(a, axis=1) - g) ** 2
+            wsum = np.bincount(pt, nt, len(ids))
+            got = wsum > 0
+            out[k][got] = np.sqrt(np.bincount(pt, nt * e2, len(ids))[got] / wsum[got])
     return out, n
 
 
