@@ -41,8 +41,7 @@ def unit_row(logs, tmp, sensor, k):
         if model == 'auto':
             choice = run.result.calibration.fit['model_choice']
             row['auto_chose'] = choice['model']
-            row['auto_reason_tail'] = choice['reason'].split('; against the standard fit')[-1][
-                :300]
+            row['auto_reason_tail'] = choice['reason'].split('; against the standard fit')[-1]
     ev = evaluate_files(logs[k + 1], files)
     for model, f in zip(('auto', 'field', 'standard'), files):
         label = os.path.splitext(os.path.basename(f))[0]
