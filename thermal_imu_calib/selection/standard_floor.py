@@ -13,7 +13,8 @@ see:
   both fits can still separate bias from scale factor on every axis. Each fit is refitted
   on the other runs and scored on the held-out run's holds whose temperatures lie inside
   the training temperatures (interpolation: neither model is asked to extrapolate), by
-  |a| - g of each hold's mean, inputs clamped as the calibration would.
+  the RMS over each hold's windows of |a| - g (m/s^2), inputs clamped as the calibration
+  would.
 * **No time run can be held out** (a short session: each face held once or twice): the
   hold folds of the thermal comparison (``multi_select``: at most one hold per face out)
   at the hold tilts of one field fit on all holds (``heldout_hold_folds``). Per fold the
@@ -47,7 +48,7 @@ from ..estimation.standard_fit import StandardFitError
 from ..estimation.thermal_lag import lagged_axis_temperatures
 from .heldout import _hold_folds, clamp_to_training, fold_masks, Selection
 from .multi_select import _field_fit, _prior, _up_per_window, fit_rvm_multi
-from .paired import _fit, ALPHA, hold_magnitudes, hold_positions, MIN_HELDOUT, paired_test
+from .paired import _fit, ALPHA, hold_positions, MIN_HELDOUT, paired_test
 
 #: contiguous runs of holds (in time) the thermal history is cut into
 N_RUNS = 5
@@ -132,9 +133,25 @@ def heldout_against_standard(ctx, name, folds, n):
                 continue
             tc = clamp_to_training(ta, w, train, ctx.accel_input, margin)
             a = model.correct(w.accel[scored], tc[scored])
-            got, r = hold_magnitudes(a, w.n[scored], pos[scored], len(ids), g)
+            got, r = window_rms(a, w.n[scored], pos[scored], len(ids), g)
             out[k][got] = r[got]
     return out, ids
+
+
+def window_rms(accel, n, pos, n_holds, gravity):
+    """Return (held, r): per hold whether it has rows, and the RMS of its windows' |a| - g.
+
+    ``accel`` (m, 3) corrected window means with ``n`` (m,) samples each (the weights) and
+    ``pos`` (m,) their hold positions. A hold of a warm-up spans a temperature range that
+    the hold's mean would average away; its windows keep it. m/s^2.
+    """
+    nt = np.asarray(n, float)
+    wsum = np.bincount(pos, nt, n_holds)
+    held = wsum > 0
+    e2 = (np.linalg.norm(accel, axis=1) - gravity) ** 2
+    r = np.zeros(n_holds)
+    r[held] = np.sqrt(np.bincount(pos, nt * e2, n_holds)[held] / wsum[held])
+    return held, r
 
 
 def _polynomial_correct(raw, y, f, dt, dtc, train, test, b0, k0, order, thermal_scale):
@@ -200,13 +217,8 @@ def heldout_hold_folds(ctx, sel):
                     w.accel[:, ax], y[:, ax], f[:, ax], ta[:, ax] - ctx.t0[ax],
                     tc[:, ax] - ctx.t0[ax], train, test, b0[ax], k0[ax], order,
                     k != 'standard') for ax in range(3)], 1) @ s_inv.T
-            # per hold: RMS over its windows of |a| - g (a hold of a warm-up spans a
-            # temperature range, which its mean would average away)
-            nt, pt = w.n[test].astype(float), pos[test]
-            e2 = (np.linalg.norm(a, axis=1) - g) ** 2
-            wsum = np.bincount(pt, nt, len(ids))
-            got = wsum > 0
-            out[k][got] = np.sqrt(np.bincount(pt, nt * e2, len(ids))[got] / wsum[got])
+            got, r = window_rms(a, w.n[test], pos[test], len(ids), g)
+            out[k][got] = r[got]
     return out, n
 
 
