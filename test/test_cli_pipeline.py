@@ -120,7 +120,11 @@ def test_round_trip(tmp_path, recording, writer, in_name, out_name, storage, cap
     cal = str(tmp_path / 'cal.yaml')
     assert main(['calibrate', src, '--imu-topic', '/imu/data_raw', '-o', cal]) == 0
     printed = capsys.readouterr().out
-    assert 'field_polynomial' in printed and '6 holds' in printed
+    # each face held once: no held-out split, so no evidence for a thermal family over
+    # the standard fit (bias polynomial in T), which auto then returns and says why
+    assert 'standard static fit' in printed and '6 holds' in printed
+    choice = Calibration.load(cal).fit['model_choice']
+    assert choice['model'] == 'standard' and 'no held-out evidence' in choice['reason']
     dst = str(tmp_path / out_name)
     assert main(['compensate', src, '--calibration', cal, '--imu-topic', '/imu/data_raw',
                  '--output-topic', '/imu/data_compensated', '--storage', storage,
@@ -152,8 +156,10 @@ def test_round_trip(tmp_path, recording, writer, in_name, out_name, storage, cap
         np.testing.assert_array_equal(np.asarray(m.angular_velocity_covariance), cov[j, 1])
         np.testing.assert_array_equal(np.asarray(m.linear_acceleration_covariance), cov[j, 2])
         if j % 97 == 0:  # compensation equals the library applied independently
+            # (to 1e-8 m/s^2: the stream and the whole-array apply round the standard fit's
+            # inverse differently, 5e-9 at most here)
             np.testing.assert_allclose(field(m, 'linear_acceleration'), expect.accel[j],
-                                       atol=1e-9)
+                                       atol=1e-8)
             np.testing.assert_allclose(field(m, 'angular_velocity'), expect.gyro[j],
                                        atol=1e-9)
     # the raw topic is copied unchanged

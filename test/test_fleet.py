@@ -356,3 +356,57 @@ def test_alarm_statistic_keeps_its_family_rate_and_matches_numpy():
     # a drift of 2 sigma per 30 days: no consecutive change is, the trend over 5 is flagged
     found = reg.assess(rows + _synthetic_rows(rng, 19, 5, 1e-3), std_scale=scale)[0]
     assert found['drifting00'] and all('trend' in a for a in found['drifting00'])
+
+
+def _gyro_rows(rng, units, cals, sigma, scale_true=1.8, step=None):
+    """Index rows with gyro-bias alarm terms whose stated std is ``scale_true`` too small."""
+    day = 86400 * 10 ** 9
+    rows = []
+    for u in range(units):
+        for k in range(cals):
+            r = {'sensor': f'g{u:02d}', 'time': reg.iso((30 * k + 1) * day),
+                 'accel_model': 'field_polynomial', 'gyro_model': 'whole_unit_gyro',
+                 'residual_rms_mps2': '5e-4'}
+            for a in 'xyz':
+                r[f'gyro.alarm_T0.{a}'] = 30.0
+                jump = step if (step is not None and u == 0 and k >= cals // 2) else 0.0
+                r[f'gyro.alarm_b0.{a}'] = jump + rng.normal(0, scale_true * sigma)
+                r[f'gyro.alarm_b0.{a}_std'] = sigma
+            rows.append(r)
+    return rows
+
+
+def test_gyro_bias_is_tested_in_units_of_its_own_spread():
+    """Stds 1.8x too small: the empirical null keeps a stable fleet quiet; a step is found."""
+    rng = np.random.default_rng(3)
+    flagged = sum(any(reg.assess(_gyro_rows(rng, 10, 4, 1e-5))[0].values()) for _ in range(100))
+    assert flagged <= 6            # ~1 expected at the 1 % family rate
+    rows = _gyro_rows(rng, 10, 4, 1e-5, step=3e-4)
+    found, info = reg.assess(rows)
+    assert 1.4 < info['gyro_scale'] < 2.4
+    assert 'the gyro bias (its z divided by their robust spread' in info['rule']
+    assert found['g00'] and all(a.startswith(('gyro db0', '... and')) for a in found['g00'])
+    assert any('changed 19700201T000000Z -> 19700303T000000Z' in a for a in found['g00'])
+    assert not any(v for s, v in found.items() if s != 'g00')
+    # too few gyro tests to measure their spread: the gyro is not tested, and said so
+    few, info = reg.assess(_gyro_rows(rng, 1, 2, 1e-5, step=3e-4))
+    assert info['gyro_scale'] is None and not few['g00']
+    assert 'the gyro bias is not tested' in info['rule']
+
+
+def test_alarm_terms_of_a_gyro_and_of_a_relative_offset():
+    """A g-sensitive gyro is probed at zero g; an offset model's bias at T0 is no measurement."""
+    from thermal_imu_calib.models.alarm_terms import bias_scale_terms, relative_bias
+    from thermal_imu_calib.models.polynomial import OffsetPolynomialModel
+    coeffs = np.array([[1e-3, -2e-3, 5e-4], [1e-5, 2e-5, -1e-5]])
+    std = np.full_like(coeffs, 1e-6)
+    absolute = OffsetPolynomialModel([30.0] * 3, coeffs, 'gyro', True, std)
+    t = bias_scale_terms(absolute)
+    np.testing.assert_allclose(t['b'][:, 0], coeffs[0], atol=1e-15)
+    np.testing.assert_allclose(t['b'][:, 1], coeffs[1], atol=1e-12)
+    np.testing.assert_allclose(t['b_std'][:, 0], std[0], rtol=1e-6)
+    relative = OffsetPolynomialModel([30.0] * 3, coeffs.copy(), 'accel', False, std)
+    assert relative_bias(relative) and not relative_bias(absolute)
+    r = bias_scale_terms(relative)
+    assert np.all(np.isnan(r['b'][:, 0])) and np.all(np.isnan(r['b_std'][:, 0]))
+    np.testing.assert_allclose(r['b'][:, 1], coeffs[1], atol=1e-12)

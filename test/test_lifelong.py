@@ -269,7 +269,9 @@ def test_simulate_lists_robot_month(capsys):
 
 def test_knock_raises_an_alarm_then_a_new_calibration_recovers(tmp_path):
     m = robot_month(1, days=2.0, knock_day=(1.0, 1.1))
-    life = Lifelong(str(tmp_path), CalibrateSettings(), 1, [TOPIC], 'imu_link')
+    reg_dir = str(tmp_path / 'registry')
+    life = Lifelong(str(tmp_path), CalibrateSettings(), 1, [TOPIC], 'imu_link',
+                    registry_dir=reg_dir)
     feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
     for seg in m.segments():
         feeder.push(seg.imu, [seg.temperature], [('cmd_vel', t, s) for t, s in seg.hints])
@@ -288,6 +290,19 @@ def test_knock_raises_an_alarm_then_a_new_calibration_recovers(tmp_path):
         res = life.active.apply(seg.imu.accel[st], seg.imu.gyro[st], seg.temp_true[st][:, None])
         errs.append(np.linalg.norm(np.mean(res.gyro - seg.angular_rate[st], 0)))
     assert np.sqrt(np.mean(np.square(errs))) < 0.2 * np.linalg.norm(m.knock_gyro)
+    # the registry's drift alarms (thermal-imu-calib history) see the knock too: the gyro
+    # bias changed across it, and no change before it is flagged
+    from thermal_imu_calib.fleet import registry
+    rows = registry.read_index(reg_dir)
+    found, info = registry.assess(rows)
+    knock = registry.iso(int((m.start_ns * 1e-9 + m.knock_t) * 1e9))
+    print(info['rule'], found)
+    assert info['gyro_scale'] is not None, info['rule']
+    steps = [a for a in found['imu_link'] if a.startswith('gyro db0') and 'changed' in a]
+    assert steps, found
+    for a in steps:
+        before, after = a.split(' changed ')[1].split(':')[0].split(' -> ')
+        assert before < knock <= after, (a, knock)
 
 
 def test_reset_archives_the_store_and_keeps_the_active(tmp_path, month_windows):

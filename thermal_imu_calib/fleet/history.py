@@ -9,12 +9,13 @@ import html
 import numpy as np
 
 from ..io.output import write_atomic
-from .registry import _f, AXES
+from .alarms import _f, AXES
 
 #: (index column, label, scale to display, display unit)
 SHOWN = (('accel.db0', 'db0', 1e3, 'mm/s^2'), ('accel.dk0', 'dk0', 1e6, 'ppm'),
          ('accel.b1', 'b1', 1e3, 'mm/s^2/degC'), ('accel.k1', 'k1', 1e6, 'ppm/degC'),
-         ('gyro.c0', 'gyro c0', 1e3, 'mrad/s'), ('gyro.c1', 'gyro c1', 1e3, 'mrad/s/degC'))
+         ('gyro.c0', 'gyro c0', 1e3, 'mrad/s'), ('gyro.c1', 'gyro c1', 1e3, 'mrad/s/degC'),
+         ('gyro.alarm_b0', 'gyro b0 at T0', 1e3, 'mrad/s'))
 
 
 def _by_sensor(rows):

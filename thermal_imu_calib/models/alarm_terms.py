@@ -1,4 +1,4 @@
-"""Bias and scale factor of any accelerometer model near its reference temperature.
+"""Bias and scale factor of any accelerometer (or gyro) model near its reference temperature.
 
 The drift alarms of a registry (``fleet/registry.py``) compare a unit's accelerometer bias
 and scale factor at a common temperature between calibrations. The seed 000 field model
@@ -33,7 +33,9 @@ def _at(model, t0, dt):
     for i in range(3):
         probe[1 + 2 * i, i] = PROBE_G
         probe[2 + 2 * i, i] = -PROBE_G
-    raw = model.forward(probe, temps)
+    # a g-sensitive gyro is probed at zero specific force (its bias alone); the
+    # accelerometer models ignore ``aux``
+    raw = model.forward(probe, temps, aux={'accel': np.zeros_like(probe)})
     bias = raw[0]
     scale = np.array([(raw[1 + 2 * i, i] - raw[2 + 2 * i, i]) / (2 * PROBE_G)
                       for i in range(3)])
@@ -59,12 +61,27 @@ def reference_of(model):
     return None
 
 
+def relative_bias(model):
+    """Return True when the model's bias is defined only relative to its reference input.
+
+    The offset models of one orientation without their constant (``include_constant``
+    False; an RVM with ``offset_only``) remove the drift relative to T0, T_ref: their bias
+    at T0 is 0 by construction, not a measured value, so two of them with different T0
+    differ by the drift between the two T0 whatever the sensor did.
+    """
+    if getattr(model, 'offset_only', False):
+        return True
+    poly = getattr(model, 'poly', model)
+    return getattr(poly, 'include_constant', True) is False
+
+
 def bias_scale_terms(model):
     """Return {'T0', 'b', 'b_std', 'k', 'k_std'} of an accelerometer model, or None.
 
     ``b``/``k`` (3, 3): per axis (rows) the coefficients of dT^0..2 of the bias (m/s^2)
     and the scale factor (1) about ``T0`` (3,). None when the model has no forward model,
-    no reference input or no parameter stds.
+    no reference input or no parameter stds. A bias defined only relative to T0
+    (``relative_bias``) has its constant NaN (std NaN): it is not a measurement to test.
     """
     t0 = reference_of(model)
     if t0 is None:
@@ -93,4 +110,7 @@ def bias_scale_terms(model):
                 return None
             var_b += (db - b) ** 2
             var_k += (dk - k) ** 2
-    return {'T0': t0, 'b': b, 'b_std': np.sqrt(var_b), 'k': k, 'k_std': np.sqrt(var_k)}
+    b_std = np.sqrt(var_b)
+    if relative_bias(model):
+        b[:, 0] = b_std[:, 0] = np.nan
+    return {'T0': t0, 'b': b, 'b_std': b_std, 'k': k, 'k_std': np.sqrt(var_k)}
