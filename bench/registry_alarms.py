@@ -1,0 +1,100 @@
+"""The registry's drift alarms re-evaluated on registries that exist: fleets and robots.
+
+Each registry's index rows are rebuilt from its calibration files with today's
+``registry.index_row`` (so the alarm terms are today's: the gyro bias, an offset model's
+relative bias left out) and judged by ``registry.assess``:
+
+* ``fleet DIR ...``: the cached fleets of ``bench_fleet.py alarms --cache DIR`` (``DIR/reg``
+  and ``DIR/fleet_truth.csv``): units flagged, stable and not (drifting, step), and the
+  stable units' gyro-bias z (their std: how honest the fit's stds are);
+* ``robot DIR ...``: lifelong registries (``bench_lifelong.py month --work W``: W/seedN/
+  registry, or a node's ``<lifelong_dir>/registry``): every test over the threshold.
+
+    .venv/bin/python bench/registry_alarms.py fleet /tmp/alarms_cache/8x3/seed_*
+    .venv/bin/python bench/registry_alarms.py robot /tmp/ws2/seed2/registry
+"""
+
+import argparse
+import csv
+import os
+import sys
+
+import numpy as np
+
+from thermal_imu_calib.calibration import Calibration
+from thermal_imu_calib.fleet import registry as reg
+
+
+def reindex(directory):
+    """Return the index rows of ``directory`` rebuilt from its calibration files."""
+    out = []
+    for r in reg.read_index(directory):
+        cal = Calibration.load(os.path.join(directory, r['file']))
+        row = reg.index_row(r['sensor'], cal, reg.parse_time(r['time']),
+                            reg.parse_time(r['valid_from']), r['file'], [])
+        row['logs'] = r['logs']
+        out.append({k: '' if v is None else str(v) for k, v in row.items()})
+    return out
+
+
+def over(rows):
+    """Return ([(sensor, label, z)] over the threshold, assess info)."""
+    _, info = reg.assess(rows)
+    g = info['gyro_scale']
+    out = []
+    for s, rs in reg.by_sensor(rows).items():
+        for lbl, z in reg.unit_tests(rs):
+            if lbl.startswith('gyro '):
+                if not g:
+                    continue
+                z = z / g
+            if abs(z) > info['threshold_sigma']:
+                out.append((s, lbl, z))
+    return out, info
+
+
+def fleet(dirs):
+    counts = {'stable': [0, 0], 'drifting or step': [0, 0]}
+    gz = []
+    for d in dirs:
+        truth = {r['unit']: r['kind'] for r in csv.DictReader(
+            open(os.path.join(d, 'fleet_truth.csv')))}
+        rows = reindex(os.path.join(d, 'reg'))
+        found, info = reg.assess(rows)
+        for s, rs in reg.by_sensor(rows).items():
+            stable = truth.get(s) == 'stable'
+            counts['stable' if stable else 'drifting or step'][0] += 1
+            counts['stable' if stable else 'drifting or step'][1] += bool(found.get(s))
+            if stable:
+                gz += [z for lbl, z in reg.unit_tests(rs) if lbl.startswith('gyro ')]
+        print(f'{os.path.basename(d)}: {info["tests"]} tests, threshold '
+              f'{info["threshold_sigma"]:.2f}, gyro spread {info["gyro_scale"] or 0:.2f}, '
+              f'flagged: {sorted(s for s in found if found[s])}', flush=True)
+    for k, (n, f) in counts.items():
+        print(f'{k} units: {f} of {n} flagged')
+    gz = np.asarray(gz)
+    if len(gz):
+        print(f'stable units\' gyro-bias z with the fit\'s stds: {len(gz)} tests, std '
+              f'{gz.std():.2f}, robust std {1.4826 * np.median(np.abs(gz)):.2f}')
+
+
+def robot(dirs):
+    for d in dirs:
+        rows = reindex(d)
+        hits, info = over(rows)
+        print(f'{d}: {len(rows)} calibrations, {info["tests"]} tests, threshold '
+              f'{info["threshold_sigma"]:.2f}, gyro spread {info["gyro_scale"] or 0:.2f}')
+        for s, lbl, z in hits:
+            print(f'  {s}: {lbl}: {z:+.1f} sigma')
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    ap.add_argument('what', choices=('fleet', 'robot'))
+    ap.add_argument('dirs', nargs='+')
+    args = ap.parse_args(argv)
+    (fleet if args.what == 'fleet' else robot)(args.dirs)
+
+
+if __name__ == '__main__':
+    sys.exit(main())
