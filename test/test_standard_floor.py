@@ -92,6 +92,10 @@ def test_no_run_and_no_hold_fold_evidence_returns_the_standard_fit():
         assert '2 hold folds (at most one hold per face out)' in choice['reason']
         assert 'does not predict them better by more than the noise' in choice['reason']
         assert res.calibration.accel.kind == 'whole_unit_accel'
+        # the user sees why, in a note (printed by calibrate)
+        assert any(n.startswith('auto, a thermal family judged against the standard fit (')
+                   and 'the standard fit (bias polynomial in temperature)' in n
+                   for n in res.calibration.notes), res.calibration.notes
 
 
 def test_hold_folds_at_fixed_tilts_keep_the_family_the_held_out_holds_support():

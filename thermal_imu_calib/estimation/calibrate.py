@@ -127,6 +127,9 @@ def calibrate_windows(windows, options=None):
                  else AUTO_POLICY[0](ctx.accel_view()))
     est = ESTIMATORS[name](ctx)
     notes = flat + consistency_notes(consistency) + list(est.notes)
+    floor = why.split('; against the standard fit', 1)
+    if o.model == 'auto' and len(floor) == 2:   # the thermal family judged by the floor
+        notes.append(f'auto, a thermal family judged against the standard fit{floor[1]}')
     report = {'coverage': ctx.coverage, 'distinct_orientations': ctx.n_orientations,
               'model_choice': {'model': name, 'reason': why}, **est.report}
     gyro_model = est.gyro

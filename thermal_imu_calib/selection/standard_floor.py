@@ -245,7 +245,10 @@ def judge_family(ctx, sel):
                f'{MIN_FACE_VISITS} times in training ({m} holds); instead {n_folds} hold '
                'folds (at most one hold per face out) at the hold tilts of one field fit, '
                f'the standard form (constant scale factor, bias polynomial in T) against '
-               f'{name}, refitted without the fold')
+               f'{name}, refitted without the fold' if n_folds >= 2 else
+               f'no run of holds in time can be held out and keep every face '
+               f'{MIN_FACE_VISITS} times in training, nor a hold of a face (a face was '
+               'held only once: no split keeps every axis up and down in training)')
         m = m2
     limit = float(-ndtri(ALPHA))
     rms = {k: float(np.sqrt(np.mean(r[np.isfinite(r)] ** 2))) / g * 1e6
