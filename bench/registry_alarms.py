@@ -40,17 +40,8 @@ def reindex(directory):
 def over(rows):
     """Return ([(sensor, label, z)] over the threshold, assess info)."""
     _, info = reg.assess(rows)
-    g = info['gyro_scale']
-    out = []
-    for s, rs in reg.by_sensor(rows).items():
-        for lbl, z in reg.unit_tests(rs):
-            if lbl.startswith('gyro '):
-                if not g:
-                    continue
-                z = z / g
-            if abs(z) > info['threshold_sigma']:
-                out.append((s, lbl, z))
-    return out, info
+    return [(s, lbl, z) for s, ts in info['unit_tests'].items() for lbl, z in ts
+            if abs(z) > info['threshold_sigma']], info
 
 
 def fleet(dirs):
@@ -66,7 +57,7 @@ def fleet(dirs):
             counts['stable' if stable else 'drifting or step'][0] += 1
             counts['stable' if stable else 'drifting or step'][1] += bool(found.get(s))
             if stable:
-                gz += [z for lbl, z in reg.unit_tests(rs) if lbl.startswith('gyro ')]
+                gz += [z for lbl, z in reg.unit_tests(rs) if lbl.startswith(reg.GYRO_PREFIX)]
         print(f'{os.path.basename(d)}: {info["tests"]} tests, threshold '
               f'{info["threshold_sigma"]:.2f}, gyro spread {info["gyro_scale"] or 0:.2f}, '
               f'flagged: {sorted(s for s in found if found[s])}', flush=True)

@@ -42,6 +42,11 @@ from .summary import (_adequacy_notes, _amax, _face_text, _margin_report,  # noq
 #: tilted holds the whole-unit model asks for before it calls the collection complete
 WHOLE_UNIT_TILTED = 3
 
+#: how the reason of ``auto``'s choice names the judging of a thermal family against the
+#: standard fit (``selection/standard_floor.judge_family`` appends it after '; '); the
+#: part after it becomes a note
+FLOOR_REASON = 'against the standard fit'
+
 
 def readiness(windows, model='auto', min_holds=1):
     """Say whether ``calibrate_windows`` would succeed now and what to hold next.
@@ -127,9 +132,9 @@ def calibrate_windows(windows, options=None):
                  else AUTO_POLICY[0](ctx.accel_view()))
     est = ESTIMATORS[name](ctx)
     notes = flat + consistency_notes(consistency) + list(est.notes)
-    floor = why.split('; against the standard fit', 1)
+    floor = why.split(f'; {FLOOR_REASON}', 1)
     if o.model == 'auto' and len(floor) == 2:   # the thermal family judged by the floor
-        notes.append(f'auto, a thermal family judged against the standard fit{floor[1]}')
+        notes.append(f'auto, a thermal family judged {FLOOR_REASON}{floor[1]}')
     report = {'coverage': ctx.coverage, 'distinct_orientations': ctx.n_orientations,
               'model_choice': {'model': name, 'reason': why}, **est.report}
     gyro_model = est.gyro

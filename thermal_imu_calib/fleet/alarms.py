@@ -43,6 +43,8 @@ ALARM_STEM = 'accel.alarm_'
 #: the gyroscope's: its bias only (``GYRO_ALARM_ON``), tested as 'gb' (gyro db0)
 GYRO_STEM = 'gyro.alarm_'
 GYRO_ALARM_ON = ('gb',)
+#: label prefix of the gyro tests (``unit_tests``)
+GYRO_PREFIX = 'gyro '
 #: fewest gyro-bias tests in a registry for its empirical null (``gyro_scale``); fewer:
 #: the gyro is not tested, and the rule says so
 MIN_GYRO_TESTS = 12
@@ -218,16 +220,16 @@ def unit_tests(rows, std_scale=None):
     """
     out = []
     for family, names, prefix in (('accel_model', ALARM_ON, ''),
-                                  ('gyro_model', GYRO_ALARM_ON, 'gyro ')):
+                                  ('gyro_model', GYRO_ALARM_ON, GYRO_PREFIX)):
         last = {}
         for cur in rows:
             prev = last.get(cur.get(family, ''))
             last[cur.get(family, '')] = cur
             if prev is None:
                 continue
-            for name, z in compare(prev, cur, names, std_scale).items():
-                out += [(f'{prefix}{name.replace("dgb0", "db0")} {a} changed {prev["time"]} -> '
-                         f'{cur["time"]}', z[i]) for i, a in enumerate(AXES)]
+            z = compare(prev, cur, names, std_scale)
+            out += [(f'{prefix}d{name[-1]}0 {a} changed {prev["time"]} -> {cur["time"]}',
+                     z[f'd{name}0'][i]) for name in names for i, a in enumerate(AXES)]
         same = [r for r in rows if r.get(family, '') == rows[-1].get(family, '')]
         if len(same) >= 3:
             for name in names:
@@ -248,10 +250,22 @@ def gyro_scale(tests, min_tests=MIN_GYRO_TESTS):
     "no change"; never below 1), which a few real changes do not move (Efron's empirical
     null). It assumes most calibrations of the registry did not change.
     """
-    z = np.abs([v for lbl, v in tests if lbl.startswith('gyro ')])
+    z = np.abs([v for lbl, v in tests if lbl.startswith(GYRO_PREFIX)])
     if len(z) < min_tests:
         return None
     return max(1.0, 1.4826 * float(np.median(z)))
+
+
+def scaled_tests(tests):
+    """Return ({sensor: [(label, z)]} with the gyro z in units of ``gyro_scale``, scale).
+
+    ``tests``: {sensor: ``unit_tests``}. Without a scale (too few gyro tests) the gyro
+    tests are dropped.
+    """
+    g = gyro_scale([t for ts in tests.values() for t in ts])
+    return {s: [(lbl, z / g) if lbl.startswith(GYRO_PREFIX) else (lbl, z)
+                for lbl, z in ts if g or not lbl.startswith(GYRO_PREFIX)]
+            for s, ts in tests.items()}, g
 
 
 def rule_text(n_tests, z_c, family_rate=FAMILY_RATE, residual_mads=RESIDUAL_MADS,
@@ -277,16 +291,15 @@ def rule_text(n_tests, z_c, family_rate=FAMILY_RATE, residual_mads=RESIDUAL_MADS
 
 
 def assess(rows, family_rate=FAMILY_RATE, residual_mads=RESIDUAL_MADS, std_scale=None):
-    """Return (sensor -> alarm strings, info) for index rows (info: tests, threshold, rule)."""
+    """Return (sensor -> alarm strings, info) for index rows.
+
+    info: the number of tests, the threshold, the rule, the notes, the gyro scale and
+    ``unit_tests`` (sensor -> [(label, z)] as judged: gyro z scaled, ``scaled_tests``).
+    """
     by = by_sensor(rows)
-    tests = {s: unit_tests(rs, std_scale) for s, rs in by.items()}
-    every = [t for ts in tests.values() for t in ts]
-    g_scale = gyro_scale(every)
-    has_gyro = any(lbl.startswith('gyro ') for lbl, _ in every)
-    tests = {s: [(lbl, z / g_scale) for lbl, z in ts if lbl.startswith('gyro ')]
-             + [(lbl, z) for lbl, z in ts if not lbl.startswith('gyro ')]
-             if g_scale else [(lbl, z) for lbl, z in ts if not lbl.startswith('gyro ')]
-             for s, ts in tests.items()}
+    raw = {s: unit_tests(rs, std_scale) for s, rs in by.items()}
+    has_gyro = any(lbl.startswith(GYRO_PREFIX) for ts in raw.values() for lbl, _ in ts)
+    tests, g_scale = scaled_tests(raw)
     n = sum(len(t) for t in tests.values())
     z_c = family_threshold(n, family_rate)
     out = {}
@@ -314,7 +327,7 @@ def assess(rows, family_rate=FAMILY_RATE, residual_mads=RESIDUAL_MADS, std_scale
     info = {'tests': n, 'threshold_sigma': z_c, 'family_rate': family_rate, 'notes': notes,
             'rule': rule_text(n, z_c, family_rate, residual_mads,
                               (g_scale or 0.0) if has_gyro else None),
-            'gyro_scale': g_scale,
+            'gyro_scale': g_scale, 'unit_tests': tests,
             'max_abs_z': {s: max((abs(z) for _, z in t), default=np.nan)
                           for s, t in tests.items()}}
     return out, info

@@ -69,10 +69,8 @@ def relative_bias(model):
     at T0 is 0 by construction, not a measured value, so two of them with different T0
     differ by the drift between the two T0 whatever the sensor did.
     """
-    if getattr(model, 'offset_only', False):
-        return True
-    poly = getattr(model, 'poly', model)
-    return getattr(poly, 'include_constant', True) is False
+    return bool(getattr(model, 'offset_only', False)
+                or getattr(model, 'include_constant', True) is False)
 
 
 def bias_scale_terms(model):

@@ -72,6 +72,15 @@ def _field_design(dt, sf, order):
     return np.concatenate([powers * sf[:, None], powers], 1)
 
 
+def resolved_order(ctx, ta):
+    """Return the highest polynomial order (<= the option) the inputs' span resolves.
+
+    ``ta`` (m, 3) per-axis model inputs; the span needed per order is ``ORDER_SPAN``.
+    """
+    span = float(np.max(np.ptp(ta, axis=0))) if ctx.k else 0.0
+    return max(o for o in range(ctx.options.order + 1) if o == 0 or span >= ORDER_SPAN[o])
+
+
 def heldout_multi(ctx, up, tau, kernels=None, rvm_settings=None):
     """Return held-out raw-output residuals {'field': (m, 3), 'rvm': ...} at known tilts.
 
@@ -86,8 +95,7 @@ def heldout_multi(ctx, up, tau, kernels=None, rvm_settings=None):
     k0, b0, s = _prior(ctx)
     sf = g * up @ s.T
     y = w.accel - b0 - k0 * sf
-    span = float(np.max(np.ptp(ta, axis=0))) if ctx.k else 0.0
-    order = max(o for o in range(ctx.options.order + 1) if o == 0 or span >= ORDER_SPAN[o])
+    order = resolved_order(ctx, ta)
     folds, _ = _hold_folds(w)
     out = {'field': np.zeros_like(y), 'rvm': np.zeros_like(y) if kernels else None}
     for f in np.unique(folds):

@@ -2,10 +2,10 @@
 
 ``paired_test``: a one-sided paired test (Wilcoxon signed-rank) at level ``ALPHA`` on
 held-out holds (per hold the difference of squared residuals of the reference and the
-candidate); ``_fit``: a family
-refitted on training windows; ``hold_positions`` and ``hold_magnitudes``: windows to
-holds, and the |a| - g of each hold's mean. Used by ``static_select`` (no temperature
-span) and ``standard_floor`` (across a temperature span).
+candidate); ``_fit``: a family refitted on training windows; ``hold_positions``: windows
+to holds; ``hold_magnitudes`` and ``window_rms``: per hold the |a| - g of its mean, or the
+RMS of its windows' |a| - g. Used by ``static_select`` (no temperature span) and
+``standard_floor`` (across a temperature span).
 """
 
 import numpy as np
@@ -46,6 +46,22 @@ def hold_magnitudes(accel, n, pos, n_holds, gravity):
     held = wsum > 0
     r = np.zeros(n_holds)
     r[held] = np.linalg.norm(mean[held] / wsum[held, None], axis=1) - gravity
+    return held, r
+
+
+def window_rms(accel, n, pos, n_holds, gravity):
+    """Return (held, r): per hold whether it has rows, and the RMS of its windows' |a| - g.
+
+    ``accel`` (m, 3) corrected window means with ``n`` (m,) samples each (the weights) and
+    ``pos`` (m,) their hold positions. A hold of a warm-up spans a temperature range that
+    the hold's mean would average away; its windows keep it. m/s^2.
+    """
+    nt = np.asarray(n, float)
+    wsum = np.bincount(pos, nt, n_holds)
+    held = wsum > 0
+    e2 = (np.linalg.norm(accel, axis=1) - gravity) ** 2
+    r = np.zeros(n_holds)
+    r[held] = np.sqrt(np.bincount(pos, nt * e2, n_holds)[held] / wsum[held])
     return held, r
 
 

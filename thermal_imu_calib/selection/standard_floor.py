@@ -42,13 +42,15 @@ import numpy as np
 from scipy.special import ndtri
 
 from ..collection.segments import face_of
-from ..estimation.calibrate import (CalibrationRefused, ESTIMATORS, input_margins,
-                                    ORDER_SPAN)
+from ..estimation.calibrate import (CalibrationRefused, ESTIMATORS, FLOOR_REASON,
+                                    input_margins)
 from ..estimation.standard_fit import StandardFitError
 from ..estimation.thermal_lag import lagged_axis_temperatures
 from .heldout import _hold_folds, clamp_to_training, fold_masks, Selection
-from .multi_select import _field_fit, _prior, _up_per_window, fit_rvm_multi
-from .paired import _fit, ALPHA, hold_positions, MIN_HELDOUT, paired_test
+from .multi_select import (_field_design, _field_fit, _prior, _up_per_window, fit_rvm_multi,
+                           resolved_order)
+from .paired import (_fit, ALPHA, hold_positions, MIN_HELDOUT, paired_test,
+                     window_rms)
 
 #: contiguous runs of holds (in time) the thermal history is cut into
 N_RUNS = 5
@@ -138,38 +140,22 @@ def heldout_against_standard(ctx, name, folds, n):
     return out, ids
 
 
-def window_rms(accel, n, pos, n_holds, gravity):
-    """Return (held, r): per hold whether it has rows, and the RMS of its windows' |a| - g.
-
-    ``accel`` (m, 3) corrected window means with ``n`` (m,) samples each (the weights) and
-    ``pos`` (m,) their hold positions. A hold of a warm-up spans a temperature range that
-    the hold's mean would average away; its windows keep it. m/s^2.
-    """
-    nt = np.asarray(n, float)
-    wsum = np.bincount(pos, nt, n_holds)
-    held = wsum > 0
-    e2 = (np.linalg.norm(accel, axis=1) - gravity) ** 2
-    r = np.zeros(n_holds)
-    r[held] = np.sqrt(np.bincount(pos, nt * e2, n_holds)[held] / wsum[held])
-    return held, r
-
-
 def _polynomial_correct(raw, y, f, dt, dtc, train, test, b0, k0, order, thermal_scale):
     """Return one axis' held-out specific force (m/s^2) of the linear thermal fit.
 
     raw = b0 + (k0 + c(dT)) f + d(dT), with c a polynomial of ``order`` when
-    ``thermal_scale`` (the field model's thermal part, seed 000 eq. 8) else a constant
-    (the standard form); fitted on ``y = raw - b0 - k0 f`` of the training windows, then
-    inverted on the test windows at their clamped ``dtc``.
+    ``thermal_scale`` (the field model's thermal part, ``multi_select._field_design``,
+    seed 000 eq. 8) else a constant (the standard form: the design's dT^0 scale column
+    and the bias columns); fitted on ``y = raw - b0 - k0 f`` of the training windows,
+    then inverted on the test windows at their clamped ``dtc``.
     """
-    p = np.stack([dt ** j for j in range(order + 1)], 1)
-    pc = np.stack([dtc[test] ** j for j in range(order + 1)], 1)
-    scale_cols = p * f[:, None] if thermal_scale else f[:, None]
-    coef, *_ = np.linalg.lstsq(np.concatenate([scale_cols, p], 1)[train], y[train],
-                               rcond=None)
+    cols = (np.arange(2 * order + 2) if thermal_scale
+            else np.r_[0, np.arange(order + 1, 2 * order + 2)])
     ns = order + 1 if thermal_scale else 1
-    c = pc @ coef[:ns] if thermal_scale else coef[0]
-    return (raw[test] - b0 - pc @ coef[ns:]) / (k0 + c)
+    coef, *_ = np.linalg.lstsq(_field_design(dt, f, order)[train][:, cols], y[train],
+                               rcond=None)
+    vt = _field_design(dtc[test], np.ones(int(test.sum())), order)[:, cols]
+    return (raw[test] - b0 - vt[:, ns:] @ coef[ns:]) / (k0 + vt[:, :ns] @ coef[:ns])
 
 
 def heldout_hold_folds(ctx, sel):
@@ -200,6 +186,7 @@ def heldout_hold_folds(ctx, sel):
         temps[name] = lagged_axis_temperatures(w, np.asarray(sel.tau_s, float),
                                                ctx.accel_input)
     margin = input_margins(w, ctx.options)
+    orders = {k: resolved_order(ctx, ta) for k, ta in temps.items()}
     for fold in range(n):
         test = folds == fold
         train = ~test
@@ -210,9 +197,7 @@ def heldout_hold_folds(ctx, sel):
                                          (sel.kernels or {}).get('rvm'), None, up[train])
                 a = model.correct(w.accel[test], tc[test])
             else:
-                span = float(np.max(np.ptp(ta, axis=0)))
-                order = max(o for o in range(ctx.options.order + 1)
-                            if o == 0 or span >= ORDER_SPAN[o])
+                order = orders[k]
                 a = np.stack([_polynomial_correct(
                     w.accel[:, ax], y[:, ax], f[:, ax], ta[:, ax] - ctx.t0[ax],
                     tc[:, ax] - ctx.t0[ax], train, test, b0[ax], k0[ax], order,
@@ -257,7 +242,7 @@ def judge_family(ctx, sel):
     table['standard (vs family, held out)'] = {
         'residual_ug': rms['standard'] if m >= MIN_HELDOUT else None, 'heldout_holds': m}
     if m < MIN_HELDOUT:
-        why = (f'against the standard fit: {how}: {m} held-out holds (< {MIN_HELDOUT}), no '
+        why = (f'{FLOOR_REASON}: {how}: {m} held-out holds (< {MIN_HELDOUT}), no '
                f'held-out evidence that {name} is better, so the standard fit (bias '
                'polynomial in temperature) is used; to let auto judge a thermal family, '
                'hold every face at least twice, at different temperatures')
@@ -266,7 +251,7 @@ def judge_family(ctx, sel):
     verdict = (f'{name} predicts them better by more than the noise: kept' if wins else
                f'{name} does not predict them better by more than the noise: the standard '
                'fit (bias polynomial in temperature)')
-    why = (f'against the standard fit ({how}): held-out |a|-g RMS over {m} holds, standard '
+    why = (f'{FLOOR_REASON} ({how}): held-out |a|-g RMS over {m} holds, standard '
            f'{rms["standard"]:.1f} ug, {name} {rms[name]:.1f} ug, paired z {z:.2f} (limit '
            f'{limit:.2f}); {verdict}')
     table[f'{name} (vs standard, held out)'] = {'residual_ug': rms[name], 'z': z,
