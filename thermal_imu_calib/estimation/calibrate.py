@@ -28,6 +28,7 @@ from .builtin_estimators import (_gyro_bias, check_faces_up_and_down,  # noqa: F
 from .context import (AUTO_POLICY, auto_choice, Context, Estimate,  # noqa: F401
                       ESTIMATOR_MODULES, ESTIMATORS, make_context, model_choices,
                       register_estimator)
+from .gyro_static import EARTH_RATE
 from .hold_rules import (consistency_notes, HOLD_MAGNITUDES,  # noqa: F401
                          HOLD_RULE_JUDGE, leave_out_holds)
 from .observability import ORDER_SPAN
@@ -110,6 +111,27 @@ def _without_flat_temperature(windows, o):
                   'without the topic); collect across a warm-up for thermal terms']
 
 
+def _without_vertical_earth_rate(windows, o):
+    """Return (windows, notes): one orientation with a latitude, the vertical earth rate removed.
+
+    A still gyroscope reads the earth rate. In one pose its vertical part, ``EARTH_RATE`` x
+    sin(latitude) along the up direction (5.2e-5 rad/s at 45 deg), is a constant the offset
+    models would take for bias, and a compensated output would then lack it. With the
+    latitude known it is taken out of every window's gyro mean before the fit (up: the
+    window's measured specific force direction). The horizontal part depends on the heading,
+    which one pose does not give: it stays, and averages out over holds at many headings.
+    Several orientations: the gyro fits remove the earth rate themselves (``gyro_static``).
+    """
+    if o.latitude is None or not len(windows) or distinct_orientations(windows) != 1:
+        return windows, []
+    up = windows.accel / np.linalg.norm(windows.accel, axis=1, keepdims=True)
+    vertical = EARTH_RATE * np.sin(np.radians(o.latitude))
+    w = dataclasses.replace(windows, gyro=windows.gyro - vertical * up)
+    return w, [f'gyroscope: the vertical earth rate ({vertical:.3g} rad/s at latitude '
+               f'{o.latitude:g} deg) removed before the fit (one orientation; the horizontal '
+               'part depends on the heading and stays in the hold means)']
+
+
 def calibrate_windows(windows, options=None):
     """Estimate a Calibration from stationary windows; raise CalibrationRefused if impossible."""
     o = options or CalibrateOptions()
@@ -125,13 +147,14 @@ def calibrate_windows(windows, options=None):
         raise ValueError(f'{len(o.inputs)} temperature inputs named but windows carry '
                          f'{windows.n_inputs}')
     windows, o, flat = _without_flat_temperature(windows, o)
+    windows, earth = _without_vertical_earth_rate(windows, o)
     ctx = make_context(windows, o)
     consistency = leave_out_holds(ctx)
     accel_input, gyro_input, units = ctx.accel_input, ctx.gyro_input, input_units(o, ctx.k)
     name, why = ((o.model, 'requested') if o.model != 'auto'
                  else AUTO_POLICY[0](ctx.accel_view()))
     est = ESTIMATORS[name](ctx)
-    notes = flat + consistency_notes(consistency) + list(est.notes)
+    notes = flat + earth + consistency_notes(consistency) + list(est.notes)
     floor = why.split(f'; {FLOOR_REASON}', 1)
     if o.model == 'auto' and len(floor) == 2:   # the thermal family judged by the floor
         notes.append(f'auto, a thermal family judged {FLOOR_REASON}{floor[1]}')

@@ -5,7 +5,9 @@ the calibration compensates the window means at their temperatures and the hold 
 reduced to its sample-weighted mean:
 
 * gyro error: ``|mean gyro|`` (rad/s): a still gyro reads the earth rate only
-  (<= 7.3e-5 rad/s, the same for every calibration compared);
+  (<= 7.3e-5 rad/s, the same for every calibration compared); with the latitude known its
+  vertical part (along the hold's specific force) is taken off first, the part of the
+  truth that is known (a calibration fitted with the latitude leaves it in its output);
 * accelerometer error: ``|mean accel| - g`` (m/s^2) *centred* on its median over the
   held-out holds in the mounting pose (the gyro is judged on all of them): in one
   mounting pose bias and scale are not separable from gravity and the single-orientation
@@ -26,12 +28,16 @@ Without an active calibration the raw output is the reference.
 
 import numpy as np
 
+from ..estimation.gyro_static import EARTH_RATE
 
-def hold_errors(cal, windows, gravity):
+
+def hold_errors(cal, windows, gravity, latitude=None):
     """Return per-hold arrays: ids, t (s, end), temp (degC), gyro, accel, se_gyro, se_accel.
 
-    ``cal`` None: the raw output.
+    ``cal`` None: the raw output. ``latitude`` (deg): the vertical earth rate is taken off
+    each hold's mean gyro before its norm (see the module docstring).
     """
+    vertical = 0.0 if latitude is None else EARTH_RATE * np.sin(np.radians(latitude))
     ids = windows.hold_ids if len(windows) else np.zeros(0, int)
     temps = windows.temp if windows.n_inputs else None
     if not len(windows):
@@ -51,10 +57,11 @@ def hold_errors(cal, windows, gravity):
         m = windows.hold == hid
         w = windows.n[m].astype(float)
         n = w.sum()
-        g = np.average(gyr[m], 0, w)
+        a = np.average(acc[m], 0, w)
+        g = np.average(gyr[m], 0, w) - vertical * a / max(np.linalg.norm(a), 1e-12)
         out['gyro_vec'][j] = g
         out['gyro'][j] = np.linalg.norm(g)
-        out['accel'][j] = np.linalg.norm(np.average(acc[m], 0, w)) - gravity
+        out['accel'][j] = np.linalg.norm(a) - gravity
         out['se_gyro'][j] = np.sqrt(np.mean(np.average(windows.gyro_var[m], 0, w)) / n)
         out['se_accel'][j] = np.sqrt(np.mean(np.average(windows.accel_var[m], 0, w)) / n)
         out['t'][j] = float(windows.t1[m].max())
@@ -67,14 +74,15 @@ def _rms(x):
     return float(np.sqrt(np.mean(np.square(x)))) if len(x) else float('nan')
 
 
-def score(cal, windows, gravity, accel_windows=None):
+def score(cal, windows, gravity, accel_windows=None, latitude=None):
     """Return {'gyro_rms', 'accel_rms', 'noise_gyro', 'noise_accel', 'holds', errors}.
 
     The gyro is scored on every hold of ``windows``, the accelerometer on those of
     ``accel_windows`` (default: the same; the node passes the holds in the mounting pose).
+    ``latitude``: see ``hold_errors``.
     """
-    e = hold_errors(cal, windows, gravity)
-    ea = e if accel_windows is None else hold_errors(cal, accel_windows, gravity)
+    e = hold_errors(cal, windows, gravity, latitude)
+    ea = e if accel_windows is None else hold_errors(cal, accel_windows, gravity, latitude)
     acc = ea['accel'] - np.median(ea['accel']) if len(ea['accel']) else ea['accel']
     return {'holds': int(len(e['ids'])), 'accel_holds': int(len(ea['ids'])),
             'gyro_rms': _rms(e['gyro']), 'accel_rms': _rms(acc),
