@@ -52,7 +52,7 @@ sys.path.insert(0, os.path.dirname(HERE))
 from thermal_imu_calib.app.calibrate import CalibrateSettings  # noqa: E402
 from thermal_imu_calib.lifelong.feed import Feeder  # noqa: E402
 from thermal_imu_calib.lifelong.hints import HintGate, HintSource  # noqa: E402
-from thermal_imu_calib.lifelong.manager import Lifelong  # noqa: E402
+from thermal_imu_calib.lifelong.manager import Lifelong, LifelongConfig  # noqa: E402
 from thermal_imu_calib.sim.robot_month import DAY, robot_month  # noqa: E402
 
 RESULTS = os.path.join(HERE, 'results')
@@ -100,19 +100,20 @@ def stop_error(cal, ch):
     return w @ (g - ch['w']), w @ (a - ch['f'])
 
 
-def run_seed(seed, days, work, **overrides):
+def run_seed(seed, days, work, latitude=None, ageing=True, **overrides):
     m = robot_month(seed, days=days, **overrides)
     spec = m.device.spec
     rate = m.config.imu_rate
     noise_g = np.sqrt(3 * (spec.gyro_noise_density ** 2 * rate + spec.gyro_lsb ** 2 / 12))
     d = os.path.join(work, f'seed{seed}')
     shutil.rmtree(d, ignore_errors=True)
-    settings = CalibrateSettings()
+    settings = CalibrateSettings(latitude=latitude)
     log = []
 
     def make():
         return Lifelong(d, settings, 1, [m.config.temp_topic], m.config.frame_id,
                         registry_dir=os.path.join(d, 'registry'),
+                        config=LifelongConfig(ageing=ageing),
                         log=lambda level, text: log.append((level, text)))
     life = make()
     feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
@@ -246,7 +247,7 @@ def month(args):
     work = args.work or tempfile.mkdtemp(prefix='bench_lifelong_')
     rows = []
     for seed in range(args.first_seed, args.first_seed + args.seeds):
-        r = run_seed(seed, args.days, work)
+        r = run_seed(seed, args.days, work, args.latitude, not args.no_ageing)
         rows.append(r)
         ra, kn = r['ratios'], r['knock']
         print(f'seed {seed}: {r["seconds"]:.0f} s, gyro first day '
@@ -787,6 +788,10 @@ def main():
     mo.add_argument('--first-seed', type=int, default=0)
     mo.add_argument('--days', type=float, default=30.0)
     mo.add_argument('--work', default='')
+    mo.add_argument('--latitude', type=float, default=None,
+                    help='give the calibrations the latitude (deg; the month is at 45)')
+    mo.add_argument('--no-ageing', action='store_true',
+                    help='without the gyro ageing candidate (LifelongConfig.ageing False)')
     mo.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_month.json'))
     re_ = sub.add_parser('real')
     re_.add_argument('--work', default='')

@@ -44,7 +44,7 @@ from ..calibration import Calibration, CalibrationError
 from ..estimation.calibrate import CalibrationRefused
 from ..io.output import write_atomic
 from ..collection.collected import Collected
-from . import gate
+from . import ageing, gate
 from ..collection.segments import Windows
 from .store import HoldStore, StoreConfig
 
@@ -107,6 +107,8 @@ class LifelongConfig:
     alarm_floor: float = 5.0
     #: one orientation family: fit only the holds within this angle of the mounting pose
     pose_deg: float = 2.0
+    #: also fit with the gyro ageing removed, kept when held-out holds prefer it (``ageing``)
+    ageing: bool = True
     store: StoreConfig = field(default_factory=StoreConfig)
 
 
@@ -123,6 +125,8 @@ class Lifelong:
         self.sensor = sensor or frame_id or 'imu'
         self.registry_dir = os.path.expanduser(registry_dir) if registry_dir else ''
         self.config = config or LifelongConfig()
+        #: deg or None: the swap gate takes the known vertical earth rate off the gyro
+        self.latitude = getattr(settings, 'latitude', None)
         self.log = log or (lambda level, text: None)
         os.makedirs(self.dir, exist_ok=True)
         self.store = HoldStore(os.path.join(self.dir, 'holds'), self.k, self.config.store)
@@ -229,7 +233,7 @@ class Lifelong:
 
     def _check_change(self, windows):
         cal = self.active
-        e = gate.hold_errors(cal, windows, cal.gravity)
+        e = gate.hold_errors(cal, windows, cal.gravity, self.latitude)
         lo, hi = (cal.valid_range[0] if cal.valid_range is not None and self.k
                   else (-np.inf, np.inf))
         base_acc = self.state.get('active_accel_median') or 0.0
@@ -312,7 +316,9 @@ class Lifelong:
         c = self.config
         held = self.store.newest_holds(c.holdout_holds)
         now = float(self.store.recent.t1.max()) if len(self.store.recent) else 0.0
-        fit = main_pose(self.store.windows(now, exclude=held), self.config.pose_deg)
+        everything, times = self.store.fit_windows(now, exclude=held)
+        in_pose = main_pose_mask(everything, self.config.pose_deg)
+        fit, times = everything.select(in_pose), times[in_pose]
         holdout = self.store.holds(held)
         holdout_pose = main_pose(holdout, self.config.pose_deg, reference=_pose_of(fit))
         self.state['holds_at_estimate'] = self.store.total_holds
@@ -334,8 +340,12 @@ class Lifelong:
             return self._finish(decision)
         new = result.calibration
         g = new.gravity
-        s_new = gate.score(new, holdout, g, holdout_pose)
-        s_act = gate.score(self.active, holdout, g, holdout_pose)
+        s_new = gate.score(new, holdout, g, holdout_pose, self.latitude)
+        aged = self._with_ageing(fit, times, now, holdout, holdout_pose, s_new, decision)
+        if aged is not None:
+            result, s_new = aged
+            new = result.calibration
+        s_act = gate.score(self.active, holdout, g, holdout_pose, self.latitude)
         swap, fig = gate.decide(s_act, s_new, c.swap_sigmas)
         decision['figures'] = fig
         decision['model'] = new.accel.kind if new.accel is not None else 'gyro only'
@@ -355,6 +365,46 @@ class Lifelong:
                                  f'{text}')
         self.state['alarm_pending'] = False
         return self._finish(decision)
+
+    def _with_ageing(self, fit, times, now, holdout, pose, s_plain, decision):
+        """Return (result, score) of the fit with the gyro ageing removed, when it is better.
+
+        The gyro ageing rate is estimated jointly with a cubic in temperature
+        (``ageing.trend``); when an axis' rate is resolved, the fit is repeated with every
+        window's gyro mean moved to ``now`` (``ageing.detrended``), and that estimate is
+        kept only when its gyro error on the held-out holds is lower than the plain fit's
+        by more than their noise (``gate.decide``'s gyro verdict, the swap gate's margin).
+        Returns None otherwise; the decision records the rates and both figures.
+        """
+        if not self.config.ageing:
+            return None
+        found = ageing.trend(fit, times, now)
+        if found is None or not found.resolved.any():
+            if found is not None:
+                decision['ageing'] = {'text': found.text(), 'used': False}
+            return None
+        try:
+            collected = Collected(ageing.detrended(fit, times, now, found), self.frame_id, 0,
+                                  0.0, list(self.topics), [])
+            result = calibrate_collected(self.settings, [collected])
+        except (CalibrationRefused, SettingsError, CalibrationError, ValueError) as e:
+            decision['ageing'] = {'text': f'{found.text()}; the fit without it refused ({e})',
+                                  'used': False}
+            return None
+        score = gate.score(result.calibration, holdout, result.calibration.gravity, pose,
+                           self.latitude)
+        _, fig = gate.decide(s_plain, score, self.config.swap_sigmas)
+        used = fig['gyro']['verdict'] == 'better'
+        plain_md, aged_md, margin_md = (np.degrees(x) * 1e3 for x in (
+            s_plain['gyro_rms'], score['gyro_rms'], fig['gyro']['margin']))
+        decision['ageing'] = {
+            'text': (f'{found.text()}; held-out gyro RMS {plain_md:.3g} mdeg/s as fitted, '
+                     f'{aged_md:.3g} with the ageing removed (margin {margin_md:.2g}): '
+                     f'{"removed" if used else "not removed"}'),
+            'margin': fig['gyro']['margin'],
+            'used': used, 'rate_rad_s_per_day': found.rate, 'std_rad_s_per_day': found.std,
+            'heldout_gyro_rms': [s_plain['gyro_rms'], score['gyro_rms']]}
+        return (result, score) if used else None
 
     def _finish(self, decision):
         self.state['last_decision'] = decision['text']
@@ -378,7 +428,8 @@ class Lifelong:
         rec = self.store.recent
         raw = main_pose(rec.select(~np.isin(rec.hold, held)), self.config.pose_deg) \
             if len(rec) else rec
-        both = gate.hold_errors(cal, Windows.concat([raw, holdout]), cal.gravity)
+        both = gate.hold_errors(cal, Windows.concat([raw, holdout]), cal.gravity,
+                                self.latitude)
         med = float(np.median(both['accel']))
         self.state.update(active_since=now,
                           active_gyro_rms=max(s_new['gyro_rms'], gate._rms(both['gyro'])),
@@ -414,7 +465,7 @@ class Lifelong:
         if self.active is not None:
             held = self.store.holds(self.store.newest_holds(self.config.holdout_holds))
             if len(held):
-                sc = gate.score(self.active, held, self.active.gravity)
+                sc = gate.score(self.active, held, self.active.gravity, latitude=self.latitude)
                 out['recent_gyro_rms_rad_s'] = sc['gyro_rms']
                 out['recent_accel_rms_mps2'] = sc['accel_rms']
         return out
@@ -443,16 +494,22 @@ def main_pose(windows, pose_deg, reference=None):
     and holds on a slope would look like drift to them. With several orientations (or no
     holds) the windows are returned as they are.
     """
+    return windows.select(main_pose_mask(windows, pose_deg, reference))
+
+
+def main_pose_mask(windows, pose_deg, reference=None):
+    """Return the (n,) mask of the windows ``main_pose`` keeps."""
     from ..collection.segments import distinct_orientations
+    everything = np.ones(len(windows), bool)
     if not len(windows) or (reference is None and distinct_orientations(windows) > 1):
-        return windows
+        return everything
     ref = _pose_of(windows) if reference is None else reference
     if ref is None:
-        return windows
+        return everything
     ids, means = windows.hold_means()
     u = means / np.linalg.norm(means, axis=1, keepdims=True)
     keep = ids[u @ ref >= np.cos(np.radians(pose_deg))]
-    return windows.select(np.isin(windows.hold, keep))
+    return np.isin(windows.hold, keep)
 
 
 def _plain(x):

@@ -7,7 +7,9 @@ Windows``; statistics, never raw samples). The newest holds are kept as they are
 compacted: each is put in an *orientation cluster* (gravity directions within
 ``cluster_deg`` of the cluster's first hold) and each of its windows in a *temperature bin*
 (``bin_degc`` wide, first thermal input); per (cluster, bin) the sample-weighted sums of
-the means, variances and temperatures are kept (``compacted.json``, written atomically).
+the means, variances, temperatures and times are kept (``compacted.json``, written
+atomically; the time sum ``tsum``, s x samples, gives a bin's mean time for the ageing trend,
+``lifelong.ageing``; files written before it load with the bin's newest time instead).
 Compacted statistics fade with age (weight x exp(-age / ``memory_days``)): a bias that ages
 is followed, and a bin whose weight falls below ``min_weight`` samples is dropped.
 
@@ -58,7 +60,8 @@ class StoreConfig:
 class _Bins:
     """Sample-weighted sums per (cluster, temperature bin), as arrays (one row per bin)."""
 
-    SUMS = ('w', 'accel', 'gyro', 'accel_var', 'gyro_var', 'temp', 'temp_rate', 'seconds')
+    SUMS = ('w', 'accel', 'gyro', 'accel_var', 'gyro_var', 'temp', 'temp_rate', 'seconds',
+            'tsum')
 
     def __init__(self, k):
         self.k = k
@@ -71,6 +74,7 @@ class _Bins:
         self.accel_var, self.gyro_var = np.zeros((0, 3)), np.zeros((0, 3))
         self.temp, self.temp_rate = np.zeros((0, k)), np.zeros((0, k))
         self.seconds = np.zeros(0)
+        self.tsum = np.zeros(0)           # sample-weighted sum of window mid times (s)
 
     def __len__(self):
         return len(self.cluster)
@@ -108,6 +112,7 @@ class _Bins:
             self.temp[i] += nm @ win.temp[m]
             self.temp_rate[i] += nm @ win.temp_rate[m]
             self.seconds[i] += float(np.sum(win.t1[m] - win.t0[m]))
+            self.tsum[i] += nm @ (0.5 * (win.t0[m] + win.t1[m]))
             self.t1[i] = max(self.t1[i], float(win.t1[m].max()))
 
     def _append(self, cluster, key, t1):
@@ -135,6 +140,10 @@ class _Bins:
                        self.accel / w, self.gyro / w, self.accel_var / w, self.gyro_var / w,
                        self.temp / w, self.temp_rate / w)
 
+    def mean_times(self):
+        """Return each bin's sample-weighted mean time (s)."""
+        return self.tsum / np.maximum(self.w, 1e-300)
+
     def to_dict(self):
         """Return plain types for JSON."""
         return {name: getattr(self, name).tolist()
@@ -150,6 +159,8 @@ class _Bins:
             setattr(b, name, np.asarray(d[name], int))
         for name in ('ref', 't1', 'w', 'seconds'):
             setattr(b, name, np.asarray(d[name], float))
+        # files written before the time sum: the bin's newest time stands for its mean
+        b.tsum = np.asarray(d['tsum'], float) if 'tsum' in d else b.t1 * b.w
         for name in ('accel', 'gyro', 'accel_var', 'gyro_var'):
             setattr(b, name, np.asarray(d[name], float).reshape(-1, 3))
         for name in ('temp', 'temp_rate'):
@@ -344,6 +355,14 @@ class HoldStore:
         data) first, then the raw holds, oldest first, as a log gives them (small ids in
         time order; the estimators take hold ids in any order).
         """
+        return self.fit_windows(now, exclude)[0]
+
+    def fit_windows(self, now=None, exclude=()):
+        """Return (``windows(now, exclude)``, each window's mean time (s)).
+
+        A raw window's mean time is its middle; a compacted bin's the sample-weighted mean
+        of its windows' (its own ``t0``/``t1`` stay the newest window's, as before).
+        """
         bins = _Bins.from_dict(self.bins.to_dict(), self.k)
         if now is not None:
             bins.fade(float(now), self.config.memory_days)
@@ -351,16 +370,20 @@ class HoldStore:
         raw = self.recent.select(~np.isin(self.recent.hold, list(exclude))) \
             if len(self.recent) else self.recent
         comp = bins.windows()
+        times = np.zeros(0)
         if len(comp):
-            comp = comp.select(np.lexsort((bins.bin, bins.cluster)))
+            order = np.lexsort((bins.bin, bins.cluster))
+            comp, times = comp.select(order), bins.mean_times()[order]
         out = Windows.concat([comp, raw])
         if not len(out):
-            return Windows.empty(self.k)
+            return Windows.empty(self.k), np.zeros(0)
+        if len(raw):
+            times = np.concatenate([times, 0.5 * (raw.t0 + raw.t1)])
         first = {}
         for h in out.hold:
             first.setdefault(int(h), len(first))
         out.hold = np.array([first[int(h)] for h in out.hold], int)
-        return out
+        return out, times
 
     def newest_holds(self, count):
         """Return the ids of the newest ``count`` raw holds, oldest first."""
