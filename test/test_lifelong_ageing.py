@@ -166,3 +166,23 @@ def test_lifelong_estimates_judge_the_ageing_on_held_out_holds(tmp_path):
     assert any('heldout_gyro_rms' in d['ageing'] for d in judged)
     # the calibrations were fitted with the latitude: their notes say so
     assert any('vertical earth rate' in n for n in life.active.notes)
+
+
+def test_swap_gate_with_a_latitude_scores_the_gyro_without_the_earth_rate():
+    """Holds at random headings reading the earth rate only: no error with the latitude."""
+    from thermal_imu_calib.lifelong import gate
+    win, times, now = season(days=1.0, holds=40, lat_deg=45.0)
+    truth = bias_of(win.temp[:, 0]) + RATE[None, :] * times[:, None] / DAY
+    clean = Windows(**{**win.__dict__, 'gyro': win.gyro - truth})   # earth rate + noise
+    plain = gate.hold_errors(None, clean, 9.80665)
+    known = gate.hold_errors(None, clean, 9.80665, latitude=45.0)
+    assert np.allclose(plain['gyro'], EARTH_RATE, rtol=0.1)
+    assert np.all(known['gyro'] < 0.1 * EARTH_RATE)          # the noise of the means
+    # a bias of a third of the earth rate: hidden under it without the latitude (the RMS
+    # moves by less than the bias), seen with it
+    delta = np.array([0.0, EARTH_RATE / 3, 0.0])
+    off = Windows(**{**clean.__dict__, 'gyro': clean.gyro + delta})
+    rms = {lat: gate._rms(gate.hold_errors(None, off, 9.80665, lat)['gyro'])
+           - gate._rms(gate.hold_errors(None, clean, 9.80665, lat)['gyro'])
+           for lat in (None, 45.0)}
+    assert rms[45.0] > 0.5 * EARTH_RATE / 3 and rms[45.0] > 2 * rms[None], rms

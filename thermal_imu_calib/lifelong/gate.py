@@ -5,9 +5,14 @@ the calibration compensates the window means at their temperatures and the hold 
 reduced to its sample-weighted mean:
 
 * gyro error: ``|mean gyro|`` (rad/s): a still gyro reads the earth rate only
-  (<= 7.3e-5 rad/s, the same for every calibration compared); with the latitude known its
-  vertical part (along the hold's specific force) is taken off first, the part of the
-  truth that is known (a calibration fitted with the latitude leaves it in its output);
+  (<= 7.3e-5 rad/s, the same for every calibration compared). With the latitude known the
+  earth rate is no longer part of the error: its vertical part (``EARTH_RATE`` sin(lat)
+  along the hold's specific force) is known, and so is the size of its horizontal part
+  (``EARTH_RATE`` cos(lat)), whose direction depends on the unknown heading; the error is
+  then ``sqrt(v^2 + (|h| - EARTH_RATE cos(lat))^2)`` with v the mean's vertical part less
+  the known one and h its horizontal part (a calibration fitted with the latitude leaves
+  the earth rate in its output). Without it the earth rate's 5e-5 rad/s at a random
+  heading is in every hold's error and hides biases of that size;
 * accelerometer error: ``|mean accel| - g`` (m/s^2) *centred* on its median over the
   held-out holds in the mounting pose (the gyro is judged on all of them): in one
   mounting pose bias and scale are not separable from gravity and the single-orientation
@@ -37,7 +42,9 @@ def hold_errors(cal, windows, gravity, latitude=None):
     ``cal`` None: the raw output. ``latitude`` (deg): the vertical earth rate is taken off
     each hold's mean gyro before its norm (see the module docstring).
     """
-    vertical = 0.0 if latitude is None else EARTH_RATE * np.sin(np.radians(latitude))
+    if latitude is not None:
+        vertical = EARTH_RATE * np.sin(np.radians(latitude))
+        horizontal = EARTH_RATE * np.cos(np.radians(latitude))
     ids = windows.hold_ids if len(windows) else np.zeros(0, int)
     temps = windows.temp if windows.n_inputs else None
     if not len(windows):
@@ -58,9 +65,16 @@ def hold_errors(cal, windows, gravity, latitude=None):
         w = windows.n[m].astype(float)
         n = w.sum()
         a = np.average(acc[m], 0, w)
-        g = np.average(gyr[m], 0, w) - vertical * a / max(np.linalg.norm(a), 1e-12)
+        g = np.average(gyr[m], 0, w)
+        if latitude is None:
+            out['gyro'][j] = np.linalg.norm(g)
+        else:
+            up = a / max(np.linalg.norm(a), 1e-12)
+            v = float(g @ up)
+            g = g - vertical * up
+            h = np.linalg.norm(g - (g @ up) * up) - horizontal
+            out['gyro'][j] = np.hypot(v - vertical, h)
         out['gyro_vec'][j] = g
-        out['gyro'][j] = np.linalg.norm(g)
         out['accel'][j] = np.linalg.norm(a) - gravity
         out['se_gyro'][j] = np.sqrt(np.mean(np.average(windows.gyro_var[m], 0, w)) / n)
         out['se_accel'][j] = np.sqrt(np.mean(np.average(windows.accel_var[m], 0, w)) / n)
