@@ -1,0 +1,94 @@
+"""Gyro error of each calibration a simulated robot month activated, by temperature band.
+
+For a finished ``bench_lifelong.py month`` run (its ``--work`` directory), every stop is
+scored with the calibration active when it began (the registry is the timeline), against
+the truth, as ``bench_lifelong.py`` scores it; the RMS per axis (mrad/s) is printed per
+activated calibration and 5-degC band, with the calibration's gyro family and valid range.
+Shows a calibration that is good where the swap gate judged it and bad elsewhere. Then,
+over all those stops: the mean error vector (what no temperature term explains: a bias
+the calibrations lag behind, or the earth rate they took in) and what is left after a
+cubic in temperature per calibration, by stop length (the noise of a short stop's mean
+against a misfit of the thermal model).
+
+    python bench/lifelong_by_temperature.py /tmp/lfg1/seed1 --seed 1 [--from-day 23]
+"""
+
+import argparse
+import os
+import sys
+
+import numpy as np
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..'))
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+from bench_lifelong import stop_chunks, stop_error  # noqa: E402
+from thermal_imu_calib.calibration import Calibration  # noqa: E402
+from thermal_imu_calib.fleet import registry  # noqa: E402
+from thermal_imu_calib.sim.robot_month import DAY, robot_month  # noqa: E402
+
+BANDS = (-np.inf, 20.0, 25.0, 30.0, 35.0, np.inf)
+#: stop lengths (s) the residual is split by
+LENGTHS = (0.0, 30.0, 100.0, np.inf)
+
+
+def residual_summary(scored):
+    """Print the mean error and the residual after a cubic in T per calibration (mrad/s)."""
+    rows = [(k, *r) for k, v in scored.items() for r in v]
+    x = np.array([r[1:] for r in rows])            # temp, ex, ey, ez, stop length
+    ks = np.array([r[0] for r in rows])
+    err = x[:, 1:4]
+    res = err.copy()
+    for k in np.unique(ks):
+        s = ks == k
+        for j in range(3):
+            deg = 3 if s.sum() > 8 else 0
+            res[s, j] -= np.polyval(np.polyfit(x[s, 0], err[s, j], deg), x[s, 0])
+    print(f'all {len(x)} stops: gyro error RMS {np.sqrt(np.mean(np.sum(err ** 2, 1))) * 1e3:.3f}'
+          f' mrad/s, mean x y z {" ".join(f"{v:+.3f}" for v in err.mean(0) * 1e3)} mrad/s')
+    for lo, hi in zip(LENGTHS[:-1], LENGTHS[1:]):
+        s = (x[:, 4] >= lo) & (x[:, 4] < hi)
+        if s.any():
+            rms = np.sqrt(np.mean(res[s] ** 2, 0)) * 1e3
+            print(f'  stops of {lo:.0f}..{hi:.0f} s ({s.sum()}): left after a cubic in T per '
+                  f'calibration, RMS x y z {rms[0]:.3f} {rms[1]:.3f} {rms[2]:.3f} mrad/s')
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument('work_seed', help="a month's lifelong directory (…/seed<N>)")
+    p.add_argument('--seed', type=int, required=True)
+    p.add_argument('--days', type=float, default=30.0)
+    p.add_argument('--from-day', type=float, default=0.0)
+    a = p.parse_args()
+    m = robot_month(a.seed, days=a.days)
+    base = m.start_ns * 1e-9
+    rows = registry.read_index(os.path.join(a.work_seed, 'registry'))
+    starts = [registry.parse_time(r['time']) * 1e-9 - base for r in rows]
+    cals = [Calibration.load(os.path.join(a.work_seed, 'registry', r['file'])) for r in rows]
+    scored = {}
+    for seg in m.segments(a.from_day * DAY):
+        ch = stop_chunks(seg)
+        k = int(np.searchsorted(starts, seg.stop.t0, side='right')) - 1
+        if ch is None or seg.stop.blocked or k < 0:
+            continue
+        eg, _ = stop_error(cals[k], ch)
+        scored.setdefault(k, []).append((float(np.mean(ch['temp'])), *eg,
+                                         seg.stop.t1 - seg.stop.t0))
+    for k, v in sorted(scored.items()):
+        x = np.array(v)
+        c = cals[k]
+        lo, hi = c.valid_range[0] if c.valid_range is not None else (np.nan, np.nan)
+        print(f'calibration {c.id} active from day {starts[k] / DAY:.2f}: gyro {c.gyro.kind}, '
+              f'valid {lo:.1f}..{hi:.1f} degC, {len(x)} stops')
+        for b0, b1 in zip(BANDS[:-1], BANDS[1:]):
+            s = (x[:, 0] >= b0) & (x[:, 0] < b1)
+            if s.any():
+                rms = np.sqrt(np.mean(x[s, 1:4] ** 2, 0)) * 1e3
+                print(f'  {b0:>5.0f}..{b1:<4.0f} degC {s.sum():4d} stops: gyro RMS x y z '
+                      f'{rms[0]:.3f} {rms[1]:.3f} {rms[2]:.3f} mrad/s')
+    residual_summary(scored)
+
+
+if __name__ == '__main__':
+    main()
