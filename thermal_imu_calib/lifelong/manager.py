@@ -46,6 +46,7 @@ from ..io.output import write_atomic
 from ..collection.collected import Collected
 from . import ageing, gate
 from ..collection.segments import Windows
+from .pose import main_pose, main_pose_mask, pose_of
 from .store import HoldStore, StoreConfig
 
 MAX_DECISIONS = 2000
@@ -320,7 +321,7 @@ class Lifelong:
         in_pose = main_pose_mask(everything, self.config.pose_deg)
         fit, times = everything.select(in_pose), times[in_pose]
         holdout = self.store.holds(held)
-        holdout_pose = main_pose(holdout, self.config.pose_deg, reference=_pose_of(fit))
+        holdout_pose = main_pose(holdout, self.config.pose_deg, reference=pose_of(fit))
         self.state['holds_at_estimate'] = self.store.total_holds
         self.state['estimates'] += 1
         decision = {'time': now, 'reason': reason, 'fit_windows': len(fit),
@@ -469,47 +470,6 @@ class Lifelong:
                 out['recent_gyro_rms_rad_s'] = sc['gyro_rms']
                 out['recent_accel_rms_mps2'] = sc['accel_rms']
         return out
-
-
-def _pose_of(windows):
-    """Return the sample-weighted mean gravity-up direction of the most common pose."""
-    if not len(windows):
-        return None
-    _, means = windows.hold_means()
-    u = means / np.linalg.norm(means, axis=1, keepdims=True)
-    w = np.array([windows.n[windows.hold == h].sum() for h in windows.hold_ids], float)
-    # the hold whose direction has the most sample weight within 2 deg of it
-    close = (u @ u.T) > np.cos(np.radians(2.0))
-    ref = u[int(np.argmax(close @ w))]
-    m = u @ ref > np.cos(np.radians(2.0))
-    v = w[m] @ u[m]
-    return v / np.linalg.norm(v)
-
-
-def main_pose(windows, pose_deg, reference=None):
-    """Return the windows of the holds within ``pose_deg`` of the mounting pose.
-
-    Only when the holds form one orientation family (``distinct_orientations`` 1: a robot
-    on its wheels, level or on slopes): the single-orientation models describe one pose,
-    and holds on a slope would look like drift to them. With several orientations (or no
-    holds) the windows are returned as they are.
-    """
-    return windows.select(main_pose_mask(windows, pose_deg, reference))
-
-
-def main_pose_mask(windows, pose_deg, reference=None):
-    """Return the (n,) mask of the windows ``main_pose`` keeps."""
-    from ..collection.segments import distinct_orientations
-    everything = np.ones(len(windows), bool)
-    if not len(windows) or (reference is None and distinct_orientations(windows) > 1):
-        return everything
-    ref = _pose_of(windows) if reference is None else reference
-    if ref is None:
-        return everything
-    ids, means = windows.hold_means()
-    u = means / np.linalg.norm(means, axis=1, keepdims=True)
-    keep = ids[u @ ref >= np.cos(np.radians(pose_deg))]
-    return np.isin(windows.hold, keep)
 
 
 def _plain(x):

@@ -1,0 +1,50 @@
+"""The mounting pose of a robot's holds: which holds a one-orientation fit may use.
+
+A robot on its wheels stops level or on slopes. The single-orientation models describe one
+pose, and holds on a slope would look like drift to them, so a lifelong fit keeps the holds
+within a few degrees of the mounting pose (the direction with the most sample weight).
+Angles in degrees; no ROS import.
+"""
+
+import numpy as np
+
+
+def pose_of(windows):
+    """Return the sample-weighted mean gravity-up direction of the most common pose."""
+    if not len(windows):
+        return None
+    _, means = windows.hold_means()
+    u = means / np.linalg.norm(means, axis=1, keepdims=True)
+    w = np.array([windows.n[windows.hold == h].sum() for h in windows.hold_ids], float)
+    # the hold whose direction has the most sample weight within 2 deg of it
+    close = (u @ u.T) > np.cos(np.radians(2.0))
+    ref = u[int(np.argmax(close @ w))]
+    m = u @ ref > np.cos(np.radians(2.0))
+    v = w[m] @ u[m]
+    return v / np.linalg.norm(v)
+
+
+def main_pose(windows, pose_deg, reference=None):
+    """Return the windows of the holds within ``pose_deg`` of the mounting pose.
+
+    Only when the holds form one orientation family (``distinct_orientations`` 1: a robot
+    on its wheels, level or on slopes): the single-orientation models describe one pose,
+    and holds on a slope would look like drift to them. With several orientations (or no
+    holds) the windows are returned as they are.
+    """
+    return windows.select(main_pose_mask(windows, pose_deg, reference))
+
+
+def main_pose_mask(windows, pose_deg, reference=None):
+    """Return the (n,) mask of the windows ``main_pose`` keeps."""
+    from ..collection.segments import distinct_orientations
+    everything = np.ones(len(windows), bool)
+    if not len(windows) or (reference is None and distinct_orientations(windows) > 1):
+        return everything
+    ref = pose_of(windows) if reference is None else reference
+    if ref is None:
+        return everything
+    ids, means = windows.hold_means()
+    u = means / np.linalg.norm(means, axis=1, keepdims=True)
+    keep = ids[u @ ref >= np.cos(np.radians(pose_deg))]
+    return np.isin(windows.hold, keep)
