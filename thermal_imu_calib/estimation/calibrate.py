@@ -28,7 +28,7 @@ from .builtin_estimators import (_gyro_bias, check_faces_up_and_down,  # noqa: F
 from .context import (AUTO_POLICY, auto_choice, Context, Estimate,  # noqa: F401
                       ESTIMATOR_MODULES, ESTIMATORS, make_context, model_choices,
                       register_estimator)
-from .gyro_static import EARTH_RATE
+from .gyro_static import earth_rate_parts
 from .hold_rules import (consistency_notes, HOLD_MAGNITUDES,  # noqa: F401
                          HOLD_RULE_JUDGE, leave_out_holds)
 from .observability import ORDER_SPAN
@@ -114,9 +114,9 @@ def _without_flat_temperature(windows, o):
 def _without_vertical_earth_rate(windows, o):
     """Return (windows, notes): one orientation with a latitude, the vertical earth rate removed.
 
-    A still gyroscope reads the earth rate. In one pose its vertical part, ``EARTH_RATE`` x
-    sin(latitude) along the up direction (5.2e-5 rad/s at 45 deg), is a constant the offset
-    models would take for bias, and a compensated output would then lack it. With the
+    A still gyroscope reads the earth rate. In one pose its vertical part along the up
+    direction (``gyro_static.earth_rate_parts``: 5.2e-5 rad/s at 45 deg) is a constant the
+    offset models would take for bias, and a compensated output would then lack it. With the
     latitude known it is taken out of every window's gyro mean before the fit (up: the
     window's measured specific force direction). The horizontal part depends on the heading,
     which one pose does not give: it stays, and averages out over holds at many headings.
@@ -125,7 +125,7 @@ def _without_vertical_earth_rate(windows, o):
     if o.latitude is None or not len(windows) or distinct_orientations(windows) != 1:
         return windows, []
     up = windows.accel / np.linalg.norm(windows.accel, axis=1, keepdims=True)
-    vertical = EARTH_RATE * np.sin(np.radians(o.latitude))
+    vertical, _ = earth_rate_parts(o.latitude)
     w = dataclasses.replace(windows, gyro=windows.gyro - vertical * up)
     return w, [f'gyroscope: the vertical earth rate ({vertical:.3g} rad/s at latitude '
                f'{o.latitude:g} deg) removed before the fit (one orientation; the horizontal '

@@ -30,6 +30,12 @@ from .observability import CONVENTION, decide_determined, DETERMINED_RATIO, Layo
 EARTH_RATE = 7.2921150e-5    # rad/s, WGS84
 
 
+def earth_rate_parts(latitude):
+    """Return (vertical, horizontal) earth rate (rad/s) at a latitude (deg)."""
+    lat = np.radians(latitude)
+    return EARTH_RATE * np.sin(lat), EARTH_RATE * np.cos(lat)
+
+
 # ------------------------------------------------------------------------ static fit
 def _hold_frames(windows, acc):
     """Return (hold ids, index per window, (h, 3) up, e1, e2) from corrected accel means."""

@@ -33,18 +33,17 @@ Without an active calibration the raw output is the reference.
 
 import numpy as np
 
-from ..estimation.gyro_static import EARTH_RATE
+from ..estimation.gyro_static import earth_rate_parts
 
 
 def hold_errors(cal, windows, gravity, latitude=None):
     """Return per-hold arrays: ids, t (s, end), temp (degC), gyro, accel, se_gyro, se_accel.
 
-    ``cal`` None: the raw output. ``latitude`` (deg): the vertical earth rate is taken off
-    each hold's mean gyro before its norm (see the module docstring).
+    ``cal`` None: the raw output. ``latitude`` (deg): the gyro error leaves the earth rate
+    out (see the module docstring), and ``gyro_vec`` is the mean less its vertical part.
     """
     if latitude is not None:
-        vertical = EARTH_RATE * np.sin(np.radians(latitude))
-        horizontal = EARTH_RATE * np.cos(np.radians(latitude))
+        vertical, horizontal = earth_rate_parts(latitude)
     ids = windows.hold_ids if len(windows) else np.zeros(0, int)
     temps = windows.temp if windows.n_inputs else None
     if not len(windows):
@@ -71,9 +70,9 @@ def hold_errors(cal, windows, gravity, latitude=None):
         else:
             up = a / max(np.linalg.norm(a), 1e-12)
             v = float(g @ up)
+            h = np.linalg.norm(g - v * up)
+            out['gyro'][j] = np.hypot(v - vertical, h - horizontal)
             g = g - vertical * up
-            h = np.linalg.norm(g - (g @ up) * up) - horizontal
-            out['gyro'][j] = np.hypot(v - vertical, h)
         out['gyro_vec'][j] = g
         out['accel'][j] = np.linalg.norm(a) - gravity
         out['se_gyro'][j] = np.sqrt(np.mean(np.average(windows.gyro_var[m], 0, w)) / n)

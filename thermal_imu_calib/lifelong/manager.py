@@ -330,8 +330,7 @@ class Lifelong:
         try:
             if len(fit) == 0 or len(fit.hold_ids) < c.min_holds // 2 or len(held) < 2:
                 raise CalibrationRefused('too few holds', 'wait for more stops')
-            collected = Collected(fit, self.frame_id, 0, 0.0, list(self.topics), [])
-            result = calibrate_collected(self.settings, [collected])
+            result = self._calibrate(fit)
         except (CalibrationRefused, SettingsError, CalibrationError, ValueError) as e:
             decision.update(action='refused', text=f'no new calibration: {e}')
             return self._finish(decision)
@@ -367,6 +366,11 @@ class Lifelong:
         self.state['alarm_pending'] = False
         return self._finish(decision)
 
+    def _calibrate(self, windows):
+        """Return ``calibrate_collected``'s result on these windows (the CLI's calibrate)."""
+        collected = Collected(windows, self.frame_id, 0, 0.0, list(self.topics), [])
+        return calibrate_collected(self.settings, [collected])
+
     def _with_ageing(self, fit, times, now, holdout, pose, s_plain, decision):
         """Return (result, score) of the fit with the gyro ageing removed, when it is better.
 
@@ -385,9 +389,7 @@ class Lifelong:
                 decision['ageing'] = {'text': found.text(), 'used': False}
             return None
         try:
-            collected = Collected(ageing.detrended(fit, times, now, found), self.frame_id, 0,
-                                  0.0, list(self.topics), [])
-            result = calibrate_collected(self.settings, [collected])
+            result = self._calibrate(ageing.detrended(fit, times, now, found))
         except (CalibrationRefused, SettingsError, CalibrationError, ValueError) as e:
             decision['ageing'] = {'text': f'{found.text()}; the fit without it refused ({e})',
                                   'used': False}

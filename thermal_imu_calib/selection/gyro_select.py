@@ -39,9 +39,7 @@ the static one and the comparison above runs as without pose changes.
 import numpy as np
 
 from ..estimation.gyro_rotations import HELDOUT_FOLDS
-
-#: WGS84 earth rotation rate, rad/s
-EARTH_RATE = 7.2921150e-5
+from ..estimation.gyro_static import EARTH_RATE
 #: the seed 002 static gyro model must beat the bias polynomial by this much (relative)
 GYRO_MARGIN = 0.25
 #: distinct orientations needed: g-sensitivity needs gravity along every axis
