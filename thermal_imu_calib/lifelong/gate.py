@@ -83,6 +83,21 @@ def hold_errors(cal, windows, gravity, latitude=None):
     return out
 
 
+def misses(errors, accel_median, gyro_rms, accel_rms, factor, floor):
+    """Return the (h,) mask of the holds a calibration misses.
+
+    ``errors``: ``hold_errors`` of that calibration. A hold is missed when its gyro error
+    exceeds ``factor`` times ``gyro_rms`` (rad/s, the calibration's own held-out error), or
+    its accelerometer error less ``accel_median`` (m/s^2) exceeds ``factor`` times
+    ``accel_rms``; each limit is at least ``floor`` times the hold's own standard error.
+    The change alarm's limit, per hold.
+    """
+    g = np.abs(errors['gyro']) > np.maximum(factor * gyro_rms, floor * errors['se_gyro'])
+    a = np.abs(errors['accel'] - accel_median) > np.maximum(
+        factor * accel_rms, floor * errors['se_accel'])
+    return g | a
+
+
 def _rms(x):
     return float(np.sqrt(np.mean(np.square(x)))) if len(x) else float('nan')
 

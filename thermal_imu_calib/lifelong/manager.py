@@ -15,7 +15,10 @@ registry mode then work for one robot; ``valid_from`` is the time it was activat
 
 When to re-estimate (``due``): the first time enough holds are in; when the collected
 temperatures extend the active calibration's valid range by ``range_extension_degc``;
-when ``new_holds`` holds came in since the last estimate; after a change alarm. The
+when ``new_holds`` holds came in since the last estimate; when ``misfit_holds`` new holds
+since the last estimate were missed by the active calibration (``gate.misses``: the change
+alarm's limit, at any temperature, consecutive or not; a re-estimate only makes a candidate
+that must pass the swap gate, so it needs no stronger evidence); after a change alarm. The
 estimate is ``app.calibrate.calibrate_collected`` (the command line's calibrate) on the
 store's windows without the newest ``holdout_holds`` holds, which the swap gate
 (``gate.decide``) scores both calibrations on.
@@ -46,52 +49,11 @@ from ..io.output import write_atomic
 from ..collection.collected import Collected
 from . import ageing, gate
 from ..collection.segments import Windows
+from .archive import ArchiveFull, archive_collection, MAX_ARCHIVES  # noqa: F401 (API)
 from .pose import main_pose, main_pose_mask, pose_of
 from .store import HoldStore, StoreConfig
 
 MAX_DECISIONS = 2000
-#: archives a reset may leave in ``<lifelong_dir>/archive`` (each at most the store's bound,
-#: ~12 MB): one more reset is refused until one is moved away or deleted
-MAX_ARCHIVES = 5
-ARCHIVE = 'archive'
-
-
-class ArchiveFull(Exception):
-    """A reset would make more than ``MAX_ARCHIVES`` archives (the message says what to do)."""
-
-
-def archive_collection(directory, when=None, max_archives=MAX_ARCHIVES):
-    """Move the hold store and the candidate of a lifelong directory aside; return the path.
-
-    ``<directory>/holds/`` and ``candidate.yaml`` move (``os.replace``: nothing is copied or
-    deleted) into ``<directory>/archive/<UTC time of when (s), default now>/``; the active
-    calibration, ``state.json``, ``decisions.jsonl`` and the registry stay. Returns '' when
-    there is nothing to move (no hold stored, no candidate). Raises ``ArchiveFull`` when
-    ``max_archives`` archives exist already, ``OSError`` when the files cannot be moved.
-    """
-    directory = os.path.expanduser(directory)
-    holds = os.path.join(directory, 'holds')
-    stored = os.path.isdir(holds) and any(                # an empty store has empty files
-        os.path.getsize(os.path.join(holds, n)) for n in os.listdir(holds))
-    names = (['holds'] if stored else []) + (
-        ['candidate.yaml'] if os.path.exists(os.path.join(directory, 'candidate.yaml')) else [])
-    if not names:
-        return ''
-    root = os.path.join(directory, ARCHIVE)
-    old = sorted(os.listdir(root)) if os.path.isdir(root) else []
-    if len(old) >= max_archives:
-        raise ArchiveFull(f'{root} holds {len(old)} archives of earlier resets already (at most '
-                          f'{max_archives}, oldest {old[0]}): move or delete the ones no longer '
-                          'needed, then reset again')
-    when = time.time() if when is None else when
-    label = time.strftime('%Y%m%dT%H%M%SZ', time.gmtime(when))
-    dest, i = os.path.join(root, label), 1
-    while os.path.exists(dest):                  # two resets within a second
-        dest, i = os.path.join(root, f'{label}-{i}'), i + 1
-    os.makedirs(dest)
-    for n in names:
-        os.replace(os.path.join(directory, n), os.path.join(dest, n))
-    return dest
 
 
 @dataclass
@@ -106,6 +68,8 @@ class LifelongConfig:
     alarm_holds: int = 5
     alarm_factor: float = 5.0
     alarm_floor: float = 5.0
+    #: new holds the active misses (``gate.misses``) that make a re-estimate due
+    misfit_holds: int = 2
     #: one orientation family: fit only the holds within this angle of the mounting pose
     pose_deg: float = 2.0
     #: also fit with the gyro ageing removed, kept when held-out holds prefer it (``ageing``)
@@ -203,7 +167,7 @@ class Lifelong:
         self.store = HoldStore(os.path.join(self.dir, 'holds'), self.k, self.config.store)
         self.candidate = None
         self.track = []
-        self.state.update(holds_at_estimate=0, alarm_pending=False,
+        self.state.update(holds_at_estimate=0, alarm_pending=False, missed=[],
                           resets=self.state.get('resets', 0) + 1)
         n = before['holds_total']
         moved = (f'moved the {n} hold{"s" if n != 1 else ""} collected so far '
@@ -235,6 +199,7 @@ class Lifelong:
     def _check_change(self, windows):
         cal = self.active
         e = gate.hold_errors(cal, windows, cal.gravity, self.latitude)
+        self._note_misses(e)
         lo, hi = (cal.valid_range[0] if cal.valid_range is not None and self.k
                   else (-np.inf, np.inf))
         base_acc = self.state.get('active_accel_median') or 0.0
@@ -274,6 +239,17 @@ class Lifelong:
             self._save_state()
             self.log('error', 'lifelong ALARM: ' + decision['reason'])
 
+    def _note_misses(self, e):
+        """Keep (t s, temperature degC) of the new holds the active calibration misses."""
+        s, c = self.state, self.config
+        if s.get('active_gyro_rms') is None:
+            return
+        bad = gate.misses(e, s.get('active_accel_median') or 0.0, s['active_gyro_rms'],
+                          s.get('active_accel_rms') or 0.0, c.alarm_factor, c.alarm_floor)
+        if bad.any():
+            s['missed'] = (s.get('missed') or []) + [
+                [float(e['t'][j]), float(e['temp'][j])] for j in np.flatnonzero(bad)]
+
     def _first_hold_start(self, t_end):
         """Return the start (s) of the raw hold ending at ``t_end``."""
         rec = self.store.recent
@@ -302,6 +278,11 @@ class Lifelong:
         new = self.store.total_holds - s['holds_at_estimate']
         if new >= c.new_holds:
             return f'{new} new holds'
+        missed = s.get('missed') or []
+        if len(missed) >= c.misfit_holds:
+            temps = ', '.join(f'{x[1]:.1f}' for x in missed[-c.misfit_holds:])
+            return (f'the active calibration missed {len(missed)} new holds (the newest at '
+                    f'{temps} degC)')
         span = self.store.temperature_span()
         if span and self.active.valid_range is not None and self.k and new >= c.min_holds:
             lo, hi = self.active.valid_range[0]
@@ -324,6 +305,7 @@ class Lifelong:
         holdout_pose = main_pose(holdout, self.config.pose_deg, reference=pose_of(fit))
         self.state['holds_at_estimate'] = self.store.total_holds
         self.state['estimates'] += 1
+        self.state['missed'] = []
         decision = {'time': now, 'reason': reason, 'fit_windows': len(fit),
                     'fit_holds': int(len(fit.hold_ids)) if len(fit) else 0,
                     'heldout_holds': int(len(held))}

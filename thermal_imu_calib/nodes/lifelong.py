@@ -76,6 +76,10 @@ def declare(node, p):
             **ro),
         'new_holds': p.declare('new_holds', c.new_holds, 'Re-estimate after this many new '
                                'holds.', lo=1, hi=100000, **ro),
+        'misfit_holds': p.declare('misfit_holds', c.misfit_holds, 'Re-estimate when this '
+                                  'many new holds are missed by the active calibration '
+                                  '(past the change alarm\'s limit, any temperature).',
+                                  lo=1, hi=100000, **ro),
         'holdout_holds': p.declare('holdout_holds', c.holdout_holds, 'Newest holds left out '
                                    'of a re-estimate to judge the swap.', lo=2, hi=1000,
                                    **ro),
@@ -97,6 +101,7 @@ class LifelongMode:
             os.path.join(d, 'registry')
         config = LifelongConfig(range_extension_degc=values['range_extension_degc'],
                                 new_holds=values['new_holds'],
+                                misfit_holds=values['misfit_holds'],
                                 holdout_holds=values['holdout_holds'])
         self.config = config
         sources = []
