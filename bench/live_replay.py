@@ -16,6 +16,7 @@ once when the node process has exited.
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import tempfile
@@ -226,7 +227,10 @@ def run_live_once(imu, temps, gravity, domain_id, temperature_topics=None, workd
     from thermal_imu_calib.nodes.player import Pacer
     from std_srvs.srv import Trigger
     workdir = workdir or tempfile.mkdtemp(prefix='live-')
-    os.makedirs(workdir, exist_ok=True)
+    # a fresh node: the calibrator resumes its collection from $HOME/.ros (inside workdir),
+    # so a workdir left by an earlier run would add its holds to this one's
+    shutil.rmtree(workdir, ignore_errors=True)
+    os.makedirs(workdir)
     cal_path = os.path.join(workdir, calibration_name)
     args = {'calibration_file': cal_path}
     if temperature_topics is not None:
