@@ -179,6 +179,7 @@ class SpikeFilter:
             win = win[lo]
         else:
             win = np.broadcast_to(buf.T[None], (len(idx), self.c, n))
+        floor = fbuf[idx]
         # values near the float limit (a corrupt message) overflow to inf or nan here; the
         # result is the same with or without the warning numpy would print (non-finite
         # values and sigmas never flag a spike), so it is not printed
@@ -186,8 +187,7 @@ class SpikeFilter:
             med = np.median(win, axis=-1)
             dw = np.diff(win, axis=-1)
             mad = np.median(np.abs(dw - np.median(dw, axis=-1)[..., None]), axis=-1)
-            sigma = np.maximum(MAD_TO_SIGMA * mad / np.sqrt(2.0), fbuf[idx])
-        floor = fbuf[idx]
+            sigma = np.maximum(MAD_TO_SIGMA * mad / np.sqrt(2.0), floor)
         vals = buf[idx]
         spikes = np.abs(vals - med) > self.threshold * sigma
         spikes &= np.isfinite(vals) & np.isfinite(floor)
