@@ -100,7 +100,7 @@ def stop_error(cal, ch):
     return w @ (g - ch['w']), w @ (a - ch['f'])
 
 
-def run_seed(seed, days, work, latitude=None, ageing=True, **overrides):
+def run_seed(seed, days, work, latitude=None, ageing=True, per_sensor=True, **overrides):
     m = robot_month(seed, days=days, **overrides)
     spec = m.device.spec
     rate = m.config.imu_rate
@@ -113,7 +113,7 @@ def run_seed(seed, days, work, latitude=None, ageing=True, **overrides):
     def make():
         return Lifelong(d, settings, 1, [m.config.temp_topic], m.config.frame_id,
                         registry_dir=os.path.join(d, 'registry'),
-                        config=LifelongConfig(ageing=ageing),
+                        config=LifelongConfig(ageing=ageing, per_sensor=per_sensor),
                         log=lambda level, text: log.append((level, text)))
     life = make()
     feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
@@ -247,7 +247,8 @@ def month(args):
     work = args.work or tempfile.mkdtemp(prefix='bench_lifelong_')
     rows = []
     for seed in range(args.first_seed, args.first_seed + args.seeds):
-        r = run_seed(seed, args.days, work, args.latitude, not args.no_ageing)
+        r = run_seed(seed, args.days, work, args.latitude, not args.no_ageing,
+                     not args.whole_swap)
         rows.append(r)
         ra, kn = r['ratios'], r['knock']
         print(f'seed {seed}: {r["seconds"]:.0f} s, gyro first day '
@@ -792,6 +793,8 @@ def main():
                     help='give the calibrations the latitude (deg; the month is at 45)')
     mo.add_argument('--no-ageing', action='store_true',
                     help='without the gyro ageing candidate (LifelongConfig.ageing False)')
+    mo.add_argument('--whole-swap', action='store_true',
+                    help='swap whole calibrations only (LifelongConfig.per_sensor False)')
     mo.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_month.json'))
     re_ = sub.add_parser('real')
     re_.add_argument('--work', default='')

@@ -22,8 +22,11 @@ from thermal_imu_calib.thermal_input import ThermalFilter
 
 def full_calibration():
     """Return a valid calibration with every optional section of the file filled."""
+    good = good_calibration()
+    vr = good.valid_range
     return dataclasses.replace(
-        good_calibration(),
+        good,
+        sensor_range={'accel': vr.copy(), 'gyro': np.stack([vr[:, 0] + 1.0, vr[:, 1]], 1)},
         noise_model={'accel_noise_density': np.array([1e-4] * 3),
                      'gyro_noise_density': np.array([1e-5] * 3),
                      'accel_random_walk': np.array([1e-6] * 3),

@@ -66,6 +66,11 @@ class Calibration:
     #: (unit/sqrt(Hz)) and ``{accel,gyro}_random_walk`` K (unit/s/sqrt(Hz)), plus
     #: ``rate_hz`` and ``horizon_s``; see ``noise_std``
     noise_model: dict = field(default_factory=dict)
+    #: optional {'accel'|'gyro': (k, 2)} valid range of one sensor's model, in the inputs'
+    #: units, when it differs from ``valid_range`` (a calibration composed of two sensors'
+    #: models fitted on different holds, ``lifelong.compose``); ``valid_range`` then spans
+    #: both, and each model is clamped to its own range
+    sensor_range: dict = field(default_factory=dict)
 
     def __post_init__(self):
         for which in ('accel', 'gyro'):
@@ -120,7 +125,8 @@ class Calibration:
                 f'got {temps.shape[1] if temps.ndim == 2 else "?"} temperature columns, the '
                 f'calibration expects {len(self.inputs)} '
                 f'({", ".join(i.topic for i in self.inputs)})')
-        lo, hi = self.valid_range[:, 0], self.valid_range[:, 1]
+        vr = self.sensor_range.get(which, self.valid_range)
+        lo, hi = vr[:, 0], vr[:, 1]
         oor = np.any((temps < lo) | (temps > hi), axis=1)
         if self.out_of_range == 'clamp':
             temps = np.clip(temps, lo, hi)
@@ -258,6 +264,10 @@ class Calibration:
         }
         if self.temperature_filter is not None:
             d['temperature']['filter'] = self.temperature_filter.to_dict()
+        if self.sensor_range:
+            d['temperature']['sensor_range'] = {
+                k: {'min': v[:, 0].tolist(), 'max': v[:, 1].tolist()}
+                for k, v in sorted(self.sensor_range.items())}
         for name, model, idx in (('accel', self.accel, self.accel_input),
                                  ('gyro', self.gyro, self.gyro_input)):
             if model is not None:

@@ -96,6 +96,12 @@ SCHEMA = Mapping({
                                 'unit': TextOrList()},
                                what='a mapping with min and max', optional=True),
         'out_of_range': Choice(OUT_OF_RANGE_POLICIES, 'clamp', null=False),
+        # optional: one sensor's own range, in the inputs' units (a composed calibration)
+        'sensor_range': Mapping({s: Mapping({'min': Numbers(REQUIRED),
+                                             'max': Numbers(REQUIRED)},
+                                            what='a mapping with min and max', optional=True)
+                                 for s in ('accel', 'gyro')},
+                                what='a mapping of accel and/or gyro ranges', optional=True),
         'filter': Mapping({'kind': Text('lag', numbers=False), 'tau_s': Numbers(REQUIRED),
                            'unit': Text('s', numbers=False),
                            # optional (files before it: no widening after a restart)
@@ -165,6 +171,29 @@ def _valid_range(raw, doc, out):
     out['valid_range'] = valid
 
 
+def _sensor_range(raw, doc, out):
+    sr, valid, out['sensor_range'] = doc['temperature']['sensor_range'], out['valid_range'], {}
+    if sr is None:
+        return
+    if valid is None:
+        raise ValueError('temperature.sensor_range needs temperature inputs and valid_range')
+    for name in ('accel', 'gyro'):
+        r = sr[name]
+        if r is None:
+            continue
+        for key in ('min', 'max'):
+            if r[key].shape != (len(valid),):
+                raise ValueError(f'temperature.sensor_range.{name}.{key} has shape '
+                                 f'{r[key].shape}, expected ({len(valid)},): one value per '
+                                 'input')
+        rng = np.stack([r['min'], r['max']], 1)
+        if np.any(rng[:, 0] > rng[:, 1]) or np.any(rng[:, 0] < valid[:, 0]) \
+                or np.any(rng[:, 1] > valid[:, 1]):
+            raise ValueError(f'temperature.sensor_range.{name} ({rng.tolist()}) must have min '
+                             f'<= max and lie within valid_range ({valid.tolist()})')
+        out['sensor_range'][name] = rng
+
+
 def _filter(raw, doc, out):
     f = doc['temperature']['filter']
     out['temperature_filter'] = None
@@ -226,6 +255,7 @@ def _plain_fields(raw, doc, out):
 #: checks across fields, in order, each named by the field it concerns; each adds keyword
 #: arguments of Calibration to ``out``
 RULES = [('temperature.inputs', _inputs), ('temperature.valid_range', _valid_range),
+         ('temperature.sensor_range', _sensor_range),
          ('temperature.filter', _filter), ('accel/gyro', _models), ('noise', _noise),
          ('the file', _plain_fields)]
 

@@ -21,7 +21,8 @@ alarm's limit, at any temperature, consecutive or not; a re-estimate only makes 
 that must pass the swap gate, so it needs no stronger evidence); after a change alarm. The
 estimate is ``app.calibrate.calibrate_collected`` (the command line's calibrate) on the
 store's windows without the newest ``holdout_holds`` holds, which the swap gate
-(``gate.decide``) scores both calibrations on.
+(``gate.decide``) scores both calibrations on. When it is better for one sensor only, that
+sensor's model alone replaces the active one's (``compose``, ``per_sensor``).
 
 Change alarm (a knock): every new hold inside the active valid range is scored with the
 active calibration; when the last ``alarm_holds`` of them all exceed ``alarm_factor``
@@ -47,7 +48,7 @@ from ..calibration import Calibration, CalibrationError
 from ..estimation.calibrate import CalibrationRefused
 from ..io.output import write_atomic
 from ..collection.collected import Collected
-from . import ageing, gate
+from . import ageing, compose, gate
 from ..collection.segments import Windows
 from .archive import ArchiveFull, archive_collection, MAX_ARCHIVES  # noqa: F401 (API)
 from .pose import main_pose, main_pose_mask, pose_of
@@ -74,6 +75,9 @@ class LifelongConfig:
     pose_deg: float = 2.0
     #: also fit with the gyro ageing removed, kept when held-out holds prefer it (``ageing``)
     ageing: bool = True
+    #: a new estimate better for one sensor only replaces that sensor's model alone
+    #: (``compose``); False: the whole calibration or nothing
+    per_sensor: bool = True
     store: StoreConfig = field(default_factory=StoreConfig)
 
 
@@ -329,15 +333,21 @@ class Lifelong:
             new = result.calibration
         s_act = gate.score(self.active, holdout, g, holdout_pose, self.latitude)
         swap, fig = gate.decide(s_act, s_new, c.swap_sigmas)
+        part = self._one_sensor(new, fig, holdout, holdout_pose, decision)
+        only = ''
+        if part is not None:
+            new, s_new, fig = part
+            swap, only = True, f' ({decision["one_sensor"]["sensor"]} model only)'
         decision['figures'] = fig
         decision['model'] = new.accel.kind if new.accel is not None else 'gyro only'
         decision['summary'] = result.summary
         versus = 'the active calibration' if self.active is not None else 'the raw output'
         text = gate.describe(fig)
         if swap:
-            self._activate(new, now, s_new, holdout_pose, held)
+            self._activate(new, now, s_new, holdout_pose, held,
+                           decision['one_sensor']['sensor'] if only else None)
             decision.update(action='swap', id=new.id,
-                            text=f'new calibration {new.id} replaces {versus}: {text}')
+                            text=f'new calibration {new.id} replaces {versus}{only}: {text}')
         else:
             self.candidate = new
             self._save_cal(new, 'candidate.yaml')
@@ -347,6 +357,16 @@ class Lifelong:
                                  f'{text}')
         self.state['alarm_pending'] = False
         return self._finish(decision)
+
+    def _one_sensor(self, new, fig, holdout, pose, decision):
+        """Return ``compose.one_sensor``'s swap (None: none); the decision records it."""
+        if not self.config.per_sensor:
+            return None
+        found, record = compose.one_sensor(self.active, new, fig, holdout, pose, self.latitude,
+                                           self.config.swap_sigmas)
+        if record:
+            decision['one_sensor'] = record
+        return found
 
     def _calibrate(self, windows):
         """Return ``calibrate_collected``'s result on these windows (the CLI's calibrate)."""
@@ -402,7 +422,16 @@ class Lifelong:
     def _save_cal(self, cal, name):
         write_atomic(self._path(name), cal.to_yaml())
 
-    def _activate(self, cal, now, s_new, holdout, held):
+    def _activate(self, cal, now, s_new, holdout, held, only=None):
+        """Make ``cal`` the active calibration; ``only``: the one sensor it replaced.
+
+        The change alarm's reference (the error the calibration leaves, per sensor) is
+        measured anew, except for a sensor a one-sensor swap left unchanged: its model is
+        the same, so is its reference (re-measured on holds that span a change the model
+        does not explain, it would grow and hide that change from the alarm).
+        """
+        before = {k: self.state.get(k) for k in ('active_gyro_rms', 'active_accel_rms',
+                                                 'active_accel_median')}
         self.active = cal
         self.candidate = None
         if os.path.exists(self._path('candidate.yaml')):
@@ -422,6 +451,9 @@ class Lifelong:
                                                gate._rms(both['accel'] - med)),
                           active_accel_median=med,
                           active_noise=s_new['noise_gyro'], swaps=self.state['swaps'] + 1)
+        kept = {'accel': ('active_gyro_rms',),
+                'gyro': ('active_accel_rms', 'active_accel_median')}.get(only, ())
+        self.state.update({k: before[k] for k in kept if before[k] is not None})
         self.track = []
         if self.registry_dir:
             from ..fleet import registry

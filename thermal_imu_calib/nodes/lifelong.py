@@ -83,6 +83,9 @@ def declare(node, p):
         'holdout_holds': p.declare('holdout_holds', c.holdout_holds, 'Newest holds left out '
                                    'of a re-estimate to judge the swap.', lo=2, hi=1000,
                                    **ro),
+        'per_sensor_swap': p.declare('per_sensor_swap', c.per_sensor, 'A new estimate better '
+                                     'for one sensor only replaces that sensor\'s model alone; '
+                                     'false: the whole calibration or nothing.', **ro),
     }
     if not on:
         return None
@@ -102,7 +105,8 @@ class LifelongMode:
         config = LifelongConfig(range_extension_degc=values['range_extension_degc'],
                                 new_holds=values['new_holds'],
                                 misfit_holds=values['misfit_holds'],
-                                holdout_holds=values['holdout_holds'])
+                                holdout_holds=values['holdout_holds'],
+                                per_sensor=values['per_sensor_swap'])
         self.config = config
         sources = []
         qos = common.sensor_qos(100)

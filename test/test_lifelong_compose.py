@@ -1,0 +1,137 @@
+"""One sensor at a time: composed calibrations and the one-sensor swap of the lifelong gate.
+
+Real numbers: windows from the stationary detector on the simulated robot month,
+calibrations from ``app.calibrate.calibrate_collected`` (the CLI's calibrate) and the
+month's true calibration.
+"""
+
+import copy
+import dataclasses
+
+import numpy as np
+import pytest
+
+from thermal_imu_calib.app.calibrate import CalibrateSettings, calibrate_collected
+from thermal_imu_calib.calibration import Calibration, CalibrationError
+from thermal_imu_calib.collection.collected import Collected
+from thermal_imu_calib.collection.segments import Windows
+from thermal_imu_calib.lifelong import compose, gate
+from thermal_imu_calib.lifelong.manager import Lifelong, LifelongConfig, main_pose
+from thermal_imu_calib.sim.robot_month import DAY, robot_month
+from thermal_imu_calib.thermal_input import ThermalFilter
+
+TOPIC = '/imu/temperature'
+
+
+@pytest.fixture(scope='module')
+def month():
+    """Return (RobotMonth of 1.5 days, its windows, calibrations A and B of two halves)."""
+    m = robot_month(3, days=1.5)
+    from thermal_imu_calib.collection.stationary import DetectorConfig, StationaryDetector
+    from thermal_imu_calib.io.align import StreamAligner
+    det, al = StationaryDetector(DetectorConfig(), 1), StreamAligner(1, 2.0)
+    parts = []
+    for seg in m.segments():
+        for a in al.push_columns(seg.imu, [seg.temperature]):
+            parts.append(det.update(a.imu.t, a.imu.accel, a.imu.gyro, a.temps))
+    parts.append(det.finish())
+    win = Windows.concat(parts)
+    ids = win.hold_ids
+    cals = []
+    for part in (ids[:25], ids[25:50]):
+        w = main_pose(win.select(np.isin(win.hold, part)), 2.0)
+        col = Collected(w, m.config.frame_id, 0, 0.0, [TOPIC], [])
+        cals.append(calibrate_collected(CalibrateSettings(), [col]).calibration)
+    return m, win, cals
+
+
+def test_each_sensor_behaves_as_in_its_source(month):
+    _, _, (a, b) = month
+    assert not np.array_equal(a.valid_range, b.valid_range)   # two halves, two ranges
+    c = compose.compose(a, b)
+    lo = min(a.valid_range[0, 0], b.valid_range[0, 0]) - 5.0
+    hi = max(a.valid_range[0, 1], b.valid_range[0, 1]) + 5.0
+    temps = np.linspace(lo, hi, 61)[:, None]      # inside and outside both ranges
+    rng = np.random.default_rng(0)
+    acc = rng.normal(0, 0.05, (61, 3)) + [0.0, 0.0, 9.81]
+    gyr = rng.normal(0, 0.01, (61, 3))
+    got, ra, rb = (x.apply(acc, gyr, temps) for x in (c, a, b))
+    np.testing.assert_array_equal(got.accel, ra.accel)     # a's accel, clamped to a's range
+    gyro_b = b.gyro.correct(gyr, b.axis_temperatures(temps, 'gyro')[0],
+                            aux={'accel': ra.accel})
+    np.testing.assert_allclose(got.gyro, gyro_b, rtol=0, atol=1e-15)
+    both = [min(a.valid_range[0, 0], b.valid_range[0, 0]),
+            max(a.valid_range[0, 1], b.valid_range[0, 1])]
+    assert np.array_equal(c.valid_range[0], both)
+    # the file keeps each sensor's range; read back, it compensates the same
+    text = c.to_yaml()
+    assert 'sensor_range' in text
+    back = Calibration.from_yaml(text)
+    assert back.id == c.id
+    again = back.apply(acc, gyr, temps)
+    np.testing.assert_array_equal(again.accel, got.accel)
+    np.testing.assert_array_equal(again.gyro, got.gyro)
+    assert any('composed' in n for n in back.notes)
+    assert back.fit['composed'] == {'accel_from': a.id, 'gyro_from': b.id}
+
+
+def test_what_does_not_compose_is_refused(month):
+    _, _, (a, b) = month
+    lagged = dataclasses.replace(b, temperature_filter=ThermalFilter(np.array([120.0])))
+    assert 'filters' in compose.why_not(a, lagged)
+    with pytest.raises(ValueError, match='do not compose: their temperature filters'):
+        compose.compose(a, lagged)
+    other = dataclasses.replace(b, inputs=[dataclasses.replace(b.inputs[0], topic='/x')])
+    assert 'thermal inputs differ' in compose.why_not(a, other)
+    assert compose.why_not(None, b) == 'no active calibration'
+
+
+def test_a_sensor_range_outside_the_valid_range_is_refused(month):
+    _, _, (a, b) = month
+    d = compose.compose(a, b).to_dict()
+    which = next(iter(d['temperature']['sensor_range']))
+    d['temperature']['sensor_range'][which]['max'] = [d['temperature']['valid_range']['max'][0]
+                                                      + 1.0]
+    with pytest.raises(CalibrationError, match='sensor_range.* within valid_range'):
+        Calibration.from_dict(d)
+
+
+def _worse(cal, gyro=0.0, accel_slope=0.0):
+    """Return ``cal`` with its gyro bias moved (rad/s) and an accel bias slope added."""
+    out = copy.deepcopy(cal)
+    coeffs = out.gyro.offset if hasattr(out.gyro, 'offset') else out.gyro.coeffs
+    coeffs[0] += gyro                                  # the constant row
+    out.accel.thermal[:, 4] += accel_slope
+    out.valid_range = np.array([[-20.0, 60.0]])
+    return out
+
+
+def test_one_sensor_swap_keeps_the_other_sensor(month, tmp_path):
+    """Better gyro, worse accelerometer: the gyro model alone replaces the active one."""
+    m, win, _ = month
+    truth = m.true_calibration(0.5 * DAY)
+    active = _worse(truth, gyro=np.array([0.0, 0.0, 2e-3]))           # gyro off by 2 mrad/s
+    new = _worse(truth, accel_slope=np.full(3, 3e-3))                  # accel 3 mm/s^2/degC
+    holdout = win.select(np.isin(win.hold, win.hold_ids[-10:]))
+    pose = main_pose(holdout, 2.0)
+    s_act, s_new = (gate.score(c, holdout, truth.gravity, pose) for c in (active, new))
+    swap, fig = gate.decide(s_act, s_new)
+    assert fig['gyro']['verdict'] == 'better' and fig['accel']['verdict'] == 'worse'
+    found, record = compose.one_sensor(active, new, fig, holdout, pose, None, 2.0)
+    assert record['sensor'] == 'gyro' and record['used'], record
+    cal, score, fig_c = found
+    assert cal.gyro is new.gyro and cal.accel is active.accel
+    assert fig_c['gyro']['verdict'] == 'better' and fig_c['accel']['verdict'] == 'same'
+    assert score['accel_rms'] == pytest.approx(s_act['accel_rms'], rel=1e-12)
+    # both better or neither: nothing composed
+    both = {w: dict(fig[w], verdict='better') for w in ('gyro', 'accel')}
+    assert compose.one_sensor(active, new, both, holdout, pose, None, 2.0) == (None, {})
+    # the loop: a Lifelong whose estimate is better for the gyro only swaps the gyro alone
+    life = Lifelong(str(tmp_path), CalibrateSettings(), 1, [TOPIC], m.config.frame_id,
+                    config=LifelongConfig(new_holds=1000))
+    life.active = active
+    decision = {}
+    assert life._one_sensor(new, fig, holdout, pose, decision) is not None
+    assert decision['one_sensor']['used']
+    life.config.per_sensor = False
+    assert life._one_sensor(new, fig, holdout, pose, {}) is None

@@ -1,0 +1,131 @@
+"""A calibration composed of one sensor's model from each of two calibrations.
+
+The swap gate judges the gyroscope and the accelerometer separately (``gate.decide``'s
+verdicts). When a new estimate is better for one sensor only, taking all of it also
+replaces the other sensor's model, which the held-out holds did not prove better: on
+simulated robot months such swaps left the accelerometer's next day unchanged on average
+and held most of its worse next days (docs/lifelong.md, "One sensor at a time").
+``compose`` builds the calibration that takes the proven sensor's model from the new
+estimate and keeps the other from the active one.
+
+Two calibrations compose only when they read the same thermal inputs the same way: the
+same inputs (topic and unit), the same temperature filter (none, or the same lags), the
+same axis-to-input mapping per sensor and the same gravity and out-of-range policy.
+Each model keeps its own valid range (``Calibration.sensor_range``); ``valid_range`` spans
+both. No ROS import.
+"""
+
+from dataclasses import replace
+
+import numpy as np
+
+from ..calibration import Calibration
+from . import gate
+
+SENSORS = ('accel', 'gyro')
+
+
+def _inputs(cal):
+    return [(i.topic, i.unit) for i in cal.inputs]
+
+
+def _filter(cal):
+    f = cal.temperature_filter
+    return None if f is None else (f.kind, tuple(np.round(np.asarray(f.tau_s, float), 9)))
+
+
+def why_not(a, b):
+    """Return '' when ``a`` and ``b`` compose, else what differs (for the decision log)."""
+    if a is None or b is None:
+        return 'no active calibration'
+    if a.accel is None or a.gyro is None or b.accel is None or b.gyro is None:
+        return 'one of them lacks a sensor model'
+    if _inputs(a) != _inputs(b):
+        return 'their thermal inputs differ'
+    if _filter(a) != _filter(b):
+        return 'their temperature filters (lags) differ'
+    if list(a.accel_input) != list(b.accel_input) or list(a.gyro_input) != list(b.gyro_input):
+        return 'their axis-to-input mappings differ'
+    if a.out_of_range != b.out_of_range or not np.isclose(a.gravity, b.gravity, rtol=0,
+                                                          atol=1e-9):
+        return 'their gravity or out-of-range policy differ'
+    return ''
+
+
+def own_range(cal, which):
+    """Return the (k, 2) valid range of one sensor's model of ``cal`` (None: no inputs)."""
+    return cal.sensor_range.get(which, cal.valid_range)
+
+
+def compose(accel_from, gyro_from, note=''):
+    """Return the calibration with ``accel_from``'s accel model and ``gyro_from``'s gyro.
+
+    Raises ValueError naming the difference when they do not compose (``why_not``).
+    Noise figures follow their sensor; ``fit`` is the gyro source's, with ``composed``
+    saying where each model came from.
+    """
+    why = why_not(accel_from, gyro_from)
+    if why:
+        raise ValueError(f'the calibrations do not compose: {why}')
+    ranges = {w: own_range(c, w) for w, c in (('accel', accel_from), ('gyro', gyro_from))}
+    valid, sensor_range = None, {}
+    if accel_from.inputs:
+        valid = np.stack([np.minimum(ranges['accel'][:, 0], ranges['gyro'][:, 0]),
+                          np.maximum(ranges['accel'][:, 1], ranges['gyro'][:, 1])], 1)
+        sensor_range = {w: r.copy() for w, r in ranges.items() if not np.array_equal(r, valid)}
+    noise = {k: v for k, v in (accel_from.noise_model or {}).items() if not k.startswith('gyro')}
+    noise.update({k: v for k, v in (gyro_from.noise_model or {}).items()
+                  if k.startswith('gyro')})
+    filt = gyro_from.temperature_filter
+    if filt is not None:
+        spread = {w: (c.temperature_filter.restart_spread or {}).get(w)
+                  for w, c in (('accel', accel_from), ('gyro', gyro_from))}
+        spread = {w: v for w, v in spread.items() if v is not None}
+        filt = replace(filt, restart_spread=spread or None)
+    fit = dict(gyro_from.fit)
+    fit['composed'] = {'accel_from': accel_from.id, 'gyro_from': gyro_from.id}
+    notes = [n for n in gyro_from.notes]
+    notes.append(f'composed: accelerometer model of calibration {accel_from.id}, gyroscope '
+                 f'model of {gyro_from.id}' + (f' ({note})' if note else ''))
+    return Calibration(
+        accel=accel_from.accel, gyro=gyro_from.gyro, inputs=list(accel_from.inputs),
+        valid_range=valid, out_of_range=accel_from.out_of_range,
+        accel_input=list(accel_from.accel_input), gyro_input=list(gyro_from.gyro_input),
+        frame_id=accel_from.frame_id or gyro_from.frame_id, gravity=accel_from.gravity,
+        gravity_source=accel_from.gravity_source,
+        accel_noise_std=accel_from.accel_noise_std, gyro_noise_std=gyro_from.gyro_noise_std,
+        fit=fit, notes=notes, temperature_filter=filt,
+        noise_model=noise, sensor_range=sensor_range)
+
+
+def one_sensor(active, new, fig, holdout, pose, latitude, sigmas):
+    """Return ((calibration, score, figures) or None, record) of a one-sensor swap.
+
+    When the gate calls ``new`` better than ``active`` for one sensor only (``fig``'s
+    verdicts), the composed calibration (that sensor's model from ``new``, the other from
+    ``active``) is scored on the same held-out holds (``holdout``, accelerometer on
+    ``pose``) and returned when it passes the gate (``gate.decide`` at ``sigmas``). None:
+    both or neither better, no active calibration, the two do not compose, or the
+    composition fails the gate. ``record`` (a dict, empty when nothing was tried) says
+    what was tried, with both decisions' figures.
+    """
+    better = [w for w in SENSORS if fig[w]['verdict'] == 'better']
+    if active is None or len(better) != 1:
+        return None, {}
+    which = better[0]
+    why = why_not(active, new)
+    if why:
+        return None, {'sensor': which, 'used': False,
+                      'text': f'{which} only: not composed ({why})'}
+    pick = {w: new if w == which else active for w in SENSORS}
+    cal = compose(pick['accel'], pick['gyro'],
+                  note=f'the {which} of the new estimate {new.id}, proven better on held-out '
+                       'holds; the other sensor kept')
+    score = gate.score(cal, holdout, cal.gravity, pose, latitude)
+    ok, fig_c = gate.decide(gate.score(active, holdout, cal.gravity, pose, latitude), score,
+                            sigmas)
+    record = {'sensor': which, 'used': bool(ok), 'estimate_id': new.id, 'whole_figures': fig,
+              'text': (f'{which} only: the new estimate {new.id} is better for the {which} '
+                       f'alone; its {which} model with the active\'s other one '
+                       f'{"passes" if ok else "fails"} the gate ({gate.describe(fig_c)})')}
+    return ((cal, score, fig_c) if ok else None), record
