@@ -30,7 +30,8 @@ from .alarms import (ALARM_ON, ALARM_STEM, alarm_columns, alarms, assess,  # noq
                      at_temperature, AXES, by_sensor, compare, FAMILY_RATE,
                      family_threshold, GYRO_ALARM_ON, GYRO_PREFIX, GYRO_STEM, gyro_scale,
                      MIN_GYRO_TESTS, reference, RESIDUAL_MADS, rule_text, SHOWN_ALARMS,
-                     scaled_tests, STD_SCALE, trend, unit_tests)
+                     scaled_tests, STD_SCALE, trend, unit_tests, untested_accel,
+                     FLAT_SPAN_DEGC)
 from .times import iso, parse_time, TIME_FORMAT  # noqa: F401
 
 INDEX = 'index.csv'
