@@ -12,6 +12,13 @@ arrived; the window in flight stays below the node's input depth (1000). At the 
 counts (IMU and temperature) must equal what was published; ``Replay.complete`` says so.
 Every wait is on a condition, bounded by a stall time (no progress at all), and fails at
 once when the node process has exited.
+
+A launched node never outlives the bench: every ``LiveCalibrator`` is registered until it
+is stopped, and the registered ones are stopped at interpreter exit (``atexit``) and on
+SIGTERM, SIGHUP and SIGINT (``install_cleanup``; the process then ends by the signal,
+exit status 128 + its number, or raises KeyboardInterrupt for SIGINT). SIGKILL cannot be
+caught: a node left running that way is what ``foreign_nodes`` / ``check_domain`` find on
+the domain before a run (a stray node shares the topics and spoils every live row).
 """
 
 import json
@@ -19,6 +26,7 @@ import os
 import shutil
 import signal
 import subprocess
+import sys
 import tempfile
 import threading
 import time
@@ -41,6 +49,134 @@ CALL_S = 1800.0
 
 class NodeFailed(RuntimeError):
     """The node process exited or a wait made no progress; the message says which."""
+
+
+class DomainBusy(RuntimeError):
+    """Other nodes are on the ROS domain of a live run; the message names them."""
+
+
+# ------------------------------------------------------------------ launched nodes' cleanup
+#: the signals after which no launched node may be left running
+CLEANUP_SIGNALS = (signal.SIGTERM, signal.SIGHUP, signal.SIGINT)
+#: launched nodes not stopped yet (registered at launch, removed by ``stop``)
+_LIVE = []
+#: reentrant: a handler may run in the main thread while it holds the lock
+_LIVE_LOCK = threading.RLock()
+_INSTALLED = {'atexit': False, 'signals': False}
+#: the handlers replaced by ``install_cleanup`` (called after the nodes are stopped)
+_PREVIOUS = {}
+
+
+def live_nodes():
+    """Return the launched nodes not stopped yet."""
+    with _LIVE_LOCK:
+        return list(_LIVE)
+
+
+def stop_all():
+    """Stop every registered node (``LiveCalibrator.stop``); errors do not stop the rest."""
+    for node in live_nodes():
+        try:
+            node.stop()
+        except Exception as e:  # noqa: B902 - the next node must be stopped all the same
+            print(f'live_replay: stopping calibrator_node {node.proc.pid}: {e!r}',
+                  file=sys.stderr)
+
+
+def _on_signal(signum, frame):
+    """Stop the nodes, then do what the signal did before.
+
+    A Python handler that was there is called; SIGINT raises KeyboardInterrupt; otherwise
+    the signal is raised again with its default action, so the process ends by it as it
+    would have (a shell reports 128 + the signal number, a parent sees the signal) and no
+    ``except``/``finally`` can hold it up (pytest would take a SystemExit for one test's
+    failure and carry on).
+    """
+    stop_all()
+    previous = _PREVIOUS.get(signum)
+    if callable(previous) and previous is not signal.default_int_handler:
+        return previous(signum, frame)
+    if signum == signal.SIGINT:
+        raise KeyboardInterrupt
+    signal.signal(signum, signal.SIG_DFL)
+    os.kill(os.getpid(), signum)
+    sys.exit(128 + signum)          # not reached: the default action ends the process
+
+
+def install_cleanup():
+    """Stop every launched node at exit and on SIGTERM/SIGHUP/SIGINT; idempotent.
+
+    The atexit hook is installed from any thread; the signal handlers only from the main
+    thread (Python runs handlers there), at the first call made from it. An ignored signal
+    stays ignored (``nohup``, a background job's SIGINT); a Python handler already there
+    is called after the nodes are stopped.
+    """
+    import atexit
+    with _LIVE_LOCK:
+        if not _INSTALLED['atexit']:
+            atexit.register(stop_all)
+            _INSTALLED['atexit'] = True
+        if not _INSTALLED['signals'] and threading.current_thread() is threading.main_thread():
+            for s in CLEANUP_SIGNALS:
+                previous = signal.getsignal(s)
+                if previous is signal.SIG_IGN:
+                    continue
+                _PREVIOUS[s] = previous
+                signal.signal(s, _on_signal)
+            _INSTALLED['signals'] = True
+
+
+# ------------------------------------------------------------------ the domain guard
+#: how long the guard waits for discovery to show another node on the domain: a node
+#: already there often answers a new participant only with its next periodic announcement
+#: (every 3 s with Fast DDS's defaults; seen at 2-3.4 s on a loaded 2-core machine, so
+#: a 3-s wait missed it), hence three periods. A busy domain ends the wait at once.
+GUARD_S = 10.0
+
+
+def foreign_nodes(domain_id, wait_s=GUARD_S):
+    """Return the full names of the nodes on ``domain_id`` other than this probe.
+
+    A probe node in a context of its own joins the domain and polls the graph until another
+    node shows up or ``wait_s`` has passed (discovery takes a moment; an empty domain is
+    only known as such at the deadline). Discovery follows the environment
+    (``ROS_AUTOMATIC_DISCOVERY_RANGE``), as for the launched node.
+    """
+    import rclpy
+    from rclpy.context import Context
+    probe = f'bench_domain_guard_{os.getpid()}'
+    context = Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    node = None
+    try:
+        node = rclpy.create_node(probe, context=context)
+        me = (probe, node.get_namespace())
+        deadline = time.monotonic() + wait_s
+        while True:
+            others = sorted({(ns.rstrip('/') + '/' + name) for name, ns in
+                             node.get_node_names_and_namespaces() if (name, ns) != me})
+            if others or time.monotonic() >= deadline:
+                return others
+            time.sleep(0.05)
+    finally:
+        if node is not None:
+            node.destroy_node()
+        context.try_shutdown()
+
+
+def domain_busy_message(nodes, domain_id):
+    """Return the refusal for a live run on a domain where ``nodes`` already are."""
+    return (f'ROS domain {domain_id} is not free: {len(nodes)} other node(s) on it: '
+            f'{", ".join(nodes)}. A live run shares the topics with them (a calibrator_node '
+            f'left by a killed run spoils every live row). Stop them (pgrep -a calibrator_node,'
+            f' then kill PID) or choose another domain (ROS_DOMAIN_ID=N).')
+
+
+def check_domain(domain_id, wait_s=GUARD_S):
+    """Raise DomainBusy when another node is on ``domain_id``."""
+    nodes = foreign_nodes(domain_id, wait_s)
+    if nodes:
+        raise DomainBusy(domain_busy_message(nodes, domain_id))
 
 
 @dataclass
@@ -132,8 +268,12 @@ class LiveCalibrator:
                    PYTHONUNBUFFERED='1')
         self.log_path = os.path.join(workdir, 'node.log')
         self._log = open(self.log_path, 'wb')
+        install_cleanup()
+        self._stopping = self._stopped = False
         self.proc = subprocess.Popen(self.argv, stdout=self._log, stderr=subprocess.STDOUT,
                                      env=env, start_new_session=True)
+        with _LIVE_LOCK:
+            _LIVE.append(self)
 
     def dead(self):
         """Return the exit code when the process has exited, else None."""
@@ -146,7 +286,17 @@ class LiveCalibrator:
         return ' | '.join(x.strip() for x in lines[-n:])
 
     def stop(self):
-        """SIGINT the node's process group; SIGKILL it if it has not ended in 20 s."""
+        """SIGINT the node's process group; SIGKILL it if it has not ended in 20 s.
+
+        Called again while it runs (a signal handler interrupting it in the main thread),
+        it kills the group at once rather than wait a second time for the same process.
+        """
+        if self._stopped:
+            return
+        if self._stopping:
+            self._kill_group()
+            return
+        self._stopping = True
         if self.proc.poll() is None:
             os.killpg(self.proc.pid, signal.SIGINT)
             try:
@@ -154,11 +304,18 @@ class LiveCalibrator:
             except subprocess.TimeoutExpired:
                 os.killpg(self.proc.pid, signal.SIGKILL)
                 self.proc.wait(10)
-        try:                        # the report child (nice 10) may outlive the node
+        self._kill_group()          # the report child (nice 10) may outlive the node
+        self._log.close()
+        self._stopped = True
+        with _LIVE_LOCK:
+            if self in _LIVE:
+                _LIVE.remove(self)
+
+    def _kill_group(self):
+        try:
             os.killpg(self.proc.pid, signal.SIGKILL)
         except ProcessLookupError:
             pass
-        self._log.close()
 
 
 def _wait(cond, what, node, stall=STALL_S, progress=None):

@@ -25,6 +25,11 @@ For each recording of ``../shared/data/real`` (``real_recordings``):
   the peer's or authors' figure; single-orientation logs: the 30-s drift RMS.
 
 Writes ``bench/results/scoreboard.md`` and ``.json`` (``--out`` to change).
+
+Before any row, a live run checks that no other node is on its ROS domain (a
+calibrator_node left by a killed run would share the topics and spoil every live row) and
+exits non-zero naming them; the nodes it launches are stopped however it ends, short of
+SIGKILL (``live_replay.install_cleanup``).
 """
 
 import argparse
@@ -483,6 +488,16 @@ def main(argv=None):
         NODE_PARAMS[k] = yaml.safe_load(v)
     domain = int(os.environ.get('ROS_DOMAIN_ID', '63'))
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    if not a.no_live:
+        # every launched node is stopped when this process ends (exit, SIGTERM/HUP/INT);
+        # one left by a SIGKILLed run would share the domain: refuse before any row
+        live_replay.install_cleanup()
+        print(f'checking ROS domain {domain} for other nodes (up to '
+              f'{live_replay.GUARD_S:.0f} s) ...', flush=True)
+        try:
+            live_replay.check_domain(domain)
+        except live_replay.DomainBusy as e:
+            sys.exit(f'scoreboard: {e}')
     recs = rr.all_recordings(os.path.join(a.work, 'logs'))
     if a.only:
         recs = [r for r in recs if r.name in a.only]
