@@ -359,8 +359,13 @@ class Lifelong:
         return self._finish(decision)
 
     def _one_sensor(self, new, fig, holdout, pose, decision):
-        """Return ``compose.one_sensor``'s swap (None: none); the decision records it."""
-        if not self.config.per_sensor:
+        """Return ``compose.one_sensor``'s swap (None: none); the decision records it.
+
+        Not after a change alarm: the alarm says the sensor changed, and in one mounting
+        pose the gate cannot see a change of the accelerometer's level (it compares the
+        holds' spread about their median), so the whole new calibration is judged.
+        """
+        if not self.config.per_sensor or self.state.get('alarm_pending'):
             return None
         found, record = compose.one_sensor(self.active, new, fig, holdout, pose, self.latitude,
                                            self.config.swap_sigmas)
@@ -427,11 +432,11 @@ class Lifelong:
 
         The change alarm's reference (the error the calibration leaves, per sensor) is
         measured anew, except for a sensor a one-sensor swap left unchanged: its model is
-        the same, so is its reference (re-measured on holds that span a change the model
-        does not explain, it would grow and hide that change from the alarm).
+        the same, so is its error reference (re-measured on holds that span a change the
+        model does not explain, it would grow and hide that change from the alarm). The
+        accelerometer's level (the median of |a| - g) is always measured anew.
         """
-        before = {k: self.state.get(k) for k in ('active_gyro_rms', 'active_accel_rms',
-                                                 'active_accel_median')}
+        before = {k: self.state.get(k) for k in ('active_gyro_rms', 'active_accel_rms')}
         self.active = cal
         self.candidate = None
         if os.path.exists(self._path('candidate.yaml')):
@@ -451,8 +456,7 @@ class Lifelong:
                                                gate._rms(both['accel'] - med)),
                           active_accel_median=med,
                           active_noise=s_new['noise_gyro'], swaps=self.state['swaps'] + 1)
-        kept = {'accel': ('active_gyro_rms',),
-                'gyro': ('active_accel_rms', 'active_accel_median')}.get(only, ())
+        kept = {'accel': ('active_gyro_rms',), 'gyro': ('active_accel_rms',)}.get(only, ())
         self.state.update({k: before[k] for k in kept if before[k] is not None})
         self.track = []
         if self.registry_dir:
