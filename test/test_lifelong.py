@@ -11,9 +11,9 @@ import os
 import numpy as np
 import pytest
 
+from _robot_month import detector_windows
 from thermal_imu_calib.app.calibrate import CalibrateSettings
 from thermal_imu_calib.calibration import Calibration
-from thermal_imu_calib.collection.segments import Windows
 from thermal_imu_calib.fleet import registry
 from thermal_imu_calib.lifelong import gate
 from thermal_imu_calib.lifelong.feed import Feeder
@@ -30,15 +30,7 @@ TOPIC = '/imu/temperature'
 def month_windows():
     """Return (RobotMonth of 1.5 days, the windows its stops give, per stop)."""
     m = robot_month(3, days=1.5)
-    from thermal_imu_calib.collection.stationary import DetectorConfig, StationaryDetector
-    from thermal_imu_calib.io.align import StreamAligner
-    det, al = StationaryDetector(DetectorConfig(), 1), StreamAligner(1, 2.0)
-    parts = []
-    for seg in m.segments():
-        for a in al.push_columns(seg.imu, [seg.temperature]):
-            parts.append(det.update(a.imu.t, a.imu.accel, a.imu.gyro, a.temps))
-    parts.append(det.finish())
-    return m, Windows.concat(parts)
+    return m, detector_windows(m)
 
 
 def test_core_imports_no_ros():

@@ -11,10 +11,10 @@ import dataclasses
 import numpy as np
 import pytest
 
+from _robot_month import detector_windows
 from thermal_imu_calib.app.calibrate import CalibrateSettings, calibrate_collected
 from thermal_imu_calib.calibration import Calibration, CalibrationError
 from thermal_imu_calib.collection.collected import Collected
-from thermal_imu_calib.collection.segments import Windows
 from thermal_imu_calib.lifelong import compose, gate
 from thermal_imu_calib.lifelong.manager import Lifelong, LifelongConfig, main_pose
 from thermal_imu_calib.sim.robot_month import DAY, robot_month
@@ -27,15 +27,7 @@ TOPIC = '/imu/temperature'
 def month():
     """Return (RobotMonth of 1.5 days, its windows, calibrations A and B of two halves)."""
     m = robot_month(3, days=1.5)
-    from thermal_imu_calib.collection.stationary import DetectorConfig, StationaryDetector
-    from thermal_imu_calib.io.align import StreamAligner
-    det, al = StationaryDetector(DetectorConfig(), 1), StreamAligner(1, 2.0)
-    parts = []
-    for seg in m.segments():
-        for a in al.push_columns(seg.imu, [seg.temperature]):
-            parts.append(det.update(a.imu.t, a.imu.accel, a.imu.gyro, a.temps))
-    parts.append(det.finish())
-    win = Windows.concat(parts)
+    win = detector_windows(m)
     ids = win.hold_ids
     cals = []
     for part in (ids[:25], ids[25:50]):
