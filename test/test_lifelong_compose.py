@@ -67,6 +67,19 @@ def test_each_sensor_behaves_as_in_its_source(month):
     assert back.fit['composed'] == {'accel_from': a.id, 'gyro_from': b.id}
 
 
+def test_inside_the_valid_range_means_inside_both_sensors_ranges(month, tmp_path):
+    """The lifelong loop's valid range of a composition is where neither model clamps."""
+    m, _, (a, b) = month
+    c = compose.compose(a, b)
+    inner = compose.common_range(c)[0]
+    assert inner[0] == max(a.valid_range[0, 0], b.valid_range[0, 0])
+    assert inner[1] == min(a.valid_range[0, 1], b.valid_range[0, 1])
+    assert np.array_equal(compose.common_range(a), a.valid_range)
+    life = Lifelong(str(tmp_path), CalibrateSettings(), 1, [TOPIC], m.config.frame_id)
+    life.active = c
+    assert life.status()['valid_range'] == [float(inner[0]), float(inner[1])]
+
+
 def test_what_does_not_compose_is_refused(month):
     _, _, (a, b) = month
     lagged = dataclasses.replace(b, temperature_filter=ThermalFilter(np.array([120.0])))

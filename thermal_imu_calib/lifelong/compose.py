@@ -57,6 +57,19 @@ def own_range(cal, which):
     return cal.sensor_range.get(which, cal.valid_range)
 
 
+def common_range(cal):
+    """Return the (k, 2) range inside every sensor's own range (None: no inputs).
+
+    A composed calibration's ``valid_range`` spans both models; outside this one, one of
+    them clamps (or extrapolates). The lifelong loop uses it for "inside the valid range":
+    the range extension that makes a re-estimate due, the change alarm, diagnostics.
+    """
+    if cal is None or cal.valid_range is None:
+        return None
+    own = [own_range(cal, w) for w in SENSORS if getattr(cal, w) is not None]
+    return np.stack([np.max([r[:, 0] for r in own], 0), np.min([r[:, 1] for r in own], 0)], 1)
+
+
 def compose(accel_from, gyro_from, note=''):
     """Return the calibration with ``accel_from``'s accel model and ``gyro_from``'s gyro.
 

@@ -204,7 +204,7 @@ class Lifelong:
         cal = self.active
         e = gate.hold_errors(cal, windows, cal.gravity, self.latitude)
         self._note_misses(e)
-        lo, hi = (cal.valid_range[0] if cal.valid_range is not None and self.k
+        lo, hi = (compose.common_range(cal)[0] if cal.valid_range is not None and self.k
                   else (-np.inf, np.inf))
         base_acc = self.state.get('active_accel_median') or 0.0
         for j in range(len(e['ids'])):
@@ -289,7 +289,7 @@ class Lifelong:
                     f'{temps} degC)')
         span = self.store.temperature_span()
         if span and self.active.valid_range is not None and self.k and new >= c.min_holds:
-            lo, hi = self.active.valid_range[0]
+            lo, hi = compose.common_range(self.active)[0]
             ext = max(lo - span[0], span[1] - hi)
             if ext >= c.range_extension_degc:
                 return (f'collected {span[0]:.1f}..{span[1]:.1f} degC extends the valid range '
@@ -479,7 +479,7 @@ class Lifelong:
         if self.active is not None and s.get('active_since') is not None and now is not None:
             out['active_age_s'] = float(now - s['active_since'])
         if self.active is not None and self.active.valid_range is not None and self.k:
-            lo, hi = self.active.valid_range[0]
+            lo, hi = compose.common_range(self.active)[0]
             out['valid_range'] = [float(lo), float(hi)]
             if temperature is not None:
                 out['in_range'] = bool(lo <= temperature <= hi)
