@@ -124,6 +124,13 @@ def _kill_group(pgid):
         pass
 
 
+def _sigint_default():
+    """Give the helper SIGINT's default: a job a shell starts in the background (make test
+    run with ``&``, some CI runners) inherits SIGINT ignored, and an ignored SIGINT stays
+    ignored by design (``install_cleanup``), so the SIGINT case would never end."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _run_helper(tmp_path, kind, how, before_end=None):
     """Start the helper, end it by ``how``; return (returncode, output, node pgid)."""
     script = tmp_path / 'helper.py'
@@ -134,7 +141,8 @@ def _run_helper(tmp_path, kind, how, before_end=None):
         helper = subprocess.Popen([sys.executable, str(script), kind, how, str(DOMAIN_ID),
                                    str(work)], stdin=subprocess.PIPE, stdout=log,
                                   stderr=subprocess.STDOUT, text=True,
-                                  env=venv_env(ROS_DOMAIN_ID=DOMAIN_ID))
+                                  env=venv_env(ROS_DOMAIN_ID=DOMAIN_ID),
+                                  preexec_fn=_sigint_default)
     pgid = None
 
     def output():
