@@ -122,7 +122,7 @@ def test_one_sensor_swap_keeps_the_other_sensor(month, tmp_path):
     s_act, s_new = (gate.score(c, holdout, truth.gravity, pose) for c in (active, new))
     swap, fig = gate.decide(s_act, s_new)
     assert fig['gyro']['verdict'] == 'better' and fig['accel']['verdict'] == 'worse'
-    found, record = compose.one_sensor(active, new, fig, holdout, pose, None, 2.0)
+    found, record = compose.one_sensor(active, new, fig, s_act, holdout, pose, None, 2.0)
     assert record['sensor'] == 'gyro' and record['used'], record
     cal, score, fig_c = found
     assert cal.gyro is new.gyro and cal.accel is active.accel
@@ -130,13 +130,13 @@ def test_one_sensor_swap_keeps_the_other_sensor(month, tmp_path):
     assert score['accel_rms'] == pytest.approx(s_act['accel_rms'], rel=1e-12)
     # both better or neither: nothing composed
     both = {w: dict(fig[w], verdict='better') for w in ('gyro', 'accel')}
-    assert compose.one_sensor(active, new, both, holdout, pose, None, 2.0) == (None, {})
+    assert compose.one_sensor(active, new, both, s_act, holdout, pose, None, 2.0) == (None, {})
     # the loop: a Lifelong whose estimate is better for the gyro only swaps the gyro alone
     life = Lifelong(str(tmp_path), CalibrateSettings(), 1, [TOPIC], m.config.frame_id,
                     config=LifelongConfig(new_holds=1000))
     life.active = active
     decision = {}
-    assert life._one_sensor(new, fig, holdout, pose, decision) is not None
+    assert life._one_sensor(new, fig, s_act, holdout, pose, decision) is not None
     assert decision['one_sensor']['used']
     life.config.per_sensor = False
-    assert life._one_sensor(new, fig, holdout, pose, {}) is None
+    assert life._one_sensor(new, fig, s_act, holdout, pose, {}) is None

@@ -137,6 +137,15 @@ def _inputs(raw, doc, out):
                      for j, i in enumerate(doc['temperature']['inputs'])]
 
 
+def _min_max(rng, k, path):
+    """Return the (k, 2) [min, max] of a checked range mapping; each must have k values."""
+    for key in ('min', 'max'):
+        if rng[key].shape != (k,):
+            raise ValueError(f'{path}.{key} has shape {rng[key].shape}, expected ({k},): one '
+                             'value per input')
+    return np.stack([rng['min'], rng['max']], 1)
+
+
 def _valid_range(raw, doc, out):
     inputs, vr, k = out['inputs'], doc['temperature']['valid_range'], len(out['inputs'])
     out['valid_range'] = None
@@ -145,11 +154,7 @@ def _valid_range(raw, doc, out):
     if vr is None:
         raise ValueError('temperature.valid_range is required when there are inputs: '
                          'min and max of each input, in its unit')
-    for key in ('min', 'max'):
-        if vr[key].shape != (k,):
-            raise ValueError(f'temperature.valid_range.{key} has shape {vr[key].shape}, '
-                             f'expected ({k},): one value per input')
-    valid = np.stack([vr['min'], vr['max']], 1)
+    valid = _min_max(vr, k, 'temperature.valid_range')
     if vr['unit'] is not None:
         units = [vr['unit']] * k if isinstance(vr['unit'], str) else vr['unit']
         if len(units) != k:
@@ -181,12 +186,7 @@ def _sensor_range(raw, doc, out):
         r = sr[name]
         if r is None:
             continue
-        for key in ('min', 'max'):
-            if r[key].shape != (len(valid),):
-                raise ValueError(f'temperature.sensor_range.{name}.{key} has shape '
-                                 f'{r[key].shape}, expected ({len(valid)},): one value per '
-                                 'input')
-        rng = np.stack([r['min'], r['max']], 1)
+        rng = _min_max(r, len(valid), f'temperature.sensor_range.{name}')
         if np.any(rng[:, 0] > rng[:, 1]) or np.any(rng[:, 0] < valid[:, 0]) \
                 or np.any(rng[:, 1] > valid[:, 1]):
             raise ValueError(f'temperature.sensor_range.{name} ({rng.tolist()}) must have min '

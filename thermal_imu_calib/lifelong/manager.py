@@ -333,7 +333,7 @@ class Lifelong:
             new = result.calibration
         s_act = gate.score(self.active, holdout, g, holdout_pose, self.latitude)
         swap, fig = gate.decide(s_act, s_new, c.swap_sigmas)
-        part = self._one_sensor(new, fig, holdout, holdout_pose, decision)
+        part = self._one_sensor(new, fig, s_act, holdout, holdout_pose, decision)
         only = ''
         if part is not None:
             new, s_new, fig = part
@@ -358,7 +358,7 @@ class Lifelong:
         self.state['alarm_pending'] = False
         return self._finish(decision)
 
-    def _one_sensor(self, new, fig, holdout, pose, decision):
+    def _one_sensor(self, new, fig, s_act, holdout, pose, decision):
         """Return ``compose.one_sensor``'s swap (None: none); the decision records it.
 
         Not after a change alarm: the alarm says the sensor changed, and in one mounting
@@ -367,8 +367,8 @@ class Lifelong:
         """
         if not self.config.per_sensor or self.state.get('alarm_pending'):
             return None
-        found, record = compose.one_sensor(self.active, new, fig, holdout, pose, self.latitude,
-                                           self.config.swap_sigmas)
+        found, record = compose.one_sensor(self.active, new, fig, s_act, holdout, pose,
+                                           self.latitude, self.config.swap_sigmas)
         if record:
             decision['one_sensor'] = record
         return found
