@@ -140,3 +140,32 @@ def test_one_sensor_swap_keeps_the_other_sensor(month, tmp_path):
     assert decision['one_sensor']['used']
     life.config.per_sensor = False
     assert life._one_sensor(new, fig, s_act, holdout, pose, {}) is None
+
+
+def test_the_range_trigger_waits_for_what_the_last_estimate_did_not_fit(month, tmp_path):
+    """A sensor kept with a narrow range does not make every few holds an estimate.
+
+    Seed 3 of the month bench kept an accelerometer valid over 14.6-31.1 degC while the
+    holds reached 39.5 degC: the range trigger fired every ``min_holds`` new holds, each
+    estimate fitting the same temperatures (115 estimates instead of 67). It now also needs
+    the collected span to pass what the last estimate fitted by ``range_extension_degc``.
+    """
+    m, win, _ = month
+    life = Lifelong(str(tmp_path), CalibrateSettings(), 1, [TOPIC], m.config.frame_id,
+                    config=LifelongConfig(new_holds=1000))
+    life.store.add(win)
+    lo, hi = life.store.temperature_span()
+    assert hi - lo > 8.0, (lo, hi)
+    life.active = copy.deepcopy(m.true_calibration(0.5 * DAY))
+    mid = 0.5 * (lo + hi)
+    life.active.valid_range = np.array([[mid - 1.0, mid + 1.0]])
+    assert life.due().startswith(f'collected {lo:.1f}..{hi:.1f} degC extends the valid range')
+    life.state['fit_span'] = [lo, hi]                 # the last estimate fitted all of it
+    assert life.due() == ''
+    life.state['fit_span'] = [lo + 4.0, hi]           # 4 degC below what it fitted
+    why = life.due()
+    assert 'and what the last estimate fitted' in why and why.endswith('by 4.0 degC'), why
+    life.estimate()                                   # an estimate records what it fitted
+    fitted = life.state['fit_span']
+    assert lo <= fitted[0] < fitted[1] <= hi
+    assert life.due() == ''                           # nothing new since

@@ -14,7 +14,9 @@ the fleet format (``fleet.registry``: ``history``, drift alarms and the compensa
 registry mode then work for one robot; ``valid_from`` is the time it was activated).
 
 When to re-estimate (``due``): the first time enough holds are in; when the collected
-temperatures extend the active calibration's valid range by ``range_extension_degc``;
+temperatures extend by ``range_extension_degc`` both the active calibration's valid range
+(where neither sensor's model clamps) and what the last estimate fitted (so a sensor kept
+with a narrow range does not make every few holds an estimate of the same temperatures);
 when ``new_holds`` holds came in since the last estimate; when ``misfit_holds`` new holds
 since the last estimate were missed by the active calibration (``gate.misses``: the change
 alarm's limit, at any temperature, consecutive or not; a re-estimate only makes a candidate
@@ -34,6 +36,10 @@ Reset (``reset``, the node's ``~/reset``): the collection starts afresh without 
 data: the hold store and the candidate move into ``archive/<UTC time>/`` (at most
 ``MAX_ARCHIVES`` archives; one more is refused, saying what to do), the active
 calibration, the counters, the decisions and the registry stay. No ROS import.
+
+Cohesive: one loop over one directory (when to estimate, the gate, the alarm, reset and
+history share its state and counters); the pieces that stand alone are ``gate``,
+``compose``, ``ageing``, ``store`` and ``archive``.
 """
 
 from dataclasses import dataclass, field
@@ -171,7 +177,7 @@ class Lifelong:
         self.store = HoldStore(os.path.join(self.dir, 'holds'), self.k, self.config.store)
         self.candidate = None
         self.track = []
-        self.state.update(holds_at_estimate=0, alarm_pending=False, missed=[],
+        self.state.update(holds_at_estimate=0, alarm_pending=False, missed=[], fit_span=None,
                           resets=self.state.get('resets', 0) + 1)
         n = before['holds_total']
         moved = (f'moved the {n} hold{"s" if n != 1 else ""} collected so far '
@@ -290,10 +296,14 @@ class Lifelong:
         span = self.store.temperature_span()
         if span and self.active.valid_range is not None and self.k and new >= c.min_holds:
             lo, hi = compose.common_range(self.active)[0]
-            ext = max(lo - span[0], span[1] - hi)
+            seen = s.get('fit_span') or (hi, lo)     # none: the valid range alone
+            ref = min(lo, seen[0]), max(hi, seen[1])
+            ext = max(ref[0] - span[0], span[1] - ref[1])
             if ext >= c.range_extension_degc:
+                also = (f' and what the last estimate fitted ({seen[0]:.1f}..{seen[1]:.1f})'
+                        if ref != (lo, hi) else '')
                 return (f'collected {span[0]:.1f}..{span[1]:.1f} degC extends the valid range '
-                        f'{lo:.1f}..{hi:.1f} by {ext:.1f} degC')
+                        f'{lo:.1f}..{hi:.1f}{also} by {ext:.1f} degC')
         return ''
 
     # ------------------------------------------------------------------ estimate
@@ -310,6 +320,8 @@ class Lifelong:
         self.state['holds_at_estimate'] = self.store.total_holds
         self.state['estimates'] += 1
         self.state['missed'] = []
+        self.state['fit_span'] = ([float(fit.temp[:, 0].min()), float(fit.temp[:, 0].max())]
+                                  if len(fit) and self.k else None)
         decision = {'time': now, 'reason': reason, 'fit_windows': len(fit),
                     'fit_holds': int(len(fit.hold_ids)) if len(fit) else 0,
                     'heldout_holds': int(len(held))}
