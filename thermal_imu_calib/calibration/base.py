@@ -5,6 +5,12 @@ from dataclasses import dataclass
 from ..input_units import DEGC, normalize_unit
 
 FORMAT = 'thermal_imu_calib/1'
+#: format 1 plus ``temperature.sensor_range`` (one sensor's model valid over a narrower range,
+#: a lifelong one-sensor swap). Written only by files that have it, so that a version that
+#: knows format 1 only refuses them ("needs a newer version") instead of ignoring the range
+#: and extrapolating that model; every other file stays format 1.
+FORMAT_SENSOR_RANGE = 'thermal_imu_calib/2'
+FILE_FORMATS = (FORMAT, FORMAT_SENSOR_RANGE)
 OUT_OF_RANGE_POLICIES = ('clamp', 'extrapolate')
 #: a calibration file is a few kB; these bound what a hostile one can cost before it is read
 MAX_FILE_BYTES = 4 * 2 ** 20

@@ -20,7 +20,7 @@ from ..input_units import DEGC, is_temperature
 from ..models import SensorModel
 from ..thermal_input import CalibrationStream, ThermalFilter
 from . import schema
-from .base import CalibrationError, FORMAT, NOISE_UNITS, TemperatureInput
+from .base import CalibrationError, FORMAT, FORMAT_SENSOR_RANGE, NOISE_UNITS, TemperatureInput
 from .yaml_text import parse_yaml, read_file
 
 
@@ -243,7 +243,7 @@ class Calibration:
         """Return the file content without the free-form ``fit`` and ``notes``."""
         units = self.input_units
         d = {
-            'format': FORMAT,
+            'format': FORMAT_SENSOR_RANGE if self.sensor_range else FORMAT,
             'software': {'name': 'thermal_imu_calib', 'version': self.software_version},
             'created': self.created or _now(),
             'sensor': {'frame_id': self.frame_id},

@@ -51,7 +51,7 @@ from ..input_units import check_values, DEGC, normalize_unit
 from ..models import model_from_dict
 from ..thermal_input import ThermalFilter
 from . import plausible
-from .base import (CalibrationError, FORMAT, GRAVITY_BOUNDS, NOISE_UNITS,
+from .base import (CalibrationError, FILE_FORMATS, GRAVITY_BOUNDS, NOISE_UNITS,
                    OUT_OF_RANGE_POLICIES, short, TemperatureInput, type_name)
 from .spec import (Choice, FreeForm, Indices, ListOf, Mapping, MapOf, Notes, Number, Numbers,
                    REQUIRED, Text, TextOrList, Valued)
@@ -266,8 +266,9 @@ def check_format(d, source):
         raise CalibrationError(f'{source}: expected a YAML mapping at the top level, got '
                                f'{type_name(d)}')
     fmt = d.get('format')
-    if not isinstance(fmt, str) or fmt != FORMAT:
-        raise CalibrationError(f'{source}: format {short(fmt)} is not {FORMAT!r}; this is '
+    if not isinstance(fmt, str) or fmt not in FILE_FORMATS:
+        known = ' or '.join(repr(f) for f in FILE_FORMATS)
+        raise CalibrationError(f'{source}: format {short(fmt)} is not {known}; this is '
                                'not a thermal_imu_calib file or it needs a newer version')
 
 

@@ -12,7 +12,7 @@ import numpy as np
 import yaml
 
 from ..calibration import (Calibration, CalibrationError, check_yaml_shape, decode_text,
-                           FORMAT, MAX_FILE_BYTES)
+                           FILE_FORMATS, MAX_FILE_BYTES)
 from ..models.field import FieldPolynomialModel
 from . import ardupilot, imu_tk, imucal, kalibr, px4
 from .common import affine_map, Exported, ExportRefused, lq, samples  # noqa: F401
@@ -54,7 +54,7 @@ def read_calibration(path):
 
     The kind is told by name and content: ``*_acc.calib``/``*_gyro.calib`` (imu_tk; the
     sibling triad is read too), ``.json`` (imucal), ``.params`` (PX4, QGroundControl),
-    ``.parm`` (ArduPilot), YAML with ``format: thermal_imu_calib/1`` or Kalibr's keys.
+    ``.parm`` (ArduPilot), YAML with ``format: thermal_imu_calib/1`` (or ``/2``) or Kalibr's keys.
     Raises CalibrationError saying what the file is not.
     """
     path = os.fspath(path)
@@ -85,7 +85,7 @@ def read_calibration(path):
             d = yaml.safe_load(text)
         except yaml.YAMLError:
             d = None
-        if isinstance(d, dict) and d.get('format') == FORMAT:
+        if isinstance(d, dict) and d.get('format') in FILE_FORMATS:
             return Calibration.from_dict(d, path)
         if isinstance(d, dict) and any(k in d for k in kalibr.KEYS):
             return kalibr.read(text, name)
