@@ -397,8 +397,11 @@ def run_live_once(imu, temps, gravity, domain_id, temperature_topics=None, workd
     node = LiveCalibrator(workdir, args, {'gravity': float(gravity), **(extra_params or {})},
                           domain_id)
     out.command = node.argv
-    driver = _Driver(domain_id, '/imu/temperature' if temps is not None else None)
+    driver = None
     try:
+        # inside the try: an exit while the player starts still stops the launched node
+        driver = _Driver(domain_id, '/imu/temperature' if temps is not None else None)
+
         def connected():
             p = driver.progress
             return (p is not None and p['imu_publishers'] >= 1
@@ -458,6 +461,7 @@ def run_live_once(imu, temps, gravity, domain_id, temperature_topics=None, workd
     except NodeFailed as e:
         out.error = str(e)
     finally:
-        driver.close()
+        if driver is not None:
+            driver.close()
         node.stop()
     return out
