@@ -1,0 +1,184 @@
+"""Where the gyro error of a lifelong month comes from, and what to do outside the range.
+
+For finished ``bench_lifelong.py month`` runs (``SEED:WORK_SEED_DIR`` pairs, the
+``--work`` directory's ``seedN``), every stop is scored as ``bench_lifelong.py`` scores
+it, with the calibration active when it began (the registry is the timeline), and with
+the true calibration at that time. Printed:
+
+* **last week, by source** (the acceptance figure's stops): the gyro error RMS (mrad/s)
+  of the stops outside the active calibration's valid range (where neither sensor's model
+  clamps), on a slope (the mount tilted 3-12 degC: the gyro's g-sensitivity, which a fit
+  of one mounting pose cannot resolve), and the level stops inside the range; each also
+  as the systematic part (active minus true) and as its share of the week's squared error;
+* **outside the valid range, all month**: every stop beyond the active's range scored
+  three ways: clamped at the range (``out_of_range: clamp``, the default, as PX4 and
+  ArduPilot do), continued linearly from the edge (the slope of the last 1 degC inside),
+  and the models' own extrapolation (``extrapolate``); gyro error and the accelerometer
+  error about the median of the same calibration's inside stops (the drift), by how far
+  outside the stop is.
+
+    python bench/lifelong_error_sources.py 0:/tmp/w/seed0 1:/tmp/w/seed1 \
+        --output bench/results/lifelong_error_sources.json
+"""
+
+import argparse
+import dataclasses
+import json
+import os
+import sys
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.dirname(HERE))
+sys.path.insert(0, HERE)
+
+from bench_lifelong import stop_chunks  # noqa: E402
+from thermal_imu_calib.calibration import Calibration  # noqa: E402
+from thermal_imu_calib.fleet import registry as reg  # noqa: E402
+from thermal_imu_calib.fleet.times import parse_time  # noqa: E402
+from thermal_imu_calib.lifelong import compose  # noqa: E402
+from thermal_imu_calib.sim.robot_month import DAY, robot_month  # noqa: E402
+
+POLICIES = ('clamp', 'linear', 'extrapolate')
+#: how far outside (degC) the policies are compared by
+EXCESS_BANDS = ((0.0, 2.0), (2.0, 5.0), (5.0, np.inf))
+EDGE_STEP_DEGC = 1.0
+
+
+def outputs(cal, ch, policy):
+    """Return (accel, gyro) outputs of a stop's chunks under an out-of-range ``policy``."""
+    if policy != 'linear':
+        r = dataclasses.replace(cal, out_of_range=policy).apply(ch['accel'], ch['gyro'],
+                                                                ch['temp'])
+        return r.accel, r.gyro
+    out = []
+    temps = ch['temp'].reshape(len(ch['temp']), -1)
+    for which in ('accel', 'gyro'):
+        vr = cal.sensor_range.get(which, cal.valid_range)
+        edge = np.clip(temps, vr[:, 0], vr[:, 1])
+        inward = np.where(temps > vr[:, 1], -EDGE_STEP_DEGC,
+                          np.where(temps < vr[:, 0], EDGE_STEP_DEGC, 0.0))
+        at_edge = getattr(cal.apply(ch['accel'], ch['gyro'], edge), which)
+        inside = getattr(cal.apply(ch['accel'], ch['gyro'], edge + inward), which)
+        step = inward[:, :1]
+        slope = np.where(step != 0, (inside - at_edge) / np.where(step != 0, step, 1.0), 0.0)
+        out.append(at_edge + slope * (temps - edge)[:, :1])
+    return out[0], out[1]
+
+
+def stop_errors(cal, ch, policy='clamp'):
+    """Return the sample-weighted (gyro, accel) error vectors of one stop (rad/s, m/s^2)."""
+    a, g = outputs(cal, ch, policy)
+    w = ch['n'] / ch['n'].sum()
+    return w @ (g - ch['w']), w @ (a - ch['f'])
+
+
+def timeline(work_seed):
+    """Return [(activated at s since the month's start, Calibration)] from the registry."""
+    rows = reg.read_index(os.path.join(work_seed, 'registry'))
+    return sorted((parse_time(r['valid_from']),
+                   Calibration.load(os.path.join(work_seed, 'registry', r['file'])))
+                  for r in rows)
+
+
+def score_seed(seed, work_seed, days):
+    """Return every scored stop of one seed's month (dicts, errors under each policy)."""
+    m = robot_month(seed, days=days)
+    tl = timeline(work_seed)
+    acts = np.array([t * 1e-9 for t, _ in tl]) - m.start_ns * 1e-9
+    stops = []
+    for seg in m.segments():
+        s = seg.stop
+        ch = stop_chunks(seg)
+        i = np.searchsorted(acts, s.t0, 'right') - 1
+        if s.blocked or ch is None or i < 0:
+            continue
+        cal = tl[i][1]
+        lo, hi = compose.common_range(cal)[0]
+        temp = ch['temp'][:, 0]
+        excess = max(lo - temp.min(), temp.max() - hi, 0.0)
+        pol = POLICIES if excess > 0 else ('clamp',)
+        stops.append({'day': s.t0 / DAY, 'activation': (seed, int(i)), 'excess': float(excess),
+                      'slope': bool(s.slope_deg > 0), 'age_days': (s.t0 - acts[i]) / DAY,
+                      'errors': {p: stop_errors(cal, ch, p) for p in pol},
+                      'true': stop_errors(m.true_calibration(s.t0), ch)})
+    return stops
+
+
+def rms(vectors):
+    v = np.array(vectors, float).reshape(-1, 3) if len(vectors) else np.zeros((0, 3))
+    return float(np.sqrt(np.mean(np.sum(v ** 2, 1)))) if len(v) else float('nan')
+
+
+def last_week(stops, days):
+    week = [s for s in stops if s['day'] >= days - 7]
+    total = np.sum([np.sum(s['errors']['clamp'][0] ** 2) for s in week])
+    out = {'stops': len(week), 'gyro_mrad_s': rms([s['errors']['clamp'][0] for s in week]) * 1e3,
+           'true_mrad_s': rms([s['true'][0] for s in week]) * 1e3}
+    groups = {'outside the range': lambda s: s['excess'] > 0,
+              'slope, inside': lambda s: s['excess'] == 0 and s['slope'],
+              'level, inside': lambda s: s['excess'] == 0 and not s['slope']}
+    for name, sel in groups.items():
+        g = [s for s in week if sel(s)]
+        act = [s['errors']['clamp'][0] for s in g]
+        out[name] = {'stops': len(g), 'gyro_mrad_s': rms(act) * 1e3,
+                     'systematic_mrad_s': rms([s['errors']['clamp'][0] - s['true'][0]
+                                               for s in g]) * 1e3,
+                     'share_of_squared_error': float(np.sum(np.square(act)) / total)
+                     if total > 0 else float('nan')}
+    return out
+
+
+def outside(stops):
+    """Return per excess band: stops, gyro RMS (mrad/s) and accel drift RMS (mm/s^2)."""
+    centre = {}
+    for s in stops:
+        if s['excess'] == 0:
+            centre.setdefault(s['activation'], []).append(s['errors']['clamp'][1])
+    centre = {k: np.median(v, 0) for k, v in centre.items()}
+    out = {}
+    for lo, hi in EXCESS_BANDS + ((0.0, np.inf),):
+        sel = [s for s in stops if lo < s['excess'] <= hi]
+        acc = [s for s in sel if s['activation'] in centre]
+        out[f'{lo:g}-{hi:g} degC'] = {
+            'stops': len(sel),
+            'gyro_mrad_s': {p: rms([s['errors'][p][0] for s in sel]) * 1e3 for p in POLICIES},
+            'true_gyro_mrad_s': rms([s['true'][0] for s in sel]) * 1e3,
+            'accel_drift_mm_s2': {p: rms([s['errors'][p][1] - centre[s['activation']]
+                                          for s in acc]) * 1e3 for p in POLICIES}}
+    return out
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+    ap.add_argument('runs', nargs='+', help='SEED:WORK_DIR/seedSEED of a finished month run')
+    ap.add_argument('--days', type=float, default=30.0)
+    ap.add_argument('--output', default='')
+    args = ap.parse_args()
+    result, every = {'command': ' '.join(sys.argv), 'seeds': {}}, []
+    for spec in args.runs:
+        seed, d = spec.split(':', 1)
+        stops = score_seed(int(seed), d, args.days)
+        every += stops
+        r = {'last_week': last_week(stops, args.days), 'outside': outside(stops)}
+        result['seeds'][seed] = r
+        lw = r['last_week']
+        print(f'seed {seed}: last week {lw["gyro_mrad_s"]:.3f} mrad/s (true '
+              f'{lw["true_mrad_s"]:.3f}), ' + '; '.join(
+                  f'{k} {v["stops"]}: {v["gyro_mrad_s"]:.3f} '
+                  f'({100 * v["share_of_squared_error"]:.0f} %)'
+                  for k, v in lw.items() if isinstance(v, dict)), flush=True)
+    result['outside_all_seeds'] = outside(every)
+    for band, v in result['outside_all_seeds'].items():
+        print(f'outside {band}: {v["stops"]} stops; gyro mrad/s ' + ', '.join(
+            f'{p} {v["gyro_mrad_s"][p]:.3f}' for p in POLICIES) + f' (true '
+            f'{v["true_gyro_mrad_s"]:.3f}); accel drift mm/s^2 ' + ', '.join(
+            f'{p} {v["accel_drift_mm_s2"][p]:.1f}' for p in POLICIES))
+    if args.output:
+        with open(args.output, 'w') as f:
+            json.dump(result, f, indent=1)
+
+
+if __name__ == '__main__':
+    main()
