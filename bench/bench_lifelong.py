@@ -100,6 +100,21 @@ def stop_error(cal, ch):
     return w @ (g - ch['w']), w @ (a - ch['f'])
 
 
+def registry_timeline(work_seed, start_ns):
+    """Return (activated at s since ``start_ns``, calibrations) of a month's registry.
+
+    ``work_seed``: a finished month's lifelong directory (``--work``/seedN); every
+    calibration it activated, oldest first (a lifelong registry's ``time`` is the moment
+    it was activated).
+    """
+    from thermal_imu_calib.calibration import Calibration
+    from thermal_imu_calib.fleet import registry
+    rows = registry.read_index(os.path.join(work_seed, 'registry'))
+    starts = np.array([registry.parse_time(r['time']) - start_ns for r in rows]) * 1e-9
+    return starts, [Calibration.load(os.path.join(work_seed, 'registry', r['file']))
+                    for r in rows]
+
+
 def run_seed(seed, days, work, latitude=None, ageing=True, per_sensor=True, **overrides):
     m = robot_month(seed, days=days, **overrides)
     spec = m.device.spec

@@ -22,9 +22,7 @@ import numpy as np
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..'))
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from bench_lifelong import stop_chunks, stop_error  # noqa: E402
-from thermal_imu_calib.calibration import Calibration  # noqa: E402
-from thermal_imu_calib.fleet import registry  # noqa: E402
+from bench_lifelong import registry_timeline, stop_chunks, stop_error  # noqa: E402
 from thermal_imu_calib.sim.robot_month import DAY, robot_month  # noqa: E402
 
 BANDS = (-np.inf, 20.0, 25.0, 30.0, 35.0, np.inf)
@@ -62,10 +60,7 @@ def main():
     p.add_argument('--from-day', type=float, default=0.0)
     a = p.parse_args()
     m = robot_month(a.seed, days=a.days)
-    base = m.start_ns * 1e-9
-    rows = registry.read_index(os.path.join(a.work_seed, 'registry'))
-    starts = [registry.parse_time(r['time']) * 1e-9 - base for r in rows]
-    cals = [Calibration.load(os.path.join(a.work_seed, 'registry', r['file'])) for r in rows]
+    starts, cals = registry_timeline(a.work_seed, m.start_ns)
     scored = {}
     for seg in m.segments(a.from_day * DAY):
         ch = stop_chunks(seg)

@@ -33,10 +33,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 sys.path.insert(0, HERE)
 
-from bench_lifelong import stop_chunks  # noqa: E402
-from thermal_imu_calib.calibration import Calibration  # noqa: E402
-from thermal_imu_calib.fleet import registry as reg  # noqa: E402
-from thermal_imu_calib.fleet.times import parse_time  # noqa: E402
+from bench_lifelong import registry_timeline, stop_chunks, stop_error  # noqa: E402
 from thermal_imu_calib.lifelong import compose  # noqa: E402
 from thermal_imu_calib.sim.robot_month import DAY, robot_month  # noqa: E402
 
@@ -46,12 +43,8 @@ EXCESS_BANDS = ((0.0, 2.0), (2.0, 5.0), (5.0, np.inf))
 EDGE_STEP_DEGC = 1.0
 
 
-def outputs(cal, ch, policy):
-    """Return (accel, gyro) outputs of a stop's chunks under an out-of-range ``policy``."""
-    if policy != 'linear':
-        r = dataclasses.replace(cal, out_of_range=policy).apply(ch['accel'], ch['gyro'],
-                                                                ch['temp'])
-        return r.accel, r.gyro
+def linear_outputs(cal, ch):
+    """Return (accel, gyro) of a stop's chunks, continued linearly beyond the range."""
     out = []
     temps = ch['temp'].reshape(len(ch['temp']), -1)
     for which in ('accel', 'gyro'):
@@ -69,24 +62,17 @@ def outputs(cal, ch, policy):
 
 def stop_errors(cal, ch, policy='clamp'):
     """Return the sample-weighted (gyro, accel) error vectors of one stop (rad/s, m/s^2)."""
-    a, g = outputs(cal, ch, policy)
+    if policy != 'linear':
+        return stop_error(dataclasses.replace(cal, out_of_range=policy), ch)
+    a, g = linear_outputs(cal, ch)
     w = ch['n'] / ch['n'].sum()
     return w @ (g - ch['w']), w @ (a - ch['f'])
-
-
-def timeline(work_seed):
-    """Return [(activated at s since the month's start, Calibration)] from the registry."""
-    rows = reg.read_index(os.path.join(work_seed, 'registry'))
-    return sorted((parse_time(r['valid_from']),
-                   Calibration.load(os.path.join(work_seed, 'registry', r['file'])))
-                  for r in rows)
 
 
 def score_seed(seed, work_seed, days):
     """Return every scored stop of one seed's month (dicts, errors under each policy)."""
     m = robot_month(seed, days=days)
-    tl = timeline(work_seed)
-    acts = np.array([t * 1e-9 for t, _ in tl]) - m.start_ns * 1e-9
+    acts, cals = registry_timeline(work_seed, m.start_ns)
     stops = []
     for seg in m.segments():
         s = seg.stop
@@ -94,7 +80,7 @@ def score_seed(seed, work_seed, days):
         i = np.searchsorted(acts, s.t0, 'right') - 1
         if s.blocked or ch is None or i < 0:
             continue
-        cal = tl[i][1]
+        cal = cals[i]
         lo, hi = compose.common_range(cal)[0]
         temp = ch['temp'][:, 0]
         excess = max(lo - temp.min(), temp.max() - hi, 0.0)

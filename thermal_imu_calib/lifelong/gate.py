@@ -83,6 +83,14 @@ def hold_errors(cal, windows, gravity, latitude=None):
     return out
 
 
+def gyro_limit(errors, gyro_rms, factor, floor):
+    """Return the (h,) per-hold gyro limit of ``misses`` (rad/s).
+
+    ``factor`` times ``gyro_rms``, at least ``floor`` times the hold's own standard error.
+    """
+    return np.maximum(factor * gyro_rms, floor * errors['se_gyro'])
+
+
 def misses(errors, accel_median, gyro_rms, accel_rms, factor, floor):
     """Return the (h,) mask of the holds a calibration misses.
 
@@ -92,7 +100,7 @@ def misses(errors, accel_median, gyro_rms, accel_rms, factor, floor):
     ``accel_rms``; each limit is at least ``floor`` times the hold's own standard error.
     The change alarm's limit, per hold.
     """
-    g = np.abs(errors['gyro']) > np.maximum(factor * gyro_rms, floor * errors['se_gyro'])
+    g = np.abs(errors['gyro']) > gyro_limit(errors, gyro_rms, factor, floor)
     a = np.abs(errors['accel'] - accel_median) > np.maximum(
         factor * accel_rms, floor * errors['se_accel'])
     return g | a

@@ -301,12 +301,15 @@ class Lifelong:
         span = self.store.temperature_span()
         if span and self.active.valid_range is not None and self.k and new >= c.min_holds:
             lo, hi = compose.common_range(self.active)[0]
-            seen = s.get('fit_span') or (hi, lo)     # none: the valid range alone
-            ref = min(lo, seen[0]), max(hi, seen[1])
-            ext = max(ref[0] - span[0], span[1] - ref[1])
+            ref_lo, ref_hi, also = lo, hi, ''
+            seen = s.get('fit_span')
+            if seen:
+                ref_lo, ref_hi = min(lo, seen[0]), max(hi, seen[1])
+                if (ref_lo, ref_hi) != (lo, hi):
+                    also = (f' and what the last estimate fitted '
+                            f'({seen[0]:.1f}..{seen[1]:.1f})')
+            ext = max(ref_lo - span[0], span[1] - ref_hi)
             if ext >= c.range_extension_degc:
-                also = (f' and what the last estimate fitted ({seen[0]:.1f}..{seen[1]:.1f})'
-                        if ref != (lo, hi) else '')
                 return (f'collected {span[0]:.1f}..{span[1]:.1f} degC extends the valid range '
                         f'{lo:.1f}..{hi:.1f}{also} by {ext:.1f} degC')
         return ''
@@ -398,7 +401,7 @@ class Lifelong:
                 or st.get('active_gyro_rms') is None:
             return False
         e = s_new['errors']
-        limit = np.maximum(c.alarm_factor * st['active_gyro_rms'], c.alarm_floor * e['se_gyro'])
+        limit = gate.gyro_limit(e, st['active_gyro_rms'], c.alarm_factor, c.alarm_floor)
         missed = int(np.sum(np.abs(e['gyro']) > limit))
         if missed < c.misfit_holds:
             return False
