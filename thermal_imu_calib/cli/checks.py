@@ -11,6 +11,7 @@ import math
 import os
 import re
 import signal
+import sys
 
 from ..app.calibrate import TRANSITIONS_SUFFIX
 from ..calibration import Calibration, CalibrationError
@@ -128,11 +129,38 @@ class Terminated(KeyboardInterrupt):
     """SIGTERM, raised like Ctrl-C so partial outputs are removed on the way out."""
 
 
-def install_sigterm():
-    """Make SIGTERM unwind like SIGINT (temporary outputs are removed); main thread only."""
+def install_signals():
+    """Make SIGINT and SIGTERM recorded, then raised; main thread only.
+
+    SIGTERM unwinds like Ctrl-C (Terminated), so temporary outputs are removed. The record
+    (``output.note_interrupt``) keeps an interruption whose exception Python swallowed
+    (raised inside a clean-up callback) from committing an output or exiting 0; such a
+    swallowed interruption prints no "Exception ignored" traceback.
+    """
+    output.reset_interrupts()
+
     def handler(signum, frame):
-        raise Terminated()
+        output.note_interrupt(signum)
+        raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
     try:
-        signal.signal(signal.SIGTERM, handler)
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            if signal.getsignal(sig) is not signal.SIG_IGN or sig == signal.SIGTERM:
+                signal.signal(sig, handler)
     except ValueError:      # not the main thread (e.g. called from a test thread)
-        pass
+        return
+    if not getattr(sys.unraisablehook, 'quiet_on_interrupt', False):
+        default = sys.unraisablehook
+
+        def unraisable(info):
+            if not (isinstance(info.exc_value, KeyboardInterrupt) and output.interrupt()):
+                default(info)
+        unraisable.quiet_on_interrupt = True
+        sys.unraisablehook = unraisable
+
+
+def interrupted_status():
+    """Return (word, exit status) for a recorded interruption, or None."""
+    sig = output.interrupt()
+    if sig is None:
+        return None
+    return ('terminated', 143) if sig == signal.SIGTERM else ('interrupted', 130)

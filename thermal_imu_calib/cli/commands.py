@@ -210,13 +210,20 @@ COMMANDS = {'calibrate': cmd_calibrate, 'compensate': cmd_compensate,
 def main(argv=None):
     """Entry point of ``thermal-imu-calib``."""
     args = build_parser().parse_args(argv)
-    cli_checks.install_sigterm()
+    cli_checks.install_signals()
     try:
         cli_checks.check_options(args)
         from threadpoolctl import threadpool_limits
         # the fits are small dense problems: BLAS threads only contend (docs/speed.md)
         with threadpool_limits(limits=1, user_api='blas'):
-            return COMMANDS[args.cmd](args)
+            status = COMMANDS[args.cmd](args)
+        # a signal whose KeyboardInterrupt Python swallowed (inside a clean-up callback)
+        # still ends the command as interrupted: no exit 0 after Ctrl-C
+        late = cli_checks.interrupted_status()
+        if late is not None:
+            print(late[0], file=sys.stderr)
+            return late[1]
+        return status
     except (UserError, LogError, CalibrationError, CalibrationRefused, FileNotFoundError,
             ValueError, OSError) as e:
         if args.debug:
@@ -226,9 +233,10 @@ def main(argv=None):
         print(f'thermal-imu-calib {args.cmd}: error: {msg}', file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt as e:
-        print('terminated' if isinstance(e, cli_checks.Terminated) else 'interrupted',
-              file=sys.stderr)
-        return 143 if isinstance(e, cli_checks.Terminated) else 130
+        word, status = cli_checks.interrupted_status() or (
+            ('terminated', 143) if isinstance(e, cli_checks.Terminated) else ('interrupted', 130))
+        print(word, file=sys.stderr)
+        return status
 
 
 def _os_error_text(e):

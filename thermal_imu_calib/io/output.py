@@ -18,7 +18,8 @@ anything is computed (``OutputError``, a ``ValueError``: one line, exit 2 in the
 never a fixed name such as ``OUT.tmp`` that could be someone's file) and renames it onto
 the target, so the target is either the old file or the complete new one; ``staging_dir``
 does the same for outputs that are directories or written by a library (rosbag2, MCAP).
-No ROS import.
+Neither renames after an interruption was recorded (``note_interrupt``), even one whose
+KeyboardInterrupt Python swallowed (raised inside a clean-up callback). No ROS import.
 """
 
 from contextlib import contextmanager
@@ -42,6 +43,44 @@ _SPECIAL = ((stat.S_ISFIFO, 'a named pipe'), (stat.S_ISCHR, 'a character device'
 
 class OutputError(ValueError):
     """An output that would destroy something or cannot be written; the text says what to do."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """A recorded SIGINT/SIGTERM raised again before an output is committed (``signum``)."""
+
+    def __init__(self, signum):
+        super().__init__(signum)
+        self.signum = signum
+
+
+#: signals recorded by the process's handlers (the CLI's); never cleared but by ``reset``
+_INTERRUPTS = []
+
+
+def note_interrupt(signum):
+    """Record that ``signum`` (SIGINT/SIGTERM) arrived: no output is committed after it."""
+    _INTERRUPTS.append(signum)
+
+
+def interrupt():
+    """Return the first recorded signal number, or None."""
+    return _INTERRUPTS[0] if _INTERRUPTS else None
+
+
+def reset_interrupts():
+    """Forget recorded signals (a new command in the same process)."""
+    _INTERRUPTS.clear()
+
+
+def _raise_if_interrupted():
+    """Raise Interrupted when a signal was recorded: its KeyboardInterrupt may have been lost.
+
+    Python delivers a signal's exception at the next bytecode; when that is inside a
+    callback (a weakref callback of the import lock, a ``__del__``), the exception is
+    reported as "ignored" and the program carries on. The record is what stops the commit.
+    """
+    if _INTERRUPTS:
+        raise Interrupted(_INTERRUPTS[0])
 
 
 def shown(path):
@@ -276,6 +315,7 @@ def write_atomic(path, data):
             f.flush()
             os.fsync(f.fileno())
         os.chmod(tmp, _mode())       # mkstemp makes 0600; outputs are not secret
+        _raise_if_interrupted()
         os.replace(tmp, target)
     except BaseException:
         if tmp is not None:
@@ -304,6 +344,7 @@ def staging_dir(path):
                                       dir=d)
         tmp = os.path.join(holder, os.path.basename(path))
         yield tmp
+        _raise_if_interrupted()
         if os.path.lexists(path):
             raise OutputError(f'{shown(path)} appeared while it was being written; nothing '
                               'was replaced: remove it or choose another output')
