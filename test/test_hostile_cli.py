@@ -348,3 +348,23 @@ def test_swallowed_ctrl_c_still_interrupts(clean, tmp_path, capfd, monkeypatch):
     assert err.strip().splitlines()[-1] == 'interrupted'
     assert 'Traceback' not in err and 'Exception ignored' not in err
     assert os.listdir(tmp_path) == []       # not committed: no output, no temporary
+
+
+@pytest.mark.parametrize('kind', ['file', 'directory'])
+def test_no_output_is_committed_after_a_recorded_signal(kind, tmp_path):
+    from thermal_imu_calib.io import output
+    target = tmp_path / 'out'
+    output.note_interrupt(signal.SIGTERM)
+    try:
+        with pytest.raises(output.Interrupted) as e:
+            if kind == 'file':
+                output.write_atomic(target, 'complete')
+            else:
+                with output.staging_dir(target) as tmp:
+                    os.mkdir(tmp)
+    finally:
+        output.reset_interrupts()
+    assert e.value.signum == signal.SIGTERM
+    assert os.listdir(tmp_path) == []       # neither the output nor its temporary
+    output.write_atomic(target, 'complete')     # forgotten: the next command writes
+    assert target.read_text() == 'complete'
