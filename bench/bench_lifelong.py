@@ -115,7 +115,8 @@ def registry_timeline(work_seed, start_ns):
                     for r in rows]
 
 
-def run_seed(seed, days, work, latitude=None, ageing=True, per_sensor=True, **overrides):
+def run_seed(seed, days, work, latitude=None, ageing=True, per_sensor=True,
+             alarm_window='common', **overrides):
     m = robot_month(seed, days=days, **overrides)
     spec = m.device.spec
     rate = m.config.imu_rate
@@ -128,7 +129,8 @@ def run_seed(seed, days, work, latitude=None, ageing=True, per_sensor=True, **ov
     def make():
         return Lifelong(d, settings, 1, [m.config.temp_topic], m.config.frame_id,
                         registry_dir=os.path.join(d, 'registry'),
-                        config=LifelongConfig(ageing=ageing, per_sensor=per_sensor),
+                        config=LifelongConfig(ageing=ageing, per_sensor=per_sensor,
+                                              alarm_window=alarm_window),
                         log=lambda level, text: log.append((level, text)))
     life = make()
     feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
@@ -263,7 +265,7 @@ def month(args):
     rows = []
     for seed in range(args.first_seed, args.first_seed + args.seeds):
         r = run_seed(seed, args.days, work, args.latitude, not args.no_ageing,
-                     not args.whole_swap)
+                     not args.whole_swap, args.alarm_window)
         rows.append(r)
         ra, kn = r['ratios'], r['knock']
         print(f'seed {seed}: {r["seconds"]:.0f} s, gyro first day '
@@ -810,6 +812,8 @@ def main():
                     help='without the gyro ageing candidate (LifelongConfig.ageing False)')
     mo.add_argument('--whole-swap', action='store_true',
                     help='swap whole calibrations only (LifelongConfig.per_sensor False)')
+    mo.add_argument('--alarm-window', choices=('common', 'sensor'), default='common',
+                    help='holds the change alarm watches (LifelongConfig.alarm_window)')
     mo.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_month.json'))
     re_ = sub.add_parser('real')
     re_.add_argument('--work', default='')

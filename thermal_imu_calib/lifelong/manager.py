@@ -26,11 +26,12 @@ store's windows without the newest ``holdout_holds`` holds, which the swap gate
 (``gate.decide``) scores both calibrations on. When it is better for one sensor only, that
 sensor's model alone replaces the active one's (``compose``, ``per_sensor``).
 
-Change alarm (a knock): every new hold inside the active valid range is scored with the
-active calibration; when the last ``alarm_holds`` of them all exceed ``alarm_factor``
-times the active's held-out error (floored at ``alarm_floor`` times their noise), the
-store is cut at the first of them (older data no longer describe the sensor), an alarm is
-logged and a re-estimate from the holds after the cut follows.
+Change alarm (a knock): every new hold inside the active valid range (``alarm_window``:
+inside both sensors' ranges, or each sensor's own) is scored with the active calibration;
+when, for one sensor, the last ``alarm_holds`` of them all exceed ``alarm_factor`` times
+the active's held-out error (floored at ``alarm_floor`` times their noise), the store is
+cut at the first of them (older data no longer describe the sensor), an alarm is logged
+and a re-estimate from the holds after the cut follows.
 
 Reset (``reset``, the node's ``~/reset``): the collection starts afresh without losing
 data: the hold store and the candidate move into ``archive/<UTC time>/`` (at most
@@ -89,6 +90,10 @@ class LifelongConfig:
     #: Off: on the month it was not built from (seed 4) the knock alarm came sooner (5.5 ->
     #: 3.4 h) but the last week's gyro error tripled (docs/lifelong.md)
     swap_must_explain: bool = False
+    #: which holds the change alarm watches: 'common', those inside both sensors' valid
+    #: range (``compose.common_range``); 'sensor', each sensor's holds inside its own range
+    #: (after one-sensor swaps the common range narrows and a knock is seen later)
+    alarm_window: str = 'common'
     store: StoreConfig = field(default_factory=StoreConfig)
 
 
@@ -125,7 +130,8 @@ class Lifelong:
             pass
         except (OSError, ValueError) as e:
             self.log('warn', f'{self._path("state.json")} unreadable ({e}); counters reset')
-        self.track = []            # [(t, gyro err, accel err, noise g, noise a)] new holds
+        #: [(t, gyro err, accel err, noise g, noise a, gyro in range, accel in range)]
+        self.track = []
         self.recent_scores = None  # the active's score on the newest holds (diagnostics)
 
     # ------------------------------------------------------------------ files
@@ -211,41 +217,54 @@ class Lifelong:
             self._check_change(self.store.holds(ids))
         return ids
 
+    def _alarm_ranges(self, cal):
+        """Return {sensor: (lo, hi) degC} inside which a hold counts for that sensor's alarm."""
+        if cal.valid_range is None or not self.k:
+            return {w: (-np.inf, np.inf) for w in compose.SENSORS}
+        if self.config.alarm_window == 'sensor':
+            return {w: tuple(compose.own_range(cal, w)[0]) for w in compose.SENSORS}
+        common = tuple(compose.common_range(cal)[0])
+        return {w: common for w in compose.SENSORS}
+
     def _check_change(self, windows):
         cal = self.active
         e = gate.hold_errors(cal, windows, cal.gravity, self.latitude)
         self._note_misses(e)
-        lo, hi = (compose.common_range(cal)[0] if cal.valid_range is not None and self.k
-                  else (-np.inf, np.inf))
+        ranges = self._alarm_ranges(cal)
         base_acc = self.state.get('active_accel_median') or 0.0
         for j in range(len(e['ids'])):
-            if not lo <= e['temp'][j] <= hi and self.k:
+            inside = [float(lo <= e['temp'][j] <= hi) for lo, hi in
+                      (ranges['gyro'], ranges['accel'])]
+            if not any(inside):
                 continue
             self.track.append((float(e['t'][j]), float(e['gyro'][j]),
                                float(e['accel'][j] - base_acc), float(e['se_gyro'][j]),
-                               float(e['se_accel'][j])))
+                               float(e['se_accel'][j]), *inside))
         self.track = self.track[-200:]
         c = self.config
-        if len(self.track) < c.alarm_holds or self.state.get('active_gyro_rms') is None \
-                or self.state.get('alarm_pending'):
+        if self.state.get('active_gyro_rms') is None or self.state.get('alarm_pending'):
             return
-        last = np.array(self.track[-c.alarm_holds:])
-        out = {}
+        out, first = {}, []
         for col, which in ((1, 'gyro'), (2, 'accel')):
+            rows = [r for r in self.track if r[col + 4]]
+            if len(rows) < c.alarm_holds:
+                continue
+            last = np.array(rows[-c.alarm_holds:])
             base = self.state.get(f'active_{which}_rms') or 0.0
             floor = c.alarm_floor * float(np.median(last[:, col + 2]))
             limit = max(c.alarm_factor * base, floor)
             if np.all(np.abs(last[:, col]) > limit):
                 out[which] = (float(np.median(np.abs(last[:, col]))), limit)
+                first.append(float(last[0, 0]))
         if out:
-            t_cut = self._first_hold_start(float(last[0, 0]))
+            t_cut, t_now = self._first_hold_start(min(first)), float(self.track[-1][0])
             text = '; '.join(f'{w} error {v:.3g} > {lim:.3g} on the last {c.alarm_holds} '
                              'holds in range' for w, (v, lim) in out.items())
             self.state['alarms'] += 1
             self.state['alarm_pending'] = True
             self.track = []
             self.store.cut(t_cut)
-            decision = {'time': float(last[-1, 0]), 'action': 'alarm',
+            decision = {'time': t_now, 'action': 'alarm',
                         'reason': f'the active calibration no longer fits: {text}; holds '
                                   f'before t={t_cut:.0f} s dropped, re-estimating from the '
                                   'holds after it', 'figures': out}
