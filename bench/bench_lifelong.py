@@ -116,7 +116,7 @@ def registry_timeline(work_seed, start_ns):
 
 
 def run_seed(seed, days, work, latitude=None, ageing=True, per_sensor=True,
-             alarm_window='common', **overrides):
+             alarm_window='common', one_sensor_after_alarm=False, **overrides):
     m = robot_month(seed, days=days, **overrides)
     spec = m.device.spec
     rate = m.config.imu_rate
@@ -130,7 +130,8 @@ def run_seed(seed, days, work, latitude=None, ageing=True, per_sensor=True,
         return Lifelong(d, settings, 1, [m.config.temp_topic], m.config.frame_id,
                         registry_dir=os.path.join(d, 'registry'),
                         config=LifelongConfig(ageing=ageing, per_sensor=per_sensor,
-                                              alarm_window=alarm_window),
+                                              alarm_window=alarm_window,
+                                              one_sensor_after_alarm=one_sensor_after_alarm),
                         log=lambda level, text: log.append((level, text)))
     life = make()
     feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
@@ -265,7 +266,7 @@ def month(args):
     rows = []
     for seed in range(args.first_seed, args.first_seed + args.seeds):
         r = run_seed(seed, args.days, work, args.latitude, not args.no_ageing,
-                     not args.whole_swap, args.alarm_window)
+                     not args.whole_swap, args.alarm_window, args.one_sensor_after_alarm)
         rows.append(r)
         ra, kn = r['ratios'], r['knock']
         print(f'seed {seed}: {r["seconds"]:.0f} s, gyro first day '
@@ -814,6 +815,9 @@ def main():
                     help='swap whole calibrations only (LifelongConfig.per_sensor False)')
     mo.add_argument('--alarm-window', choices=('common', 'sensor'), default='common',
                     help='holds the change alarm watches (LifelongConfig.alarm_window)')
+    mo.add_argument('--one-sensor-after-alarm', action='store_true',
+                    help='one-sensor swaps after a change alarm too '
+                         '(LifelongConfig.one_sensor_after_alarm)')
     mo.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_month.json'))
     re_ = sub.add_parser('real')
     re_.add_argument('--work', default='')

@@ -454,6 +454,45 @@ def test_the_change_alarm_watches_each_sensor_in_its_own_range(tmp_path, month_w
         assert alarms == [] and not life.state['alarm_pending']
 
 
+@pytest.mark.parametrize('after_alarm', [True, False])
+def test_one_sensor_swap_after_a_change_alarm(tmp_path, month_windows, after_alarm):
+    """After a knock's alarm the store holds only the holds after the cut; an estimate on
+    them fixes the gyro, while its accelerometer has a few holds of a narrow temperature
+    range. With ``one_sensor_after_alarm`` the gyro alone is swapped in when the gate calls
+    the accelerometer no better; without it the whole estimate is judged (the default)."""
+    import dataclasses
+    m, win = month_windows
+    truth = m.true_calibration(0.5 * DAY)
+    ids = win.hold_ids
+    clean = win.select(np.isin(win.hold, ids[:20]))
+    s = gate.score(truth, clean, truth.gravity)
+    step = np.array([0.0, 0.0, 10 * LifelongConfig().alarm_factor * s['gyro_rms']])
+    knocked = win.select(np.isin(win.hold, ids[20:34]))
+    knocked = dataclasses.replace(knocked, gyro=knocked.gyro + step)
+    life = Lifelong(str(tmp_path), CalibrateSettings(), 1, [TOPIC], 'imu_link',
+                    config=LifelongConfig(new_holds=1000, ageing=False,
+                                          one_sensor_after_alarm=after_alarm))
+    active = life._calibrate(main_pose(clean, 2.0)).calibration   # before the knock
+    life.store.add(knocked)                                         # the store after the cut
+    life.active = active
+    sa = gate.score(active, clean, active.gravity)
+    life.state.update(active_gyro_rms=sa['gyro_rms'], active_accel_rms=sa['accel_rms'],
+                      active_accel_median=float(np.median(sa['errors']['accel'])),
+                      alarm_pending=True, holds_at_estimate=life.store.total_holds)
+    d = life.estimate('change alarm')
+    assert d['action'] == 'swap', d['text']
+    verdicts = d['figures']['gyro']['verdict'], d['figures']['accel']['verdict']
+    if after_alarm:
+        assert d['one_sensor']['sensor'] == 'gyro' and d['one_sensor']['used'], d['text']
+        assert life.active.accel is active.accel        # the accelerometer model is kept
+        assert life.active.gyro is not active.gyro
+    else:
+        assert 'one_sensor' not in d, d['text']         # the whole estimate was judged
+        assert life.active.accel is not active.accel
+    assert verdicts[0] == 'better'
+    assert not life.state['alarm_pending']
+
+
 @pytest.mark.parametrize('must_explain', [True, False])
 def test_no_swap_to_a_calibration_that_misses_the_newest_holds_too(tmp_path, month_windows,
                                                                    must_explain):
