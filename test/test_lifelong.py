@@ -454,12 +454,9 @@ def test_the_change_alarm_watches_each_sensor_in_its_own_range(tmp_path, month_w
         assert alarms == [] and not life.state['alarm_pending']
 
 
-@pytest.mark.parametrize('after_alarm', [True, False])
-def test_one_sensor_swap_after_a_change_alarm(tmp_path, month_windows, after_alarm):
-    """After a knock's alarm the store holds only the holds after the cut; an estimate on
-    them fixes the gyro, while its accelerometer has a few holds of a narrow temperature
-    range. With ``one_sensor_after_alarm`` the gyro alone is swapped in when the gate calls
-    the accelerometer no better; without it the whole estimate is judged (the default)."""
+def _clean_and_knocked(month_windows):
+    """Return the first 20 holds and the next 14 with a gyro step of 10x the alarm factor
+    times the true model's gyro error (a knock)."""
     import dataclasses
     m, win = month_windows
     truth = m.true_calibration(0.5 * DAY)
@@ -468,7 +465,16 @@ def test_one_sensor_swap_after_a_change_alarm(tmp_path, month_windows, after_ala
     s = gate.score(truth, clean, truth.gravity)
     step = np.array([0.0, 0.0, 10 * LifelongConfig().alarm_factor * s['gyro_rms']])
     knocked = win.select(np.isin(win.hold, ids[20:34]))
-    knocked = dataclasses.replace(knocked, gyro=knocked.gyro + step)
+    return clean, dataclasses.replace(knocked, gyro=knocked.gyro + step)
+
+
+@pytest.mark.parametrize('after_alarm', [True, False])
+def test_one_sensor_swap_after_a_change_alarm(tmp_path, month_windows, after_alarm):
+    """After a knock's alarm the store holds only the holds after the cut; an estimate on
+    them fixes the gyro, while its accelerometer has a few holds of a narrow temperature
+    range. With ``one_sensor_after_alarm`` the gyro alone is swapped in when the gate calls
+    the accelerometer no better; without it the whole estimate is judged (the default)."""
+    clean, knocked = _clean_and_knocked(month_windows)
     life = Lifelong(str(tmp_path), CalibrateSettings(), 1, [TOPIC], 'imu_link',
                     config=LifelongConfig(new_holds=1000, ageing=False,
                                           one_sensor_after_alarm=after_alarm))
@@ -505,15 +511,7 @@ def test_no_swap_to_a_calibration_that_misses_the_newest_holds_too(tmp_path, mon
     them part of the way, so the new calibration is better on the 8 held-out ones than the
     active (fitted on the holds before the knock), and still misses them.
     """
-    import dataclasses
-    m, win = month_windows
-    truth = m.true_calibration(0.5 * DAY)
-    ids = win.hold_ids
-    clean = win.select(np.isin(win.hold, ids[:20]))
-    s = gate.score(truth, clean, truth.gravity)
-    step = np.array([0.0, 0.0, 10 * LifelongConfig().alarm_factor * s['gyro_rms']])
-    knocked = win.select(np.isin(win.hold, ids[20:34]))
-    knocked = dataclasses.replace(knocked, gyro=knocked.gyro + step)
+    clean, knocked = _clean_and_knocked(month_windows)
     life = Lifelong(str(tmp_path), CalibrateSettings(), 1, [TOPIC], 'imu_link',
                     config=LifelongConfig(new_holds=1000, ageing=False,
                                           swap_must_explain=must_explain))
