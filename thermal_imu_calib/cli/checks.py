@@ -158,9 +158,15 @@ def install_signals():
         sys.unraisablehook = unraisable
 
 
-def interrupted_status():
-    """Return (word, exit status) for a recorded interruption, or None."""
+def interrupted_status(exc=None):
+    """Return (word, exit status) for a recorded interruption, or None.
+
+    Without a record, ``exc`` (a KeyboardInterrupt that reached ``main``) says which signal
+    it was: Terminated is SIGTERM, anything else SIGINT.
+    """
     sig = output.interrupt()
+    if sig is None and exc is not None:
+        sig = signal.SIGTERM if isinstance(exc, Terminated) else signal.SIGINT
     if sig is None:
         return None
     return ('terminated', 143) if sig == signal.SIGTERM else ('interrupted', 130)

@@ -233,8 +233,7 @@ def main(argv=None):
         print(f'thermal-imu-calib {args.cmd}: error: {msg}', file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt as e:
-        word, status = cli_checks.interrupted_status() or (
-            ('terminated', 143) if isinstance(e, cli_checks.Terminated) else ('interrupted', 130))
+        word, status = cli_checks.interrupted_status(e)
         print(word, file=sys.stderr)
         return status
 
