@@ -52,7 +52,8 @@ sys.path.insert(0, os.path.dirname(HERE))
 from thermal_imu_calib.app.calibrate import CalibrateSettings  # noqa: E402
 from thermal_imu_calib.lifelong.feed import Feeder  # noqa: E402
 from thermal_imu_calib.lifelong.hints import HintGate, HintSource  # noqa: E402
-from thermal_imu_calib.lifelong.manager import Lifelong, LifelongConfig  # noqa: E402
+from thermal_imu_calib.lifelong.manager import (  # noqa: E402
+    ALARM_WINDOWS, Lifelong, LifelongConfig)
 from thermal_imu_calib.sim.robot_month import DAY, robot_month  # noqa: E402
 
 RESULTS = os.path.join(HERE, 'results')
@@ -813,7 +814,7 @@ def main():
                     help='without the gyro ageing candidate (LifelongConfig.ageing False)')
     mo.add_argument('--whole-swap', action='store_true',
                     help='swap whole calibrations only (LifelongConfig.per_sensor False)')
-    mo.add_argument('--alarm-window', choices=('common', 'sensor'), default='common',
+    mo.add_argument('--alarm-window', choices=ALARM_WINDOWS, default='common',
                     help='holds the change alarm watches (LifelongConfig.alarm_window)')
     mo.add_argument('--one-sensor-after-alarm', action='store_true',
                     help='one-sensor swaps after a change alarm too '

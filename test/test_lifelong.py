@@ -532,3 +532,21 @@ def test_no_swap_to_a_calibration_that_misses_the_newest_holds_too(tmp_path, mon
     else:                                                # the rule off: the old behaviour
         assert d['action'] == 'swap', d['text']
         assert life.state['active_gyro_rms'] > 5 * s['gyro_rms']    # the alarm is blind
+
+
+@pytest.mark.parametrize('bad, words', [
+    ({'alarm_window': 'sensors'}, ("alarm_window 'sensors'", 'common, sensor')),
+    ({'holdout_holds': 1}, ('holdout_holds is 1', 'at least 2')),
+    ({'alarm_holds': 2.5}, ('alarm_holds is 2.5', 'whole number')),
+    ({'new_holds': True}, ('new_holds is True', 'whole number')),
+    ({'alarm_factor': 0.0}, ('alarm_factor is 0.0', 'above 0')),
+    ({'range_extension_degc': float('nan')}, ('range_extension_degc is nan', 'finite')),
+])
+def test_a_setting_the_loop_cannot_run_with_is_refused_by_name(bad, words):
+    """A mistyped ``LifelongConfig`` is refused at once, naming the field and what to give
+    (a misspelt ``alarm_window`` used to fall through to 'common' silently)."""
+    with pytest.raises(ValueError) as caught:
+        LifelongConfig(**bad)
+    for w in words:
+        assert w in str(caught.value)
+    assert LifelongConfig(alarm_window='sensor').alarm_window == 'sensor'

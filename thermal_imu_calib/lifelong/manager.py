@@ -47,6 +47,7 @@ from dataclasses import dataclass, field
 import json
 import os
 import time
+from typing import NamedTuple
 
 import numpy as np
 
@@ -101,6 +102,41 @@ class LifelongConfig:
     one_sensor_after_alarm: bool = False
     store: StoreConfig = field(default_factory=StoreConfig)
 
+    def __post_init__(self):
+        """Refuse a setting the loop cannot run with, saying which and what to give."""
+        if self.alarm_window not in ALARM_WINDOWS:
+            raise ValueError(f'LifelongConfig.alarm_window {self.alarm_window!r} is not one of '
+                             f'{", ".join(ALARM_WINDOWS)}; give one of them')
+        least = {'new_holds': 1, 'holdout_holds': 2, 'min_holds': 1, 'alarm_holds': 1,
+                 'misfit_holds': 1}
+        for name, lo in least.items():
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+                raise ValueError(f'LifelongConfig.{name} is {v!r}; give a whole number of '
+                                 f'holds, at least {lo}')
+        for name in ('range_extension_degc', 'swap_sigmas', 'alarm_factor', 'alarm_floor',
+                     'pose_deg'):
+            v = getattr(self, name)
+            if not isinstance(v, (int, float, np.floating)) or not np.isfinite(v) or v <= 0:
+                raise ValueError(f'LifelongConfig.{name} is {v!r}; give a finite number '
+                                 'above 0')
+
+
+#: the values of ``LifelongConfig.alarm_window``
+ALARM_WINDOWS = ('common', 'sensor')
+
+
+class Tracked(NamedTuple):
+    """A hold the change alarm watches: its time and the active calibration's errors."""
+
+    t: float            #: end of the hold (s)
+    gyro: float         #: gyro error (rad/s)
+    accel: float        #: accelerometer error less the active's median (m/s^2)
+    se_gyro: float      #: the hold's standard error of its gyro mean (rad/s)
+    se_accel: float     #: ... of its accelerometer mean (m/s^2)
+    in_gyro: bool       #: inside the gyro's alarm range (``Lifelong._alarm_ranges``)
+    in_accel: bool      #: inside the accelerometer's alarm range
+
 
 class Lifelong:
     """Lifelong calibration state of one IMU (see the module docstring)."""
@@ -135,7 +171,7 @@ class Lifelong:
             pass
         except (OSError, ValueError) as e:
             self.log('warn', f'{self._path("state.json")} unreadable ({e}); counters reset')
-        #: [(t, gyro err, accel err, noise g, noise a, gyro in range, accel in range)]
+        #: [Tracked]: the newest holds the change alarm watches
         self.track = []
         self.recent_scores = None  # the active's score on the newest holds (diagnostics)
 
@@ -238,31 +274,31 @@ class Lifelong:
         ranges = self._alarm_ranges(cal)
         base_acc = self.state.get('active_accel_median') or 0.0
         for j in range(len(e['ids'])):
-            inside = [float(lo <= e['temp'][j] <= hi) for lo, hi in
+            inside = [bool(lo <= e['temp'][j] <= hi) for lo, hi in
                       (ranges['gyro'], ranges['accel'])]
             if not any(inside):
                 continue
-            self.track.append((float(e['t'][j]), float(e['gyro'][j]),
-                               float(e['accel'][j] - base_acc), float(e['se_gyro'][j]),
-                               float(e['se_accel'][j]), *inside))
+            self.track.append(Tracked(float(e['t'][j]), float(e['gyro'][j]),
+                                      float(e['accel'][j] - base_acc), float(e['se_gyro'][j]),
+                                      float(e['se_accel'][j]), *inside))
         self.track = self.track[-200:]
         c = self.config
         if self.state.get('active_gyro_rms') is None or self.state.get('alarm_pending'):
             return
         out, first = {}, []
-        for col, which in ((1, 'gyro'), (2, 'accel')):
-            rows = [r for r in self.track if r[col + 4]]
-            if len(rows) < c.alarm_holds:
+        for which in ('gyro', 'accel'):
+            last = [r for r in self.track if getattr(r, 'in_' + which)][-c.alarm_holds:]
+            if len(last) < c.alarm_holds:
                 continue
-            last = np.array(rows[-c.alarm_holds:])
+            err = np.abs([getattr(r, which) for r in last])
             base = self.state.get(f'active_{which}_rms') or 0.0
-            floor = c.alarm_floor * float(np.median(last[:, col + 2]))
+            floor = c.alarm_floor * float(np.median([getattr(r, 'se_' + which) for r in last]))
             limit = max(c.alarm_factor * base, floor)
-            if np.all(np.abs(last[:, col]) > limit):
-                out[which] = (float(np.median(np.abs(last[:, col]))), limit)
-                first.append(float(last[0, 0]))
+            if np.all(err > limit):
+                out[which] = (float(np.median(err)), limit)
+                first.append(last[0].t)
         if out:
-            t_cut, t_now = self._first_hold_start(min(first)), float(self.track[-1][0])
+            t_cut, t_now = self._first_hold_start(min(first)), self.track[-1].t
             text = '; '.join(f'{w} error {v:.3g} > {lim:.3g} on the last {c.alarm_holds} '
                              'holds in range' for w, (v, lim) in out.items())
             self.state['alarms'] += 1
