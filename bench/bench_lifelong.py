@@ -53,7 +53,7 @@ from thermal_imu_calib.app.calibrate import CalibrateSettings  # noqa: E402
 from thermal_imu_calib.lifelong.feed import Feeder  # noqa: E402
 from thermal_imu_calib.lifelong.hints import HintGate, HintSource  # noqa: E402
 from thermal_imu_calib.lifelong.manager import (  # noqa: E402
-    ALARM_WINDOWS, Lifelong, LifelongConfig)
+    ALARM_REFERENCES, ALARM_WINDOWS, Lifelong, LifelongConfig)
 from thermal_imu_calib.sim.robot_month import DAY, robot_month  # noqa: E402
 
 RESULTS = os.path.join(HERE, 'results')
@@ -117,7 +117,8 @@ def registry_timeline(work_seed, start_ns):
 
 
 def run_seed(seed, days, work, latitude=None, ageing=True, per_sensor=True,
-             alarm_window='common', one_sensor_after_alarm=False, **overrides):
+             alarm_window='common', one_sensor_after_alarm=False, alarm_reference='all',
+             **overrides):
     m = robot_month(seed, days=days, **overrides)
     spec = m.device.spec
     rate = m.config.imu_rate
@@ -132,7 +133,8 @@ def run_seed(seed, days, work, latitude=None, ageing=True, per_sensor=True,
                         registry_dir=os.path.join(d, 'registry'),
                         config=LifelongConfig(ageing=ageing, per_sensor=per_sensor,
                                               alarm_window=alarm_window,
-                                              one_sensor_after_alarm=one_sensor_after_alarm),
+                                              one_sensor_after_alarm=one_sensor_after_alarm,
+                                              alarm_reference=alarm_reference),
                         log=lambda level, text: log.append((level, text)))
     life = make()
     feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
@@ -267,7 +269,8 @@ def month(args):
     rows = []
     for seed in range(args.first_seed, args.first_seed + args.seeds):
         r = run_seed(seed, args.days, work, args.latitude, not args.no_ageing,
-                     not args.whole_swap, args.alarm_window, args.one_sensor_after_alarm)
+                     not args.whole_swap, args.alarm_window, args.one_sensor_after_alarm,
+                     args.alarm_reference)
         rows.append(r)
         ra, kn = r['ratios'], r['knock']
         print(f'seed {seed}: {r["seconds"]:.0f} s, gyro first day '
@@ -819,6 +822,9 @@ def main():
     mo.add_argument('--one-sensor-after-alarm', action='store_true',
                     help='one-sensor swaps after a change alarm too '
                          '(LifelongConfig.one_sensor_after_alarm)')
+    mo.add_argument('--alarm-reference', choices=ALARM_REFERENCES, default='all',
+                    help='holds a swap measures the change alarm\'s reference on '
+                         '(LifelongConfig.alarm_reference)')
     mo.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_month.json'))
     re_ = sub.add_parser('real')
     re_.add_argument('--work', default='')

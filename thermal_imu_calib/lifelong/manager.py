@@ -100,13 +100,20 @@ class LifelongConfig:
     #: the first swap after the knock then took an accelerometer fitted on the few holds
     #: after the cut, and the next day's accel drift was 1.5-32x worse)
     one_sensor_after_alarm: bool = False
+    #: the holds a swap measures the change alarm's new reference on: 'all' (the raw holds
+    #: it was fitted on and the held-out ones), or 'explained' (of those, the ones the new
+    #: calibration does not miss by the alarm's limit against the old reference; a
+    #: reference measured on holds of a changed sensor hides the change: seeds 2 and 19)
+    alarm_reference: str = 'all'
     store: StoreConfig = field(default_factory=StoreConfig)
 
     def __post_init__(self):
         """Refuse a setting the loop cannot run with, saying which and what to give."""
-        if self.alarm_window not in ALARM_WINDOWS:
-            raise ValueError(f'LifelongConfig.alarm_window {self.alarm_window!r} is not one of '
-                             f'{", ".join(ALARM_WINDOWS)}; give one of them')
+        for name, allowed in (('alarm_window', ALARM_WINDOWS),
+                              ('alarm_reference', ALARM_REFERENCES)):
+            if getattr(self, name) not in allowed:
+                raise ValueError(f'LifelongConfig.{name} {getattr(self, name)!r} is not one '
+                                 f'of {", ".join(allowed)}; give one of them')
         least = {'new_holds': 1, 'holdout_holds': 2, 'min_holds': 1, 'alarm_holds': 1,
                  'misfit_holds': 1}
         for name, lo in least.items():
@@ -122,8 +129,9 @@ class LifelongConfig:
                                  'above 0')
 
 
-#: the values of ``LifelongConfig.alarm_window``
+#: the values of ``LifelongConfig.alarm_window`` and ``alarm_reference``
 ALARM_WINDOWS = ('common', 'sensor')
+ALARM_REFERENCES = ('all', 'explained')
 
 
 class Tracked(NamedTuple):
@@ -426,8 +434,8 @@ class Lifelong:
         versus = 'the active calibration' if self.active is not None else 'the raw output'
         text = gate.describe(fig) + decision.get('unexplained', '')
         if swap:
-            self._activate(new, now, s_new, holdout_pose, held,
-                           decision['one_sensor']['sensor'] if only else None)
+            text += self._activate(new, now, s_new, holdout_pose, held,
+                                   decision['one_sensor']['sensor'] if only else None)
             decision.update(action='swap', id=new.id,
                             text=f'new calibration {new.id} replaces {versus}{only}: {text}')
         else:
@@ -566,11 +574,16 @@ class Lifelong:
         both = gate.hold_errors(cal, Windows.concat([raw, holdout]), cal.gravity,
                                 self.latitude)
         med = float(np.median(both['accel']))
-        self.state.update(active_since=now,
-                          active_gyro_rms=max(s_new['gyro_rms'], gate._rms(both['gyro'])),
-                          active_accel_rms=max(s_new['accel_rms'],
-                                               gate._rms(both['accel'] - med)),
-                          active_accel_median=med,
+        is_held = np.isin(both['ids'], held)
+        use, note = self._reference_holds(both, med, before)
+        ref = {}
+        for which, err in (('gyro', both['gyro']), ('accel', both['accel'] - med)):
+            m = use[which]
+            ref[which] = (max(s_new[f'{which}_rms'], gate._rms(err)) if m.all() else
+                          max(gate._rms(err[m & is_held]) if (m & is_held).any() else 0.0,
+                              gate._rms(err[m])))
+        self.state.update(active_since=now, active_gyro_rms=ref['gyro'],
+                          active_accel_rms=ref['accel'], active_accel_median=med,
                           active_noise=s_new['noise_gyro'], swaps=self.state['swaps'] + 1)
         kept = {'accel': ('active_gyro_rms',), 'gyro': ('active_accel_rms',)}.get(only, ())
         self.state.update({k: before[k] for k in kept if before[k] is not None})
@@ -582,6 +595,35 @@ class Lifelong:
                 registry.add(self.registry_dir, [(self.sensor, cal, t_ns, t_ns, [])])
             except (OSError, ValueError) as e:
                 self.log('error', f'registry {self.registry_dir} not updated: {e}')
+        return note
+
+    def _reference_holds(self, both, med, before):
+        """Return ({sensor: (h,) mask of the holds its alarm reference is measured on}, note).
+
+        Every hold, unless ``alarm_reference`` is 'explained' and there is an old reference:
+        then a hold the new calibration misses by the change alarm's limit against the old
+        reference (``gate.misses``'s per-sensor limits, the accelerometer about the new
+        level ``med``) is left out of that sensor's reference, unless it would leave none.
+        """
+        c = self.config
+        h = len(both['ids'])
+        use = {'gyro': np.ones(h, bool), 'accel': np.ones(h, bool)}
+        if c.alarm_reference != 'explained' or not h:
+            return use, ''
+        parts = []
+        for which in ('gyro', 'accel'):
+            old = before[f'active_{which}_rms']
+            if old is None:
+                continue
+            err = both['gyro'] if which == 'gyro' else both['accel'] - med
+            limit = np.maximum(c.alarm_factor * old, c.alarm_floor * both['se_' + which])
+            missed = np.abs(err) > limit
+            if missed.any() and not missed.all():
+                use[which] = ~missed
+                parts.append(f'{which} {int(missed.sum())} of {h}')
+        note = ('; alarm reference without the holds it misses by the alarm limit ('
+                + ', '.join(parts) + ')') if parts else ''
+        return use, note
 
     # ------------------------------------------------------------------ status
     def status(self, temperature=None, now=None):
