@@ -477,7 +477,8 @@ def test_one_sensor_swap_after_a_change_alarm(tmp_path, month_windows, after_ala
     clean, knocked = _clean_and_knocked(month_windows)
     life = Lifelong(str(tmp_path), CalibrateSettings(), 1, [TOPIC], 'imu_link',
                     config=LifelongConfig(new_holds=1000, ageing=False,
-                                          one_sensor_after_alarm=after_alarm))
+                                          one_sensor_after_alarm=after_alarm,
+                                          alarm_reference='explained'))
     active = life._calibrate(main_pose(clean, 2.0)).calibration   # before the knock
     life.store.add(knocked)                                         # the store after the cut
     life.active = active
@@ -497,6 +498,7 @@ def test_one_sensor_swap_after_a_change_alarm(tmp_path, month_windows, after_ala
         assert life.active.accel is not active.accel
     assert verdicts[0] == 'better'
     assert not life.state['alarm_pending']
+    assert 'alarm reference without' not in d['text']     # the old reference is not used
 
 
 @pytest.mark.parametrize('must_explain', [True, False])

@@ -604,11 +604,12 @@ class Lifelong:
         then a hold the new calibration misses by the change alarm's limit against the old
         reference (``gate.misses``'s per-sensor limits, the accelerometer about the new
         level ``med``) is left out of that sensor's reference, unless it would leave none.
+        Not after a change alarm: the old reference is then the old sensor's.
         """
         c = self.config
         h = len(both['ids'])
         use = {'gyro': np.ones(h, bool), 'accel': np.ones(h, bool)}
-        if c.alarm_reference != 'explained' or not h:
+        if c.alarm_reference != 'explained' or not h or self.state.get('alarm_pending'):
             return use, ''
         parts = []
         for which in ('gyro', 'accel'):
