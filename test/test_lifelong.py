@@ -501,6 +501,23 @@ def test_one_sensor_swap_after_a_change_alarm(tmp_path, month_windows, after_ala
     assert 'alarm reference without' not in d['text']     # the old reference is not used
 
 
+def _estimate_across_a_knock(tmp_path, month_windows, **config):
+    """Return (life, active, its score on the clean holds, the decision) of an estimate on
+    20 clean and 14 knocked holds (8 of them held out), the active fitted on the clean ones."""
+    clean, knocked = _clean_and_knocked(month_windows)
+    life = Lifelong(str(tmp_path), CalibrateSettings(), 1, [TOPIC], 'imu_link',
+                    config=LifelongConfig(**config))
+    life.store.add(clean)
+    life.store.add(knocked)
+    life.state['holds_at_estimate'] = life.store.total_holds
+    active = life._calibrate(main_pose(clean, 2.0)).calibration   # before the knock
+    life.active = active
+    s = gate.score(active, clean, active.gravity)
+    life.state.update(active_gyro_rms=s['gyro_rms'], active_accel_rms=s['accel_rms'],
+                      active_accel_median=float(np.median(s['errors']['accel'])))
+    return life, active, s, life.estimate('test')
+
+
 @pytest.mark.parametrize('must_explain', [True, False])
 def test_no_swap_to_a_calibration_that_misses_the_newest_holds_too(tmp_path, month_windows,
                                                                    must_explain):
@@ -513,19 +530,8 @@ def test_no_swap_to_a_calibration_that_misses_the_newest_holds_too(tmp_path, mon
     them part of the way, so the new calibration is better on the 8 held-out ones than the
     active (fitted on the holds before the knock), and still misses them.
     """
-    clean, knocked = _clean_and_knocked(month_windows)
-    life = Lifelong(str(tmp_path), CalibrateSettings(), 1, [TOPIC], 'imu_link',
-                    config=LifelongConfig(new_holds=1000, ageing=False,
-                                          swap_must_explain=must_explain))
-    life.store.add(clean)
-    life.store.add(knocked)
-    life.state['holds_at_estimate'] = life.store.total_holds
-    active = life._calibrate(main_pose(clean, 2.0)).calibration   # before the knock
-    life.active = active
-    s = gate.score(active, clean, active.gravity)
-    life.state.update(active_gyro_rms=s['gyro_rms'], active_accel_rms=s['accel_rms'],
-                      active_accel_median=float(np.median(s['errors']['accel'])))
-    d = life.estimate('test')
+    life, active, s, d = _estimate_across_a_knock(
+        tmp_path, month_windows, new_holds=1000, ageing=False, swap_must_explain=must_explain)
     assert d['figures']['gyro']['verdict'] == 'better', d['text']
     if must_explain:
         assert d['action'] == 'keep', d['text']
@@ -562,19 +568,10 @@ def test_a_swap_across_a_knock_keeps_the_alarm_seeing_it(tmp_path, month_windows
     ``alarm_reference='explained'`` the swap happens, the reference is measured on the
     holds the new calibration explains, and the next knocked holds raise the alarm."""
     import dataclasses
-    clean, knocked = _clean_and_knocked(month_windows)
-    life = Lifelong(str(tmp_path), CalibrateSettings(), 1, [TOPIC], 'imu_link',
-                    config=LifelongConfig(new_holds=1000, misfit_holds=1000, ageing=False,
-                                          alarm_reference=reference))
-    life.store.add(clean)
-    life.store.add(knocked)
-    life.state['holds_at_estimate'] = life.store.total_holds
-    active = life._calibrate(main_pose(clean, 2.0)).calibration   # before the knock
-    life.active = active
-    s = gate.score(active, clean, active.gravity)
-    life.state.update(active_gyro_rms=s['gyro_rms'], active_accel_rms=s['accel_rms'],
-                      active_accel_median=float(np.median(s['errors']['accel'])))
-    d = life.estimate('test')
+    life, active, s, d = _estimate_across_a_knock(
+        tmp_path, month_windows, new_holds=1000, misfit_holds=1000, ageing=False,
+        alarm_reference=reference)
+    _, knocked = _clean_and_knocked(month_windows)
     assert d['action'] == 'swap' and d['figures']['gyro']['verdict'] == 'better', d['text']
     _, win = month_windows
     ids = win.hold_ids
