@@ -793,14 +793,71 @@ def table(args):
         kd = int(np.floor(k['day']))
         rec = next((i - kd for i, v in enumerate(r['daily_gyro'])
                     if i > kd and v <= 2 * k['gyro_day_before']), None)
-        g25 = sum(s['gyro_new'] > 1.25 * s['gyro_old'] for s in r['swaps'])
-        a25 = sum(s['accel_drift_new'] > 1.25 * s['accel_drift_old'] for s in r['swaps'])
+        g25, a25 = _worse25(r)
         print(f'| {r["seed"]} | {a["accel_drift_first_day"] * mr:.1f} | '
               f'{a["accel_drift_last_week"] * mr:.1f} | {t["accel_drift_last_week"] * mr:.2f} | '
               f'{r["ratios"]["accel_drift_last_week_over_first_day"]:.2f} | {rec} | {g25}, '
               f'{a25} |')
     print()
     print(json.dumps(d['summary'], indent=1))
+
+
+def _worse25(r):
+    """Return (gyro, accel drift) counts of swaps whose next day was worse by > 25 %."""
+    return (sum(s['gyro_new'] > 1.25 * s['gyro_old'] for s in r['swaps']),
+            sum(s['accel_drift_new'] > 1.25 * s['accel_drift_old'] for s in r['swaps']))
+
+
+def _acted(work, seed, text):
+    """Return how many swap decisions of a month's directory contain ``text`` (None: none)."""
+    path = os.path.join(work, f'seed{seed}', 'decisions.jsonl')
+    if not os.path.exists(path):
+        return None
+    with open(path) as f:
+        rows = [json.loads(line) for line in f if line.strip()]
+    return sum(d.get('action') == 'swap' and text in d.get('text', '') for d in rows)
+
+
+def compare(args):
+    """Print two month results side by side on their common seeds, with geometric means."""
+    runs = []
+    for path in (args.base, args.candidate):
+        with open(path) as f:
+            runs.append({r['seed']: r for r in json.load(f)['rows']})
+    seeds = sorted(set(runs[0]) & set(runs[1]))
+    print('| seed | gyro last/true: base / candidate | accel drift last week mm/s^2 | '
+          'swaps | worse next day > 25 % (gyro + accel drift) | knock alarm delay h | '
+          'false alarms | rule acted (swaps) |')
+    print('|' + '---|' * 8)
+    geo = {'g': [[], []], 'a': [[], []]}
+    tot = [0, 0]
+    for seed in seeds:
+        b, c = runs[0][seed], runs[1][seed]
+        cells = []
+        for i, r in enumerate((b, c)):
+            geo['g'][i].append(r['ratios']['gyro_last_week_over_true'])
+            geo['a'][i].append(r['active']['accel_drift_last_week'])
+            tot[i] += sum(_worse25(r))
+        delay = ['none' if r['knock']['alarm_delay_h'] is None else
+                 f'{r["knock"]["alarm_delay_h"]:.1f}' for r in (b, c)]
+        acted = _acted(args.work, seed, args.grep) if args.work and args.grep else None
+        cells = [f'{b["ratios"]["gyro_last_week_over_true"]:.2f} / '
+                 f'{c["ratios"]["gyro_last_week_over_true"]:.2f}',
+                 f'{b["active"]["accel_drift_last_week"] * 1e3:.1f} / '
+                 f'{c["active"]["accel_drift_last_week"] * 1e3:.1f}',
+                 f'{b["swaps_total"]} / {c["swaps_total"]}',
+                 f'{sum(_worse25(b))} / {sum(_worse25(c))}', ' / '.join(delay),
+                 f'{b["knock"]["alarms_before"]} / {c["knock"]["alarms_before"]}',
+                 '' if acted is None else str(acted)]
+        print(f'| {seed} | ' + ' | '.join(cells) + ' |')
+
+    def gm(x):
+        return float(np.exp(np.mean(np.log(x))))
+    print(f'\ngeometric mean over seeds {seeds}: gyro last/true {gm(geo["g"][0]):.3f} -> '
+          f'{gm(geo["g"][1]):.3f} ({gm(geo["g"][1]) / gm(geo["g"][0]) - 1:+.1%}); accel drift '
+          f'last week {gm(geo["a"][0]) * 1e3:.2f} -> {gm(geo["a"][1]) * 1e3:.2f} mm/s^2 '
+          f'({gm(geo["a"][1]) / gm(geo["a"][0]) - 1:+.1%}); swaps worse next day by > 25 % '
+          f'(gyro + accel drift) {tot[0]} -> {tot[1]}')
 
 
 def main():
@@ -856,6 +913,12 @@ def main():
     rv.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_month.json'))
     ta = sub.add_parser('table')
     ta.add_argument('input')
+    co = sub.add_parser('compare', help='two month results side by side (common seeds)')
+    co.add_argument('base')
+    co.add_argument('candidate')
+    co.add_argument('--work', default='', help="the candidate's --work (decision texts)")
+    co.add_argument('--grep', default='', help='count the candidate\'s swap decisions whose '
+                    'text contains this (did a rule act)')
     args = p.parse_args(sys.argv[1:] or ['month'])
     if args.cmd in (None, 'month'):
         month(args)
@@ -865,6 +928,8 @@ def main():
         node_rss(args)
     elif args.cmd == 'table':
         table(args)
+    elif args.cmd == 'compare':
+        compare(args)
     elif args.cmd == 'reeval':
         reeval(args)
     elif args.cmd == 'dds':
