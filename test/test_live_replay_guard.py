@@ -125,10 +125,12 @@ def _kill_group(pgid):
 
 
 def _sigint_default():
-    """Give the helper SIGINT's default: a job a shell starts in the background (make test
-    run with ``&``, some CI runners) inherits SIGINT ignored, and an ignored SIGINT stays
-    ignored by design (``install_cleanup``), so the SIGINT case would never end."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    """Give the helper the default of every signal it is ended by: a job a shell starts in
+    the background (make test run with ``&``, some CI runners) inherits SIGINT ignored, one
+    run under ``nohup`` SIGHUP, and an ignored signal stays ignored by design
+    (``install_cleanup``), so that case would never end."""
+    for sig in (signal.SIGINT, signal.SIGHUP, signal.SIGTERM):
+        signal.signal(sig, signal.SIG_DFL)
 
 
 def _run_helper(tmp_path, kind, how, before_end=None):
