@@ -575,7 +575,7 @@ class Lifelong:
                                 self.latitude)
         med = float(np.median(both['accel']))
         is_held = np.isin(both['ids'], held)
-        use, note = self._reference_holds(both, med, before)
+        use, note = self._reference_holds(both, med, before, only)
         ref = {}
         for which, err in (('gyro', both['gyro']), ('accel', both['accel'] - med)):
             m = use[which]
@@ -597,14 +597,15 @@ class Lifelong:
                 self.log('error', f'registry {self.registry_dir} not updated: {e}')
         return note
 
-    def _reference_holds(self, both, med, before):
+    def _reference_holds(self, both, med, before, only=None):
         """Return ({sensor: (h,) mask of the holds its alarm reference is measured on}, note).
 
         Every hold, unless ``alarm_reference`` is 'explained' and there is an old reference:
         then a hold the new calibration misses by the change alarm's limit against the old
         reference (``gate.misses``'s per-sensor limits, the accelerometer about the new
         level ``med``) is left out of that sensor's reference, unless it would leave none.
-        Not after a change alarm: the old reference is then the old sensor's.
+        Not after a change alarm: the old reference is then the old sensor's; not for the
+        sensor a one-sensor swap (``only``) keeps, whose reference stays as it was.
         """
         c = self.config
         h = len(both['ids'])
@@ -614,7 +615,7 @@ class Lifelong:
         parts = []
         for which in ('gyro', 'accel'):
             old = before[f'active_{which}_rms']
-            if old is None:
+            if old is None or only not in (None, which):
                 continue
             err = both['gyro'] if which == 'gyro' else both['accel'] - med
             limit = np.maximum(c.alarm_factor * old, c.alarm_floor * both['se_' + which])
