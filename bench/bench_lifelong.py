@@ -833,7 +833,6 @@ def compare(args):
     tot = [0, 0]
     for seed in seeds:
         b, c = runs[0][seed], runs[1][seed]
-        cells = []
         for i, r in enumerate((b, c)):
             geo['g'][i].append(r['ratios']['gyro_last_week_over_true'])
             geo['a'][i].append(r['active']['accel_drift_last_week'])

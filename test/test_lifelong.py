@@ -5,8 +5,10 @@ robot month (``sim.robot_month``), calibrations from ``app.calibrate.calibrate_c
 """
 
 import ast
+import dataclasses
 import json
 import os
+import re
 
 import numpy as np
 import pytest
@@ -379,7 +381,6 @@ def test_holds_the_active_misses_make_a_re_estimate_due(tmp_path, month_windows)
     that never. A re-estimate only makes a candidate for the swap gate, so two missed holds
     (each past the alarm's limit) are enough; one is not, and an estimate clears them.
     """
-    import dataclasses
     m, win = month_windows
     truth = m.true_calibration(0.5 * DAY)
     ids = win.hold_ids
@@ -423,7 +424,6 @@ def test_the_change_alarm_watches_each_sensor_in_its_own_range(tmp_path, month_w
     Seed 2 of the month bench: the common range narrowed and the knock alarm came 20.6 h
     late (3.4 h with whole swaps).
     """
-    import dataclasses
     m, win = month_windows
     truth = m.true_calibration(0.5 * DAY)
     ids = win.hold_ids
@@ -454,18 +454,23 @@ def test_the_change_alarm_watches_each_sensor_in_its_own_range(tmp_path, month_w
         assert alarms == [] and not life.state['alarm_pending']
 
 
-def _clean_and_knocked(month_windows):
-    """Return the first 20 holds and the next 14 with a gyro step of 10x the alarm factor
-    times the true model's gyro error (a knock)."""
-    import dataclasses
+def _knock_step(month_windows):
+    """Return the gyro step (rad/s) of a knock: 10x the alarm factor times the true model's
+    gyro error on the first 20 holds."""
     m, win = month_windows
     truth = m.true_calibration(0.5 * DAY)
+    clean = win.select(np.isin(win.hold, win.hold_ids[:20]))
+    s = gate.score(truth, clean, truth.gravity)
+    return np.array([0.0, 0.0, 10 * LifelongConfig().alarm_factor * s['gyro_rms']])
+
+
+def _clean_and_knocked(month_windows):
+    """Return the first 20 holds and the next 14 with a knock's gyro step."""
+    _, win = month_windows
     ids = win.hold_ids
     clean = win.select(np.isin(win.hold, ids[:20]))
-    s = gate.score(truth, clean, truth.gravity)
-    step = np.array([0.0, 0.0, 10 * LifelongConfig().alarm_factor * s['gyro_rms']])
     knocked = win.select(np.isin(win.hold, ids[20:34]))
-    return clean, dataclasses.replace(knocked, gyro=knocked.gyro + step)
+    return clean, dataclasses.replace(knocked, gyro=knocked.gyro + _knock_step(month_windows))
 
 
 @pytest.mark.parametrize('after_alarm', [True, False])
@@ -567,20 +572,16 @@ def test_a_swap_across_a_knock_keeps_the_alarm_seeing_it(tmp_path, month_windows
     alarm's reference on those holds, and the alarm went blind. With
     ``alarm_reference='explained'`` the swap happens, the reference is measured on the
     holds the new calibration explains, and the next knocked holds raise the alarm."""
-    import dataclasses
     life, active, s, d = _estimate_across_a_knock(
         tmp_path, month_windows, new_holds=1000, misfit_holds=1000, ageing=False,
         alarm_reference=reference)
-    _, knocked = _clean_and_knocked(month_windows)
     assert d['action'] == 'swap' and d['figures']['gyro']['verdict'] == 'better', d['text']
     _, win = month_windows
-    ids = win.hold_ids
-    later = win.select(np.isin(win.hold, ids[34:34 + LifelongConfig().alarm_holds + 3]))
-    shift = knocked.gyro[0] - win.select(np.isin(win.hold, ids[20:34])).gyro[0]
-    life.add(dataclasses.replace(later, gyro=later.gyro + shift))
+    later = win.select(np.isin(win.hold,
+                               win.hold_ids[34:34 + LifelongConfig().alarm_holds + 3]))
+    life.add(dataclasses.replace(later, gyro=later.gyro + _knock_step(month_windows)))
     if reference == 'explained':
         assert 'alarm reference without the holds it misses' in d['text'], d['text']
-        import re
         left_out = int(re.search(r'gyro (\d+) of \d+\)', d['text']).group(1))
         assert left_out >= 8, d['text']                 # at least the 8 held-out knocked
         assert life.state['active_gyro_rms'] < 5 * s['gyro_rms']

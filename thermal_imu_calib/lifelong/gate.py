@@ -83,12 +83,13 @@ def hold_errors(cal, windows, gravity, latitude=None):
     return out
 
 
-def gyro_limit(errors, gyro_rms, factor, floor):
-    """Return the (h,) per-hold gyro limit of ``misses`` (rad/s).
+def limit(errors, which, rms, factor, floor):
+    """Return the (h,) per-hold limit of ``misses`` for one sensor.
 
-    ``factor`` times ``gyro_rms``, at least ``floor`` times the hold's own standard error.
+    ``which``: 'gyro' (rad/s) or 'accel' (m/s^2). ``factor`` times ``rms``, at least
+    ``floor`` times the hold's own standard error.
     """
-    return np.maximum(factor * gyro_rms, floor * errors['se_gyro'])
+    return np.maximum(factor * rms, floor * errors['se_' + which])
 
 
 def misses(errors, accel_median, gyro_rms, accel_rms, factor, floor):
@@ -97,12 +98,12 @@ def misses(errors, accel_median, gyro_rms, accel_rms, factor, floor):
     ``errors``: ``hold_errors`` of that calibration. A hold is missed when its gyro error
     exceeds ``factor`` times ``gyro_rms`` (rad/s, the calibration's own held-out error), or
     its accelerometer error less ``accel_median`` (m/s^2) exceeds ``factor`` times
-    ``accel_rms``; each limit is at least ``floor`` times the hold's own standard error.
-    The change alarm's limit, per hold.
+    ``accel_rms``; each limit is at least ``floor`` times the hold's own standard error
+    (``limit``). The change alarm's limit, per hold.
     """
-    g = np.abs(errors['gyro']) > gyro_limit(errors, gyro_rms, factor, floor)
-    a = np.abs(errors['accel'] - accel_median) > np.maximum(
-        factor * accel_rms, floor * errors['se_accel'])
+    g = np.abs(errors['gyro']) > limit(errors, 'gyro', gyro_rms, factor, floor)
+    a = np.abs(errors['accel'] - accel_median) > limit(errors, 'accel', accel_rms, factor,
+                                                       floor)
     return g | a
 
 

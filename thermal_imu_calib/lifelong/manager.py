@@ -472,7 +472,7 @@ class Lifelong:
                 or st.get('active_gyro_rms') is None:
             return False
         e = s_new['errors']
-        limit = gate.gyro_limit(e, st['active_gyro_rms'], c.alarm_factor, c.alarm_floor)
+        limit = gate.limit(e, 'gyro', st['active_gyro_rms'], c.alarm_factor, c.alarm_floor)
         missed = int(np.sum(np.abs(e['gyro']) > limit))
         if missed < c.misfit_holds:
             return False
@@ -578,9 +578,10 @@ class Lifelong:
                                 self.latitude)
         med = float(np.median(both['accel']))
         is_held = np.isin(both['ids'], held)
-        use, note = self._reference_holds(both, med, before, only)
+        errs = {'gyro': both['gyro'], 'accel': both['accel'] - med}
+        use, note = self._reference_holds(both, errs, before, only)
         ref = {}
-        for which, err in (('gyro', both['gyro']), ('accel', both['accel'] - med)):
+        for which, err in errs.items():
             m = use[which]
             ref[which] = (max(s_new[f'{which}_rms'], gate._rms(err)) if m.all() else
                           max(gate._rms(err[m & is_held]) if (m & is_held).any() else 0.0,
@@ -600,13 +601,15 @@ class Lifelong:
                 self.log('error', f'registry {self.registry_dir} not updated: {e}')
         return note
 
-    def _reference_holds(self, both, med, before, only=None):
+    def _reference_holds(self, both, errs, before, only=None):
         """Return ({sensor: (h,) mask of the holds its alarm reference is measured on}, note).
 
-        Every hold, unless ``alarm_reference`` is 'explained' and there is an old reference:
-        then a hold the new calibration misses by the change alarm's limit against the old
-        reference (``gate.misses``'s per-sensor limits, the accelerometer about the new
-        level ``med``) is left out of that sensor's reference, unless it would leave none.
+        ``both``: ``gate.hold_errors`` of the new calibration; ``errs``: its per-sensor
+        errors (the accelerometer's about its new level). Every hold, unless
+        ``alarm_reference`` is 'explained' and there is an old reference: then a hold the
+        new calibration misses by the change alarm's limit against the old reference
+        (``gate.limit``, as in ``gate.misses``) is left out of that sensor's reference,
+        unless it would leave none.
         Not after a change alarm: the old reference is then the old sensor's; not for the
         sensor a one-sensor swap (``only``) keeps, whose reference stays as it was.
         """
@@ -620,9 +623,8 @@ class Lifelong:
             old = before[f'active_{which}_rms']
             if old is None or only not in (None, which):
                 continue
-            err = both['gyro'] if which == 'gyro' else both['accel'] - med
-            limit = np.maximum(c.alarm_factor * old, c.alarm_floor * both['se_' + which])
-            missed = np.abs(err) > limit
+            lim = gate.limit(both, which, old, c.alarm_factor, c.alarm_floor)
+            missed = np.abs(errs[which]) > lim
             if missed.any() and not missed.all():
                 use[which] = ~missed
                 parts.append(f'{which} {int(missed.sum())} of {h}')
