@@ -337,9 +337,14 @@ class Lifelong:
                 [float(e['t'][j]), float(e['temp'][j])] for j in np.flatnonzero(bad)]
 
     def _first_hold_start(self, t_end):
-        """Return the start (s) of the raw hold ending at ``t_end``."""
+        """Return the start (s) of the raw hold ending at ``t_end``.
+
+        Matched to the millisecond: a relative tolerance on stamps of ~1.7e9 s (np.isclose's
+        default, used before 2026-11-28) matched any hold ending within ~4.8 h, so the cut
+        kept up to hours of holds from before the change in the new epoch.
+        """
         rec = self.store.recent
-        m = np.isclose(rec.t1, t_end) if len(rec) else np.zeros(0, bool)
+        m = np.isclose(rec.t1, t_end, rtol=0.0, atol=1e-3) if len(rec) else np.zeros(0, bool)
         if not m.any():
             return t_end
         h = rec.hold[m][0]
