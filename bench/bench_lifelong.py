@@ -53,7 +53,7 @@ from thermal_imu_calib.app.calibrate import CalibrateSettings  # noqa: E402
 from thermal_imu_calib.lifelong.feed import Feeder  # noqa: E402
 from thermal_imu_calib.lifelong.hints import HintGate, HintSource  # noqa: E402
 from thermal_imu_calib.lifelong.manager import (  # noqa: E402
-    ALARM_REFERENCES, ALARM_WINDOWS, Lifelong, LifelongConfig)
+    ALARM_CUTS, ALARM_REFERENCES, ALARM_WINDOWS, Lifelong, LifelongConfig)
 from thermal_imu_calib.sim.robot_month import DAY, robot_month  # noqa: E402
 
 RESULTS = os.path.join(HERE, 'results')
@@ -118,7 +118,7 @@ def registry_timeline(work_seed, start_ns):
 
 def run_seed(seed, days, work, latitude=None, ageing=True, per_sensor=True,
              alarm_window='common', one_sensor_after_alarm=False, alarm_reference='all',
-             **overrides):
+             alarm_cut='all', **overrides):
     m = robot_month(seed, days=days, **overrides)
     spec = m.device.spec
     rate = m.config.imu_rate
@@ -134,7 +134,8 @@ def run_seed(seed, days, work, latitude=None, ageing=True, per_sensor=True,
                         config=LifelongConfig(ageing=ageing, per_sensor=per_sensor,
                                               alarm_window=alarm_window,
                                               one_sensor_after_alarm=one_sensor_after_alarm,
-                                              alarm_reference=alarm_reference),
+                                              alarm_reference=alarm_reference,
+                                              alarm_cut=alarm_cut),
                         log=lambda level, text: log.append((level, text)))
     life = make()
     feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
@@ -270,7 +271,7 @@ def month(args):
     for seed in range(args.first_seed, args.first_seed + args.seeds):
         r = run_seed(seed, args.days, work, args.latitude, not args.no_ageing,
                      not args.whole_swap, args.alarm_window, args.one_sensor_after_alarm,
-                     args.alarm_reference)
+                     args.alarm_reference, args.alarm_cut)
         rows.append(r)
         ra, kn = r['ratios'], r['knock']
         print(f'seed {seed}: {r["seconds"]:.0f} s, gyro first day '
@@ -881,6 +882,9 @@ def main():
     mo.add_argument('--alarm-reference', choices=ALARM_REFERENCES, default='all',
                     help='holds a swap measures the change alarm\'s reference on '
                          '(LifelongConfig.alarm_reference)')
+    mo.add_argument('--alarm-cut', choices=ALARM_CUTS, default='all',
+                    help='what a change alarm cuts: both sensors\' history, or the flagged '
+                         'sensor\'s only (LifelongConfig.alarm_cut)')
     mo.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_month.json'))
     re_ = sub.add_parser('real')
     re_.add_argument('--work', default='')

@@ -17,7 +17,7 @@ from _robot_month import detector_windows
 from thermal_imu_calib.app.calibrate import CalibrateSettings
 from thermal_imu_calib.calibration import Calibration
 from thermal_imu_calib.fleet import registry
-from thermal_imu_calib.lifelong import gate
+from thermal_imu_calib.lifelong import compose, gate
 from thermal_imu_calib.lifelong.feed import Feeder
 from thermal_imu_calib.lifelong.hints import HintGate, HintSource, twist_still
 from thermal_imu_calib.lifelong.manager import Lifelong, LifelongConfig, main_pose
@@ -589,3 +589,80 @@ def test_a_swap_across_a_knock_keeps_the_alarm_seeing_it(tmp_path, month_windows
     else:                                                # the default: blind
         assert life.state['active_gyro_rms'] > 5 * s['gyro_rms']
         assert life.state['alarms'] == 0
+
+
+def test_a_one_sensor_cut_keeps_the_other_sensors_history(tmp_path, month_windows):
+    """``cut(t, keep='accel')``: the holds before ``t`` leave this epoch (every fit of the
+    gyro) but stay, compacted, in the accelerometer's fits, across a restart; a later cut
+    that keeps the gyro drops them; at most ``MAX_KEPT`` histories are kept."""
+    from thermal_imu_calib.lifelong.store import MAX_KEPT
+    _, win = month_windows
+    ids = win.hold_ids
+    st = HoldStore(str(tmp_path / 's'), 1)
+    st.add(win.select(np.isin(win.hold, ids[:20])))
+    now = float(win.t1.max())
+    t_cut = float(win.t0[win.hold == ids[14]].min())
+    st.cut(t_cut, keep='accel')
+    assert st.has_kept('accel') and not st.has_kept('gyro')
+    epoch = st.windows(now)
+    assert len(epoch.hold_ids) == 6 and (epoch.t0 >= t_cut).all()     # raw holds 14-19
+    for again in (st, HoldStore(str(tmp_path / 's'), 1)):            # and after a restart
+        acc, times = again.fit_windows(now, sensor='accel')
+        assert len(acc) > len(epoch) and len(times) == len(acc)
+        assert times.min() < t_cut                          # the older holds, compacted
+        # every sample of the 20 holds (no fading within 1.5 days: > 90 %)
+        assert acc.n.sum() > 0.9 * win.n[np.isin(win.hold, ids[:20])].sum()
+        assert len(again.fit_windows(now, sensor='gyro')[0]) == len(epoch)
+    assert st.summary()['kept_bins'] > 0
+    # a cut of the accelerometer's history (the gyro keeps): the accel's kept one goes
+    st.add(win.select(np.isin(win.hold, ids[20:28])))
+    st.cut(float(win.t0[win.hold == ids[24]].min()), keep='gyro')
+    assert st.has_kept('gyro') and not st.has_kept('accel')
+    for k in range(MAX_KEPT + 2):                       # bounded
+        st.add(win.select(np.isin(win.hold, ids[28 + 2 * k:30 + 2 * k])))
+        st.cut(float(win.t0[win.hold == ids[29 + 2 * k]].min()), keep='gyro')
+    assert len(st.kept) == MAX_KEPT
+    st.cut(float(win.t1.max()))                         # both sensors: nothing kept
+    assert st.kept == [] and not st.has_kept('gyro')
+
+
+@pytest.mark.parametrize('cut', ['sensor', 'all'])
+def test_a_gyro_alarm_cuts_the_gyro_history_only(tmp_path, month_windows, cut):
+    """A knock that moves the gyro only: with ``alarm_cut='sensor'`` the alarm drops the
+    older holds for the gyro alone, and the estimate after it fits the accelerometer on
+    them too (its model covers their temperatures), the gyro on the holds after the cut.
+    With 'all' (the default) both sensors start again from the holds after the cut."""
+    clean, knocked = _clean_and_knocked(month_windows)
+    life = Lifelong(str(tmp_path), CalibrateSettings(), 1, [TOPIC], 'imu_link',
+                    config=LifelongConfig(new_holds=1000, misfit_holds=1000, ageing=False,
+                                          alarm_cut=cut))
+    life.store.add(clean)
+    active = life._calibrate(main_pose(clean, 2.0)).calibration     # before the knock
+    life.active = active
+    s = gate.score(active, clean, active.gravity)
+    life.state.update(active_gyro_rms=s['gyro_rms'], active_accel_rms=s['accel_rms'],
+                      active_accel_median=float(np.median(s['errors']['accel'])),
+                      holds_at_estimate=life.store.total_holds)
+    for h in knocked.hold_ids:
+        life.add(knocked.select(knocked.hold == h))
+    alarms = [d for d in life.decisions() if d['action'] == 'alarm']
+    assert len(alarms) == 1 and list(alarms[0]['figures']) == ['gyro'], alarms
+    assert life.store.has_kept('accel') == (cut == 'sensor')
+    assert ('(the accel keeps them)' in alarms[0]['reason']) == (cut == 'sensor')
+    # the epoch starts at the first knocked hold: no hold from before the knock is left in
+    # it (a relative stamp tolerance once kept ~4.8 h of them)
+    assert (life.store.recent.t0 >= knocked.t0.min()).all()
+    d = life.estimate('change alarm')
+    assert d['action'] == 'swap' and d['figures']['gyro']['verdict'] == 'better', d['text']
+    lo = compose.own_range(life.active, 'accel')[0, 0]
+    after_cut = life.store.windows().temp[:, 0].min()
+    if cut == 'sensor':
+        assert d['kept_history']['used'] and 'history kept' in d['text'], d['text']
+        composed = life.active.fit['composed']
+        assert composed['accel_from'] != composed['gyro_from']
+        # the accelerometer's model spans the older holds' temperatures
+        assert lo <= clean.temp[:, 0].min() + 0.5 < after_cut, (lo, after_cut)
+        assert compose.own_range(life.active, 'gyro')[0, 0] >= after_cut - 0.5
+    else:
+        assert 'kept_history' not in d
+        assert lo >= after_cut - 0.5

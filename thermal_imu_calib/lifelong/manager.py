@@ -31,7 +31,9 @@ inside both sensors' ranges, or each sensor's own) is scored with the active cal
 when, for one sensor, the last ``alarm_holds`` of them all exceed ``alarm_factor`` times
 the active's held-out error (floored at ``alarm_floor`` times their noise), the store is
 cut at the first of them (older data no longer describe the sensor), an alarm is logged
-and a re-estimate from the holds after the cut follows.
+and a re-estimate from the holds after the cut follows. With ``alarm_cut`` 'sensor' an
+alarm of one sensor cuts that sensor's history only: the other's model is still fitted on
+the older holds too (``_with_kept``).
 
 Reset (``reset``, the node's ``~/reset``): the collection starts afresh without losing
 data: the hold store and the candidate move into ``archive/<UTC time>/`` (at most
@@ -108,12 +110,18 @@ class LifelongConfig:
     #: gyro 35 % closer to the true model, but the accelerometer drift 26 % worse, past the
     #: 10 % set before the runs (docs/lifelong.md)
     alarm_reference: str = 'all'
+    #: what a change alarm cuts: 'all' (every hold before it, for both sensors) or
+    #: 'sensor' (when one sensor alone failed, its history only: the other keeps the
+    #: older holds for its fits, ``HoldStore.cut(keep=...)``, ``Lifelong._with_kept``; an
+    #: alarm of both cuts both). Not judged yet (docs/lifelong.md)
+    alarm_cut: str = 'all'
     store: StoreConfig = field(default_factory=StoreConfig)
 
     def __post_init__(self):
         """Refuse a setting the loop cannot run with, saying which and what to give."""
         for name, allowed in (('alarm_window', ALARM_WINDOWS),
-                              ('alarm_reference', ALARM_REFERENCES)):
+                              ('alarm_reference', ALARM_REFERENCES),
+                              ('alarm_cut', ALARM_CUTS)):
             if getattr(self, name) not in allowed:
                 raise ValueError(f'LifelongConfig.{name} {getattr(self, name)!r} is not one '
                                  f'of {", ".join(allowed)}; give one of them')
@@ -132,9 +140,10 @@ class LifelongConfig:
                                  'above 0')
 
 
-#: the values of ``LifelongConfig.alarm_window`` and ``alarm_reference``
+#: the values of ``LifelongConfig.alarm_window``, ``alarm_reference`` and ``alarm_cut``
 ALARM_WINDOWS = ('common', 'sensor')
 ALARM_REFERENCES = ('all', 'explained')
+ALARM_CUTS = ('all', 'sensor')
 
 
 class Tracked(NamedTuple):
@@ -312,14 +321,19 @@ class Lifelong:
             t_cut, t_now = self._first_hold_start(min(first)), self.track[-1].t
             text = '; '.join(f'{w} error {v:.3g} > {lim:.3g} on the last {c.alarm_holds} '
                              'holds in range' for w, (v, lim) in out.items())
+            keep = None
+            if c.alarm_cut == 'sensor' and len(out) == 1:
+                keep = 'accel' if 'gyro' in out else 'gyro'
             self.state['alarms'] += 1
             self.state['alarm_pending'] = True
             self.track = []
-            self.store.cut(t_cut)
+            self.store.cut(t_cut, keep=keep)
+            dropped = (f'holds before t={t_cut:.0f} s dropped' if keep is None else
+                       f'holds before t={t_cut:.0f} s dropped for the {next(iter(out))} (the '
+                       f'{keep} keeps them)')
             decision = {'time': t_now, 'action': 'alarm',
-                        'reason': f'the active calibration no longer fits: {text}; holds '
-                                  f'before t={t_cut:.0f} s dropped, re-estimating from the '
-                                  'holds after it', 'figures': out}
+                        'reason': f'the active calibration no longer fits: {text}; {dropped}, '
+                                  're-estimating from the holds after it', 'figures': out}
             self.state['last_decision'] = decision['reason']
             self._record(decision)
             self._save_state()
@@ -427,6 +441,10 @@ class Lifelong:
         if aged is not None:
             result, s_new = aged
             new = result.calibration
+        kept = self._with_kept(new, now, held, decision)
+        if kept is not None:
+            new = kept
+            s_new = gate.score(new, holdout, g, holdout_pose, self.latitude)
         s_act = gate.score(self.active, holdout, g, holdout_pose, self.latitude)
         swap, fig = gate.decide(s_act, s_new, c.swap_sigmas)
         part = self._one_sensor(new, fig, s_act, holdout, holdout_pose, decision)
@@ -441,6 +459,8 @@ class Lifelong:
         decision['summary'] = result.summary
         versus = 'the active calibration' if self.active is not None else 'the raw output'
         text = gate.describe(fig) + decision.get('unexplained', '')
+        if 'kept_history' in decision:
+            text += '; ' + decision['kept_history']['text']
         if swap:
             text += self._activate(new, now, s_new, holdout_pose, held,
                                    decision['one_sensor']['sensor'] if only else None)
@@ -504,6 +524,36 @@ class Lifelong:
         if record:
             decision['one_sensor'] = record
         return found
+
+    def _with_kept(self, new, now, held, decision):
+        """Return ``new`` with one sensor's model fitted on its kept history too, or None.
+
+        After a change alarm that cut one sensor's history (``alarm_cut`` 'sensor'), the
+        other sensor keeps the holds from before it (``HoldStore.cut``): its model is
+        fitted on them and this epoch's holds (the held-out ones left out, as always) and
+        composed with ``new``'s model of the sensor that changed. None: nothing is kept, or
+        that fit or the composition fails (the decision says so and ``new`` is used).
+        """
+        which = next((w for w in compose.SENSORS if self.store.has_kept(w)), None)
+        if which is None:
+            return None
+        windows, _ = self.store.fit_windows(now, exclude=held, sensor=which)
+        fit = windows.select(main_pose_mask(windows, self.config.pose_deg))
+        try:
+            long = self._calibrate(fit).calibration
+            pick = {which: long, 'gyro' if which == 'accel' else 'accel': new}
+            cal = compose.compose(pick['accel'], pick['gyro'],
+                                  note=f'the {which} fitted on its history kept across a '
+                                       'change alarm of the other sensor')
+        except (CalibrationRefused, SettingsError, CalibrationError, ValueError) as e:
+            decision['kept_history'] = {'sensor': which, 'used': False,
+                                        'text': f'{which} on its kept history: not used ({e})'}
+            return None
+        decision['kept_history'] = {
+            'sensor': which, 'used': True, 'holds': int(len(fit.hold_ids)),
+            'text': f'{which} fitted on {len(fit.hold_ids)} holds with its history kept '
+                    'across a change alarm of the other sensor'}
+        return cal
 
     def _calibrate(self, windows):
         """Return ``calibrate_collected``'s result on these windows (the CLI's calibrate)."""

@@ -22,6 +22,9 @@ window per bin, ``n`` = the faded weight. Holds
 compacted into one cluster share one unknown orientation in the fit: the cluster width
 bounds the error this adds (1 - cos(cluster_deg) of g: 1.5e-4 m/s^2 at 0.5 deg).
 ``cut(t)`` starts a new epoch (after a knock): everything before ``t`` is dropped.
+``cut(t, keep=sensor)`` (a knock that moved one sensor only) drops it for the other sensor
+alone: the older holds are compacted and kept for ``keep``'s fits (``fit_windows(sensor=
+keep)``), at most ``MAX_KEPT`` such histories, those of the sensor that changed dropped.
 """
 
 from dataclasses import dataclass, fields
@@ -39,6 +42,10 @@ COUNTERS = 'counters.json'
 #: hold ids of compacted clusters start here (raw hold ids are below)
 CLUSTER_BASE = 1_000_000_000
 DAY_S = 86400.0
+#: most one-sensor histories kept across change alarms (``HoldStore.cut(t, keep=...)``)
+MAX_KEPT = 4
+#: hold ids of a kept history's clusters start here, one block per history
+KEPT_BASE = 100_000
 
 
 @dataclass
@@ -182,6 +189,8 @@ class HoldStore:
         self.compacted_through = -1       # raw hold ids <= this are in the bins
         self.total_holds = 0              # holds ever added (this epoch and before)
         self.epoch_start = -np.inf        # s: holds before this were dropped (cut)
+        #: [(sensor, _Bins)]: history before a one-sensor cut, still valid for that sensor
+        self.kept = []
         self.notes = []
         if self.dir:
             os.makedirs(self.dir, exist_ok=True)
@@ -212,6 +221,8 @@ class HoldStore:
             self.compacted_through = int(state.get('compacted_through', -1))
             self.total_holds = int(state.get('total_holds', 0))
             self.epoch_start = float(state.get('epoch_start', -np.inf))
+            self.kept = [(str(e['sensor']), _Bins.from_dict(e['bins'], self.k))
+                         for e in state.get('kept', [])]
         try:
             with open(self._path(COUNTERS)) as f:
                 counters = json.load(f)
@@ -239,13 +250,16 @@ class HoldStore:
                 'clusters': [c.tolist() for c in self.clusters], 'next_hold': self.next_hold,
                 'compacted_through': self.compacted_through, 'total_holds': self.total_holds,
                 'epoch_start': None if not np.isfinite(self.epoch_start)
-                else self.epoch_start}
+                else self.epoch_start,
+                'kept': [{'sensor': w, 'bins': b.to_dict()} for w, b in self.kept]}
 
     def _write_state(self):
         if self.dir:
             state = self._state()
             if state['epoch_start'] is None:
                 state.pop('epoch_start')
+            if not state['kept']:
+                state.pop('kept')
             write_atomic(self._path(COMPACTED), json.dumps(state, separators=(',', ':')))
 
     def _write_recent(self):
@@ -331,14 +345,28 @@ class HoldStore:
         self.clusters.append(u)
         return len(self.clusters) - 1
 
-    def cut(self, t):
-        """Start a new epoch at ``t`` (s): drop the compacted bins and older raw holds."""
-        self.bins = _Bins(self.k)
-        self.clusters = []
-        self.epoch_start = float(t)
+    def cut(self, t, keep=None):
+        """Start a new epoch at ``t`` (s): drop the compacted bins and older raw holds.
+
+        ``keep`` ('accel' or 'gyro'): the change touched the other sensor only, so the
+        older holds stay valid for ``keep``: they are compacted and kept for its fits
+        (``fit_windows(sensor=keep)``), with the histories kept for it before (the oldest
+        dropped beyond ``MAX_KEPT``); histories kept for the other sensor are dropped.
+        None: everything before ``t`` is dropped, kept histories too.
+        """
         old = self.recent.hold_ids[[self.recent.t0[self.recent.hold == h].min() < t
                                     for h in self.recent.hold_ids]] if len(self.recent) \
             else np.zeros(0, int)
+        if keep is None:
+            self.kept = []
+        else:
+            self.compact(old)
+            self.kept = [(w, b) for w, b in self.kept if w == keep]
+            if len(self.bins):
+                self.kept = (self.kept + [(keep, self.bins)])[-MAX_KEPT:]
+        self.bins = _Bins(self.k)
+        self.clusters = []
+        self.epoch_start = float(t)
         if len(old):
             self.compacted_through = max(self.compacted_through, int(np.max(old)))
         self.recent = self.recent.select(self.recent.t0 >= t) if len(self.recent) \
@@ -357,28 +385,41 @@ class HoldStore:
         """
         return self.fit_windows(now, exclude)[0]
 
-    def fit_windows(self, now=None, exclude=()):
+    def has_kept(self, sensor):
+        """Return True when history from before a one-sensor cut is kept for ``sensor``."""
+        return any(w == sensor and len(b) for w, b in self.kept)
+
+    def _compacted(self, bins, now, base=0):
+        """Return (windows, mean times) of a copy of ``bins`` faded to ``now``; ids + base."""
+        bins = _Bins.from_dict(bins.to_dict(), self.k)
+        if now is not None:
+            bins.fade(float(now), self.config.memory_days)
+            bins.keep(bins.w >= self.config.min_weight)
+        comp = bins.windows()
+        if not len(comp):
+            return comp, np.zeros(0)
+        order = np.lexsort((bins.bin, bins.cluster))
+        comp = comp.select(order)
+        comp.hold = comp.hold + base
+        return comp, bins.mean_times()[order]
+
+    def fit_windows(self, now=None, exclude=(), sensor=None):
         """Return (``windows(now, exclude)``, each window's mean time (s)).
 
         A raw window's mean time is its middle; a compacted bin's the sample-weighted mean
         of its windows' (its own ``t0``/``t1`` stay the newest window's, as before).
+        ``sensor``: also the history kept for that sensor across one-sensor cuts (oldest
+        first, before this epoch's), for that sensor's fit only.
         """
-        bins = _Bins.from_dict(self.bins.to_dict(), self.k)
-        if now is not None:
-            bins.fade(float(now), self.config.memory_days)
-            bins.keep(bins.w >= self.config.min_weight)
+        kept = [b for w, b in self.kept if w == sensor] if sensor is not None else []
+        parts = [self._compacted(b, now, KEPT_BASE * (i + 1)) for i, b in enumerate(kept)]
+        parts.append(self._compacted(self.bins, now))
         raw = self.recent.select(~np.isin(self.recent.hold, list(exclude))) \
             if len(self.recent) else self.recent
-        comp = bins.windows()
-        times = np.zeros(0)
-        if len(comp):
-            order = np.lexsort((bins.bin, bins.cluster))
-            comp, times = comp.select(order), bins.mean_times()[order]
-        out = Windows.concat([comp, raw])
-        if not len(out):
+        out = Windows.concat([w for w, _ in parts if len(w)] + [raw])
+        if not len(out) or out.n_inputs != self.k:
             return Windows.empty(self.k), np.zeros(0)
-        if len(raw):
-            times = np.concatenate([times, 0.5 * (raw.t0 + raw.t1)])
+        times = np.concatenate([t for _, t in parts] + [0.5 * (raw.t0 + raw.t1)])
         first = {}
         for h in out.hold:
             first.setdefault(int(h), len(first))
@@ -413,6 +454,7 @@ class HoldStore:
                 'raw_holds': int(len(self.recent.hold_ids)) if len(self.recent) else 0,
                 'raw_windows': len(self.recent), 'compacted_bins': len(self.bins),
                 'clusters': len(self.clusters), 'disk_bytes': self.disk_bytes(),
+                'kept_bins': int(sum(len(b) for _, b in self.kept)),
                 'temperature_span': self.temperature_span()}
 
 
