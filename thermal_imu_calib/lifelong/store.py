@@ -417,7 +417,7 @@ class HoldStore:
         raw = self.recent.select(~np.isin(self.recent.hold, list(exclude))) \
             if len(self.recent) else self.recent
         out = Windows.concat([w for w, _ in parts if len(w)] + [raw])
-        if not len(out) or out.n_inputs != self.k:
+        if not len(out):
             return Windows.empty(self.k), np.zeros(0)
         times = np.concatenate([t for _, t in parts] + [0.5 * (raw.t0 + raw.t1)])
         first = {}
