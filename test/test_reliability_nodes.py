@@ -154,9 +154,55 @@ def test_compensator_exits_0_on_sigint_and_sigterm_under_load_20_of_20(ros, tmp_
     finally:
         stop.set()
         pump.join(10)
+    # a Fast DDS teardown hang (about 1 in 300) ends by the teardown guard: exit 0, one warning
     bad = [(n, code, err[-800:]) for n, code, err in results
-           if code != 0 or 'Traceback' in err or 'Error' in err]
+           if code != 0 or 'Traceback' in err or 'Error' in err
+           or err.count('warning') != err.count(GUARD_WARNING)]
     assert len(results) == 20 and not bad, bad
+
+
+GUARD_WARNING = 'warning: the middleware did not finish shutting down'
+
+# a node whose own work on the way out writes a file, and whose middleware teardown hangs
+HANGING_TEARDOWN = """
+import pathlib, sys, threading
+from rclpy.node import Node
+from thermal_imu_calib.nodes import process
+out = pathlib.Path(sys.argv[1])
+class Hangs(Node):
+    def __init__(self):
+        super().__init__('hangs')
+        self.create_timer(0.05, lambda: out.with_suffix('.spinning').touch())
+    def finish(self):
+        out.write_text('finished')
+    def destroy_node(self):
+        threading.Event().wait()
+process.exit_process(process.run_nodes([Hangs], []))
+"""
+
+
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM], ids=['SIGINT', 'SIGTERM'])
+def test_a_hanging_middleware_teardown_still_ends_the_process_after_the_nodes_work(sig,
+                                                                                   tmp_path):
+    from thermal_imu_calib.nodes import process
+    out = tmp_path / 'out.txt'
+    proc = subprocess.Popen(
+        [venv_exe('python'), '-c', HANGING_TEARDOWN, str(out)], stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE, text=True, env=venv_env(ROS_DOMAIN_ID=DOMAIN_ID),
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        wait_for(lambda: out.with_suffix('.spinning').exists() or proc.poll() is not None,
+                 WAIT, 'the node spinning')
+        assert proc.poll() is None, proc.communicate()
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=WAIT)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, err
+    assert out.read_text() == 'finished'                 # finish ran before the teardown
+    lines = [ln for ln in err.splitlines() if GUARD_WARNING in ln]
+    assert len(lines) == 1 and f'{process.TEARDOWN_LIMIT_S:g} s' in lines[0], err
+    assert 'Traceback' not in err, err
 
 
 def test_compensator_refuses_output_remapped_onto_its_input(tmp_path):

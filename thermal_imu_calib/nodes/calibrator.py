@@ -305,11 +305,15 @@ class CalibratorNode(LiveCollection, Node):
             f'{self.get_name()}: thermal calibration', self.get_fully_qualified_name(), level,
             msg, values)] + (self.lifelong.statuses() if self.lifelong is not None else []))
 
-    def destroy_node(self):
-        """Stop the estimation worker, then destroy the node."""
+    def finish(self):
+        """Stop the estimation workers (idempotent; ``process.run_nodes`` calls it first)."""
         self._worker.shutdown(wait=False, cancel_futures=True)
         if self.lifelong is not None:
             self.lifelong.shutdown()
+
+    def destroy_node(self):
+        """Finish (``finish``), then destroy the node."""
+        self.finish()
         return super().destroy_node()
 
 

@@ -157,6 +157,7 @@ class CompensatorNode(Node):
         self._last_stamp_ns = None
         self._rate = common.RateMeter()
         self._warned = set()
+        self._finished = False     # finish() has written the state on the way out
 
         self.pub = self.create_publisher(Imu, 'imu/data_compensated',
                                          common.output_qos(out_rel, out_depth))
@@ -460,11 +461,20 @@ class CompensatorNode(Node):
             self._warned.add(key)
             self.get_logger().warning(text)
 
+    def finish(self):
+        """Write the thermal-history state once more (``state_file``); once, on the way out.
+
+        ``process.run_nodes`` calls this for every node before any middleware teardown,
+        which can hang (see ``process.TEARDOWN_LIMIT_S``).
+        """
+        if self.units is None and not self._finished:
+            self._finished = True
+            self.state.after(self._active, force=True)
+
     def destroy_node(self):
-        """Write the thermal-history state once more (``state_file``), then destroy."""
+        """Finish (``finish``), then destroy."""
         try:
-            if self.units is None:
-                self.state.after(self._active, force=True)
+            self.finish()
         finally:
             super().destroy_node()
 

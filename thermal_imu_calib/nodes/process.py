@@ -13,6 +13,13 @@ from rclpy.executors import SingleThreadedExecutor
 #: nothing else wakes the executor
 SPIN_PERIOD_S = 0.2
 
+#: longest middleware teardown (s) before the process ends without it. Fast DDS 2.14.5 can
+#: deadlock deleting a participant while discovery traffic arrives (main thread in
+#: ``DomainParticipant::set_listener``, a receive thread in ``onWriterDiscovery`` waiting
+#: for the participant's mutex; seen in about 1 of 300 compensators signalled together under
+#: load). Below ``ros2 launch``'s 5-s SIGINT -> SIGTERM escalation.
+TEARDOWN_LIMIT_S = 4.0
+
 
 def run_nodes(factories, args=None):
     """Create nodes from ``factories`` and spin them on one SingleThreadedExecutor.
@@ -20,6 +27,10 @@ def run_nodes(factories, args=None):
     The Jazzy idiom of ros2/demos: init, spin until Ctrl-C or external shutdown, then
     destroy every node created and shut down. Why single-threaded: see ``common.drain``. What a
     user gets (exit status 0 on SIGINT/SIGTERM, 2 on a bad start):
+
+    * on the way out every node's ``finish`` (its own files, its workers) runs before any
+      node is destroyed; a middleware teardown that outlasts ``TEARDOWN_LIMIT_S`` then ends
+      the process anyway, with one warning line (``teardown_guard``);
 
     * a parameter that cannot be used, or any other failure to start, is one line on
       stderr and exit status 2 (``THERMAL_IMU_CALIB_DEBUG=1`` shows the traceback);
@@ -32,7 +43,7 @@ def run_nodes(factories, args=None):
     """
     import rclpy
     from rclpy.executors import ExternalShutdownException
-    nodes = []
+    nodes, status = [], 0
     argv = sys.argv if args is None else args
     signalled = _note_signals()     # no KeyboardInterrupt anywhere: rclpy's handler (which
     try:                            # chains to this one) shuts the context down instead
@@ -67,16 +78,48 @@ def run_nodes(factories, args=None):
         pass
     except Exception:  # noqa: B902 - re-raised unless it is the shutdown itself
         if rclpy.ok():
+            status = 1             # an error on its way up: the teardown guard keeps it
             raise
     finally:
         _ignore_signals()          # a second Ctrl-C must not interrupt the cleanup
-        for node in nodes:
+        for node in nodes:         # the nodes' own work first (state files, workers) ...
+            try:
+                getattr(node, 'finish', lambda: None)()
+            except Exception:  # noqa: B902 - best effort on the way out
+                pass
+        guard = teardown_guard(_factory_name(factories[0]), status)
+        for node in nodes:         # ... then the middleware's, which can hang
             try:
                 node.destroy_node()
             except Exception:  # noqa: B902 - best effort on the way out
                 pass
         rclpy.try_shutdown()
+        guard.cancel()
     return 0
+
+
+def teardown_guard(name, status, limit_s=None):
+    """Start and return a daemon timer that ends the process if teardown outlasts ``limit_s``.
+
+    Called once the nodes' own work is done (``finish``), so nothing of ours is lost: the
+    timer prints one warning line and ends the process with ``status`` (0 for a requested
+    stop). ``cancel()`` it when the teardown has finished. ``limit_s`` defaults to
+    ``TEARDOWN_LIMIT_S``.
+    """
+    import os
+    import threading
+    limit = TEARDOWN_LIMIT_S if limit_s is None else float(limit_s)
+
+    def overdue():
+        print(f'{name}: warning: the middleware did not finish shutting down within '
+              f'{limit:g} s (a DDS teardown hang); exiting without it', file=sys.stderr,
+              flush=True)
+        os._exit(status)
+
+    timer = threading.Timer(limit, overdue)
+    timer.daemon = True
+    timer.start()
+    return timer
 
 
 def _factory_name(make):
