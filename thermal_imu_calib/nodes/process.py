@@ -59,7 +59,8 @@ def run_nodes(factories, args=None):
         except Exception as e:  # noqa: B902 - bad parameters and the like: one line
             if signalled or not rclpy.ok():
                 return 0            # stopped while starting
-            return _start_failed(_factory_name(make), e)
+            status = _start_failed(_factory_name(make), e)    # the teardown guard keeps it
+            return status
         if signalled:
             return 0
         for path, text in duplicate_keys(params_files(argv)):
