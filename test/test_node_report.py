@@ -1,5 +1,7 @@
 """Calibrator node over real DDS: a successful ~/calibrate also writes the HTML report."""
 
+import os
+
 from _html_check import parse_report
 from conftest import wait_for
 import pytest
@@ -25,3 +27,21 @@ def test_calibrate_writes_the_report_next_to_the_calibration(ros, tmp_path):
     assert set(SECTIONS) <= set(ids)
     assert {n for n, _ in images} == {'timeline', 'accel', 'gyro', 'gravity_residual',
                                       'coverage'}
+
+
+def test_finish_stops_a_report_being_drawn_and_removes_its_inputs(ros, tmp_path):
+    """On the way out (SIGINT/SIGTERM) the report child is stopped, nothing is left behind."""
+    rec = recording(repetitions=1)
+    node = calibrator(ros, tmp_path)
+    player = Player(ros)
+    player.play(rec)
+    player.wait_received()
+    assert player.call('calibrate').success
+    wait_for(lambda: node._report_child is not None, 60, 'the report child drawing')
+    child, tmp = node._report_child
+    node.finish()
+    assert child.poll() is not None                  # stopped, not left drawing
+    wait_for(lambda: not os.path.exists(tmp), 10, f'{tmp} removed')
+    assert not (tmp_path / 'calibration.report.html').exists()
+    assert sorted(p.name for p in tmp_path.iterdir()
+                  if 'report' in p.name) == [], list(tmp_path.iterdir())

@@ -67,6 +67,7 @@ class CalibratorNode(LiveCollection, Node):
         self._busy_since = 0.0
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix='estimation')
         self._reporter = ThreadPoolExecutor(max_workers=1, thread_name_prefix='report')
+        self._report_child = None     # (Popen, temporary dir) while a report is being drawn
         self._result = None              # last CalibrationResult
         self._last_message = ''
         self._seen_frame = ''
@@ -204,7 +205,8 @@ class CalibratorNode(LiveCollection, Node):
         """
         path = os.path.expanduser(self.get_parameter('calibration_file').value)
         out = os.path.splitext(path)[0] + '.report.html'
-        with tempfile.TemporaryDirectory(prefix='thermal-imu-report-') as tmp:
+        with tempfile.TemporaryDirectory(prefix='thermal-imu-report-',
+                                         ignore_cleanup_errors=True) as tmp:
             cal.save(os.path.join(tmp, 'cal.yaml'))
             with open(os.path.join(tmp, 'windows.jsonl'), 'w') as f:
                 f.write(windows.to_jsonl())
@@ -212,15 +214,41 @@ class CalibratorNode(LiveCollection, Node):
                    os.path.join(tmp, 'cal.yaml'), '--windows', os.path.join(tmp, 'windows.jsonl'),
                    '--html', out]
             try:
-                r = subprocess.run(cmd, capture_output=True, text=True, timeout=600,
-                                   preexec_fn=lambda: os.nice(10))
-            except (OSError, subprocess.SubprocessError) as e:
+                child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                         text=True, preexec_fn=lambda: os.nice(10))
+            except OSError as e:
                 self.get_logger().error(f'report {out} not written: {e!r}')
                 return
-        if r.returncode:
-            self.get_logger().error(f'report {out} not written: {r.stderr.strip()[-500:]}')
+            self._report_child = (child, tmp)
+            try:
+                _, err = child.communicate(timeout=600)
+            except subprocess.TimeoutExpired:
+                child.kill()
+                child.communicate()
+                err = 'the report took over 600 s and was stopped'
+            finally:
+                self._report_child = None
+        if child.returncode:
+            self.get_logger().error(f'report {out} not written: {err.strip()[-500:]}')
         else:
             self.get_logger().info(f'wrote report {out}')
+
+    def _stop_report(self):
+        """Stop a report being drawn (SIGTERM: it removes its temporary) and remove its inputs.
+
+        On the way out the process does not wait for the report thread, so without this the
+        child went on drawing after the node had gone and its temporary directory was left.
+        """
+        running = self._report_child
+        if running is None:
+            return
+        child, tmp = running
+        try:
+            child.terminate()
+            child.wait(timeout=5)
+        except (OSError, subprocess.SubprocessError):
+            child.kill()
+        shutil.rmtree(tmp, ignore_errors=True)
 
     def _on_save(self, request, response):
         result = self._result
@@ -306,8 +334,10 @@ class CalibratorNode(LiveCollection, Node):
             msg, values)] + (self.lifelong.statuses() if self.lifelong is not None else []))
 
     def finish(self):
-        """Stop the estimation workers (idempotent; ``process.run_nodes`` calls it first)."""
+        """Stop the estimation workers and a report being drawn (idempotent; called first)."""
         self._worker.shutdown(wait=False, cancel_futures=True)
+        self._reporter.shutdown(wait=False, cancel_futures=True)
+        self._stop_report()
         if self.lifelong is not None:
             self.lifelong.shutdown()
 
