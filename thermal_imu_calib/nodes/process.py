@@ -16,8 +16,8 @@ SPIN_PERIOD_S = 0.2
 #: longest middleware teardown (s) before the process ends without it. Fast DDS 2.14.5 can
 #: deadlock deleting a participant while discovery traffic arrives (main thread in
 #: ``DomainParticipant::set_listener``, a receive thread in ``onWriterDiscovery`` waiting
-#: for the participant's mutex; seen in about 1 of 300 compensators signalled together under
-#: load). Below ``ros2 launch``'s 5-s SIGINT -> SIGTERM escalation.
+#: for the participant's mutex; once in CI, and 4 times in ~2,200 compensators signalled ten
+#: at a time under load in a repro). Below ``ros2 launch``'s 5-s SIGINT -> SIGTERM escalation.
 TEARDOWN_LIMIT_S = 4.0
 
 
@@ -31,7 +31,6 @@ def run_nodes(factories, args=None):
     * on the way out every node's ``finish`` (its own files, its workers) runs before any
       node is destroyed; a middleware teardown that outlasts ``TEARDOWN_LIMIT_S`` then ends
       the process anyway, with one warning line (``teardown_guard``);
-
     * a parameter that cannot be used, or any other failure to start, is one line on
       stderr and exit status 2 (``THERMAL_IMU_CALIB_DEBUG=1`` shows the traceback);
     * a parameter given for the node (params file or command line) that it does not have,
@@ -102,10 +101,10 @@ def run_nodes(factories, args=None):
 def teardown_guard(name, status, limit_s=None):
     """Start and return a daemon timer that ends the process if teardown outlasts ``limit_s``.
 
-    Called once the nodes' own work is done (``finish``), so nothing of ours is lost: the
-    timer prints one warning line and ends the process with ``status`` (0 for a requested
-    stop). ``cancel()`` it when the teardown has finished. ``limit_s`` defaults to
-    ``TEARDOWN_LIMIT_S``.
+    Start it once the nodes' own work is done (``finish``): what is then left is rclpy's and
+    the middleware's. On time-out it prints one warning line and ends the process with
+    ``status`` (0 for a requested stop). ``cancel()`` it when the teardown has finished.
+    ``limit_s`` defaults to ``TEARDOWN_LIMIT_S``.
     """
     import os
     import threading
