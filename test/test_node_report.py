@@ -37,11 +37,29 @@ def test_finish_stops_a_report_being_drawn_and_removes_its_inputs(ros, tmp_path)
     player.play(rec)
     player.wait_received()
     assert player.call('calibrate').success
-    wait_for(lambda: node._report_child is not None, 60, 'the report child drawing')
-    child, tmp = node._report_child
+    wait_for(lambda: (node._report_running or [None])[0] is not None, 60,
+             'the report child drawing')
+    child, tmp = node._report_running
     node.finish()
     assert child.poll() is not None                  # stopped, not left drawing
     wait_for(lambda: not os.path.exists(tmp), 10, f'{tmp} removed')
     assert not (tmp_path / 'calibration.report.html').exists()
     assert sorted(p.name for p in tmp_path.iterdir()
                   if 'report' in p.name) == [], list(tmp_path.iterdir())
+
+
+def test_no_report_child_starts_after_finish(ros, tmp_path):
+    """A report queued or being prepared when the node finishes never starts its child."""
+    rec = recording(repetitions=1)
+    node = calibrator(ros, tmp_path)
+    player = Player(ros)
+    player.play(rec)
+    player.wait_received()
+    assert player.call('calibrate').success
+    report = tmp_path / 'calibration.report.html'
+    wait_for(lambda: report.exists(), 60, 'the first report')
+    report.unlink()
+    node.finish()
+    node._report_file(node._result.calibration, node.windows)     # what the thread would run
+    assert node._report_running is None
+    assert not report.exists()

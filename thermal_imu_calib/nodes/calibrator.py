@@ -67,7 +67,9 @@ class CalibratorNode(LiveCollection, Node):
         self._busy_since = 0.0
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix='estimation')
         self._reporter = ThreadPoolExecutor(max_workers=1, thread_name_prefix='report')
-        self._report_child = None     # (Popen, temporary dir) while a report is being drawn
+        self._report_lock = threading.Lock()
+        self._report_running = None   # [Popen or None, temporary dir] while a report is drawn
+        self._report_stopped = False  # finish() ran: no report child is started after it
         self._result = None              # last CalibrationResult
         self._last_message = ''
         self._seen_frame = ''
@@ -207,27 +209,36 @@ class CalibratorNode(LiveCollection, Node):
         out = os.path.splitext(path)[0] + '.report.html'
         with tempfile.TemporaryDirectory(prefix='thermal-imu-report-',
                                          ignore_cleanup_errors=True) as tmp:
-            cal.save(os.path.join(tmp, 'cal.yaml'))
-            with open(os.path.join(tmp, 'windows.jsonl'), 'w') as f:
-                f.write(windows.to_jsonl())
-            cmd = [sys.executable, '-m', 'thermal_imu_calib.cli', 'report',
-                   os.path.join(tmp, 'cal.yaml'), '--windows', os.path.join(tmp, 'windows.jsonl'),
-                   '--html', out]
+            with self._report_lock:
+                if self._report_stopped:
+                    return
+                self._report_running = [None, tmp]
             try:
-                child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                         text=True, preexec_fn=lambda: os.nice(10))
+                cal.save(os.path.join(tmp, 'cal.yaml'))
+                with open(os.path.join(tmp, 'windows.jsonl'), 'w') as f:
+                    f.write(windows.to_jsonl())
+                cmd = [sys.executable, '-m', 'thermal_imu_calib.cli', 'report',
+                       os.path.join(tmp, 'cal.yaml'), '--windows',
+                       os.path.join(tmp, 'windows.jsonl'), '--html', out]
+                with self._report_lock:
+                    if self._report_stopped:
+                        return
+                    child = subprocess.Popen(cmd, stdout=subprocess.PIPE,
+                                             stderr=subprocess.PIPE, text=True,
+                                             preexec_fn=lambda: os.nice(10))
+                    self._report_running[0] = child
+                try:
+                    _, err = child.communicate(timeout=600)
+                except subprocess.TimeoutExpired:
+                    child.kill()
+                    child.communicate()
+                    err = 'the report took over 600 s and was stopped'
             except OSError as e:
                 self.get_logger().error(f'report {out} not written: {e!r}')
                 return
-            self._report_child = (child, tmp)
-            try:
-                _, err = child.communicate(timeout=600)
-            except subprocess.TimeoutExpired:
-                child.kill()
-                child.communicate()
-                err = 'the report took over 600 s and was stopped'
             finally:
-                self._report_child = None
+                with self._report_lock:
+                    self._report_running = None
         if child.returncode:
             self.get_logger().error(f'report {out} not written: {err.strip()[-500:]}')
         else:
@@ -239,15 +250,18 @@ class CalibratorNode(LiveCollection, Node):
         On the way out the process does not wait for the report thread, so without this the
         child went on drawing after the node had gone and its temporary directory was left.
         """
-        running = self._report_child
+        with self._report_lock:
+            self._report_stopped = True
+            running = self._report_running
         if running is None:
             return
         child, tmp = running
-        try:
-            child.terminate()
-            child.wait(timeout=5)
-        except (OSError, subprocess.SubprocessError):
-            child.kill()
+        if child is not None:
+            try:
+                child.terminate()
+                child.wait(timeout=5)
+            except (OSError, subprocess.SubprocessError):
+                child.kill()
         shutil.rmtree(tmp, ignore_errors=True)
 
     def _on_save(self, request, response):
