@@ -13,14 +13,19 @@ from test_node_calibrator import calibrator, Player, recording  # noqa: E402
 from thermal_imu_calib.report.build import SECTIONS  # noqa: E402
 
 
-def test_calibrate_writes_the_report_next_to_the_calibration(ros, tmp_path):
-    rec = recording(repetitions=1)
+def _calibrated(ros, tmp_path):
+    """Return a calibrator node that has just calibrated a one-repetition recording."""
     node = calibrator(ros, tmp_path)
     player = Player(ros)
-    player.play(rec)
+    player.play(recording(repetitions=1))
     player.wait_received()
     resp = player.call('calibrate')
     assert resp.success, (resp.message, node.counts)
+    return node
+
+
+def test_calibrate_writes_the_report_next_to_the_calibration(ros, tmp_path):
+    _calibrated(ros, tmp_path)
     report = tmp_path / 'calibration.report.html'
     wait_for(lambda: report.exists(), 60, 'the report next to the calibration')
     ids, images = parse_report(report.read_text())
@@ -31,12 +36,7 @@ def test_calibrate_writes_the_report_next_to_the_calibration(ros, tmp_path):
 
 def test_finish_stops_a_report_being_drawn_and_removes_its_inputs(ros, tmp_path):
     """On the way out (SIGINT/SIGTERM) the report child is stopped, nothing is left behind."""
-    rec = recording(repetitions=1)
-    node = calibrator(ros, tmp_path)
-    player = Player(ros)
-    player.play(rec)
-    player.wait_received()
-    assert player.call('calibrate').success
+    node = _calibrated(ros, tmp_path)
     wait_for(lambda: (node._report_running or [None])[0] is not None, 60,
              'the report child drawing')
     child, tmp = node._report_running
@@ -50,12 +50,7 @@ def test_finish_stops_a_report_being_drawn_and_removes_its_inputs(ros, tmp_path)
 
 def test_no_report_child_starts_after_finish(ros, tmp_path):
     """A report queued or being prepared when the node finishes never starts its child."""
-    rec = recording(repetitions=1)
-    node = calibrator(ros, tmp_path)
-    player = Player(ros)
-    player.play(rec)
-    player.wait_received()
-    assert player.call('calibrate').success
+    node = _calibrated(ros, tmp_path)
     report = tmp_path / 'calibration.report.html'
     wait_for(lambda: report.exists(), 60, 'the first report')
     report.unlink()
