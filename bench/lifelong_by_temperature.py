@@ -11,6 +11,11 @@ cubic in temperature per calibration, by stop length (the noise of a short stop'
 against a misfit of the thermal model).
 
     python bench/lifelong_by_temperature.py /tmp/lfg1/seed1 --seed 1 [--from-day 23]
+
+``--accel``: the accelerometer instead, as the month's "accel drift" scores it (each stop's
+error minus the median over the stops scored, mm/s^2): per calibration and band the drift
+RMS and the mean error vector, which tells a step between two calibrations (a constant
+vector in every band) from a drift with temperature.
 """
 
 import argparse
@@ -52,12 +57,37 @@ def residual_summary(scored):
                   f'calibration, RMS x y z {rms[0]:.3f} {rms[1]:.3f} {rms[2]:.3f} mrad/s')
 
 
+def accel_summary(scored, starts, cals):
+    """Print the accelerometer drift (error minus the median over all stops) per calibration."""
+    med = np.median(np.concatenate([np.array(v)[:, 1:4] for v in scored.values()]), 0)
+    alld = []
+    for k, v in sorted(scored.items()):
+        x = np.array(v)
+        d = x[:, 1:4] - med
+        alld.append(d)
+        c = cals[k]
+        lo, hi = c.valid_range[0] if c.valid_range is not None else (np.nan, np.nan)
+        print(f'calibration {c.id} active from day {starts[k] / DAY:.2f}: accel {c.accel.kind}, '
+              f'valid {lo:.1f}..{hi:.1f} degC, {len(x)} stops, drift RMS '
+              f'{np.sqrt(np.mean(np.sum(d ** 2, 1))) * 1e3:.1f} mm/s^2')
+        for b0, b1 in zip(BANDS[:-1], BANDS[1:]):
+            s = (x[:, 0] >= b0) & (x[:, 0] < b1)
+            if s.any():
+                rms = np.sqrt(np.mean(np.sum(d[s] ** 2, 1))) * 1e3
+                mean = ' '.join(f'{m:+.1f}' for m in d[s].mean(0) * 1e3)
+                print(f'  {b0:>5.0f}..{b1:<4.0f} degC {s.sum():4d} stops: drift RMS {rms:.1f}, '
+                      f'mean x y z {mean} mm/s^2')
+    d = np.concatenate(alld)
+    print(f'all {len(d)} stops: drift RMS {np.sqrt(np.mean(np.sum(d ** 2, 1))) * 1e3:.1f} mm/s^2')
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument('work_seed', help="a month's lifelong directory (…/seed<N>)")
     p.add_argument('--seed', type=int, required=True)
     p.add_argument('--days', type=float, default=30.0)
     p.add_argument('--from-day', type=float, default=0.0)
+    p.add_argument('--accel', action='store_true', help='the accelerometer drift instead')
     a = p.parse_args()
     m = robot_month(a.seed, days=a.days)
     starts, cals = registry_timeline(a.work_seed, m.start_ns)
@@ -67,9 +97,12 @@ def main():
         k = int(np.searchsorted(starts, seg.stop.t0, side='right')) - 1
         if ch is None or seg.stop.blocked or k < 0:
             continue
-        eg, _ = stop_error(cals[k], ch)
-        scored.setdefault(k, []).append((float(np.mean(ch['temp'])), *eg,
+        eg, ea = stop_error(cals[k], ch)
+        scored.setdefault(k, []).append((float(np.mean(ch['temp'])), *(ea if a.accel else eg),
                                          seg.stop.t1 - seg.stop.t0))
+    if a.accel:
+        accel_summary(scored, starts, cals)
+        return
     for k, v in sorted(scored.items()):
         x = np.array(v)
         c = cals[k]
