@@ -106,15 +106,13 @@ def teardown_guard(name, status, limit_s=None):
     ``status`` (0 for a requested stop). ``cancel()`` it when the teardown has finished.
     ``limit_s`` defaults to ``TEARDOWN_LIMIT_S``.
     """
-    import os
     import threading
     limit = TEARDOWN_LIMIT_S if limit_s is None else float(limit_s)
 
     def overdue():
         print(f'{name}: warning: the middleware did not finish shutting down within '
-              f'{limit:g} s (a DDS teardown hang); exiting without it', file=sys.stderr,
-              flush=True)
-        os._exit(status)
+              f'{limit:g} s (a DDS teardown hang); exiting without it', file=sys.stderr)
+        exit_process(status)
 
     timer = threading.Timer(limit, overdue)
     timer.daemon = True
