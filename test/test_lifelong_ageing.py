@@ -182,7 +182,7 @@ def test_swap_gate_with_a_latitude_scores_the_gyro_without_the_earth_rate():
     # moves by less than the bias), seen with it
     delta = np.array([0.0, EARTH_RATE / 3, 0.0])
     off = Windows(**{**clean.__dict__, 'gyro': clean.gyro + delta})
-    rms = {lat: gate._rms(gate.hold_errors(None, off, 9.80665, lat)['gyro'])
-           - gate._rms(gate.hold_errors(None, clean, 9.80665, lat)['gyro'])
+    rms = {lat: gate.rms(gate.hold_errors(None, off, 9.80665, lat)['gyro'])
+           - gate.rms(gate.hold_errors(None, clean, 9.80665, lat)['gyro'])
            for lat in (None, 45.0)}
     assert rms[45.0] > 0.5 * EARTH_RATE / 3 and rms[45.0] > 2 * rms[None], rms

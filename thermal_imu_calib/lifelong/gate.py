@@ -107,7 +107,8 @@ def misses(errors, accel_median, gyro_rms, accel_rms, factor, floor):
     return g | a
 
 
-def _rms(x):
+def rms(x):
+    """Return the root mean square of ``x`` (its unit), NaN when ``x`` is empty."""
     return float(np.sqrt(np.mean(np.square(x)))) if len(x) else float('nan')
 
 
@@ -122,8 +123,8 @@ def score(cal, windows, gravity, accel_windows=None, latitude=None):
     ea = e if accel_windows is None else hold_errors(cal, accel_windows, gravity, latitude)
     acc = ea['accel'] - np.median(ea['accel']) if len(ea['accel']) else ea['accel']
     return {'holds': int(len(e['ids'])), 'accel_holds': int(len(ea['ids'])),
-            'gyro_rms': _rms(e['gyro']), 'accel_rms': _rms(acc),
-            'noise_gyro': _rms(e['se_gyro']), 'noise_accel': _rms(ea['se_accel']),
+            'gyro_rms': rms(e['gyro']), 'accel_rms': rms(acc),
+            'noise_gyro': rms(e['se_gyro']), 'noise_accel': rms(ea['se_accel']),
             'gyro': e['gyro'], 'accel': acc, 'errors': e}
 
 

@@ -639,9 +639,9 @@ class Lifelong:
         ref = {}
         for which, err in errs.items():
             m = use[which]
-            ref[which] = (max(s_new[f'{which}_rms'], gate._rms(err)) if m.all() else
-                          max(gate._rms(err[m & is_held]) if (m & is_held).any() else 0.0,
-                              gate._rms(err[m])))
+            ref[which] = (max(s_new[f'{which}_rms'], gate.rms(err)) if m.all() else
+                          max(gate.rms(err[m & is_held]) if (m & is_held).any() else 0.0,
+                              gate.rms(err[m])))
         self.state.update(active_since=now, active_gyro_rms=ref['gyro'],
                           active_accel_rms=ref['accel'], active_accel_median=med,
                           active_noise=s_new['noise_gyro'], swaps=self.state['swaps'] + 1)

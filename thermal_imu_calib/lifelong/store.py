@@ -320,6 +320,14 @@ class HoldStore:
         """Move these raw holds into the compacted bins (persisted: state, then recent)."""
         if not len(hold_ids):
             return
+        self._absorb(hold_ids)
+        self._write_state()
+        self._write_recent()
+
+    def _absorb(self, hold_ids):
+        """Move these raw holds into the compacted bins in memory (not yet persisted)."""
+        if not len(hold_ids):
+            return
         now = float(self.recent.t1.max())
         self.bins.fade(now, self.config.memory_days)
         for h in hold_ids:
@@ -329,8 +337,6 @@ class HoldStore:
         self.bins.keep(self.bins.w >= self.config.min_weight)
         self.compacted_through = max(self.compacted_through, int(np.max(hold_ids)))
         self.recent = self.recent.select(~np.isin(self.recent.hold, hold_ids))
-        self._write_state()
-        self._write_recent()
 
     def _cluster(self, win):
         mean = np.average(win.accel, axis=0, weights=win.n)
@@ -360,7 +366,7 @@ class HoldStore:
         if keep is None:
             self.kept = []
         else:
-            self.compact(old)
+            self._absorb(old)            # persisted once, below
             self.kept = [(w, b) for w, b in self.kept if w == keep]
             if len(self.bins):
                 self.kept = (self.kept + [(keep, self.bins)])[-MAX_KEPT:]

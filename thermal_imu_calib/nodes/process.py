@@ -87,7 +87,7 @@ def run_nodes(factories, args=None):
                 getattr(node, 'finish', lambda: None)()
             except Exception:  # noqa: B902 - best effort on the way out
                 pass
-        guard = teardown_guard(_factory_name(factories[0]), status)
+        guard = teardown_guard(' + '.join(_factory_name(f) for f in factories), status)
         for node in nodes:         # ... then the middleware's, which can hang
             try:
                 node.destroy_node()
