@@ -113,7 +113,8 @@ class SpikeFilter:
         """Per-row sigma floors (n, c) for new raw rows x, updating the running statistics."""
         n = x.shape[0]
         prev = x[:1] if self._last is None else self._last[None]
-        d = np.abs(np.diff(np.concatenate([prev, x]), axis=0))
+        with np.errstate(over='ignore', invalid='ignore'):   # corrupt values: inf/nan, below
+            d = np.abs(np.diff(np.concatenate([prev, x]), axis=0))
         if self._last is None:
             d[0] = np.nan                      # no difference for the very first sample
         self._last = x[-1].copy()
@@ -188,8 +189,8 @@ class SpikeFilter:
             dw = np.diff(win, axis=-1)
             mad = np.median(np.abs(dw - np.median(dw, axis=-1)[..., None]), axis=-1)
             sigma = np.maximum(MAD_TO_SIGMA * mad / np.sqrt(2.0), floor)
-        vals = buf[idx]
-        spikes = np.abs(vals - med) > self.threshold * sigma
+            vals = buf[idx]
+            spikes = np.abs(vals - med) > self.threshold * sigma
         spikes &= np.isfinite(vals) & np.isfinite(floor)
         self.rejected += spikes.sum(axis=0)
         out = np.where(spikes, med, vals) if self.mode == 'replace' else vals.copy()
