@@ -427,19 +427,22 @@ def run_live_once(imu, temps, gravity, domain_id, temperature_topics=None, workd
             out.imu_sent += a
             out.temp_sent += b
 
+        def temps_in():           # a reading the node drops as invalid has arrived too
+            return (driver.reported('temperature_readings')
+                    + driver.reported('temperature_invalid', 0))
+
         def all_in():
             return (driver.reported('imu_received') - base >= out.imu_sent
-                    and driver.reported('temperature_readings') >= out.temp_sent)
+                    and temps_in() >= out.temp_sent)
         try:
             _wait(all_in, 'every message at the node', node, stall=30.0,
-                  progress=lambda: (driver.reported('imu_received'),
-                                    driver.reported('temperature_readings')))
+                  progress=lambda: (driver.reported('imu_received'), temps_in()))
         except NodeFailed as e:
             if node.dead() is not None:
                 raise
             out.error = f'not every message arrived: {e}'
         out.imu_received = driver.reported('imu_received') - base
-        out.temp_received = driver.reported('temperature_readings')
+        out.temp_received = temps_in()
         out.seconds['replay'] = time.monotonic() - t0
         t0 = time.monotonic()
         client = driver.node.create_client(Trigger, '/thermal_imu_calibrator/calibrate')

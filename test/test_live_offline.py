@@ -27,6 +27,7 @@ import subprocess
 import sys
 
 from conftest import DOMAIN_ID, venv_exe
+import numpy as np
 import pytest
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -36,7 +37,7 @@ import live_replay  # noqa: E402
 import real_recordings  # noqa: E402
 from scoreboard import compare, REL_TOL  # noqa: E402
 from thermal_imu_calib.io.bag_writer import write_columns  # noqa: E402
-from thermal_imu_calib.io.columns import ImuColumns  # noqa: E402
+from thermal_imu_calib.io.columns import ImuColumns, TemperatureColumns  # noqa: E402
 from thermal_imu_calib.io.csv_logs import read_mpu6050_csv  # noqa: E402
 
 FIXTURE = os.path.join(ROOT, 'test', 'fixtures', 'real', 'mpu6050_tomisuarez',
@@ -50,13 +51,30 @@ def _recording():
                       'mpu6050')
 
 
-@pytest.mark.parametrize('thermal', ['none', 'room_temperature'])
+def _with_bad_samples(imu, temps):
+    """Return copies with what ``calibrate`` drops: a driver's all-zero accelerometer rows
+    at the start, samples beyond any sensor's range, -300 degC readings."""
+    accel, gyro, values = imu.accel.copy(), imu.gyro.copy(), temps.temperature.copy()
+    accel[:3] = 0.0
+    rows = np.linspace(len(imu) // 8, len(imu) - len(imu) // 8, 9).astype(int)
+    accel[rows[::2], 2] = 1e5                      # m/s^2, inside and between holds
+    gyro[rows[1::2], 0] = 500.0                    # rad/s
+    values[[len(values) // 3, 2 * len(values) // 3]] = -300.0
+    return (ImuColumns(imu.stamp_ns, accel, gyro, imu.frame_id),
+            TemperatureColumns(temps.stamp_ns, values, temps.frame_id))
+
+
+@pytest.mark.parametrize('thermal', ['none', 'room_temperature', 'bad_samples'])
 def test_live_calibration_equals_offline(tmp_path, thermal):
+    """``bad_samples``: the room-temperature case with samples ``calibrate`` drops; the
+    node drops the same ones (before 2026-11-28 it dropped only non-finite ones)."""
     imu = _recording()
     temps = None
     topics = {}
-    if thermal == 'room_temperature':
+    if thermal != 'none':
         temps = real_recordings.flat_temperature(imu)
+        if thermal == 'bad_samples':
+            imu, temps = _with_bad_samples(imu, temps)
         topics = {real_recordings.TEMP_TOPIC: temps}
     log = str(tmp_path / 'mpu6050.mcap')
     write_columns(log, '/imu', imu, topics)

@@ -1,9 +1,10 @@
 """Input validation at the door of the offline pipelines: drop and count what no sensor gives.
 
-The live nodes drop non-finite samples and implausible temperatures as they arrive; the
-offline ``calibrate`` does the same here, before the stationary detector, and also keeps
+The offline ``calibrate`` drops them here, before the stationary detector, and also keeps
 what it needs to warn about inputs that would make a thermal fit unreliable (temperature
-gaps, stamps that never move, IMU stamps that run backwards).
+gaps, stamps that never move, IMU stamps that run backwards). ``calibrator_node`` drops
+the same samples as they arrive, by the same rules (``imu_row_checks``,
+``temperature_checks``), so live and offline collect the same holds.
 
 Limits (SI): accelerometer beyond ``ACCEL_LIMIT`` m/s^2 (about 200 g, the largest MEMS
 range) or gyro beyond ``GYRO_LIMIT`` rad/s (about 5700 deg/s) is no sensor's output; degC
@@ -91,11 +92,7 @@ class InputGate:
         r.imu_in += n
         ok = np.ones(n, bool)
         if n:
-            finite = np.isfinite(imu.accel).all(1) & np.isfinite(imu.gyro).all(1)
-            with np.errstate(invalid='ignore', over='ignore'):
-                big = ((np.abs(imu.accel) > ACCEL_LIMIT).any(1)
-                       | (np.abs(imu.gyro) > GYRO_LIMIT).any(1)) & finite
-            zero = finite & ~big & (imu.accel == 0).all(1)
+            finite, big, zero = imu_row_checks(imu.accel, imu.gyro)
             r.imu_nonfinite += int((~finite).sum())
             r.imu_out_of_range += int(big.sum())
             r.imu_zero += int(zero.sum())
@@ -115,15 +112,12 @@ class InputGate:
         temps = {}
         for topic, tc in raw.temps.items():
             v = np.asarray(tc.temperature, float)
-            fin = np.isfinite(v)
-            keep = fin.copy()
+            fin, oor = temperature_checks(v, self.units.get(topic, ''))
+            keep = fin & ~oor
             r.temp_in[topic] = r.temp_in.get(topic, 0) + len(v)
             r.temp_nonfinite[topic] = r.temp_nonfinite.get(topic, 0) + int((~fin).sum())
             if is_temperature(self.units.get(topic, '')):
-                with np.errstate(invalid='ignore'):
-                    oor = fin & ((v < TEMPERATURE_BOUNDS[0]) | (v > TEMPERATURE_BOUNDS[1]))
                 r.temp_out_of_range[topic] = r.temp_out_of_range.get(topic, 0) + int(oor.sum())
-                keep &= ~oor
             r.temp_stamp_zero[topic] = (r.temp_stamp_zero.get(topic, 0)
                                         + int((tc.stamp_ns == 0).sum()))
             kept = r.temp_stamps.setdefault(topic, [])
@@ -137,6 +131,36 @@ class InputGate:
                        imu_raw=None if raw.imu_raw is None else
                        [b for b, k in zip(raw.imu_raw, ok.tolist()) if k],
                        temps=temps)
+
+
+def imu_row_checks(accel, gyro):
+    """Return (finite, out_of_range, zero) row masks (n,) of IMU samples (n, 3) in SI units.
+
+    The rules every path drops a sample by (``InputGate`` for the offline commands, the
+    nodes as samples arrive): a non-finite value; a finite value beyond ``ACCEL_LIMIT``
+    m/s^2 or ``GYRO_LIMIT`` rad/s (no sensor's output); an all-zero accelerometer vector
+    (a driver's placeholder). The masks do not overlap.
+    """
+    accel, gyro = np.asarray(accel, float), np.asarray(gyro, float)
+    finite = np.isfinite(accel).all(1) & np.isfinite(gyro).all(1)
+    with np.errstate(invalid='ignore', over='ignore'):
+        big = ((np.abs(accel) > ACCEL_LIMIT).any(1) | (np.abs(gyro) > GYRO_LIMIT).any(1)) & finite
+    zero = finite & ~big & (accel == 0).all(1)
+    return finite, big, zero
+
+
+def temperature_checks(values, unit):
+    """Return (finite, out_of_range) masks of temperature-input readings in ``unit``.
+
+    A degC input outside ``input_units.TEMPERATURE_BOUNDS`` is garbage or the wrong unit;
+    proxies (any other unit) need only be finite. The masks do not overlap.
+    """
+    v = np.asarray(values, float)
+    fin = np.isfinite(v)
+    if not is_temperature(unit):
+        return fin, np.zeros(v.shape, bool)
+    with np.errstate(invalid='ignore'):
+        return fin, fin & ((v < TEMPERATURE_BOUNDS[0]) | (v > TEMPERATURE_BOUNDS[1]))
 
 
 def increasing_rows(stamps, newest):

@@ -321,6 +321,7 @@ class CalibratorNode(LiveCollection, Node):
             'pose_changes': n_transitions, 'pose_changes_dropped': dropped,
             'samples': self.counts['samples'], 'imu_received': self._rate.total,
             'temperature_readings': self.counts['temperature_readings'],
+            'temperature_invalid': self.counts['temperature_invalid'],
             'imu_publishers': self.imu_sub.get_publisher_count(),
             'temperature_publishers': [sub.get_publisher_count() for sub in self.temp_subs],
             'stale_temperature_samples': self.counts['stale_temperature'],

@@ -26,6 +26,7 @@ from ..collection.segments import Windows
 from ..collection.stationary import DetectorConfig, DetectorSettingsError
 from ..io.align import StreamAligner
 from ..io.columns import ImuColumns, TemperatureColumns
+from ..io.gate import imu_row_checks, temperature_checks
 from ..io.output import OutputError, write_atomic
 
 
@@ -231,11 +232,14 @@ class LiveCollection:
 
     # ------------------------------------------------------------------ data
     def _temperature_cb(self, index, value='temperature'):
+        unit = self.temperature_units[index]
+
         def cb(msg):
             # drained too, so temperature keeps pace with batched IMU data under load
             for m in [msg] + common.drain(self.temp_subs[index], 100, self):
                 v = getattr(m, value)
-                if not np.isfinite(v):
+                finite, out = temperature_checks([v], unit)   # what calibrate drops
+                if not finite[0] or out[0]:
                     self.counts['temperature_invalid'] += 1
                     continue
                 self.counts['temperature_readings'] += 1
@@ -296,10 +300,11 @@ class LiveCollection:
 
     def _collect(self, chunk):
         imu = chunk.imu
-        finite = np.isfinite(imu.accel).all(1) & np.isfinite(imu.gyro).all(1)
+        finite, big, zero = imu_row_checks(imu.accel, imu.gyro)
+        valid = finite & ~big & ~zero
         use = _usable(chunk, self.k, self.temperature_timeout)
-        self.counts['invalid'] += int((~finite).sum())
-        self.counts['stale_temperature'] += int((finite & ~use).sum())
+        self.counts['invalid'] += int((~valid).sum())
+        self.counts['stale_temperature'] += int((valid & ~use).sum())
         self.counts['samples'] += int(use.sum())
         if not use.any():
             return
@@ -391,9 +396,14 @@ def _good_records(data, k):
 
 
 def _usable(chunk, k, timeout):
-    """Rows of an AlignedChunk with finite IMU data and every temperature fresher than timeout."""
+    """Rows of an AlignedChunk with valid IMU data and every temperature fresher than timeout.
+
+    Valid: what ``calibrate`` keeps (``io.gate.imu_row_checks``): finite, within any
+    sensor's range, not an all-zero accelerometer vector.
+    """
     imu = chunk.imu
-    use = np.isfinite(imu.accel).all(1) & np.isfinite(imu.gyro).all(1)
+    finite, big, zero = imu_row_checks(imu.accel, imu.gyro)
+    use = finite & ~big & ~zero
     if k:
         use &= (chunk.temp_age <= timeout).all(1)
     return use
