@@ -53,14 +53,18 @@ def _recording():
 
 def _with_bad_samples(imu, temps):
     """Return copies with what ``calibrate`` drops: a driver's all-zero accelerometer rows
-    at the start, samples beyond any sensor's range, -300 degC readings."""
+    at the start, samples beyond any sensor's range, duplicated stamps and steps back,
+    -300 degC readings."""
     accel, gyro, values = imu.accel.copy(), imu.gyro.copy(), temps.temperature.copy()
+    stamps = imu.stamp_ns.copy()
     accel[:3] = 0.0
     rows = np.linspace(len(imu) // 8, len(imu) - len(imu) // 8, 9).astype(int)
     accel[rows[::2], 2] = 1e5                      # m/s^2, inside and between holds
     gyro[rows[1::2], 0] = 500.0                    # rad/s
+    stamps[rows + 7] = stamps[rows + 6]            # a duplicated stamp
+    stamps[rows[::3] + 13] = stamps[rows[::3] + 11]   # a step back by one sample
     values[[len(values) // 3, 2 * len(values) // 3]] = -300.0
-    return (ImuColumns(imu.stamp_ns, accel, gyro, imu.frame_id),
+    return (ImuColumns(stamps, accel, gyro, imu.frame_id),
             TemperatureColumns(temps.stamp_ns, values, temps.frame_id))
 
 

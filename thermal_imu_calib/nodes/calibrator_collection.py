@@ -26,7 +26,7 @@ from ..collection.segments import Windows
 from ..collection.stationary import DetectorConfig, DetectorSettingsError
 from ..io.align import StreamAligner
 from ..io.columns import ImuColumns, TemperatureColumns
-from ..io.gate import imu_row_checks, temperature_checks
+from ..io.gate import imu_row_checks, increasing_rows, temperature_checks
 from ..io.output import OutputError, write_atomic
 
 
@@ -42,6 +42,7 @@ class LiveCollection:
         self.transitions_dropped = {'too_long': 0, 'incomplete': 0, 'over_limit': 0}
         self._hold_offset = 0
         self._newest_ns = None
+        self._newest_valid = [None]      # newest stamp of a valid IMU row (increasing_rows)
         self._pending_imu = []
         self._pending_temp = [[] for _ in range(self.k)]
 
@@ -270,6 +271,7 @@ class LiveCollection:
             if len(imu):
                 self._check_time(int(imu.stamp_ns.min()))
                 self._newest_ns = max(self._newest_ns or 0, int(imu.stamp_ns.max()))
+                imu = self._increasing(imu)
             for chunk in self.aligner.push_columns(imu, tcols):
                 self._collect(chunk)
 
@@ -293,10 +295,42 @@ class LiveCollection:
         self.detector = self._collector()   # no pose change across the jump
         self.aligner = StreamAligner(self.k, self.temperature_timeout)
         self._newest_ns = None
+        self._newest_valid = [None]
         self.counts['time_resets'] = self.counts.get('time_resets', 0) + 1
         self.get_logger().warning('IMU header stamps jumped back by more than '
                                   f'{common.JUMP_S:.0f} s: closed the hold in progress and '
                                   'restarted detection (collected windows kept)')
+
+    def _increasing(self, imu):
+        """Drop valid IMU rows whose stamp does not increase (duplicated or a step back).
+
+        ``calibrate`` drops them by the same rule (``io.gate.increasing_rows`` over valid
+        rows). A jump back of more than ``common.JUMP_S`` is a new timeline (a replay from
+        the start), not a step back: the rows from it on are judged against each other
+        (``_check_time`` restarts detection for it). Invalid rows go on, to be counted and
+        dropped in ``_collect``.
+        """
+        finite, big, zero = imu_row_checks(imu.accel, imu.gyro)
+        valid = finite & ~big & ~zero
+        low = np.iinfo(np.int64).min
+        st = np.where(valid, imu.stamp_ns, low)
+        keep = np.ones(len(st), bool)
+        i = 0
+        while i < len(st):
+            before = low if self._newest_valid[0] is None else self._newest_valid[0]
+            run = np.maximum.accumulate(np.concatenate([[before], st[i:]]))[:-1]
+            jump = valid[i:] & (run > st[i:] + int(common.JUMP_S * 1e9))   # no overflow
+            j = i + int(np.argmax(jump)) if jump.any() else len(st)
+            keep[i:j] = ~valid[i:j] | increasing_rows(st[i:j], self._newest_valid)
+            if j < len(st):
+                self._newest_valid = [None]          # a new timeline starts at row j
+            i = j
+        drop = ~keep
+        if not drop.any():
+            return imu
+        self.counts['stamp_not_increasing'] = (self.counts.get('stamp_not_increasing', 0)
+                                               + int(drop.sum()))
+        return imu.slice(keep)
 
     def _collect(self, chunk):
         imu = chunk.imu
