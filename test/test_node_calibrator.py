@@ -57,11 +57,27 @@ class Player:
         self.temp_pub = self.node.create_publisher(Temperature, '/imu/temperature', 100)
         self.progress = []
         self.sent = [0, 0]
-        self.node.create_subscription(String, '/thermal_imu_calibrator/progress',
-                                      lambda m: self.progress.append(json.loads(m.data)), 10)
+        self._progress_sub = self._subscribe_progress()
         ros.wait_matched(self.imu_pub, n_subscribers, timeout=WAIT)
         ros.wait_matched(self.temp_pub, n_subscribers, timeout=WAIT)
         self.wait_connected()
+
+    def _subscribe_progress(self):
+        return self.node.create_subscription(
+            String, '/thermal_imu_calibrator/progress',
+            lambda m: self.progress.append(json.loads(m.data)), 10)
+
+    def forget_progress(self):
+        """Start a new progress list with a new subscription, after the calibrator restarted.
+
+        Clearing the list is not enough: a message of the old calibrator still queued in
+        the subscription would be read after it, with the old process's counts (seen once
+        under load: a wait saw the count 7526 below where it started).
+        """
+        with self.ros._lock:                # between two spins of the harness's executor
+            self.node.destroy_subscription(self._progress_sub)
+            self.progress = []
+            self._progress_sub = self._subscribe_progress()
 
     def wait_connected(self):
         """Wait until the calibrator reports it has matched our publishers (both ways)."""
@@ -257,7 +273,7 @@ def test_kill_9_and_restart_resumes_from_collection_file(ros, tmp_path):
         assert proc.wait(10) == -signal.SIGKILL
         saved = Windows.from_jsonl((tmp_path / 'collection.jsonl').read_text())
         assert len(saved.hold_ids) == first['segments'] >= 3
-        player.progress.clear()
+        player.forget_progress()
         proc = _calibrator_process(tmp_path, log)
         resumed = player.latest_progress(lambda p: True, 'progress after the restart')
         assert resumed['segments'] == first['segments'] and resumed['samples'] == 0
@@ -352,7 +368,7 @@ def test_pose_changes_resume_after_restart_and_restart_with_the_timeline(ros, tm
     orphan.hold_from, orphan.hold_to = 4, 5
     save_transitions(str(tdir / '000004-000005.npz'), [orphan])
     ros.remove(node)
-    player.progress.clear()
+    player.forget_progress()
     node = calibrator(ros, tmp_path, model='whole_unit')
     resumed = player.latest_progress(lambda p: True, 'progress after the restart')
     assert resumed['pose_changes'] == 4 and resumed['segments'] == 5
@@ -456,3 +472,27 @@ def _applied(out, tail, cal, tc):
                     np.full((len(idx), 1), tc.temperature[-1]))
     return (np.allclose(accel, ref.accel, rtol=0, atol=1e-9)
             and np.allclose(gyro, ref.gyro, rtol=0, atol=1e-12))
+
+
+def test_stamps_that_do_not_increase_are_dropped_as_calibrate_drops_them():
+    """Duplicated stamps and steps back are dropped (``io.gate.increasing_rows``, as in
+    ``calibrate``); a jump back of more than ``JUMP_S`` starts a new timeline, whose rows
+    are kept (detection restarts for it); invalid rows are left for ``_collect`` to count."""
+    import types
+    from thermal_imu_calib.io.columns import ImuColumns
+    from thermal_imu_calib.nodes.calibrator_collection import LiveCollection
+    s = 1_000_000_000
+
+    def kept(stamps_s, nan_rows=()):
+        state = types.SimpleNamespace(_newest_valid=[None], counts={})
+        st = np.array(stamps_s, np.int64) * s
+        accel = np.tile([0.0, 0.0, 9.8], (len(st), 1))
+        accel[list(nan_rows)] = np.nan
+        out = LiveCollection._increasing(state, ImuColumns(st, accel, np.zeros_like(accel)))
+        return (out.stamp_ns // s).tolist(), state.counts.get('stamp_not_increasing', 0)
+
+    assert kept([100, 101, 102]) == ([100, 101, 102], 0)
+    assert kept([100, 101, 101, 102, 100, 103]) == ([100, 101, 102, 103], 2)
+    # 103 -> 5: a new timeline; its duplicate 6 goes; the NaN row stays for _collect
+    assert kept([100, 103, 5, 6, 6, 7, 200, 8], nan_rows=[6]) == ([100, 103, 5, 6, 7, 200, 8], 1)
+    assert kept([5, 4, 3, 50, 1, 2]) == ([5, 50, 1, 2], 2)
