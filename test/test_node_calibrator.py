@@ -472,27 +472,3 @@ def _applied(out, tail, cal, tc):
                     np.full((len(idx), 1), tc.temperature[-1]))
     return (np.allclose(accel, ref.accel, rtol=0, atol=1e-9)
             and np.allclose(gyro, ref.gyro, rtol=0, atol=1e-12))
-
-
-def test_stamps_that_do_not_increase_are_dropped_as_calibrate_drops_them():
-    """Duplicated stamps and steps back are dropped (``io.gate.increasing_rows``, as in
-    ``calibrate``); a jump back of more than ``JUMP_S`` starts a new timeline, whose rows
-    are kept (detection restarts for it); invalid rows are left for ``_collect`` to count."""
-    import types
-    from thermal_imu_calib.io.columns import ImuColumns
-    from thermal_imu_calib.nodes.calibrator_collection import LiveCollection
-    s = 1_000_000_000
-
-    def kept(stamps_s, nan_rows=()):
-        state = types.SimpleNamespace(_newest_valid=[None], counts={})
-        st = np.array(stamps_s, np.int64) * s
-        accel = np.tile([0.0, 0.0, 9.8], (len(st), 1))
-        accel[list(nan_rows)] = np.nan
-        out = LiveCollection._increasing(state, ImuColumns(st, accel, np.zeros_like(accel)))
-        return (out.stamp_ns // s).tolist(), state.counts.get('stamp_not_increasing', 0)
-
-    assert kept([100, 101, 102]) == ([100, 101, 102], 0)
-    assert kept([100, 101, 101, 102, 100, 103]) == ([100, 101, 102, 103], 2)
-    # 103 -> 5: a new timeline; its duplicate 6 goes; the NaN row stays for _collect
-    assert kept([100, 103, 5, 6, 6, 7, 200, 8], nan_rows=[6]) == ([100, 103, 5, 6, 7, 200, 8], 1)
-    assert kept([5, 4, 3, 50, 1, 2]) == ([5, 50, 1, 2], 2)

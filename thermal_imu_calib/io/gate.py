@@ -163,6 +163,53 @@ def temperature_checks(values, unit):
         return fin, fin & ((v < TEMPERATURE_BOUNDS[0]) | (v > TEMPERATURE_BOUNDS[1]))
 
 
+#: header stamps stepping back by more than this (s) start a new timeline (a replay from
+#: the start, a reset clock) in a live stream, instead of being dropped as a step back
+JUMP_S = 10.0
+
+
+class LiveImuFilter:
+    """The IMU rules of ``InputGate`` for a live stream, where a replay may start over.
+
+    ``push`` drops invalid rows (``imu_row_checks``) and valid rows whose stamp does not
+    increase (``increasing_rows``), as ``calibrate`` drops them; a valid stamp more than
+    ``jump_s`` behind the newest starts a new timeline, judged from there on. ``reset``
+    forgets the newest stamp (detection restarted). Counts: ``invalid``, ``not_increasing``.
+    """
+
+    def __init__(self, jump_s=JUMP_S):
+        self.jump_ns = int(jump_s * 1e9)
+        self.invalid = 0
+        self.not_increasing = 0
+        self.reset()
+
+    def reset(self):
+        """Forget the newest stamp: the next row starts a timeline."""
+        self._newest = [None]
+
+    def push(self, imu):
+        """Return the kept rows of ImuColumns ``imu`` (the same object if all are kept)."""
+        finite, big, zero = imu_row_checks(imu.accel, imu.gyro)
+        valid = finite & ~big & ~zero
+        low = np.iinfo(np.int64).min
+        st = np.where(valid, imu.stamp_ns, low)
+        inc = np.zeros(len(st), bool)
+        i = 0
+        while i < len(st):
+            before = low if self._newest[0] is None else self._newest[0]
+            run = np.maximum.accumulate(np.concatenate([[before], st[i:]]))[:-1]
+            jump = valid[i:] & (run > st[i:] + self.jump_ns)      # no overflow at ``low``
+            j = i + int(np.argmax(jump)) if jump.any() else len(st)
+            inc[i:j] = increasing_rows(st[i:j], self._newest)
+            if j < len(st):
+                self._newest = [None]             # a new timeline starts at row j
+            i = j
+        keep = valid & inc
+        self.invalid += int((~valid).sum())
+        self.not_increasing += int((valid & ~inc).sum())
+        return imu if keep.all() else imu.slice(keep)
+
+
 def increasing_rows(stamps, newest):
     """Return the rows whose stamp is above every earlier one; ``newest`` = [ns or None].
 

@@ -1,6 +1,7 @@
 """Feed columns (a simulation, a log) through detector, hint gate and lifelong loop.
 
-The same path the node takes, without ROS: IMU and temperature columns are aligned
+The same path the node takes, without ROS: the IMU rows ``calibrate`` drops are dropped
+(``io.gate.LiveImuFilter``), IMU and temperature columns are aligned
 (``io.align.StreamAligner``), the stationary detector closes holds, the hint gate keeps
 the windows the robot was commanded still for, ``Lifelong.add`` stores them and, when
 ``due``, ``Lifelong.estimate`` runs (here on the caller's thread).
@@ -8,6 +9,7 @@ the windows the robot was commanded still for, ``Lifelong.add`` stores them and,
 
 from ..collection.stationary import DetectorConfig, StationaryDetector
 from ..io.align import StreamAligner
+from ..io.gate import LiveImuFilter
 
 
 class Feeder:
@@ -28,12 +30,14 @@ class Feeder:
         """Start detection afresh (a node restart: the open hold is lost)."""
         self.detector = StationaryDetector(DetectorConfig(**vars(self.config)), self.k)
         self.aligner = StreamAligner(self.k, self.timeout)
+        self.rows = LiveImuFilter()
 
     def push(self, imu, temperatures=(), hint_events=()):
         """Feed ImuColumns, one TemperatureColumns per input, [(name, stamp s, still)]."""
         if self.hints is not None:
             for name, stamp, still in hint_events:
                 self.hints.add(name, stamp, still)
+        imu = self.rows.push(imu)
         for chunk in self.aligner.push_columns(imu, list(temperatures)):
             use = (chunk.temp_age <= self.timeout).all(1) if self.k else None
             imu_c = chunk.imu

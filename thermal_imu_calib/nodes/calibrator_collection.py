@@ -26,7 +26,7 @@ from ..collection.segments import Windows
 from ..collection.stationary import DetectorConfig, DetectorSettingsError
 from ..io.align import StreamAligner
 from ..io.columns import ImuColumns, TemperatureColumns
-from ..io.gate import imu_row_checks, increasing_rows, temperature_checks
+from ..io.gate import imu_row_checks, LiveImuFilter, temperature_checks
 from ..io.output import OutputError, write_atomic
 
 
@@ -42,7 +42,7 @@ class LiveCollection:
         self.transitions_dropped = {'too_long': 0, 'incomplete': 0, 'over_limit': 0}
         self._hold_offset = 0
         self._newest_ns = None
-        self._newest_valid = [None]      # newest stamp of a valid IMU row (increasing_rows)
+        self._rows = LiveImuFilter(common.JUMP_S)   # drops what calibrate drops (io.gate)
         self._pending_imu = []
         self._pending_temp = [[] for _ in range(self.k)]
 
@@ -269,9 +269,12 @@ class LiveCollection:
             tcols = [TemperatureColumns(np.array([s for s, _ in t], np.int64),
                                         np.array([v for _, v in t], float)) for t in temps]
             if len(imu):
-                self._check_time(int(imu.stamp_ns.min()))
-                self._newest_ns = max(self._newest_ns or 0, int(imu.stamp_ns.max()))
-                imu = self._increasing(imu)
+                finite, big, zero = imu_row_checks(imu.accel, imu.gyro)
+                ok = finite & ~big & ~zero           # an invalid row's stamp counts for nothing
+                if ok.any():
+                    self._check_time(int(imu.stamp_ns[ok].min()))
+                    self._newest_ns = max(self._newest_ns or 0, int(imu.stamp_ns[ok].max()))
+                imu = self._filtered(imu)
             for chunk in self.aligner.push_columns(imu, tcols):
                 self._collect(chunk)
 
@@ -295,50 +298,33 @@ class LiveCollection:
         self.detector = self._collector()   # no pose change across the jump
         self.aligner = StreamAligner(self.k, self.temperature_timeout)
         self._newest_ns = None
-        self._newest_valid = [None]
+        self._rows.reset()
         self.counts['time_resets'] = self.counts.get('time_resets', 0) + 1
         self.get_logger().warning('IMU header stamps jumped back by more than '
                                   f'{common.JUMP_S:.0f} s: closed the hold in progress and '
                                   'restarted detection (collected windows kept)')
 
-    def _increasing(self, imu):
-        """Drop valid IMU rows whose stamp does not increase (duplicated or a step back).
+    def _filtered(self, imu):
+        """Drop the IMU rows ``calibrate`` drops (``io.gate.LiveImuFilter``); count them.
 
-        ``calibrate`` drops them by the same rule (``io.gate.increasing_rows`` over valid
-        rows). A jump back of more than ``common.JUMP_S`` is a new timeline (a replay from
-        the start), not a step back: the rows from it on are judged against each other
-        (``_check_time`` restarts detection for it). Invalid rows go on, to be counted and
-        dropped in ``_collect``.
+        Invalid values (non-finite, beyond any sensor's range, an all-zero accelerometer)
+        count as ``invalid``; stamps that do not increase (duplicated, a step back) as
+        ``stamp_not_increasing``. A jump back beyond ``common.JUMP_S`` is a new timeline
+        (``_check_time`` restarted detection for it), not dropped.
         """
-        finite, big, zero = imu_row_checks(imu.accel, imu.gyro)
-        valid = finite & ~big & ~zero
-        low = np.iinfo(np.int64).min
-        st = np.where(valid, imu.stamp_ns, low)
-        keep = np.ones(len(st), bool)
-        i = 0
-        while i < len(st):
-            before = low if self._newest_valid[0] is None else self._newest_valid[0]
-            run = np.maximum.accumulate(np.concatenate([[before], st[i:]]))[:-1]
-            jump = valid[i:] & (run > st[i:] + int(common.JUMP_S * 1e9))   # no overflow
-            j = i + int(np.argmax(jump)) if jump.any() else len(st)
-            keep[i:j] = ~valid[i:j] | increasing_rows(st[i:j], self._newest_valid)
-            if j < len(st):
-                self._newest_valid = [None]          # a new timeline starts at row j
-            i = j
-        drop = ~keep
-        if not drop.any():
-            return imu
-        self.counts['stamp_not_increasing'] = (self.counts.get('stamp_not_increasing', 0)
-                                               + int(drop.sum()))
-        return imu.slice(keep)
+        f = self._rows
+        bad, back = f.invalid, f.not_increasing
+        kept = f.push(imu)
+        self.counts['invalid'] += f.invalid - bad
+        if f.not_increasing > back:
+            self.counts['stamp_not_increasing'] = (self.counts.get('stamp_not_increasing', 0)
+                                                   + f.not_increasing - back)
+        return kept
 
     def _collect(self, chunk):
         imu = chunk.imu
-        finite, big, zero = imu_row_checks(imu.accel, imu.gyro)
-        valid = finite & ~big & ~zero
         use = _usable(chunk, self.k, self.temperature_timeout)
-        self.counts['invalid'] += int((~valid).sum())
-        self.counts['stale_temperature'] += int((valid & ~use).sum())
+        self.counts['stale_temperature'] += int((~use).sum())
         self.counts['samples'] += int(use.sum())
         if not use.any():
             return
@@ -430,14 +416,12 @@ def _good_records(data, k):
 
 
 def _usable(chunk, k, timeout):
-    """Rows of an AlignedChunk with valid IMU data and every temperature fresher than timeout.
+    """Rows of an AlignedChunk with every temperature fresher than timeout.
 
-    Valid: what ``calibrate`` keeps (``io.gate.imu_row_checks``): finite, within any
-    sensor's range, not an all-zero accelerometer vector.
+    Its IMU rows are valid: ``LiveCollection._filtered`` dropped the others before the
+    aligner, as ``calibrate``'s gate does.
     """
-    imu = chunk.imu
-    finite, big, zero = imu_row_checks(imu.accel, imu.gyro)
-    use = finite & ~big & ~zero
+    use = np.ones(len(chunk.imu), bool)
     if k:
         use &= (chunk.temp_age <= timeout).all(1)
     return use

@@ -16,6 +16,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from sensor_msgs.msg import FluidPressure, Illuminance, RelativeHumidity, Temperature
 
 from ..input_units import broadcast_units
+from ..io import gate
 from ..io.align import TemperatureTrack
 from ..io.cdr import SCALAR_MSGTYPES
 
@@ -195,7 +196,7 @@ def drain(subscription, limit, node=None):
 
 
 #: header stamps stepping back by more than this (s) start a new timeline
-JUMP_S = 10.0
+JUMP_S = gate.JUMP_S
 #: header-stamped scalars a thermal input may arrive as: type name -> (class, value field)
 SCALAR_TYPES = {name: (cls, SCALAR_MSGTYPES[name]) for name, cls in (
     ('sensor_msgs/msg/Temperature', Temperature),
