@@ -26,7 +26,7 @@ from ..collection.segments import Windows
 from ..collection.stationary import DetectorConfig, DetectorSettingsError
 from ..io.align import StreamAligner
 from ..io.columns import ImuColumns, TemperatureColumns
-from ..io.gate import imu_row_checks, LiveImuFilter, temperature_checks
+from ..io.gate import LiveImuFilter, temperature_checks
 from ..io.output import OutputError, write_atomic
 
 
@@ -268,13 +268,10 @@ class LiveCollection:
                 else ImuColumns.empty()
             tcols = [TemperatureColumns(np.array([s for s, _ in t], np.int64),
                                         np.array([v for _, v in t], float)) for t in temps]
+            imu = self._filtered(imu)       # an invalid row's stamp counts for nothing
             if len(imu):
-                finite, big, zero = imu_row_checks(imu.accel, imu.gyro)
-                ok = finite & ~big & ~zero           # an invalid row's stamp counts for nothing
-                if ok.any():
-                    self._check_time(int(imu.stamp_ns[ok].min()))
-                    self._newest_ns = max(self._newest_ns or 0, int(imu.stamp_ns[ok].max()))
-                imu = self._filtered(imu)
+                self._check_time(int(imu.stamp_ns.min()))
+                self._newest_ns = max(self._newest_ns or 0, int(imu.stamp_ns.max()))
             for chunk in self.aligner.push_columns(imu, tcols):
                 self._collect(chunk)
 
@@ -298,7 +295,6 @@ class LiveCollection:
         self.detector = self._collector()   # no pose change across the jump
         self.aligner = StreamAligner(self.k, self.temperature_timeout)
         self._newest_ns = None
-        self._rows.reset()
         self.counts['time_resets'] = self.counts.get('time_resets', 0) + 1
         self.get_logger().warning('IMU header stamps jumped back by more than '
                                   f'{common.JUMP_S:.0f} s: closed the hold in progress and '
@@ -309,8 +305,9 @@ class LiveCollection:
 
         Invalid values (non-finite, beyond any sensor's range, an all-zero accelerometer)
         count as ``invalid``; stamps that do not increase (duplicated, a step back) as
-        ``stamp_not_increasing``. A jump back beyond ``common.JUMP_S`` is a new timeline
-        (``_check_time`` restarted detection for it), not dropped.
+        ``stamp_not_increasing``. A jump back beyond ``common.JUMP_S`` is a new timeline,
+        kept (the filter judges its stamps from there on; ``_check_time`` then restarts
+        detection for it).
         """
         f = self._rows
         bad, back = f.invalid, f.not_increasing
