@@ -51,6 +51,7 @@ sys.path.insert(0, os.path.dirname(HERE))
 
 from thermal_imu_calib.app.calibrate import CalibrateSettings  # noqa: E402
 from thermal_imu_calib.lifelong.feed import Feeder  # noqa: E402
+from thermal_imu_calib.lifelong.gate import ACCEL_SCORES  # noqa: E402
 from thermal_imu_calib.lifelong.hints import HintGate, HintSource  # noqa: E402
 from thermal_imu_calib.lifelong.manager import (  # noqa: E402
     ALARM_CUTS, ALARM_REFERENCES, ALARM_WINDOWS, Lifelong, LifelongConfig)
@@ -118,7 +119,7 @@ def registry_timeline(work_seed, start_ns):
 
 def run_seed(seed, days, work, latitude=None, ageing=True, per_sensor=True,
              alarm_window='common', one_sensor_after_alarm=False, alarm_reference='all',
-             alarm_cut='all', **overrides):
+             alarm_cut='all', accel_score='magnitude', **overrides):
     m = robot_month(seed, days=days, **overrides)
     spec = m.device.spec
     rate = m.config.imu_rate
@@ -135,7 +136,8 @@ def run_seed(seed, days, work, latitude=None, ageing=True, per_sensor=True,
                                               alarm_window=alarm_window,
                                               one_sensor_after_alarm=one_sensor_after_alarm,
                                               alarm_reference=alarm_reference,
-                                              alarm_cut=alarm_cut),
+                                              alarm_cut=alarm_cut,
+                                              accel_score=accel_score),
                         log=lambda level, text: log.append((level, text)))
     life = make()
     feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
@@ -271,7 +273,7 @@ def month(args):
     for seed in range(args.first_seed, args.first_seed + args.seeds):
         r = run_seed(seed, args.days, work, args.latitude, not args.no_ageing,
                      not args.whole_swap, args.alarm_window, args.one_sensor_after_alarm,
-                     args.alarm_reference, args.alarm_cut)
+                     args.alarm_reference, args.alarm_cut, args.accel_score)
         rows.append(r)
         ra, kn = r['ratios'], r['knock']
         print(f'seed {seed}: {r["seconds"]:.0f} s, gyro first day '
@@ -885,6 +887,9 @@ def main():
     mo.add_argument('--alarm-cut', choices=ALARM_CUTS, default='all',
                     help='what a change alarm cuts: both sensors\' history, or the flagged '
                          'sensor\'s only (LifelongConfig.alarm_cut)')
+    mo.add_argument('--accel-score', choices=ACCEL_SCORES, default='magnitude',
+                    help='how the swap gate measures the accelerometer on held-out holds '
+                         '(LifelongConfig.accel_score)')
     mo.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_month.json'))
     re_ = sub.add_parser('real')
     re_.add_argument('--work', default='')

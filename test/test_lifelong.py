@@ -164,6 +164,32 @@ def test_swap_gate_on_real_calibrations(month_windows):
     assert swap and fig['accel']['verdict'] == 'same' and s_t['accel_holds'] == 0
 
 
+def test_vector_accel_score_sees_the_horizontal_axes(month_windows):
+    """The 'vector' accelerometer score sees a horizontal error; 'magnitude' cannot.
+
+    A horizontal error of 50 mm/s^2 per hold changes |a| by ~0.1 mm/s^2 in a level pose.
+    """
+    m, win = month_windows
+    truth = m.true_calibration(0.5 * DAY)
+    holdout = main_pose(win.select(np.isin(win.hold, win.hold_ids[-10:])), 2.0)
+    sign = np.where(np.searchsorted(holdout.hold_ids, holdout.hold) % 2 == 0, 1.0, -1.0)
+    accel = holdout.accel.copy()
+    accel[:, 0] += 0.05 * sign                  # a wrong x offset, alternating per hold
+    shifted = dataclasses.replace(holdout, accel=accel)
+    for how, verdict in (('magnitude', 'same'), ('vector', 'better')):
+        s_bad = gate.score(truth, shifted, truth.gravity, accel_score=how)
+        s_good = gate.score(truth, holdout, truth.gravity, accel_score=how)
+        _, fig = gate.decide(s_bad, s_good)
+        assert fig['accel']['verdict'] == verdict, (how, fig['accel'])
+        # the change alarm's reference is the magnitude figure either way
+        assert s_good['accel_magnitude_rms'] == pytest.approx(
+            gate.score(truth, holdout, truth.gravity)['accel_rms'])
+    with pytest.raises(ValueError, match='accel_score'):
+        gate.score(truth, holdout, truth.gravity, accel_score='norm')
+    with pytest.raises(ValueError, match='accel_score'):
+        LifelongConfig(accel_score='norm')
+
+
 def test_lifelong_loop_swaps_logs_and_restarts(tmp_path):
     m = robot_month(3, days=1.2)
     d = str(tmp_path / 'life')

@@ -111,14 +111,15 @@ def compose(accel_from, gyro_from, note=''):
         noise_model=noise, sensor_range=sensor_range)
 
 
-def one_sensor(active, new, fig, s_act, holdout, pose, latitude, sigmas):
+def one_sensor(active, new, fig, s_act, holdout, pose, latitude, sigmas,
+               accel_score='magnitude'):
     """Return ((calibration, score, figures) or None, record) of a one-sensor swap.
 
     When the gate calls ``new`` better than ``active`` for one sensor only (``fig``'s
     verdicts), the composed calibration (that sensor's model from ``new``, the other from
     ``active``) is scored on the same held-out holds (``holdout``, accelerometer on
     ``pose``) and returned when it passes the gate against ``s_act``, the active's score
-    on them (``gate.decide`` at ``sigmas``). None:
+    on them (``gate.decide`` at ``sigmas``; ``accel_score`` as ``gate.score``). None:
     both or neither better, no active calibration, the two do not compose, or the
     composition fails the gate. ``record`` (a dict, empty when nothing was tried) says
     what was tried, with both decisions' figures.
@@ -135,7 +136,7 @@ def one_sensor(active, new, fig, s_act, holdout, pose, latitude, sigmas):
     cal = compose(pick['accel'], pick['gyro'],
                   note=f'the {which} of the new estimate {new.id}, proven better on held-out '
                        'holds; the other sensor kept')
-    score = gate.score(cal, holdout, cal.gravity, pose, latitude)
+    score = gate.score(cal, holdout, cal.gravity, pose, latitude, accel_score)
     ok, fig_c = gate.decide(s_act, score, sigmas)
     record = {'sensor': which, 'used': bool(ok), 'estimate_id': new.id, 'whole_figures': fig,
               'text': (f'{which} only: the new estimate {new.id} is better for the {which} '

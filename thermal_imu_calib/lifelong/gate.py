@@ -35,6 +35,9 @@ import numpy as np
 
 from ..estimation.gyro_static import earth_rate_parts
 
+#: how ``score`` measures the accelerometer's error on a held-out hold
+ACCEL_SCORES = ('magnitude', 'vector')
+
 
 def hold_errors(cal, windows, gravity, latitude=None):
     """Return per-hold arrays: ids, t (s, end), temp (degC), gyro, accel, se_gyro, se_accel.
@@ -58,7 +61,7 @@ def hold_errors(cal, windows, gravity, latitude=None):
     h = len(ids)
     out = {'ids': ids, 't': np.zeros(h), 'temp': np.full(h, np.nan), 'gyro': np.zeros(h),
            'accel': np.zeros(h), 'se_gyro': np.zeros(h), 'se_accel': np.zeros(h),
-           'gyro_vec': np.zeros((h, 3))}
+           'gyro_vec': np.zeros((h, 3)), 'accel_vec': np.zeros((h, 3))}
     for j, hid in enumerate(ids):
         m = windows.hold == hid
         w = windows.n[m].astype(float)
@@ -74,6 +77,7 @@ def hold_errors(cal, windows, gravity, latitude=None):
             out['gyro'][j] = np.hypot(v - vertical, h - horizontal)
             g = g - vertical * up
         out['gyro_vec'][j] = g
+        out['accel_vec'][j] = a
         out['accel'][j] = np.linalg.norm(a) - gravity
         out['se_gyro'][j] = np.sqrt(np.mean(np.average(windows.gyro_var[m], 0, w)) / n)
         out['se_accel'][j] = np.sqrt(np.mean(np.average(windows.accel_var[m], 0, w)) / n)
@@ -112,19 +116,34 @@ def rms(x):
     return float(np.sqrt(np.mean(np.square(x)))) if len(x) else float('nan')
 
 
-def score(cal, windows, gravity, accel_windows=None, latitude=None):
+def score(cal, windows, gravity, accel_windows=None, latitude=None, accel_score='magnitude'):
     """Return {'gyro_rms', 'accel_rms', 'noise_gyro', 'noise_accel', 'holds', errors}.
 
     The gyro is scored on every hold of ``windows``, the accelerometer on those of
     ``accel_windows`` (default: the same; the node passes the holds in the mounting pose).
-    ``latitude``: see ``hold_errors``.
+    ``latitude``: see ``hold_errors``. ``accel_score`` (one of ``ACCEL_SCORES``):
+    'magnitude', each hold's ``|mean accel| - g`` about their median (blind to the
+    horizontal axes in a level mounting pose); 'vector', the length of each hold's mean
+    accel vector less the per-axis median of the holds: the horizontal axes count too,
+    with the floor's tilt from stop to stop in their scatter (the noise is then that of
+    three axes). ``accel_magnitude_rms`` is the 'magnitude' figure either way (the change
+    alarm's reference).
     """
+    if accel_score not in ACCEL_SCORES:
+        raise ValueError(f'accel_score {accel_score!r} is not one of {", ".join(ACCEL_SCORES)}')
     e = hold_errors(cal, windows, gravity, latitude)
     ea = e if accel_windows is None else hold_errors(cal, accel_windows, gravity, latitude)
-    acc = ea['accel'] - np.median(ea['accel']) if len(ea['accel']) else ea['accel']
+    noise_a = rms(ea['se_accel'])
+    mag = ea['accel'] - np.median(ea['accel']) if len(ea['accel']) else ea['accel']
+    acc = mag
+    if accel_score == 'vector' and len(mag):
+        v = ea['accel_vec']
+        acc = np.linalg.norm(v - np.median(v, 0), axis=1)
+        noise_a *= np.sqrt(3.0)
     return {'holds': int(len(e['ids'])), 'accel_holds': int(len(ea['ids'])),
             'gyro_rms': rms(e['gyro']), 'accel_rms': rms(acc),
-            'noise_gyro': rms(e['se_gyro']), 'noise_accel': rms(ea['se_accel']),
+            'accel_magnitude_rms': rms(mag),
+            'noise_gyro': rms(e['se_gyro']), 'noise_accel': noise_a,
             'gyro': e['gyro'], 'accel': acc, 'errors': e}
 
 

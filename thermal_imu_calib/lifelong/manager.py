@@ -116,13 +116,20 @@ class LifelongConfig:
     #: alarm of both cuts both). Off: on seeds 7, 8 and 12 (unseen) it never acted, every
     #: knock's alarm flagged both sensors (the simulated knock steps both; docs/lifelong.md)
     alarm_cut: str = 'all'
+    #: how the swap gate measures the accelerometer on held-out holds
+    #: (``gate.ACCEL_SCORES``): 'magnitude', |mean accel| - g about the median, blind to the
+    #: horizontal axes in a level mounting pose; 'vector', the whole mean vector about the
+    #: per-axis median, the floor's tilt in its scatter (docs/lifelong.md, trial of
+    #: 2026-11-29)
+    accel_score: str = 'magnitude'
     store: StoreConfig = field(default_factory=StoreConfig)
 
     def __post_init__(self):
         """Refuse a setting the loop cannot run with, saying which and what to give."""
         for name, allowed in (('alarm_window', ALARM_WINDOWS),
                               ('alarm_reference', ALARM_REFERENCES),
-                              ('alarm_cut', ALARM_CUTS)):
+                              ('alarm_cut', ALARM_CUTS),
+                              ('accel_score', gate.ACCEL_SCORES)):
             if getattr(self, name) not in allowed:
                 raise ValueError(f'LifelongConfig.{name} {getattr(self, name)!r} is not one '
                                  f'of {", ".join(allowed)}; give one of them')
@@ -437,7 +444,7 @@ class Lifelong:
             return self._finish(decision)
         new = result.calibration
         g = new.gravity
-        s_new = gate.score(new, holdout, g, holdout_pose, self.latitude)
+        s_new = gate.score(new, holdout, g, holdout_pose, self.latitude, c.accel_score)
         aged = self._with_ageing(fit, times, now, holdout, holdout_pose, s_new, decision)
         if aged is not None:
             result, s_new = aged
@@ -445,8 +452,9 @@ class Lifelong:
         kept = self._with_kept(new, now, held, decision)
         if kept is not None:
             new = kept
-            s_new = gate.score(new, holdout, g, holdout_pose, self.latitude)
-        s_act = gate.score(self.active, holdout, g, holdout_pose, self.latitude)
+            s_new = gate.score(new, holdout, g, holdout_pose, self.latitude, c.accel_score)
+        s_act = gate.score(self.active, holdout, g, holdout_pose, self.latitude,
+                           c.accel_score)
         swap, fig = gate.decide(s_act, s_new, c.swap_sigmas)
         part = self._one_sensor(new, fig, s_act, holdout, holdout_pose, decision)
         only = ''
@@ -521,7 +529,8 @@ class Lifelong:
                                 not c.one_sensor_after_alarm):
             return None
         found, record = compose.one_sensor(self.active, new, fig, s_act, holdout, pose,
-                                           self.latitude, self.config.swap_sigmas)
+                                           self.latitude, self.config.swap_sigmas,
+                                           self.config.accel_score)
         if record:
             decision['one_sensor'] = record
         return found
@@ -585,7 +594,7 @@ class Lifelong:
                                   'used': False}
             return None
         score = gate.score(result.calibration, holdout, result.calibration.gravity, pose,
-                           self.latitude)
+                           self.latitude, self.config.accel_score)
         _, fig = gate.decide(s_plain, score, self.config.swap_sigmas)
         used = fig['gyro']['verdict'] == 'better'
         plain_md, aged_md, margin_md = (np.degrees(x) * 1e3 for x in (
@@ -637,9 +646,11 @@ class Lifelong:
         errs = {'gyro': both['gyro'], 'accel': both['accel'] - med}
         use, note = self._reference_holds(both, errs, before, only)
         ref = {}
+        held_rms = {'gyro': s_new['gyro_rms'],
+                    'accel': s_new.get('accel_magnitude_rms', s_new['accel_rms'])}
         for which, err in errs.items():
             m = use[which]
-            ref[which] = (max(s_new[f'{which}_rms'], gate.rms(err)) if m.all() else
+            ref[which] = (max(held_rms[which], gate.rms(err)) if m.all() else
                           max(gate.rms(err[m & is_held]) if (m & is_held).any() else 0.0,
                               gate.rms(err[m])))
         self.state.update(active_since=now, active_gyro_rms=ref['gyro'],
