@@ -1,6 +1,8 @@
 """Calibrator node over real DDS: a successful ~/calibrate also writes the HTML report."""
 
+import glob
 import os
+import tempfile
 
 from _html_check import parse_report
 from conftest import wait_for
@@ -55,6 +57,11 @@ def test_no_report_child_starts_after_finish(ros, tmp_path):
     wait_for(lambda: report.exists(), 60, 'the first report')
     report.unlink()
     node.finish()
+    before = set(glob.glob(os.path.join(tempfile.gettempdir(), 'thermal-imu-report-*')))
     node._report_file(node._result.calibration, node.windows)     # what the thread would run
     assert node._report_running is None
     assert not report.exists()
+    # no temporary is made once the node has finished (it is made and recorded under the
+    # lock that finish() takes, so finish() removes any made before it)
+    after = set(glob.glob(os.path.join(tempfile.gettempdir(), 'thermal-imu-report-*')))
+    assert after <= before, sorted(after - before)

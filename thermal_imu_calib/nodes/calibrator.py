@@ -207,38 +207,41 @@ class CalibratorNode(LiveCollection, Node):
         """
         path = os.path.expanduser(self.get_parameter('calibration_file').value)
         out = os.path.splitext(path)[0] + '.report.html'
-        with tempfile.TemporaryDirectory(prefix='thermal-imu-report-',
-                                         ignore_cleanup_errors=True) as tmp:
+        with self._report_lock:
+            # made and recorded in one step: _stop_report removes whatever it finds
+            # recorded, and a temporary made outside the lock could be left behind by a
+            # node stopping in between (an empty thermal-imu-report-* was once left)
+            if self._report_stopped:
+                return
+            tmp = tempfile.mkdtemp(prefix='thermal-imu-report-')
+            self._report_running = [None, tmp]
+        try:
+            cal.save(os.path.join(tmp, 'cal.yaml'))
+            with open(os.path.join(tmp, 'windows.jsonl'), 'w') as f:
+                f.write(windows.to_jsonl())
+            cmd = [sys.executable, '-m', 'thermal_imu_calib.cli', 'report',
+                   os.path.join(tmp, 'cal.yaml'), '--windows',
+                   os.path.join(tmp, 'windows.jsonl'), '--html', out]
             with self._report_lock:
                 if self._report_stopped:
                     return
-                self._report_running = [None, tmp]
+                child = subprocess.Popen(cmd, stdout=subprocess.PIPE,
+                                         stderr=subprocess.PIPE, text=True,
+                                         preexec_fn=lambda: os.nice(10))
+                self._report_running[0] = child
             try:
-                cal.save(os.path.join(tmp, 'cal.yaml'))
-                with open(os.path.join(tmp, 'windows.jsonl'), 'w') as f:
-                    f.write(windows.to_jsonl())
-                cmd = [sys.executable, '-m', 'thermal_imu_calib.cli', 'report',
-                       os.path.join(tmp, 'cal.yaml'), '--windows',
-                       os.path.join(tmp, 'windows.jsonl'), '--html', out]
-                with self._report_lock:
-                    if self._report_stopped:
-                        return
-                    child = subprocess.Popen(cmd, stdout=subprocess.PIPE,
-                                             stderr=subprocess.PIPE, text=True,
-                                             preexec_fn=lambda: os.nice(10))
-                    self._report_running[0] = child
-                try:
-                    _, err = child.communicate(timeout=600)
-                except subprocess.TimeoutExpired:
-                    child.kill()
-                    child.communicate()
-                    err = 'the report took over 600 s and was stopped'
-            except OSError as e:
-                self.get_logger().error(f'report {out} not written: {e!r}')
-                return
-            finally:
-                with self._report_lock:
-                    self._report_running = None
+                _, err = child.communicate(timeout=600)
+            except subprocess.TimeoutExpired:
+                child.kill()
+                child.communicate()
+                err = 'the report took over 600 s and was stopped'
+        except OSError as e:
+            self.get_logger().error(f'report {out} not written: {e!r}')
+            return
+        finally:
+            with self._report_lock:
+                self._report_running = None
+            shutil.rmtree(tmp, ignore_errors=True)
         if child.returncode:
             self.get_logger().error(f'report {out} not written: {err.strip()[-500:]}')
         else:
