@@ -119,7 +119,7 @@ def registry_timeline(work_seed, start_ns):
 
 def run_seed(seed, days, work, latitude=None, ageing=True, per_sensor=True,
              alarm_window='common', one_sensor_after_alarm=False, alarm_reference='all',
-             alarm_cut='all', accel_score='magnitude', **overrides):
+             alarm_cut='all', accel_score='magnitude', raw_kept=False, **overrides):
     m = robot_month(seed, days=days, **overrides)
     spec = m.device.spec
     rate = m.config.imu_rate
@@ -137,7 +137,8 @@ def run_seed(seed, days, work, latitude=None, ageing=True, per_sensor=True,
                                               one_sensor_after_alarm=one_sensor_after_alarm,
                                               alarm_reference=alarm_reference,
                                               alarm_cut=alarm_cut,
-                                              accel_score=accel_score),
+                                              accel_score=accel_score,
+                                              raw_kept=raw_kept),
                         log=lambda level, text: log.append((level, text)))
     life = make()
     feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
@@ -273,7 +274,8 @@ def month(args):
     for seed in range(args.first_seed, args.first_seed + args.seeds):
         r = run_seed(seed, args.days, work, args.latitude, not args.no_ageing,
                      not args.whole_swap, args.alarm_window, args.one_sensor_after_alarm,
-                     args.alarm_reference, args.alarm_cut, args.accel_score)
+                     args.alarm_reference, args.alarm_cut, args.accel_score,
+                     args.raw_kept)
         rows.append(r)
         ra, kn = r['ratios'], r['knock']
         print(f'seed {seed}: {r["seconds"]:.0f} s, gyro first day '
@@ -890,6 +892,9 @@ def main():
     mo.add_argument('--accel-score', choices=ACCEL_SCORES, default='magnitude',
                     help='how the swap gate measures the accelerometer on held-out holds '
                          '(LifelongConfig.accel_score)')
+    mo.add_argument('--raw-kept', action='store_true',
+                    help='with no active calibration, a one-sensor swap leaves the other '
+                         'sensor raw (LifelongConfig.raw_kept)')
     mo.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_month.json'))
     re_ = sub.add_parser('real')
     re_.add_argument('--work', default='')

@@ -146,6 +146,42 @@ def test_one_sensor_swap_keeps_the_other_sensor(month, tmp_path):
     assert life._one_sensor(new, fig, s_act, holdout, pose, {}) is None
 
 
+def test_raw_kept_first_swap_leaves_the_other_sensor_raw(month):
+    """raw_kept: with no active calibration, the raw output is the active one.
+
+    An estimate better than raw for the gyro but worse for the accelerometer (judged by
+    the whole vector) replaces the gyro's raw output alone; the calibration has no
+    accelerometer model, and later compositions take it as it is.
+    """
+    m, win, _ = month
+    truth = m.true_calibration(0.5 * DAY)
+    new = _worse(truth, accel_slope=np.full(3, 0.02))        # accel 20 mm/s^2/degC off
+    a = _worse(truth, gyro=np.array([0.0, 0.0, 1e-3]))
+    holdout = win.select(np.isin(win.hold, win.hold_ids[-10:]))
+    pose = main_pose(holdout, 2.0)
+    s_raw, s_new = (gate.score(c, holdout, truth.gravity, pose, accel_score='vector')
+                    for c in (None, new))
+    _, fig = gate.decide(s_raw, s_new)
+    assert fig['gyro']['verdict'] == 'better' and fig['accel']['verdict'] == 'worse', fig
+    # the default: no active calibration, nothing composed (the whole estimate is judged)
+    assert compose.one_sensor(None, new, fig, s_raw, holdout, pose, None, 2.0,
+                              'vector') == (None, {})
+    found, record = compose.one_sensor(None, new, fig, s_raw, holdout, pose, None, 2.0,
+                                       'vector', raw_kept=True)
+    assert record['used'] and 'the other sensor raw' in record['text'], record
+    cal, score, fig_c = found
+    assert cal.accel is None and cal.gyro is new.gyro
+    assert fig_c['accel']['verdict'] == 'same'
+    acc = win.accel[:5]
+    np.testing.assert_array_equal(cal.apply(acc, win.gyro[:5], win.temp[:5]).accel, acc)
+    # later: an estimate better for the accelerometer only composes with the gyro-only one
+    both = compose.compose(a, cal, missing=True)
+    assert both.accel is a.accel and both.gyro is new.gyro
+    keep_raw = compose.compose(cal, a, missing=True)          # accel from the gyro-only one
+    assert keep_raw.accel is None and keep_raw.gyro is a.gyro
+    assert 'lacks a sensor model' in compose.why_not(cal, a)   # only with missing=True
+
+
 def test_the_range_trigger_waits_for_what_the_last_estimate_did_not_fit(month, tmp_path):
     """A sensor kept with a narrow range does not make every few holds an estimate.
 

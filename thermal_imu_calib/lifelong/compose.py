@@ -34,11 +34,16 @@ def _filter(cal):
     return None if f is None else (f.kind, tuple(np.round(np.asarray(f.tau_s, float), 9)))
 
 
-def why_not(a, b):
-    """Return '' when ``a`` and ``b`` compose, else what differs (for the decision log)."""
+def why_not(a, b, missing=False):
+    """Return '' when ``a`` and ``b`` compose, else what differs (for the decision log).
+
+    ``missing``: a calibration without one sensor's model (that sensor left raw) composes
+    too; the composition then leaves the sensor raw where its source has no model.
+    """
     if a is None or b is None:
         return 'no active calibration'
-    if a.accel is None or a.gyro is None or b.accel is None or b.gyro is None:
+    if not missing and (a.accel is None or a.gyro is None or b.accel is None
+                        or b.gyro is None):
         return 'one of them lacks a sensor model'
     if _inputs(a) != _inputs(b):
         return 'their thermal inputs differ'
@@ -70,19 +75,25 @@ def common_range(cal):
     return np.stack([np.max([r[:, 0] for r in own], 0), np.min([r[:, 1] for r in own], 0)], 1)
 
 
-def compose(accel_from, gyro_from, note=''):
+def compose(accel_from, gyro_from, note='', missing=False):
     """Return the calibration with ``accel_from``'s accel model and ``gyro_from``'s gyro.
 
-    Raises ValueError naming the difference when they do not compose (``why_not``).
-    Noise figures follow their sensor; ``fit`` is the gyro source's, with ``composed``
-    saying where each model came from.
+    Raises ValueError naming the difference when they do not compose (``why_not``;
+    ``missing``: a source without the model leaves that sensor raw). Noise figures follow
+    their sensor; ``fit`` is the gyro source's, with ``composed`` saying where each model
+    came from.
     """
-    why = why_not(accel_from, gyro_from)
+    why = why_not(accel_from, gyro_from, missing)
     if why:
         raise ValueError(f'the calibrations do not compose: {why}')
-    ranges = {w: own_range(c, w) for w, c in (('accel', accel_from), ('gyro', gyro_from))}
+    ranges = {w: own_range(c, w) for w, c in (('accel', accel_from), ('gyro', gyro_from))
+              if getattr(c, w) is not None}
+    if not ranges:
+        raise ValueError('the calibrations do not compose: neither sensor has a model')
     valid, sensor_range = None, {}
-    if accel_from.inputs:
+    if accel_from.inputs and len(ranges) == 1:
+        valid = next(iter(ranges.values())).copy()
+    elif accel_from.inputs:
         valid = np.stack([np.minimum(ranges['accel'][:, 0], ranges['gyro'][:, 0]),
                           np.maximum(ranges['accel'][:, 1], ranges['gyro'][:, 1])], 1)
         sensor_range = {w: r.copy() for w, r in ranges.items() if not np.array_equal(r, valid)}
@@ -112,7 +123,7 @@ def compose(accel_from, gyro_from, note=''):
 
 
 def one_sensor(active, new, fig, s_act, holdout, pose, latitude, sigmas,
-               accel_score='magnitude'):
+               accel_score='magnitude', raw_kept=False):
     """Return ((calibration, score, figures) or None, record) of a one-sensor swap.
 
     When the gate calls ``new`` better than ``active`` for one sensor only (``fig``'s
@@ -121,25 +132,31 @@ def one_sensor(active, new, fig, s_act, holdout, pose, latitude, sigmas,
     ``pose``) and returned when it passes the gate against ``s_act``, the active's score
     on them (``gate.decide`` at ``sigmas``; ``accel_score`` as ``gate.score``). None:
     both or neither better, no active calibration, the two do not compose, or the
-    composition fails the gate. ``record`` (a dict, empty when nothing was tried) says
-    what was tried, with both decisions' figures.
+    composition fails the gate. ``raw_kept``: with no active calibration the raw output is
+    the active one, so the other sensor stays raw (a calibration without its model), and
+    such calibrations compose later (``why_not(missing=True)``). ``record`` (a dict, empty
+    when nothing was tried) says what was tried, with both decisions' figures.
     """
     better = [w for w in SENSORS if fig[w]['verdict'] == 'better']
-    if active is None or len(better) != 1:
+    if (active is None and not raw_kept) or len(better) != 1:
         return None, {}
     which = better[0]
-    why = why_not(active, new)
+    other = 'gyro' if which == 'accel' else 'accel'
+    base = active if active is not None else replace(new, **{other: None})
+    why = why_not(base, new, missing=raw_kept)
     if why:
         return None, {'sensor': which, 'used': False,
                       'text': f'{which} only: not composed ({why})'}
-    pick = {w: new if w == which else active for w in SENSORS}
+    pick = {w: new if w == which else base for w in SENSORS}
+    kept = 'kept' if active is not None else 'left raw'
     cal = compose(pick['accel'], pick['gyro'],
                   note=f'the {which} of the new estimate {new.id}, proven better on held-out '
-                       'holds; the other sensor kept')
+                       f'holds; the other sensor {kept}', missing=raw_kept)
     score = gate.score(cal, holdout, cal.gravity, pose, latitude, accel_score)
     ok, fig_c = gate.decide(s_act, score, sigmas)
+    mine = "the active's other one" if active is not None else 'the other sensor raw'
     record = {'sensor': which, 'used': bool(ok), 'estimate_id': new.id, 'whole_figures': fig,
               'text': (f'{which} only: the new estimate {new.id} is better for the {which} '
-                       f'alone; its {which} model with the active\'s other one '
+                       f'alone; its {which} model with {mine} '
                        f'{"passes" if ok else "fails"} the gate ({gate.describe(fig_c)})')}
     return ((cal, score, fig_c) if ok else None), record

@@ -122,6 +122,11 @@ class LifelongConfig:
     #: per-axis median, the floor's tilt in its scatter (docs/lifelong.md, trial of
     #: 2026-11-29)
     accel_score: str = 'magnitude'
+    #: with no active calibration, a new estimate better than the raw output for one sensor
+    #: only replaces that sensor's raw output alone; the other stays raw (a calibration
+    #: without its model) until an estimate is proven better for it (``compose.one_sensor``;
+    #: docs/lifelong.md, trial of 2026-11-28)
+    raw_kept: bool = False
     store: StoreConfig = field(default_factory=StoreConfig)
 
     def __post_init__(self):
@@ -530,7 +535,7 @@ class Lifelong:
             return None
         found, record = compose.one_sensor(self.active, new, fig, s_act, holdout, pose,
                                            self.latitude, self.config.swap_sigmas,
-                                           self.config.accel_score)
+                                           self.config.accel_score, self.config.raw_kept)
         if record:
             decision['one_sensor'] = record
         return found
