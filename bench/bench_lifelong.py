@@ -834,13 +834,15 @@ def compare(args):
           'swaps | worse next day > 25 % (gyro + accel drift) | knock alarm delay h | '
           'false alarms | rule acted (swaps) |')
     print('|' + '---|' * 8)
-    geo = {'g': [[], []], 'a': [[], []]}
+    geo = {'g': [[], []], 'a': [[], []], 'a1': [[], []], 'g1': [[], []]}
     tot = [0, 0]
     for seed in seeds:
         b, c = runs[0][seed], runs[1][seed]
         for i, r in enumerate((b, c)):
             geo['g'][i].append(r['ratios']['gyro_last_week_over_true'])
             geo['a'][i].append(r['active']['accel_drift_last_week'])
+            geo['a1'][i].append(r['active']['accel_drift_first_day'])
+            geo['g1'][i].append(r['active']['gyro_first_day'])
             tot[i] += sum(_worse25(r))
         delay = ['none' if r['knock']['alarm_delay_h'] is None else
                  f'{r["knock"]["alarm_delay_h"]:.1f}' for r in (b, c)]
@@ -862,6 +864,14 @@ def compare(args):
           f'last week {gm(geo["a"][0]) * 1e3:.2f} -> {gm(geo["a"][1]) * 1e3:.2f} mm/s^2 '
           f'({gm(geo["a"][1]) / gm(geo["a"][0]) - 1:+.1%}); swaps worse next day by > 25 % '
           f'(gyro + accel drift) {tot[0]} -> {tot[1]}')
+    raw = [runs[1][seed]['raw'] for seed in seeds]
+    print(f'first day: accel drift {gm(geo["a1"][0]) * 1e3:.2f} -> {gm(geo["a1"][1]) * 1e3:.2f} '
+          f'mm/s^2 ({gm(geo["a1"][1]) / gm(geo["a1"][0]) - 1:+.1%}; raw '
+          f'{gm([r["accel_drift_first_day"] for r in raw]) * 1e3:.2f}), gyro '
+          f'{gm(geo["g1"][0]) * 1e3:.3f} -> {gm(geo["g1"][1]) * 1e3:.3f} mrad/s '
+          f'({gm(geo["g1"][1]) / gm(geo["g1"][0]) - 1:+.1%}; raw '
+          f'{gm([r["gyro_first_day"] for r in raw]) * 1e3:.3f}); last week raw accel drift '
+          f'{gm([r["accel_drift_last_week"] for r in raw]) * 1e3:.2f} mm/s^2')
 
 
 def main():
