@@ -119,13 +119,16 @@ class LifelongConfig:
     #: how the swap gate measures the accelerometer on held-out holds
     #: (``gate.ACCEL_SCORES``): 'magnitude', |mean accel| - g about the median, blind to the
     #: horizontal axes in a level mounting pose; 'vector', the whole mean vector about the
-    #: per-axis median, the floor's tilt in its scatter (docs/lifelong.md, trial of
-    #: 2026-11-29)
+    #: per-axis median, the floor's tilt in its scatter. 'magnitude' stays: on seeds 2-4
+    #: (unseen) 'vector' alone left the first day's accelerometer as it was (the gyro's gain
+    #: still carries a first estimate in whole; docs/lifelong.md)
     accel_score: str = 'magnitude'
     #: with no active calibration, a new estimate better than the raw output for one sensor
     #: only replaces that sensor's raw output alone; the other stays raw (a calibration
-    #: without its model) until an estimate is proven better for it (``compose.one_sensor``;
-    #: docs/lifelong.md, trial of 2026-11-28)
+    #: without its model) until an estimate is proven better for it (``compose.one_sensor``).
+    #: Off: on seeds 5-7 (unseen), with 'vector', the first day's accelerometer drift halved
+    #: (raw's), but the last week's was 66 % worse and seed 7 had two false alarms
+    #: (docs/lifelong.md)
     raw_kept: bool = False
     store: StoreConfig = field(default_factory=StoreConfig)
 
