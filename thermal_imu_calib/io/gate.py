@@ -116,8 +116,7 @@ class InputGate:
             keep = fin & ~oor
             r.temp_in[topic] = r.temp_in.get(topic, 0) + len(v)
             r.temp_nonfinite[topic] = r.temp_nonfinite.get(topic, 0) + int((~fin).sum())
-            if is_temperature(self.units.get(topic, '')):
-                r.temp_out_of_range[topic] = r.temp_out_of_range.get(topic, 0) + int(oor.sum())
+            r.temp_out_of_range[topic] = r.temp_out_of_range.get(topic, 0) + int(oor.sum())
             r.temp_stamp_zero[topic] = (r.temp_stamp_zero.get(topic, 0)
                                         + int((tc.stamp_ns == 0).sum()))
             kept = r.temp_stamps.setdefault(topic, [])
