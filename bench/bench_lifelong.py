@@ -102,6 +102,33 @@ def stop_error(cal, ch):
     return w @ (g - ch['w']), w @ (a - ch['f'])
 
 
+def drift_rms(errors):
+    """Return the RMS of accel error vectors (m, 3) less their per-axis median, NaN if none.
+
+    The bench's accelerometer drift: what varies between stops, not the constant offset a
+    one-pose model leaves (m/s^2).
+    """
+    a = np.asarray(errors, float).reshape(-1, 3)
+    return float(np.sqrt(np.mean(np.sum((a - np.median(a, 0)) ** 2, 1)))) if len(a) \
+        else float('nan')
+
+
+def scored_stops(m, t_from=0.0, t_to=np.inf):
+    """Yield (segment, ``stop_chunks``) of every stop of ``m`` in [t_from, t_to) s scored.
+
+    Blocked stops (no commanded stop) and stops without a still sample are not scored.
+    """
+    for seg in m.segments(t_from, t_to):
+        ch = stop_chunks(seg)
+        if ch is not None and not seg.stop.blocked:
+            yield seg, ch
+
+
+def active_index(starts, t):
+    """Return the index of the calibration active at ``t`` (s; ``registry_timeline``), -1: none."""
+    return int(np.searchsorted(starts, t, side='right')) - 1
+
+
 def registry_timeline(work_seed, start_ns):
     """Return (activated at s since ``start_ns``, calibrations) of a month's registry.
 
@@ -199,9 +226,7 @@ def evaluate(m, stops, timeline, decisions, noise_g, base):
 
     def centred(name, sel):
         """RMS of the accel error with the period's median removed (drift within it)."""
-        a = np.array([x[1] for x in err[name]])[sel]
-        return float(np.sqrt(np.mean(np.sum((a - np.median(a, 0)) ** 2, 1)))) \
-            if len(a) else float('nan')
+        return drift_rms(np.array([x[1] for x in err[name]])[sel])
     for name, (g, a, _) in figures.items():
         out[name] = {'gyro_first_day': rms(g, first), 'gyro_last_week': rms(g, last),
                      'accel_first_day': rms(a, first), 'accel_last_week': rms(a, last),
@@ -456,10 +481,7 @@ def reeval_seed(work_seed, seed, days):
         (registry.parse_time(r['time']) * 1e-9 - base,
          Calibration.load(os.path.join(work_seed, 'registry', r['file']))) for r in rows]
     stops = []
-    for seg in m.segments():
-        ch = stop_chunks(seg)
-        if ch is None or seg.stop.blocked:
-            continue
+    for seg, ch in scored_stops(m):
         cal = [c for t, c in timeline if t <= seg.stop.t0][-1]
         stops.append((seg.stop.t0, cal, ch))
     decisions = []

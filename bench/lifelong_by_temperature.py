@@ -27,7 +27,8 @@ import numpy as np
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..'))
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from bench_lifelong import registry_timeline, stop_chunks, stop_error  # noqa: E402
+from bench_lifelong import (  # noqa: E402
+    active_index, registry_timeline, scored_stops, stop_error)
 from thermal_imu_calib.sim.robot_month import DAY, robot_month  # noqa: E402
 
 BANDS = (-np.inf, 20.0, 25.0, 30.0, 35.0, np.inf)
@@ -92,10 +93,9 @@ def main():
     m = robot_month(a.seed, days=a.days)
     starts, cals = registry_timeline(a.work_seed, m.start_ns)
     scored = {}
-    for seg in m.segments(a.from_day * DAY):
-        ch = stop_chunks(seg)
-        k = int(np.searchsorted(starts, seg.stop.t0, side='right')) - 1
-        if ch is None or seg.stop.blocked or k < 0:
+    for seg, ch in scored_stops(m, a.from_day * DAY):
+        k = active_index(starts, seg.stop.t0)
+        if k < 0:
             continue
         eg, ea = stop_error(cals[k], ch)
         scored.setdefault(k, []).append((float(np.mean(ch['temp'])), *(ea if a.accel else eg),

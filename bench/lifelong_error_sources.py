@@ -33,7 +33,8 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 sys.path.insert(0, HERE)
 
-from bench_lifelong import registry_timeline, stop_chunks, stop_error  # noqa: E402
+from bench_lifelong import (  # noqa: E402
+    active_index, registry_timeline, scored_stops, stop_error)
 from thermal_imu_calib.lifelong import compose  # noqa: E402
 from thermal_imu_calib.sim.robot_month import DAY, robot_month  # noqa: E402
 
@@ -74,11 +75,10 @@ def score_seed(seed, work_seed, days):
     m = robot_month(seed, days=days)
     acts, cals = registry_timeline(work_seed, m.start_ns)
     stops = []
-    for seg in m.segments():
+    for seg, ch in scored_stops(m):
         s = seg.stop
-        ch = stop_chunks(seg)
-        i = np.searchsorted(acts, s.t0, 'right') - 1
-        if s.blocked or ch is None or i < 0:
+        i = active_index(acts, s.t0)
+        if i < 0:
             continue
         cal = cals[i]
         lo, hi = compose.common_range(cal)[0]

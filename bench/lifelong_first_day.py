@@ -23,7 +23,8 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 sys.path.insert(0, os.path.dirname(HERE))
 
-from bench_lifelong import registry_timeline, stop_chunks, stop_error  # noqa: E402
+from bench_lifelong import (  # noqa: E402
+    active_index, drift_rms, registry_timeline, scored_stops, stop_error)
 from thermal_imu_calib.sim.robot_month import DAY, robot_month  # noqa: E402
 
 
@@ -32,17 +33,13 @@ def first_day(seed, work_seed):
     m = robot_month(seed, days=30.0)
     starts, cals = registry_timeline(work_seed, m.start_ns)
     ea, eg = [], []
-    for seg in m.segments(0.0, DAY):
-        ch = stop_chunks(seg)
-        if ch is None or seg.stop.blocked:
-            continue
-        k = int(np.searchsorted(starts, seg.stop.t0, side='right')) - 1
+    for seg, ch in scored_stops(m, 0.0, DAY):
+        k = active_index(starts, seg.stop.t0)
         g, a = stop_error(cals[k] if k >= 0 else None, ch)
         ea.append(a)
         eg.append(np.linalg.norm(g))
-    a = np.array(ea)
-    drift = float(np.sqrt(np.mean(np.sum((a - np.median(a, 0)) ** 2, 1))))
-    return drift, float(np.sqrt(np.mean(np.square(eg)))), len(a)
+    drift = drift_rms(ea)
+    return drift, float(np.sqrt(np.mean(np.square(eg)))), len(ea)
 
 
 def main():

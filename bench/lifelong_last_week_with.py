@@ -22,7 +22,8 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 sys.path.insert(0, os.path.dirname(HERE))
 
-from bench_lifelong import registry_timeline, stop_chunks, stop_error  # noqa: E402
+from bench_lifelong import (  # noqa: E402
+    active_index, drift_rms, registry_timeline, scored_stops, stop_error)
 from thermal_imu_calib.calibration import Calibration  # noqa: E402
 from thermal_imu_calib.sim.robot_month import DAY, robot_month  # noqa: E402
 
@@ -38,11 +39,8 @@ def main():
     starts, cals = registry_timeline(a.work_seed, m.start_ns)
     others = {os.path.basename(f): Calibration.load(f) for f in a.calibrations}
     rows = {'as it ran': [], **{k: [] for k in others}, 'raw': [], 'true model': []}
-    for seg in m.segments(a.from_day * DAY):
-        ch = stop_chunks(seg)
-        if ch is None or seg.stop.blocked:
-            continue
-        k = int(np.searchsorted(starts, seg.stop.t0, side='right')) - 1
+    for seg, ch in scored_stops(m, a.from_day * DAY):
+        k = active_index(starts, seg.stop.t0)
         temp = float(np.mean(ch['temp']))
         use = {'as it ran': cals[k] if k >= 0 else None, **others, 'raw': None,
                'true model': m.true_calibration(seg.stop.t0)}
@@ -50,8 +48,7 @@ def main():
             rows[name].append((temp, *stop_error(cal, ch)[1]))
     for name, v in rows.items():
         x = np.array(v)
-        e = x[:, 1:] - np.median(x[:, 1:], 0)
-        drift = np.sqrt(np.mean(np.sum(e ** 2, 1))) * 1e3
+        drift = drift_rms(x[:, 1:]) * 1e3
         slope = [np.polyfit(x[:, 0], x[:, 1 + j], 1)[0] * 1e3 for j in range(3)]
         print(f'{name:>14s}: accel drift {drift:6.1f} mm/s^2 over {len(x)} stops; error slope '
               f'x y z {slope[0]:+.2f} {slope[1]:+.2f} {slope[2]:+.2f} mm/s^2/degC')
