@@ -91,11 +91,9 @@ def compose(accel_from, gyro_from, note='', missing=False):
     if not ranges:
         raise ValueError('the calibrations do not compose: neither sensor has a model')
     valid, sensor_range = None, {}
-    if accel_from.inputs and len(ranges) == 1:
-        valid = next(iter(ranges.values())).copy()
-    elif accel_from.inputs:
-        valid = np.stack([np.minimum(ranges['accel'][:, 0], ranges['gyro'][:, 0]),
-                          np.maximum(ranges['accel'][:, 1], ranges['gyro'][:, 1])], 1)
+    if accel_from.inputs:          # the span of the models' own ranges (one model: its own)
+        valid = np.stack([np.min([r[:, 0] for r in ranges.values()], 0),
+                          np.max([r[:, 1] for r in ranges.values()], 0)], 1)
         sensor_range = {w: r.copy() for w, r in ranges.items() if not np.array_equal(r, valid)}
     noise = {k: v for k, v in (accel_from.noise_model or {}).items() if not k.startswith('gyro')}
     noise.update({k: v for k, v in (gyro_from.noise_model or {}).items()

@@ -654,8 +654,7 @@ class Lifelong:
         errs = {'gyro': both['gyro'], 'accel': both['accel'] - med}
         use, note = self._reference_holds(both, errs, before, only)
         ref = {}
-        held_rms = {'gyro': s_new['gyro_rms'],
-                    'accel': s_new.get('accel_magnitude_rms', s_new['accel_rms'])}
+        held_rms = {'gyro': s_new['gyro_rms'], 'accel': s_new['accel_magnitude_rms']}
         for which, err in errs.items():
             m = use[which]
             ref[which] = (max(held_rms[which], gate.rms(err)) if m.all() else
