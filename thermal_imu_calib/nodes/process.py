@@ -20,6 +20,12 @@ SPIN_PERIOD_S = 0.2
 #: at a time under load in a repro). Below ``ros2 launch``'s 5-s SIGINT -> SIGTERM escalation.
 TEARDOWN_LIMIT_S = 4.0
 
+#: how much later than ``TEARDOWN_LIMIT_S`` (s) the guard's native timers act when the
+#: hanging teardown holds the Python interpreter lock (rclpy's ``destroy_node`` does: CI stop
+#: 36, one compensator of 20 never exited although the Python guard was armed): first a dump
+#: of every thread's Python stack (``faulthandler``), then the exit. Still below 5 s.
+NATIVE_DUMP_AFTER_S, NATIVE_EXIT_AFTER_S = 0.25, 0.5
+
 
 def run_nodes(factories, args=None):
     """Create nodes from ``factories`` and spin them on one SingleThreadedExecutor.
@@ -99,13 +105,18 @@ def run_nodes(factories, args=None):
 
 
 def teardown_guard(name, status, limit_s=None):
-    """Start and return a daemon timer that ends the process if teardown outlasts ``limit_s``.
+    """Arm and return the guard that ends the process if teardown outlasts ``limit_s``.
 
     Start it once the nodes' own work is done (``finish``): what is then left is rclpy's and
-    the middleware's. On time-out it prints one warning line and ends the process with
-    ``status`` (0 for a requested stop). ``cancel()`` it when the teardown has finished.
-    ``limit_s`` defaults to ``TEARDOWN_LIMIT_S``.
+    the middleware's. On time-out a Python timer prints one warning line and ends the
+    process with ``status`` (0 for a requested stop). A hang inside rclpy's C code can hold
+    the interpreter lock, so that no Python thread ever runs again; for that case two native
+    timers, which need no Python, follow: ``faulthandler`` dumps every thread's stack to
+    stderr (where it hung, for a bug report) and ``native_exit_timer`` ends the process with
+    ``status``. ``cancel()`` the guard when the teardown has finished. ``limit_s`` defaults
+    to ``TEARDOWN_LIMIT_S``.
     """
+    import faulthandler
     import threading
     limit = TEARDOWN_LIMIT_S if limit_s is None else float(limit_s)
 
@@ -116,8 +127,77 @@ def teardown_guard(name, status, limit_s=None):
 
     timer = threading.Timer(limit, overdue)
     timer.daemon = True
+    for stream in (sys.stdout, sys.stderr):     # _exit from a native thread flushes nothing
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    dumping = False
+    try:
+        faulthandler.dump_traceback_later(limit + NATIVE_DUMP_AFTER_S, file=sys.stderr)
+        dumping = True
+    except (OSError, ValueError, AttributeError, RuntimeError):  # no usable stderr
+        pass
+    native = native_exit_timer(limit + NATIVE_EXIT_AFTER_S, status)
     timer.start()
-    return timer
+    return _Guard(timer, native, dumping)
+
+
+class _Guard:
+    """The armed teardown guard: ``cancel()`` disarms its three timers."""
+
+    def __init__(self, timer, native, dumping):
+        self._timer, self._native, self._dumping = timer, native, dumping
+
+    def cancel(self):
+        """Disarm: the teardown finished in time."""
+        import faulthandler
+        self._timer.cancel()
+        if self._native is not None:
+            self._native()
+        if self._dumping:
+            faulthandler.cancel_dump_traceback_later()
+
+
+def native_exit_timer(delay_s, status):
+    """Arm a POSIX timer that calls ``_exit(status)`` after ``delay_s`` s; return its disarm.
+
+    The timer (``timer_create`` with ``SIGEV_THREAD``) runs ``_exit`` on a new native thread,
+    so it works while another thread holds the Python interpreter lock forever. Linux/glibc
+    only: elsewhere (no ``timer_create``) it returns None and the Python timer is the guard.
+    The disarm function deletes the timer; call it at most once.
+    """
+    import ctypes
+
+    class SigEvent(ctypes.Structure):      # glibc's struct sigevent (64 bytes)
+        _fields_ = [('value', ctypes.c_void_p), ('signo', ctypes.c_int),
+                    ('notify', ctypes.c_int), ('function', ctypes.c_void_p),
+                    ('attribute', ctypes.c_void_p), ('pad', ctypes.c_int * 8)]
+
+    class TimeSpec(ctypes.Structure):
+        _fields_ = [('sec', ctypes.c_long), ('nsec', ctypes.c_long)]
+
+    sigev_thread, clock_monotonic = 2, 1
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        create, settime, delete = libc.timer_create, libc.timer_settime, libc.timer_delete
+        exit_fn = ctypes.cast(libc._exit, ctypes.c_void_p).value
+    except (OSError, AttributeError):
+        return None
+    if ctypes.sizeof(SigEvent) != 64:
+        return None
+    # the notify function gets the union sigval by value: an int in the first argument
+    # register, which is what _exit(int) reads
+    event = SigEvent(value=int(status) or None, notify=sigev_thread, function=exit_fn)
+    timer_id = ctypes.c_void_p()
+    if create(clock_monotonic, ctypes.byref(event), ctypes.byref(timer_id)) != 0:
+        return None
+    whole = int(delay_s)
+    spec = (TimeSpec * 2)(TimeSpec(0, 0), TimeSpec(whole, int((delay_s - whole) * 1e9)))
+    if settime(timer_id, 0, ctypes.byref(spec), None) != 0:
+        delete(timer_id)
+        return None
+    return lambda: delete(timer_id)
 
 
 def _factory_name(make):
