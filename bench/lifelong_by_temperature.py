@@ -58,6 +58,21 @@ def residual_summary(scored):
                   f'calibration, RMS x y z {rms[0]:.3f} {rms[1]:.3f} {rms[2]:.3f} mrad/s')
 
 
+def _header(cal, start_ns, sensor):
+    """Return 'calibration ID active from day D: <sensor> KIND, valid LO..HI degC'."""
+    lo, hi = cal.valid_range[0] if cal.valid_range is not None else (np.nan, np.nan)
+    return (f'calibration {cal.id} active from day {start_ns / DAY:.2f}: {sensor} '
+            f'{getattr(cal, sensor).kind}, valid {lo:.1f}..{hi:.1f} degC')
+
+
+def _bands(temps):
+    """Yield ('LO..HI degC' label, mask) for each band of ``BANDS`` holding a stop (degC)."""
+    for b0, b1 in zip(BANDS[:-1], BANDS[1:]):
+        s = (temps >= b0) & (temps < b1)
+        if s.any():
+            yield f'{b0:>5.0f}..{b1:<4.0f} degC', s
+
+
 def accel_summary(scored, starts, cals):
     """Print the accelerometer drift (error minus the median over all stops) per calibration."""
     med = np.median(np.concatenate([np.array(v)[:, 1:4] for v in scored.values()]), 0)
@@ -66,18 +81,12 @@ def accel_summary(scored, starts, cals):
         x = np.array(v)
         d = x[:, 1:4] - med
         alld.append(d)
-        c = cals[k]
-        lo, hi = c.valid_range[0] if c.valid_range is not None else (np.nan, np.nan)
-        print(f'calibration {c.id} active from day {starts[k] / DAY:.2f}: accel {c.accel.kind}, '
-              f'valid {lo:.1f}..{hi:.1f} degC, {len(x)} stops, drift RMS '
+        print(f'{_header(cals[k], starts[k], "accel")}, {len(x)} stops, drift RMS '
               f'{np.sqrt(np.mean(np.sum(d ** 2, 1))) * 1e3:.1f} mm/s^2')
-        for b0, b1 in zip(BANDS[:-1], BANDS[1:]):
-            s = (x[:, 0] >= b0) & (x[:, 0] < b1)
-            if s.any():
-                rms = np.sqrt(np.mean(np.sum(d[s] ** 2, 1))) * 1e3
-                mean = ' '.join(f'{m:+.1f}' for m in d[s].mean(0) * 1e3)
-                print(f'  {b0:>5.0f}..{b1:<4.0f} degC {s.sum():4d} stops: drift RMS {rms:.1f}, '
-                      f'mean x y z {mean} mm/s^2')
+        for band, s in _bands(x[:, 0]):
+            rms = np.sqrt(np.mean(np.sum(d[s] ** 2, 1))) * 1e3
+            mean = ' '.join(f'{m:+.1f}' for m in d[s].mean(0) * 1e3)
+            print(f'  {band} {s.sum():4d} stops: drift RMS {rms:.1f}, mean x y z {mean} mm/s^2')
     d = np.concatenate(alld)
     print(f'all {len(d)} stops: drift RMS {np.sqrt(np.mean(np.sum(d ** 2, 1))) * 1e3:.1f} mm/s^2')
 
@@ -105,16 +114,11 @@ def main():
         return
     for k, v in sorted(scored.items()):
         x = np.array(v)
-        c = cals[k]
-        lo, hi = c.valid_range[0] if c.valid_range is not None else (np.nan, np.nan)
-        print(f'calibration {c.id} active from day {starts[k] / DAY:.2f}: gyro {c.gyro.kind}, '
-              f'valid {lo:.1f}..{hi:.1f} degC, {len(x)} stops')
-        for b0, b1 in zip(BANDS[:-1], BANDS[1:]):
-            s = (x[:, 0] >= b0) & (x[:, 0] < b1)
-            if s.any():
-                rms = np.sqrt(np.mean(x[s, 1:4] ** 2, 0)) * 1e3
-                print(f'  {b0:>5.0f}..{b1:<4.0f} degC {s.sum():4d} stops: gyro RMS x y z '
-                      f'{rms[0]:.3f} {rms[1]:.3f} {rms[2]:.3f} mrad/s')
+        print(f'{_header(cals[k], starts[k], "gyro")}, {len(x)} stops')
+        for band, s in _bands(x[:, 0]):
+            rms = np.sqrt(np.mean(x[s, 1:4] ** 2, 0)) * 1e3
+            print(f'  {band} {s.sum():4d} stops: gyro RMS x y z '
+                  f'{rms[0]:.3f} {rms[1]:.3f} {rms[2]:.3f} mrad/s')
     residual_summary(scored)
 
 

@@ -146,6 +146,13 @@ class RosHarness:
                 self.errors.append(e)
                 traceback.print_exc()
 
+    def paused(self):
+        """Return the lock held around each spin: ``with ros.paused():`` runs between spins.
+
+        No callback of any harness node runs inside it, and messages queue up meanwhile.
+        """
+        return self._lock
+
     def add(self, node):
         """Spin ``node`` (created with ``context=self.context``) and return it."""
         self.nodes.append(node)

@@ -74,7 +74,7 @@ class Player:
         the subscription would be read after it, with the old process's counts (seen once
         under load: a wait saw the count 7526 below where it started).
         """
-        with self.ros._lock:                # between two spins of the harness's executor
+        with self.ros.paused():             # between two spins of the harness's executor
             self.node.destroy_subscription(self._progress_sub)
             self.progress = []
             self._progress_sub = self._subscribe_progress()

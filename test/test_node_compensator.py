@@ -513,7 +513,7 @@ def test_queued_readings_are_taken_before_an_imu_batch(ros, tmp_path):
     cal = make_cal()
     rig = Rig(ros, calibration_file=str(cal.save(tmp_path / 'cal.yaml')))
     rig.temperature(24.0, T0_NS)
-    with ros._lock:  # the executor is held: everything below queues up
+    with ros.paused():  # the executor is held: everything below queues up
         for k in range(1, 6):
             rig.temp_pub.publish(temperature_msg(T0_NS + k * S // 10, 24.0 + k))
         _wait_queued(ros, rig.node.temp_subs[0])
