@@ -8,7 +8,8 @@ import pytest
 from _thermal_data import options
 from thermal_imu_calib.calibration import Calibration, TemperatureInput
 from thermal_imu_calib.estimation.calibrate import calibrate_windows
-from thermal_imu_calib.estimation.hysteresis import ARDUPILOT_SPEC, candidate_specs, Spec
+from thermal_imu_calib.estimation.hysteresis import (ARDUPILOT_SPEC, candidate_specs,
+                                                     NO_THERMAL_SPEC, Spec)
 from thermal_imu_calib.formats import export_calibration
 from thermal_imu_calib.io.csv_logs import read_tofupilot_chamber
 from thermal_imu_calib.models import model_from_dict
@@ -109,6 +110,29 @@ def test_choice_never_loses_to_the_flight_stack_cubic():
     spec, scores = choose({ARDUPILOT_SPEC: [1.0, 1.0], a: [1.0, 1.012], b: [0.99, 0.97]}, raw)
     assert spec is ARDUPILOT_SPEC and scores[a] > scores[ARDUPILOT_SPEC]
     assert len(candidate_specs()) > 80 and ARDUPILOT_SPEC in candidate_specs()
+
+
+def test_no_thermal_terms_when_no_model_beats_the_output_as_it_is(chamber_log):
+    """An accelerometer with no thermal dependence (the real chamber log's gyro kept): every
+    thermal model can only fit its noise, and the held-out history says so, so the choice is
+    no thermal terms (the output left as it is), not the cubic floor or a history model."""
+    import dataclasses
+    _, _, w = chamber_log
+    rng = np.random.default_rng(0)
+    flat = np.mean(w.accel, axis=0) + rng.normal(0.0, 0.01, w.accel.shape)   # m/s^2
+    o = options()
+    o.inputs = [TemperatureInput('/imu/temperature')]
+    cal = calibrate_windows(dataclasses.replace(w, accel=flat), o).calibration
+    choice = cal.fit['model_choice']
+    assert 'accel (m/s^2): raw' in choice['reason'], choice['reason']
+    accel_part = choice['reason'].split('accel (m/s^2):')[1].split('; gyro')[0]
+    assert f'chose {NO_THERMAL_SPEC.label()}' in accel_part, accel_part
+    assert cal.accel.kind == 'offset_polynomial' and cal.accel.order == 0
+    assert not np.any(cal.accel.coeffs)            # offset-only: nothing is subtracted
+    assert cal.gyro.order >= 1 or getattr(cal.gyro, 'history_keys', None)   # still thermal
+    table = choice['heldout']
+    np.testing.assert_allclose(table[NO_THERMAL_SPEC.label()]['accel'], table['raw']['accel'],
+                               rtol=1e-9)
 
 
 def test_block_drift_is_the_chamber_score():

@@ -66,10 +66,20 @@ class Spec:
 #: polyfit of every sample against T - 35 degC): time-weighted, no history
 ARDUPILOT_SPEC = Spec(3, (), (), 'time', 'ardupilot (cubic in T - 35 degC, time-weighted)')
 
+#: no thermal terms: the constant alone (the gyro's bias; nothing for an offset-only
+#: accelerometer). On held-out history its figure is the raw output's (the figures take
+#: constants out), so it is chosen when no thermal model is better than leaving the output
+#: as it is: the "no harm" candidate, the simplest of all
+NO_THERMAL_SPEC = Spec(0, (), (), 'time', 'no thermal terms (constant only)')
+
 
 def candidate_specs():
-    """Return the candidate grid, simplest first (the floor ``ARDUPILOT_SPEC`` first)."""
-    out = [ARDUPILOT_SPEC]
+    """Return the candidate grid, simplest first (``NO_THERMAL_SPEC``, then the floor).
+
+    ``ARDUPILOT_SPEC`` is the floor the choice never goes below; ``NO_THERMAL_SPEC`` is the
+    output left as it is.
+    """
+    out = [NO_THERMAL_SPEC, ARDUPILOT_SPEC]
     for weighting in ('time', 'temperature'):
         for order in (1, 2, 3):
             hist = [()]

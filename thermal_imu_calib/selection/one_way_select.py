@@ -8,7 +8,8 @@ blocks, used above 10 %), whose choice is the *incumbent* here. The issue-22 rul
 on top of it:
 
 * the flight stacks' cubic (``ARDUPILOT_SPEC``, ArduPilot's form for one orientation) is
-  always a candidate, and so are offset polynomials of order 1..3 in the input the lag
+  always a candidate, and so are no thermal terms (``NO_THERMAL_SPEC``: the output as it
+  is) and offset polynomials of order 1..3 in the input the lag
   search chose (the reading, or the reading through its lag), each time-weighted or uniform
   in temperature (``estimation.hysteresis.fit_weights``);
 * every candidate is scored on **held-out contiguous temperature bands** inside the range:
@@ -33,7 +34,7 @@ import numpy as np
 
 from ..estimation.calibrate import input_units
 from ..estimation.hysteresis import (ARDUPILOT_SPEC, ARDUPILOT_TREF, Features, fit_spec,
-                                     predict, Spec)
+                                     NO_THERMAL_SPEC, predict, Spec)
 from ..estimation.thermal_lag import lagged_axis_temperatures
 from ..input_units import is_temperature
 from .time_folds import BLOCK_S, complexity, label, MARGIN, MIN_TEST_WINDOWS, RVM
@@ -91,7 +92,8 @@ def level_drift(corrected, windows, train, test, block_s=BLOCK_S):
 def candidate_specs(tau):
     """Return (eligible specs simplest first, floor spec, specs reported only).
 
-    Without a lag: the flight stacks' cubic (``ARDUPILOT_SPEC``, the floor) and offset
+    Always ``NO_THERMAL_SPEC`` (the output as it is: its figure is the raw one). Without a
+    lag: the flight stacks' cubic (``ARDUPILOT_SPEC``, the floor) and offset
     polynomials of order 1..3 in the reading, time-weighted or uniform in temperature.
     With the lag the lag search chose: the same polynomials in the lagged reading, the floor
     being ArduPilot's form (cubic, time-weighted) in that input; the cubic in the reading
@@ -99,7 +101,7 @@ def candidate_specs(tau):
     lag (the lag was decided on time blocks).
     """
     base = () if tau is None else (round(float(np.max(tau)), 1),)
-    out = [] if base else [ARDUPILOT_SPEC]
+    out = [NO_THERMAL_SPEC] + ([] if base else [ARDUPILOT_SPEC])
     for weighting in ('time', 'temperature'):
         for order in (1, 2, 3):
             out.append(Spec(order, base, (), weighting))

@@ -19,10 +19,11 @@ is judged over the temperatures both sides cover); else all of them, the models 
 as fitted (a clamped input would score every shape alike: as the raw drift).
 
 Every candidate of ``estimation.hysteresis.candidate_specs`` (order, history terms, lags,
-weighting), and the RVM in the reading (``RVM``, kernels searched inside each fold), gets
-the mean over the folds of its figure divided by the raw figure; the simplest candidate
-within ``MARGIN`` of the best is chosen per sensor, and never one whose figure is worse
-than the flight stacks' cubic (``ARDUPILOT_SPEC``), which is then chosen.
+weighting; no thermal terms at all, whose figure is the raw one), and the RVM in the
+reading (``RVM``, kernels searched inside each fold), gets the mean over the folds of its
+figure divided by the raw figure; the simplest candidate within ``MARGIN`` of the best is
+chosen per sensor, and never one whose figure is worse than the flight stacks' cubic
+(``ARDUPILOT_SPEC``), which is then chosen.
 """
 
 import dataclasses
@@ -32,7 +33,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from ..estimation.hysteresis import (ARDUPILOT_SPEC, ARDUPILOT_TREF, candidate_specs,
-                                     Features, fit_spec, predict, Spec)
+                                     Features, fit_spec, NO_THERMAL_SPEC, predict, Spec)
 from ..estimation.rvm_fit import fit_rvm_offset
 from ..estimation.thermal_lag import cv_groups, legs
 
@@ -222,6 +223,8 @@ def family(spec):
     """Return the family of a spec for the summary: its kind of history and weighting."""
     if spec is ARDUPILOT_SPEC:
         return 'ardupilot'
+    if spec == NO_THERMAL_SPEC:
+        return 'no thermal terms'
     if not isinstance(spec, Spec):
         return label(spec)
     kinds = {'rate' if k == 'rate' else ('two-state lag' if len(t) > 1 else 'lag difference')
