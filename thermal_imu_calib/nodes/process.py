@@ -127,11 +127,7 @@ def teardown_guard(name, status, limit_s=None):
 
     timer = threading.Timer(limit, overdue)
     timer.daemon = True
-    for stream in (sys.stdout, sys.stderr):     # _exit from a native thread flushes nothing
-        try:
-            stream.flush()
-        except (OSError, ValueError):
-            pass
+    _flush_std_streams()                        # _exit from a native thread flushes nothing
     dumping = False
     try:
         faulthandler.dump_traceback_later(limit + NATIVE_DUMP_AFTER_S, file=sys.stderr)
@@ -313,9 +309,14 @@ def exit_process(code):
     atomically, so nothing half-written is left at a final name.
     """
     import os
+    _flush_std_streams()
+    os._exit(code)
+
+
+def _flush_std_streams():
+    """Flush stdout and stderr (best effort: a closed or broken stream is skipped)."""
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()
         except (OSError, ValueError):
             pass
-    os._exit(code)
