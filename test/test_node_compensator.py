@@ -538,3 +538,60 @@ def test_state_file_name_follows_the_node(ros, tmp_path):
                                        Parameter('state_file',
                                                  value=str(tmp_path / '{node}.state.json'))]))
     assert node.state.path == str(tmp_path / 'imu_left.thermal_imu_compensator.state.json')
+
+
+def test_repeated_and_earlier_stamps_are_compensated_as_compensate_does(ros, tmp_path):
+    # a driver that repeats a stamp or jitters one back by 15 ms: the node and the CLI's
+    # compensate both compensate those samples at their own stamp (the CLI passed them
+    # through raw before 2026-11-29: a 0.35 m/s^2 step in the output on such a sample).
+    # The calibration names its input as the node's parameter does (imu/temperature), the
+    # log as ros2 bag record does (/imu/temperature): compensate finds it
+    from thermal_imu_calib.app.compensate import compensate_log
+    from thermal_imu_calib.io import cdr
+    from thermal_imu_calib.io.bag import open_log
+    from thermal_imu_calib.io.bag_writer import LogWriter
+    from thermal_imu_calib.io.cdr import IMU_MSGTYPE, TEMPERATURE_MSGTYPE
+    from thermal_imu_calib.io.columns import ImuColumns, TemperatureColumns
+    cal = make_cal()
+    cal_path = cal.save(tmp_path / 'cal.yaml')
+    t_stamps = T0_NS + np.arange(6, dtype=np.int64) * S          # 25..30 degC, 1 Hz
+    t_values = 25.0 + np.arange(6.0)
+    stamps = T0_NS + np.arange(400, dtype=np.int64) * 10_000_000  # 100 Hz over 4 s
+    odd = np.arange(50, 390, 37)
+    stamps[odd] = stamps[odd - 1]                                 # repeated
+    stamps[odd + 3] = stamps[odd + 2] - 15_000_000                # 15 ms behind
+    n = len(stamps)
+    accel = np.tile(ACCEL, (n, 1))
+    gyro = np.tile(GYRO, (n, 1))
+    log = tmp_path / 'jitter.mcap'
+    with LogWriter(str(log)) as w:    # log time: arrival order (the stamps are the driver's)
+        w.add_topic('/imu/temperature', TEMPERATURE_MSGTYPE)
+        w.add_topic('/imu/data_raw', IMU_MSGTYPE)
+        w.write_many('/imu/temperature', t_stamps - S,
+                     cdr.encode_temperature(TemperatureColumns(t_stamps, t_values)))
+        w.write_many('/imu/data_raw', T0_NS + np.arange(n, dtype=np.int64) * 10_000_000,
+                     cdr.encode_imu(ImuColumns(stamps, accel, gyro, 'imu_link')))
+    stats = compensate_log(str(log), str(tmp_path / 'out.mcap'), Calibration.load(cal_path))
+    assert stats['compensated'] == n and stats['stamp_jumped_back'] == 0, stats
+    assert stats['stamp_jumps'] == 2 * len(odd), stats
+    offline = {}
+    with open_log(str(tmp_path / 'out.mcap')) as r:
+        for _, _, _, data in r.iter_raw(['/imu/data_compensated']):
+            m = cdr.decode_imu([data])
+            offline.setdefault(int(m.stamp_ns[0]), []).append(m.accel[0])
+    truth = np.interp(stamps * 1e-9, t_stamps * 1e-9, t_values)
+    rig = Rig(ros, calibration_file=str(cal_path))
+    for s, v in zip(t_stamps, t_values):
+        rig.temperature(float(v), stamp=int(s))
+    for s in stamps:
+        rig.imu_pub.publish(imu_msg(int(s), ACCEL, GYRO))
+    out = rig.receive(n)
+    wait_for(lambda: len(out) >= n, WAIT, f'{n} outputs')
+    assert rig.node.counts['compensated'] == n, rig.node.counts
+    live = {}
+    for m in out:
+        live.setdefault(common.stamp_to_ns(m.header.stamp), []).append(vec(m)[0])
+    for i in np.concatenate([odd, odd + 3, [0, 10, 399]]):
+        want = expected(cal, truth[i]).accel[0]
+        for got in live[int(stamps[i])] + offline[int(stamps[i])]:
+            np.testing.assert_allclose(got, want, atol=1e-9)

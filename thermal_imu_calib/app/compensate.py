@@ -21,10 +21,10 @@ from ..io.align import StreamAligner
 from ..io.bag import copy_and_stream, open_log
 from ..io.bag_writer import LogWriter
 from ..io.cdr import IMU_MSGTYPE
-from ..io.gate import increasing_rows
+from ..io.gate import JUMP_S, behind_newest
 from ..io.log_info import LogError
 from ..io.output import staging_dir
-from ..io.topics import resolve_topics
+from ..io.topics import in_log, resolve_topics
 from .collect import progress_bar
 
 #: what to do with IMU rows whose temperature is missing or stale
@@ -86,6 +86,7 @@ def _compensate(src, dst, calibration, imu_topic, temperature_topics, output_top
         if temperature_topics is None and calibration.inputs:
             temperature_topics = calibration.temperature_topics
             types = reader.topic_types()
+            temperature_topics = [in_log(types, t) for t in temperature_topics]
             absent = [t for t in temperature_topics if t not in types]
             if absent:
                 raise LogError(f'the calibration expects temperature topics {absent} that '
@@ -102,6 +103,7 @@ def _compensate(src, dst, calibration, imu_topic, temperature_topics, output_top
                            'another --output-topic')
         stats = {'imu_in': 0, 'imu_out': 0, 'dropped': 0, 'passthrough': 0,
                  'out_of_range': 0, 'copied': reader.message_count, 'stamp_jumps': 0,
+                 'stamp_jumped_back': 0,
                  'compensated': 0, 'temp_min': np.full(len(temps), np.inf),
                  'temp_max': np.full(len(temps), -np.inf)}
         newest = [None]     # the newest IMU header stamp so far (ns)
@@ -125,7 +127,7 @@ def _compensate(src, dst, calibration, imu_topic, temperature_topics, output_top
                 # the payloads wait in the store; the aligner carries their row numbers
                 extra = {'imu_log_time_ns': raw.imu_log_time_ns,
                          'imu_row': payloads.add(raw.imu_raw),
-                         'stamp_ok': increasing_rows(raw.imu.stamp_ns, newest)}
+                         'behind_ns': behind_newest(raw.imu.stamp_ns, newest)}
                 for ch in gated(aligner.push_columns(raw.imu, [raw.temps[t] for t in temps],
                                                      extra)):
                     _write_compensated(writer, output_topic, ch, stream, timeout,
@@ -227,10 +229,17 @@ def _write_compensated(writer, topic, ch, stream, timeout, policy, stats, payloa
     if n == 0:
         return
     temps, keep, comp = _resolve_missing(ch.temps, ch.temp_age, timeout, policy, None)
-    ok = ch.extra['stamp_ok']
-    stats['stamp_jumps'] += int((~ok).sum())
-    keep |= ~ok               # the span after a jump back passes through uncompensated
-    comp &= ok
+    behind = ch.extra['behind_ns']
+    stats['stamp_jumps'] += int((behind >= 0).sum())   # not increasing, as calibrate drops
+    # a repeated or jittered stamp (up to JUMP_S behind) is compensated at its own stamp,
+    # as compensator_node does; the span after a jump further back is another timeline,
+    # for which compensator_node has cleared its temperatures: passed through
+    jumped = behind > int(JUMP_S * 1e9)
+    if jumped.any():
+        stream.reset()        # compensator_node restarts its stream at such a jump too
+    stats['stamp_jumped_back'] += int(jumped.sum())
+    keep |= jumped
+    comp &= ~jumped
     if np.any(comp) and temps.shape[1]:
         stats['temp_min'] = np.minimum(stats['temp_min'], temps[comp].min(0))
         stats['temp_max'] = np.maximum(stats['temp_max'], temps[comp].max(0))

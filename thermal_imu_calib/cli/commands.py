@@ -20,6 +20,7 @@ from .format import (format_calibrate_run, format_calibration, format_evaluation
                      format_log_read, format_saved_windows)
 from ..collection.stationary import format_holds, format_settings
 from ..estimation.calibrate import CalibrationRefused
+from ..io.gate import JUMP_S
 from ..io.log_info import LogError
 from ..io.output import Outputs
 from ..report import cli as report_cli
@@ -118,11 +119,15 @@ def cmd_compensate(args):
                         args.output_topic, args.storage, args.chunk_size, args.max_gap,
                         args.temperature_timeout, args.on_missing_temperature, args.progress,
                         args.despike)
-    print(f'wrote {args.output}: {st["copied"]} messages copied, {st["imu_out"]} compensated '
-          f'on {args.output_topic} ({st["out_of_range"]} outside the calibrated temperature '
-          f'range, {st["passthrough"]} passed through, {st["dropped"]} dropped'
-          + (f', {st["stamp_jumps"]} after IMU stamps jumped back passed through'
-             if st['stamp_jumps'] else '')
+    print(f'wrote {args.output}: {st["copied"]} messages copied, {st["imu_out"]} written '
+          f'on {args.output_topic} ({st["compensated"]} compensated, {st["out_of_range"]} '
+          f'outside the calibrated temperature range, {st["passthrough"]} passed through, '
+          f'{st["dropped"]} dropped'
+          + (f', {st["stamp_jumped_back"]} after IMU stamps jumped back by more than '
+             f'{JUMP_S:.0f} s passed through' if st['stamp_jumped_back'] else '')
+          + (f', {st["stamp_jumps"] - st["stamp_jumped_back"]} with a repeated or earlier '
+             'stamp compensated at that stamp'
+             if st['stamp_jumps'] > st['stamp_jumped_back'] else '')
           + (f', {st["spikes"]} spike values replaced' if args.despike else '') + '), '
           f'{st["msgs_per_s"]:,.0f} msgs/s')
     return 0

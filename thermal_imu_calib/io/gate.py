@@ -212,18 +212,37 @@ class LiveImuFilter:
 def increasing_rows(stamps, newest):
     """Return the rows whose stamp is above every earlier one; ``newest`` = [ns or None].
 
-    ``newest[0]`` (the newest stamp before these rows) is updated. The rows after a jump
+    ``newest[0]`` (the newest stamp before these rows) is updated. The rows after a step
     back, until the stamps pass the newest before it, are the span ``calibrate`` drops
-    (and refuses above 10 %) and ``compensate`` passes through uncompensated.
+    (and refuses above 10 %).
     """
     stamps = np.asarray(stamps, np.int64)
+    return stamps > _newest_before(stamps, newest)
+
+
+def behind_newest(stamps, newest):
+    """Return how far (ns) each stamp lies behind the newest before it; ``newest`` as above.
+
+    -1 where the stamp increases, 0 where it repeats the newest. ``newest[0]`` is updated.
+    ``compensate`` compensates a row up to ``JUMP_S`` behind (a repeated or jittered stamp,
+    as ``compensator_node`` does) and passes a row further behind through (a new timeline,
+    for which ``compensator_node`` has cleared its temperatures).
+    """
+    stamps = np.asarray(stamps, np.int64)
+    prev = _newest_before(stamps, newest)
+    up = stamps > prev
+    return np.where(up, np.int64(-1), np.where(up, stamps, prev) - stamps)
+
+
+def _newest_before(stamps, newest):
+    """Return the running newest stamp before each row (int64 minimum before any)."""
     if not len(stamps):
-        return np.ones(0, bool)
+        return np.zeros(0, np.int64)
     low = np.iinfo(np.int64).min
     prev = np.maximum.accumulate(np.concatenate([[low if newest[0] is None else newest[0]],
                                                  stamps]))[:-1]
     newest[0] = int(max(prev[-1], stamps[-1]))
-    return stamps > prev
+    return prev
 
 
 def thermal_problems(report, max_gap_s):

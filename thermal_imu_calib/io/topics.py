@@ -29,9 +29,25 @@ def resolve_topics(reader, imu_topic, temperature_topics):
                 f'; topics present: {reader._describe_topics()}; pass --imu-topic naming '
                 'the IMU topic'))
         imu_topic = imus[0]
+    imu_topic = in_log(types, imu_topic)
     reader.check_topics([imu_topic], IMU_MSGTYPE)
     if temperature_topics is None:
         temperature_topics = sorted(t for t, ty in types.items() if ty == TEMPERATURE_MSGTYPE)
     else:
+        temperature_topics = [in_log(types, t) for t in temperature_topics]
         reader.check_topics(temperature_topics, SCALAR_MSGTYPES)
     return imu_topic, list(temperature_topics)
+
+
+def in_log(types, name):
+    """Return the log's topic for ``name``: itself, or ``/name`` for a relative name.
+
+    A node's parameters name topics relative to its namespace (``imu/temperature``, as
+    the shipped config and the calibration files ``calibrator_node`` writes do), and
+    ``ros2 bag record`` stores them resolved (``/imu/temperature``, the root namespace).
+    ``types`` maps the log's topics to their types; a name found in neither form is
+    returned as given (the caller's check names the topics present).
+    """
+    if name in types or not name or name.startswith('/'):
+        return name
+    return '/' + name if '/' + name in types else name
