@@ -351,3 +351,19 @@ def test_temperature_only_spans_are_flushed(tmp_path):
         chunks = list(log.stream('/imu', ['/t'], chunk_size=20))
     assert [len(c.temps['/t']) for c in chunks] == [20, 20, 10]
     assert all(len(c) == 0 for c in chunks)
+
+
+def test_relative_topic_names_are_found_as_a_recorder_stores_them():
+    # calibrator_node writes its inputs as its parameters name them (imu/temperature);
+    # ros2 bag record stores them resolved, in the root namespace or under one
+    from thermal_imu_calib.io.topics import in_log
+    root = {'/imu/data_raw': 'Imu', '/imu/temperature': 'Temperature'}
+    spaced = {'/robot1/imu/data_raw': 'Imu', '/robot1/imu/temperature': 'Temperature'}
+    two = {**spaced, '/robot2/imu/temperature': 'Temperature'}
+    assert in_log(root, 'imu/temperature') == '/imu/temperature'
+    assert in_log(root, '/imu/temperature') == '/imu/temperature'
+    assert in_log(spaced, 'imu/temperature') == '/robot1/imu/temperature'
+    assert in_log(two, 'imu/temperature') == 'imu/temperature'     # ambiguous: as given
+    assert in_log(root, 'temperature') == '/imu/temperature'
+    assert in_log(root, '/other/temperature') == '/other/temperature'
+    assert in_log({'imu/temperature': 'Temperature'}, 'imu/temperature') == 'imu/temperature'

@@ -40,14 +40,19 @@ def resolve_topics(reader, imu_topic, temperature_topics):
 
 
 def in_log(types, name):
-    """Return the log's topic for ``name``: itself, or ``/name`` for a relative name.
+    """Return the log's topic for ``name``: itself, else the resolved form of a relative name.
 
     A node's parameters name topics relative to its namespace (``imu/temperature``, as
     the shipped config and the calibration files ``calibrator_node`` writes do), and
-    ``ros2 bag record`` stores them resolved (``/imu/temperature``, the root namespace).
-    ``types`` maps the log's topics to their types; a name found in neither form is
-    returned as given (the caller's check names the topics present).
+    ``ros2 bag record`` stores them resolved: ``/imu/temperature`` in the root namespace,
+    ``/robot1/imu/temperature`` under a namespace. A relative name is found as ``/name``,
+    else as the one topic ending in ``/name``. ``types`` maps the log's topics to their
+    types; a name not found (or found under several namespaces) is returned as given, and
+    the caller's check names the topics present.
     """
     if name in types or not name or name.startswith('/'):
         return name
-    return '/' + name if '/' + name in types else name
+    if '/' + name in types:
+        return '/' + name
+    under = [t for t in types if t.endswith('/' + name)]
+    return under[0] if len(under) == 1 else name
