@@ -1,8 +1,9 @@
 """Replay a log into calibrator_node over DDS and call ~/calibrate, counting every message.
 
 The node is started as its own process the way the launch file describes it
-(``launch_nodes``: the shipped ``config/calibrator.yaml`` and the launch arguments, plus the
-parameters a user adds, e.g. ``gravity``), with ``HOME`` pointed at a fresh directory so
+(``launch_nodes``: the shipped ``config/calibrator.yaml`` and the launch arguments a user
+gives, ``gravity:=G`` among them; before 2026-11-29 gravity was added as a parameters dict,
+as no launch argument took it), with ``HOME`` pointed at a fresh directory so
 the shipped ``~/.ros/thermal_imu_calib/...`` collection never carries over between runs.
 
 The node's inputs are best effort (``common.sensor_qos``), which promises no delivery, so
@@ -377,7 +378,8 @@ def run_live_once(imu, temps, gravity, domain_id, temperature_topics=None, workd
     """Replay ``imu`` (+ ``temps`` on /imu/temperature) into a launched calibrator_node.
 
     ``temperature_topics``: the launch argument (None: the shipped config's
-    [imu/temperature]; '[]': none); ``extra_params`` are added to ``gravity`` (for
+    [imu/temperature]; '[]': none); ``gravity`` is given as the launch argument
+    ``gravity:=G``; ``extra_params`` are added as one more parameters dict (for
     experiments; by default none). Returns a Replay; never raises for node failures
     (they are in ``Replay.error``).
     """
@@ -389,13 +391,12 @@ def run_live_once(imu, temps, gravity, domain_id, temperature_topics=None, workd
     shutil.rmtree(workdir, ignore_errors=True)
     os.makedirs(workdir)
     cal_path = os.path.join(workdir, calibration_name)
-    args = {'calibration_file': cal_path}
+    args = {'calibration_file': cal_path, 'gravity': repr(float(gravity))}  # gravity:=G
     if temperature_topics is not None:
         args['temperature_topics'] = temperature_topics
     out = Replay()
     t_start = time.monotonic()
-    node = LiveCalibrator(workdir, args, {'gravity': float(gravity), **(extra_params or {})},
-                          domain_id)
+    node = LiveCalibrator(workdir, args, dict(extra_params or {}), domain_id)
     out.command = node.argv
     driver = None
     try:

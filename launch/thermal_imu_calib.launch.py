@@ -4,13 +4,19 @@
     ros2 launch thermal_imu_calib thermal_imu_calib.launch.py nodes:=compensator \\
         namespace:=left temperature_topics:='[/left/temp]' calibration_file:=~/cal.yaml
 
+    ros2 launch thermal_imu_calib thermal_imu_calib.launch.py nodes:=calibrator gravity:=9.81
+
 Arguments: namespace, imu_topic (remapped onto the nodes' ``imu/data_raw``),
 temperature_topics (YAML list), params_file (default: the package's config/<node>.yaml),
-calibration_file (default: the one in the params file), use_sim_time, and nodes (comma
-list of compensator, calibrator).
+calibration_file (default: the one in the params file), use_sim_time, gravity and latitude
+(the calibrator's), and nodes (comma list of compensator, calibrator). ``ros2 launch``
+silently keeps an argument a launch file does not declare, so a node parameter given as
+``name:=value`` (e.g. ``order:=1``) is not applied: this file prints a warning naming it
+and how to set it.
 """
 
 import os
+import sys
 
 import yaml
 from launch import LaunchDescription
@@ -31,6 +37,11 @@ ARGUMENTS = (
     ('calibration_file', '', 'calibration YAML the compensator loads and the calibrator writes '
                              '(empty: the params file\'s)'),
     ('use_sim_time', 'false', 'use /clock (true when playing a bag with --clock)'),
+    ('gravity', '', 'calibrator: local gravity in m/s^2, e.g. 9.81 (empty: the params file\'s; '
+                    '0 there: standard gravity)'),
+    ('latitude', '', 'calibrator: geodetic latitude in degrees, for normal gravity and the '
+                     'earth\'s rotation (empty: the params file\'s, not used unless '
+                     'use_latitude)'),
     ('nodes', 'compensator,calibrator',
      'comma list of the nodes to start: compensator, calibrator'),
 )
@@ -70,15 +81,51 @@ def make_nodes(context):
         overrides['temperature_topics'] = topics or ['']
     if v['calibration_file'].strip():
         overrides['calibration_file'] = os.path.expanduser(v['calibration_file'])
+    calibrator = {}
+    if v['gravity'].strip():
+        calibrator['gravity'] = _number(v['gravity'], 'gravity', 9.7, 9.9, zero=True)
+    if v['latitude'].strip():
+        calibrator['latitude'] = _number(v['latitude'], 'latitude', -90.0, 90.0)
+        calibrator['use_latitude'] = True
     actions = []
     for which in wanted:
         executable, name = NODES[which]
         params = v['params_file'] or os.path.join(_config_dir(), f'{which}.yaml')
+        _warn_unapplied(context, params, name)
         actions.append(Node(package=PACKAGE, executable=executable, name=name,
                             namespace=v['namespace'], output='screen',
-                            parameters=[params, overrides],
+                            parameters=[params, {**overrides, **(
+                                calibrator if which == 'calibrator' else {})}],
                             remappings=[('imu/data_raw', v['imu_topic'])]))
     return actions
+
+
+def _number(text, name, lo, hi, zero=False):
+    try:
+        x = float(text)
+    except ValueError:
+        x = float('nan')
+    if not (lo <= x <= hi or (zero and x == 0.0)):
+        raise ValueError(f'{name}:={text} must be a number in {lo:g}..{hi:g}'
+                         + (' (or 0)' if zero else ''))
+    return x
+
+
+def _warn_unapplied(context, params, name):
+    """Print which given launch arguments are parameters of node ``name`` it will not get."""
+    try:
+        with open(params) as f:
+            declared = yaml.safe_load(f) or {}
+        keys = set((declared.get(name) or {}).get('ros__parameters') or {})
+    except (OSError, yaml.YAMLError, AttributeError):
+        return
+    ours = {a for a, _, _ in ARGUMENTS}
+    given = sorted(k for k in context.launch_configurations if k in keys and k not in ours)
+    if given:
+        print(f'[thermal_imu_calib.launch.py] warning: {", ".join(given)} given as launch '
+              f'argument(s) but not applied to {name}: this launch file takes only '
+              f'{", ".join(sorted(ours))}. Set node parameters in a copy of {params} '
+              '(params_file:=FILE) or with ros2 param set.', file=sys.stderr, flush=True)
 
 
 def generate_launch_description():

@@ -61,7 +61,8 @@ def _resolve(mod, **given):
 def test_arguments_declared(launch_module):
     declared, nodes = _resolve(launch_module)
     assert set(declared) == {'namespace', 'imu_topic', 'temperature_topics', 'params_file',
-                             'calibration_file', 'use_sim_time', 'nodes'}
+                             'calibration_file', 'use_sim_time', 'gravity', 'latitude',
+                             'nodes'}
     assert [n['executable'] for n in nodes] == ['compensator_node', 'calibrator_node']
     for n in nodes:
         assert n['remappings'] == [('imu/data_raw', 'imu/data_raw')]
@@ -102,6 +103,52 @@ def test_no_temperature_topics(launch_module, ros, tmp_path, monkeypatch):
             parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()])
         ros.add(node)
         assert node.temperature_topics == []
+
+
+def test_gravity_and_latitude_reach_the_calibrator(launch_module, ros, tmp_path,
+                                                   monkeypatch, capfd):
+    # the new user sets only gravity; ros2 launch keeps an undeclared argument
+    # without a word, so gravity:= must be declared, and a node parameter given as an
+    # argument this file does not take is named in a warning
+    from rclpy.parameter import Parameter
+    _, nodes = _resolve(launch_module, gravity='9.81')
+    comp, calib = nodes
+    assert 'gravity' not in comp['parameters'][1]
+    assert calib['parameters'][1]['gravity'] == 9.81
+    assert 'use_latitude' not in calib['parameters'][1]
+    _, (calib,) = _resolve(launch_module, nodes='calibrator', latitude='48.1')
+    assert calib['parameters'][1]['latitude'] == 48.1
+    assert calib['parameters'][1]['use_latitude'] is True
+    monkeypatch.setenv('HOME', str(tmp_path))
+    _, (calib,) = _resolve(launch_module, nodes='calibrator', gravity='9.81')
+    module = importlib.import_module('thermal_imu_calib.nodes.calibrator')
+    params_file, overrides = calib['parameters']
+    node = ros.add(module.CalibratorNode(
+        context=ros.context, cli_args=['--ros-args', '--params-file', params_file],
+        parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()]))
+    assert node.gravity == 9.81
+    capfd.readouterr()
+    with pytest.raises(ValueError, match='gravity:=981 must be a number in 9.7..9.9'):
+        _resolve(launch_module, gravity='981')
+    with pytest.raises(ValueError, match='latitude:=north must be a number'):
+        _resolve(launch_module, latitude='north')
+    import launch
+    desc = launch_module.generate_launch_description()
+    context = launch.LaunchContext()
+    for e in desc.entities:
+        if hasattr(e, 'default_value'):
+            d = e.default_value
+            context.launch_configurations[e.name] = d if isinstance(d, str) else ''.join(
+                x.perform(context) for x in d)
+    context.launch_configurations['order'] = '1'        # a calibrator parameter
+    context.launch_configurations['robot_model'] = 'x'  # a parent launch file's argument
+    opaque, = [e for e in desc.entities if not hasattr(e, 'default_value')]
+    fn = getattr(opaque, 'function', None) or opaque._OpaqueFunction__function
+    nodes = [n.kwargs for n in fn(context)]
+    err = capfd.readouterr().err
+    assert 'order given as launch argument(s) but not applied to thermal_imu_calibrator' in err
+    assert 'robot_model' not in err and 'params_file:=FILE' in err
+    assert 'order' not in nodes[1]['parameters'][1]
 
 
 def test_bad_arguments_say_what_is_wrong(launch_module):
