@@ -8,8 +8,9 @@
 
 Arguments: namespace, imu_topic (remapped onto the nodes' ``imu/data_raw``),
 temperature_topics (YAML list), params_file (default: the package's config/<node>.yaml),
-calibration_file (default: the one in the params file), use_sim_time, gravity and latitude
-(the calibrator's), and nodes (comma list of compensator, calibrator). ``ros2 launch``
+calibration_file (default: the one in the params file), use_sim_time, the calibrator's
+gravity, latitude, lifelong and motion hints (cmd_vel_topic, odom_topic, still_topic), and
+nodes (comma list of compensator, calibrator). ``ros2 launch``
 silently keeps an argument a launch file does not declare, so a node parameter given as
 ``name:=value`` (e.g. ``order:=1``) is not applied: this file prints a warning naming it
 and how to set it.
@@ -42,6 +43,14 @@ ARGUMENTS = (
     ('latitude', '', 'calibrator: geodetic latitude in degrees, for normal gravity and the '
                      'earth\'s rotation (empty: the params file\'s, not used unless '
                      'use_latitude)'),
+    ('lifelong', '', 'calibrator: true to learn from everyday stops (docs/lifelong.md; '
+                     'empty: the params file\'s)'),
+    ('cmd_vel_topic', '', 'calibrator, lifelong: geometry_msgs/Twist motion hint (empty: the '
+                          'params file\'s)'),
+    ('odom_topic', '', 'calibrator, lifelong: nav_msgs/Odometry motion hint (empty: the '
+                       'params file\'s)'),
+    ('still_topic', '', 'calibrator, lifelong: std_msgs/Bool motion hint, true = commanded '
+                        'still (empty: the params file\'s)'),
     ('nodes', 'compensator,calibrator',
      'comma list of the nodes to start: compensator, calibrator'),
 )
@@ -87,6 +96,11 @@ def make_nodes(context):
     if v['latitude'].strip():
         calibrator['latitude'] = _number(v['latitude'], 'latitude', -90.0, 90.0)
         calibrator['use_latitude'] = True
+    if v['lifelong'].strip():
+        calibrator['lifelong'] = _bool(v['lifelong'], 'lifelong')
+    for name in ('cmd_vel_topic', 'odom_topic', 'still_topic'):
+        if v[name].strip():
+            calibrator[name] = v[name].strip()
     actions = []
     for which in wanted:
         executable, name = NODES[which]

@@ -62,6 +62,7 @@ def test_arguments_declared(launch_module):
     declared, nodes = _resolve(launch_module)
     assert set(declared) == {'namespace', 'imu_topic', 'temperature_topics', 'params_file',
                              'calibration_file', 'use_sim_time', 'gravity', 'latitude',
+                             'lifelong', 'cmd_vel_topic', 'odom_topic', 'still_topic',
                              'nodes'}
     assert [n['executable'] for n in nodes] == ['compensator_node', 'calibrator_node']
     for n in nodes:
@@ -119,6 +120,10 @@ def test_gravity_and_latitude_reach_the_calibrator(launch_module, ros, tmp_path,
     _, (calib,) = _resolve(launch_module, nodes='calibrator', latitude='48.1')
     assert calib['parameters'][1]['latitude'] == 48.1
     assert calib['parameters'][1]['use_latitude'] is True
+    _, (comp, calib) = _resolve(launch_module, lifelong='true', cmd_vel_topic='/cmd_vel')
+    assert calib['parameters'][1]['lifelong'] is True
+    assert calib['parameters'][1]['cmd_vel_topic'] == '/cmd_vel'
+    assert 'lifelong' not in comp['parameters'][1]
     monkeypatch.setenv('HOME', str(tmp_path))
     _, (calib,) = _resolve(launch_module, nodes='calibrator', gravity='9.81')
     module = importlib.import_module('thermal_imu_calib.nodes.calibrator')
@@ -127,11 +132,21 @@ def test_gravity_and_latitude_reach_the_calibrator(launch_module, ros, tmp_path,
         context=ros.context, cli_args=['--ros-args', '--params-file', params_file],
         parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()]))
     assert node.gravity == 9.81
+    _, (calib,) = _resolve(launch_module, nodes='calibrator', lifelong='true',
+                           cmd_vel_topic='/cmd_vel')
+    params_file, overrides = calib['parameters']
+    node = ros.add(module.CalibratorNode(
+        context=ros.context, cli_args=['--ros-args', '--params-file', params_file],
+        parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()]))
+    assert node.lifelong is not None
+    assert '/cmd_vel' in {s.topic_name for s in node.subscriptions}
     capfd.readouterr()
     with pytest.raises(ValueError, match='gravity:=981 must be a number in 9.7..9.9'):
         _resolve(launch_module, gravity='981')
     with pytest.raises(ValueError, match='latitude:=north must be a number'):
         _resolve(launch_module, latitude='north')
+    with pytest.raises(ValueError, match='lifelong:=on is not true or false'):
+        _resolve(launch_module, lifelong='on')
     import launch
     desc = launch_module.generate_launch_description()
     context = launch.LaunchContext()
