@@ -472,3 +472,35 @@ def _applied(out, tail, cal, tc):
                     np.full((len(idx), 1), tc.temperature[-1]))
     return (np.allclose(accel, ref.accel, rtol=0, atol=1e-9)
             and np.allclose(gyro, ref.gyro, rtol=0, atol=1e-12))
+
+
+def test_a_temperature_on_another_topic_is_named_in_the_refusal(ros, tmp_path):
+    # a driver publishing its temperature as imu/temp while the shipped config listens on
+    # imu/temperature: every IMU sample waits for a temperature and none is collected.
+    # The answer said "no stationary segments were found. ... check the IMU topic"
+    from conftest import replay_flow
+    rec = recording(repetitions=1, faces=('+z', '-z'))
+    calibrator(ros, tmp_path)
+    node = ros.node('driver_with_imu_temp')
+    imu_pub = node.create_publisher(Imu, 'imu/data_raw', 1000)
+    temp_pub = node.create_publisher(Temperature, '/imu/temp', 100)
+    progress = []
+    node.create_subscription(String, '/thermal_imu_calibrator/progress',
+                             lambda m: progress.append(json.loads(m.data)), 10)
+    ros.wait_matched(imu_pub, 1, timeout=WAIT)
+    wait_for(lambda: progress and progress[-1]['imu_publishers'] >= 1, WAIT,
+             'the calibrator to match the IMU publisher')
+    imu = rec.imu()
+    (_, tc), = rec.temperatures.items()
+    sent = replay_flow(imu_pub, imu, [(temp_pub, tc.stamp_ns, tc.temperature)], RATE,
+                       lambda: progress[-1]['imu_received'], what='the calibrator input')
+    wait_for(lambda: progress[-1]['imu_received'] >= sent
+             and progress[-1]['stale_temperature_samples'] > 0, WAIT, 'the IMU messages')
+    resp = ros.call(node, Trigger, '/thermal_imu_calibrator/calibrate', timeout=180)
+    assert not resp.success
+    assert resp.message.startswith('refused: no temperature reading arrived on '
+                                   '/imu/temperature (0 publishers)'), resp.message
+    assert "thermal-input topics on the graph: /imu/temp (set temperature_topics:='[/imu/temp]')" \
+        in resp.message, resp.message
+    assert "temperature_topics:='[]'" in resp.message
+    assert not os.path.exists(tmp_path / 'calibration.yaml')

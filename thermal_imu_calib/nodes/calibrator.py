@@ -49,6 +49,8 @@ from ..estimation.calibrate import CalibrationRefused
 NODE_NAME = 'thermal_imu_calibrator'
 #: what ``_write`` says when calibration_file is empty (the node is set up not to write)
 NOT_CONFIGURED = 'not written (calibration_file is empty)'
+#: IMU samples left out for want of a fresh temperature before the log warns, once, why
+WARN_AFTER_STALE = 1000
 #: ~/calibrate requests queued (reliable, keep last 1000): none is dropped in a burst
 SERVICE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                          reliability=ReliabilityPolicy.RELIABLE,
@@ -76,6 +78,8 @@ class CalibratorNode(LiveCollection, Node):
         self._rate = common.RateMeter()
         self.counts = {'samples': 0, 'stale_temperature': 0, 'invalid': 0,
                        'temperature_readings': 0, 'temperature_invalid': 0}
+        self.readings_per_topic = [0] * self.k
+        self._warned_temperature = False
         self._collection_error = ''
         self._new_collection()
         self._resume()
@@ -131,6 +135,9 @@ class CalibratorNode(LiveCollection, Node):
                 self._estimate, *self.snapshot())
         finally:
             self._busy.release()
+        problem = '' if response.success else self.temperature_problem()
+        if problem and response.message.startswith('refused: '):
+            response.message = f'refused: {problem}. ({response.message[9:]})'
         self._last_message = response.message
         common.log(self, response.success, response.message)
         return response
@@ -289,6 +296,7 @@ class CalibratorNode(LiveCollection, Node):
             n, h, t = len(self.windows), len(self.windows.hold_ids), len(self.transitions)
             self._new_collection()
             self.counts.update({k: 0 for k in self.counts})
+            self.readings_per_topic = [0] * self.k
             path = self._collection_path()
             if path and os.path.exists(path):
                 os.unlink(path)
@@ -347,6 +355,11 @@ class CalibratorNode(LiveCollection, Node):
             level, msg = common.WARN, 'no IMU input; ' + msg
         elif self.k and self.counts['stale_temperature'] and self.counts['samples'] == 0:
             level, msg = common.WARN, 'no fresh temperature; ' + msg
+        problem = self.temperature_problem() if rate else ''
+        if problem and not self._warned_temperature \
+                and self.counts['stale_temperature'] >= WARN_AFTER_STALE:
+            self._warned_temperature = True
+            self.get_logger().warning(problem)
         self.diagnostics.publish([common.diagnostic_status(
             f'{self.get_name()}: thermal calibration', self.get_fully_qualified_name(), level,
             msg, values)] + (self.lifelong.statuses() if self.lifelong is not None else []))

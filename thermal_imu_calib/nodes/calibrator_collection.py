@@ -244,9 +244,44 @@ class LiveCollection:
                     self.counts['temperature_invalid'] += 1
                     continue
                 self.counts['temperature_readings'] += 1
+                self.readings_per_topic[index] += 1
                 with self._lock:
                     self._pending_temp[index].append((common.stamp_to_ns(m.header.stamp), v))
         return cb
+
+    def temperature_problem(self):
+        """Return why IMU samples are not collected for want of a temperature ('' if not so).
+
+        Said first when ``~/calibrate`` is refused and logged once while collecting: a
+        driver publishing its temperature under another name (``imu/temp``) otherwise
+        reads as "no stationary segments were found". Names the thermal-input topics on
+        the graph that this node does not subscribe to, and what to set.
+        """
+        received, samples = self._rate.total, self.counts['samples']
+        stale = self.counts['stale_temperature']
+        if not self.k or not received or not stale or stale < samples:
+            return ''
+        silent = [i for i, n in enumerate(self.readings_per_topic) if n == 0]
+        ours = {s.topic_name for s in self.temp_subs}
+        try:
+            seen = sorted(t for t, types in self.get_topic_names_and_types()
+                          if t not in ours and any(ty in common.SCALAR_TYPES for ty in types))
+        except Exception:  # noqa: B902 - the graph is only a hint
+            seen = []
+        hint = (f'; thermal-input topics on the graph: {", ".join(seen)} (set '
+                f"temperature_topics:='[{seen[0]}]')" if seen else '')
+        if silent:
+            names = ', '.join(f'{self.temp_subs[i].topic_name} '
+                              f'({self.temp_subs[i].get_publisher_count()} publishers)'
+                              for i in silent)
+            return (f'no temperature reading arrived on {names} while {received} IMU '
+                    f'messages did, so no IMU sample was collected{hint}; or set '
+                    "temperature_topics:='[]' to calibrate without a temperature")
+        return (f'{stale} IMU samples had no temperature reading within temperature_timeout '
+                f'({self.temperature_timeout:g} s of header stamps) and {samples} had one, so '
+                'most were not collected: the IMU and temperature header stamps must share a '
+                'clock, and the temperature must be published at least every '
+                f'{self.temperature_timeout:g} s (or raise temperature_timeout)')
 
     def _on_imu(self, msg):
         msgs = [msg]
