@@ -595,3 +595,28 @@ def test_repeated_and_earlier_stamps_are_compensated_as_compensate_does(ros, tmp
         want = expected(cal, truth[i]).accel[0]
         for got in live[int(stamps[i])] + offline[int(stamps[i])]:
             np.testing.assert_allclose(got, want, atol=1e-9)
+
+
+def test_a_temperature_on_another_topic_is_named_in_a_warning(ros, tmp_path):
+    # the driver publishes imu/temp, the node listens on imu/temperature: every sample
+    # goes out uncompensated; the log says why once, naming the topic to set
+    cal = make_cal()
+    rig = Rig(ros, calibration_file=str(cal.save(tmp_path / 'cal.yaml')))
+    warned = []
+    rig.node._warn_once = lambda key, text: warned.append((key, text))
+    other = rig.driver.create_publisher(Temperature, '/imu/temp', 10)
+    ros.wait_matched(other, 0)
+    wait_for(lambda: '/imu/temp' in dict(rig.node.get_topic_names_and_types()), WAIT,
+             'the /imu/temp publisher on the graph')
+    other.publish(temperature_msg(rig.stamp, 30.0))
+    rig.send(1200, dt=0.001)
+    rig.receive(1200)
+    assert rig.node.counts['compensated'] == 0
+    assert rig.node.counts['passthrough'] == 1200
+    texts = [t for k, t in warned if k == 'silent']
+    assert texts, warned
+    assert texts[0].startswith('no temperature reading has arrived on /imu/temperature '
+                               '(1 publishers) while'), texts[0]   # the rig's, silent
+    assert 'published uncompensated (on_missing_temperature hold_last)' in texts[0]
+    assert "thermal-input topics on the graph: /imu/temp (set temperature_topics:='[/imu/temp]')" \
+        in texts[0], texts[0]

@@ -262,14 +262,7 @@ class LiveCollection:
         if not self.k or not received or not stale or stale < samples:
             return ''
         silent = [i for i, n in enumerate(self.readings_per_topic) if n == 0]
-        ours = {s.topic_name for s in self.temp_subs}
-        try:
-            seen = sorted(t for t, types in self.get_topic_names_and_types()
-                          if t not in ours and any(ty in common.SCALAR_TYPES for ty in types))
-        except Exception:  # noqa: B902 - the graph is only a hint
-            seen = []
-        hint = (f'; thermal-input topics on the graph: {", ".join(seen)} (set '
-                f"temperature_topics:='[{seen[0]}]')" if seen else '')
+        hint = common.thermal_topics_hint(self, self.temp_subs)
         if silent:
             names = ', '.join(f'{self.temp_subs[i].topic_name} '
                               f'({self.temp_subs[i].get_publisher_count()} publishers)'

@@ -43,6 +43,8 @@ from ..thermal_input import CalibrationStream
 
 NODE_NAME = 'thermal_imu_compensator'
 MISSING_POLICIES = ('hold_last', 'passthrough', 'drop')
+#: IMU messages not compensated for want of any temperature reading before the log says why
+SILENT_WARN_AFTER = 1000
 
 
 @dataclass(frozen=True)
@@ -422,6 +424,17 @@ class CompensatorNode(Node):
                     if self.on_missing == 'drop':
                         send &= ~stale
                         c['dropped'] += int(stale.sum())
+                silent = [self.temp_subs[i] for i in active.columns
+                          if not self.temps.received[i]]
+                if silent and c['temperature_missing'] >= SILENT_WARN_AFTER:
+                    self._warn_once('silent', 'no temperature reading has arrived on '
+                                    + ', '.join(f'{s.topic_name} ({s.get_publisher_count()} '
+                                                'publishers)' for s in silent)
+                                    + f' while {c["received"]} IMU messages did: they are '
+                                    + ('dropped' if self.on_missing == 'drop' else
+                                       'published uncompensated')
+                                    + f' (on_missing_temperature {self.on_missing})'
+                                    + common.thermal_topics_hint(self, self.temp_subs))
         rows = np.flatnonzero(comp)
         if len(rows):
             self.state.before(active, stamps[rows[0]] * 1e-9)
