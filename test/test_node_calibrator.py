@@ -504,3 +504,22 @@ def test_a_temperature_on_another_topic_is_named_in_the_refusal(ros, tmp_path):
         in resp.message, resp.message
     assert "temperature_topics:='[]'" in resp.message
     assert not os.path.exists(tmp_path / 'calibration.yaml')
+
+
+def test_an_imu_on_another_topic_is_named_in_the_refusal(ros, tmp_path):
+    # the driver publishes imu/data; the calibrator listens on imu/data_raw; a compensator's
+    # output (also sensor_msgs/Imu) is not offered
+    calibrator(ros, tmp_path, temperature_topics=[''])
+    node = ros.node('driver_with_imu_data')
+    pub = node.create_publisher(Imu, '/imu/data', 10)
+    out = ros.node('thermal_imu_compensator').create_publisher(Imu, '/imu/data_compensated', 10)
+    wait_for(lambda: {'/imu/data', '/imu/data_compensated'}
+             <= set(dict(node.get_topic_names_and_types())), WAIT, 'both topics on the graph')
+    pub.publish(Imu())
+    out.publish(Imu())
+    resp = ros.call(node, Trigger, '/thermal_imu_calibrator/calibrate', timeout=180)
+    assert not resp.success
+    assert resp.message.startswith(
+        'refused: no IMU message arrived on /imu/data_raw (0 publishers); sensor_msgs/Imu '
+        'topics on the graph: /imu/data (remap: ros2 launch ... imu_topic:=/imu/data).'), \
+        resp.message

@@ -250,16 +250,20 @@ class LiveCollection:
         return cb
 
     def temperature_problem(self):
-        """Return why IMU samples are not collected for want of a temperature ('' if not so).
+        """Return why no IMU sample is collected: no IMU input, or no temperature ('' if not).
 
         Said first when ``~/calibrate`` is refused and logged once while collecting: a
-        driver publishing its temperature under another name (``imu/temp``) otherwise
-        reads as "no stationary segments were found". Names the thermal-input topics on
-        the graph that this node does not subscribe to, and what to set.
+        driver publishing under another name (``imu/data``, ``imu/temp``) otherwise reads as
+        "no stationary segments were found". Names the topics of the right type on the
+        graph that this node does not subscribe to, and what to set.
         """
         received, samples = self._rate.total, self.counts['samples']
         stale = self.counts['stale_temperature']
-        if not self.k or not received or not stale or stale < samples:
+        if not received:
+            return (f'no IMU message arrived on {self.imu_sub.topic_name} '
+                    f'({self.imu_sub.get_publisher_count()} publishers)'
+                    + common.imu_topics_hint(self, self.imu_sub))
+        if not self.k or not stale or stale < samples:
             return ''
         silent = [i for i, n in enumerate(self.readings_per_topic) if n == 0]
         hint = common.thermal_topics_hint(self, self.temp_subs)
