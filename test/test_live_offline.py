@@ -68,10 +68,19 @@ def _with_bad_samples(imu, temps):
             TemperatureColumns(temps.stamp_ns, values, temps.frame_id))
 
 
-@pytest.mark.parametrize('thermal', ['none', 'room_temperature', 'bad_samples'])
+def _slow(temps):
+    """Return the readings every 4 s (a driver publishing at 0.25 Hz), with a 12-s dropout."""
+    keep = (temps.stamp_ns - temps.stamp_ns[0]) % (4 * 10 ** 9) == 0
+    keep[len(keep) // 2:len(keep) // 2 + 12] = False
+    return TemperatureColumns(temps.stamp_ns[keep], temps.temperature[keep], temps.frame_id)
+
+
+@pytest.mark.parametrize('thermal', ['none', 'room_temperature', 'bad_samples',
+                                     'slow_temperature'])
 def test_live_calibration_equals_offline(tmp_path, thermal):
     """``bad_samples``: the room-temperature case with samples ``calibrate`` drops; the
-    node drops the same ones (before 2026-11-28 it dropped only non-finite ones)."""
+    node drops the same ones (before 2026-11-28 it dropped only non-finite ones).
+    ``slow_temperature``: readings every 4 s and a 12-s dropout."""
     imu = _recording()
     temps = None
     topics = {}
@@ -79,6 +88,8 @@ def test_live_calibration_equals_offline(tmp_path, thermal):
         temps = real_recordings.flat_temperature(imu)
         if thermal == 'bad_samples':
             imu, temps = _with_bad_samples(imu, temps)
+        if thermal == 'slow_temperature':
+            temps = _slow(temps)
         topics = {real_recordings.TEMP_TOPIC: temps}
     log = str(tmp_path / 'mpu6050.mcap')
     write_columns(log, '/imu', imu, topics)

@@ -16,7 +16,7 @@ from ..collection.motion import MotionCollector
 from ..collection.segments import Windows
 from ..collection.stationary import StationaryDetector
 from ..input_units import DEGC, parse_unit_map
-from ..io.align import StreamAligner
+from ..io.align import fresh_rows, StreamAligner
 from ..io.bag import open_log
 from ..io.gate import InputGate
 from ..io.topics import resolve_topics
@@ -72,11 +72,18 @@ def collect_windows(path, imu_topic=None, temperature_topics=None, detector=None
         parts, n, frame, peak = [], 0, '', 0
         bar = progress_bar(total, 'reading', progress)
         t_start = time.perf_counter()
+        gate.report.max_gap_s = max_gap_s
         for ch in aligned_chunks(reader, imu_topic, temps, chunk_size, max_gap_s, bar=bar,
                                  gate=gate):
             n += len(ch)
             frame = frame or ch.imu.frame_id
-            parts.append(det.update(ch.imu.t, ch.imu.accel, ch.imu.gyro, ch.temps))
+            use = fresh_rows(ch.temp_age, max_gap_s)     # as calibrator_node collects
+            imu, t_in = ch.imu, ch.temps
+            if not use.all():
+                gate.report.imu_no_temperature += int((~use).sum())
+                imu, t_in = imu.slice(use), t_in[use]
+            if len(imu):
+                parts.append(det.update(imu.t, imu.accel, imu.gyro, t_in))
             if motion:
                 peak = max(peak, det.memory_bytes())
         parts.append(det.finish())

@@ -5,7 +5,7 @@ stationary detection as a log gets in ``app.collect.collect_windows``. Units: se
 (``max_gap_s``).
 """
 
-from ..io.align import StreamAligner
+from ..io.align import fresh_rows, StreamAligner
 from ..io.columns import TemperatureColumns
 from .segments import Windows
 from .stationary import StationaryDetector
@@ -36,12 +36,19 @@ def feed_columns(det, imu_chunks, temperatures=(), max_gap_s=DEFAULT_MAX_GAP_S):
     aligner = StreamAligner(len(temperatures), max_gap_s)
     pending = temperatures
     parts = []
+
+    def update(a):
+        use = fresh_rows(a.temp_age, max_gap_s)          # as a log's collection
+        imu = a.imu if use.all() else a.imu.slice(use)
+        if len(imu):
+            parts.append(det.update(imu.t, imu.accel, imu.gyro, a.temps[use]))
+
     for ch in imu_chunks:
         for a in aligner.push_columns(ch, pending):
-            parts.append(det.update(a.imu.t, a.imu.accel, a.imu.gyro, a.temps))
+            update(a)
         pending = [TemperatureColumns.empty() for _ in temperatures]
     for a in aligner.finish():
-        parts.append(det.update(a.imu.t, a.imu.accel, a.imu.gyro, a.temps))
+        update(a)
     parts.append(det.finish())
     return Windows.concat(parts) if any(len(p) for p in parts) \
         else Windows.empty(len(temperatures))

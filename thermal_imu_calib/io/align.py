@@ -162,6 +162,19 @@ class TemperatureTrack:
         return self._v[i].copy(), np.abs(s - t[i]).astype(np.float64) / NS
 
 
+def fresh_rows(temp_age, max_gap_s):
+    """Return the rows whose every input has a reading within ``max_gap_s`` (s) of the stamp.
+
+    The collection rule of ``calibrate`` (``app.collect``), the simulations
+    (``collection.feed``) and ``calibrator_node`` alike: an IMU sample far inside a
+    temperature dropout, or before the first reading or after the last by more than
+    ``max_gap_s``, is not collected (its temperature would be a guess). ``temp_age`` is
+    ``AlignedChunk.temp_age`` (n, k); with k = 0 every row is fresh.
+    """
+    temp_age = np.asarray(temp_age, float)
+    return (temp_age <= max_gap_s).all(1) if temp_age.ndim == 2 else np.ones(0, bool)
+
+
 class StreamAligner:
     """Offline look-ahead alignment of streamed IMU chunks with k temperature inputs.
 

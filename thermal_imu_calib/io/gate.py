@@ -35,6 +35,10 @@ class GateReport:
     imu_zero: int = 0
     imu_stamp_not_increasing: int = 0
     imu_stamp_zero: int = 0
+    #: IMU samples not collected: no reading of every thermal input within the max gap
+    #: (``io.align.fresh_rows``); counted by the collection, not by the gate
+    imu_no_temperature: int = 0
+    max_gap_s: float = 5.0
     #: first and last kept IMU header stamp, ns (None before any)
     imu_first_ns: int = None
     imu_last_ns: int = None
@@ -59,7 +63,10 @@ class GateReport:
                                     f'{ACCEL_LIMIT:g} m/s^2 or |w| > {GYRO_LIMIT:g} rad/s)'),
             (self.imu_zero, 'IMU samples with an all-zero accelerometer vector'),
             (self.imu_stamp_not_increasing, 'IMU samples whose header stamp does not '
-                                            'increase (duplicated or running backwards)')) if n]
+                                            'increase (duplicated or running backwards)'),
+            (self.imu_no_temperature, f'IMU samples with no temperature reading within '
+                                      f'{self.max_gap_s:g} s (--max-gap) of their stamp, '
+                                      'not collected')) if n]
         for topic in self.temp_in:
             bad = self.temp_nonfinite.get(topic, 0)
             oor = self.temp_out_of_range.get(topic, 0)

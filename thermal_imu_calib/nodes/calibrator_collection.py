@@ -24,7 +24,7 @@ from ..collection.collected import Collected
 from ..collection.motion import load_transitions, MotionCollector, offset_holds, save_transitions
 from ..collection.segments import Windows
 from ..collection.stationary import DetectorConfig, DetectorSettingsError
-from ..io.align import StreamAligner
+from ..io.align import fresh_rows, StreamAligner
 from ..io.columns import ImuColumns, TemperatureColumns
 from ..io.gate import LiveImuFilter, temperature_checks
 from ..io.output import OutputError, write_atomic
@@ -445,12 +445,10 @@ def _good_records(data, k):
 
 
 def _usable(chunk, k, timeout):
-    """Rows of an AlignedChunk with every temperature fresher than timeout.
+    """Rows of an AlignedChunk with every temperature within ``timeout`` (``fresh_rows``).
 
-    Its IMU rows are valid: ``LiveCollection._filtered`` dropped the others before the
-    aligner, as ``calibrate``'s gate does.
+    The rule ``calibrate`` collects by (``app.collect``; ``timeout`` is its ``--max-gap``,
+    the same default). Its IMU rows are valid: ``LiveCollection._filtered`` dropped the
+    others before the aligner, as ``calibrate``'s gate does.
     """
-    use = np.ones(len(chunk.imu), bool)
-    if k:
-        use &= (chunk.temp_age <= timeout).all(1)
-    return use
+    return fresh_rows(chunk.temp_age, timeout) if k else np.ones(len(chunk.imu), bool)

@@ -78,9 +78,10 @@ def declare(node):
         p, node.temperature_topics, ' Written into the calibration; by default the gyro '
         'follows the one non-degC input and the accelerometer the degC ones.')
     node.temperature_timeout = p.declare(
-        'temperature_timeout', 2.0,
+        'temperature_timeout', DEFAULTS.max_gap_s,
         'Seconds (header stamps) a reading may be interpolated over or held; IMU samples '
-        'without a temperature that fresh are not collected.', lo=0.001, hi=3600.0, **ro)
+        'without a temperature that fresh are not collected (calibrate\'s --max-gap, the '
+        'same default).', lo=0.001, hi=3600.0, **ro)
     node.model = p.declare('model', DEFAULTS.model,
                            'Model to estimate: auto chooses held out, as the command line '
                            'does (the standard static fit unless a richer model predicts '
@@ -155,7 +156,8 @@ def settings(node):
         input_units=[f'{t}={u}' for t, u in
                      zip(node.temperature_topics, node.temperature_units)],
         detector=DetectorConfig(**vars(node.detector_config)),
-        max_transitions=node.max_transitions, max_transition_s=node.max_transition_s)
+        max_transitions=node.max_transitions, max_transition_s=node.max_transition_s,
+        max_gap_s=node.temperature_timeout)
 
 
 def model_choices():
