@@ -7,16 +7,17 @@ the windows the robot was commanded still for, ``Lifelong.add`` stores them and,
 ``due``, ``Lifelong.estimate`` runs (here on the caller's thread).
 """
 
+from ..collection.feed import DEFAULT_MAX_GAP_S
 from ..collection.stationary import DetectorConfig, StationaryDetector
-from ..io.align import StreamAligner
+from ..io.align import fresh_rows, StreamAligner
 from ..io.gate import LiveImuFilter
 
 
 class Feeder:
     """Detector, aligner and hint gate in front of a ``manager.Lifelong``."""
 
-    def __init__(self, lifelong, hints=None, detector=None, temperature_timeout=2.0,
-                 estimate=True):
+    def __init__(self, lifelong, hints=None, detector=None,
+                 temperature_timeout=DEFAULT_MAX_GAP_S, estimate=True):
         self.lifelong = lifelong
         self.hints = hints
         self.k = lifelong.k
@@ -39,22 +40,25 @@ class Feeder:
                 self.hints.add(name, stamp, still)
         imu = self.rows.push(imu)
         for chunk in self.aligner.push_columns(imu, list(temperatures)):
-            use = (chunk.temp_age <= self.timeout).all(1) if self.k else None
-            imu_c = chunk.imu
-            if use is not None and not use.all():
-                if not use.any():
-                    continue
-                win = self.detector.update(imu_c.t[use], imu_c.accel[use], imu_c.gyro[use],
-                                           chunk.temps[use])
-            else:
-                win = self.detector.update(imu_c.t, imu_c.accel, imu_c.gyro, chunk.temps)
-            self._take(win)
+            self._update(chunk)
+
+    def _update(self, chunk):
+        """Detect on the chunk's rows with a fresh temperature (``fresh_rows``, the node's)."""
+        use = fresh_rows(chunk.temp_age, self.timeout) if self.k else None
+        imu_c = chunk.imu
+        if use is not None and not use.all():
+            if not use.any():
+                return
+            win = self.detector.update(imu_c.t[use], imu_c.accel[use], imu_c.gyro[use],
+                                       chunk.temps[use])
+        else:
+            win = self.detector.update(imu_c.t, imu_c.accel, imu_c.gyro, chunk.temps)
+        self._take(win)
 
     def finish(self):
         """Close the hold in progress."""
         for chunk in self.aligner.finish():
-            self._take(self.detector.update(chunk.imu.t, chunk.imu.accel, chunk.imu.gyro,
-                                            chunk.temps))
+            self._update(chunk)
         self._take(self.detector.finish())
 
     def _take(self, win):
