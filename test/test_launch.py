@@ -41,8 +41,12 @@ def launch_module(monkeypatch):
     return mod
 
 
-def _resolve(mod, **given):
-    """Build the description, apply ``name:=value`` arguments, return (declared, nodes)."""
+def _resolve(mod, undeclared=None, **given):
+    """Build the description, apply ``name:=value`` arguments, return (declared, nodes).
+
+    ``undeclared`` (dict): more launch configurations, as ``ros2 launch`` keeps arguments no
+    launch file declares (or a parent launch file's).
+    """
     import launch
     desc = mod.generate_launch_description()
     declared = {e.name: e for e in desc.entities if hasattr(e, 'default_value')}
@@ -52,6 +56,7 @@ def _resolve(mod, **given):
         if not isinstance(default, str):       # real launch: a list of substitutions
             default = ''.join(s.perform(context) for s in default)
         context.launch_configurations[name] = given.get(name, default)
+    context.launch_configurations.update(undeclared or {})
     opaque = [e for e in desc.entities if not hasattr(e, 'default_value')]
     assert len(opaque) == 1
     fn = getattr(opaque[0], 'function', None) or opaque[0]._OpaqueFunction__function
@@ -125,54 +130,37 @@ def test_gravity_and_latitude_reach_the_calibrator(launch_module, ros, tmp_path,
     assert calib['parameters'][1]['cmd_vel_topic'] == '/cmd_vel'
     assert 'lifelong' not in comp['parameters'][1]
     monkeypatch.setenv('HOME', str(tmp_path))
-    _, (calib,) = _resolve(launch_module, nodes='calibrator', gravity='9.81')
     module = importlib.import_module('thermal_imu_calib.nodes.calibrator')
-    params_file, overrides = calib['parameters']
-    node = ros.add(module.CalibratorNode(
-        context=ros.context, cli_args=['--ros-args', '--params-file', params_file],
-        parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()]))
-    assert node.gravity == 9.81
-    _, (calib,) = _resolve(launch_module, nodes='calibrator', lifelong='true',
-                           cmd_vel_topic='/cmd_vel')
-    params_file, overrides = calib['parameters']
-    node = ros.add(module.CalibratorNode(
-        context=ros.context, cli_args=['--ros-args', '--params-file', params_file],
-        parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()]))
+
+    def start(**arguments):      # the calibrator as the launch file describes it
+        _, (calib,) = _resolve(launch_module, nodes='calibrator', **arguments)
+        params_file, overrides = calib['parameters']
+        return ros.add(module.CalibratorNode(
+            context=ros.context, cli_args=['--ros-args', '--params-file', params_file],
+            parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()]))
+    assert start(gravity='9.81').gravity == 9.81
+    node = start(lifelong='true', cmd_vel_topic='/cmd_vel')
     assert node.lifelong is not None
     assert '/cmd_vel' in {s.topic_name for s in node.subscriptions}
     capfd.readouterr()
-    with pytest.raises(ValueError, match='gravity:=981 must be a number in 9.7..9.9'):
-        _resolve(launch_module, gravity='981')
-    with pytest.raises(ValueError, match='latitude:=north must be a number'):
-        _resolve(launch_module, latitude='north')
-    with pytest.raises(ValueError, match='lifelong:=on is not true or false'):
-        _resolve(launch_module, lifelong='on')
-    import launch
-    desc = launch_module.generate_launch_description()
-    context = launch.LaunchContext()
-    for e in desc.entities:
-        if hasattr(e, 'default_value'):
-            d = e.default_value
-            context.launch_configurations[e.name] = d if isinstance(d, str) else ''.join(
-                x.perform(context) for x in d)
-    context.launch_configurations['order'] = '1'        # a calibrator parameter
-    context.launch_configurations['robot_model'] = 'x'  # a parent launch file's argument
-    opaque, = [e for e in desc.entities if not hasattr(e, 'default_value')]
-    fn = getattr(opaque, 'function', None) or opaque._OpaqueFunction__function
-    nodes = [n.kwargs for n in fn(context)]
+    # order: a calibrator parameter; robot_model: a parent launch file's argument
+    _, nodes = _resolve(launch_module, undeclared={'order': '1', 'robot_model': 'x'})
     err = capfd.readouterr().err
     assert 'order given as launch argument(s) but not applied to thermal_imu_calibrator' in err
     assert 'robot_model' not in err and 'params_file:=FILE' in err
     assert 'order' not in nodes[1]['parameters'][1]
 
 
-def test_bad_arguments_say_what_is_wrong(launch_module):
-    with pytest.raises(ValueError, match='must name some of compensator, calibrator'):
-        _resolve(launch_module, nodes='compensater')
-    with pytest.raises(ValueError, match='not true or false'):
-        _resolve(launch_module, use_sim_time='maybe')
-    with pytest.raises(ValueError, match='not a list of topics'):
-        _resolve(launch_module, temperature_topics='{a: 1}')
+@pytest.mark.parametrize('argument, value, says', [
+    ('nodes', 'compensater', 'must name some of compensator, calibrator'),
+    ('use_sim_time', 'maybe', 'not true or false'),
+    ('temperature_topics', '{a: 1}', 'not a list of topics'),
+    ('gravity', '981', 'gravity:=981 must be a number in 9.7..9.9'),
+    ('latitude', 'north', 'latitude:=north must be a number'),
+    ('lifelong', 'on', 'lifelong:=on is not true or false')])
+def test_bad_arguments_say_what_is_wrong(launch_module, argument, value, says):
+    with pytest.raises(ValueError, match=says):
+        _resolve(launch_module, **{argument: value})
 
 
 def test_package_xml_declares_every_runtime_dependency():
