@@ -249,8 +249,11 @@ class CalibratorNode(LiveCollection, Node):
             with self._report_lock:
                 self._report_running = None
             shutil.rmtree(tmp, ignore_errors=True)
-        if child.returncode:
-            self.get_logger().error(f'report {out} not written: {err.strip()[-500:]}')
+        if child.returncode and self._report_stopped:
+            self.get_logger().info(f'report {out} not written: the node is shutting down')
+        elif child.returncode:
+            self.get_logger().error(f'report {out} not written: '
+                                    f'{err.strip()[-500:] or f"exit {child.returncode}"}')
         else:
             self.get_logger().info(f'wrote report {out}')
 
