@@ -523,3 +523,18 @@ def test_an_imu_on_another_topic_is_named_in_the_refusal(ros, tmp_path):
         'refused: no IMU message arrived on /imu/data_raw (0 publishers); sensor_msgs/Imu '
         'topics on the graph: /imu/data (remap: ros2 launch ... imu_topic:=/imu/data).'), \
         resp.message
+
+
+def test_use_sim_time_without_a_clock_still_collects(ros, tmp_path):
+    # use_sim_time:=true with a bag played without --clock: ROS time stays 0, and the
+    # node's processing and progress timers (on ROS time before 2026-11-29) never fired,
+    # so nothing was taken in and no progress came. Data are timed by header stamps.
+    rec = recording(repetitions=1, faces=('+z', '-z'))
+    node = calibrator(ros, tmp_path, use_sim_time=True)
+    assert node.get_clock().now().nanoseconds == 0
+    player = Player(ros)
+    player.play(rec)
+    player.wait_received()
+    prog = player.latest_progress(lambda p: p['segments'] >= 1 and p['stationary'],
+                                  what='a closed hold and one in progress')
+    assert prog['samples'] >= prog['imu_received'] - 10, prog

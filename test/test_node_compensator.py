@@ -620,3 +620,16 @@ def test_a_temperature_on_another_topic_is_named_in_a_warning(ros, tmp_path):
     assert 'published uncompensated (on_missing_temperature hold_last)' in texts[0]
     assert "thermal-input topics on the graph: /imu/temp (set temperature_topics:='[/imu/temp]')" \
         in texts[0], texts[0]
+
+
+def test_diagnostics_keep_coming_with_sim_time_and_no_clock(ros, tmp_path):
+    # use_sim_time:=true and no /clock publisher: ROS time stays 0; /diagnostics (on a
+    # ROS-time timer before 2026-11-29) never came. Compensation is timed by header stamps
+    cal = make_cal()
+    rig = Rig(ros, calibration_file=str(cal.save(tmp_path / 'cal.yaml')), use_sim_time=True)
+    assert rig.node.get_clock().now().nanoseconds == 0
+    rig.temperature(30.0)
+    rig.send(3)
+    rig.receive(3)
+    status, values = rig.diagnostics()
+    assert values['compensated'] == '3', values

@@ -96,7 +96,7 @@ class CalibratorNode(LiveCollection, Node):
                                      common.sensor_qos(in_depth), callback_group=data)
             for i, (topic, (cls, value)) in enumerate(zip(self.temperature_topics,
                                                           scalar_types))]
-        self.create_timer(0.1, self._process, callback_group=data)
+        common.steady_timer(self, 0.1, self._process, callback_group=data)
         services = ReentrantCallbackGroup()
         # every call answered: a request queue deeper than the default 10 (a burst of calls
         # while one estimates is each refused with the reason, never dropped unanswered)
@@ -107,7 +107,8 @@ class CalibratorNode(LiveCollection, Node):
         self.cal_pub = self.create_publisher(String, 'imu/calibration', common.CALIBRATION_QOS)
         self.progress_pub = self.create_publisher(String, '~/progress', 10)
         self.diagnostics = common.Diagnostics(self)
-        self.create_timer(period, self._report, callback_group=MutuallyExclusiveCallbackGroup())
+        common.steady_timer(self, period, self._report,
+                            callback_group=MutuallyExclusiveCallbackGroup())
         if self.lifelong is not None:
             self.lifelong.start()
 

@@ -11,6 +11,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
+from rclpy.clock import Clock, ClockType
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import FluidPressure, Illuminance, RelativeHumidity, Temperature
@@ -24,6 +25,18 @@ NS = 1_000_000_000
 OK, WARN, ERROR = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR
 
 # ------------------------------------------------------------------------------------ QoS
+
+
+def steady_timer(node, period_s, callback, callback_group=None):
+    """Return a timer of ``node`` on the steady (wall) clock.
+
+    The nodes' own cadence (processing queued input, progress, /diagnostics) must not
+    follow ``use_sim_time``: with sim time and no ``/clock`` publisher (a bag played
+    without ``--clock``) a ROS-time timer never fires and the node took in nothing.
+    Data are timed by their header stamps, never by these timers.
+    """
+    return node.create_timer(period_s, callback, callback_group=callback_group,
+                             clock=Clock(clock_type=ClockType.STEADY_TIME))
 
 
 def sensor_qos(depth):

@@ -179,7 +179,7 @@ class CompensatorNode(Node):
                                                 common.CALIBRATION_QOS)
         self.reload_srv = self.create_service(Trigger, '~/reload', self._on_reload)
         self.diagnostics = common.Diagnostics(self)
-        self.diag_timer = self.create_timer(period, self._publish_diagnostics)
+        self.diag_timer = common.steady_timer(self, period, self._publish_diagnostics)
         if self.calibration_file and not self.registry_dir:
             ok, msg = self.load_file()
             common.log(self, ok, msg, failure='warning')
