@@ -538,3 +538,32 @@ def test_use_sim_time_without_a_clock_still_collects(ros, tmp_path):
     prog = player.latest_progress(lambda p: p['segments'] >= 1 and p['stationary'],
                                   what='a closed hold and one in progress')
     assert prog['samples'] >= prog['imu_received'] - 10, prog
+
+
+def test_a_restart_into_another_session_does_not_merge_the_resumed_holds(ros, tmp_path):
+    # the collection resumes after a restart (kill -9 test above). A recording played
+    # again after a restart (stamps before the resumed holds), or another one hours or
+    # days later, is a new session: the resumed holds are moved aside, not merged
+    rec = recording(repetitions=1, faces=('+z', '-z', '+x'))
+    node = calibrator(ros, tmp_path)
+    player = Player(ros)
+    player.play(rec)
+    player.wait_received()
+    first = player.latest_progress(lambda p: p['segments'] >= 2, 'two holds')['segments']
+    ros.remove(node)
+    player.forget_progress()
+    node = calibrator(ros, tmp_path)
+    assert node.resumed_holds == first
+    player.wait_connected()
+    player.sent = [0, 0]
+    player.play(rec)                         # the same recording again: stamps go back
+    player.wait_received()
+    _wait_processed(node, rec.imu().stamp_ns[-1])
+    assert node.resumed_holds == 0
+    aside = [p.name for p in tmp_path.iterdir() if '.previous-' in p.name]
+    assert any(n.startswith('collection.jsonl.previous-') and n.count('.') == 2
+               for n in aside), aside
+    prog = player.latest_progress(lambda p: p['segments'] >= 2, 'the holds of the new session')
+    assert prog['segments'] == first, prog
+    resp = player.call('calibrate')
+    assert 'resumed from' not in resp.message, resp.message

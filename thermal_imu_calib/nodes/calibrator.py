@@ -139,6 +139,10 @@ class CalibratorNode(LiveCollection, Node):
         problem = '' if response.success else self.temperature_problem()
         if problem and response.message.startswith('refused: '):
             response.message = f'refused: {problem}. ({response.message[9:]})'
+        if self.resumed_holds and self.lifelong is None:
+            response.message += (f'; {self.resumed_holds} of the holds were resumed from '
+                                 f'{self._collection_path()}, collected before the node '
+                                 'restarted (~/reset starts afresh)')
         self._last_message = response.message
         common.log(self, response.success, response.message)
         return response

@@ -45,6 +45,8 @@ class LiveCollection:
         self._rows = LiveImuFilter(common.JUMP_S)   # drops what calibrate drops (io.gate)
         self._pending_imu = []
         self._pending_temp = [[] for _ in range(self.k)]
+        self._resumed_until = None    # newest resumed hold end (s) until new data judge it
+        self.resumed_holds = 0        # holds in the collection that came from the file
 
     def _collector(self):
         """Return a new stationary detector that also keeps the pose changes between holds."""
@@ -130,24 +132,42 @@ class LiveCollection:
                    f'it has {win.n_inputs} temperature inputs, this node {self.k}')
             why = why or self._signature_mismatch(path)
         if why:
-            aside = f'{path}.incompatible-{int(time.time())}'
-            os.replace(path, aside)
-            tdir = self._transitions_dir()
-            if os.path.isdir(tdir):
-                os.replace(tdir, aside + '.transitions')
-            if os.path.exists(path + '.inputs.json'):
-                os.replace(path + '.inputs.json', aside + '.inputs.json')
+            aside = self._move_aside('incompatible')
             self._write_inputs_signature()
             self.get_logger().error(f'collection file {path} not resumed: {why}; moved to '
                                     f'{aside}, starting a new collection')
             return
         self.windows = win
+        self._resumed_until = float(win.t1.max()) if len(win) else None
+        self.resumed_holds = len(win.hold_ids)
         self._hold_offset = int(win.hold.max()) + 1 if len(win) else 0
         # rewrite only the complete records, so appends never follow a torn last line
         write_atomic(path, win.to_jsonl())
         self._write_inputs_signature()
         self.get_logger().info(f'resumed {len(win)} windows ({len(win.hold_ids)} holds) from '
                                f'{path}')
+
+    def _move_aside(self, tag):
+        """Rename the collection file (and its pose changes and inputs) to ``PATH.TAG-TIME``.
+
+        Returns the new name ('' when there is no file, or it could not be moved: then the
+        collection continues in memory only, ``_degrade``).
+        """
+        path = self._collection_path()
+        if not path or not os.path.exists(path):
+            return ''
+        aside = f'{path}.{tag}-{int(time.time())}'
+        try:
+            os.replace(path, aside)
+            tdir = self._transitions_dir()
+            if os.path.isdir(tdir):
+                os.replace(tdir, aside + '.transitions')
+            if os.path.exists(path + '.inputs.json'):
+                os.replace(path + '.inputs.json', aside + '.inputs.json')
+        except OSError as e:
+            self._degrade(e)
+            return ''
+        return aside
 
     def _resume_transitions(self):
         """Load the pose changes persisted next to the collection file.
@@ -301,11 +321,41 @@ class LiveCollection:
             tcols = [TemperatureColumns(np.array([s for s, _ in t], np.int64),
                                         np.array([v for _, v in t], float)) for t in temps]
             imu = self._filtered(imu)       # an invalid row's stamp counts for nothing
+            if len(imu) and self._resumed_until is not None:
+                self._check_session(int(imu.stamp_ns[0]))
             if len(imu):
                 self._check_time(int(imu.stamp_ns.min()))
                 self._newest_ns = max(self._newest_ns or 0, int(imu.stamp_ns.max()))
             for chunk in self.aligner.push_columns(imu, tcols):
                 self._collect(chunk)
+
+    def _check_session(self, stamp_ns):
+        """Keep a resumed collection only when the first data after the restart continue it.
+
+        A restart mid-session (a crash, a kill) continues within ``resume_max_gap`` of the
+        newest resumed hold. Data stamped before it (the same recording played again) or
+        long after it (another recording, another day) are a new session: the resumed
+        collection would otherwise be merged into it (a bench once calibrated 76 holds of
+        two runs against the 38 of one). It is moved aside, not deleted; lifelong mode
+        keeps its own store and is not judged here.
+        """
+        until, self._resumed_until = self._resumed_until, None
+        s = stamp_ns * 1e-9
+        if self.lifelong is not None or until - common.JUMP_S <= s <= until + self.resume_max_gap:
+            return
+        when = 'before' if s < until else f'{(s - until) / 3600:.1f} h after'
+        holds = len(self.windows.hold_ids)
+        aside = self._move_aside('previous')
+        self.windows = Windows.empty(self.k)
+        self.transitions = []
+        self._hold_offset = 0
+        self.resumed_holds = 0
+        self._write_inputs_signature()
+        self.get_logger().warning(
+            f'the first data after the restart are stamped {when} the end of the '
+            f'{holds} holds resumed: a new session, started afresh'
+            + (f'; the resumed collection was moved to {aside}' if aside else '')
+            + ' (to continue a collection across a longer gap, raise resume_max_gap)')
 
     def _check_time(self, stamp_ns):
         """Close the open hold and restart detection when header stamps jump back.

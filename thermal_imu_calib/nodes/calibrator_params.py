@@ -64,6 +64,12 @@ def declare(node):
         'calibration_file', '~/.ros/thermal_imu_calib/calibration.yaml',
         'Where ~/calibrate and ~/save write the calibration (atomically; the previous '
         'file is kept as <file>.bak).')
+    node.resume_max_gap = p.declare(
+        'resume_max_gap', 3600.0, 'Seconds (header stamps) after the newest resumed hold '
+        'within which the first data after a restart continue the collection; data stamped '
+        'earlier (a replayed or another recording) or later start a new one, and the '
+        'resumed collection is moved aside (<collection_file>.previous-<time>).',
+        lo=1.0, hi=1e9, **ro)
     node.collection_file = p.declare(
         'collection_file', '~/.ros/thermal_imu_calib/collection.jsonl',
         'JSON-lines file the collected windows are appended to and resumed from at start '
