@@ -396,6 +396,8 @@ def test_pose_changes_resume_after_restart_and_restart_with_the_timeline(ros, tm
     resp = player.call('calibrate')
     assert resp.success, resp.message
     assert '8 of 8 pose changes used' in resp.message, resp.message
+    assert 'stamps jumped back 1 time(s) while collecting (a recording played again?)' \
+        in resp.message, resp.message
 
 
 def test_collection_of_other_thermal_inputs_is_not_resumed(ros, tmp_path):

@@ -139,6 +139,11 @@ class CalibratorNode(LiveCollection, Node):
         problem = '' if response.success else self.temperature_problem()
         if problem and response.message.startswith('refused: '):
             response.message = f'refused: {problem}. ({response.message[9:]})'
+        jumps = self.counts.get('time_resets', 0)
+        if jumps and self.lifelong is None:
+            response.message += (f'; the IMU header stamps jumped back {jumps} time(s) while '
+                                 'collecting (a recording played again?): the holds of every '
+                                 'run are used; call ~/reset before playing one again')
         if self.resumed_holds and self.lifelong is None:
             response.message += (f'; {self.resumed_holds} of the holds were resumed from '
                                  f'{self._collection_path()}, collected before the node '
