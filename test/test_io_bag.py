@@ -367,3 +367,37 @@ def test_relative_topic_names_are_found_as_a_recorder_stores_them():
     assert in_log(root, 'temperature') == '/imu/temperature'
     assert in_log(root, '/other/temperature') == '/other/temperature'
     assert in_log({'imu/temperature': 'Temperature'}, 'imu/temperature') == 'imu/temperature'
+
+
+def _robot_log(path, temperatures):
+    """Write an IMU (frame imu_link) and the given {topic: frame_id} temperature topics."""
+    n = 50
+    stamps = 1_000_000_000 + np.arange(n, dtype=np.int64) * 10_000_000
+    imu = ImuColumns(stamps, np.tile([0.0, 0.0, 9.8], (n, 1)), np.zeros((n, 3)), 'imu_link')
+    temps = {t: TemperatureColumns(stamps[::10], np.full(5, 30.0), frame)
+             for t, frame in temperatures.items()}
+    write_columns(str(path), '/imu/data_raw', imu, temps)
+    return str(path)
+
+
+def test_the_imu_temperature_is_picked_among_a_robots_temperature_topics(tmp_path):
+    # a robot's bag has a battery's or a motor's temperature too: all of them used to
+    # become thermal inputs (a bias polynomial in the battery temperature: 371 ug against
+    # 4.3 ug with the IMU's alone on a simulated session)
+    from thermal_imu_calib.io.topics import resolve_topics
+    cases = {
+        'frame': ({'/battery/temperature': 'battery', '/sensors/t_imu': 'imu_link'},
+                  ['/sensors/t_imu'], "header.frame_id 'imu_link'"),
+        'namespace': ({'/battery/temperature': '', '/imu/temperature': ''},
+                      ['/imu/temperature'], 'namespace /imu'),
+        'one': ({'/battery/temperature': 'battery'}, ['/battery/temperature'], None)}
+    for name, (topics, want, why) in cases.items():
+        notes = []
+        with open_log(_robot_log(tmp_path / f'{name}.mcap', topics)) as r:
+            assert resolve_topics(r, None, None, notes) == ('/imu/data_raw', want), name
+            assert resolve_topics(r, None, [''])[1] == []            # '' : no input
+        assert (why in notes[0]) if why else not notes, (name, notes)
+    with open_log(_robot_log(tmp_path / 'none.mcap', {'/battery/temperature': 'battery',
+                                                      '/motor/temperature': 'motor'})) as r:
+        with pytest.raises(LogError, match=r"none is the IMU's .*--temperature-topic ''"):
+            resolve_topics(r, None, None)

@@ -59,13 +59,15 @@ def collect_windows(path, imu_topic=None, temperature_topics=None, detector=None
     fit needs); memory stays bounded (see its ``memory_bytes``).
     """
     with open_log(path) as reader:
-        imu_topic, temps = resolve_topics(reader, imu_topic, temperature_topics)
+        notes = []
+        imu_topic, temps = resolve_topics(reader, imu_topic, temperature_topics, notes)
         try:
             units = ([''] * len(temps) if input_units is None
                      else parse_unit_map(input_units, temps))
         except ValueError:
             units = [DEGC] * len(temps)  # the caller reports a bad --input-unit itself
         gate = InputGate(dict(zip(temps, units)))
+        gate.report.notes = notes
         total = reader.topic_types() and reader.topics()[imu_topic].count
         det = (MotionCollector(detector, len(temps)) if motion
                else StationaryDetector(detector, len(temps)))

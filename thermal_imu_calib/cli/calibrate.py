@@ -86,7 +86,9 @@ def _add_topics(p, imu_required=False):
                    help='thermal input topic: sensor_msgs/Temperature (a temperature, or a '
                         'proxy such as a resonance frequency) or another stamped scalar '
                         '(FluidPressure, Illuminance, RelativeHumidity); repeat for several '
-                        'inputs (default: all Temperature topics, or those of the calibration)')
+                        'inputs; \'\' for none (default: those of the calibration, or the '
+                        'IMU\'s Temperature topics: the only one, else those with the IMU\'s '
+                        'frame_id or namespace)')
     p.add_argument('--max-gap', type=float, default=DEFAULTS.max_gap_s, metavar='S',
                    help='temperature samples further apart than this are a gap: the nearest '
                         f'sample is held instead of interpolating (s, default '

@@ -48,6 +48,8 @@ class GateReport:
     temp_stamp_zero: dict = field(default_factory=dict)
     #: per topic: kept stamps (int64 ns) to judge the sampling interval afterwards
     temp_stamps: dict = field(default_factory=dict)
+    #: how the inputs were chosen, e.g. the IMU's among several Temperature topics
+    notes: list = field(default_factory=list)
 
     @property
     def imu_dropped(self):
@@ -325,4 +327,4 @@ def check_report(path, r, max_gap_s=5.0):
         raise LogError(f'{path}: the thermal inputs cannot support a thermal fit: '
                        + '; '.join(problems))
     dropped = r.dropped_text()
-    return [f'dropped and counted: {dropped}'] if dropped else []
+    return list(r.notes) + ([f'dropped and counted: {dropped}'] if dropped else [])

@@ -8,12 +8,14 @@ from .log_info import LogError
 from .cdr import IMU_MSGTYPE, SCALAR_MSGTYPES, TEMPERATURE_MSGTYPE
 
 
-def resolve_topics(reader, imu_topic, temperature_topics):
-    """Check the IMU topic and pick temperature topics (all Temperature topics when None).
+def resolve_topics(reader, imu_topic, temperature_topics, notes=None):
+    """Check the IMU topic and pick the temperature topics.
 
-    Named thermal-input topics may be any header-stamped scalar of ``SCALAR_MSGTYPES``
+    None picks the IMU's (``imu_temperatures``); an empty name is no input, so ``['']``
+    means none. Named thermal-input topics may be any header-stamped scalar of ``SCALAR_MSGTYPES``
     (e.g. a proxy on sensor_msgs/Temperature or FluidPressure). Returns the temperature
-    topic list; raises LogError naming the topics present.
+    topic list; raises LogError naming the topics present. ``notes`` (a list) receives
+    what was chosen among several Temperature topics, and why.
     """
     types = reader.topic_types()
     if imu_topic is None:
@@ -32,11 +34,67 @@ def resolve_topics(reader, imu_topic, temperature_topics):
     imu_topic = in_log(types, imu_topic)
     reader.check_topics([imu_topic], IMU_MSGTYPE)
     if temperature_topics is None:
-        temperature_topics = sorted(t for t, ty in types.items() if ty == TEMPERATURE_MSGTYPE)
+        temperature_topics = imu_temperatures(reader, imu_topic, notes)
     else:
-        temperature_topics = [in_log(types, t) for t in temperature_topics]
+        temperature_topics = [in_log(types, t) for t in temperature_topics if t]
         reader.check_topics(temperature_topics, SCALAR_MSGTYPES)
     return imu_topic, list(temperature_topics)
+
+
+#: messages read at most to find the first message (its frame_id) of each topic
+PEEK_MESSAGES = 200_000
+
+
+def imu_temperatures(reader, imu_topic, notes=None):
+    """Return the sensor_msgs/Temperature topics that are the IMU's.
+
+    One such topic (or none): it. Several (a robot's bag also has a battery's, a motor's,
+    a CPU's): those whose header.frame_id is the IMU's, else those in the IMU topic's
+    namespace (``/imu/temperature`` for ``/imu/data_raw``); with neither, LogError naming
+    them: a temperature of something else would become the thermal model's input. The
+    choice is appended to ``notes``.
+    """
+    types = reader.topic_types()
+    counts = reader.topics()
+    found = sorted(t for t, ty in types.items()
+                   if ty == TEMPERATURE_MSGTYPE and counts[t].count != 0)
+    if len(found) < 2:
+        return found
+    frames = _first_frames(reader, [imu_topic] + found)
+    imu_frame = frames.get(imu_topic, '')
+    space = imu_topic.rsplit('/', 1)[0]
+    by_frame = [t for t in found if imu_frame and frames.get(t) == imu_frame]
+    by_space = [t for t in found if t.rsplit('/', 1)[0] == space]
+    chosen, why = ((by_frame, f'header.frame_id {imu_frame!r}, the IMU\'s') if by_frame else
+                   (by_space, f'in the IMU topic\'s namespace {space or "/"}') if by_space
+                   else ([], ''))
+    listed = ', '.join(f'{t} (frame_id {frames.get(t, "?")!r})' for t in found)
+    if not chosen:
+        raise LogError(f'{reader.path}: several sensor_msgs/Temperature topics, {listed}, and '
+                       f'none is the IMU\'s ({imu_topic}: frame_id {imu_frame!r}, namespace '
+                       f'{space or "/"}); name the IMU\'s temperature with --temperature-topic '
+                       "TOPIC, or pass --temperature-topic '' for none")
+    if notes is not None:
+        notes.append(f'temperature input {", ".join(chosen)} ({why}) of the Temperature topics '
+                     f'{listed}; name others with --temperature-topic')
+    return chosen
+
+
+def _first_frames(reader, topics):
+    """Return topic -> header.frame_id of its first message (topics not seen are absent)."""
+    from . import cdr
+    out = {}
+    for i, (topic, msgtype, _, raw) in enumerate(reader.iter_raw(topics)):
+        if topic not in out:
+            try:
+                cols = (cdr.decode_imu([raw]) if msgtype == IMU_MSGTYPE
+                        else cdr.decode_temperature([raw]))
+                out[topic] = cols.frame_id
+            except ValueError:
+                out[topic] = ''
+        if len(out) == len(topics) or i >= PEEK_MESSAGES:
+            break
+    return out
 
 
 def in_log(types, name):
