@@ -114,6 +114,9 @@ REFUSED = {
                                                                  a['stamp_ns'][::-1].copy()),
                              'running backwards'),
     'no_imu_messages': (_no_imu, '0 messages'),
+    # IMU stamped by a hardware clock, the temperature by the system's: no reading near
+    'temperature_on_another_clock': (lambda a: a['temp_stamp_ns'].__setitem__(
+        slice(None), a['temp_stamp_ns'] + 10 ** 12), 'stamped by different clocks'),
 }
 
 

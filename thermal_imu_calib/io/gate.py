@@ -12,6 +12,7 @@ inputs outside ``input_units.TEMPERATURE_BOUNDS`` are garbage or the wrong unit.
 """
 
 from dataclasses import dataclass, field, replace
+import datetime
 
 import numpy as np
 
@@ -254,6 +255,14 @@ def _newest_before(stamps, newest):
     return prev
 
 
+def _utc(ns):
+    """Return a header stamp (ns) as UTC text to the second."""
+    if ns is None:
+        return '?'
+    return datetime.datetime.fromtimestamp(int(ns) // 10 ** 9, datetime.timezone.utc).strftime(
+        '%Y-%m-%d %H:%M:%S')
+
+
 def thermal_problems(report, max_gap_s):
     """Return reasons the thermal inputs cannot support a thermal fit (empty: fine).
 
@@ -326,5 +335,18 @@ def check_report(path, r, max_gap_s=5.0):
     if problems:
         raise LogError(f'{path}: the thermal inputs cannot support a thermal fit: '
                        + '; '.join(problems))
+    kept = r.imu_in - r.imu_dropped
+    if kept and r.imu_no_temperature >= kept:
+        spans = []
+        for topic, parts in r.temp_stamps.items():
+            st = np.concatenate(parts) if parts else np.zeros(0, np.int64)
+            if len(st):
+                spans.append(f'{topic} {_utc(st.min())}..{_utc(st.max())}')
+        raise LogError(f'{path}: no IMU sample has a temperature reading within {max_gap_s:g} s '
+                       f'of its stamp (IMU stamps {_utc(r.imu_first_ns)}..'
+                       f'{_utc(r.imu_last_ns)}; ' + ('; '.join(spans) or 'no readings')
+                       + '): are they stamped by different clocks? Stamp both with one '
+                       "clock, or pass --temperature-topic '' to calibrate without a "
+                       'temperature')
     dropped = r.dropped_text()
     return list(r.notes) + ([f'dropped and counted: {dropped}'] if dropped else [])
