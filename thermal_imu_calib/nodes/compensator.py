@@ -37,6 +37,7 @@ from std_srvs.srv import Trigger
 from . import common, process, units
 from .compensator_state import StreamStateFile
 from ..calibration import Calibration, CalibrationError
+from ..collection.feed import DEFAULT_MAX_GAP_S
 from ..collection.outliers import ImuSpikeFilter
 from ..io.columns import AlignedChunk, ImuColumns
 from ..thermal_input import CalibrationStream
@@ -83,9 +84,10 @@ class CompensatorNode(Node):
             'by name (relative names follow namespaces and remaps); empty ([] or [\'\']): '
             'no thermal input.', read_only=True))
         self.temperature_timeout = p.declare(
-            'temperature_timeout', 2.0,
+            'temperature_timeout', DEFAULT_MAX_GAP_S,
             'Seconds (by header stamp) after which a temperature reading is stale; readings '
-            'closer than this are interpolated.', lo=0.001, hi=3600.0)
+            'closer than this are interpolated (compensate\'s --temperature-timeout and '
+            'the calibrator\'s temperature_timeout, the same default).', lo=0.001, hi=3600.0)
         self.on_missing = p.declare(
             'on_missing_temperature', 'hold_last',
             'What to do when a temperature is stale or absent: hold_last compensates with the '
