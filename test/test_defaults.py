@@ -73,3 +73,21 @@ def test_node_settings_without_parameters_are_the_shared_settings(ros, tmp_path,
         Parameter('temperature_topics', value=[''])]))
     assert node.temperature_topics == []
     assert node.settings() == CalibrateSettings()
+
+
+def test_the_temperature_gap_is_one_default_on_every_path(ros, tmp_path, monkeypatch):
+    """calibrate's --max-gap, compensate's --temperature-timeout (its --max-gap) and both
+    nodes' temperature_timeout: a 0.25-Hz temperature gave live != offline with 2 s in the
+    calibrator (docs/bad_input.md)."""
+    import importlib
+    from thermal_imu_calib.cli.commands import build_parser
+    monkeypatch.setenv('HOME', str(tmp_path))
+    gap = CalibrateSettings().max_gap_s
+    assert calibrate_defaults().max_gap == gap
+    args = build_parser().parse_args(['compensate', 'in.mcap', '--calibration', 'c.yaml',
+                                      '-o', 'out.mcap'])
+    assert args.temperature_timeout is None and args.max_gap == gap   # None: --max-gap
+    for name in sorted(NODES):
+        module, cls = NODES[name]
+        node = ros.add(getattr(importlib.import_module(module), cls)(context=ros.context))
+        assert node.temperature_timeout == gap, name
