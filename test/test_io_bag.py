@@ -390,7 +390,9 @@ def test_the_imu_temperature_is_picked_among_a_robots_temperature_topics(tmp_pat
                   ['/sensors/t_imu'], "header.frame_id 'imu_link'"),
         'namespace': ({'/battery/temperature': '', '/imu/temperature': ''},
                       ['/imu/temperature'], 'namespace /imu'),
-        'one': ({'/battery/temperature': 'battery'}, ['/battery/temperature'], None)}
+        'one': ({'/battery/temperature': 'battery'}, ['/battery/temperature'],
+                "frame_id 'battery' is not the IMU's"),
+        'one_of_the_imu': ({'/imu/temperature': ''}, ['/imu/temperature'], None)}
     for name, (topics, want, why) in cases.items():
         notes = []
         with open_log(_robot_log(tmp_path / f'{name}.mcap', topics)) as r:

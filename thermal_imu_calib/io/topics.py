@@ -48,7 +48,8 @@ PEEK_MESSAGES = 200_000
 def imu_temperatures(reader, imu_topic, notes=None):
     """Return the sensor_msgs/Temperature topics that are the IMU's.
 
-    One such topic (or none): it. Several (a robot's bag also has a battery's, a motor's,
+    One such topic (or none): it (noted when its frame_id and namespace are both another's).
+    Several (a robot's bag also has a battery's, a motor's,
     a CPU's): those whose header.frame_id is the IMU's, else those in the IMU topic's
     namespace (``/imu/temperature`` for ``/imu/data_raw``); with neither, LogError naming
     them: a temperature of something else would become the thermal model's input. The
@@ -58,13 +59,22 @@ def imu_temperatures(reader, imu_topic, notes=None):
     counts = reader.topics()
     found = sorted(t for t, ty in types.items()
                    if ty == TEMPERATURE_MSGTYPE and counts[t].count != 0)
-    if len(found) < 2:
+    if not found:
         return found
     frames = _first_frames(reader, [imu_topic] + found)
     imu_frame = frames.get(imu_topic, '')
     space = imu_topic.rsplit('/', 1)[0]
     by_frame = [t for t in found if imu_frame and frames.get(t) == imu_frame]
     by_space = [t for t in found if t.rsplit('/', 1)[0] == space]
+    if len(found) == 1:
+        if not (by_frame or by_space or not imu_frame or not frames.get(found[0])) \
+                and notes is not None:
+            notes.append(f'temperature input {found[0]}, the log\'s only Temperature topic, '
+                         f'though its frame_id {frames.get(found[0])!r} is not the IMU\'s '
+                         f'({imu_frame!r}) nor is it in the IMU topic\'s namespace '
+                         f"{space or '/'}: if it is not the IMU's temperature, pass "
+                         "--temperature-topic '' (no thermal input)")
+        return found
     chosen, why = ((by_frame, f'header.frame_id {imu_frame!r}, the IMU\'s') if by_frame else
                    (by_space, f'in the IMU topic\'s namespace {space or "/"}') if by_space
                    else ([], ''))
