@@ -39,7 +39,7 @@ from sensor_msgs.msg import Imu
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from . import calibrator_params as params, common, process
+from . import calibrator_params as params, common, input_hints, process
 from .calibrator_collection import LiveCollection
 from ..app import calibrate as app
 from ..calibration import CalibrationError
@@ -136,7 +136,7 @@ class CalibratorNode(LiveCollection, Node):
                 self._estimate, *self.snapshot())
         finally:
             self._busy.release()
-        problem = '' if response.success else self.temperature_problem()
+        problem = '' if response.success else input_hints.collection_problem(self)
         if problem and response.message.startswith('refused: '):
             response.message = f'refused: {problem}. ({response.message[9:]})'
         jumps = self.counts.get('time_resets', 0)
@@ -368,7 +368,7 @@ class CalibratorNode(LiveCollection, Node):
             level, msg = common.WARN, 'no IMU input; ' + msg
         elif self.k and self.counts['stale_temperature'] and self.counts['samples'] == 0:
             level, msg = common.WARN, 'no fresh temperature; ' + msg
-        problem = self.temperature_problem() if rate else ''
+        problem = input_hints.collection_problem(self) if rate else ''
         if problem and not self._warned_temperature \
                 and self.counts['stale_temperature'] >= WARN_AFTER_STALE:
             self._warned_temperature = True

@@ -269,37 +269,6 @@ class LiveCollection:
                     self._pending_temp[index].append((common.stamp_to_ns(m.header.stamp), v))
         return cb
 
-    def temperature_problem(self):
-        """Return why no IMU sample is collected: no IMU input, or no temperature ('' if not).
-
-        Said first when ``~/calibrate`` is refused and logged once while collecting: a
-        driver publishing under another name (``imu/data``, ``imu/temp``) otherwise reads as
-        "no stationary segments were found". Names the topics of the right type on the
-        graph that this node does not subscribe to, and what to set.
-        """
-        received, samples = self._rate.total, self.counts['samples']
-        stale = self.counts['stale_temperature']
-        if not received:
-            return (f'no IMU message arrived on {self.imu_sub.topic_name} '
-                    f'({self.imu_sub.get_publisher_count()} publishers)'
-                    + common.imu_topics_hint(self, self.imu_sub))
-        if not self.k or not stale or stale < samples:
-            return ''
-        silent = [i for i, n in enumerate(self.readings_per_topic) if n == 0]
-        hint = common.thermal_topics_hint(self, self.temp_subs)
-        if silent:
-            names = ', '.join(f'{self.temp_subs[i].topic_name} '
-                              f'({self.temp_subs[i].get_publisher_count()} publishers)'
-                              for i in silent)
-            return (f'no temperature reading arrived on {names} while {received} IMU '
-                    f'messages did, so no IMU sample was collected{hint}; or set '
-                    "temperature_topics:='[]' to calibrate without a temperature")
-        return (f'{stale} IMU samples had no temperature reading within temperature_timeout '
-                f'({self.temperature_timeout:g} s of header stamps) and {samples} had one, so '
-                'most were not collected: the IMU and temperature header stamps must share a '
-                'clock, and the temperature must be published at least every '
-                f'{self.temperature_timeout:g} s (or raise temperature_timeout)')
-
     def _on_imu(self, msg):
         msgs = [msg]
         msgs.extend(common.drain(self.imu_sub, 999, self))

@@ -294,39 +294,6 @@ class TemperatureInputs:
         return out
 
 
-def thermal_topics_hint(node, subscriptions):
-    """Return '; thermal-input topics on the graph: ... (set ...)' for a silent input, or ''.
-
-    Names the topics of a ``SCALAR_TYPES`` type that ``node`` does not subscribe to
-    (``subscriptions``: its temperature subscriptions): a driver publishing ``imu/temp``
-    when the node listens on ``imu/temperature`` is found this way. The graph is a hint
-    only; an error reading it gives ''.
-    """
-    ours = {s.topic_name for s in subscriptions}
-    try:
-        seen = sorted(t for t, types in node.get_topic_names_and_types()
-                      if t not in ours and any(ty in SCALAR_TYPES for ty in types))
-    except Exception:  # noqa: B902 - the graph is only a hint
-        return ''
-    return (f'; thermal-input topics on the graph: {", ".join(seen)} (set '
-            f"temperature_topics:='[{seen[0]}]')" if seen else '')
-
-
-def imu_topics_hint(node, subscription):
-    """Return '; sensor_msgs/Imu topics on the graph: ... (set imu_topic:=...)', or ''."""
-    def from_a_driver(topic):     # not only a compensator's output (imu/data_compensated)
-        return any(not i.node_name.startswith('thermal_imu_compensator')
-                   for i in node.get_publishers_info_by_topic(topic))
-    try:
-        seen = sorted(t for t, types in node.get_topic_names_and_types()
-                      if t != subscription.topic_name and 'sensor_msgs/msg/Imu' in types
-                      and from_a_driver(t))
-    except Exception:  # noqa: B902 - the graph is only a hint
-        return ''
-    return (f'; sensor_msgs/Imu topics on the graph: {", ".join(seen)} (remap: '
-            f'ros2 launch ... imu_topic:={seen[0]})' if seen else '')
-
-
 def match_topics(node, wanted, available):
     """Map calibration input topics to indices in ``available`` (the subscribed names).
 

@@ -34,7 +34,7 @@ from sensor_msgs.msg import Imu
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from . import common, process, units
+from . import common, input_hints, process, units
 from .compensator_state import StreamStateFile
 from ..calibration import Calibration, CalibrationError
 from ..collection.feed import DEFAULT_MAX_GAP_S
@@ -436,7 +436,7 @@ class CompensatorNode(Node):
                                     + ('dropped' if self.on_missing == 'drop' else
                                        'published uncompensated')
                                     + f' (on_missing_temperature {self.on_missing})'
-                                    + common.thermal_topics_hint(self, self.temp_subs))
+                                    + input_hints.thermal_topics_hint(self, self.temp_subs))
         rows = np.flatnonzero(comp)
         if len(rows):
             self.state.before(active, stamps[rows[0]] * 1e-9)

@@ -1,0 +1,75 @@
+"""What a node says when an input never arrives: the topic to set, found on the ROS graph.
+
+A driver that publishes ``imu/temp`` or ``imu/data`` while the node listens on
+``imu/temperature`` or ``imu/data_raw`` otherwise shows only as "no stationary segments
+were found" (the calibrator) or uncompensated output (the compensator). These helpers
+name the silent subscription, its publishers and the topics of the right type on the
+graph. The graph is a hint only: an error reading it gives no hint, never a failure.
+"""
+
+from . import common
+
+
+def thermal_topics_hint(node, subscriptions):
+    """Return '; thermal-input topics on the graph: ... (set ...)' for a silent input, or ''.
+
+    Names the topics of a ``common.SCALAR_TYPES`` type that ``node`` does not subscribe to
+    (``subscriptions``: its temperature subscriptions): a driver publishing ``imu/temp``
+    when the node listens on ``imu/temperature`` is found this way. The graph is a hint
+    only; an error reading it gives ''.
+    """
+    ours = {s.topic_name for s in subscriptions}
+    try:
+        seen = sorted(t for t, types in node.get_topic_names_and_types()
+                      if t not in ours and any(ty in common.SCALAR_TYPES for ty in types))
+    except Exception:  # noqa: B902 - the graph is only a hint
+        return ''
+    return (f'; thermal-input topics on the graph: {", ".join(seen)} (set '
+            f"temperature_topics:='[{seen[0]}]')" if seen else '')
+
+
+def imu_topics_hint(node, subscription):
+    """Return '; sensor_msgs/Imu topics on the graph: ... (set imu_topic:=...)', or ''."""
+    def from_a_driver(topic):     # not only a compensator's output (imu/data_compensated)
+        return any(not i.node_name.startswith('thermal_imu_compensator')
+                   for i in node.get_publishers_info_by_topic(topic))
+    try:
+        seen = sorted(t for t, types in node.get_topic_names_and_types()
+                      if t != subscription.topic_name and 'sensor_msgs/msg/Imu' in types
+                      and from_a_driver(t))
+    except Exception:  # noqa: B902 - the graph is only a hint
+        return ''
+    return (f'; sensor_msgs/Imu topics on the graph: {", ".join(seen)} (remap: '
+            f'ros2 launch ... imu_topic:={seen[0]})' if seen else '')
+
+
+def collection_problem(node):
+    """Return why no IMU sample is collected: no IMU input, or no temperature ('' if not).
+
+    Said first when ``~/calibrate`` is refused and logged once while collecting: a
+    driver publishing under another name (``imu/data``, ``imu/temp``) otherwise reads as
+    "no stationary segments were found". Names the topics of the right type on the
+    graph that this node does not subscribe to, and what to set.
+    """
+    received, samples = node._rate.total, node.counts['samples']
+    stale = node.counts['stale_temperature']
+    if not received:
+        return (f'no IMU message arrived on {node.imu_sub.topic_name} '
+                f'({node.imu_sub.get_publisher_count()} publishers)'
+                + imu_topics_hint(node, node.imu_sub))
+    if not node.k or not stale or stale < samples:
+        return ''
+    silent = [i for i, n in enumerate(node.readings_per_topic) if n == 0]
+    hint = thermal_topics_hint(node, node.temp_subs)
+    if silent:
+        names = ', '.join(f'{node.temp_subs[i].topic_name} '
+                          f'({node.temp_subs[i].get_publisher_count()} publishers)'
+                          for i in silent)
+        return (f'no temperature reading arrived on {names} while {received} IMU '
+                f'messages did, so no IMU sample was collected{hint}; or set '
+                "temperature_topics:='[]' to calibrate without a temperature")
+    return (f'{stale} IMU samples had no temperature reading within temperature_timeout '
+            f'({node.temperature_timeout:g} s of header stamps) and {samples} had one, so '
+            'most were not collected: the IMU and temperature header stamps must share a '
+            'clock, and the temperature must be published at least every '
+            f'{node.temperature_timeout:g} s (or raise temperature_timeout)')
