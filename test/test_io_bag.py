@@ -403,3 +403,15 @@ def test_the_imu_temperature_is_picked_among_a_robots_temperature_topics(tmp_pat
                                                       '/motor/temperature': 'motor'})) as r:
         with pytest.raises(LogError, match=r"none is the IMU's .*--temperature-topic ''"):
             resolve_topics(r, None, None)
+
+
+def test_info_says_which_topics_calibrate_would_use(tmp_path, capsys):
+    from thermal_imu_calib.cli import main
+    log = _robot_log(tmp_path / 'robot.mcap', {'/battery/temperature': 'battery',
+                                               '/imu/temperature': 'imu_link'})
+    assert main(['info', log]) == 0
+    out = capsys.readouterr().out
+    assert 'calibrate would use: IMU /imu/data_raw, temperature /imu/temperature\n' in out
+    assert "note: temperature input /imu/temperature (header.frame_id 'imu_link'" in out
+    assert main(['info', log, '--temperature-topic', '']) == 0
+    assert 'temperature none' in capsys.readouterr().out

@@ -189,8 +189,17 @@ def cmd_simulate(args):
 def cmd_info(args):
     """Run the info subcommand."""
     from ..io.bag import open_log
+    from ..io.topics import resolve_topics
     with open_log(args.input) as reader:
         print(reader.info().format())
+        notes = []
+        try:
+            imu, temps = resolve_topics(reader, args.imu_topic, args.temperature_topic, notes)
+        except LogError as e:
+            print(f'calibrate would refuse: {e}')
+        else:
+            print(f'calibrate would use: IMU {imu}, temperature '
+                  f'{", ".join(temps) or "none"}' + ''.join(f'\n  note: {n}' for n in notes))
     if args.holds:
         from ..app.collect import collect_windows
         c = collect_windows(args.input, args.imu_topic, args.temperature_topic, _detector(args),
