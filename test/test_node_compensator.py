@@ -633,3 +633,24 @@ def test_diagnostics_keep_coming_with_sim_time_and_no_clock(ros, tmp_path):
     rig.receive(3)
     status, values = rig.diagnostics()
     assert values['compensated'] == '3', values
+
+
+def test_no_imu_input_is_named_in_a_warning_with_the_imu_topics_on_the_graph(
+        ros, tmp_path, monkeypatch):
+    # the driver publishes imu/data, the node listens on imu/data_raw: the log says so once
+    # (after input_hints.SILENT_IMU_AFTER_S, 10 s; shortened here)
+    from thermal_imu_calib.nodes import input_hints
+    monkeypatch.setattr(input_hints, 'SILENT_IMU_AFTER_S', 0.2)
+    rig = Rig(ros, calibration_file=str(make_cal().save(tmp_path / 'cal.yaml')),
+              diagnostics_period=0.2)
+    warned = []
+    rig.node._warn_once = lambda key, text: warned.append((key, text))
+    other = rig.driver.create_publisher(Imu, '/imu/data', 10)
+    wait_for(lambda: '/imu/data' in dict(rig.node.get_topic_names_and_types()), WAIT,
+             'the /imu/data publisher on the graph')
+    other.publish(imu_msg(rig.stamp, ACCEL, GYRO))
+    wait_for(lambda: any(k == 'silent_imu' and '/imu/data ' in t for k, t in warned), WAIT,
+             lambda: f'the silent-IMU warning naming /imu/data; got {warned}')
+    text = next(t for k, t in warned if k == 'silent_imu')
+    assert text.startswith('no IMU message on /imu/data_raw (1 publishers) after 0.2 s; '
+                           'sensor_msgs/Imu topics on the graph: /imu/data'), text

@@ -80,6 +80,8 @@ class CalibratorNode(LiveCollection, Node):
                        'temperature_readings': 0, 'temperature_invalid': 0}
         self.readings_per_topic = [0] * self.k
         self._warned_temperature = False
+        self._warned_imu = False
+        self._started = time.monotonic()
         self._collection_error = ''
         self._new_collection()
         self._resume()
@@ -369,6 +371,10 @@ class CalibratorNode(LiveCollection, Node):
         elif self.k and self.counts['stale_temperature'] and self.counts['samples'] == 0:
             level, msg = common.WARN, 'no fresh temperature; ' + msg
         problem = input_hints.collection_problem(self) if rate else ''
+        silent = input_hints.silent_imu(self, self._started, self._rate.total)
+        if silent and not self._warned_imu:
+            self._warned_imu = True
+            self.get_logger().warning(silent)
         if problem and not self._warned_temperature \
                 and self.counts['stale_temperature'] >= WARN_AFTER_STALE:
             self._warned_temperature = True

@@ -161,6 +161,7 @@ class CompensatorNode(Node):
         self._last_stamp_ns = None
         self._rate = common.RateMeter()
         self._warned = set()
+        self._started = time.monotonic()
         self._finished = False     # finish() has written the state on the way out
 
         self.pub = self.create_publisher(Imu, 'imu/data_compensated',
@@ -534,6 +535,9 @@ class CompensatorNode(Node):
         return level, msg, values
 
     def _publish_diagnostics(self):
+        silent = input_hints.silent_imu(self, self._started, self.counts['received'])
+        if silent:
+            self._warn_once('silent_imu', silent)
         level, msg, values = self.diagnostics_values()
         self.diagnostics.publish([common.diagnostic_status(
             f'{self.get_name()}: thermal compensation', self.get_fully_qualified_name(),

@@ -7,6 +7,8 @@ name the silent subscription, its publishers and the topics of the right type on
 graph. The graph is a hint only: an error reading it gives no hint, never a failure.
 """
 
+import time
+
 from . import common
 
 
@@ -73,3 +75,20 @@ def collection_problem(node):
             'most were not collected: the IMU and temperature header stamps must share a '
             'clock, and the temperature must be published at least every '
             f'{node.temperature_timeout:g} s (or raise temperature_timeout)')
+
+
+#: seconds (steady clock) after the start with no IMU message before a node says why
+SILENT_IMU_AFTER_S = 10.0
+
+
+def silent_imu(node, started, received):
+    """Return a warning when no IMU message came ``SILENT_IMU_AFTER_S`` after ``started``.
+
+    ``started``: ``time.monotonic()`` at the node's start; ``received``: IMU messages so
+    far. '' while messages come (or before the delay): the caller logs the text once.
+    """
+    if received or time.monotonic() - started < SILENT_IMU_AFTER_S:
+        return ''
+    return (f'no IMU message on {node.imu_sub.topic_name} '
+            f'({node.imu_sub.get_publisher_count()} publishers) after '
+            f'{SILENT_IMU_AFTER_S:g} s' + imu_topics_hint(node, node.imu_sub))
