@@ -396,8 +396,8 @@ def test_pose_changes_resume_after_restart_and_restart_with_the_timeline(ros, tm
     resp = player.call('calibrate')
     assert resp.success, resp.message
     assert '8 of 8 pose changes used' in resp.message, resp.message
-    assert 'stamps jumped back 1 time(s) while collecting (a recording played again?)' \
-        in resp.message, resp.message
+    assert 'stamps jumped back 1 time(s) while collecting (a recording played again, or ' \
+        'another?)' in resp.message, resp.message
 
 
 def test_collection_of_other_thermal_inputs_is_not_resumed(ros, tmp_path):
@@ -569,3 +569,28 @@ def test_a_restart_into_another_session_does_not_merge_the_resumed_holds(ros, tm
     assert prog['segments'] == first, prog
     resp = player.call('calibrate')
     assert 'resumed from' not in resp.message, resp.message
+
+
+def test_a_second_recording_later_in_one_run_is_named_in_the_answer(ros, tmp_path):
+    # stamps that jump ahead by hours in one run: another recording (a robot's stream does
+    # not pause for hours); its holds are kept, as after a jump back, and the answer says so
+    from conftest import replay_flow
+    from thermal_imu_calib.io.columns import ImuColumns
+    rec = recording(repetitions=1, faces=('+z', '-z', '+x', '-x', '+y', '-y'))
+    node = calibrator(ros, tmp_path)
+    player = Player(ros)
+    player.play(rec)
+    player.wait_received()
+    imu = rec.imu()
+    (_, tc), = rec.temperatures.items()
+    later = 2 * 3600 * 10 ** 9
+    part = ImuColumns(imu.stamp_ns + later, imu.accel, imu.gyro, imu.frame_id)
+    replay_flow(player.imu_pub, part, [(player.temp_pub, tc.stamp_ns + later,
+                                        tc.temperature)], RATE,
+                lambda: player.reported('imu_received') - len(imu),
+                what='the second recording at the calibrator')
+    _wait_processed(node, part.stamp_ns[-1])
+    assert node.counts['time_gaps'] == 1 and not node.counts.get('time_resets')
+    resp = player.call('calibrate')
+    assert 'stamps jumped ahead by more than resume_max_gap 1 time(s) while collecting' \
+        in resp.message, resp.message

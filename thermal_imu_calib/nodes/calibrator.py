@@ -141,10 +141,13 @@ class CalibratorNode(LiveCollection, Node):
         problem = '' if response.success else input_hints.collection_problem(self)
         if problem and response.message.startswith('refused: '):
             response.message = f'refused: {problem}. ({response.message[9:]})'
-        jumps = self.counts.get('time_resets', 0)
-        if jumps and self.lifelong is None:
-            response.message += (f'; the IMU header stamps jumped back {jumps} time(s) while '
-                                 'collecting (a recording played again?): the holds of every '
+        back, ahead = self.counts.get('time_resets', 0), self.counts.get('time_gaps', 0)
+        if (back or ahead) and self.lifelong is None:
+            jumps = ' and '.join(t for t in (f'back {back} time(s)' if back else '',
+                                             f'ahead by more than resume_max_gap {ahead} '
+                                             'time(s)' if ahead else '') if t)
+            response.message += (f'; the IMU header stamps jumped {jumps} while collecting '
+                                 '(a recording played again, or another?): the holds of every '
                                  'run are used; call ~/reset before playing one again')
         if self.resumed_holds and self.lifelong is None:
             response.message += (f'; {self.resumed_holds} of the holds were resumed from '

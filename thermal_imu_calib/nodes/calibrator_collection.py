@@ -294,6 +294,7 @@ class LiveCollection:
                 self._check_session(int(imu.stamp_ns[0]))
             if len(imu):
                 self._check_time(int(imu.stamp_ns.min()))
+                self._count_gaps(imu.stamp_ns)
                 self._newest_ns = max(self._newest_ns or 0, int(imu.stamp_ns.max()))
             for chunk in self.aligner.push_columns(imu, tcols):
                 self._collect(chunk)
@@ -325,6 +326,17 @@ class LiveCollection:
             f'{holds} holds resumed: a new session, started afresh'
             + (f'; the resumed collection was moved to {aside}' if aside else '')
             + ' (to continue a collection across a longer gap, raise resume_max_gap)')
+
+    def _count_gaps(self, stamps):
+        """Count steps forward by more than ``resume_max_gap`` (another recording played?).
+
+        Kept, as a jump back is (a robot's stream may pause); ``~/calibrate`` says so.
+        """
+        before = [] if self._newest_ns is None else [self._newest_ns]
+        steps = np.diff(np.concatenate([before, stamps]).astype(np.int64))
+        n = int((steps > self.resume_max_gap * 1e9).sum())
+        if n:
+            self.counts['time_gaps'] = self.counts.get('time_gaps', 0) + n
 
     def _check_time(self, stamp_ns):
         """Close the open hold and restart detection when header stamps jump back.
