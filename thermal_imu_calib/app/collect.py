@@ -11,12 +11,12 @@ import sys
 import time
 
 from ..collection.collected import Collected
-from ..collection.feed import DEFAULT_MAX_GAP_S
+from ..collection.feed import DEFAULT_MAX_GAP_S, fresh_part
 from ..collection.motion import MotionCollector
 from ..collection.segments import Windows
 from ..collection.stationary import StationaryDetector
 from ..input_units import DEGC, parse_unit_map
-from ..io.align import fresh_rows, StreamAligner
+from ..io.align import StreamAligner
 from ..io.bag import open_log
 from ..io.gate import InputGate
 from ..io.topics import resolve_topics
@@ -74,18 +74,14 @@ def collect_windows(path, imu_topic=None, temperature_topics=None, detector=None
         parts, n, frame, peak = [], 0, '', 0
         bar = progress_bar(total, 'reading', progress)
         t_start = time.perf_counter()
-        gate.report.max_gap_s = max_gap_s
         for ch in aligned_chunks(reader, imu_topic, temps, chunk_size, max_gap_s, bar=bar,
                                  gate=gate):
             n += len(ch)
             frame = frame or ch.imu.frame_id
-            use = fresh_rows(ch.temp_age, max_gap_s)     # as calibrator_node collects
-            imu, t_in = ch.imu, ch.temps
-            if not use.all():
-                gate.report.imu_no_temperature += int((~use).sum())
-                imu, t_in = imu.slice(use), t_in[use]
+            imu, temps_in, left_out = fresh_part(ch, max_gap_s)   # as calibrator_node does
+            gate.report.imu_no_temperature += left_out
             if len(imu):
-                parts.append(det.update(imu.t, imu.accel, imu.gyro, t_in))
+                parts.append(det.update(imu.t, imu.accel, imu.gyro, temps_in))
             if motion:
                 peak = max(peak, det.memory_bytes())
         parts.append(det.finish())

@@ -36,19 +36,13 @@ def evaluate_log(path, calibrations, imu_topic=None, temperature_topics=None, de
     col = collect_windows(path, imu_topic, temperature_topics, detector, chunk_size,
                           max_gap_s, progress)
     w = col.windows
+    # an input without a usable reading: its samples were not collected (no window has it)
     unusable = [t for t in col.temperature_topics if col.gate is not None
                 and not sum(map(len, col.gate.temp_stamps.get(t, [])))]
     if unusable and any(cal.inputs for cal in calibrations.values()):
         raise LogError(f'{path}: {", ".join(unusable)} has no usable reading (NaN/Inf or '
                        'none), so no calibration can be applied; check the sensor and its '
                        'driver')
-    if len(w) and any(cal.inputs for cal in calibrations.values()):
-        empty = [t for t, bad in zip(col.temperature_topics, np.isnan(w.temp).all(axis=0))
-                 if bad]
-        if empty:
-            raise LogError(f'{path}: {", ".join(empty)} has no usable reading (NaN/Inf or '
-                           'none), so no calibration can be applied; check the sensor and its '
-                           'driver')
     tcol = _temperature_column(calibrations, col.temperature_topics)
     results = {'raw': static_metrics(w, gravity, average_s, tcol)}
     if len(w) and calibrations:

@@ -14,6 +14,20 @@ from .stationary import StationaryDetector
 DEFAULT_MAX_GAP_S = 5.0
 
 
+def fresh_part(chunk, max_gap_s):
+    """Return (ImuColumns, temperatures, rows left out) of AlignedChunk ``chunk``'s fresh rows.
+
+    The one collection rule (``io.align.fresh_rows``) of ``calibrate``, the simulations,
+    ``calibrator_node`` and the lifelong feeder: only these rows go to the detector (none
+    when the ImuColumns returned are empty).
+    """
+    use = fresh_rows(chunk.temp_age, max_gap_s)
+    left_out = len(use) - int(use.sum())
+    if not left_out:
+        return chunk.imu, chunk.temps, 0
+    return chunk.imu.slice(use), chunk.temps[use], left_out
+
+
 def windows_from_columns(imu_chunks, temperatures=(), detector=None,
                          max_gap_s=DEFAULT_MAX_GAP_S):
     """Run the stationary detector over in-memory columns (no log): e.g. a simulation.
@@ -38,10 +52,9 @@ def feed_columns(det, imu_chunks, temperatures=(), max_gap_s=DEFAULT_MAX_GAP_S):
     parts = []
 
     def update(a):
-        use = fresh_rows(a.temp_age, max_gap_s)          # as a log's collection
-        imu = a.imu if use.all() else a.imu.slice(use)
+        imu, temps, _ = fresh_part(a, max_gap_s)           # as a log's collection
         if len(imu):
-            parts.append(det.update(imu.t, imu.accel, imu.gyro, a.temps[use]))
+            parts.append(det.update(imu.t, imu.accel, imu.gyro, temps))
 
     for ch in imu_chunks:
         for a in aligner.push_columns(ch, pending):

@@ -171,8 +171,7 @@ def fresh_rows(temp_age, max_gap_s):
     ``max_gap_s``, is not collected (its temperature would be a guess). ``temp_age`` is
     ``AlignedChunk.temp_age`` (n, k); with k = 0 every row is fresh.
     """
-    temp_age = np.asarray(temp_age, float)
-    return (temp_age <= max_gap_s).all(1) if temp_age.ndim == 2 else np.ones(0, bool)
+    return (np.asarray(temp_age, float) <= max_gap_s).all(1)
 
 
 class StreamAligner:

@@ -39,7 +39,6 @@ class GateReport:
     #: IMU samples not collected: no reading of every thermal input within the max gap
     #: (``io.align.fresh_rows``); counted by the collection, not by the gate
     imu_no_temperature: int = 0
-    max_gap_s: float = 5.0
     #: first and last kept IMU header stamp, ns (None before any)
     imu_first_ns: int = None
     imu_last_ns: int = None
@@ -58,8 +57,11 @@ class GateReport:
         return (self.imu_nonfinite + self.imu_out_of_range + self.imu_zero
                 + self.imu_stamp_not_increasing)
 
-    def dropped_text(self):
-        """Return e.g. '3 non-finite IMU samples, 1 -300 degC reading dropped' ('' if none)."""
+    def dropped_text(self, max_gap_s=5.0):
+        """Return e.g. '3 non-finite IMU samples, 1 -300 degC reading dropped' ('' if none).
+
+        ``max_gap_s``: the collection's ``--max-gap`` (s), named with the samples it left out.
+        """
         parts = [f'{n} {what}' for n, what in (
             (self.imu_nonfinite, 'non-finite IMU samples'),
             (self.imu_out_of_range, f'IMU samples beyond any sensor\'s range (|a| > '
@@ -68,7 +70,7 @@ class GateReport:
             (self.imu_stamp_not_increasing, 'IMU samples whose header stamp does not '
                                             'increase (duplicated or running backwards)'),
             (self.imu_no_temperature, f'IMU samples with no temperature reading within '
-                                      f'{self.max_gap_s:g} s (--max-gap) of their stamp, '
+                                      f'{max_gap_s:g} s (--max-gap) of their stamp, '
                                       'not collected')) if n]
         for topic in self.temp_in:
             bad = self.temp_nonfinite.get(topic, 0)
@@ -240,8 +242,8 @@ def behind_newest(stamps, newest):
     """
     stamps = np.asarray(stamps, np.int64)
     prev = _newest_before(stamps, newest)
-    up = stamps > prev
-    return np.where(up, np.int64(-1), np.where(up, stamps, prev) - stamps)
+    # where the stamp increases prev - stamps may wrap (prev is int64 min before any): -1
+    return np.where(stamps > prev, np.int64(-1), prev - stamps)
 
 
 def _newest_before(stamps, newest):
@@ -329,8 +331,8 @@ def check_report(path, r, max_gap_s=5.0):
                        'do not increase (duplicated or running backwards); the stamps are '
                        'broken: fix the driver\'s clock or re-record')
     if r.imu_dropped == r.imu_in:
-        raise LogError(f'{path}: every IMU sample was dropped ({r.dropped_text()}); the log '
-                       'has no usable IMU data')
+        raise LogError(f'{path}: every IMU sample was dropped '
+                       f'({r.dropped_text(max_gap_s)}); the log has no usable IMU data')
     problems = thermal_problems(r, max_gap_s)
     if problems:
         raise LogError(f'{path}: the thermal inputs cannot support a thermal fit: '
@@ -348,5 +350,5 @@ def check_report(path, r, max_gap_s=5.0):
                        + '): are they stamped by different clocks? Stamp both with one '
                        "clock, or pass --temperature-topic '' to calibrate without a "
                        'temperature')
-    dropped = r.dropped_text()
+    dropped = r.dropped_text(max_gap_s)
     return list(r.notes) + ([f'dropped and counted: {dropped}'] if dropped else [])

@@ -4,6 +4,7 @@ Shared by the offline pipelines and lab mode; raises LogError naming the
 topics present.
 """
 
+from . import cdr
 from .log_info import LogError
 from .cdr import IMU_MSGTYPE, SCALAR_MSGTYPES, TEMPERATURE_MSGTYPE
 
@@ -92,7 +93,6 @@ def imu_temperatures(reader, imu_topic, notes=None):
 
 def _first_frames(reader, topics):
     """Return topic -> header.frame_id of its first message (topics not seen are absent)."""
-    from . import cdr
     out = {}
     for i, (topic, msgtype, _, raw) in enumerate(reader.iter_raw(topics)):
         if topic not in out:

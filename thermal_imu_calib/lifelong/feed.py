@@ -7,9 +7,9 @@ the windows the robot was commanded still for, ``Lifelong.add`` stores them and,
 ``due``, ``Lifelong.estimate`` runs (here on the caller's thread).
 """
 
-from ..collection.feed import DEFAULT_MAX_GAP_S
+from ..collection.feed import DEFAULT_MAX_GAP_S, fresh_part
 from ..collection.stationary import DetectorConfig, StationaryDetector
-from ..io.align import fresh_rows, StreamAligner
+from ..io.align import StreamAligner
 from ..io.gate import LiveImuFilter
 
 
@@ -43,17 +43,10 @@ class Feeder:
             self._update(chunk)
 
     def _update(self, chunk):
-        """Detect on the chunk's rows with a fresh temperature (``fresh_rows``, the node's)."""
-        use = fresh_rows(chunk.temp_age, self.timeout) if self.k else None
-        imu_c = chunk.imu
-        if use is not None and not use.all():
-            if not use.any():
-                return
-            win = self.detector.update(imu_c.t[use], imu_c.accel[use], imu_c.gyro[use],
-                                       chunk.temps[use])
-        else:
-            win = self.detector.update(imu_c.t, imu_c.accel, imu_c.gyro, chunk.temps)
-        self._take(win)
+        """Detect on the chunk's rows with a fresh temperature (``fresh_part``, the node's)."""
+        imu, temps, _ = fresh_part(chunk, self.timeout)
+        if len(imu):
+            self._take(self.detector.update(imu.t, imu.accel, imu.gyro, temps))
 
     def finish(self):
         """Close the hold in progress."""

@@ -373,15 +373,18 @@ class CalibratorNode(LiveCollection, Node):
             level, msg = common.WARN, 'no IMU input; ' + msg
         elif self.k and self.counts['stale_temperature'] and self.counts['samples'] == 0:
             level, msg = common.WARN, 'no fresh temperature; ' + msg
-        problem = input_hints.collection_problem(self) if rate else ''
-        silent = input_hints.silent_imu(self, self._started, self._rate.total)
-        if silent and not self._warned_imu:
-            self._warned_imu = True
-            self.get_logger().warning(silent)
-        if problem and not self._warned_temperature \
+        # each said once; the graph is read for the hint only then, not every period
+        if not self._warned_imu:
+            silent = input_hints.silent_imu(self, self._started, self._rate.total)
+            if silent:
+                self._warned_imu = True
+                self.get_logger().warning(silent)
+        if rate and not self._warned_temperature \
                 and self.counts['stale_temperature'] >= WARN_AFTER_STALE:
-            self._warned_temperature = True
-            self.get_logger().warning(problem)
+            problem = input_hints.collection_problem(self)
+            if problem:
+                self._warned_temperature = True
+                self.get_logger().warning(problem)
         self.diagnostics.publish([common.diagnostic_status(
             f'{self.get_name()}: thermal calibration', self.get_fully_qualified_name(), level,
             msg, values)] + (self.lifelong.statuses() if self.lifelong is not None else []))

@@ -22,9 +22,10 @@ import numpy as np
 from . import common
 from ..collection.collected import Collected
 from ..collection.motion import load_transitions, MotionCollector, offset_holds, save_transitions
+from ..collection.feed import fresh_part
 from ..collection.segments import Windows
 from ..collection.stationary import DetectorConfig, DetectorSettingsError
-from ..io.align import fresh_rows, StreamAligner
+from ..io.align import StreamAligner
 from ..io.columns import ImuColumns, TemperatureColumns
 from ..io.gate import LiveImuFilter, temperature_checks
 from ..io.output import OutputError, write_atomic
@@ -382,15 +383,18 @@ class LiveCollection:
         return kept
 
     def _collect(self, chunk):
-        imu = chunk.imu
-        use = _usable(chunk, self.k, self.temperature_timeout)
-        self.counts['stale_temperature'] += int((~use).sum())
-        self.counts['samples'] += int(use.sum())
-        if not use.any():
+        """Detect on the rows with a fresh temperature (``fresh_part``, as ``calibrate``).
+
+        The IMU rows are valid: ``_filtered`` dropped the others before the aligner, as
+        ``calibrate``'s gate does.
+        """
+        imu, temps, left_out = fresh_part(chunk, self.temperature_timeout)
+        self.counts['stale_temperature'] += left_out
+        self.counts['samples'] += len(imu)
+        if not len(imu):
             return
         try:
-            win = self.detector.update(imu.t[use], imu.accel[use], imu.gyro[use],
-                                       chunk.temps[use])
+            win = self.detector.update(imu.t, imu.accel, imu.gyro, temps)
         except DetectorSettingsError as e:
             self._detector_failed(e)
             return
@@ -430,11 +434,9 @@ class LiveCollection:
         """
         parts = []
         for chunk in aligner.finish():
-            use = _usable(chunk, self.k, self.temperature_timeout)
-            if use.any():
-                imu = chunk.imu
-                parts.append(detector.update(imu.t[use], imu.accel[use], imu.gyro[use],
-                                             chunk.temps[use]))
+            imu, temps, _ = fresh_part(chunk, self.temperature_timeout)
+            if len(imu):
+                parts.append(detector.update(imu.t, imu.accel, imu.gyro, temps))
         parts.append(detector.finish())
         tail = Windows.concat(parts)
         if len(tail):
@@ -473,13 +475,3 @@ def _good_records(data, k):
             continue
         good.append(text)
     return '\n'.join(good) + ('\n' if good else ''), skipped, total
-
-
-def _usable(chunk, k, timeout):
-    """Rows of an AlignedChunk with every temperature within ``timeout`` (``fresh_rows``).
-
-    The rule ``calibrate`` collects by (``app.collect``; ``timeout`` is its ``--max-gap``,
-    the same default). Its IMU rows are valid: ``LiveCollection._filtered`` dropped the
-    others before the aligner, as ``calibrate``'s gate does.
-    """
-    return fresh_rows(chunk.temp_age, timeout) if k else np.ones(len(chunk.imu), bool)

@@ -427,17 +427,9 @@ class CompensatorNode(Node):
                     if self.on_missing == 'drop':
                         send &= ~stale
                         c['dropped'] += int(stale.sum())
-                silent = [self.temp_subs[i] for i in active.columns
-                          if not self.temps.received[i]]
-                if silent and c['temperature_missing'] >= SILENT_WARN_AFTER:
-                    self._warn_once('silent', 'no temperature reading has arrived on '
-                                    + ', '.join(f'{s.topic_name} ({s.get_publisher_count()} '
-                                                'publishers)' for s in silent)
-                                    + f' while {c["received"]} IMU messages did: they are '
-                                    + ('dropped' if self.on_missing == 'drop' else
-                                       'published uncompensated')
-                                    + f' (on_missing_temperature {self.on_missing})'
-                                    + input_hints.thermal_topics_hint(self, self.temp_subs))
+                if 'silent' not in self._warned and \
+                        c['temperature_missing'] >= SILENT_WARN_AFTER:
+                    self._warn_silent_temperature(active.columns)
         rows = np.flatnonzero(comp)
         if len(rows):
             self.state.before(active, stamps[rows[0]] * 1e-9)
@@ -471,6 +463,20 @@ class CompensatorNode(Node):
                 count += 1
         self.counts['published'] += count
         return count
+
+    def _warn_silent_temperature(self, columns):
+        """Say once which needed thermal input never had a reading, and what is on the graph."""
+        silent = [self.temp_subs[i] for i in columns if not self.temps.received[i]]
+        if not silent:
+            return
+        c = self.counts
+        self._warn_once('silent', 'no temperature reading has arrived on '
+                        + ', '.join(f'{s.topic_name} ({s.get_publisher_count()} publishers)'
+                                    for s in silent)
+                        + f' while {c["received"]} IMU messages did: they are '
+                        + ('dropped' if self.on_missing == 'drop' else 'published uncompensated')
+                        + f' (on_missing_temperature {self.on_missing})'
+                        + input_hints.thermal_topics_hint(self, self.temp_subs))
 
     def _warn_once(self, key, text):
         if key not in self._warned:
@@ -535,9 +541,10 @@ class CompensatorNode(Node):
         return level, msg, values
 
     def _publish_diagnostics(self):
-        silent = input_hints.silent_imu(self, self._started, self.counts['received'])
-        if silent:
-            self._warn_once('silent_imu', silent)
+        if 'silent_imu' not in self._warned:
+            silent = input_hints.silent_imu(self, self._started, self.counts['received'])
+            if silent:
+                self._warn_once('silent_imu', silent)
         level, msg, values = self.diagnostics_values()
         self.diagnostics.publish([common.diagnostic_status(
             f'{self.get_name()}: thermal compensation', self.get_fully_qualified_name(),
