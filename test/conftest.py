@@ -86,7 +86,8 @@ def wait_count(count, target, what, stall=60.0, settle=5.0, loss=0.01):
         time.sleep(0.01)
 
 
-def replay_flow(imu_pub, imu, temperatures, rate, delivered, window=500, what='delivery'):
+def replay_flow(imu_pub, imu, temperatures, rate, delivered, window=500, what='delivery',
+                readings=None):
     """Replay like ``replay`` with back-pressure: at most ``window`` IMU messages in flight.
 
     The IMU columns are published in chunks of ``window // 2`` at ``rate``; before each
@@ -94,11 +95,18 @@ def replay_flow(imu_pub, imu, temperatures, rate, delivered, window=500, what='d
     call) must have caught up to within one chunk of what was sent. ``window`` stays below
     the subscribers' queue depth (1000), so a slow (loaded) receiver slows the replay
     instead of losing messages. Returns the number of IMU messages published.
+
+    ``readings`` (optional): the receiver's cumulative count of temperature readings. Each
+    chunk's readings are then published first and must all have arrived before its IMU
+    messages are published, so every sample finds the reading of its own stamp (merged in
+    stamp order, a sample's same-stamp reading follows it over another topic, and under
+    load may arrive after the sample was processed). A lost reading fails the replay.
     """
     chunk = max(window // 2, 1)
     base = delivered()
+    base_readings = readings() if readings else 0
     n = len(imu.stamp_ns)
-    sent = 0
+    sent = sent_readings = 0
     for i0 in range(0, n, chunk):
         i1 = min(i0 + chunk, n)
         lo = -np.inf if i0 == 0 else imu.stamp_ns[i0]
@@ -110,8 +118,23 @@ def replay_flow(imu_pub, imu, temperatures, rate, delivered, window=500, what='d
             temps.append((pub, stamps[m], values[m]))
         if sent:
             wait_count(lambda: delivered() - base, sent - chunk, what)
+        if readings:
+            sent_readings += replay_readings(temps)
+            wait_count(lambda: readings() - base_readings, sent_readings,
+                       f'{what} (temperature readings)', loss=0.0)
+            temps = []
         sent += replay(imu_pub, imu.slice(slice(i0, i1)), temps, rate)
     return sent
+
+
+def replay_readings(temperatures):
+    """Publish (publisher, stamp_ns, values) series in stamp order; return how many."""
+    events = sorted((int(s), j, i) for j, (_, stamps, _) in enumerate(temperatures)
+                    for i, s in enumerate(stamps))
+    for stamp, j, i in events:
+        pub, _, values = temperatures[j]
+        pub.publish(temperature_msg(stamp, values[i]))
+    return len(events)
 
 
 class RosHarness:

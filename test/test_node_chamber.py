@@ -65,9 +65,11 @@ def test_chamber_log_calibrator_equals_cli_and_compensator_streams(ros, tmp_path
     shift = 86400 * 10 ** 9
     second = imu.slice(slice(0, len(imu.stamp_ns)))
     second.stamp_ns = imu.stamp_ns + shift
+    # every reading is in before the samples it belongs to (``readings``): the reference
+    # below uses the reading at each sample's own stamp
     n = replay_flow(imu_pub, second, [(temp_pub, tc.stamp_ns + shift, tc.temperature)], RATE,
                     lambda: compensator.counts['received'], window=WINDOW,
-                    what='the compensator input')
+                    what='the compensator input', readings=lambda: compensator.temps.received[0])
     got = wait_count(lambda: compensator.counts['received'], n, 'compensator input')
     wait_for(lambda: len(out) >= got, WAIT, lambda: f'{got} compensated (got {len(out)})')
     assert got >= 0.99 * n, compensator.counts
