@@ -21,6 +21,7 @@ from thermal_imu_calib.lifelong import compose, gate
 from thermal_imu_calib.lifelong.feed import Feeder
 from thermal_imu_calib.lifelong.hints import HintGate, HintSource, twist_still
 from thermal_imu_calib.lifelong.manager import Lifelong, LifelongConfig, main_pose
+from thermal_imu_calib.lifelong.pose import main_pose_mask
 from thermal_imu_calib.lifelong.store import HoldStore, StoreConfig
 from thermal_imu_calib.sim.robot_month import DAY, robot_month
 
@@ -692,3 +693,36 @@ def test_a_gyro_alarm_cuts_the_gyro_history_only(tmp_path, month_windows, cut):
     else:
         assert 'kept_history' not in d
         assert lo >= after_cut - 0.5
+
+
+def test_slopes_either_way_are_one_orientation_family(month_windows):
+    """Stops on slopes tilted opposite ways stay one family: the fit keeps the mounting pose.
+
+    Two slopes of 11 deg either way are 22 deg apart; counted hold to hold they were two
+    orientations (above ``distinct_orientations``' 20 deg), the pose filter let the slopes
+    into the one-orientation fit and every estimate was refused for missing faces (the
+    simulated month of seed 22, from day 17 on). Measured from the mounting pose they are
+    one family; a hold on another face is not.
+    """
+    from thermal_imu_calib.collection.segments import distinct_orientations, Windows
+    from thermal_imu_calib.lifelong.pose import one_family
+
+    _, win = month_windows
+    ids = win.hold_ids
+
+    def tilted(h, deg):
+        a = np.radians(deg)
+        r = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+        w = win.select(win.hold == h)
+        return dataclasses.replace(w, accel=w.accel @ r.T)
+    level = win.select(np.isin(win.hold, ids[2:12]))
+    level = level.select(main_pose_mask(level, 2.0))
+    n_level = len(level.hold_ids)
+    slopes = Windows.concat([tilted(ids[0], 11.0), tilted(ids[1], -11.0), level])
+    assert distinct_orientations(slopes) == 2          # hold to hold: "two orientations"
+    assert one_family(slopes)
+    kept = slopes.select(main_pose_mask(slopes, 2.0))
+    assert set(kept.hold_ids) == set(level.hold_ids) and len(kept.hold_ids) == n_level
+    # a hold on its side is another orientation: nothing is left out
+    side = Windows.concat([slopes, tilted(ids[13], 90.0)])
+    assert not one_family(side) and main_pose_mask(side, 2.0).all()
