@@ -146,7 +146,8 @@ def registry_timeline(work_seed, start_ns):
 
 def run_seed(seed, days, work, latitude=None, ageing=True, per_sensor=True,
              alarm_window='common', one_sensor_after_alarm=False, alarm_reference='all',
-             alarm_cut='all', accel_score='magnitude', raw_kept=False, **overrides):
+             alarm_cut='all', accel_score='magnitude', raw_kept=False, refit_on_swap=False,
+             **overrides):
     m = robot_month(seed, days=days, **overrides)
     spec = m.device.spec
     rate = m.config.imu_rate
@@ -165,7 +166,8 @@ def run_seed(seed, days, work, latitude=None, ageing=True, per_sensor=True,
                                               alarm_reference=alarm_reference,
                                               alarm_cut=alarm_cut,
                                               accel_score=accel_score,
-                                              raw_kept=raw_kept),
+                                              raw_kept=raw_kept,
+                                              refit_on_swap=refit_on_swap),
                         log=lambda level, text: log.append((level, text)))
     life = make()
     feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
@@ -300,7 +302,7 @@ def month(args):
         r = run_seed(seed, args.days, work, args.latitude, not args.no_ageing,
                      not args.whole_swap, args.alarm_window, args.one_sensor_after_alarm,
                      args.alarm_reference, args.alarm_cut, args.accel_score,
-                     args.raw_kept)
+                     args.raw_kept, args.refit_on_swap)
         rows.append(r)
         ra, kn = r['ratios'], r['knock']
         print(f'seed {seed}: {r["seconds"]:.0f} s, gyro first day '
@@ -927,6 +929,9 @@ def main():
     mo.add_argument('--raw-kept', action='store_true',
                     help='with no active calibration, a one-sensor swap leaves the other '
                          'sensor raw (LifelongConfig.raw_kept)')
+    mo.add_argument('--refit-on-swap', action='store_true',
+                    help='a swap puts in use the estimate fitted again on every hold '
+                         '(LifelongConfig.refit_on_swap)')
     mo.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_month.json'))
     re_ = sub.add_parser('real')
     re_.add_argument('--work', default='')

@@ -695,6 +695,51 @@ def test_a_gyro_alarm_cuts_the_gyro_history_only(tmp_path, month_windows, cut):
         assert lo >= after_cut - 0.5
 
 
+def test_a_swap_refits_on_every_hold_and_the_next_gate_waits_for_unseen_holds(
+        tmp_path, month_windows):
+    """``refit_on_swap``: the judged estimate passes, the one fitted on every hold goes in use.
+
+    The swap gate judges an estimate fitted without the newest holds; what is put in use is
+    the same procedure run on all of them (the newest temperatures covered), and the next
+    estimate waits until ``min_holds + holdout_holds`` holds began after that fit, so the
+    gate never scores the active calibration on holds it was fitted on.
+    """
+    m, win = month_windows
+    ids = win.hold_ids
+    cfg = LifelongConfig(refit_on_swap=True, new_holds=1000)
+    life = Lifelong(str(tmp_path), CalibrateSettings(), 1, [TOPIC], 'imu_link',
+                    registry_dir=str(tmp_path / 'reg'), config=cfg)
+    life.store.add(win.select(np.isin(win.hold, ids[:20])))
+    d = life.estimate('test')
+    assert d['action'] == 'swap', d['text']
+    r = d['refit']
+    assert r['used'] and r['judged_id'] != life.active.id == d['id'], r
+    # in use: the calibrate code on every hold of the mounting pose, the held-out ones too
+    everything = life.store.fit_windows(d['time'])[0]
+    fit = everything.select(main_pose_mask(everything, cfg.pose_deg))
+    n = len(fit.hold_ids)
+    assert 14 < n <= 20 and r['holds'] == n and f'fitted again on all {n} holds' in d['text']
+    if 'ageing' not in d or not d['ageing']['used']:
+        assert life._calibrate(fit).calibration.id == life.active.id
+    held = life.store.holds(life.store.newest_holds(cfg.holdout_holds))
+    held = held.select(main_pose_mask(held, cfg.pose_deg))
+    lo, hi = life.active.valid_range[0]
+    assert lo <= held.temp[:, 0].min() and held.temp[:, 0].max() <= hi
+    assert registry.load_valid(str(tmp_path / 'reg'), 'imu_link').id == life.active.id
+    # the next estimate waits for 6 + 8 holds newer than the fit, whatever else is due
+    life.state['alarm_pending'] = True
+    for i, h in enumerate(ids[20:34]):
+        assert life.due() == '', i
+        life.store.add(win.select(win.hold == h))
+    assert life.due() == 'change alarm'
+    # off (the default): the judged estimate is what goes in use
+    plain = Lifelong(str(tmp_path / 'plain'), CalibrateSettings(), 1, [TOPIC], 'imu_link',
+                     config=LifelongConfig(new_holds=1000))
+    plain.store.add(win.select(np.isin(win.hold, ids[:20])))
+    p = plain.estimate('test')
+    assert p['action'] == 'swap' and 'refit' not in p and p['id'] == r['judged_id']
+
+
 def test_slopes_either_way_are_one_orientation_family(month_windows):
     """Stops on slopes tilted opposite ways stay one family: the fit keeps the mounting pose.
 

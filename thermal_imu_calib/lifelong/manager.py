@@ -45,7 +45,7 @@ history share its state and counters); the pieces that stand alone are ``gate``,
 ``compose``, ``ageing``, ``store`` and ``archive``.
 """
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 import json
 import os
 import time
@@ -130,6 +130,10 @@ class LifelongConfig:
     #: (raw's), but the last week's was 66 % worse and seed 7 had two false alarms
     #: (docs/lifelong.md)
     raw_kept: bool = False
+    #: a swap activates the estimate fitted again with the same choices on every hold, the
+    #: held-out ones too (``Lifelong._refit``); False: the estimate the gate judged, whose
+    #: fit left out the newest holds, often the very temperatures that made it due
+    refit_on_swap: bool = False
     store: StoreConfig = field(default_factory=StoreConfig)
 
     def __post_init__(self):
@@ -381,6 +385,15 @@ class Lifelong:
         return float(rec.t0[rec.hold == h].min())
 
     # ------------------------------------------------------------------ when
+    def _holds_after(self, t):
+        """Return how many raw holds begin after ``t`` (s)."""
+        rec = self.store.recent
+        if not len(rec):
+            return 0
+        ids = rec.hold_ids
+        starts = np.array([rec.t0[rec.hold == h].min() for h in ids])
+        return int(np.sum(starts > t))
+
     def due(self):
         """Return why a re-estimate is due now ('' when it is not)."""
         c, s = self.config, self.state
@@ -388,6 +401,11 @@ class Lifelong:
         enough = self.store.total_holds and raw + (1 if len(self.store.bins) else 0) >= \
             c.min_holds + c.holdout_holds
         if not enough:
+            return ''
+        until = s.get('active_fit_until')
+        if until is not None and self._holds_after(until) < c.min_holds + c.holdout_holds:
+            # the gate's held-out holds must be ones the active never saw, and the new fit
+            # needs new holds of its own (as the first estimate: 6 to fit, 8 to judge)
             return ''
         if s.get('alarm_pending'):
             return 'change alarm'
@@ -478,6 +496,12 @@ class Lifelong:
         text = gate.describe(fig) + decision.get('unexplained', '')
         if 'kept_history' in decision:
             text += '; ' + decision['kept_history']['text']
+        if swap and c.refit_on_swap:
+            new = self._refit(new, now, decision, only and decision['one_sensor']['sensor'])
+            text += '; ' + decision['refit']['text']
+            # the next estimate waits for min_holds + holdout_holds holds newer than this
+            # fit (``due``)
+            self.state['active_fit_until'] = now if decision['refit']['used'] else None
         if swap:
             text += self._activate(new, now, s_new, holdout_pose, held,
                                    decision['one_sensor']['sensor'] if only else None)
@@ -571,6 +595,50 @@ class Lifelong:
             'sensor': which, 'used': True, 'holds': int(len(fit.hold_ids)),
             'text': f'{which} fitted on {len(fit.hold_ids)} holds with its history kept '
                     'across a change alarm of the other sensor'}
+        return cal
+
+    def _refit(self, judged, now, decision, only=None):
+        """Return the swap's calibration fitted again on every hold, or ``judged``.
+
+        The gate judged ``judged``, fitted without the newest holds; the same procedure
+        (the calibrate code's own choice, the gyro ageing removed when the judged estimate
+        removed it, the kept history of a sensor, one sensor's model only when ``only``
+        names it) runs again on every hold, so the calibration put in use covers the newest
+        temperatures too. A refit that fails or does not compose leaves ``judged`` in use;
+        ``decision['refit']`` says which.
+        """
+        everything, times = self.store.fit_windows(now)
+        in_pose = main_pose_mask(everything, self.config.pose_deg)
+        fit, times = everything.select(in_pose), times[in_pose]
+        scratch = {}
+        try:
+            found = ageing.trend(fit, times, now) \
+                if decision.get('ageing', {}).get('used') else None
+            if found is not None and found.resolved.any():
+                fit = ageing.detrended(fit, times, now, found)
+            cal = self._calibrate(fit).calibration
+            if decision.get('kept_history', {}).get('used'):
+                kept = self._with_kept(cal, now, (), scratch)
+                if kept is None:
+                    raise ValueError(scratch.get('kept_history', {}).get('text', 'kept history'))
+                cal = kept
+            if only:
+                other = 'gyro' if only == 'accel' else 'accel'
+                base = self.active if self.active is not None else replace(cal, **{other: None})
+                pick = {w: cal if w == only else base for w in compose.SENSORS}
+                cal = compose.compose(pick['accel'], pick['gyro'], missing=self.config.raw_kept,
+                                      note=f'the {only} fitted again on every hold after '
+                                           'passing the gate; the other sensor kept')
+        except (CalibrationRefused, SettingsError, CalibrationError, ValueError) as e:
+            decision['refit'] = {'used': False, 'text': f'not fitted again on every hold ({e}); '
+                                                        f'the judged estimate {judged.id} is used'}
+            return judged
+        span = [float(fit.temp[:, 0].min()), float(fit.temp[:, 0].max())] \
+            if len(fit) and self.k else None
+        self.state['fit_span'] = span
+        decision['refit'] = {'used': True, 'judged_id': judged.id, 'holds': int(len(fit.hold_ids)),
+                             'text': f'in use: {cal.id}, fitted again on all {len(fit.hold_ids)} '
+                                     f'holds (the held-out ones too) after {judged.id} passed'}
         return cal
 
     def _calibrate(self, windows):
