@@ -743,11 +743,12 @@ def test_a_swap_refits_on_every_hold_and_the_next_gate_waits_for_unseen_holds(
 def test_slopes_either_way_are_one_orientation_family(month_windows):
     """Stops on slopes tilted opposite ways stay one family: the fit keeps the mounting pose.
 
-    Two slopes of 11 deg either way are 22 deg apart; counted hold to hold they were two
-    orientations (above ``distinct_orientations``' 20 deg), the pose filter let the slopes
-    into the one-orientation fit and every estimate was refused for missing faces (the
-    simulated month of seed 22, from day 17 on). Measured from the mounting pose they are
-    one family; a hold on another face is not.
+    Two slopes of 11 deg either way are 22 deg apart; counted hold to hold (greedy, above
+    ``distinct_orientations``' 20 deg) they were two orientations: the pose filter let the
+    slopes into the one-orientation fit and every estimate was refused for missing faces
+    (the simulated month of seed 22, from day 17 on), and ``calibrate`` of such a robot
+    log was refused the same way. Measured from the mounting pose they are one family; a
+    hold on another face is not.
     """
     from thermal_imu_calib.collection.segments import distinct_orientations, Windows
     from thermal_imu_calib.lifelong.pose import one_family
@@ -764,10 +765,16 @@ def test_slopes_either_way_are_one_orientation_family(month_windows):
     level = level.select(main_pose_mask(level, 2.0))
     n_level = len(level.hold_ids)
     slopes = Windows.concat([tilted(ids[0], 11.0), tilted(ids[1], -11.0), level])
-    assert distinct_orientations(slopes) == 2          # hold to hold: "two orientations"
-    assert one_family(slopes)
+    assert distinct_orientations(slopes) == 1 and one_family(slopes)
     kept = slopes.select(main_pose_mask(slopes, 2.0))
     assert set(kept.hold_ids) == set(level.hold_ids) and len(kept.hold_ids) == n_level
     # a hold on its side is another orientation: nothing is left out
     side = Windows.concat([slopes, tilted(ids[13], 90.0)])
     assert not one_family(side) and main_pose_mask(side, 2.0).all()
+    assert distinct_orientations(side) > 1
+    # the command line's calibrate: a one-orientation calibration, not a refusal
+    from thermal_imu_calib.app.calibrate import calibrate_collected
+    from thermal_imu_calib.collection.collected import Collected
+    cal = calibrate_collected(CalibrateSettings(), [Collected(
+        slopes, 'imu_link', 0, 0.0, [TOPIC], [])]).calibration
+    assert cal.fit['distinct_orientations'] == 1 and cal.gyro is not None

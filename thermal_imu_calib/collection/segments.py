@@ -161,12 +161,41 @@ def coverage(windows):
             'missing': [f for f in FACE_NAMES if faces[f]['holds'] == 0]}
 
 
+def main_direction(windows, within_deg=2.0):
+    """Return the gravity-up unit vector of the most common pose (None: no windows).
+
+    The hold whose direction has the most sample weight within ``within_deg`` (degrees) of
+    it, then the sample-weighted mean direction of the holds within that angle of it.
+    """
+    if not len(windows):
+        return None
+    _, means = windows.hold_means()
+    u = means / np.linalg.norm(means, axis=1, keepdims=True)
+    w = np.array([windows.n[windows.hold == h].sum() for h in windows.hold_ids], float)
+    close = (u @ u.T) > np.cos(np.radians(within_deg))
+    ref = u[int(np.argmax(close @ w))]
+    m = u @ ref > np.cos(np.radians(within_deg))
+    v = w[m] @ u[m]
+    return v / np.linalg.norm(v)
+
+
 def distinct_orientations(windows, angle_deg=20.0):
-    """Count holds whose gravity directions differ by more than ``angle_deg`` from each other."""
+    """Count holds whose gravity directions differ by more than ``angle_deg`` from each other.
+
+    One when every hold is within ``angle_deg`` of the most common pose (``main_direction``),
+    whatever their order: a robot on its wheels stopping level and on slopes either way
+    (up to 24 deg apart from each other, counted two hold to hold) is one orientation, as it
+    is with slopes one way; the standard fit of several orientations refused it for missing
+    faces.
+    """
     _, means = windows.hold_means()
     reps = []
     for m in means:
         u = m / np.linalg.norm(m)
         if all(np.degrees(np.arccos(np.clip(u @ r, -1, 1))) > angle_deg for r in reps):
             reps.append(u)
+    if len(reps) > 1:
+        u = means / np.linalg.norm(means, axis=1, keepdims=True)
+        if np.all(u @ main_direction(windows) >= np.cos(np.radians(angle_deg))):
+            return 1
     return len(reps)

@@ -8,6 +8,8 @@ Angles in degrees; no ROS import.
 
 import numpy as np
 
+from ..collection.segments import main_direction
+
 #: a robot on its wheels: one orientation family while every hold is within this angle of
 #: the mounting pose (degrees; the angle ``collection.segments.distinct_orientations`` tells
 #: orientations apart by)
@@ -16,17 +18,7 @@ FAMILY_DEG = 20.0
 
 def pose_of(windows):
     """Return the sample-weighted mean gravity-up direction of the most common pose."""
-    if not len(windows):
-        return None
-    _, means = windows.hold_means()
-    u = means / np.linalg.norm(means, axis=1, keepdims=True)
-    w = np.array([windows.n[windows.hold == h].sum() for h in windows.hold_ids], float)
-    # the hold whose direction has the most sample weight within 2 deg of it
-    close = (u @ u.T) > np.cos(np.radians(2.0))
-    ref = u[int(np.argmax(close @ w))]
-    m = u @ ref > np.cos(np.radians(2.0))
-    v = w[m] @ u[m]
-    return v / np.linalg.norm(v)
+    return main_direction(windows)
 
 
 def main_pose(windows, pose_deg, reference=None):
