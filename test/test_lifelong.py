@@ -778,3 +778,23 @@ def test_slopes_either_way_are_one_orientation_family(month_windows):
     cal = calibrate_collected(CalibrateSettings(), [Collected(
         slopes, 'imu_link', 0, 0.0, [TOPIC], [])]).calibration
     assert cal.fit['distinct_orientations'] == 1 and cal.gyro is not None
+
+
+def test_calibrate_of_a_robot_log_with_slopes_either_way_is_not_refused(tmp_path, capsys):
+    """The command line on 3 days of a simulated robot whose slopes go both ways (seed 7).
+
+    Its holds counted two orientations hold to hold (slopes up to 24 deg apart), and
+    ``calibrate`` refused the log for missing faces; it is one orientation family (every
+    hold within 20 deg of the mounting pose) and gets the one-orientation calibration.
+    """
+    from thermal_imu_calib import cli
+    from thermal_imu_calib.sim.robot_month import write_robot_month
+    write_robot_month(tmp_path / 'rm.mcap', 7, days=3)
+    out = tmp_path / 'c.yaml'
+    rc = cli.main(['calibrate', str(tmp_path / 'rm.mcap'), '--imu-topic', '/imu/data_raw',
+                   '--gravity', '9.80665', '-o', str(out)])
+    text = capsys.readouterr()
+    assert rc == 0, text.err
+    assert 'accelerometer: one orientation only (+z)' in text.out
+    cal = Calibration.load(out)
+    assert cal.fit['distinct_orientations'] == 1 and cal.gyro is not None
