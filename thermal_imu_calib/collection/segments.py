@@ -161,6 +161,21 @@ def coverage(windows):
             'missing': [f for f in FACE_NAMES if faces[f]['holds'] == 0]}
 
 
+def _directions(windows):
+    """Return ((h, 3) unit gravity-up direction, (h,) samples) per hold."""
+    _, means = windows.hold_means()
+    w = np.array([windows.n[windows.hold == h].sum() for h in windows.hold_ids], float)
+    return means / np.linalg.norm(means, axis=1, keepdims=True), w
+
+
+def _main(u, w, within_deg):
+    close = (u @ u.T) > np.cos(np.radians(within_deg))
+    ref = u[int(np.argmax(close @ w))]
+    m = u @ ref > np.cos(np.radians(within_deg))
+    v = w[m] @ u[m]
+    return v / np.linalg.norm(v)
+
+
 def main_direction(windows, within_deg=2.0):
     """Return the gravity-up unit vector of the most common pose (None: no windows).
 
@@ -169,24 +184,30 @@ def main_direction(windows, within_deg=2.0):
     """
     if not len(windows):
         return None
-    _, means = windows.hold_means()
-    u = means / np.linalg.norm(means, axis=1, keepdims=True)
-    w = np.array([windows.n[windows.hold == h].sum() for h in windows.hold_ids], float)
-    close = (u @ u.T) > np.cos(np.radians(within_deg))
-    ref = u[int(np.argmax(close @ w))]
-    m = u @ ref > np.cos(np.radians(within_deg))
-    v = w[m] @ u[m]
-    return v / np.linalg.norm(v)
+    return _main(*_directions(windows), within_deg)
+
+
+def family_direction(windows, angle_deg=20.0):
+    """Return ``main_direction`` when every hold is within ``angle_deg`` of it, else None.
+
+    One orientation family, measured from the most common pose and not hold to hold: a
+    robot on its wheels stopping level and on slopes either way (up to 24 deg apart from
+    each other). None for no windows.
+    """
+    if not len(windows):
+        return None
+    u, w = _directions(windows)
+    ref = _main(u, w, 2.0)
+    return ref if np.all(u @ ref >= np.cos(np.radians(angle_deg))) else None
 
 
 def distinct_orientations(windows, angle_deg=20.0):
     """Count holds whose gravity directions differ by more than ``angle_deg`` from each other.
 
-    One when every hold is within ``angle_deg`` of the most common pose (``main_direction``),
-    whatever their order: a robot on its wheels stopping level and on slopes either way
-    (up to 24 deg apart from each other, counted two hold to hold) is one orientation, as it
-    is with slopes one way; the standard fit of several orientations refused it for missing
-    faces.
+    One when every hold is within ``angle_deg`` of the most common pose
+    (``family_direction``), whatever their order: a robot on its wheels stopping level and
+    on slopes either way (counted two hold to hold) is one orientation, as it is with
+    slopes one way; the standard fit of several orientations refused it for missing faces.
     """
     _, means = windows.hold_means()
     reps = []
@@ -194,8 +215,6 @@ def distinct_orientations(windows, angle_deg=20.0):
         u = m / np.linalg.norm(m)
         if all(np.degrees(np.arccos(np.clip(u @ r, -1, 1))) > angle_deg for r in reps):
             reps.append(u)
-    if len(reps) > 1:
-        u = means / np.linalg.norm(means, axis=1, keepdims=True)
-        if np.all(u @ main_direction(windows) >= np.cos(np.radians(angle_deg))):
-            return 1
+    if len(reps) > 1 and family_direction(windows, angle_deg) is not None:
+        return 1
     return len(reps)

@@ -452,8 +452,7 @@ class Lifelong:
         self.state['holds_at_estimate'] = self.store.total_holds
         self.state['estimates'] += 1
         self.state['missed'] = []
-        self.state['fit_span'] = ([float(fit.temp[:, 0].min()), float(fit.temp[:, 0].max())]
-                                  if len(fit) and self.k else None)
+        self._note_fit_span(fit)
         decision = {'time': now, 'reason': reason, 'fit_windows': len(fit),
                     'fit_holds': int(len(fit.hold_ids)) if len(fit) else 0,
                     'heldout_holds': int(len(held))}
@@ -496,13 +495,14 @@ class Lifelong:
         text = gate.describe(fig) + decision.get('unexplained', '')
         if 'kept_history' in decision:
             text += '; ' + decision['kept_history']['text']
-        if swap and c.refit_on_swap:
-            new = self._refit(new, now, decision, only and decision['one_sensor']['sensor'])
-            text += '; ' + decision['refit']['text']
-            # the next estimate waits for min_holds + holdout_holds holds newer than this
-            # fit (``due``)
-            self.state['active_fit_until'] = now if decision['refit']['used'] else None
         if swap:
+            if c.refit_on_swap:
+                new = self._refit(new, now, decision, only and decision['one_sensor']['sensor'])
+                text += '; ' + decision['refit']['text']
+            # a refit active: the next estimate waits for min_holds + holdout_holds holds
+            # newer than its fit (``due``); any other swap ends that wait
+            self.state['active_fit_until'] = \
+                now if decision.get('refit', {}).get('used') else None
             text += self._activate(new, now, s_new, holdout_pose, held,
                                    decision['one_sensor']['sensor'] if only else None)
             decision.update(action='swap', id=new.id,
@@ -633,13 +633,16 @@ class Lifelong:
             decision['refit'] = {'used': False, 'text': f'not fitted again on every hold ({e}); '
                                                         f'the judged estimate {judged.id} is used'}
             return judged
-        span = [float(fit.temp[:, 0].min()), float(fit.temp[:, 0].max())] \
-            if len(fit) and self.k else None
-        self.state['fit_span'] = span
+        self._note_fit_span(fit)
         decision['refit'] = {'used': True, 'judged_id': judged.id, 'holds': int(len(fit.hold_ids)),
                              'text': f'in use: {cal.id}, fitted again on all {len(fit.hold_ids)} '
                                      f'holds (the held-out ones too) after {judged.id} passed'}
         return cal
+
+    def _note_fit_span(self, fit):
+        """Keep the temperature span (degC) an estimate fitted (``due``'s range trigger)."""
+        self.state['fit_span'] = ([float(fit.temp[:, 0].min()), float(fit.temp[:, 0].max())]
+                                  if len(fit) and self.k else None)
 
     def _calibrate(self, windows):
         """Return ``calibrate_collected``'s result on these windows (the CLI's calibrate)."""

@@ -8,7 +8,7 @@ Angles in degrees; no ROS import.
 
 import numpy as np
 
-from ..collection.segments import main_direction
+from ..collection.segments import family_direction, main_direction
 
 #: a robot on its wheels: one orientation family while every hold is within this angle of
 #: the mounting pose (degrees; the angle ``collection.segments.distinct_orientations`` tells
@@ -35,9 +35,9 @@ def main_pose(windows, pose_deg, reference=None):
 def main_pose_mask(windows, pose_deg, reference=None):
     """Return the (n,) mask of the windows ``main_pose`` keeps."""
     everything = np.ones(len(windows), bool)
-    if not len(windows) or (reference is None and not one_family(windows)):
+    ref = family_direction(windows, FAMILY_DEG) if reference is None else reference
+    if not len(windows) or ref is None:
         return everything
-    ref = pose_of(windows) if reference is None else reference
     ids, means = windows.hold_means()
     u = means / np.linalg.norm(means, axis=1, keepdims=True)
     keep = ids[u @ ref >= np.cos(np.radians(pose_deg))]
@@ -47,15 +47,11 @@ def main_pose_mask(windows, pose_deg, reference=None):
 def one_family(windows):
     """Return True when every hold is within ``FAMILY_DEG`` of the mounting pose.
 
-    Measured from the mounting pose, not hold to hold: slopes of up to 12 deg either way
-    are up to 24 deg apart from each other, and counted pairwise (``distinct_orientations``,
-    which also depends on the order of the holds) they made a robot's level stops and
-    slopes "two orientations", so the lifelong fit took the slopes in and every estimate
-    was refused for missing faces (simulated month, seed 22, from day 17 on).
+    Measured from the mounting pose, not hold to hold (``family_direction``): slopes of up
+    to 12 deg either way are up to 24 deg apart from each other, and counted pairwise
+    (``distinct_orientations`` before 2026-11-29, which also depended on the order of the
+    holds) they made a robot's level stops and slopes "two orientations", so the lifelong
+    fit took the slopes in and every estimate was refused for missing faces (simulated
+    month, seed 22, from day 17 on).
     """
-    if not len(windows):
-        return False
-    ref = pose_of(windows)
-    _, means = windows.hold_means()
-    u = means / np.linalg.norm(means, axis=1, keepdims=True)
-    return bool(np.all(u @ ref >= np.cos(np.radians(FAMILY_DEG))))
+    return family_direction(windows, FAMILY_DEG) is not None
