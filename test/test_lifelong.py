@@ -798,3 +798,9 @@ def test_calibrate_of_a_robot_log_with_slopes_either_way_is_not_refused(tmp_path
     assert 'accelerometer: one orientation only (+z)' in text.out
     cal = Calibration.load(out)
     assert cal.fit['distinct_orientations'] == 1 and cal.gyro is not None
+    # level visits of one pose disagree (tilt, drift), and with one orientation there is no
+    # standard fit to judge leaving them out: said so, not "inf ug ... paired z nan"
+    judged = cal.fit['hold_consistency']['heldout']
+    assert judged['heldout_holds'] == 0 and not judged['applied']
+    assert 'no hold can be held out' in text.out
+    assert 'nan' not in text.out and 'inf ug' not in text.out

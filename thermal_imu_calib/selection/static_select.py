@@ -130,6 +130,11 @@ def judge_rule(ctx, keep):
            'all_holds_ug': _rms(res['standard']) / g * 1e6,
            'holds_left_out_ug': _rms(res['standard-kept']) / g * 1e6,
            'applied': applied}
+    if not n:   # e.g. one orientation: no standard fit, so nothing to judge by
+        rep.update(all_holds_ug=None, holds_left_out_ug=None, z=None)
+        rep['text'] = ('no hold can be held out and scored by the standard fit (it needs '
+                       'several orientations), so nothing supports leaving them out')
+        return applied, rep
     rep['text'] = (f'leaving them out {"predicts" if applied else "does not predict"} the '
                    f'{n} held-out holds better by more than the noise (standard fit '
                    f'{rep["all_holds_ug"]:.1f} ug with them, {rep["holds_left_out_ug"]:.1f} '
