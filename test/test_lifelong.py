@@ -804,3 +804,10 @@ def test_calibrate_of_a_robot_log_with_slopes_either_way_is_not_refused(tmp_path
     assert judged['heldout_holds'] == 0 and not judged['applied']
     assert 'no hold can be held out' in text.out
     assert 'nan' not in text.out and 'inf ug' not in text.out
+    # the one-orientation fit uses the mounting pose's holds, as lifelong mode does: the
+    # stops on slopes (3-12 deg) are named and not fitted
+    from thermal_imu_calib.collection.segments import MOUNTING_POSE_DEG
+    found = int(re.search(r'(\d+) stationary holds', text.out + text.err).group(1))
+    assert cal.fit['holds'] < found
+    assert (f'{found - cal.fit["holds"]} of {found} holds are more than '
+            f'{MOUNTING_POSE_DEG:g} deg from the mounting pose') in text.out

@@ -201,6 +201,32 @@ def family_direction(windows, angle_deg=20.0):
     return ref if np.all(u @ ref >= np.cos(np.radians(angle_deg))) else None
 
 
+#: one orientation family: the holds a one-orientation fit uses are those within this angle
+#: of the mounting pose (degrees; ``calibrate`` and lifelong mode). A tilt of 1 deg moves
+#: g sin(1 deg) = 0.17 m/s^2 onto the horizontal axes, far more than thermal drift, so
+#: holds on a slope would read as drift to the one-pose models
+MOUNTING_POSE_DEG = 2.0
+
+
+def mounting_pose_mask(windows, within_deg, reference=None, family_deg=20.0):
+    """Return the (n,) bool mask of the windows whose hold is within ``within_deg`` of the pose.
+
+    Only when the holds form one orientation family (``family_direction`` at
+    ``family_deg``: a robot on its wheels, level or on slopes, or one pose in a chamber);
+    the pose is ``reference`` (a unit gravity-up vector) or the mounting pose
+    (``main_direction``). With several orientations, or no windows, every window is kept.
+    Angles in degrees.
+    """
+    everything = np.ones(len(windows), bool)
+    ref = family_direction(windows, family_deg) if reference is None else reference
+    if not len(windows) or ref is None:
+        return everything
+    ids, means = windows.hold_means()
+    u = means / np.linalg.norm(means, axis=1, keepdims=True)
+    keep = ids[u @ ref >= np.cos(np.radians(within_deg))]
+    return np.isin(windows.hold, keep)
+
+
 def distinct_orientations(windows, angle_deg=20.0):
     """Count holds whose gravity directions differ by more than ``angle_deg`` from each other.
 

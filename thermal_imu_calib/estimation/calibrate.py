@@ -19,7 +19,8 @@ import dataclasses
 import numpy as np
 
 from ..calibration import Calibration
-from ..collection.segments import coverage, distinct_orientations, FACE_NAMES
+from ..collection.segments import (coverage, distinct_orientations, FACE_NAMES,
+                                   MOUNTING_POSE_DEG, mounting_pose_mask)
 from ..input_units import is_temperature
 from .allan import window_noise
 from .builtin_estimators import (_gyro_bias, check_faces_up_and_down,  # noqa: F401
@@ -111,6 +112,31 @@ def _without_flat_temperature(windows, o):
                   'without the topic); collect across a warm-up for thermal terms']
 
 
+def _mounting_pose_only(windows, o):
+    """Return (windows, options, notes): one orientation family, only the mounting pose's holds.
+
+    The one-orientation models describe one pose: a hold tilted by 1 deg from it puts
+    g sin(1 deg) = 0.17 m/s^2 on the horizontal axes, which they would read as drift (a
+    robot's stops on slopes; on simulated robot logs the accelerometer then kept no thermal
+    terms). When the holds are one orientation family (``mounting_pose_mask``: every hold
+    within 20 deg of the mounting pose) only those within ``MOUNTING_POSE_DEG`` of it are
+    fitted, as lifelong mode does (``lifelong.pose``); the pose changes touching a hold
+    left out are dropped with it. Several orientations: unchanged.
+    """
+    keep = mounting_pose_mask(windows, MOUNTING_POSE_DEG)
+    if keep.all():
+        return windows, o, []
+    kept = windows.select(keep)
+    ids = set(int(h) for h in kept.hold_ids)
+    trs = [t for t in o.transitions if t.hold_from in ids and t.hold_to in ids]
+    n_all, n_out = len(windows.hold_ids), len(windows.hold_ids) - len(ids)
+    return kept, dataclasses.replace(o, transitions=trs), [
+        f'{n_out} of {n_all} holds are more than {MOUNTING_POSE_DEG:g} deg from the mounting '
+        'pose (slopes, or the unit moved) and are not used: the one-orientation models '
+        'describe one pose, and a tilt would read as drift to them (1 deg puts 0.17 m/s^2 '
+        'on the horizontal axes)']
+
+
 def _without_vertical_earth_rate(windows, o):
     """Return (windows, notes): one orientation with a latitude, the vertical earth rate removed.
 
@@ -147,6 +173,7 @@ def calibrate_windows(windows, options=None):
         raise ValueError(f'{len(o.inputs)} temperature inputs named but windows carry '
                          f'{windows.n_inputs}')
     windows, o, flat = _without_flat_temperature(windows, o)
+    windows, o, pose = _mounting_pose_only(windows, o)
     windows, earth = _without_vertical_earth_rate(windows, o)
     ctx = make_context(windows, o)
     consistency = leave_out_holds(ctx)
@@ -154,7 +181,7 @@ def calibrate_windows(windows, options=None):
     name, why = ((o.model, 'requested') if o.model != 'auto'
                  else AUTO_POLICY[0](ctx.accel_view()))
     est = ESTIMATORS[name](ctx)
-    notes = flat + earth + consistency_notes(consistency) + list(est.notes)
+    notes = flat + pose + earth + consistency_notes(consistency) + list(est.notes)
     floor = why.split(f'; {FLOOR_REASON}', 1)
     if o.model == 'auto' and len(floor) == 2:   # the thermal family judged by the floor
         notes.append(f'auto, a thermal family judged {FLOOR_REASON}{floor[1]}')
@@ -207,6 +234,9 @@ def calibrate_windows(windows, options=None):
                f'{_amax(before):.0f} -> {_amax(after):.1f} ug max')
     if flat:
         summary += ' (the temperature input barely moved: treated as none, see notes)'
+    if pose:
+        summary += (f' ({pose[0].split(" are more")[0]} off the mounting pose by more than '
+                    f'{MOUNTING_POSE_DEG:g} deg not used, see notes)')
     if consistency['left_out']:
         summary += (f', {len(consistency["left_out"])} holds left out of the accelerometer '
                     'fit (pose repeats that disagree, sensor-state epochs; held-out holds '

@@ -120,6 +120,22 @@ def compose(accel_from, gyro_from, note='', missing=False):
         noise_model=noise, sensor_range=sensor_range)
 
 
+def with_sensor(active, new, which, raw_kept, note):
+    """Return (calibration, None) with ``which`` sensor's model from ``new``, or (None, why).
+
+    The other sensor's model is ``active``'s; with no active calibration it is left out
+    (the raw output), which composes only with ``raw_kept`` (``why_not(missing=True)``).
+    ``note`` says why in the composed calibration's notes.
+    """
+    other = 'gyro' if which == 'accel' else 'accel'
+    base = active if active is not None else replace(new, **{other: None})
+    why = why_not(base, new, missing=raw_kept)
+    if why:
+        return None, why
+    pick = {w: new if w == which else base for w in SENSORS}
+    return compose(pick['accel'], pick['gyro'], note=note, missing=raw_kept), None
+
+
 def one_sensor(active, new, fig, s_act, holdout, pose, latitude, sigmas,
                accel_score='magnitude', raw_kept=False):
     """Return ((calibration, score, figures) or None, record) of a one-sensor swap.
@@ -139,17 +155,13 @@ def one_sensor(active, new, fig, s_act, holdout, pose, latitude, sigmas,
     if (active is None and not raw_kept) or len(better) != 1:
         return None, {}
     which = better[0]
-    other = 'gyro' if which == 'accel' else 'accel'
-    base = active if active is not None else replace(new, **{other: None})
-    why = why_not(base, new, missing=raw_kept)
+    kept = 'kept' if active is not None else 'left raw'
+    cal, why = with_sensor(active, new, which, raw_kept,
+                           f'the {which} of the new estimate {new.id}, proven better on '
+                           f'held-out holds; the other sensor {kept}')
     if why:
         return None, {'sensor': which, 'used': False,
                       'text': f'{which} only: not composed ({why})'}
-    pick = {w: new if w == which else base for w in SENSORS}
-    kept = 'kept' if active is not None else 'left raw'
-    cal = compose(pick['accel'], pick['gyro'],
-                  note=f'the {which} of the new estimate {new.id}, proven better on held-out '
-                       f'holds; the other sensor {kept}', missing=raw_kept)
     score = gate.score(cal, holdout, cal.gravity, pose, latitude, accel_score)
     ok, fig_c = gate.decide(s_act, score, sigmas)
     mine = "the active's other one" if active is not None else 'the other sensor raw'

@@ -45,7 +45,7 @@ history share its state and counters); the pieces that stand alone are ``gate``,
 ``compose``, ``ageing``, ``store`` and ``archive``.
 """
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 import json
 import os
 import time
@@ -59,7 +59,7 @@ from ..estimation.calibrate import CalibrationRefused
 from ..io.output import write_atomic
 from ..collection.collected import Collected
 from . import ageing, compose, gate
-from ..collection.segments import Windows
+from ..collection.segments import MOUNTING_POSE_DEG, Windows
 from .archive import ArchiveFull, archive_collection, MAX_ARCHIVES  # noqa: F401 (API)
 from .pose import main_pose, main_pose_mask, pose_of
 from .store import HoldStore, StoreConfig
@@ -82,7 +82,7 @@ class LifelongConfig:
     #: new holds the active misses (``gate.misses``) that make a re-estimate due
     misfit_holds: int = 2
     #: one orientation family: fit only the holds within this angle of the mounting pose
-    pose_deg: float = 2.0
+    pose_deg: float = MOUNTING_POSE_DEG
     #: also fit with the gyro ageing removed, kept when held-out holds prefer it (``ageing``)
     ageing: bool = True
     #: a new estimate better for one sensor only replaces that sensor's model alone
@@ -623,12 +623,12 @@ class Lifelong:
                     raise ValueError(scratch.get('kept_history', {}).get('text', 'kept history'))
                 cal = kept
             if only:
-                other = 'gyro' if only == 'accel' else 'accel'
-                base = self.active if self.active is not None else replace(cal, **{other: None})
-                pick = {w: cal if w == only else base for w in compose.SENSORS}
-                cal = compose.compose(pick['accel'], pick['gyro'], missing=self.config.raw_kept,
-                                      note=f'the {only} fitted again on every hold after '
-                                           'passing the gate; the other sensor kept')
+                cal, why = compose.with_sensor(
+                    self.active, cal, only, self.config.raw_kept,
+                    f'the {only} fitted again on every hold after passing the gate; the '
+                    'other sensor kept')
+                if why:
+                    raise ValueError(why)
         except (CalibrationRefused, SettingsError, CalibrationError, ValueError) as e:
             decision['refit'] = {'used': False, 'text': f'not fitted again on every hold ({e}); '
                                                         f'the judged estimate {judged.id} is used'}

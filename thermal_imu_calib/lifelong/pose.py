@@ -6,9 +6,7 @@ within a few degrees of the mounting pose (the direction with the most sample we
 Angles in degrees; no ROS import.
 """
 
-import numpy as np
-
-from ..collection.segments import family_direction, main_direction
+from ..collection.segments import family_direction, main_direction, mounting_pose_mask
 
 #: a robot on its wheels: one orientation family while every hold is within this angle of
 #: the mounting pose (degrees; the angle ``collection.segments.distinct_orientations`` tells
@@ -33,15 +31,12 @@ def main_pose(windows, pose_deg, reference=None):
 
 
 def main_pose_mask(windows, pose_deg, reference=None):
-    """Return the (n,) mask of the windows ``main_pose`` keeps."""
-    everything = np.ones(len(windows), bool)
-    ref = family_direction(windows, FAMILY_DEG) if reference is None else reference
-    if not len(windows) or ref is None:
-        return everything
-    ids, means = windows.hold_means()
-    u = means / np.linalg.norm(means, axis=1, keepdims=True)
-    keep = ids[u @ ref >= np.cos(np.radians(pose_deg))]
-    return np.isin(windows.hold, keep)
+    """Return the (n,) mask of the windows ``main_pose`` keeps.
+
+    ``collection.segments.mounting_pose_mask``, which ``calibrate`` applies to every
+    one-orientation log too (``estimation.calibrate``).
+    """
+    return mounting_pose_mask(windows, pose_deg, reference, FAMILY_DEG)
 
 
 def one_family(windows):
