@@ -129,22 +129,37 @@ def at_temperature(row, name, t_ref):
     columns of any family, or (registries written before them, accelerometer) the field
     model's d{name}0, {name}1, {name}2; std from the three stds as independent.
     """
+    return _evaluate(_terms(row, name), t_ref)
+
+
+def _terms(row, name):
+    """Return (c, s, t0) of ``at_temperature``: (3 axes, 3 orders) values and stds, (3,) T0.
+
+    A higher-order column a lower-order model leaves empty counts as 0 with std 0; a
+    missing std of a value is NaN (the std at any temperature is then NaN).
+    """
     gyro = name == 'gb'
     new = gyro or _has_alarm_terms(row)
     term = 'b' if gyro else name
     cols = ([f'alarm_{term}{j}' for j in range(3)] if new
             else [f'd{name}0', f'{name}1', f'{name}2'])
     which = 'gyro' if gyro else 'accel'
-    val, var = np.zeros(3), np.zeros(3)
+    c, s = np.zeros((3, 3)), np.zeros((3, 3))
     for i, a in enumerate(AXES):
-        dt = t_ref[i] - reference(row, a, name)
-        for j, c in enumerate(cols):
-            v, s = _f(row, f'{which}.{c}.{a}'), _f(row, f'{which}.{c}.{a}_std')
+        for j, col in enumerate(cols):
+            v, sd = _f(row, f'{which}.{col}.{a}'), _f(row, f'{which}.{col}.{a}_std')
             if j and not np.isfinite(v):
                 continue   # lower-order models leave the column empty
-            val[i] += v * dt ** j
-            var[i] += (s * dt ** j) ** 2 if np.isfinite(s) else np.nan
-    return val, np.sqrt(var)
+            c[i, j], s[i, j] = v, (sd if np.isfinite(sd) else np.nan)
+    return c, s, np.array([reference(row, a, name) for a in AXES])
+
+
+def _evaluate(terms, t_ref):
+    """Return (value, std) of ``_terms`` at ``t_ref`` degC, (..., 3) (vectorised over ...)."""
+    c, s, t0 = terms
+    dt = np.asarray(t_ref, float) - t0
+    pw = dt[..., None] ** np.arange(3)
+    return np.sum(c * pw, axis=-1), np.sqrt(np.sum((s * pw) ** 2, axis=-1))
 
 
 def by_sensor(rows):
@@ -169,8 +184,7 @@ def _best_common(prev, cur, name, points=41):
     if not (np.isfinite(lo) and np.isfinite(hi) and hi >= lo):
         lo, hi = t0.min(0), t0.max(0)
     grid = np.linspace(np.broadcast_to(lo, 3), np.broadcast_to(hi, 3), points)   # (p, 3)
-    sd = np.array([np.hypot(at_temperature(prev, name, t)[1], at_temperature(cur, name, t)[1])
-                   for t in grid])
+    sd = np.hypot(_evaluate(_terms(prev, name), grid)[1], _evaluate(_terms(cur, name), grid)[1])
     sd = np.where(np.isfinite(sd), sd, np.inf)
     return grid[np.argmin(sd, axis=0), np.arange(3)]
 
