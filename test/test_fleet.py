@@ -50,13 +50,24 @@ def _plain(cal):
 ONE_THREAD = {k: '1' for k in ('OMP_NUM_THREADS', 'MKL_NUM_THREADS', 'OPENBLAS_NUM_THREADS')}
 
 
+_REFERENCES = {}
+
+
 def _reference(fleet, unit, tmp):
-    """Calibrate one unit with the plain ``calibrate`` subcommand (a new process)."""
-    out = os.path.join(tmp, f'ref_{unit}.yaml')
-    subprocess.run([os.path.join(os.path.dirname(sys.executable), 'thermal-imu-calib'),
-                    'calibrate', *_unit_logs(fleet, unit), '-o', out], check=True,
-                   capture_output=True, env={**os.environ, **ONE_THREAD}, timeout=300)
-    return Calibration.load(out)
+    """Calibrate one unit with the plain ``calibrate`` subcommand (a new process).
+
+    Each unit's is computed once per module (several tests compare with u00 and u01; the
+    subprocess takes ~7 s a unit) and loaded afresh from its file for every caller.
+    """
+    key = (fleet, unit)
+    if key not in _REFERENCES:
+        out = os.path.join(tmp, f'ref_{unit}.yaml')
+        subprocess.run([os.path.join(os.path.dirname(sys.executable), 'thermal-imu-calib'),
+                        'calibrate', *_unit_logs(fleet, unit), '-o', out], check=True,
+                       capture_output=True, env={**os.environ, **ONE_THREAD}, timeout=300)
+        with open(out) as f:
+            _REFERENCES[key] = f.read()
+    return Calibration.from_yaml(_REFERENCES[key], f'the reference calibration of {unit}')
 
 
 def _latest(registry, unit):

@@ -92,7 +92,7 @@ def test_hard_case():
 def test_matches_scipy_slsqp_from_several_starts():
     rng = np.random.default_rng(11)
     starts = np.r_[np.eye(3), -np.eye(3), rng.normal(size=(4, 3))]
-    for _ in range(150):
+    for _ in range(60):   # 10 SLSQP starts each (thousands more against the closed form above)
         a_mats = rng.normal(size=(8, 3, 3)) * 10.0 ** rng.uniform(-2, 2, size=(1, 1, 3))
         y = rng.normal(size=(8, 3))
         w = rng.uniform(0.5, 2.0, (8, 3))
