@@ -476,13 +476,22 @@ def _applied(out, tail, cal, tc):
             and np.allclose(gyro, ref.gyro, rtol=0, atol=1e-12))
 
 
-def test_a_temperature_on_another_topic_is_named_in_the_refusal(ros, tmp_path):
+def test_a_temperature_on_another_topic_is_named_in_the_refusal(ros, tmp_path, request):
     # a driver publishing its temperature as imu/temp while the shipped config listens on
     # imu/temperature: every IMU sample waits for a temperature and none is collected.
     # The answer said "no stationary segments were found. ... check the IMU topic"
+    # A second driver publishes std_msgs/Float32 on imu/temperature itself (another
+    # participant, as a driver's process is): DDS never connects it; the answer says so.
+    import rclpy
+    from std_msgs.msg import Float32
     from conftest import replay_flow
     rec = recording(repetitions=1, faces=('+z', '-z'))
     calibrator(ros, tmp_path)
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    request.addfinalizer(context.try_shutdown)
+    bare = rclpy.create_node('float_driver', context=context).create_publisher(
+        Float32, '/imu/temperature', 10)
     node = ros.node('driver_with_imu_temp')
     imu_pub = node.create_publisher(Imu, 'imu/data_raw', 1000)
     temp_pub = node.create_publisher(Temperature, '/imu/temp', 100)
@@ -498,12 +507,16 @@ def test_a_temperature_on_another_topic_is_named_in_the_refusal(ros, tmp_path):
                        lambda: progress[-1]['imu_received'], what='the calibrator input')
     wait_for(lambda: progress[-1]['imu_received'] >= sent
              and progress[-1]['stale_temperature_samples'] > 0, WAIT, 'the IMU messages')
+    bare.publish(Float32(data=30.0))
     resp = ros.call(node, Trigger, '/thermal_imu_calibrator/calibrate', timeout=180)
     assert not resp.success
     assert resp.message.startswith('refused: no temperature reading arrived on '
                                    '/imu/temperature (0 publishers)'), resp.message
     assert "thermal-input topics on the graph: /imu/temp (set temperature_topics:='[/imu/temp]')" \
         in resp.message, resp.message
+    assert ('/imu/temperature is published as std_msgs/msg/Float32 by /float_driver, not '
+            'sensor_msgs/msg/Temperature, so none of it is received: it has no header stamp'
+            in resp.message), resp.message
     assert "temperature_topics:='[]'" in resp.message
     assert not os.path.exists(tmp_path / 'calibration.yaml')
 

@@ -625,6 +625,42 @@ def test_a_temperature_on_another_topic_is_named_in_a_warning(ros, tmp_path):
         in texts[0], texts[0]
 
 
+def test_a_temperature_of_another_type_is_named_in_a_warning(ros, tmp_path, request):
+    # a driver publishing its temperature as std_msgs/Float32 on imu/temperature: DDS never
+    # connects it to the node's sensor_msgs/Temperature subscription, so nothing arrives and
+    # the topic looked right. The log names the type, the publisher and what to do
+    from std_msgs.msg import Float32
+    cal = make_cal()
+    rig = Rig(ros, calibration_file=str(cal.save(tmp_path / 'cal.yaml')))
+    warned = []
+    rig.node._warn_once = lambda key, text: warned.append((key, text))
+    # another participant, as a driver's process is (DDS refuses a second type on a topic
+    # inside one participant)
+    import rclpy
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    request.addfinalizer(context.try_shutdown)
+    bare = rclpy.create_node('float_driver', context=context).create_publisher(
+        Float32, '/imu/temperature', 10)
+
+    def on_graph():
+        return any(i.topic_type == 'std_msgs/msg/Float32'
+                   for i in rig.node.get_publishers_info_by_topic('/imu/temperature'))
+    wait_for(on_graph, WAIT, 'the Float32 publisher on the graph')
+    bare.publish(Float32(data=30.0))
+    rig.send(1200, dt=0.001)       # the warning comes after SILENT_WARN_AFTER samples
+    rig.receive(1200)
+    wait_for(lambda: rig.node.counts['passthrough'] >= 1200, WAIT,
+             lambda: f'1200 passed through ({rig.node.counts})')
+    assert rig.node.counts['compensated'] == 0
+    texts = [t for k, t in warned if k == 'silent']
+    assert texts, warned
+    assert ('/imu/temperature is published as std_msgs/msg/Float32 by /float_driver, not '
+            'sensor_msgs/msg/Temperature, so none of it is received: it has no header stamp '
+            'to align with the IMU samples: publish sensor_msgs/msg/Temperature with the IMU '
+            'header stamps instead (a relay node)') in texts[0], texts[0]
+
+
 def test_diagnostics_keep_coming_with_sim_time_and_no_clock(ros, tmp_path):
     # use_sim_time:=true and no /clock publisher: ROS time stays 0; /diagnostics (on a
     # ROS-time timer before 2026-11-29) never came. Compensation is timed by header stamps

@@ -476,6 +476,7 @@ class CompensatorNode(Node):
                         + f' while {c["received"]} IMU messages did: they are '
                         + ('dropped' if self.on_missing == 'drop' else 'published uncompensated')
                         + f' (on_missing_temperature {self.on_missing})'
+                        + input_hints.wrong_type_hint(self, silent)
                         + input_hints.thermal_topics_hint(self, self.temp_subs))
 
     def _warn_once(self, key, text):

@@ -30,6 +30,44 @@ def thermal_topics_hint(node, subscriptions):
             f"temperature_topics:='[{seen[0]}]')" if seen else '')
 
 
+def _type_name(cls):
+    """Return 'pkg/msg/Name' of a message class (e.g. 'sensor_msgs/msg/Temperature')."""
+    return f'{cls.__module__.split(".")[0]}/msg/{cls.__name__}'
+
+
+def wrong_type_hint(node, subscriptions):
+    """Return '; /imu/temperature is published as std_msgs/msg/Float32 (by ...) ...', or ''.
+
+    A publisher of another message type on a topic the node subscribes to never connects
+    (DDS matches types), so its messages are silently not received; the publisher shows on
+    the graph only. Says which type and node, and what to do: another scalar type the node
+    reads (``common.SCALAR_TYPES``, with a header) is set with ``temperature_types``; a
+    type without a header (std_msgs/Float32, Float64) cannot be put on the IMU's clock, so
+    the reading must be republished as sensor_msgs/Temperature with the IMU's stamps. The
+    graph is a hint only; an error reading it gives ''.
+    """
+    out = []
+    try:
+        for sub in subscriptions:
+            ours = _type_name(sub.msg_type)
+            others = sorted({(i.topic_type, (i.node_namespace.rstrip('/') + '/' + i.node_name))
+                             for i in node.get_publishers_info_by_topic(sub.topic_name)
+                             if i.topic_type != ours})
+            for typ, by in others:
+                if typ in common.SCALAR_TYPES:
+                    todo = f"set temperature_types:='[{typ}]'"
+                elif typ.startswith('std_msgs/'):
+                    todo = ('it has no header stamp to align with the IMU samples: publish '
+                            f'{ours} with the IMU header stamps instead (a relay node)')
+                else:
+                    todo = f'publish {ours} on it'
+                out.append(f'; {sub.topic_name} is published as {typ} by {by}, not {ours}, '
+                           f'so none of it is received: {todo}')
+    except Exception:  # noqa: B902 - the graph is only a hint
+        return ''
+    return ''.join(out)
+
+
 def imu_topics_hint(node, subscription):
     """Return '; sensor_msgs/Imu topics on the graph: ... (set imu_topic:=...)', or ''."""
     def from_a_driver(topic):     # not only a compensator's output (imu/data_compensated)
@@ -58,11 +96,12 @@ def collection_problem(node):
     if not received:
         return (f'no IMU message arrived on {node.imu_sub.topic_name} '
                 f'({node.imu_sub.get_publisher_count()} publishers)'
-                + imu_topics_hint(node, node.imu_sub))
+                + wrong_type_hint(node, [node.imu_sub]) + imu_topics_hint(node, node.imu_sub))
     if not node.k or not stale or stale < samples:
         return ''
     silent = [i for i, n in enumerate(node.readings_per_topic) if n == 0]
-    hint = thermal_topics_hint(node, node.temp_subs)
+    hint = (wrong_type_hint(node, [node.temp_subs[i] for i in silent])
+            + thermal_topics_hint(node, node.temp_subs))
     if silent:
         names = ', '.join(f'{node.temp_subs[i].topic_name} '
                           f'({node.temp_subs[i].get_publisher_count()} publishers)'
@@ -91,4 +130,5 @@ def silent_imu(node, started, received):
         return ''
     return (f'no IMU message on {node.imu_sub.topic_name} '
             f'({node.imu_sub.get_publisher_count()} publishers) after '
-            f'{SILENT_IMU_AFTER_S:g} s' + imu_topics_hint(node, node.imu_sub))
+            f'{SILENT_IMU_AFTER_S:g} s' + wrong_type_hint(node, [node.imu_sub])
+            + imu_topics_hint(node, node.imu_sub))
