@@ -65,7 +65,8 @@ def run(rec, name, work):
     """Calibrate one variant of ``rec`` with default options; return its row."""
     imu, _ = rr.read_log(rec.log, rec.imu_topic)
     im, intervals = variant(imu, rec.intervals, name)
-    log = os.path.join(work, f'{rec.name}_{name.split()[0]}{name.split()[-1]}.mcap')
+    slug = ''.join(c if c.isalnum() else '_' for c in name).strip('_')
+    log = os.path.join(work, f'{rec.name}_{slug}.mcap')
     write_columns(log, '/imu', im, {}, overwrite=True)
     off = sb.offline(log, rr.Recording(rec.name, log, '/imu', rec.gravity, rec.kind),
                      log + '.yaml')

@@ -23,10 +23,14 @@ BENCHES = [
     ('bench_thermal.py', []),
     ('bench_chamber.py', []),
     ('bench_proxy.py', []),
+    ('mounting_and_rate.py', []),     # the posing recordings turned and slowed (~6 min)
+    ('robot_log_calibrate.py', []),   # calibrate of robot logs, seeds 24-31 (~4 min)
     ('scoreboard.py', []),     # every shared real recording, offline and live (~17 min)
 ]
 #: scripts that name their outputs by a base path instead of --json FILE
 OUT_BASE = {'scoreboard.py'}
+#: scripts that write their JSON to --out FILE
+OUT_FILE = {'mounting_and_rate.py', 'robot_log_calibrate.py'}
 
 
 def main():
@@ -42,6 +46,7 @@ def main():
         print(f'\n## {name}\n', flush=True)
         t0 = time.perf_counter()
         out = (['--out', os.path.join(RESULTS, name)] if script in OUT_BASE
+               else ['--out', os.path.join(RESULTS, f'{name}.json')] if script in OUT_FILE
                else ['--json', os.path.join(RESULTS, f'{name}.json')])
         r = subprocess.run([sys.executable, path, *extra, *out])
         print(f'\n({name}: {time.perf_counter() - t0:.0f} s, exit {r.returncode})', flush=True)
