@@ -117,6 +117,16 @@ REFUSED = {
     # IMU stamped by a hardware clock, the temperature by the system's: no reading near
     'temperature_on_another_clock': (lambda a: a['temp_stamp_ns'].__setitem__(
         slice(None), a['temp_stamp_ns'] + 10 ** 12), 'stamped by different clocks'),
+    # a driver publishing g or raw counts: the loader's "a coefficient is corrupt" before
+    'accel_in_g': (lambda a: a['accel'].__setitem__(slice(None), a['accel'] / 9.80665),
+                   'its values look in g, while sensor_msgs/Imu linear_acceleration is in '
+                   'm/s^2'),
+    'accel_in_milli_g': (lambda a: a['accel'].__setitem__(slice(None),
+                                                          a['accel'] / 9.80665 * 1000.0),
+                         'its values look in milli-g'),
+    'accel_in_counts': (lambda a: a['accel'].__setitem__(slice(None),
+                                                         a['accel'] / 9.80665 * 16384.0),
+                        'values this large are raw counts or another unit'),
 }
 
 

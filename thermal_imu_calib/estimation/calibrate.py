@@ -84,6 +84,35 @@ def readiness(windows, model='auto', min_holds=1):
             'next_pose': least, 'coverage': cov}
 
 
+#: |a| at rest over gravity that any accelerometer in m/s^2 reads (the calibration loader's
+#: scale-factor bounds, ``calibration.plausible``); outside it the unit is wrong
+ACCEL_AT_REST = (0.25, 4.0)
+
+
+def _check_accel_units(windows, gravity):
+    """Refuse holds whose accelerations are not in m/s^2 (g, milli-g, raw counts).
+
+    The median |a| of the hold means over ``gravity``: a driver publishing g reads 0.10
+    of it, milli-g about 100, raw counts thousands. Calibrated anyway, a several-orientation
+    fit ended at "the accel model is implausible ... a coefficient is corrupt", and a
+    one-orientation drift model was written in the wrong unit. Every path (CLI, node,
+    fleet) refuses such holds here, naming the likely unit.
+    """
+    _, means = windows.hold_means()
+    at_rest = float(np.median(np.linalg.norm(means, axis=1)))
+    r = at_rest / gravity
+    if ACCEL_AT_REST[0] <= r <= ACCEL_AT_REST[1]:
+        return
+    unit = ('in g' if 0.08 <= r <= 0.13 else 'in milli-g' if 80 <= r <= 130 else
+            'in raw counts or another unit')
+    raise CalibrationRefused(
+        f'the accelerometer reads |a| = {at_rest:.4g} at rest, {r:.3g} times gravity '
+        f'({gravity:.6g} m/s^2): its values look {unit}, while sensor_msgs/Imu '
+        'linear_acceleration is in m/s^2 (REP 145)',
+        'publish the IMU in m/s^2 (for g, multiply by 9.80665; check the driver\'s scale or '
+        'unit parameters), then record or replay again')
+
+
 def _without_flat_temperature(windows, o):
     """Return (windows, options, notes) with degC inputs that barely moved taken out.
 
@@ -172,6 +201,7 @@ def calibrate_windows(windows, options=None):
     if len(o.inputs) != windows.n_inputs:
         raise ValueError(f'{len(o.inputs)} temperature inputs named but windows carry '
                          f'{windows.n_inputs}')
+    _check_accel_units(windows, o.gravity)
     windows, o, flat = _without_flat_temperature(windows, o)
     windows, o, pose = _mounting_pose_only(windows, o)
     windows, earth = _without_vertical_earth_rate(windows, o)

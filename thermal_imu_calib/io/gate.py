@@ -331,8 +331,11 @@ def check_report(path, r, max_gap_s=5.0):
                        'do not increase (duplicated or running backwards); the stamps are '
                        'broken: fix the driver\'s clock or re-record')
     if r.imu_dropped == r.imu_in:
+        units = ('; values this large are raw counts or another unit: sensor_msgs/Imu is in '
+                 'm/s^2 and rad/s (REP 145), so convert in the driver and record again'
+                 if r.imu_out_of_range > r.imu_in // 2 else '')
         raise LogError(f'{path}: every IMU sample was dropped '
-                       f'({r.dropped_text(max_gap_s)}); the log has no usable IMU data')
+                       f'({r.dropped_text(max_gap_s)}); the log has no usable IMU data{units}')
     problems = thermal_problems(r, max_gap_s)
     if problems:
         raise LogError(f'{path}: the thermal inputs cannot support a thermal fit: '
