@@ -124,6 +124,10 @@ REFUSED = {
     'accel_in_milli_g': (lambda a: a['accel'].__setitem__(slice(None),
                                                           a['accel'] / 9.80665 * 1000.0),
                          'its values look in milli-g'),
+    # a gyro in deg/s: the pose changes turn 57x the angle gravity turns (before: holds
+    # lost to the rotation test and a refusal for missing faces, or a gyro model in deg/s)
+    'gyro_in_deg_per_s': (lambda a: a['gyro'].__setitem__(slice(None), np.degrees(a['gyro'])),
+                          'look in deg/s, while sensor_msgs/Imu angular_velocity is in rad/s'),
     'accel_in_counts': (lambda a: a['accel'].__setitem__(slice(None),
                                                          a['accel'] / 9.80665 * 16384.0),
                         'values this large are raw counts or another unit'),
@@ -139,6 +143,30 @@ def test_unusable_logs_are_refused_with_the_real_cause(case, rec, tmp_path, capf
     line = _one_error_line(err, 'calibrate')
     assert code == 2 and cause in line and not out.exists()
     assert 'hold the IMU still' not in line and 'DLASCL' not in stdout + err
+
+
+def test_a_gyro_in_deg_per_s_is_found_by_its_pose_changes(clean, tmp_path):
+    """Turns slower than 100 deg/s pass the input gate; the pose changes show the unit.
+
+    The gyro path length over the angle gravity turned between holds is about 1 in rad/s
+    and 57 in deg/s (``estimation.calibrate._check_gyro_units``).
+    """
+    import dataclasses
+    from thermal_imu_calib.app.calibrate import CalibrateSettings, collect, options
+    from thermal_imu_calib.collection.collected import merge_transitions, merge_windows
+    from thermal_imu_calib.estimation.calibrate import (calibrate_windows, CalibrationRefused,
+                                                        _check_gyro_units)
+    s = CalibrateSettings()
+    c = collect(s, clean[0], '/imu/data_raw')
+    w, trs = merge_windows([c]), merge_transitions([c])
+    assert len(trs) >= 3
+    _check_gyro_units(w, trs)                     # rad/s: nothing to say
+    deg = [dataclasses.replace(t, gyro=np.degrees(t.gyro)) for t in trs]
+    w_deg = dataclasses.replace(w, gyro=np.degrees(w.gyro))
+    with pytest.raises(CalibrationRefused, match=r'its values look in deg/s, while '
+                       r'sensor_msgs/Imu angular_velocity is in rad/s') as e:
+        calibrate_windows(w_deg, options(s, [c], deg))
+    assert 'multiply by pi/180' in str(e.value)
 
 
 def test_evaluate_without_holds_is_an_error_not_a_nan_table(rec, clean, tmp_path, capfd):

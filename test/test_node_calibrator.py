@@ -521,6 +521,44 @@ def test_a_temperature_on_another_topic_is_named_in_the_refusal(ros, tmp_path, r
     assert not os.path.exists(tmp_path / 'calibration.yaml')
 
 
+def test_a_gyro_in_deg_per_s_is_refused_as_calibrate_refuses_it(ros, tmp_path):
+    # a driver publishing deg/s: the turns (up to 140 deg/s in this recording) read beyond
+    # any gyroscope in rad/s; calibrate's input gate refuses the log naming the unit, and
+    # ~/calibrate answers the same (before: holds lost, "faces missing"), until ~/reset
+    from conftest import replay_flow
+    from thermal_imu_calib.io.gate import GYRO_UNIT_ROWS
+    rec = recording(repetitions=1)
+    calibrator(ros, tmp_path)
+    node = ros.node('driver_in_deg_per_s')
+    imu_pub = node.create_publisher(Imu, 'imu/data_raw', 1000)
+    temp_pub = node.create_publisher(Temperature, 'imu/temperature', 100)
+    progress = []
+    node.create_subscription(String, '/thermal_imu_calibrator/progress',
+                             lambda m: progress.append(json.loads(m.data)), 10)
+    ros.wait_matched(imu_pub, 1, timeout=WAIT)
+    ros.wait_matched(temp_pub, 1, timeout=WAIT)
+    wait_for(lambda: progress and progress[-1]['imu_publishers'] >= 1, WAIT,
+             'the calibrator to match the IMU publisher')
+    imu = rec.imu()
+    imu = type(imu)(imu.stamp_ns, imu.accel, np.degrees(imu.gyro), imu.frame_id)
+    (_, tc), = rec.temperatures.items()
+    sent = replay_flow(imu_pub, imu, [(temp_pub, tc.stamp_ns, tc.temperature)], RATE,
+                       lambda: progress[-1]['imu_received'], what='the calibrator input')
+    wait_for(lambda: progress[-1]['imu_received'] >= sent, WAIT, 'the IMU messages')
+    resp = ros.call(node, Trigger, '/thermal_imu_calibrator/calibrate', timeout=180)
+    assert not resp.success
+    assert resp.message.startswith('refused: '), resp.message
+    assert ('beyond any gyroscope) while the accelerometer was in range: the gyro values look '
+            'in deg/s, while sensor_msgs/Imu angular_velocity is in rad/s') in resp.message
+    n = int(resp.message.split('refused: ')[1].split(' IMU samples')[0])
+    assert n >= GYRO_UNIT_ROWS
+    assert not os.path.exists(tmp_path / 'calibration.yaml')
+    # ~/reset clears it with the collection: a driver fixed since is judged afresh
+    assert ros.call(node, Trigger, '/thermal_imu_calibrator/reset', timeout=60).success
+    again = ros.call(node, Trigger, '/thermal_imu_calibrator/calibrate', timeout=180)
+    assert 'deg/s' not in again.message, again.message
+
+
 def test_an_imu_on_another_topic_is_named_in_the_refusal(ros, tmp_path):
     # the driver publishes imu/data; the calibrator listens on imu/data_raw; a compensator's
     # output (also sensor_msgs/Imu) is not offered

@@ -113,6 +113,51 @@ def _check_accel_units(windows, gravity):
         'unit parameters), then record or replay again')
 
 
+#: a pose change counts for the gyro's unit when gravity turned by more than this (rad)
+UNIT_TURN_MIN = np.radians(30.0)
+#: median (gyro path length / angle gravity turned) above which the gyro is not in rad/s:
+#: at least 1 and about 1-2 in rad/s (a hand's detours add to the path; the largest single
+#: pose change of the shared recordings: 12.5), at least 57.3 in deg/s
+GYRO_TURN_RATIO_MAX = 25.0
+
+
+def _check_gyro_units(windows, transitions):
+    """Refuse a gyro that is not in rad/s (deg/s), seen in the pose changes between holds.
+
+    For each pose change in which gravity turned by more than ``UNIT_TURN_MIN`` (the angle
+    between the two holds' mean accelerations), the angle the gyro turned (its path length,
+    the integral of |w - the earlier hold's mean|) over that angle: at least 1 and about
+    1-2 in rad/s (the shared posing recordings: medians 1.0-1.8, at most 12.5 for one pose
+    change), 57 in deg/s (getovermassif data4 in deg/s: 58). Refused when their median
+    exceeds ``GYRO_TURN_RATIO_MAX``. Before, such a log lost most holds to the rotation
+    test and was refused for missing faces, or was calibrated in the wrong unit.
+    """
+    if not transitions or not len(windows):
+        return
+    ids, means = windows.hold_means()
+    pos = {int(h): i for i, h in enumerate(ids)}
+    ratios = []
+    for tr in transitions:
+        if tr.hold_from not in pos or tr.hold_to not in pos or len(tr.t) < 2:
+            continue
+        a, b = means[pos[tr.hold_from]], means[pos[tr.hold_to]]
+        angle = np.arccos(np.clip(a @ b / (np.linalg.norm(a) * np.linalg.norm(b)), -1, 1))
+        if angle < UNIT_TURN_MIN:
+            continue
+        bias = windows.gyro[windows.hold == tr.hold_from].mean(axis=0)
+        path = np.trapezoid(np.linalg.norm(np.asarray(tr.gyro) - bias, axis=1), tr.t)
+        ratios.append(path / angle)
+    if not ratios or np.median(ratios) <= GYRO_TURN_RATIO_MAX:
+        return
+    raise CalibrationRefused(
+        f'the gyroscope turned {np.median(ratios):.3g} times the angle gravity turned between '
+        f'holds (median over {len(ratios)} pose changes of more than '
+        f'{np.degrees(UNIT_TURN_MIN):.0f} deg): its values look in deg/s, while '
+        'sensor_msgs/Imu angular_velocity is in rad/s (REP 145)',
+        'publish the IMU in rad/s (for deg/s, multiply by pi/180 = 0.0174533; check the '
+        "driver's unit parameters), then record or replay again")
+
+
 def _without_flat_temperature(windows, o):
     """Return (windows, options, notes) with degC inputs that barely moved taken out.
 
@@ -202,6 +247,7 @@ def calibrate_windows(windows, options=None):
         raise ValueError(f'{len(o.inputs)} temperature inputs named but windows carry '
                          f'{windows.n_inputs}')
     _check_accel_units(windows, o.gravity)
+    _check_gyro_units(windows, o.transitions)
     windows, o, flat = _without_flat_temperature(windows, o)
     windows, o, pose = _mounting_pose_only(windows, o)
     windows, earth = _without_vertical_earth_rate(windows, o)

@@ -26,6 +26,37 @@ ACCEL_LIMIT = 2000.0
 GYRO_LIMIT = 100.0
 
 
+#: a gyro value between ``GYRO_LIMIT`` and this (rad/s) with the accelerometer in range is
+#: a turn in deg/s (any MEMS range, up to 4000 deg/s); beyond it, a corrupt value
+GYRO_DEG_RANGE = 5000.0
+#: so many such samples mean the gyro is in deg/s, not a glitch
+GYRO_UNIT_ROWS = 10
+
+
+def gyro_unit_rows(accel, gyro):
+    """Return the (n,) rows that read like a gyro in deg/s: |w| of a turn in deg/s taken as rad/s.
+
+    Finite rows whose largest gyro axis lies in (``GYRO_LIMIT``, ``GYRO_DEG_RANGE``] rad/s
+    (more than any gyroscope gives, as much as a hand turns in deg/s) while the
+    accelerometer is within ``ACCEL_LIMIT``.
+    """
+    accel, gyro = np.asarray(accel, float), np.asarray(gyro, float)
+    with np.errstate(invalid='ignore', over='ignore'):
+        w = np.abs(gyro).max(axis=1)
+        return (np.isfinite(accel).all(1) & np.isfinite(w) & (np.abs(accel) <= ACCEL_LIMIT).all(1)
+                & (w > GYRO_LIMIT) & (w <= GYRO_DEG_RANGE))
+
+
+def gyro_unit_text(n):
+    """Return why ``n`` ``gyro_unit_rows`` refuse a collection, and what to do."""
+    return (f'{n} IMU samples read |w| above {GYRO_LIMIT:g} rad/s '
+            f'({np.degrees(GYRO_LIMIT):.0f} deg/s, beyond any gyroscope) while the '
+            'accelerometer was in range: the gyro values look in deg/s, while sensor_msgs/Imu '
+            'angular_velocity is in rad/s (REP 145). Publish the IMU in rad/s (for deg/s, '
+            "multiply by pi/180 = 0.0174533; check the driver's unit parameters), then record "
+            'or replay again')
+
+
 @dataclass
 class GateReport:
     """What ``InputGate`` dropped and saw, for the summary and the warnings (counts)."""
@@ -33,6 +64,8 @@ class GateReport:
     imu_in: int = 0
     imu_nonfinite: int = 0
     imu_out_of_range: int = 0
+    #: of those, rows that read like a gyro in deg/s (``gyro_unit_rows``)
+    imu_gyro_unit: int = 0
     imu_zero: int = 0
     imu_stamp_not_increasing: int = 0
     imu_stamp_zero: int = 0
@@ -107,6 +140,8 @@ class InputGate:
             finite, big, zero = imu_row_checks(imu.accel, imu.gyro)
             r.imu_nonfinite += int((~finite).sum())
             r.imu_out_of_range += int(big.sum())
+            if big.any():
+                r.imu_gyro_unit += int(gyro_unit_rows(imu.accel, imu.gyro).sum())
             r.imu_zero += int(zero.sum())
             ok = finite & ~big & ~zero
             r.imu_stamp_zero += int((imu.stamp_ns == 0).sum())
@@ -192,6 +227,8 @@ class LiveImuFilter:
         self.jump_ns = int(jump_s * 1e9)
         self.invalid = 0
         self.not_increasing = 0
+        #: invalid rows that read like a gyro in deg/s (``gyro_unit_rows``)
+        self.gyro_unit = 0
         self.reset()
 
     def reset(self):
@@ -202,6 +239,8 @@ class LiveImuFilter:
         """Return the kept rows of ImuColumns ``imu`` (the same object if all are kept)."""
         finite, big, zero = imu_row_checks(imu.accel, imu.gyro)
         valid = finite & ~big & ~zero
+        if big.any():
+            self.gyro_unit += int(gyro_unit_rows(imu.accel, imu.gyro).sum())
         low = np.iinfo(np.int64).min
         st = np.where(valid, imu.stamp_ns, low)
         inc = np.zeros(len(st), bool)
@@ -330,6 +369,8 @@ def check_report(path, r, max_gap_s=5.0):
         raise LogError(f'{path}: {r.imu_stamp_not_increasing} of {r.imu_in} IMU header stamps '
                        'do not increase (duplicated or running backwards); the stamps are '
                        'broken: fix the driver\'s clock or re-record')
+    if r.imu_gyro_unit >= GYRO_UNIT_ROWS:
+        raise LogError(f'{path}: {gyro_unit_text(r.imu_gyro_unit)}')
     if r.imu_dropped == r.imu_in:
         units = ('; values this large are raw counts or another unit: sensor_msgs/Imu is in '
                  'm/s^2 and rad/s (REP 145), so convert in the driver and record again'

@@ -45,6 +45,7 @@ from ..app import calibrate as app
 from ..calibration import CalibrationError
 from ..collection.segments import FACE_NAMES, Windows
 from ..estimation.calibrate import CalibrationRefused
+from ..io.gate import GYRO_UNIT_ROWS, gyro_unit_text
 
 NODE_NAME = 'thermal_imu_calibrator'
 #: what ``_write`` says when calibration_file is empty (the node is set up not to write)
@@ -131,6 +132,11 @@ class CalibratorNode(LiveCollection, Node):
             response.message = (f'refused: an estimation is already running (started '
                                 f'{time.monotonic() - self._busy_since:.1f} s ago); wait for '
                                 'its result')
+            return response
+        if self._rows.gyro_unit >= GYRO_UNIT_ROWS:    # as calibrate's input gate refuses
+            self._busy.release()
+            response.success = False
+            response.message = f'refused: {gyro_unit_text(self._rows.gyro_unit)}'
             return response
         try:
             self._busy_since = time.monotonic()
@@ -314,6 +320,7 @@ class CalibratorNode(LiveCollection, Node):
             n, h, t = len(self.windows), len(self.windows.hold_ids), len(self.transitions)
             self._new_collection()
             self.counts.update({k: 0 for k in self.counts})
+            self._rows.gyro_unit = 0      # a driver fixed since: its data are judged afresh
             self.readings_per_topic = [0] * self.k
             path = self._collection_path()
             if path and os.path.exists(path):
