@@ -476,6 +476,23 @@ def _applied(out, tail, cal, tc):
             and np.allclose(gyro, ref.gyro, rtol=0, atol=1e-12))
 
 
+def _driver(ros, name, temperature_topic):
+    """Return (node, IMU publisher, temperature publisher, ~/progress list) of a driver.
+
+    Waits until the calibrator has matched the IMU publisher.
+    """
+    node = ros.node(name)
+    imu_pub = node.create_publisher(Imu, 'imu/data_raw', 1000)
+    temp_pub = node.create_publisher(Temperature, temperature_topic, 100)
+    progress = []
+    node.create_subscription(String, '/thermal_imu_calibrator/progress',
+                             lambda m: progress.append(json.loads(m.data)), 10)
+    ros.wait_matched(imu_pub, 1, timeout=WAIT)
+    wait_for(lambda: progress and progress[-1]['imu_publishers'] >= 1, WAIT,
+             'the calibrator to match the IMU publisher')
+    return node, imu_pub, temp_pub, progress
+
+
 def test_a_temperature_on_another_topic_is_named_in_the_refusal(ros, tmp_path, request):
     # a driver publishing its temperature as imu/temp while the shipped config listens on
     # imu/temperature: every IMU sample waits for a temperature and none is collected.
@@ -492,15 +509,7 @@ def test_a_temperature_on_another_topic_is_named_in_the_refusal(ros, tmp_path, r
     request.addfinalizer(context.try_shutdown)
     bare = rclpy.create_node('float_driver', context=context).create_publisher(
         Float32, '/imu/temperature', 10)
-    node = ros.node('driver_with_imu_temp')
-    imu_pub = node.create_publisher(Imu, 'imu/data_raw', 1000)
-    temp_pub = node.create_publisher(Temperature, '/imu/temp', 100)
-    progress = []
-    node.create_subscription(String, '/thermal_imu_calibrator/progress',
-                             lambda m: progress.append(json.loads(m.data)), 10)
-    ros.wait_matched(imu_pub, 1, timeout=WAIT)
-    wait_for(lambda: progress and progress[-1]['imu_publishers'] >= 1, WAIT,
-             'the calibrator to match the IMU publisher')
+    node, imu_pub, temp_pub, progress = _driver(ros, 'driver_with_imu_temp', '/imu/temp')
     imu = rec.imu()
     (_, tc), = rec.temperatures.items()
     sent = replay_flow(imu_pub, imu, [(temp_pub, tc.stamp_ns, tc.temperature)], RATE,
@@ -529,16 +538,8 @@ def test_a_gyro_in_deg_per_s_is_refused_as_calibrate_refuses_it(ros, tmp_path):
     from thermal_imu_calib.io.gate import GYRO_UNIT_ROWS
     rec = recording(repetitions=1)
     calibrator(ros, tmp_path)
-    node = ros.node('driver_in_deg_per_s')
-    imu_pub = node.create_publisher(Imu, 'imu/data_raw', 1000)
-    temp_pub = node.create_publisher(Temperature, 'imu/temperature', 100)
-    progress = []
-    node.create_subscription(String, '/thermal_imu_calibrator/progress',
-                             lambda m: progress.append(json.loads(m.data)), 10)
-    ros.wait_matched(imu_pub, 1, timeout=WAIT)
+    node, imu_pub, temp_pub, progress = _driver(ros, 'driver_in_deg_per_s', 'imu/temperature')
     ros.wait_matched(temp_pub, 1, timeout=WAIT)
-    wait_for(lambda: progress and progress[-1]['imu_publishers'] >= 1, WAIT,
-             'the calibrator to match the IMU publisher')
     imu = rec.imu()
     imu = type(imu)(imu.stamp_ns, imu.accel, np.degrees(imu.gyro), imu.frame_id)
     (_, tc), = rec.temperatures.items()
