@@ -65,3 +65,39 @@ def test_no_report_child_starts_after_finish(ros, tmp_path):
     # lock that finish() takes, so finish() removes any made before it)
     after = set(glob.glob(os.path.join(tempfile.gettempdir(), 'thermal-imu-report-*')))
     assert after <= before, sorted(after - before)
+
+
+def test_the_report_inputs_are_written_before_finish_can_remove_them(ros, tmp_path):
+    """finish() waits while the report's inputs are being written, then removes them.
+
+    Written outside the report lock, finish() removed the temporary while the calibration
+    was being saved into it; the save made the directory again and a node exiting then left
+    ``thermal-imu-report-*/.cal.yaml.*.partial`` behind (seen after a live scoreboard run).
+    """
+    import threading
+    node = _calibrated(ros, tmp_path)
+    report = tmp_path / 'calibration.report.html'
+    wait_for(lambda: report.exists(), 60, 'the first report')
+    cal, saving, go, where = node._result.calibration, threading.Event(), threading.Event(), []
+
+    class SlowSave:
+        """The calibration, saved only once the test says so."""
+
+        def save(self, path):
+            where.append(os.path.dirname(path))
+            saving.set()
+            assert go.wait(60)
+            return cal.save(path)
+    writer = threading.Thread(target=node._report_file, args=(SlowSave(), node.windows))
+    writer.start()
+    assert saving.wait(60)
+    stopper = threading.Thread(target=node._stop_report)
+    stopper.start()
+    stopper.join(timeout=1.0)
+    assert stopper.is_alive(), 'finish() removed the report inputs while they were written'
+    go.set()
+    writer.join(timeout=60)
+    stopper.join(timeout=60)
+    assert not writer.is_alive() and not stopper.is_alive()
+    assert not os.path.exists(where[0])                 # removed by _stop_report
+    assert node._report_running is None

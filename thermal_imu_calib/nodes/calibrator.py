@@ -235,18 +235,21 @@ class CalibratorNode(LiveCollection, Node):
         """
         path = os.path.expanduser(self.get_parameter('calibration_file').value)
         out = os.path.splitext(path)[0] + '.report.html'
-        with self._report_lock:
-            # made and recorded in one step: _stop_report removes whatever it finds
-            # recorded, and a temporary made outside the lock could be left behind by a
-            # node stopping in between (an empty thermal-imu-report-* was once left)
-            if self._report_stopped:
-                return
-            tmp = tempfile.mkdtemp(prefix='thermal-imu-report-')
-            self._report_running = [None, tmp]
+        tmp = None
         try:
-            cal.save(os.path.join(tmp, 'cal.yaml'))
-            with open(os.path.join(tmp, 'windows.jsonl'), 'w') as f:
-                f.write(windows.to_jsonl())
+            with self._report_lock:
+                # made, filled and recorded in one step: _stop_report removes whatever it
+                # finds recorded. A temporary made outside the lock was once left empty by a
+                # node stopping in between; filled outside it, _stop_report removed the
+                # directory, the save made it again (write_atomic) and the process exited
+                # with a .cal.yaml.*.partial in it (2026-11-29, a live scoreboard run)
+                if self._report_stopped:
+                    return
+                tmp = tempfile.mkdtemp(prefix='thermal-imu-report-')
+                self._report_running = [None, tmp]
+                cal.save(os.path.join(tmp, 'cal.yaml'))
+                with open(os.path.join(tmp, 'windows.jsonl'), 'w') as f:
+                    f.write(windows.to_jsonl())
             cmd = [sys.executable, '-m', 'thermal_imu_calib.cli', 'report',
                    os.path.join(tmp, 'cal.yaml'), '--windows',
                    os.path.join(tmp, 'windows.jsonl'), '--html', out]
@@ -269,7 +272,8 @@ class CalibratorNode(LiveCollection, Node):
         finally:
             with self._report_lock:
                 self._report_running = None
-            shutil.rmtree(tmp, ignore_errors=True)
+            if tmp is not None:
+                shutil.rmtree(tmp, ignore_errors=True)
         if child.returncode and self._report_stopped:
             self.get_logger().info(f'report {out} not written: the node is shutting down')
         elif child.returncode:
