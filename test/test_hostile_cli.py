@@ -160,7 +160,7 @@ def test_a_gyro_in_deg_per_s_is_found_by_its_pose_changes(clean, tmp_path):
     c = collect(s, clean[0], '/imu/data_raw')
     w, trs = merge_windows([c]), merge_transitions([c])
     assert len(trs) >= 3
-    _check_gyro_units(w, trs)                     # rad/s: nothing to say
+    _check_gyro_units(w, *w.hold_means(), trs)    # rad/s: nothing to say
     deg = [dataclasses.replace(t, gyro=np.degrees(t.gyro)) for t in trs]
     w_deg = dataclasses.replace(w, gyro=np.degrees(w.gyro))
     with pytest.raises(CalibrationRefused, match=r'its values look in deg/s, while '

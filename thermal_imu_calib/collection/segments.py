@@ -196,7 +196,10 @@ def family_direction(windows, angle_deg=20.0):
     """
     if not len(windows):
         return None
-    u, w = _directions(windows)
+    return _family(*_directions(windows), angle_deg)
+
+
+def _family(u, w, angle_deg):
     ref = _main(u, w, 2.0)
     return ref if np.all(u @ ref >= np.cos(np.radians(angle_deg))) else None
 
@@ -218,12 +221,13 @@ def mounting_pose_mask(windows, within_deg, reference=None, family_deg=20.0):
     Angles in degrees.
     """
     everything = np.ones(len(windows), bool)
-    ref = family_direction(windows, family_deg) if reference is None else reference
-    if not len(windows) or ref is None:
+    if not len(windows):
         return everything
-    ids, means = windows.hold_means()
-    u = means / np.linalg.norm(means, axis=1, keepdims=True)
-    keep = ids[u @ ref >= np.cos(np.radians(within_deg))]
+    u, w = _directions(windows)
+    ref = _family(u, w, family_deg) if reference is None else reference
+    if ref is None:
+        return everything
+    keep = windows.hold_ids[u @ ref >= np.cos(np.radians(within_deg))]
     return np.isin(windows.hold, keep)
 
 

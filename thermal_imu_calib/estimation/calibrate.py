@@ -89,16 +89,16 @@ def readiness(windows, model='auto', min_holds=1):
 ACCEL_AT_REST = (0.25, 4.0)
 
 
-def _check_accel_units(windows, gravity):
+def _check_accel_units(means, gravity):
     """Refuse holds whose accelerations are not in m/s^2 (g, milli-g, raw counts).
 
+    ``means``: (h, 3) hold means (``Windows.hold_means``).
     The median |a| of the hold means over ``gravity``: a driver publishing g reads 0.10
     of it, milli-g about 100, raw counts thousands. Calibrated anyway, a several-orientation
     fit ended at "the accel model is implausible ... a coefficient is corrupt", and a
     one-orientation drift model was written in the wrong unit. Every path (CLI, node,
     fleet) refuses such holds here, naming the likely unit.
     """
-    _, means = windows.hold_means()
     at_rest = float(np.median(np.linalg.norm(means, axis=1)))
     r = at_rest / gravity
     if ACCEL_AT_REST[0] <= r <= ACCEL_AT_REST[1]:
@@ -121,8 +121,10 @@ UNIT_TURN_MIN = np.radians(30.0)
 GYRO_TURN_RATIO_MAX = 25.0
 
 
-def _check_gyro_units(windows, transitions):
+def _check_gyro_units(windows, ids, means, transitions):
     """Refuse a gyro that is not in rad/s (deg/s), seen in the pose changes between holds.
+
+    ``ids``, ``means``: the windows' ``hold_means``.
 
     For each pose change in which gravity turned by more than ``UNIT_TURN_MIN`` (the angle
     between the two holds' mean accelerations), the angle the gyro turned (its path length,
@@ -134,7 +136,6 @@ def _check_gyro_units(windows, transitions):
     """
     if not transitions or not len(windows):
         return
-    ids, means = windows.hold_means()
     pos = {int(h): i for i, h in enumerate(ids)}
     ratios = []
     for tr in transitions:
@@ -246,8 +247,9 @@ def calibrate_windows(windows, options=None):
     if len(o.inputs) != windows.n_inputs:
         raise ValueError(f'{len(o.inputs)} temperature inputs named but windows carry '
                          f'{windows.n_inputs}')
-    _check_accel_units(windows, o.gravity)
-    _check_gyro_units(windows, o.transitions)
+    ids, means = windows.hold_means()
+    _check_accel_units(means, o.gravity)
+    _check_gyro_units(windows, ids, means, o.transitions)
     windows, o, flat = _without_flat_temperature(windows, o)
     windows, o, pose = _mounting_pose_only(windows, o)
     windows, earth = _without_vertical_earth_rate(windows, o)
@@ -311,8 +313,8 @@ def calibrate_windows(windows, options=None):
     if flat:
         summary += ' (the temperature input barely moved: treated as none, see notes)'
     if pose:
-        summary += (f' ({pose[0].split(" are more")[0]} off the mounting pose by more than '
-                    f'{MOUNTING_POSE_DEG:g} deg not used, see notes)')
+        summary += (f' ({len(ids) - cov["holds"]} of {len(ids)} holds off the mounting pose by '
+                    f'more than {MOUNTING_POSE_DEG:g} deg not used, see notes)')
     if consistency['left_out']:
         summary += (f', {len(consistency["left_out"])} holds left out of the accelerometer '
                     'fit (pose repeats that disagree, sensor-state epochs; held-out holds '

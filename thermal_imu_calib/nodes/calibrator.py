@@ -133,12 +133,11 @@ class CalibratorNode(LiveCollection, Node):
                                 f'{time.monotonic() - self._busy_since:.1f} s ago); wait for '
                                 'its result')
             return response
-        if self._rows.gyro_unit >= GYRO_UNIT_ROWS:    # as calibrate's input gate refuses
-            self._busy.release()
-            response.success = False
-            response.message = f'refused: {gyro_unit_text(self._rows.gyro_unit)}'
-            return response
         try:
+            if self._rows.gyro_unit >= GYRO_UNIT_ROWS:    # as calibrate's input gate refuses
+                response.success = False
+                response.message = f'refused: {gyro_unit_text(self._rows.gyro_unit)}'
+                return response
             self._busy_since = time.monotonic()
             response.success, response.message = await self._on_worker(
                 self._estimate, *self.snapshot())
