@@ -24,13 +24,14 @@ BENCHES = [
     ('bench_chamber.py', []),
     ('bench_proxy.py', []),
     ('mounting_and_rate.py', []),     # the posing recordings turned and slowed (~6 min)
+    ('noisier_imu.py', []),           # the posing recordings with accel noise x3/x10 (~8 min)
     ('robot_log_calibrate.py', []),   # calibrate of robot logs, seeds 24-31 (~4 min)
     ('scoreboard.py', []),     # every shared real recording, offline and live (~17 min)
 ]
 #: scripts that name their outputs by a base path instead of --json FILE
 OUT_BASE = {'scoreboard.py'}
 #: scripts that write their JSON to --out FILE
-OUT_FILE = {'mounting_and_rate.py', 'robot_log_calibrate.py'}
+OUT_FILE = {'mounting_and_rate.py', 'noisier_imu.py', 'robot_log_calibrate.py'}
 
 
 def main():

@@ -28,7 +28,7 @@ from .builtin_estimators import (_gyro_bias, check_faces_up_and_down,  # noqa: F
                                  EXTRAPOLATION_WARN_DEGC)
 from .context import (AUTO_POLICY, auto_choice, Context, Estimate,  # noqa: F401
                       ESTIMATOR_MODULES, ESTIMATORS, make_context, model_choices,
-                      register_estimator, STANDARD_RULE_JUDGE)
+                      register_estimator)
 from .gyro_static import earth_rate_parts
 from .hold_rules import (consistency_notes, HOLD_MAGNITUDES,  # noqa: F401
                          HOLD_RULE_JUDGE, leave_out_holds)
@@ -254,14 +254,12 @@ def calibrate_windows(windows, options=None):
     windows, o, pose = _mounting_pose_only(windows, o)
     windows, earth = _without_vertical_earth_rate(windows, o)
     ctx = make_context(windows, o)
-    ctx.standard_free, misalignment = STANDARD_RULE_JUDGE[0](ctx)
     consistency = leave_out_holds(ctx)
     accel_input, gyro_input, units = ctx.accel_input, ctx.gyro_input, input_units(o, ctx.k)
     name, why = ((o.model, 'requested') if o.model != 'auto'
                  else AUTO_POLICY[0](ctx.accel_view()))
     est = ESTIMATORS[name](ctx)
-    notes = (flat + pose + earth + ([misalignment['text']] if misalignment else [])
-             + consistency_notes(consistency) + list(est.notes))
+    notes = flat + pose + earth + consistency_notes(consistency) + list(est.notes)
     floor = why.split(f'; {FLOOR_REASON}', 1)
     if o.model == 'auto' and len(floor) == 2:   # the thermal family judged by the floor
         notes.append(f'auto, a thermal family judged {FLOOR_REASON}{floor[1]}')
@@ -287,7 +285,6 @@ def calibrate_windows(windows, options=None):
     fit_stats = dict(est.fit)
     fit_stats.update({
         'hold_consistency': consistency,
-        **({'misalignment_rule': misalignment} if misalignment else {}),
         'model_choice': _model_choice(name, why, report),
         'holds': cov['holds'], 'windows': cov['windows'],
         'distinct_orientations': ctx.n_orientations,
@@ -318,10 +315,6 @@ def calibrate_windows(windows, options=None):
     if pose:
         summary += (f' ({len(ids) - cov["holds"]} of {len(ids)} holds off the mounting pose by '
                     f'more than {MOUNTING_POSE_DEG:g} deg not used, see notes)')
-    if misalignment:
-        summary += (f', misalignment {", ".join(misalignment["terms"])} '
-                    + ('fixed at 0' if misalignment['applied'] else 'estimated as imu_tk does')
-                    + ' (the rule that fixes weak ones judged held out, see notes)')
     if consistency['left_out']:
         summary += (f', {len(consistency["left_out"])} holds left out of the accelerometer '
                     'fit (pose repeats that disagree, sensor-state epochs; held-out holds '

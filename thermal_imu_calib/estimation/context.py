@@ -3,9 +3,8 @@
 ``make_context`` builds the ``Context`` (windows, options, per-axis thermal inputs, the
 reference temperature, coverage); an estimator registered with ``register_estimator`` turns
 it into an ``Estimate``. ``ESTIMATOR_MODULES`` lists the modules that register further
-families when imported; ``AUTO_POLICY[0]`` picks the model for ``--model auto`` and
-``STANDARD_RULE_JUDGE[0]`` whether the standard fit fixes weakly determined misalignments
-(both replaced by ``selection``'s held-out validation).
+families when imported; ``AUTO_POLICY[0]`` picks the model for ``--model auto`` (replaced by
+``selection``'s held-out validation).
 """
 
 import dataclasses
@@ -42,9 +41,6 @@ class Context:
     #: bool mask of the windows the accelerometer is fitted on (None: all); the holds left
     #: out by ``hold_consistency`` stay in ``windows`` for the gyro and the pose changes
     accel_rows: Optional[np.ndarray] = None
-    #: the standard fit estimates every misalignment (imu_tk) instead of fixing the weakly
-    #: determined ones at 0; decided held out (``STANDARD_RULE_JUDGE``) before any fit
-    standard_free: bool = False
 
     def accel_view(self):
         """Return the Context of the accelerometer's windows (``accel_rows``), coverage redone."""
@@ -137,17 +133,6 @@ def auto_choice(ctx):
 
 #: the ``auto`` policy; replaceable (e.g. by held-out validation across families)
 AUTO_POLICY = [auto_choice]
-
-
-def _rule_stands(ctx):
-    """Return (standard_free, report): the misalignment rule stands until judged."""
-    return False, None
-
-
-#: ``fn(ctx) -> (standard_free, report or None)``: whether the standard fit estimates every
-#: misalignment (imu_tk) or fixes the weakly determined ones at 0, judged held out
-#: (``selection/static_select.judge_misalignment_rule``)
-STANDARD_RULE_JUDGE = [_rule_stands]
 
 
 def make_context(windows, options=None):

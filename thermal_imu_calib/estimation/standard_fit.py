@@ -91,8 +91,7 @@ def hold_weights(hold):
     return 1.0 / counts[inv]
 
 
-def fit_standard(raw, hold, gravity, temps=None, t0=None, bias_order=0, noise=None,
-                 free_misalignment=False):
+def fit_standard(raw, hold, gravity, temps=None, t0=None, bias_order=0, noise=None):
     """Fit the standard model to window means; return a ``StandardFit``.
 
     raw: (m, 3) mean raw specific force per window (m/s^2); hold: (m,) hold ids; gravity:
@@ -101,10 +100,6 @@ def fit_standard(raw, hold, gravity, temps=None, t0=None, bias_order=0, noise=No
     standard error of a
     hold's mean |a| (m/s^2; None: ``MIN_NOISE`` g), what decides which misalignments the
     holds determine (posterior/prior std ratio below ``DETERMINED_RATIO``).
-    free_misalignment: estimate all three misalignments, as imu_tk does, with no
-    posterior/prior rule; ``StandardFitError`` when the holds cannot determine them (the
-    solver does not converge, or the Jacobian is singular). Whether the rule or this
-    stands is judged held out (``selection/static_select.judge_misalignment_rule``).
     """
     raw = np.asarray(raw, float)
     m = len(raw)
@@ -160,7 +155,7 @@ def fit_standard(raw, hold, gravity, temps=None, t0=None, bias_order=0, noise=No
     prior = _prior_std(bias_order)
     cand = free.copy()
     cand[3:6] = True
-    while not free_misalignment:
+    while True:
         idx = np.flatnonzero(cand)
         ratio = posterior_ratio(jac(p)[:, idx], prior[idx], noise)
         mis = [k for k, i in enumerate(idx) if 3 <= i < 6]
@@ -296,14 +291,10 @@ def bias_order(ctx):
     return min(order, ctx.options.order)
 
 
-def fit_standard_context(ctx, rows=None, free=None):
+def fit_standard_context(ctx, rows=None):
     """Run ``fit_standard`` on the accelerometer windows of a ``calibrate.Context``.
 
     ``rows``: bool mask of the windows to fit (default all of ``ctx.accel_rows``).
-    ``free``: True, every misalignment estimated (``StandardFitError`` if the rows cannot
-    determine them); False, the posterior/prior rule fixes the weakly determined ones;
-    None, as ``ctx.standard_free`` decided (held out, ``STANDARD_RULE_JUDGE``), falling back
-    to the rule on rows that cannot determine them all (a training fold of few tilts).
     """
     w = ctx.windows
     m = np.ones(len(w), bool) if ctx.accel_rows is None else np.asarray(ctx.accel_rows, bool)
@@ -311,15 +302,9 @@ def fit_standard_context(ctx, rows=None, free=None):
         m = m & rows
     sub = w.select(m)
     order = bias_order(ctx)
-    args = (sub.accel, sub.hold, ctx.options.gravity, ctx.ta[m] if order else None, ctx.t0,
-            order)
-    noise = hold_noise(sub, ctx.options.gravity)
-    if free is None and ctx.standard_free:
-        try:
-            return fit_standard(*args, noise=noise, free_misalignment=True)
-        except StandardFitError:
-            pass
-    return fit_standard(*args, noise=noise, free_misalignment=bool(free))
+    return fit_standard(sub.accel, sub.hold, ctx.options.gravity,
+                        ctx.ta[m] if order else None, ctx.t0, order,
+                        noise=hold_noise(sub, ctx.options.gravity))
 
 
 def calibrated_magnitudes(ctx):

@@ -69,15 +69,12 @@ def _fit(ctx, name, train):
     """Return an accel model fitted on the ``train`` windows (None: it cannot be fitted).
 
     ``name`` is a family, optionally with a suffix after '-' (``standard-kept``: the same
-    family on other rows, see ``heldout_residuals``; ``standard-free`` / ``standard-fixed``:
-    the standard fit with every misalignment estimated / with the weakly determined ones
-    fixed at 0, see ``static_select.judge_misalignment_rule``).
+    family on other rows, see ``heldout_residuals``).
     """
-    family, _, suffix = name.partition('-')
+    family = name.split('-')[0]
     try:
-        if family == 'standard':   # -free / -fixed: the misalignment rule forced off / on
-            free = {'free': True, 'fixed': False}.get(suffix)
-            return fit_standard_context(ctx, train, free=free).model
+        if family == 'standard':
+            return fit_standard_context(ctx, train).model
         if family == 'field':
             sub = ctx.subset(train & (ctx.accel_rows if ctx.accel_rows is not None else True))
             check_faces_up_and_down(sub)

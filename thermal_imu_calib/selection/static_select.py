@@ -8,11 +8,6 @@ beyond it is a claim that held-out holds must support:
   state epochs): the standard fit with and without those holds is refitted on the training
   holds of each fold and scored on every held-out hold. The rule is applied only when
   leaving the holds out predicts them better, by more than the noise;
-* **the standard fit's own term rule** (misalignments the holds determine only weakly are
-  fixed at 0; ``judge_misalignment_rule``): the standard fit with them fixed and with them
-  estimated (imu_tk) are refitted on every fold and scored on every held-out hold; they are
-  fixed only when that predicts the held-out holds better by more than the noise, or when
-  the fit with them estimated cannot be made (on all holds or on a training fold);
 * **richer families** (seed 000 ``field``, seed 002 ``whole_unit``): refitted on the same
   folds and scored on the same held-out holds; one replaces the standard fit only when it
   predicts them better by more than the noise. Among several that do, the best.
@@ -35,8 +30,8 @@ import numpy as np
 from scipy.special import ndtri
 
 from ..estimation.calibrate import (AUTO_POLICY, check_faces_up_and_down, CalibrationRefused,
-                                    HOLD_RULE_JUDGE, STANDARD_RULE_JUDGE)
-from ..estimation.standard_fit import fit_standard_context, StandardFitError, weak_axes
+                                    HOLD_RULE_JUDGE)
+from ..estimation.standard_fit import weak_axes
 from ..collection.segments import face_of
 from .paired import (_fit, ALPHA, hold_magnitudes, hold_positions,  # noqa: F401
                      MIN_HELDOUT, paired_test)
@@ -147,65 +142,6 @@ def judge_rule(ctx, keep):
     return applied, rep
 
 
-def judge_misalignment_rule(ctx):
-    """Decide held out whether the standard fit fixes its weakly determined misalignments.
-
-    imu_tk estimates all three misalignments from whatever poses it gets. The standard fit's
-    posterior/prior rule (``standard_fit.fit_standard``) fixes at 0 each one the holds
-    determine only weakly; that picks terms, so like any rule it stands only when held-out
-    holds support it: the fit with them fixed must predict them better than the fit with
-    them estimated, by more than the noise (the paired test of ``judge_rule``), or the fit
-    with them estimated must fail (no convergence, or a singular Jacobian) on all holds or
-    on a training fold. Returns (estimate them all, report or None when the rule fixes
-    nothing).
-    """
-    if ctx.n_orientations < 2:
-        return False, None
-    try:
-        fixed = fit_standard_context(ctx, free=False)
-    except StandardFitError:
-        return False, None
-    if not fixed.undetermined:
-        return False, None
-    g = ctx.options.gravity
-    terms = ', '.join(fixed.undetermined)
-    head = (f'accelerometer misalignment {terms} only weakly determined by the holds '
-            '(posterior/prior std ratio > 0.5)')
-    limit = float(-ndtri(ALPHA))
-    rep = {'terms': list(fixed.undetermined), 'z_limit': limit, 'heldout_holds': 0,
-           'z': None, 'estimated_ug': None, 'fixed_ug': None, 'failed_folds': 0}
-    try:
-        fit_standard_context(ctx, free=True)
-    except StandardFitError as e:
-        rep.update(applied=True, text=f'{head}: with them estimated the fit cannot be made '
-                   f'({str(e).split(": ")[0]}): fixed at 0')
-        return False, rep
-    res, _ = heldout_residuals(ctx, ['standard-free', 'standard-fixed'])
-    free_r, fixed_r = res['standard-free'], res['standard-fixed']
-    failed = int(np.sum(np.isinf(free_r)))
-    z, n = paired_test(free_r, fixed_r)
-    applied = bool(failed or (np.isfinite(z) and z > limit))
-    rep.update(heldout_holds=n, z=z if np.isfinite(z) else None, failed_folds=failed,
-               estimated_ug=_rms(np.where(np.isinf(free_r), np.nan, free_r)) / g * 1e6,
-               fixed_ug=_rms(fixed_r) / g * 1e6, applied=applied)
-    figures = (f'estimated {rep["estimated_ug"]:.1f} ug, fixed {rep["fixed_ug"]:.1f} ug'
-               + (f'; paired z {z:.2f}, limit {limit:.2f}' if np.isfinite(z) else ''))
-    if failed:
-        why = (f'with them estimated the fit cannot be made on the training holds of {failed} '
-               f'held-out holds ({figures}): fixed at 0')
-    elif n < MIN_HELDOUT:
-        why = (f'{n} holds can be held out (< {MIN_HELDOUT}): no evidence for fixing them, '
-               'so they are estimated, as imu_tk does')
-    elif applied:
-        why = (f'fixing them at 0 predicts the {n} held-out holds better by more than the '
-               f'noise ({figures}): fixed at 0')
-    else:
-        why = (f'fixing them at 0 does not predict the {n} held-out holds better by more '
-               f'than the noise ({figures}): estimated, as imu_tk does')
-    rep['text'] = f'{head}: {why}'
-    return not applied, rep
-
-
 def select_static(ctx, candidates=('field', 'whole_unit')):
     """Return (model name, reason, table): the standard fit unless a candidate wins held out."""
     g = ctx.options.gravity
@@ -281,4 +217,3 @@ def auto_policy(ctx):
 
 AUTO_POLICY[0] = auto_policy
 HOLD_RULE_JUDGE[0] = judge_rule
-STANDARD_RULE_JUDGE[0] = judge_misalignment_rule
