@@ -14,6 +14,7 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from thermal_imu_calib.calibration import Calibration, TemperatureInput
+from thermal_imu_calib.io.imu_units import ACCEL_WINDOW
 from thermal_imu_calib.models.field import FieldPolynomialModel
 from thermal_imu_calib.models.polynomial import OffsetPolynomialModel
 from thermal_imu_calib.nodes import common
@@ -693,3 +694,48 @@ def test_no_imu_input_is_named_in_a_warning_with_the_imu_topics_on_the_graph(
     text = next(t for k, t in warned if k == 'silent_imu')
     assert text.startswith('no IMU message on /imu/data_raw (1 publishers) after 0.2 s; '
                            'sensor_msgs/Imu topics on the graph: /imu/data'), text
+
+
+def test_imu_input_in_g_or_deg_per_s_is_named_in_a_warning_and_the_diagnostics(ros, tmp_path):
+    # a driver publishing g (and, later, a turn in deg/s): every output sample is wrong;
+    # the node keeps compensating but says why, once per sensor, and in /diagnostics
+    cal = make_cal()
+    rig = Rig(ros, calibration_file=str(cal.save(tmp_path / 'cal.yaml')))
+    warned = []
+    rig.node._warn_once = lambda key, text: warned.append((key, text))
+    rig.temperature(25.0)
+    in_g = tuple(v / 9.80665 for v in ACCEL)
+    rig.send(ACCEL_WINDOW - 1, accel=in_g)
+    rig.receive(ACCEL_WINDOW - 1)
+    assert not [k for k, _ in warned if k.startswith('unit_')]   # not yet a window's worth
+    rig.send(1, accel=in_g)
+    rig.receive(ACCEL_WINDOW)
+    texts = dict(warned)
+    assert 'its values look in g' in texts['unit_accel'], warned
+    assert texts['unit_accel'].endswith('Every output sample is wrong until the driver '
+                                        'publishes SI units: compensating anyway')
+    st, values = rig.diagnostics()
+    assert st.level == common.WARN and st.message.startswith('IMU input not in SI units: '
+                                                             'the accelerometer reads')
+    assert float(values['accel_median_over_g']) == pytest.approx(
+        np.linalg.norm(ACCEL) / 9.80665 ** 2, rel=1e-5)
+    rig.send(12, gyro=(0.0, 0.0, 180.0))       # pi rad/s published in deg/s
+    rig.receive(ACCEL_WINDOW + 12)
+    wait_for(lambda: 'unit_gyro' in dict(warned), WAIT, 'the deg/s warning')
+    assert 'the gyro values look in deg/s' in dict(warned)['unit_gyro']
+    st, values = rig.diagnostics()
+    assert int(values['gyro_deg_per_s_samples']) == 12 and 'deg/s' in st.message
+    assert rig.node.counts['compensated'] == ACCEL_WINDOW + 12
+
+
+def test_imu_input_in_si_units_raises_no_unit_warning(ros, tmp_path):
+    cal = make_cal()
+    rig = Rig(ros, calibration_file=str(cal.save(tmp_path / 'cal.yaml')))
+    rig.temperature(25.0)
+    rig.send(ACCEL_WINDOW + 10, gyro=(0.0, 0.0, 20.0))    # a fast spin in rad/s
+    rig.receive(ACCEL_WINDOW + 10)
+    st, values = rig.diagnostics()
+    assert float(values['accel_median_over_g']) == pytest.approx(
+        np.linalg.norm(ACCEL) / 9.80665, rel=1e-5)   # diagnostics print 6 digits
+    assert int(values['gyro_deg_per_s_samples']) == 0 and 'SI units' not in st.message
+    assert not [k for k in rig.node._warned if k.startswith('unit_')]

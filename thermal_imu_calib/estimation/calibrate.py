@@ -22,6 +22,7 @@ from ..calibration import Calibration
 from ..collection.segments import (coverage, distinct_orientations, FACE_NAMES,
                                    MOUNTING_POSE_DEG, mounting_pose_mask)
 from ..input_units import is_temperature
+from ..io.imu_units import accel_unit_problem
 from .allan import window_noise
 from .builtin_estimators import (_gyro_bias, check_faces_up_and_down,  # noqa: F401
                                  DEFAULT_GYRO, estimate_field, estimate_offset,
@@ -84,11 +85,6 @@ def readiness(windows, model='auto', min_holds=1):
             'next_pose': least, 'coverage': cov}
 
 
-#: |a| at rest over gravity that any accelerometer in m/s^2 reads (the calibration loader's
-#: scale-factor bounds, ``calibration.plausible``); outside it the unit is wrong
-ACCEL_AT_REST = (0.25, 4.0)
-
-
 def _check_accel_units(means, gravity):
     """Refuse holds whose accelerations are not in m/s^2 (g, milli-g, raw counts).
 
@@ -97,20 +93,12 @@ def _check_accel_units(means, gravity):
     of it, milli-g about 100, raw counts thousands. Calibrated anyway, a several-orientation
     fit ended at "the accel model is implausible ... a coefficient is corrupt", and a
     one-orientation drift model was written in the wrong unit. Every path (CLI, node,
-    fleet) refuses such holds here, naming the likely unit.
+    fleet) refuses such holds here, naming the likely unit (``io.imu_units``, which the
+    compensator's warning shares).
     """
-    at_rest = float(np.median(np.linalg.norm(means, axis=1)))
-    r = at_rest / gravity
-    if ACCEL_AT_REST[0] <= r <= ACCEL_AT_REST[1]:
-        return
-    unit = ('in g' if 0.08 <= r <= 0.13 else 'in milli-g' if 80 <= r <= 130 else
-            'in raw counts or another unit')
-    raise CalibrationRefused(
-        f'the accelerometer reads |a| = {at_rest:.4g} at rest, {r:.3g} times gravity '
-        f'({gravity:.6g} m/s^2): its values look {unit}, while sensor_msgs/Imu '
-        'linear_acceleration is in m/s^2 (REP 145)',
-        'publish the IMU in m/s^2 (for g, multiply by 9.80665; check the driver\'s scale or '
-        'unit parameters), then record or replay again')
+    problem = accel_unit_problem(float(np.median(np.linalg.norm(means, axis=1))), gravity)
+    if problem:
+        raise CalibrationRefused(problem[0], problem[1] + ', then record or replay again')
 
 
 #: a pose change counts for the gyro's unit when gravity turned by more than this (rad)

@@ -40,6 +40,7 @@ from ..calibration import Calibration, CalibrationError
 from ..collection.feed import DEFAULT_MAX_GAP_S
 from ..collection.outliers import ImuSpikeFilter
 from ..io.columns import AlignedChunk, ImuColumns
+from ..io.imu_units import STANDARD_GRAVITY, UnitWatch
 from ..thermal_input import CalibrationStream
 
 NODE_NAME = 'thermal_imu_compensator'
@@ -159,6 +160,7 @@ class CompensatorNode(Node):
                                      state_gap, self.get_logger(),
                                      self.get_fully_qualified_name())
         self._last_stamp_ns = None
+        self._units_seen = UnitWatch(STANDARD_GRAVITY)   # g, milli-g, counts, deg/s in
         self._rate = common.RateMeter()
         self._warned = set()
         self._started = time.monotonic()
@@ -394,6 +396,7 @@ class CompensatorNode(Node):
         self._last_stamp_ns = int(stamps[-1])
         send = np.isfinite(accel).all(1) & np.isfinite(gyro).all(1)  # rows to publish
         c['invalid'] += n - int(send.sum())
+        self._check_units(accel, gyro)
         if active is None:
             if self.passthrough_uncalibrated:
                 c['passthrough'] += self._publish(msgs, send)
@@ -453,6 +456,13 @@ class CompensatorNode(Node):
             comp[sel] = True
         c['passthrough'] += int((send & ~comp).sum())
         self._publish(msgs, send)
+
+    def _check_units(self, accel, gyro):
+        """Watch the input for values not in m/s^2 and rad/s; warn once per sensor."""
+        self._units_seen.push(accel, gyro)
+        for sensor, text in self._units_seen.problems().items():
+            self._warn_once(f'unit_{sensor}', f'{text}. Every output sample is wrong until '
+                            'the driver publishes SI units: compensating anyway')
 
     def _publish(self, msgs, send):
         count = 0
@@ -523,6 +533,11 @@ class CompensatorNode(Node):
             values['spikes_replaced'] = self._gate.counts()['rejected_total']
         values['last_rejection'] = self.last_rejection
         level, msg = common.OK, 'compensating'
+        seen = self._units_seen
+        values['accel_median_over_g'] = (math.nan if seen.accel_ratio is None
+                                         else seen.accel_ratio)
+        values['gyro_deg_per_s_samples'] = seen.gyro_unit
+        wrong = seen.problems()
         if self.units is not None:
             values.update(self.units.diagnostics())
             values['last_rejection'] = self.units.last_rejection or self.last_rejection
@@ -539,6 +554,10 @@ class CompensatorNode(Node):
             level, msg = common.WARN, f'temperature stale or missing ({self.on_missing})'
         elif rate == 0.0:
             level, msg = common.WARN, 'no IMU input'
+        if wrong:    # it outranks the other warnings: every output sample is wrong
+            level = common.WARN
+            msg = 'IMU input not in SI units: ' + '; '.join(
+                t.split(', while')[0] for t in wrong.values())
         return level, msg, values
 
     def _publish_diagnostics(self):
