@@ -14,7 +14,10 @@ The noisy log is calibrated with default options (``thermal-imu-calib calibrate 
 --imu-topic /imu --gravity G``, as ``scoreboard.py``); the calibration is then applied to
 the **original** samples and scored as the scoreboard scores them: static | |mean a| - g |
 RMS (ug) over the recording's scored intervals. So the figure is what the noise did to the
-parameters, not the noise itself. Writes ``bench/results/noisier_imu.json``.
+parameters, not the noise itself. Beside it, the floor: imu_tk's 9-parameter fit
+(``imutk_reference.fit_standard``) to the noisy log's means over the scored intervals, in
+sample as the scoreboard's standard-fit column, scored on the original's means (not for
+Ferraris: 6 intervals < 9 parameters). Writes ``bench/results/noisier_imu.json``.
 """
 
 import argparse
@@ -30,6 +33,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 sys.path.insert(0, os.path.dirname(HERE))
 
+import imutk_reference as ref  # noqa: E402
 import real_recordings as rr  # noqa: E402
 import scoreboard as sb  # noqa: E402
 from thermal_imu_calib.io.bag_writer import write_columns  # noqa: E402
@@ -62,8 +66,15 @@ def run(rec, level, seed, work):
     s = sb.summary_of(off['yaml'])
     rms, worst = sb.interval_score(sb.calibrated_accel(off['yaml'], imu), rec.intervals,
                                    rec.gravity)
+    # the floor: imu_tk's 9-parameter fit to the noisy log's interval means (in-sample on
+    # the scored intervals, as the scoreboard's column), scored on the original's
+    std = None
+    if len(rec.intervals) > 9:
+        p, _ = ref.fit_standard(ref.interval_means(noisy.accel, rec.intervals), rec.gravity)
+        std = float(ref.static_rms_ug(ref.apply_params(
+            p, ref.interval_means(imu.accel, rec.intervals)), rec.gravity)[0])
     row.update(holds=s['holds'], auto=s['auto'], accel_kind=s['accel_kind'],
-               score_ug=float(rms), max_ug=float(worst),
+               score_ug=float(rms), max_ug=float(worst), standard_fit_ug=std,
                undetermined=_undetermined(off['yaml']))
     return row
 
@@ -95,8 +106,11 @@ def main(argv=None):
             for seed in a.seeds:
                 row = run(rec, level, seed, work)
                 rows.append(row)
+                std = row.get('standard_fit_ug')
                 print(f"{rec.name:18s} x{level:<4g} seed {seed}  " + (
                     f"{row['holds']:3d} holds  {row['auto']:10s} {row['score_ug']:8.1f} ug"
+                    + (f"  standard fit {std:8.1f} ug  x{row['score_ug'] / std:.2f}"
+                       if std else '')
                     if not row['rc'] else f"refused: {row['refusal']}"), flush=True)
     with open(a.out, 'w') as f:
         json.dump({'command': ' '.join(['bench/noisier_imu.py'] + (argv or sys.argv[1:])),
