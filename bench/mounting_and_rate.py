@@ -25,7 +25,6 @@ applied as ``scoreboard.py`` applies it. Writes ``bench/results/mounting_and_rat
 """
 
 import argparse
-import json
 import os
 import sys
 import tempfile
@@ -37,8 +36,7 @@ sys.path.insert(0, HERE)
 sys.path.insert(0, os.path.dirname(HERE))
 
 import real_recordings as rr  # noqa: E402
-import scoreboard as sb  # noqa: E402
-from thermal_imu_calib.io.bag_writer import write_columns  # noqa: E402
+import variants as vb  # noqa: E402
 from thermal_imu_calib.io.columns import ImuColumns  # noqa: E402
 
 VARIANTS = ('as is', 'rotated 1', 'rotated 2', 'half rate (mean of 2)', 'every 2nd sample')
@@ -66,19 +64,9 @@ def run(rec, name, work):
     imu, _ = rr.read_log(rec.log, rec.imu_topic)
     im, intervals = variant(imu, rec.intervals, name)
     slug = ''.join(c if c.isalnum() else '_' for c in name).strip('_')
-    log = os.path.join(work, f'{rec.name}_{slug}.mcap')
-    write_columns(log, '/imu', im, {}, overwrite=True)
-    off = sb.offline(log, rr.Recording(rec.name, log, '/imu', rec.gravity, rec.kind),
-                     log + '.yaml')
-    row = {'recording': rec.name, 'variant': name, 'rc': off['rc']}
-    if off['rc']:
-        row['refusal'] = off['last_lines'][-1] if off['last_lines'] else ''
-        return row
-    s = sb.summary_of(off['yaml'])
-    rms, worst = sb.interval_score(sb.calibrated_accel(off['yaml'], im), intervals,
-                                   rec.gravity)
-    row.update(holds=s['holds'], auto=s['auto'], accel_kind=s['accel_kind'],
-               score_ug=float(rms), max_ug=float(worst))
+    row = vb.calibrate_variant(rec, im, os.path.join(work, f'{rec.name}_{slug}.mcap'), im,
+                               intervals, {'recording': rec.name, 'variant': name})
+    row.pop('yaml', None)
     return row
 
 
@@ -90,9 +78,7 @@ def main(argv=None):
     work = a.work or tempfile.mkdtemp(prefix='mounting_and_rate_')
     os.makedirs(work, exist_ok=True)
     rows = []
-    for rec in rr.all_recordings(os.path.join(work, 'logs')):
-        if rec.kind != 'multi' or rec.name.endswith('rosbag2'):
-            continue
+    for rec in vb.multi_pose(work):
         base = None
         for name in VARIANTS:
             row = run(rec, name, work)
@@ -100,14 +86,8 @@ def main(argv=None):
             if base and row.get('score_ug'):
                 row['ratio'] = row['score_ug'] / base
             rows.append(row)
-            print(f"{rec.name:18s} {name:22s} " + (
-                f"{row['holds']:3d} holds  {row['auto']:10s} {row['score_ug']:8.1f} ug"
-                f"  x{row.get('ratio', 1.0):.2f}" if not row['rc'] else
-                f"refused: {row['refusal']}"), flush=True)
-    with open(a.out, 'w') as f:
-        json.dump({'command': ' '.join(['bench/mounting_and_rate.py'] + (argv or sys.argv[1:])),
-                   'rows': rows}, f, indent=1)
-    print(f'wrote {a.out}')
+            print(vb.line(rec, name, row, f"  x{row.get('ratio', 1.0):.2f}"), flush=True)
+    vb.write_rows(a.out, 'mounting_and_rate.py', argv, rows)
     return 0
 
 

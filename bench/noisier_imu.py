@@ -21,7 +21,6 @@ Ferraris: 6 intervals < 9 parameters). Writes ``bench/results/noisier_imu.json``
 """
 
 import argparse
-import json
 import os
 import sys
 import tempfile
@@ -35,8 +34,7 @@ sys.path.insert(0, os.path.dirname(HERE))
 
 import imutk_reference as ref  # noqa: E402
 import real_recordings as rr  # noqa: E402
-import scoreboard as sb  # noqa: E402
-from thermal_imu_calib.io.bag_writer import write_columns  # noqa: E402
+import variants as vb  # noqa: E402
 from thermal_imu_calib.io.columns import ImuColumns  # noqa: E402
 
 
@@ -55,17 +53,11 @@ def run(rec, level, seed, work):
     noisy = ImuColumns(imu.stamp_ns, imu.accel + rng.normal(0.0, add, imu.accel.shape),
                        imu.gyro, imu.frame_id)
     log = os.path.join(work, f'{rec.name}_x{level:g}_s{seed}.mcap')
-    write_columns(log, '/imu', noisy, {}, overwrite=True)
-    off = sb.offline(log, rr.Recording(rec.name, log, '/imu', rec.gravity, rec.kind),
-                     log + '.yaml')
-    row = {'recording': rec.name, 'level': level, 'seed': seed, 'rc': off['rc'],
-           'native_noise_mps2': sigma, 'added_noise_mps2': add}
-    if off['rc']:
-        row['refusal'] = off['last_lines'][-1] if off['last_lines'] else ''
+    row = vb.calibrate_variant(rec, noisy, log, imu, rec.intervals,
+                               {'recording': rec.name, 'level': level, 'seed': seed,
+                                'native_noise_mps2': sigma, 'added_noise_mps2': add})
+    if row['rc']:
         return row
-    s = sb.summary_of(off['yaml'])
-    rms, worst = sb.interval_score(sb.calibrated_accel(off['yaml'], imu), rec.intervals,
-                                   rec.gravity)
     # the floor: imu_tk's 9-parameter fit to the noisy log's interval means (in-sample on
     # the scored intervals, as the scoreboard's column), scored on the original's
     std = None
@@ -73,9 +65,7 @@ def run(rec, level, seed, work):
         p, _ = ref.fit_standard(ref.interval_means(noisy.accel, rec.intervals), rec.gravity)
         std = float(ref.static_rms_ug(ref.apply_params(
             p, ref.interval_means(imu.accel, rec.intervals)), rec.gravity)[0])
-    row.update(holds=s['holds'], auto=s['auto'], accel_kind=s['accel_kind'],
-               score_ug=float(rms), max_ug=float(worst), standard_fit_ug=std,
-               undetermined=_undetermined(off['yaml']))
+    row.update(standard_fit_ug=std, undetermined=_undetermined(row.pop('yaml')))
     return row
 
 
@@ -97,9 +87,7 @@ def main(argv=None):
     work = a.work or tempfile.mkdtemp(prefix='noisier_imu_')
     os.makedirs(work, exist_ok=True)
     rows = []
-    for rec in rr.all_recordings(os.path.join(work, 'logs')):
-        if rec.kind != 'multi' or rec.name.endswith('rosbag2'):
-            continue
+    for rec in vb.multi_pose(work):
         if a.only and rec.name not in a.only:
             continue
         for level in a.levels:
@@ -107,15 +95,10 @@ def main(argv=None):
                 row = run(rec, level, seed, work)
                 rows.append(row)
                 std = row.get('standard_fit_ug')
-                print(f"{rec.name:18s} x{level:<4g} seed {seed}  " + (
-                    f"{row['holds']:3d} holds  {row['auto']:10s} {row['score_ug']:8.1f} ug"
-                    + (f"  standard fit {std:8.1f} ug  x{row['score_ug'] / std:.2f}"
-                       if std else '')
-                    if not row['rc'] else f"refused: {row['refusal']}"), flush=True)
-    with open(a.out, 'w') as f:
-        json.dump({'command': ' '.join(['bench/noisier_imu.py'] + (argv or sys.argv[1:])),
-                   'rows': rows}, f, indent=1)
-    print(f'wrote {a.out}')
+                print(vb.line(rec, f'x{level:<4g} seed {seed}', row,
+                              f"  standard fit {std:8.1f} ug  x{row['score_ug'] / std:.2f}"
+                              if std else ''), flush=True)
+    vb.write_rows(a.out, 'noisier_imu.py', argv, rows)
     return 0
 
 
