@@ -77,20 +77,22 @@ def _latest(registry, unit):
 def test_local_cluster_equals_calibrate(fleet, tmp_path, capsys):
     registry = str(tmp_path / 'reg')
     manifest = tmp_path / 'logs.txt'
-    manifest.write_text('# two units by glob, the rest by directory\n'
+    # half the fleet (the other tests cover the rest): every unit's logs give one row
+    units = [f'u{i:02d}' for i in range(DESIGN.units // 2)]
+    manifest.write_text('# two units by glob, the others by directory\n'
                         f'{fleet}/u0[01]/*.mcap\n' + ''.join(
-                            f'{fleet}/u{i:02d}\n' for i in range(2, DESIGN.units)))
+                            f'{fleet}/{u}\n' for u in units[2:]))
     assert cli.main(['fleet', 'calibrate', str(manifest), '--workers', '2',
                      '-o', registry]) == 0
     out = capsys.readouterr()
     assert 'dashboard http://' in out.err
     rows = reg.read_index(registry)
-    assert sorted(r['sensor'] for r in rows) == [f'u{i:02d}' for i in range(DESIGN.units)]
+    assert sorted(r['sensor'] for r in rows) == units
     for r in rows:
         assert int(r['logs']) == DESIGN.logs_per_unit
         assert float(r['accel.alarm_b0.x_std']) > 0 and float(r['temp_max']) > float(r['temp_min'])
         assert r['time'] > r['valid_from']
-    for unit in ('u00', 'u03', 'u07'):
+    for unit in ('u00', 'u02'):     # by glob, by directory (references shared with others)
         assert _plain(_latest(registry, unit)) == _plain(_reference(fleet, unit, tmp_path))
 
 
