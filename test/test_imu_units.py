@@ -28,7 +28,7 @@ def test_an_accelerometer_not_in_m_per_s2_is_named(scale, unit):
     assert w.accel_ratio is None and w.problems() == {}     # not yet a window's worth
     w.push(a[ACCEL_WINDOW - 1:], g[ACCEL_WINDOW - 1:])
     assert w.accel_ratio == pytest.approx(scale, rel=0.05)
-    text = w.problems()['accel']
+    text = ', '.join(w.problems()['accel'])
     assert f'its values look {unit}' in text and 'publish the IMU in m/s^2' in text
     assert f'(median of {ACCEL_WINDOW} samples)' in text
     assert set(w.problems()) == {'accel'}
@@ -51,7 +51,7 @@ def test_a_gyro_in_deg_per_s_is_named_after_ten_samples():
     assert w.gyro_unit == 9 and w.problems() == {}
     w.push(a[59:], g[59:])
     assert w.gyro_unit == 20
-    text = w.problems()['gyro']
+    text = ', '.join(w.problems()['gyro'])
     assert 'the gyro values look in deg/s' in text and 'record or replay' not in text
 
 

@@ -98,7 +98,8 @@ def _check_accel_units(means, gravity):
     """
     problem = accel_unit_problem(float(np.median(np.linalg.norm(means, axis=1))), gravity)
     if problem:
-        raise CalibrationRefused(problem[0], problem[1] + ', then record or replay again')
+        seen, rule, fix = problem
+        raise CalibrationRefused(f'{seen}, {rule}', f'{fix}, then record or replay again')
 
 
 #: a pose change counts for the gyro's unit when gravity turned by more than this (rad)

@@ -33,9 +33,9 @@ from typing import Dict, Tuple
 
 import numpy as np
 
+from ..gravity import STANDARD_GRAVITY
 from .columns import ImuColumns
 
-STANDARD_GRAVITY = 9.80665
 DEG = math.pi / 180.0
 #: sample rate of imucal's example_ferraris_session.csv: 10376 samples in ~101 s, and the
 #: three rotation sections integrate to ~360 deg only at this rate (imucal's example script

@@ -31,6 +31,9 @@ GYRO_LIMIT = 100.0
 GYRO_DEG_RANGE = 5000.0
 #: so many such samples mean the gyro is in deg/s, not a glitch
 GYRO_UNIT_ROWS = 10
+#: what to do about a gyro in deg/s (``gyro_unit_problem``)
+GYRO_UNIT_FIX = ("publish the IMU in rad/s (for deg/s, multiply by pi/180 = 0.0174533; check "
+                 "the driver's unit parameters)")
 
 
 def gyro_unit_rows(accel, gyro):
@@ -47,14 +50,23 @@ def gyro_unit_rows(accel, gyro):
                 & (w > GYRO_LIMIT) & (w <= GYRO_DEG_RANGE))
 
 
-def gyro_unit_text(n):
-    """Return why ``n`` ``gyro_unit_rows`` refuse a collection, and what to do."""
+def gyro_unit_problem(n):
+    """Return None, or (what was seen, the rule it breaks, what to do) for ``n`` such rows.
+
+    ``n``: ``gyro_unit_rows`` counted; fewer than ``GYRO_UNIT_ROWS`` is no problem.
+    """
+    if n < GYRO_UNIT_ROWS:
+        return None
     return (f'{n} IMU samples read |w| above {GYRO_LIMIT:g} rad/s '
             f'({np.degrees(GYRO_LIMIT):.0f} deg/s, beyond any gyroscope) while the '
-            'accelerometer was in range: the gyro values look in deg/s, while sensor_msgs/Imu '
-            'angular_velocity is in rad/s (REP 145). Publish the IMU in rad/s (for deg/s, '
-            "multiply by pi/180 = 0.0174533; check the driver's unit parameters), then record "
-            'or replay again')
+            'accelerometer was in range: the gyro values look in deg/s',
+            'while sensor_msgs/Imu angular_velocity is in rad/s (REP 145)', GYRO_UNIT_FIX)
+
+
+def unit_refusal(problem):
+    """Return the one-line refusal of a (seen, rule, fix) unit problem of a recording."""
+    seen, rule, fix = problem
+    return f'{seen}, {rule}. {fix[:1].upper()}{fix[1:]}, then record or replay again'
 
 
 @dataclass
@@ -369,8 +381,9 @@ def check_report(path, r, max_gap_s=5.0):
         raise LogError(f'{path}: {r.imu_stamp_not_increasing} of {r.imu_in} IMU header stamps '
                        'do not increase (duplicated or running backwards); the stamps are '
                        'broken: fix the driver\'s clock or re-record')
-    if r.imu_gyro_unit >= GYRO_UNIT_ROWS:
-        raise LogError(f'{path}: {gyro_unit_text(r.imu_gyro_unit)}')
+    gyro_unit = gyro_unit_problem(r.imu_gyro_unit)
+    if gyro_unit:
+        raise LogError(f'{path}: {unit_refusal(gyro_unit)}')
     if r.imu_dropped == r.imu_in:
         units = ('; values this large are raw counts or another unit: sensor_msgs/Imu is in '
                  'm/s^2 and rad/s (REP 145), so convert in the driver and record again'

@@ -10,26 +10,28 @@ compensator cannot refuse a stream, so ``UnitWatch`` watches it and says what is
   wrong (0.10: g, about 100: milli-g, far more: counts);
 * gyro: ``gate.gyro_unit_rows`` (|w| beyond any gyroscope in rad/s, as much as a hand
   turns in deg/s, with the accelerometer in range), ``GYRO_UNIT_ROWS`` of them.
+
+Each problem is (what was seen, the rule it breaks, what to do); ``gate.unit_refusal``
+makes a recording's refusal of it, the compensator its warning.
 """
 
 import numpy as np
 
-from .gate import GYRO_UNIT_ROWS, gyro_unit_rows, gyro_unit_text
+from ..gravity import STANDARD_GRAVITY  # noqa: F401 (the compensator's reference)
+from .gate import gyro_unit_problem, gyro_unit_rows
 
 #: range of |a| / g at rest in which the accelerometer is taken to be in m/s^2 (the loader's
 #: scale-factor bounds, ``calibration.plausible``); outside it the unit is wrong
 ACCEL_AT_REST = (0.25, 4.0)
 #: samples whose median |a| the compensator compares with gravity (a few seconds)
 ACCEL_WINDOW = 500
-#: m/s^2, what ``UnitWatch`` compares with when no site gravity is known (the ratio's
-#: bounds are wide: any site's gravity gives the same verdict)
-STANDARD_GRAVITY = 9.80665
 
 
 def accel_unit_problem(at_rest, gravity, where='at rest'):
-    """Return None, or (what is wrong, what to do) for a median |a| ``at_rest`` (m/s^2).
+    """Return None, or (what was seen, the rule it breaks, what to do) for a median |a|.
 
-    ``where``: how |a| was taken, for the text ('at rest': over still holds).
+    ``at_rest``: the median |a| (m/s^2); ``where``: how it was taken, for the text ('at
+    rest': over still holds).
     """
     r = at_rest / gravity
     if ACCEL_AT_REST[0] <= r <= ACCEL_AT_REST[1]:
@@ -37,8 +39,8 @@ def accel_unit_problem(at_rest, gravity, where='at rest'):
     unit = ('in g' if 0.08 <= r <= 0.13 else 'in milli-g' if 80 <= r <= 130 else
             'in raw counts or another unit')
     return (f'the accelerometer reads |a| = {at_rest:.4g} {where}, {r:.3g} times gravity '
-            f'({gravity:.6g} m/s^2): its values look {unit}, while sensor_msgs/Imu '
-            'linear_acceleration is in m/s^2 (REP 145)',
+            f'({gravity:.6g} m/s^2): its values look {unit}',
+            'while sensor_msgs/Imu linear_acceleration is in m/s^2 (REP 145)',
             'publish the IMU in m/s^2 (for g, multiply by 9.80665; check the driver\'s scale '
             'or unit parameters)')
 
@@ -68,14 +70,9 @@ class UnitWatch:
         self._norms = norms[full * self.window:]
 
     def problems(self):
-        """Return {'accel' / 'gyro': text} for what looks not in SI (empty: nothing seen)."""
-        out = {}
-        if self.accel_ratio is not None:
-            p = accel_unit_problem(self.accel_ratio * self.gravity, self.gravity,
-                                   f'(median of {self.window} samples)')
-            if p:
-                out['accel'] = f'{p[0]}: {p[1]}'
-        if self.gyro_unit >= GYRO_UNIT_ROWS:
-            out['gyro'] = gyro_unit_text(self.gyro_unit).replace(
-                ', then record or replay again', '')
-        return out
+        """Return {'accel' / 'gyro': (seen, rule, fix)} for what looks not in SI (or {})."""
+        out = {'accel': None if self.accel_ratio is None else accel_unit_problem(
+                   self.accel_ratio * self.gravity, self.gravity,
+                   f'(median of {self.window} samples)'),
+               'gyro': gyro_unit_problem(self.gyro_unit)}
+        return {k: v for k, v in out.items() if v}

@@ -45,7 +45,7 @@ from ..app import calibrate as app
 from ..calibration import CalibrationError
 from ..collection.segments import FACE_NAMES, Windows
 from ..estimation.calibrate import CalibrationRefused
-from ..io.gate import GYRO_UNIT_ROWS, gyro_unit_text
+from ..io.gate import gyro_unit_problem, unit_refusal
 
 NODE_NAME = 'thermal_imu_calibrator'
 #: what ``_write`` says when calibration_file is empty (the node is set up not to write)
@@ -134,9 +134,10 @@ class CalibratorNode(LiveCollection, Node):
                                 'its result')
             return response
         try:
-            if self._rows.gyro_unit >= GYRO_UNIT_ROWS:    # as calibrate's input gate refuses
+            gyro_unit = gyro_unit_problem(self._rows.gyro_unit)   # as calibrate's gate refuses
+            if gyro_unit:
                 response.success = False
-                response.message = f'refused: {gyro_unit_text(self._rows.gyro_unit)}'
+                response.message = f'refused: {unit_refusal(gyro_unit)}'
                 return response
             self._busy_since = time.monotonic()
             response.success, response.message = await self._on_worker(

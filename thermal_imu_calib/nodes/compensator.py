@@ -460,9 +460,9 @@ class CompensatorNode(Node):
     def _check_units(self, accel, gyro):
         """Watch the input for values not in m/s^2 and rad/s; warn once per sensor."""
         self._units_seen.push(accel, gyro)
-        for sensor, text in self._units_seen.problems().items():
-            self._warn_once(f'unit_{sensor}', f'{text}. Every output sample is wrong until '
-                            'the driver publishes SI units: compensating anyway')
+        for sensor, (seen, rule, fix) in self._units_seen.problems().items():
+            self._warn_once(f'unit_{sensor}', f'{seen}, {rule}: {fix}. Every output sample is '
+                            'wrong until the driver publishes SI units: compensating anyway')
 
     def _publish(self, msgs, send):
         count = 0
@@ -556,8 +556,7 @@ class CompensatorNode(Node):
             level, msg = common.WARN, 'no IMU input'
         if wrong:    # it outranks the other warnings: every output sample is wrong
             level = common.WARN
-            msg = 'IMU input not in SI units: ' + '; '.join(
-                t.split(', while')[0] for t in wrong.values())
+            msg = 'IMU input not in SI units: ' + '; '.join(seen for seen, _, _ in wrong.values())
         return level, msg, values
 
     def _publish_diagnostics(self):
