@@ -10,6 +10,10 @@ export AMENT_PREFIX_PATH := $(abspath $(VENV))
 export PATH := $(abspath $(VENV))/bin:$(PATH)
 export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 export PYTHONDONTWRITEBYTECODE := 1
+# pytest-xdist workers for `make test` (each file on one worker, a ROS domain and a
+# temporary folder per worker: test/conftest.py); TEST_WORKERS=0 runs in one process
+TEST_WORKERS ?= 2
+TEST_ARGS := -q -n $(TEST_WORKERS) --dist loadfile
 
 .PHONY: install demo test test-latest lock lint bench colcon-check clean
 
@@ -45,13 +49,13 @@ test-latest:
 	@$(LATEST)/bin/python -m pip freeze --exclude-editable > $(LATEST)/versions.txt
 	@echo "versions: $(LATEST)/versions.txt"; grep -iE '^(numpy|scipy|scikit-learn|rosbags|mcap)==' $(LATEST)/versions.txt
 	@AMENT_PREFIX_PATH=$(abspath $(LATEST)) PATH=$(abspath $(LATEST))/bin:$$PATH \
-	  ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-$$(( 20 + $$$$ % 80 ))} $(LATEST)/bin/python -m pytest -q test
+	  ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-$$(( 20 + $$$$ % 80 ))} $(LATEST)/bin/python -m pytest $(TEST_ARGS) test
 
 demo: install
 	@$(PY) scripts/demo.py
 
 test: install
-	@ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-$$(( 20 + $$$$ % 80 ))} $(PY) -m pytest -q test
+	@ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-$$(( 20 + $$$$ % 80 ))} $(PY) -m pytest $(TEST_ARGS) test
 
 lint: install
 	@$(PY) -m pytest -q test/test_flake8.py test/test_pep257.py

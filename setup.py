@@ -31,7 +31,8 @@ setup(
         'zlib-ng>=0.5',
     ],
     extras_require={
-        'test': ['pytest>=7', 'flake8>=6', 'pydocstyle>=6', 'hypothesis>=6.80'],
+        'test': ['pytest>=7', 'pytest-xdist>=3.5', 'flake8>=6', 'pydocstyle>=6',
+                 'hypothesis>=6.80'],
     },
     zip_safe=True,
     maintainer='thermal_imu_calib maintainers',

@@ -1,13 +1,17 @@
 """Shared ROS 2 fixtures: an isolated rclpy Context per test, a background executor, waits.
 
 Isolation: every test gets its own rclpy ``Context`` on one ROS domain per test run (the
-``ROS_DOMAIN_ID`` from the environment, e.g. set by ``make test``, else 1 + pid % 101),
-with discovery limited to localhost; the context is shut down after the test, so no node
-of one test ever sees another's. Subprocesses started by tests inherit the same domain.
+``ROS_DOMAIN_ID`` from the environment, e.g. set by ``make test``, else 1 + pid % 101;
+under pytest-xdist one domain per worker, see ``WORKER``), with discovery limited to
+localhost; the context is shut down after the test, so no node of one test ever sees
+another's. Subprocesses started by tests inherit the same domain.
 """
 
+import atexit
 import os
+import shutil
 import sys
+import tempfile
 import threading
 import time
 import traceback
@@ -19,6 +23,20 @@ from thermal_imu_calib.nodes.player import (imu_msg, Pacer, replay,  # noqa: F40
                                             temperature_msg)
 
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+#: the pytest-xdist worker running this process ('gw0', 'gw1', ...; '' without -n)
+WORKER = os.environ.get('PYTEST_XDIST_WORKER', '')
+if WORKER:
+    # ``make test`` runs two workers at once (``-n 2``). Each has a ROS domain of its own
+    # (the run's domain, the next one, ... within 1..101), so the nodes of two tests running
+    # at the same time never see each other, and a temporary folder of its own, so a test
+    # that looks at what is in the temporary folder sees only its own worker's files.
+    # Subprocesses inherit both from the environment.
+    _k = int(WORKER.lstrip('gw') or 0)
+    _base = int(os.environ.get('ROS_DOMAIN_ID', 1 + os.getppid() % 101))
+    os.environ['ROS_DOMAIN_ID'] = str(1 + (_base - 1 + _k) % 101)
+    _tmp = tempfile.mkdtemp(prefix=f'thermal-imu-test-{WORKER}-')
+    os.environ['TMPDIR'] = tempfile.tempdir = _tmp
+    atexit.register(shutil.rmtree, _tmp, True)
 os.environ.setdefault('ROS_DOMAIN_ID', str(1 + os.getpid() % 101))
 DOMAIN_ID = int(os.environ['ROS_DOMAIN_ID'])
 
