@@ -11,8 +11,9 @@ For each recording of ``../shared/data/real`` (``real_recordings``):
   ``--temperature-topic`` where the log has one), the installed console script;
 * live: calibrator_node started as the launch file describes it (shipped
   ``config/calibrator.yaml``, ``calibration_file:=``, ``nodes:=calibrator``, plus
-  ``gravity``; the harness's ``progress_period`` 0.1 s), the same log replayed on ``imu/data_raw`` (+ ``/imu/temperature``) with
-  every message counted, ``~/calibrate`` called, the written file read (``live_replay``).
+  ``gravity``; the harness's ``progress_period`` 0.1 s), the same log replayed on
+  ``imu/data_raw`` (+ ``/imu/temperature``) with every message counted, ``~/calibrate``
+  called, the written file read (``live_replay``).
   Logs without temperature are launched with ``temperature_topics:='[]'``; they are also
   run the way a ROS user meets them (issue 20): the shipped topics and a room temperature
   (24 +- 0.15 degC) on ``/imu/temperature``, compared with ``calibrate`` on that same log;
@@ -400,7 +401,8 @@ def markdown(rows, command, meta):
            'Standard fit: imu_tk\'s 9-parameter model fitted in the bench '
            '(`bench/imutk_reference.py`) to one mean per interval, in-sample. Live: '
            'calibrator_node started as the launch file describes it (shipped config + '
-           '`gravity`; the harness reads progress every 0.1 s), the log replayed over DDS, `~/calibrate`. Logs without temperature: '
+           '`gravity`; the harness reads progress every 0.1 s), the log replayed over DDS, '
+           '`~/calibrate`. Logs without temperature: '
            'live with `temperature_topics:=[]`; the second line (flat T) is the issue-20 user '
            'path: shipped topics, room temperature on `/imu/temperature`, compared with '
            '`calibrate` on that same log.', '',
