@@ -15,7 +15,7 @@ The one parameter the harness sets beyond the launch arguments is ``progress_per
 (``HARNESS_PARAMS``, 0.1 s instead of 1 s): how often the node reports its counts, which
 the flow control reads. It changes nothing collected or estimated; with the shipped 1 s
 a chunk waited up to a second for the count, and a 10,245-message replay took 18 s
-instead of 7 s (2026-11-29).
+instead of 5 s (2026-11-29).
 Every wait is on a condition, bounded by a stall time (no progress at all), and fails at
 once when the node process has exited.
 
