@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from thermal_imu_calib.io.imu_units import (ACCEL_WINDOW, accel_unit_problem,
-                                            STANDARD_GRAVITY, UnitWatch)
+from thermal_imu_calib.gravity import STANDARD_GRAVITY
+from thermal_imu_calib.io.imu_units import ACCEL_WINDOW, accel_unit_problem, UnitWatch
 
 G = STANDARD_GRAVITY
 

@@ -17,7 +17,6 @@ makes a recording's refusal of it, the compensator its warning.
 
 import numpy as np
 
-from ..gravity import STANDARD_GRAVITY  # noqa: F401 (the compensator's reference)
 from .gate import gyro_unit_problem, gyro_unit_rows
 
 #: range of |a| / g at rest in which the accelerometer is taken to be in m/s^2 (the loader's

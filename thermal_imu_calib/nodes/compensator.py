@@ -39,8 +39,9 @@ from .compensator_state import StreamStateFile
 from ..calibration import Calibration, CalibrationError
 from ..collection.feed import DEFAULT_MAX_GAP_S
 from ..collection.outliers import ImuSpikeFilter
+from ..gravity import STANDARD_GRAVITY
 from ..io.columns import AlignedChunk, ImuColumns
-from ..io.imu_units import STANDARD_GRAVITY, UnitWatch
+from ..io.imu_units import UnitWatch
 from ..thermal_input import CalibrationStream
 
 NODE_NAME = 'thermal_imu_compensator'
