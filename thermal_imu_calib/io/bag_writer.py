@@ -16,7 +16,8 @@ import numpy as np
 import yaml
 
 from . import cdr
-from .cdr import IMU_MSGTYPE, SCALAR_MSGTYPES, TEMPERATURE_MSGTYPE
+from .cdr import IMU_MSGTYPE, TEMPERATURE_MSGTYPE
+from .headerless import encode_values, HEADERLESS_MSGTYPES, THERMAL_MSGTYPES
 from .columns import ImuColumns, TemperatureColumns
 
 from .log_info import _IDL_PREFIX, _STORAGE_SUFFIXES, LogError
@@ -301,15 +302,16 @@ def write_columns(path, imu_topic: str, imu_chunks, temperature: Mapping | None 
     TemperatureColumns or an iterable of them (each stamp-sorted).  Messages are written
     interleaved in stamp order while streaming.  ``temperature_variance`` is one value or
     topic -> value; ``msgtypes`` maps a temperature topic to another type of
-    ``SCALAR_MSGTYPES`` (default sensor_msgs/msg/Temperature).  Returns the message count
-    per topic.
+    ``headerless.THERMAL_MSGTYPES`` (default sensor_msgs/msg/Temperature; a std_msgs/Float32
+    or Float64 keeps only the value, its stamp being the log time).  Returns the message
+    count per topic.
     """
     temperature = dict(temperature or {})
     msgtypes = dict(msgtypes or {})
-    bad = {t: m for t, m in msgtypes.items() if m not in SCALAR_MSGTYPES}
+    bad = {t: m for t, m in msgtypes.items() if m not in THERMAL_MSGTYPES}
     if bad:
-        raise LogError(f'msgtypes {bad} are not header-stamped scalars; use one of '
-                       f'{", ".join(SCALAR_MSGTYPES)}.')
+        raise LogError(f'msgtypes {bad} are not thermal-input scalars; use one of '
+                       f'{", ".join(THERMAL_MSGTYPES)}.')
     variance = (dict(temperature_variance) if isinstance(temperature_variance, Mapping)
                 else {t: temperature_variance for t in temperature})
     its = {topic: _as_chunks(v) for topic, v in temperature.items()}
@@ -336,7 +338,9 @@ def write_columns(path, imu_topic: str, imu_chunks, temperature: Mapping | None 
                 pending[topic] = TemperatureColumns(buf.stamp_ns[cut:], buf.temperature[cut:],
                                                     buf.frame_id)
                 if len(now):
-                    parts.append((topic, now.stamp_ns,
+                    kind = msgtypes.get(topic, TEMPERATURE_MSGTYPE)
+                    parts.append((topic, now.stamp_ns, encode_values(now.temperature, kind)
+                                  if kind in HEADERLESS_MSGTYPES else
                                   cdr.encode_temperature(now, variance.get(topic, 0.0))))
             return parts
 

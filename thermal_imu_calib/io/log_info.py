@@ -14,6 +14,7 @@ from ..input_units import TEMPERATURE_BOUNDS
 from . import cdr
 from .cdr import IMU_MSGTYPE, SCALAR_MSGTYPES, TEMPERATURE_MSGTYPE
 from .columns import ImuColumns, TemperatureColumns
+from .headerless import decode_values, HEADERLESS_MSGTYPES
 
 
 _IDL_PREFIX = '=' * 80 + '\nIDL: '
@@ -108,9 +109,10 @@ class LogInfo:
             if t.temperature_min is not None:
                 lo, hi = TEMPERATURE_BOUNDS
                 plausible = lo <= t.temperature_min and t.temperature_max <= hi
-                unit = (' degC' if t.msgtype == TEMPERATURE_MSGTYPE and plausible else
+                named = t.msgtype == TEMPERATURE_MSGTYPE or t.msgtype in HEADERLESS_MSGTYPES
+                unit = (' degC' if named and plausible else
                         ' (not degC: a thermal proxy? declare its unit with --input-unit)'
-                        if t.msgtype == TEMPERATURE_MSGTYPE else '')
+                        if named else '')
                 line += f'  {t.temperature_min:.2f}..{t.temperature_max:.2f}{unit}'
             lines.append(line)
         return '\n'.join(lines)
@@ -139,6 +141,7 @@ class _StatsBuilder:
     def __init__(self, name: str, msgtype: str):
         self.stats = TopicStats(name, msgtype)
         self.stamped = msgtype == IMU_MSGTYPE or msgtype in SCALAR_MSGTYPES
+        self.values_only = msgtype in HEADERLESS_MSGTYPES     # a range, no stamps
         self.times: list[int] = []
         self.raws: list[bytes] = []
         self.medians: list[float] = []
@@ -151,7 +154,7 @@ class _StatsBuilder:
         st.first_log_time_ns = min(st.first_log_time_ns, t)
         st.last_log_time_ns = t if st.last_log_time_ns is None else max(st.last_log_time_ns, t)
         st.count += 1
-        if self.stamped:
+        if self.stamped or self.values_only:
             self.raws.append(raw)
             if len(self.raws) >= self.BATCH:
                 self._flush()
@@ -164,8 +167,10 @@ class _StatsBuilder:
             if st.msgtype == IMU_MSGTYPE:
                 cols = cdr.decode_imu(self.raws)
             else:
-                cols = cdr.decode_temperature(self.raws)
-                lo, hi = np.nanmin(cols.temperature), np.nanmax(cols.temperature)
+                cols = None if self.values_only else cdr.decode_temperature(self.raws)
+                values = (decode_values(self.raws, st.msgtype) if cols is None
+                          else cols.temperature)
+                lo, hi = np.nanmin(values), np.nanmax(values)
                 st.temperature_min = lo if st.temperature_min is None else min(
                     st.temperature_min, lo)
                 st.temperature_max = hi if st.temperature_max is None else max(
@@ -174,6 +179,8 @@ class _StatsBuilder:
             raise LogError(f'topic {st.name!r}: {err}') from err
         finally:
             self.raws = []
+        if cols is None:
+            return
         s = cols.stamp_ns
         frame = cols.frame_id
         st.frame_id = frame if st.frame_id is None or st.frame_id == frame else ''

@@ -16,7 +16,8 @@ import numpy as np
 
 from . import cdr
 from .bag_writer import LogWriter
-from .cdr import IMU_MSGTYPE, SCALAR_MSGTYPES
+from .cdr import IMU_MSGTYPE
+from .headerless import decode_values, HEADERLESS_MSGTYPES, on_imu_clock, THERMAL_MSGTYPES
 from .log_info import LogError, RawChunk
 
 
@@ -34,7 +35,13 @@ class _Chunker:
             raise LogError(f'topics must be distinct: IMU {imu_topic!r}, temperature '
                            f'{temperature_topics}; list each topic once.')
         reader.check_topics([imu_topic], IMU_MSGTYPE)
-        reader.check_topics(temperature_topics, SCALAR_MSGTYPES)
+        reader.check_topics(temperature_topics, THERMAL_MSGTYPES)
+        types = reader.topic_types()
+        #: header-less topics -> their type; their readings take the IMU's stamps
+        self.headerless = {t: types[t] for t in temperature_topics
+                           if types[t] in HEADERLESS_MSGTYPES}
+        self._imu_before: dict[str, list[int]] = {t: [] for t in self.headerless}
+        self._carry_ns: int | None = None     # the last IMU stamp of the chunks before
         self.imu_topic = imu_topic
         self.temperature_topics = temperature_topics
         self.topics = {imu_topic, *temperature_topics}
@@ -53,6 +60,8 @@ class _Chunker:
                 return self._build()
         elif topic in self._temp_raw:
             self._temp_raw[topic].append(raw)
+            if topic in self._imu_before:
+                self._imu_before[topic].append(len(self._imu_raw))
             self._n_temp += 1
             if self._n_temp >= self.chunk_size:
                 return self._build()
@@ -71,13 +80,21 @@ class _Chunker:
         temps = {}
         for topic, raws in self._temp_raw.items():
             try:
-                temps[topic] = cdr.decode_temperature(raws)
+                if topic in self.headerless:
+                    temps[topic] = on_imu_clock(
+                        decode_values(raws, self.headerless[topic]),
+                        self._imu_before[topic], imu.stamp_ns, self._carry_ns)
+                else:
+                    temps[topic] = cdr.decode_temperature(raws)
             except ValueError as err:
                 raise LogError(f'topic {topic!r}: {err}') from err
         chunk = RawChunk(imu, np.array(self._imu_t, dtype=np.int64), temps,
                          self._imu_raw if self.keep_raw else None)
+        if len(imu):
+            self._carry_ns = int(imu.stamp_ns[-1])
         self._imu_raw, self._imu_t = [], []
         self._temp_raw = {t: [] for t in self.temperature_topics}
+        self._imu_before = {t: [] for t in self.headerless}
         self._n_temp = 0
         return chunk
 
@@ -92,7 +109,7 @@ def _bulk_chunks(reader, chunker, batches, on_batch=None) -> Iterator[RawChunk]:
                 batches, chunker.imu_topic, src.channel_ids({chunker.imu_topic}),
                 chunker.temperature_topics,
                 [src.channel_ids({t}) for t in chunker.temperature_topics],
-                chunker.chunk_size, chunker.keep_raw, on_batch):
+                chunker.chunk_size, chunker.keep_raw, on_batch, chunker.headerless):
             yield RawChunk(imu, times, temps, raws)
     except ValueError as err:
         raise LogError(f'{err}') from err

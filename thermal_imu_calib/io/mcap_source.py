@@ -9,12 +9,13 @@ the chunk and offset; the log reader turns them into LogError.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 
 import numpy as np
 
 from . import cdr
 from .columns import ImuColumns
+from .headerless import decode_values_packed, on_imu_clock
 from .mcap_read import (Batch, compact, concat_batches, iter_batches, McapBulkReader,
                         McapFormatError)
 
@@ -97,7 +98,8 @@ def _payload_rows(b: Batch):
 
 def chunk_stream(batches, imu_topic: str, imu_ids, temp_topics: Sequence[str],
                  temp_ids: Sequence, chunk_size: int, keep_raw: bool,
-                 on_batch: Callable[[Batch], None] | None = None
+                 on_batch: Callable[[Batch], None] | None = None,
+                 headerless: Mapping[str, str] | None = None
                  ) -> Iterator[tuple[ImuColumns, np.ndarray, dict, list | None]]:
     """Group batches into ``(imu, imu_log_time_ns, {topic: temps}, imu_raw)`` chunks.
 
@@ -106,9 +108,14 @@ def chunk_stream(batches, imu_topic: str, imu_ids, temp_topics: Sequence[str],
     messages logged meanwhile go with it).  ``on_batch`` sees every batch first (used to
     copy all messages to an output).  ``imu_raw`` (with ``keep_raw``) is an (n, size)
     uint8 array when every payload of the chunk has one size, else a list of bytes.
+    ``headerless`` maps the temperature topics without a header (std_msgs/Float32, Float64)
+    to their type: their readings take the stamp of the IMU message logged before each
+    (:func:`.headerless.on_imu_clock`).
     """
+    headerless = dict(headerless or {})
     pend: list = []
     n_imu = n_temp = 0
+    carry: list = [None]    # the last IMU stamp of the chunks before
 
     def lut(ids):
         table = np.zeros(1 << 16, bool)
@@ -134,9 +141,18 @@ def chunk_stream(batches, imu_topic: str, imu_ids, temp_topics: Sequence[str],
         for j, topic in enumerate(temp_topics):
             t = concat_batches([p[1][j] for p in pend])
             try:
-                temps[topic] = cdr.decode_temperature_packed(t.buf, t.data_start, t.data_len)
+                if topic in headerless:
+                    temps[topic] = on_imu_clock(
+                        decode_values_packed(t.buf, t.data_start, t.data_len,
+                                             headerless[topic]),
+                        np.concatenate([p[2][j] for p in pend]), cols.stamp_ns, carry[0])
+                else:
+                    temps[topic] = cdr.decode_temperature_packed(t.buf, t.data_start,
+                                                                 t.data_len)
             except ValueError as err:
                 raise ValueError(f'topic {topic!r}: {err}') from err
+        if len(cols):
+            carry[0] = int(cols.stamp_ns[-1])
         raws = None
         if keep_raw:
             raws = [r for _, _, r in parts if len(r)]
@@ -162,7 +178,8 @@ def chunk_stream(batches, imu_topic: str, imu_ids, temp_topics: Sequence[str],
             cut = int(full[0]) + 1 if len(full) else len(rows)
             part = rows[:cut]
             pend.append((decode_imu(b.take(part[is_imu[part]])),
-                         [compact(b.take(part[m[part]])) for m in is_temp]))
+                         [compact(b.take(part[m[part]])) for m in is_temp],
+                         [ci[:cut][m[part]] for m in is_temp]))   # IMU rows before
             n_imu, n_temp = int(ci[cut - 1]), int(ct[cut - 1])
             rows = rows[cut:]
             if len(full):

@@ -6,15 +6,17 @@ topics present.
 
 from . import cdr
 from .log_info import LogError
-from .cdr import IMU_MSGTYPE, SCALAR_MSGTYPES, TEMPERATURE_MSGTYPE
+from .cdr import IMU_MSGTYPE, TEMPERATURE_MSGTYPE
+from .headerless import HEADERLESS_MSGTYPES, THERMAL_MSGTYPES
 
 
 def resolve_topics(reader, imu_topic, temperature_topics, notes=None):
     """Check the IMU topic and pick the temperature topics.
 
     None picks the IMU's (``imu_temperatures``); an empty name is no input, so ``['']``
-    means none. Named thermal-input topics may be any header-stamped scalar of ``SCALAR_MSGTYPES``
-    (e.g. a proxy on sensor_msgs/Temperature or FluidPressure). Returns the temperature
+    means none. Named thermal-input topics may be any scalar of ``THERMAL_MSGTYPES`` (e.g. a
+    proxy on sensor_msgs/Temperature or FluidPressure; std_msgs/Float32 or Float64 without a
+    header, put on the IMU's clock by ``headerless``). Returns the temperature
     topic list; raises LogError naming the topics present. ``notes`` (a list) receives
     what was chosen among several Temperature topics, and why.
     """
@@ -38,7 +40,7 @@ def resolve_topics(reader, imu_topic, temperature_topics, notes=None):
         temperature_topics = imu_temperatures(reader, imu_topic, notes)
     else:
         temperature_topics = [in_log(types, t) for t in temperature_topics if t]
-        reader.check_topics(temperature_topics, SCALAR_MSGTYPES)
+        reader.check_topics(temperature_topics, THERMAL_MSGTYPES)
     return imu_topic, list(temperature_topics)
 
 
@@ -60,11 +62,11 @@ def imu_temperatures(reader, imu_topic, notes=None):
     counts = reader.topics()
     found = sorted(t for t, ty in types.items()
                    if ty == TEMPERATURE_MSGTYPE and counts[t].count != 0)
+    space = imu_topic.rsplit('/', 1)[0]
     if not found:
-        return found
+        return _headerless_temperature(reader.path, types, counts, space, notes)
     frames = _first_frames(reader, [imu_topic] + found)
     imu_frame = frames.get(imu_topic, '')
-    space = imu_topic.rsplit('/', 1)[0]
     by_frame = [t for t in found if imu_frame and frames.get(t) == imu_frame]
     by_space = [t for t in found if t.rsplit('/', 1)[0] == space]
     if len(found) == 1:
@@ -89,6 +91,28 @@ def imu_temperatures(reader, imu_topic, notes=None):
         notes.append(f'temperature input {", ".join(chosen)} ({why}) of the Temperature topics '
                      f'{listed}; name others with --temperature-topic')
     return chosen
+
+
+def _headerless_temperature(path, types, counts, space, notes):
+    """Return [the IMU's header-less temperature topic] when a log has no Temperature topic.
+
+    A std_msgs/Float32 or Float64 topic in the IMU topic's namespace whose name starts with
+    'temp' (``/imu/temperature`` of the um6/um7 drivers) is the IMU's; several such topics
+    raise LogError naming them. The choice is appended to ``notes``.
+    """
+    bare = sorted(t for t, ty in types.items()
+                  if ty in HEADERLESS_MSGTYPES and counts[t].count != 0
+                  and t.rsplit('/', 1)[0] == space
+                  and t.rsplit('/', 1)[1].lower().startswith('temp'))
+    if len(bare) > 1:
+        raise LogError(f'{path}: several header-less temperature topics in the IMU topic\'s '
+                       f'namespace {space or "/"}: {", ".join(bare)}; name the IMU\'s with '
+                       "--temperature-topic TOPIC, or pass --temperature-topic '' for none")
+    if bare and notes is not None:
+        notes.append(f'temperature input {bare[0]} ({types[bare[0]]}, no header: each reading '
+                     'takes the stamp of the IMU message logged before it); name another '
+                     "with --temperature-topic, or pass --temperature-topic '' for none")
+    return bare
 
 
 def _first_frames(reader, topics):

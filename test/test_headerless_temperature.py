@@ -1,0 +1,131 @@
+"""Header-less temperatures (std_msgs/Float32, Float64) offline: decoding, stamps, calibrate.
+
+A reading without a header takes the stamp of the IMU message logged before it
+(``io/headerless``). So a log whose Float64 readings are logged at their original times
+must give, exactly, what the same log gives with sensor_msgs/Temperature readings stamped
+with those IMU stamps, through both readers (MCAP bulk, sqlite per message), at any chunk
+size, and through ``calibrate`` end to end.
+"""
+
+import numpy as np
+import pytest
+from rosbags.typesys import get_typestore, Stores
+
+from thermal_imu_calib import sim
+from thermal_imu_calib.cli import main
+from thermal_imu_calib.io.bag import open_log
+from thermal_imu_calib.io.bag_writer import write_columns
+from thermal_imu_calib.io.columns import TemperatureColumns
+from thermal_imu_calib.io.headerless import (decode_values, decode_values_packed,
+                                             encode_values, on_imu_clock)
+from thermal_imu_calib.io.log_info import LogError
+
+STORE = get_typestore(Stores.ROS2_JAZZY)
+TEMP = '/imu/temperature'
+
+
+@pytest.mark.parametrize('msgtype', ['std_msgs/msg/Float32', 'std_msgs/msg/Float64'])
+def test_values_round_trip_against_rosbags(msgtype):
+    values = np.array([21.5, -17.625, 74.0, 1e-3])
+    ours = encode_values(values, msgtype)
+    cls = STORE.types[msgtype]
+    theirs = [bytes(STORE.serialize_cdr(cls(data=float(v)), msgtype)) for v in values]
+    if msgtype.endswith('32'):
+        theirs = [bytes(STORE.serialize_cdr(cls(data=np.float32(v)), msgtype)) for v in values]
+    assert ours == theirs
+    expect = values.astype(np.float32) if msgtype.endswith('32') else values
+    np.testing.assert_array_equal(decode_values(theirs, msgtype), expect)
+    buf = np.frombuffer(b'xx' + b''.join(theirs), np.uint8)
+    size = len(theirs[0])
+    np.testing.assert_array_equal(
+        decode_values_packed(buf, 2 + size * np.arange(4), [size] * 4, msgtype), expect)
+    assert [STORE.deserialize_cdr(r, msgtype).data for r in ours] == list(expect)
+
+
+def test_malformed_payloads_are_named():
+    with pytest.raises(ValueError, match='only 6 bytes.*really carries std_msgs/msg/Float64'):
+        decode_values([b'\x00\x01\x00\x00\x00\x00'], 'std_msgs/msg/Float64')
+    with pytest.raises(ValueError, match='message 1 is not little-endian CDR'):
+        decode_values([b'\x00\x01\x00\x00' + bytes(4), b'\x00\x00\x00\x00' + bytes(4)],
+                      'std_msgs/msg/Float32')
+
+
+def test_a_reading_takes_the_stamp_of_the_imu_message_logged_before_it():
+    imu = np.array([100, 200, 300])
+    got = on_imu_clock([1.0, 2.0, 3.0, 4.0], [0, 1, 3, 3], imu, None)
+    np.testing.assert_array_equal(got.stamp_ns, [100, 300, 300])   # none before: left out
+    np.testing.assert_array_equal(got.temperature, [2.0, 3.0, 4.0])
+    got = on_imu_clock([1.0, 2.0], [0, 2], imu, 50)                   # the chunk before's
+    np.testing.assert_array_equal(got.stamp_ns, [50, 200])
+
+
+def _logs(tmp_path, storage, msgtype):
+    """Write the demo recording twice: Float readings at their times, and Temperature ones
+    stamped with the IMU stamp logged before each (what the reader must give the Float)."""
+    rec = sim.simulate('demo', 3, repetitions=1)
+    tc = rec.temperatures[TEMP]
+    values = tc.temperature.astype(np.float32) if msgtype.endswith('32') else tc.temperature
+    stamps = np.concatenate([c.stamp_ns for c in rec.imu_chunks()])
+    before = np.searchsorted(stamps, tc.stamp_ns, side='right')   # IMU first at a tie
+    keep = before > 0
+    snapped = TemperatureColumns(stamps[before[keep] - 1], values[keep].astype(float))
+    ext = '.mcap' if storage == 'mcap' else ''
+    bare, stamped = tmp_path / f'bare{ext}', tmp_path / f'stamped{ext}'
+    write_columns(bare, '/imu/data_raw', rec.imu_chunks(),
+                  {TEMP: TemperatureColumns(tc.stamp_ns, values.astype(float))},
+                  storage=storage, msgtypes={TEMP: msgtype})
+    write_columns(stamped, '/imu/data_raw', rec.imu_chunks(), {TEMP: snapped}, storage=storage)
+    return bare, stamped, int(keep.sum())
+
+
+def _stream(path, chunk_size):
+    with open_log(path) as r:
+        chunks = list(r.stream('/imu/data_raw', [TEMP], chunk_size=chunk_size))
+    return (np.concatenate([c.temps[TEMP].stamp_ns for c in chunks]),
+            np.concatenate([c.temps[TEMP].temperature for c in chunks]))
+
+
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+@pytest.mark.parametrize('msgtype', ['std_msgs/msg/Float32', 'std_msgs/msg/Float64'])
+def test_a_log_reads_as_the_same_log_with_stamped_readings(tmp_path, storage, msgtype):
+    bare, stamped, n = _logs(tmp_path, storage, msgtype)
+    want = _stream(stamped, 20000)
+    assert len(want[0]) == n > 100
+    for size in (20000, 7, 1):       # the stamp of the chunk before carries over
+        got = _stream(bare, size)
+        np.testing.assert_array_equal(got[0], want[0])
+        np.testing.assert_array_equal(got[1], want[1])
+    with open_log(bare) as r:
+        text = r.info().format()
+    assert msgtype in text and ' degC' in text
+
+
+def test_calibrate_finds_and_uses_a_float32_imu_temperature(tmp_path, capsys):
+    bare, stamped, _ = _logs(tmp_path, 'mcap', 'std_msgs/msg/Float32')
+    outs = []
+    for log in (bare, stamped):
+        out = tmp_path / f'{log.stem}.yaml'
+        assert main(['calibrate', str(log), '--gravity', '9.80665', '-o', str(out)]) == 0
+        outs.append(out.read_text())
+    text = capsys.readouterr()
+    assert 'std_msgs/msg/Float32, no header' in text.out + text.err
+    assert 'temperature_topic' in outs[0] or TEMP in outs[0]
+    strip = [[ln for ln in o.splitlines() if 'created' not in ln and 'source' not in ln
+              and '.mcap' not in ln] for o in outs]
+    assert strip[0] == strip[1]
+
+
+def test_several_headerless_temperatures_in_the_namespace_are_refused(tmp_path):
+    rec = sim.simulate('demo', 3, repetitions=1)
+    tc = rec.temperatures[TEMP]
+    path = tmp_path / 'two.mcap'
+    write_columns(path, '/imu/data_raw', rec.imu_chunks(), {TEMP: tc, '/imu/temp_board': tc},
+                  msgtypes={TEMP: 'std_msgs/msg/Float64',
+                            '/imu/temp_board': 'std_msgs/msg/Float32'})
+    from thermal_imu_calib.io.topics import resolve_topics
+    refused = 'several header-less.*/imu/temp_board, /imu/temperature.*--temperature-topic'
+    with open_log(path) as r, pytest.raises(LogError, match=refused):
+        resolve_topics(r, '/imu/data_raw', None)
+    with open_log(path) as r:
+        assert resolve_topics(r, '/imu/data_raw', ['/imu/temp_board'])[1] == [
+            '/imu/temp_board']
