@@ -48,6 +48,8 @@ CHUNK = 300
 RATE = 2000.0
 #: node parameters of every live run beyond the launch arguments (see the module text)
 HARNESS_PARAMS = {'progress_period': 0.1}
+#: the message type readings are published as by default (header-stamped)
+TEMPERATURE_TYPE = 'sensor_msgs/msg/Temperature'
 #: a wait fails when its condition has made no progress for this long (a busy 2-core
 #: machine can starve a process for tens of seconds; a broken path does not move at all)
 STALL_S = 180.0
@@ -213,20 +215,22 @@ class Replay:
 class _Driver:
     """The rclpy side: publishers, the progress subscription and a spinning thread."""
 
-    def __init__(self, domain_id, temperature_topic):
+    def __init__(self, domain_id, temperature_topic, temperature_type=TEMPERATURE_TYPE):
         import rclpy
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-        from sensor_msgs.msg import Imu, Temperature
+        from sensor_msgs.msg import Imu
         from std_msgs.msg import String
+        from thermal_imu_calib.nodes.common import THERMAL_TYPES
         self.context = Context()
         rclpy.init(context=self.context, domain_id=domain_id)
         self.node = rclpy.create_node('scoreboard_player', context=self.context)
         qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                          reliability=ReliabilityPolicy.RELIABLE)
         self.imu_pub = self.node.create_publisher(Imu, 'imu/data_raw', qos)
-        self.temp_pub = (self.node.create_publisher(Temperature, temperature_topic, qos)
+        self.temp_cls = THERMAL_TYPES[temperature_type][0]
+        self.temp_pub = (self.node.create_publisher(self.temp_cls, temperature_topic, qos)
                          if temperature_topic else None)
         self.progress = None
         self._lock = threading.Lock()
@@ -357,13 +361,16 @@ def _publish(driver, imu, temps, i0, i1, t_lo, t_hi, pace):
         pace.wait(k)
         if kind == 0:
             driver.imu_pub.publish(imu_msg(stamp, imu.accel[i], imu.gyro[i], frame))
+        elif hasattr(driver.temp_cls, 'data'):     # header-less: the value alone
+            driver.temp_pub.publish(driver.temp_cls(data=float(temps.temperature[i])))
         else:
             driver.temp_pub.publish(temperature_msg(stamp, temps.temperature[i], frame))
     return i1 - i0, n_t
 
 
 def run_live(imu, temps, gravity, domain_id, temperature_topics=None, workdir=None,
-             calibration_name='live.yaml', extra_params=None, attempts=3):
+             calibration_name='live.yaml', extra_params=None, attempts=3,
+             temperature_type=TEMPERATURE_TYPE):
     """Run ``run_live_once`` until every message arrives, at most ``attempts`` times.
 
     Best effort may lose messages on a loaded machine (counted, never hidden): a run that
@@ -373,7 +380,7 @@ def run_live(imu, temps, gravity, domain_id, temperature_topics=None, workdir=No
     for i in range(1, attempts + 1):
         out = run_live_once(imu, temps, gravity, domain_id, temperature_topics,
                             os.path.join(workdir, f'attempt{i}'), calibration_name,
-                            extra_params)
+                            extra_params, temperature_type)
         out.attempts = i
         if out.complete or (out.error and not out.error.startswith('not every message')):
             return out
@@ -381,7 +388,8 @@ def run_live(imu, temps, gravity, domain_id, temperature_topics=None, workdir=No
 
 
 def run_live_once(imu, temps, gravity, domain_id, temperature_topics=None, workdir=None,
-                  calibration_name='live.yaml', extra_params=None):
+                  calibration_name='live.yaml', extra_params=None,
+                  temperature_type=TEMPERATURE_TYPE):
     """Replay ``imu`` (+ ``temps`` on /imu/temperature) into a launched calibrator_node.
 
     ``temperature_topics``: the launch argument (None: the shipped config's
@@ -403,13 +411,16 @@ def run_live_once(imu, temps, gravity, domain_id, temperature_topics=None, workd
         args['temperature_topics'] = temperature_topics
     out = Replay()
     t_start = time.monotonic()
-    node = LiveCalibrator(workdir, args, {**HARNESS_PARAMS, **(extra_params or {})},
+    typed = ({} if temperature_type == TEMPERATURE_TYPE
+             else {'temperature_types': [temperature_type]})
+    node = LiveCalibrator(workdir, args, {**HARNESS_PARAMS, **typed, **(extra_params or {})},
                           domain_id)
     out.command = node.argv
     driver = None
     try:
         # inside the try: an exit while the player starts still stops the launched node
-        driver = _Driver(domain_id, '/imu/temperature' if temps is not None else None)
+        driver = _Driver(domain_id, '/imu/temperature' if temps is not None else None,
+                         temperature_type)
 
         def connected():
             p = driver.progress

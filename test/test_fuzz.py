@@ -304,8 +304,8 @@ def test_fuzz_node_callbacks(nodes, events):
             if ev[0] == 'imu':
                 stamp = ev[1] * 1_000_000_000 + ev[2]
                 msg = imu_msg(stamp, ev[3][:3], ev[3][3:])
-                comp._on_imu(msg)
-                calib._on_imu(msg)
+                comp._on_imu(msg, {'source_timestamp': stamp})
+                calib._on_imu(msg, {'source_timestamp': stamp})
             elif ev[0] == 'temp':
                 msg = temperature_msg(ev[1] * 1_000_000_000 + ev[2], ev[3])
                 comp._temperature_cb(0)(msg)
@@ -340,7 +340,7 @@ def test_calibrator_survives_stamps_that_imply_no_usable_sample_rate(nodes):
     stamps = [base + k * 850_000_000 * 1_000_000_000 for k in range(4)] + [base]
     for stamp in stamps:                  # 850 million seconds apart, then back: closes it
         calib._temperature_cb(0)(temperature_msg(stamp, 35.0))
-        calib._on_imu(imu_msg(stamp, [0, 0, 9.81], [0, 0, 0]))
+        calib._on_imu(imu_msg(stamp, [0, 0, 9.81], [0, 0, 0]), {'source_timestamp': stamp})
         calib._process()
     assert calib.counts.get('detector_restarts', 0) > before
 

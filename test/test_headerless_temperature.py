@@ -17,7 +17,7 @@ from thermal_imu_calib.io.bag import open_log
 from thermal_imu_calib.io.bag_writer import write_columns
 from thermal_imu_calib.io.columns import TemperatureColumns
 from thermal_imu_calib.io.headerless import (decode_values, decode_values_packed,
-                                             encode_values, on_imu_clock)
+                                             encode_values, LiveImuClock, on_imu_clock)
 from thermal_imu_calib.io.log_info import LogError
 
 STORE = get_typestore(Stores.ROS2_JAZZY)
@@ -113,6 +113,16 @@ def test_calibrate_finds_and_uses_a_float32_imu_temperature(tmp_path, capsys):
     strip = [[ln for ln in o.splitlines() if 'created' not in ln and 'source' not in ln
               and '.mcap' not in ln] for o in outs]
     assert strip[0] == strip[1]
+    accel = []                   # compensate: the same output sample for sample
+    for log in (bare, stamped):
+        out = tmp_path / f'{log.stem}.comp.mcap'
+        assert main(['compensate', str(log), '--calibration', str(tmp_path / 'bare.yaml'),
+                     '-o', str(out)]) == 0
+        with open_log(out) as r:
+            accel.append(np.concatenate([c.imu.accel for c in r.stream(
+                '/imu/data_compensated')]))
+    assert len(accel[0]) > 10000
+    np.testing.assert_array_equal(accel[0], accel[1])
 
 
 def test_several_headerless_temperatures_in_the_namespace_are_refused(tmp_path):
@@ -129,3 +139,24 @@ def test_several_headerless_temperatures_in_the_namespace_are_refused(tmp_path):
     with open_log(path) as r:
         assert resolve_topics(r, '/imu/data_raw', ['/imu/temp_board'])[1] == [
             '/imu/temp_board']
+
+
+def test_live_readings_are_stamped_in_publish_order_whatever_the_callback_order():
+    clock = LiveImuClock(1, history=3)
+    clock.add_reading(0, 5, 20.0)            # published before any IMU message: left out
+    clock.add_imu([10, 20], [1000, 2000])
+    clock.add_reading(0, 25, 21.0)           # after every IMU seen: waits
+    clock.add_reading(0, 15, 22.0)           # taken late, published between them
+    got = clock.take(0)
+    assert got.temperature.tolist() == [22.0] and got.stamp_ns.tolist() == [1000]
+    assert clock.left_out == 1
+    clock.add_imu([30], [3000])
+    got = clock.take(0)
+    assert got.temperature.tolist() == [21.0] and got.stamp_ns.tolist() == [2000]
+    clock.add_reading(0, 35, 23.0)
+    assert len(clock.take(0)) == 0
+    got = clock.take(0, everything=True)     # the end of a stream: the newest stamp
+    assert got.stamp_ns.tolist() == [3000]
+    clock.add_imu([40, 50], [4000, 5000])    # history 3: 10 and 20 let go
+    clock.add_reading(0, 12, 24.0)
+    assert clock.take(0).stamp_ns.tolist() == [3000]   # before all kept: the oldest's

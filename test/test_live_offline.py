@@ -76,14 +76,19 @@ def _slow(temps):
 
 
 @pytest.mark.parametrize('thermal', ['none', 'room_temperature', 'bad_samples',
-                                     'slow_temperature'])
+                                     'slow_temperature', 'float32_temperature'])
 def test_live_calibration_equals_offline(tmp_path, thermal):
     """``bad_samples``: the room-temperature case with samples ``calibrate`` drops; the
     node drops the same ones (before 2026-11-28 it dropped only non-finite ones).
-    ``slow_temperature``: readings every 4 s and a 12-s dropout."""
+    ``slow_temperature``: readings every 4 s and a 12-s dropout. ``float32_temperature``:
+    the room temperature as std_msgs/Float32 without a header (the um6/um7 drivers), logged
+    at its time and published in that order; the node gets ``temperature_types``."""
     imu = _recording()
     temps = None
     topics = {}
+    kind = live_replay.TEMPERATURE_TYPE
+    if thermal == 'float32_temperature':
+        kind = 'std_msgs/msg/Float32'
     if thermal != 'none':
         temps = real_recordings.flat_temperature(imu)
         if thermal == 'bad_samples':
@@ -92,7 +97,9 @@ def test_live_calibration_equals_offline(tmp_path, thermal):
             temps = _slow(temps)
         topics = {real_recordings.TEMP_TOPIC: temps}
     log = str(tmp_path / 'mpu6050.mcap')
-    write_columns(log, '/imu', imu, topics)
+    write_columns(log, '/imu', imu, topics,
+                  msgtypes={t: kind for t in topics} if kind != live_replay.TEMPERATURE_TYPE
+                  else None)
 
     out = str(tmp_path / 'offline.yaml')
     cmd = [venv_exe('thermal-imu-calib'), 'calibrate', log, '--imu-topic', '/imu',
@@ -106,7 +113,7 @@ def test_live_calibration_equals_offline(tmp_path, thermal):
 
     live = live_replay.run_live(imu, temps, GRAVITY, DOMAIN_ID,
                                 temperature_topics='[]' if temps is None else None,
-                                workdir=str(tmp_path / 'live'))
+                                workdir=str(tmp_path / 'live'), temperature_type=kind)
     assert not live.error, live.error
     assert live.imu_sent == len(imu) and live.imu_received == live.imu_sent, \
         f'{live.imu_received} of {live.imu_sent} IMU messages arrived'

@@ -524,8 +524,8 @@ def test_a_temperature_on_another_topic_is_named_in_the_refusal(ros, tmp_path, r
     assert "thermal-input topics on the graph: /imu/temp (set temperature_topics:='[/imu/temp]')" \
         in resp.message, resp.message
     assert ('/imu/temperature is published as std_msgs/msg/Float32 by /float_driver, not '
-            'sensor_msgs/msg/Temperature, so none of it is received: it has no header stamp'
-            in resp.message), resp.message
+            "sensor_msgs/msg/Temperature, so none of it is received: set "
+            "temperature_types:='[std_msgs/msg/Float32]'" in resp.message), resp.message
     assert "temperature_topics:='[]'" in resp.message
     assert not os.path.exists(tmp_path / 'calibration.yaml')
 

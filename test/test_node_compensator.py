@@ -657,9 +657,8 @@ def test_a_temperature_of_another_type_is_named_in_a_warning(ros, tmp_path, requ
     texts = [t for k, t in warned if k == 'silent']
     assert texts, warned
     assert ('/imu/temperature is published as std_msgs/msg/Float32 by /float_driver, not '
-            'sensor_msgs/msg/Temperature, so none of it is received: it has no header stamp '
-            'to align with the IMU samples: publish sensor_msgs/msg/Temperature with the IMU '
-            'header stamps instead (a relay node)') in texts[0], texts[0]
+            "sensor_msgs/msg/Temperature, so none of it is received: set "
+            "temperature_types:='[std_msgs/msg/Float32]'") in texts[0], texts[0]
 
 
 def test_diagnostics_keep_coming_with_sim_time_and_no_clock(ros, tmp_path):
@@ -739,3 +738,45 @@ def test_imu_input_in_si_units_raises_no_unit_warning(ros, tmp_path):
         np.linalg.norm(ACCEL) / 9.80665, rel=1e-5)   # diagnostics print 6 digits
     assert int(values['gyro_deg_per_s_samples']) == 0 and 'SI units' not in st.message
     assert not [k for k in rig.node._warned if k.startswith('unit_')]
+
+
+def test_a_headerless_float32_temperature_takes_the_stamp_of_the_imu_before_it(ros, tmp_path):
+    # the um6/um7 drivers publish the temperature as std_msgs/Float32 on imu/temperature.
+    # Each reading is put on the IMU's clock: the stamp of the IMU message published
+    # before it (DDS source timestamps), so it applies from the next IMU message on
+    from std_msgs.msg import Float32
+    cal = make_cal()
+    node = ros.add(CompensatorNode(context=ros.context, parameter_overrides=[
+        Parameter('calibration_file', value=str(cal.save(tmp_path / 'cal.yaml'))),
+        Parameter('temperature_types', value=['std_msgs/msg/Float32'])]))
+    driver = ros.node('float_driver')
+    imu_pub = driver.create_publisher(Imu, 'imu/data_raw', 1000)
+    temp_pub = driver.create_publisher(Float32, 'imu/temperature', 100)
+    out = ros.collect(driver, Imu, 'imu/data_compensated', 1000)
+    ros.wait_matched(imu_pub)
+    ros.wait_matched(temp_pub)
+    wait_for(lambda: node.pub.get_subscription_count() >= 1, WAIT, 'output subscriber')
+    stamps = [T0_NS + k * 10_000_000 for k in range(15)]
+
+    def imu(rows):
+        for k in rows:
+            imu_pub.publish(imu_msg(stamps[k], ACCEL, GYRO))
+        wait_for(lambda: node.counts['received'] >= rows[-1] + 1, WAIT, f'{rows[-1] + 1} IMU')
+    imu(range(5))
+    temp_pub.publish(Float32(data=25.0))       # after IMU 4: waits for the next IMU message
+    wait_for(lambda: node._imu_clock._wait[0], WAIT, 'the reading at the node')
+    assert node.temps.received == [0]
+    imu(range(5, 10))
+    assert node.temps.received == [1]
+    assert node.temps.tracks[0].stamps_ns.tolist() == [stamps[4]]
+    temp_pub.publish(Float32(data=35.0))
+    wait_for(lambda: node._imu_clock._wait[0], WAIT, 'the second reading at the node')
+    imu(range(10, 15))
+    assert node.temps.tracks[0].stamps_ns.tolist() == [stamps[4], stamps[9]]
+    wait_for(lambda: len(out) >= 10, WAIT, 'the compensated messages')
+    got = {common.stamp_to_ns(m.header.stamp): vec(m) for m in out}
+    for k, temp in [(5, 25.0), (9, 25.0), (10, 35.0), (14, 35.0)]:
+        exp = expected(cal, temp)
+        np.testing.assert_allclose(got[stamps[k]][0], exp.accel[0], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(got[stamps[k]][1], exp.gyro[0], rtol=0, atol=1e-12)
+    assert node._imu_clock.left_out == 0

@@ -98,3 +98,66 @@ def on_imu_clock(values: np.ndarray, imu_before: np.ndarray, imu_stamp_ns: np.nd
     table = np.concatenate([[prior], np.asarray(imu_stamp_ns, np.int64)])
     keep = (before > 0) | (carry_ns is not None)
     return TemperatureColumns(table[before[keep]], values[keep])
+
+
+class LiveImuClock:
+    """Put header-less readings on the IMU's clock live, in the order they were published.
+
+    A node's callbacks do not run in publish order (the executor may take a temperature
+    before the IMU messages published ahead of it), so the order comes from the publishers:
+    the DDS source timestamp of each message (ns, taken at publish; ``ros2 bag play`` and a
+    driver publishing both topics keep the log's order). Feed the IMU messages with
+    :meth:`add_imu` and the readings with :meth:`add_reading`; :meth:`take` returns the
+    readings published before the newest IMU message seen, each with the header stamp of
+    the newest IMU message published before it, as offline (:func:`on_imu_clock`). A
+    reading published after every IMU message seen waits for the next one (one topic is
+    delivered in order, so none published before it can still come); :meth:`flush` stamps
+    the waiting ones with the newest IMU stamp (the end of a stream, as offline). Readings
+    published before the first IMU message are left out. ``history`` IMU messages are kept
+    (a reading published before all of them takes the oldest's stamp).
+    """
+
+    def __init__(self, n_inputs: int, history: int = 4096):
+        self.history = int(history)
+        self._src = np.zeros(0, np.int64)      # IMU source timestamps, increasing
+        self._stamp = np.zeros(0, np.int64)    # their header stamps
+        self._wait: list[list[tuple[int, float]]] = [[] for _ in range(n_inputs)]
+        self.left_out = 0                       # readings before the first IMU message
+        self._trimmed = False                   # older IMU messages were let go
+
+    def add_imu(self, source_ns, stamp_ns) -> None:
+        """Add IMU messages (source timestamps and header stamps, ns, in arrival order)."""
+        src = np.asarray(source_ns, np.int64)
+        if not len(src):
+            return
+        self._trimmed |= len(self._src) + len(src) > self.history
+        self._src = np.concatenate([self._src, src])[-self.history:]
+        self._stamp = np.concatenate([self._stamp, np.asarray(stamp_ns, np.int64)])[
+            -self.history:]
+        if np.any(np.diff(self._src[-len(src) - 1:]) < 0):   # another publisher's clock
+            order = np.argsort(self._src, kind='stable')
+            self._src, self._stamp = self._src[order], self._stamp[order]
+
+    def add_reading(self, index: int, source_ns: int, value: float) -> None:
+        """Add one reading of input ``index`` (its source timestamp, ns)."""
+        self._wait[index].append((int(source_ns), float(value)))
+
+    def take(self, index: int, everything: bool = False) -> TemperatureColumns:
+        """Return input ``index``'s readings that can be stamped now (all with ``everything``)."""
+        wait = self._wait[index]
+        if not wait or not len(self._src):
+            if everything:
+                self.left_out += len(wait)
+                wait.clear()
+            return TemperatureColumns.empty()
+        src = np.array([s for s, _ in wait], np.int64)
+        ready = np.ones(len(wait), bool) if everything else src <= self._src[-1]
+        n = int(np.count_nonzero(ready))
+        if not n:
+            return TemperatureColumns.empty()
+        values = np.array([v for _, v in wait], float)[ready]
+        before = np.searchsorted(self._src, src[ready], side='right')   # IMU first at a tie
+        first = (before > 0) | self._trimmed
+        self.left_out += int(n - first.sum())
+        self._wait[index] = [w for w, r in zip(wait, ready) if not r]
+        return TemperatureColumns(self._stamp[np.maximum(before[first] - 1, 0)], values[first])

@@ -46,6 +46,7 @@ from ..calibration import CalibrationError
 from ..collection.segments import FACE_NAMES, Windows
 from ..estimation.calibrate import CalibrationRefused
 from ..io.gate import gyro_unit_problem, unit_refusal
+from ..io.headerless import LiveImuClock
 
 NODE_NAME = 'thermal_imu_calibrator'
 #: what ``_write`` says when calibration_file is empty (the node is set up not to write)
@@ -64,6 +65,8 @@ class CalibratorNode(LiveCollection, Node):
     def __init__(self, node_name=NODE_NAME, **kwargs):
         super().__init__(node_name, **kwargs)
         in_depth, period, scalar_types = params.declare(self)
+        self._headerless = [common.headerless(cls) for cls, _ in scalar_types]
+        self._imu_clock = LiveImuClock(self.k) if any(self._headerless) else None
 
         self._lock = threading.Lock()    # detector, aligner, windows, pending data
         self._busy = threading.Lock()    # held while an estimation runs

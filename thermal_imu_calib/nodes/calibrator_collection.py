@@ -13,6 +13,7 @@ live collection. Times: IMU header stamps (ns in messages, s in the windows).
 
 import copy
 import io
+import itertools
 import json
 import os
 import time
@@ -45,6 +46,7 @@ class LiveCollection:
         self._newest_ns = None
         self._rows = LiveImuFilter(common.JUMP_S)   # drops what calibrate drops (io.gate)
         self._pending_imu = []
+        self._pending_source = []     # the IMU messages' DDS source timestamps (header-less)
         self._pending_temp = [[] for _ in range(self.k)]
         self._resumed_until = None    # newest resumed hold end (s) until new data judge it
         self.resumed_holds = 0        # holds in the collection that came from the file
@@ -256,29 +258,41 @@ class LiveCollection:
     def _temperature_cb(self, index, value='temperature'):
         unit = self.temperature_units[index]
 
+        def add(m, when):   # when: the header stamp, or a header-less one's source timestamp
+            v = getattr(m, value)
+            finite, out = temperature_checks([v], unit)   # what calibrate drops
+            if not finite[0] or out[0]:
+                self.counts['temperature_invalid'] += 1
+                return
+            self.counts['temperature_readings'] += 1
+            self.readings_per_topic[index] += 1
+            with self._lock:
+                self._pending_temp[index].append((when, v))
+
+        # drained too, so temperature keeps pace with batched IMU data under load
+        if self._headerless[index]:
+            def bare(msg, info):     # no header: the DDS source timestamp orders it
+                for m, i in [(msg, info)] + common.drain(self.temp_subs[index], 100, self,
+                                                         with_info=True):
+                    add(m, i['source_timestamp'])
+            return bare
+
         def cb(msg):
-            # drained too, so temperature keeps pace with batched IMU data under load
             for m in [msg] + common.drain(self.temp_subs[index], 100, self):
-                v = getattr(m, value)
-                finite, out = temperature_checks([v], unit)   # what calibrate drops
-                if not finite[0] or out[0]:
-                    self.counts['temperature_invalid'] += 1
-                    continue
-                self.counts['temperature_readings'] += 1
-                self.readings_per_topic[index] += 1
-                with self._lock:
-                    self._pending_temp[index].append((common.stamp_to_ns(m.header.stamp), v))
+                add(m, common.stamp_to_ns(m.header.stamp))
         return cb
 
-    def _on_imu(self, msg):
-        msgs = [msg]
-        msgs.extend(common.drain(self.imu_sub, 999, self))
+    def _on_imu(self, msg, info):
+        taken = [(msg, info)] + common.drain(self.imu_sub, 999, self, with_info=True)
+        msgs = [m for m, _ in taken]
         if not self._seen_frame:
             self._seen_frame = msg.header.frame_id
         stamps, accel, gyro = common.imu_to_arrays(msgs)
         self._rate.add(len(msgs))
         with self._lock:
             self._pending_imu.append((stamps, accel, gyro))
+            if self._imu_clock is not None:      # the publish order, for header-less readings
+                self._pending_source.append([i['source_timestamp'] for _, i in taken])
 
     def _process(self):
         with self._lock:
@@ -290,6 +304,8 @@ class LiveCollection:
                 else ImuColumns.empty()
             tcols = [TemperatureColumns(np.array([s for s, _ in t], np.int64),
                                         np.array([v for _, v in t], float)) for t in temps]
+            if self._imu_clock is not None:
+                tcols = self._stamp_headerless(imu.stamp_ns, temps, tcols)
             imu = self._filtered(imu)       # an invalid row's stamp counts for nothing
             if len(imu) and self._resumed_until is not None:
                 self._check_session(int(imu.stamp_ns[0]))
@@ -299,6 +315,23 @@ class LiveCollection:
                 self._newest_ns = max(self._newest_ns or 0, int(imu.stamp_ns.max()))
             for chunk in self.aligner.push_columns(imu, tcols):
                 self._collect(chunk)
+
+    def _stamp_headerless(self, imu_stamps, temps, tcols):
+        """Put the header-less inputs' readings on the IMU's clock (``LiveImuClock``).
+
+        ``imu_stamps`` are the IMU messages taken since the last call (before the input
+        gate, as offline); a header-less input's ``temps`` entries are (source timestamp,
+        value) pairs. Returns ``tcols`` with those inputs' stamped readings.
+        """
+        sources, self._pending_source = self._pending_source, []
+        self._imu_clock.add_imu([s for part in sources for s in part], imu_stamps)
+        out = list(tcols)
+        for j, bare in enumerate(self._headerless):
+            if bare:
+                for source, value in temps[j]:
+                    self._imu_clock.add_reading(j, source, value)
+                out[j] = self._imu_clock.take(j)
+        return out
 
     def _check_session(self, stamp_ns):
         """Keep a resumed collection only when the first data after the restart continue it.
@@ -422,18 +455,25 @@ class LiveCollection:
         """
         self._process()
         with self._lock:
+            tail = None     # header-less readings after the newest IMU message (as offline)
+            if self._imu_clock is not None:
+                clock = copy.deepcopy(self._imu_clock)
+                tail = [clock.take(j, everything=True) if bare else TemperatureColumns.empty()
+                        for j, bare in enumerate(self._headerless)]
             return (self.windows, self.transitions, copy.deepcopy(self.detector),
-                    copy.deepcopy(self.aligner), self._hold_offset)
+                    copy.deepcopy(self.aligner), self._hold_offset, tail)
 
-    def snapshot_collected(self, windows, transitions, detector, aligner, offset):
+    def snapshot_collected(self, windows, transitions, detector, aligner, offset, tail=None):
         """Return the Collected of a ``snapshot``, its open hold closed in the copies.
 
         Finishing the copied ``detector`` and ``aligner`` adds the samples still waiting for
         a newer temperature reading and the hold in progress (if long enough), and the pose
-        change into it, without closing anything in the live collection.
+        change into it, without closing anything in the live collection. ``tail``: the
+        header-less readings still waiting for an IMU message, stamped with the newest.
         """
         parts = []
-        for chunk in aligner.finish():
+        pushed = aligner.push_columns(ImuColumns.empty(), tail) if tail else []
+        for chunk in itertools.chain(pushed, aligner.finish()):
             imu, temps, _ = fresh_part(chunk, self.temperature_timeout)
             if len(imu):
                 parts.append(detector.update(imu.t, imu.accel, imu.gyro, temps))

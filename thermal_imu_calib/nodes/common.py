@@ -15,6 +15,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import FluidPressure, Illuminance, RelativeHumidity, Temperature
+from std_msgs.msg import Float32, Float64
 
 from ..input_units import broadcast_units
 from ..io import gate
@@ -179,7 +180,7 @@ def _diag9(var):
     return out
 
 
-def drain(subscription, limit, node=None):
+def drain(subscription, limit, node=None, with_info=False):
     """Take up to ``limit`` further waiting messages of ``subscription`` without the executor.
 
     Called from the subscription's own callback. Processing a burst as one batch keeps the
@@ -188,6 +189,8 @@ def drain(subscription, limit, node=None):
     taking on a worker thread while a MultiThreadedExecutor waits on the same participant
     loses samples of *other* subscriptions (seen with rclpy 7.1.6 / rmw_fastrtps), so with
     any other executor (or none known, when ``node`` is given) this returns nothing.
+    ``with_info``: (message, message info) pairs, the info a dict with the DDS
+    ``source_timestamp`` (ns) as a two-argument callback gets it.
     """
     if node is not None and not isinstance(node.executor, SingleThreadedExecutor):
         return []
@@ -199,7 +202,7 @@ def drain(subscription, limit, node=None):
                 taken = handle.take_message(subscription.msg_type, subscription.raw)
                 if taken is None:
                     break
-                out.append(taken[0])
+                out.append(taken if with_info else taken[0])
     except Exception:  # noqa: B902 - destroyed handle at shutdown: nothing more to take
         pass
     return out
@@ -216,6 +219,16 @@ SCALAR_TYPES = {name: (cls, SCALAR_MSGTYPES[name]) for name, cls in (
     ('sensor_msgs/msg/FluidPressure', FluidPressure),
     ('sensor_msgs/msg/Illuminance', Illuminance),
     ('sensor_msgs/msg/RelativeHumidity', RelativeHumidity))}
+#: header-less scalars a thermal input may arrive as (``io.headerless``): each reading
+#: takes the header stamp of the IMU message published before it (DDS source timestamps)
+HEADERLESS_TYPES = {'std_msgs/msg/Float32': (Float32, 'data'),
+                    'std_msgs/msg/Float64': (Float64, 'data')}
+THERMAL_TYPES = {**SCALAR_TYPES, **HEADERLESS_TYPES}
+
+
+def headerless(cls):
+    """True for a thermal-input message class without a header (``HEADERLESS_TYPES``)."""
+    return any(cls is c for c, _ in HEADERLESS_TYPES.values())
 
 
 def declare_thermal_inputs(p, topics, description_suffix='', read_only=True):
@@ -233,14 +246,17 @@ def declare_thermal_inputs(p, topics, description_suffix='', read_only=True):
     types = list(p.declare(
         'temperature_types', ['sensor_msgs/msg/Temperature'],
         'Message type of each temperature_topics entry (one entry: all): a header-stamped '
-        'scalar, one of ' + ', '.join(SCALAR_TYPES) + '.', read_only=read_only))
+        'scalar, one of ' + ', '.join(SCALAR_TYPES) + ', or a header-less '
+        + ' or '.join(HEADERLESS_TYPES) + ' (as the um6/um7 drivers publish), whose readings '
+        'take the header stamp of the IMU message published before each.',
+        read_only=read_only))
     units = broadcast_units(units, topics)
     if len(types) == 1:
         types = types * len(topics)
-    if len(types) != len(topics) or any(t not in SCALAR_TYPES for t in types):
-        raise ValueError(f'temperature_types {types} must give one of {list(SCALAR_TYPES)} '
+    if len(types) != len(topics) or any(t not in THERMAL_TYPES for t in types):
+        raise ValueError(f'temperature_types {types} must give one of {list(THERMAL_TYPES)} '
                          f'per temperature_topics entry ({len(topics)}), or one for all')
-    return units, [SCALAR_TYPES[t] for t in types]
+    return units, [THERMAL_TYPES[t] for t in types]
 
 
 class TemperatureInputs:

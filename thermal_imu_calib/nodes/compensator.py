@@ -41,6 +41,7 @@ from ..collection.feed import DEFAULT_MAX_GAP_S
 from ..collection.outliers import ImuSpikeFilter
 from ..gravity import STANDARD_GRAVITY
 from ..io.columns import AlignedChunk, ImuColumns
+from ..io.headerless import LiveImuClock
 from ..io.imu_units import UnitWatch
 from ..thermal_input import CalibrationStream
 
@@ -174,6 +175,8 @@ class CompensatorNode(Node):
             event_callbacks=SubscriptionEventCallbacks(message_lost=self._on_lost))
 
         self._temp_fields = [value for _, value in scalar_types]
+        self._headerless = [common.headerless(cls) for cls, _ in scalar_types]
+        self._imu_clock = (LiveImuClock(len(scalar_types)) if any(self._headerless) else None)
         self.temp_subs = [
             self.create_subscription(cls, topic, self._temperature_cb(i, value),
                                      common.sensor_qos(in_depth))
@@ -299,6 +302,13 @@ class CompensatorNode(Node):
 
     # ------------------------------------------------------------------ data
     def _temperature_cb(self, index, value='temperature'):
+        if self._headerless[index]:
+            def bare(msg, info):
+                taken = [(msg, info)] + common.drain(self.temp_subs[index], 100, self,
+                                                     with_info=True)
+                self._add_headerless(index, value, taken)
+            return bare
+
         def cb(msg):
             # drained too, so temperature keeps pace with batched IMU data under load
             taken = [msg] + common.drain(self.temp_subs[index], 100, self)
@@ -308,6 +318,19 @@ class CompensatorNode(Node):
     def _add_temperatures(self, index, value, msgs):
         for m in msgs:
             self.temps.add(index, common.stamp_to_ns(m.header.stamp), getattr(m, value))
+
+    def _add_headerless(self, index, value, taken):
+        """Add (message, info) readings without a header, on the IMU's clock.
+
+        Each takes the header stamp of the IMU message published before it (DDS source
+        timestamps, ``io.headerless.LiveImuClock``); one published after every IMU message
+        received so far waits for the next.
+        """
+        for m, info in taken:
+            self._imu_clock.add_reading(index, info['source_timestamp'], getattr(m, value))
+        got = self._imu_clock.take(index)
+        for stamp, v in zip(got.stamp_ns.tolist(), got.temperature.tolist()):
+            self.temps.add(index, stamp, v)
 
     def _take_queued_temperatures(self, msgs):
         """Take readings still queued that are stamped within the IMU batch ``msgs``.
@@ -322,6 +345,11 @@ class CompensatorNode(Node):
         until = max(common.stamp_to_ns(m.header.stamp) for m in msgs)
         later = []
         for i, sub in enumerate(self.temp_subs):
+            if self._headerless[i]:      # stamped by the IMU messages published before them
+                self._add_headerless(i, self._temp_fields[i],
+                                     common.drain(sub, 1000, self, with_info=True))
+                later.append([])
+                continue
             taken = common.drain(sub, 1000, self)
             cut = next((j for j, m in enumerate(taken)
                         if common.stamp_to_ns(m.header.stamp) > until), len(taken))
@@ -333,9 +361,13 @@ class CompensatorNode(Node):
         # DDS-reported losses on imu/data_raw (sequence gaps the reader saw): diagnostics
         self.counts['input_lost'] += info.total_count_change
 
-    def _on_imu(self, msg):
-        msgs = [msg]
-        msgs.extend(common.drain(self.imu_sub, self.batch_limit - 1, self))
+    def _on_imu(self, msg, info):
+        taken = [(msg, info)] + common.drain(self.imu_sub, self.batch_limit - 1, self,
+                                             with_info=True)
+        msgs = [m for m, _ in taken]
+        if self._imu_clock is not None:     # the publish order, for header-less readings
+            self._imu_clock.add_imu([i['source_timestamp'] for _, i in taken],
+                                    [common.stamp_to_ns(m.header.stamp) for m in msgs])
         later = self._take_queued_temperatures(msgs)
         try:
             if not self.registry_dir:

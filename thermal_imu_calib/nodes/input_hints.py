@@ -16,18 +16,29 @@ def thermal_topics_hint(node, subscriptions):
     """Return '; thermal-input topics on the graph: ... (set ...)' for a silent input, or ''.
 
     Names the topics of a ``common.SCALAR_TYPES`` type that ``node`` does not subscribe to
-    (``subscriptions``: its temperature subscriptions): a driver publishing ``imu/temp``
-    when the node listens on ``imu/temperature`` is found this way. The graph is a hint
-    only; an error reading it gives ''.
+    (``subscriptions``: its temperature subscriptions), and those of a header-less type
+    (``common.HEADERLESS_TYPES``) named 'temp...': a driver publishing ``imu/temp`` when
+    the node listens on ``imu/temperature`` is found this way. The graph is a hint only; an
+    error reading it gives ''.
     """
     ours = {s.topic_name for s in subscriptions}
+
+    def thermal(topic, types):
+        return [ty for ty in types if ty in common.SCALAR_TYPES or (
+            ty in common.HEADERLESS_TYPES
+            and topic.rsplit('/', 1)[-1].lower().startswith('temp'))]
     try:
-        seen = sorted(t for t, types in node.get_topic_names_and_types()
-                      if t not in ours and any(ty in common.SCALAR_TYPES for ty in types))
+        seen = sorted((t, thermal(t, types)[0]) for t, types in node.get_topic_names_and_types()
+                      if t not in ours and thermal(t, types))
     except Exception:  # noqa: B902 - the graph is only a hint
         return ''
-    return (f'; thermal-input topics on the graph: {", ".join(seen)} (set '
-            f"temperature_topics:='[{seen[0]}]')" if seen else '')
+    if not seen:
+        return ''
+    topic, typ = seen[0]
+    kind = (f" temperature_types:='[{typ}]'" if typ != 'sensor_msgs/msg/Temperature'
+            else '')
+    return (f'; thermal-input topics on the graph: {", ".join(t for t, _ in seen)} (set '
+            f"temperature_topics:='[{topic}]'{kind})")
 
 
 def _type_name(cls):
@@ -41,10 +52,8 @@ def wrong_type_hint(node, subscriptions):
     A publisher of another message type on a topic the node subscribes to never connects
     (DDS matches types), so its messages are silently not received; the publisher shows on
     the graph only. Says which type and node, and what to do: another scalar type the node
-    reads (``common.SCALAR_TYPES``, with a header) is set with ``temperature_types``; a
-    type without a header (std_msgs/Float32, Float64) cannot be put on the IMU's clock, so
-    the reading must be republished as sensor_msgs/Temperature with the IMU's stamps. The
-    graph is a hint only; an error reading it gives ''.
+    reads (``common.THERMAL_TYPES``, std_msgs/Float32 and Float64 included) is set with
+    ``temperature_types``. The graph is a hint only; an error reading it gives ''.
     """
     out = []
     try:
@@ -54,11 +63,8 @@ def wrong_type_hint(node, subscriptions):
                              for i in node.get_publishers_info_by_topic(sub.topic_name)
                              if i.topic_type != ours})
             for typ, by in others:
-                if typ in common.SCALAR_TYPES:
+                if typ in common.THERMAL_TYPES:
                     todo = f"set temperature_types:='[{typ}]'"
-                elif typ.startswith('std_msgs/'):
-                    todo = ('it has no header stamp to align with the IMU samples: publish '
-                            f'{ours} with the IMU header stamps instead (a relay node)')
                 else:
                     todo = f'publish {ours} on it'
                 out.append(f'; {sub.topic_name} is published as {typ} by {by}, not {ours}, '
