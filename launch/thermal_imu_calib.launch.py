@@ -7,10 +7,11 @@
     ros2 launch thermal_imu_calib thermal_imu_calib.launch.py nodes:=calibrator gravity:=9.81
 
 Arguments: namespace, imu_topic (remapped onto the nodes' ``imu/data_raw``),
-temperature_topics (YAML list), params_file (default: the package's config/<node>.yaml),
-calibration_file (default: the one in the params file), use_sim_time, the calibrator's
-gravity, latitude, lifelong and motion hints (cmd_vel_topic, odom_topic, still_topic), and
-nodes (comma list of compensator, calibrator). ``ros2 launch``
+temperature_topics and temperature_types (YAML lists), params_file (default: the
+package's config/<node>.yaml), calibration_file (default: the one in the params file),
+use_sim_time, the calibrator's gravity, latitude, lifelong and motion hints
+(cmd_vel_topic, odom_topic, still_topic), and nodes (comma list of compensator,
+calibrator). ``ros2 launch``
 silently keeps an argument a launch file does not declare, so a node parameter given as
 ``name:=value`` (e.g. ``order:=1``) is not applied: this file prints a warning naming it
 and how to set it.
@@ -33,6 +34,10 @@ ARGUMENTS = (
     ('imu_topic', 'imu/data_raw', 'sensor_msgs/Imu input, remapped onto imu/data_raw'),
     ('temperature_topics', '', 'YAML list of thermal input topics, e.g. [imu/temperature]; '
                                '[] for none (empty: the params file\'s)'),
+    ('temperature_types', '', 'YAML list of their message types, one for all or one each, e.g. '
+                              '[std_msgs/msg/Float32] for a driver publishing the temperature '
+                              'without a header (empty: the params file\'s, '
+                              'sensor_msgs/msg/Temperature)'),
     ('params_file', '', 'parameters file for the nodes (empty: config/<node>.yaml of the '
                         'package)'),
     ('calibration_file', '', 'calibration YAML the compensator loads and the calibrator writes '
@@ -81,13 +86,14 @@ def make_nodes(context):
         raise ValueError(f'nodes:={v["nodes"]} must name some of {", ".join(NODES)}')
     overrides = {'use_sim_time': _bool(v['use_sim_time'], 'use_sim_time')}
     if v['temperature_topics'].strip():
-        topics = yaml.safe_load(v['temperature_topics'])
-        topics = [topics] if isinstance(topics, str) else topics
-        if not isinstance(topics, list) or not all(isinstance(t, str) for t in topics):
-            raise ValueError(f'temperature_topics:={v["temperature_topics"]} is not a list of '
-                             'topics, e.g. "[imu/temperature]"')
+        topics = _names(v['temperature_topics'], 'temperature_topics', 'topics',
+                        '[imu/temperature]')
         # ROS 2 cannot type an empty array: [''] is the nodes' spelling of "no input"
         overrides['temperature_topics'] = topics or ['']
+    if v['temperature_types'].strip():
+        overrides['temperature_types'] = _names(
+            v['temperature_types'], 'temperature_types', 'message types',
+            '[std_msgs/msg/Float32]') or ['sensor_msgs/msg/Temperature']
     if v['calibration_file'].strip():
         overrides['calibration_file'] = os.path.expanduser(v['calibration_file'])
     calibrator = {}
@@ -112,6 +118,15 @@ def make_nodes(context):
                                 calibrator if which == 'calibrator' else {})}],
                             remappings=[('imu/data_raw', v['imu_topic'])]))
     return actions
+
+
+def _names(text, name, what, example):
+    """Return the YAML list (or single name) ``text`` as a list of strings."""
+    names = yaml.safe_load(text)
+    names = [names] if isinstance(names, str) else names
+    if not isinstance(names, list) or not all(isinstance(t, str) for t in names):
+        raise ValueError(f'{name}:={text} is not a list of {what}, e.g. "{example}"')
+    return names
 
 
 def _number(text, name, lo, hi, zero=False):

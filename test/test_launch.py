@@ -65,7 +65,8 @@ def _resolve(mod, undeclared=None, **given):
 
 def test_arguments_declared(launch_module):
     declared, nodes = _resolve(launch_module)
-    assert set(declared) == {'namespace', 'imu_topic', 'temperature_topics', 'params_file',
+    assert set(declared) == {'namespace', 'imu_topic', 'temperature_topics',
+                             'temperature_types', 'params_file',
                              'calibration_file', 'use_sim_time', 'gravity', 'latitude',
                              'lifelong', 'cmd_vel_topic', 'odom_topic', 'still_topic',
                              'nodes'}
@@ -109,6 +110,26 @@ def test_no_temperature_topics(launch_module, ros, tmp_path, monkeypatch):
             parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()])
         ros.add(node)
         assert node.temperature_topics == []
+
+
+def test_a_headerless_temperature_type_reaches_both_nodes(launch_module, ros, tmp_path,
+                                                          monkeypatch):
+    """``temperature_types:='[std_msgs/msg/Float32]'`` (the um6/um7 drivers): both nodes
+    subscribe imu/temperature as std_msgs/Float32, as the wrong-type hint tells."""
+    import importlib
+    from rclpy.parameter import Parameter
+    _, nodes = _resolve(launch_module, temperature_types='[std_msgs/msg/Float32]')
+    monkeypatch.setenv('HOME', str(tmp_path))
+    for n in nodes:
+        params_file, overrides = n['parameters']
+        assert overrides['temperature_types'] == ['std_msgs/msg/Float32']
+        module = importlib.import_module('thermal_imu_calib.nodes.' + n['executable'][:-5])
+        cls = {'compensator_node': 'CompensatorNode', 'calibrator_node': 'CalibratorNode'}
+        node = ros.add(getattr(module, cls[n['executable']])(
+            context=ros.context, cli_args=['--ros-args', '--params-file', params_file],
+            parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()]))
+        subs = {s.topic_name: s.msg_type.__name__ for s in node.subscriptions}
+        assert subs['/imu/temperature'] == 'Float32', subs
 
 
 def test_gravity_and_latitude_reach_the_calibrator(launch_module, ros, tmp_path,
@@ -155,6 +176,7 @@ def test_gravity_and_latitude_reach_the_calibrator(launch_module, ros, tmp_path,
     ('nodes', 'compensater', 'must name some of compensator, calibrator'),
     ('use_sim_time', 'maybe', 'not true or false'),
     ('temperature_topics', '{a: 1}', 'not a list of topics'),
+    ('temperature_types', '[1]', 'not a list of message types'),
     ('gravity', '981', 'gravity:=981 must be a number in 9.7..9.9'),
     ('latitude', 'north', 'latitude:=north must be a number'),
     ('lifelong', 'on', 'lifelong:=on is not true or false')])
