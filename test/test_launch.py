@@ -94,41 +94,36 @@ def test_imu_topic_and_overrides(launch_module):
         'calibration_file': os.path.expanduser('~/cal.yaml')}]
 
 
-def test_no_temperature_topics(launch_module, ros, tmp_path, monkeypatch):
-    """``temperature_topics:='[]'`` starts both nodes without a thermal input."""
+def _start(ros, described):
+    """Start the node a launch description entry describes, with its parameters."""
     import importlib
     from rclpy.parameter import Parameter
+    params_file, overrides = described['parameters']
+    module = importlib.import_module('thermal_imu_calib.nodes.' + described['executable'][:-5])
+    cls = {'compensator_node': 'CompensatorNode', 'calibrator_node': 'CalibratorNode'}
+    return ros.add(getattr(module, cls[described['executable']])(
+        context=ros.context, cli_args=['--ros-args', '--params-file', params_file],
+        parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()]))
+
+
+def test_no_temperature_topics(launch_module, ros, tmp_path, monkeypatch):
+    """``temperature_topics:='[]'`` starts both nodes without a thermal input."""
     _, nodes = _resolve(launch_module, temperature_topics='[]')
     monkeypatch.setenv('HOME', str(tmp_path))
     for n in nodes:
-        params_file, overrides = n['parameters']
-        assert overrides['temperature_topics'] == ['']
-        module = importlib.import_module('thermal_imu_calib.nodes.' + n['executable'][:-5])
-        cls = {'compensator_node': 'CompensatorNode', 'calibrator_node': 'CalibratorNode'}
-        node = getattr(module, cls[n['executable']])(
-            context=ros.context, cli_args=['--ros-args', '--params-file', params_file],
-            parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()])
-        ros.add(node)
-        assert node.temperature_topics == []
+        assert n['parameters'][1]['temperature_topics'] == ['']
+        assert _start(ros, n).temperature_topics == []
 
 
 def test_a_headerless_temperature_type_reaches_both_nodes(launch_module, ros, tmp_path,
                                                           monkeypatch):
     """``temperature_types:='[std_msgs/msg/Float32]'`` (the um6/um7 drivers): both nodes
     subscribe imu/temperature as std_msgs/Float32, as the wrong-type hint tells."""
-    import importlib
-    from rclpy.parameter import Parameter
     _, nodes = _resolve(launch_module, temperature_types='[std_msgs/msg/Float32]')
     monkeypatch.setenv('HOME', str(tmp_path))
     for n in nodes:
-        params_file, overrides = n['parameters']
-        assert overrides['temperature_types'] == ['std_msgs/msg/Float32']
-        module = importlib.import_module('thermal_imu_calib.nodes.' + n['executable'][:-5])
-        cls = {'compensator_node': 'CompensatorNode', 'calibrator_node': 'CalibratorNode'}
-        node = ros.add(getattr(module, cls[n['executable']])(
-            context=ros.context, cli_args=['--ros-args', '--params-file', params_file],
-            parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()]))
-        subs = {s.topic_name: s.msg_type.__name__ for s in node.subscriptions}
+        assert n['parameters'][1]['temperature_types'] == ['std_msgs/msg/Float32']
+        subs = {s.topic_name: s.msg_type.__name__ for s in _start(ros, n).subscriptions}
         assert subs['/imu/temperature'] == 'Float32', subs
 
 
@@ -137,7 +132,6 @@ def test_gravity_and_latitude_reach_the_calibrator(launch_module, ros, tmp_path,
     # the issue's new user sets only gravity; ros2 launch keeps an undeclared argument
     # without a word, so gravity:= must be declared, and a node parameter given as an
     # argument this file does not take is named in a warning
-    from rclpy.parameter import Parameter
     _, nodes = _resolve(launch_module, gravity='9.81')
     comp, calib = nodes
     assert 'gravity' not in comp['parameters'][1]
@@ -151,14 +145,10 @@ def test_gravity_and_latitude_reach_the_calibrator(launch_module, ros, tmp_path,
     assert calib['parameters'][1]['cmd_vel_topic'] == '/cmd_vel'
     assert 'lifelong' not in comp['parameters'][1]
     monkeypatch.setenv('HOME', str(tmp_path))
-    module = importlib.import_module('thermal_imu_calib.nodes.calibrator')
 
     def start(**arguments):      # the calibrator as the launch file describes it
         _, (calib,) = _resolve(launch_module, nodes='calibrator', **arguments)
-        params_file, overrides = calib['parameters']
-        return ros.add(module.CalibratorNode(
-            context=ros.context, cli_args=['--ros-args', '--params-file', params_file],
-            parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()]))
+        return _start(ros, calib)
     assert start(gravity='9.81').gravity == 9.81
     node = start(lifelong='true', cmd_vel_topic='/cmd_vel')
     assert node.lifelong is not None
