@@ -779,4 +779,7 @@ def test_a_headerless_float32_temperature_takes_the_stamp_of_the_imu_before_it(r
         exp = expected(cal, temp)
         np.testing.assert_allclose(got[stamps[k]][0], exp.accel[0], rtol=0, atol=1e-9)
         np.testing.assert_allclose(got[stamps[k]][1], exp.gyro[0], rtol=0, atol=1e-12)
-    assert node._imu_clock.left_out == 0
+    assert node.counts['temperature_before_imu'] == 0
+    temp_pub.publish(Float32(data=40.0))      # the IMU stream has ended: it waits, unused
+    wait_for(lambda: node._imu_clock._wait[0], WAIT, 'the third reading at the node')
+    assert node.temps.received == [2]

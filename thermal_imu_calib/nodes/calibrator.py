@@ -327,6 +327,8 @@ class CalibratorNode(LiveCollection, Node):
             n, h, t = len(self.windows), len(self.windows.hold_ids), len(self.transitions)
             self._new_collection()
             self.counts.update({k: 0 for k in self.counts})
+            if self._imu_clock is not None:
+                self._imu_clock.left_out = 0
             self._rows.gyro_unit = 0      # a driver fixed since: its data are judged afresh
             self.readings_per_topic = [0] * self.k
             path = self._collection_path()

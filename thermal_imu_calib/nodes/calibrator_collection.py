@@ -331,6 +331,7 @@ class LiveCollection:
                 for source, value in temps[j]:
                     self._imu_clock.add_reading(j, source, value)
                 out[j] = self._imu_clock.take(j)
+        self.counts['temperature_before_imu'] = self._imu_clock.left_out   # not used
         return out
 
     def _check_session(self, stamp_ns):

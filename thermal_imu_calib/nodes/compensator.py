@@ -331,6 +331,7 @@ class CompensatorNode(Node):
         got = self._imu_clock.take(index)
         for stamp, v in zip(got.stamp_ns.tolist(), got.temperature.tolist()):
             self.temps.add(index, stamp, v)
+        self.counts['temperature_before_imu'] = self._imu_clock.left_out   # not used
 
     def _take_queued_temperatures(self, msgs):
         """Take readings still queued that are stamped within the IMU batch ``msgs``.
