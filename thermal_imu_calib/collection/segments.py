@@ -248,3 +248,28 @@ def distinct_orientations(windows, angle_deg=20.0):
     if len(reps) > 1 and family_direction(windows, angle_deg) is not None:
         return 1
     return len(reps)
+
+
+def readable_records(data: bytes, k: int):
+    """Return (text of the readable records, records skipped, records seen) of JSON lines.
+
+    ``data`` is a collection file's bytes (``Windows.to_jsonl`` lines). A record (one line)
+    is skipped when it is not UTF-8, not JSON or lacks a field the windows table needs, or
+    has other than ``k`` thermal inputs; the others are kept (one bad line does not lose the
+    collection).
+    """
+    good, skipped, total = [], 0, 0
+    for line in data.splitlines():
+        if not line.strip():
+            continue
+        total += 1
+        try:
+            text = line.decode('utf-8')
+            win = Windows.from_jsonl(text, k)
+            if len(win) != 1 or win.n_inputs != k:
+                raise ValueError('not one record of this node\'s inputs')
+        except Exception:  # noqa: B902 - any bad record is skipped and counted
+            skipped += 1
+            continue
+        good.append(text)
+    return '\n'.join(good) + ('\n' if good else ''), skipped, total

@@ -24,7 +24,7 @@ from . import common
 from ..collection.collected import Collected
 from ..collection.motion import load_transitions, MotionCollector, offset_holds, save_transitions
 from ..collection.feed import fresh_part
-from ..collection.segments import Windows
+from ..collection.segments import readable_records, Windows
 from ..collection.stationary import DetectorConfig, DetectorSettingsError
 from ..io.align import StreamAligner
 from ..io.columns import ImuColumns, TemperatureColumns
@@ -117,7 +117,7 @@ class LiveCollection:
             return
         with open(path, 'rb') as f:
             data = f.read()
-        text, skipped, total = _good_records(data, self.k)
+        text, skipped, total = readable_records(data, self.k)
         try:
             win = Windows.from_jsonl(text, self.k)
             if total and not skipped and len(win) == 0:
@@ -493,26 +493,3 @@ class LiveCollection:
         return Collected(windows, self._seen_frame, self._rate.total, 0.0,
                          list(self.temperature_topics), list(transitions),
                          detector=detector)
-
-
-def _good_records(data, k):
-    """Return (text of the readable records, records skipped, records seen) of a collection.
-
-    A record (one line) is skipped when it is not UTF-8, not JSON or lacks a field the
-    windows table needs; the others are kept (one bad line no longer loses the collection).
-    """
-    good, skipped, total = [], 0, 0
-    for line in data.splitlines():
-        if not line.strip():
-            continue
-        total += 1
-        try:
-            text = line.decode('utf-8')
-            win = Windows.from_jsonl(text, k)
-            if len(win) != 1 or win.n_inputs != k:
-                raise ValueError('not one record of this node\'s inputs')
-        except Exception:  # noqa: B902 - any bad record is skipped and counted
-            skipped += 1
-            continue
-        good.append(text)
-    return '\n'.join(good) + ('\n' if good else ''), skipped, total

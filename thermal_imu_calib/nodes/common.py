@@ -227,7 +227,7 @@ THERMAL_TYPES = {**SCALAR_TYPES, **HEADERLESS_TYPES}
 
 
 def headerless(cls):
-    """True for a thermal-input message class without a header (``HEADERLESS_TYPES``)."""
+    """Return True for a thermal-input message class without a header (``HEADERLESS_TYPES``)."""
     return any(cls is c for c, _ in HEADERLESS_TYPES.values())
 
 
