@@ -85,10 +85,12 @@ def _add_topics(p, imu_required=False):
     p.add_argument('--temperature-topic', action='append', default=None, metavar='TOPIC',
                    help='thermal input topic: sensor_msgs/Temperature (a temperature, or a '
                         'proxy such as a resonance frequency) or another stamped scalar '
-                        '(FluidPressure, Illuminance, RelativeHumidity); repeat for several '
-                        'inputs; \'\' for none (default: those of the calibration, or the '
-                        'IMU\'s Temperature topics: the only one, else those with the IMU\'s '
-                        'frame_id or namespace)')
+                        '(FluidPressure, Illuminance, RelativeHumidity), or a header-less '
+                        'std_msgs/Float32 or Float64 (each reading takes the stamp of the IMU '
+                        'message logged before it); repeat for several inputs; \'\' for none '
+                        '(default: those of the calibration, or the IMU\'s Temperature topics: '
+                        'the only one, else those with the IMU\'s frame_id or namespace; with '
+                        'none, a header-less temp* topic in the IMU\'s namespace)')
     p.add_argument('--max-gap', type=float, default=DEFAULTS.max_gap_s, metavar='S',
                    help='temperature samples further apart than this are a gap: the nearest '
                         f'sample is held instead of interpolating (s, default '
