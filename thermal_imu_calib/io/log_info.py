@@ -48,7 +48,8 @@ class TopicStats:
     Stamp statistics are filled for Imu and Temperature topics only (header stamps);
     ``rate_hz`` is the median-interval rate, ``mean_rate_hz`` the count over the stamp
     span, ``max_gap_s`` the largest stamp step and ``stamps_backwards`` how many steps
-    went back in time.
+    went back in time. A header-less thermal topic (std_msgs/Float32, Float64) has its
+    value range and, as ``rate_hz``, the mean rate over its log times.
     """
 
     name: str
@@ -142,7 +143,6 @@ class _StatsBuilder:
         self.stats = TopicStats(name, msgtype)
         self.stamped = msgtype == IMU_MSGTYPE or msgtype in SCALAR_MSGTYPES
         self.values_only = msgtype in HEADERLESS_MSGTYPES     # a range, no stamps
-        self.times: list[int] = []
         self.raws: list[bytes] = []
         self.medians: list[float] = []
         self.n_stamps = 0
@@ -206,6 +206,9 @@ class _StatsBuilder:
             st.rate_hz = 1e9 / float(np.median(self.medians))
         if self.n_stamps > 1 and st.last_stamp_ns != st.first_stamp_ns:
             st.mean_rate_hz = (self.n_stamps - 1) * 1e9 / (st.last_stamp_ns - st.first_stamp_ns)
+        span = (st.last_log_time_ns or 0) - (st.first_log_time_ns or 0)
+        if self.values_only and st.count > 1 and span > 0:
+            st.rate_hz = (st.count - 1) * 1e9 / span
         if st.temperature_min is not None:
             st.temperature_min, st.temperature_max = (float(st.temperature_min),
                                                       float(st.temperature_max))
