@@ -14,6 +14,7 @@ the helper's exit, the group emptied).
 
 import contextlib
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -150,7 +151,9 @@ def _run_helper(tmp_path, kind, how, before_end=None):
     def output():
         return log_path.read_text()     # its own offset, not the one the helper writes at
     try:
-        line = wait_for(lambda: [x for x in output().splitlines() if x.startswith('READY')]
+        # a whole line only: read while the helper writes it, 'READY' may come without its pid
+        line = wait_for(lambda: [x for x in output().splitlines()
+                                 if re.fullmatch(r'READY \d+', x)]
                         or helper.poll() is not None, 60,
                         lambda: f'the helper to launch the node: {output()[-800:]}')
         assert helper.poll() is None, f'helper exited: {output()[-800:]}'
