@@ -161,3 +161,18 @@ def test_live_readings_are_stamped_in_publish_order_whatever_the_callback_order(
     clock.add_imu([40, 50], [4000, 5000])    # history 3: 10 and 20 let go
     clock.add_reading(0, 12, 24.0)
     assert clock.take(0).stamp_ns.tolist() == [3000]   # before all kept: the oldest's
+
+
+def test_the_silent_input_hint_names_a_headerless_temp_topic_and_its_type():
+    # a um7 driver under a namespace: /robot/imu/temperature is std_msgs/Float32 while the
+    # node listens on /imu/temperature; a Float32 that is not named temp* is not offered
+    from types import SimpleNamespace
+    from thermal_imu_calib.nodes import input_hints
+    graph = [('/robot/imu/temperature', ['std_msgs/msg/Float32']),
+             ('/battery/voltage', ['std_msgs/msg/Float32']),
+             ('/imu/temperature', ['sensor_msgs/msg/Temperature'])]
+    node = SimpleNamespace(get_topic_names_and_types=lambda: graph)
+    ours = [SimpleNamespace(topic_name='/imu/temperature')]
+    assert input_hints.thermal_topics_hint(node, ours) == (
+        "; thermal-input topics on the graph: /robot/imu/temperature (set temperature_topics:="
+        "'[/robot/imu/temperature]' temperature_types:='[std_msgs/msg/Float32]')")
