@@ -158,9 +158,12 @@ def test_live_readings_are_stamped_in_publish_order_whatever_the_callback_order(
     assert len(clock.take(0)) == 0
     got = clock.take(0, everything=True)     # the end of a stream: the newest stamp
     assert got.stamp_ns.tolist() == [3000]
-    clock.add_imu([40, 50], [4000, 5000])    # history 3: 10 and 20 let go
+    clock.add_imu([40, 50, 60, 70], [4000, 5000, 6000, 7000])   # history 3: the newest 3
     clock.add_reading(0, 12, 24.0)
-    assert clock.take(0).stamp_ns.tolist() == [3000]   # before all kept: the oldest's
+    assert clock.take(0).stamp_ns.tolist() == [5000]   # before all kept: the oldest's
+    clock.add_imu([65], [6500])              # another publisher's clock: sorted in
+    clock.add_reading(0, 66, 25.0)
+    assert clock.take(0).stamp_ns.tolist() == [6500]
 
 
 def test_the_silent_input_hint_names_a_headerless_temp_topic_and_its_type():
@@ -176,3 +179,32 @@ def test_the_silent_input_hint_names_a_headerless_temp_topic_and_its_type():
     assert input_hints.thermal_topics_hint(node, ours) == (
         "; thermal-input topics on the graph: /robot/imu/temperature (set temperature_topics:="
         "'[/robot/imu/temperature]' temperature_types:='[std_msgs/msg/Float32]')")
+
+
+def test_live_stamps_equal_the_offline_rule_for_any_delivery_order():
+    # one publish sequence; the two topics delivered in random batches, each topic in order
+    # (as DDS delivers one topic) but the topics interleaved at random (as the executor
+    # runs the callbacks): the live clock gives what on_imu_clock gives the log
+    rng = np.random.default_rng(7)
+    is_imu = rng.random(3000) < 0.7
+    source = np.cumsum(rng.integers(1, 1000, 3000))
+    imu_src, imu_stamp = source[is_imu], 10 ** 12 + 5 * source[is_imu]
+    read_src, values = source[~is_imu], rng.normal(30.0, 5.0, int((~is_imu).sum()))
+    want = on_imu_clock(values, np.searchsorted(imu_src, read_src), imu_stamp, None)
+    clock = LiveImuClock(1, history=1000)    # the lag stays under it (else: the oldest's)
+    got, i, j = [], 0, 0
+    while i < len(imu_src) or j < len(read_src):
+        if i < len(imu_src) and (j == len(read_src) or rng.random() < 0.5):
+            k = int(rng.integers(1, 40))
+            clock.add_imu(imu_src[i:i + k].tolist(), imu_stamp[i:i + k].tolist())
+            i += k
+        else:
+            for s, v in zip(read_src[j:j + 10].tolist(), values[j:j + 10].tolist()):
+                clock.add_reading(0, s, v)
+            j += 10
+        got.append(clock.take(0))
+    got.append(clock.take(0, everything=True))
+    np.testing.assert_array_equal(np.concatenate([g.stamp_ns for g in got]), want.stamp_ns)
+    np.testing.assert_array_equal(np.concatenate([g.temperature for g in got]),
+                                  want.temperature)
+    assert clock.left_out == len(values) - len(want)

@@ -113,30 +113,58 @@ class LiveImuClock:
     reading published after every IMU message seen waits for the next one (one topic is
     delivered in order, so none published before it can still come); :meth:`flush` stamps
     the waiting ones with the newest IMU stamp (the end of a stream, as offline). Readings
-    published before the first IMU message are left out. ``history`` IMU messages are kept
-    (a reading published before all of them takes the oldest's stamp).
+    published before the first IMU message are left out. The newest ``history`` IMU messages
+    at least are kept (at most twice that; a reading published before all of them takes the
+    oldest's stamp).
     """
 
     def __init__(self, n_inputs: int, history: int = 4096):
         self.history = int(history)
-        self._src = np.zeros(0, np.int64)      # IMU source timestamps, increasing
-        self._stamp = np.zeros(0, np.int64)    # their header stamps
+        # IMU source timestamps (increasing) and header stamps in [:n]; room for two
+        # histories, so an append copies only the new messages (the kept half moves down
+        # once per ``history`` messages)
+        self._src_buf = np.zeros(2 * self.history, np.int64)
+        self._stamp_buf = np.zeros(2 * self.history, np.int64)
+        self._n = 0
         self._wait: list[list[tuple[int, float]]] = [[] for _ in range(n_inputs)]
         self.left_out = 0                       # readings before the first IMU message
         self._trimmed = False                   # older IMU messages were let go
 
+    @property
+    def _src(self) -> np.ndarray:
+        return self._src_buf[:self._n]
+
+    @property
+    def _stamp(self) -> np.ndarray:
+        return self._stamp_buf[:self._n]
+
     def add_imu(self, source_ns, stamp_ns) -> None:
         """Add IMU messages (source timestamps and header stamps, ns, in arrival order)."""
-        src = np.asarray(source_ns, np.int64)
-        if not len(src):
+        b = min(len(source_ns), self.history)
+        if not b:
             return
-        self._trimmed |= len(self._src) + len(src) > self.history
-        self._src = np.concatenate([self._src, src])[-self.history:]
-        self._stamp = np.concatenate([self._stamp, np.asarray(stamp_ns, np.int64)])[
-            -self.history:]
-        if np.any(np.diff(self._src[-len(src) - 1:]) < 0):   # another publisher's clock
-            order = np.argsort(self._src, kind='stable')
-            self._src, self._stamp = self._src[order], self._stamp[order]
+        if b < len(source_ns):                         # more than a history at once
+            self._n, self._trimmed = 0, True
+        if self._n + b > len(self._src_buf):          # keep the newest history - b
+            keep = self.history - b
+            self._src_buf[:keep] = self._src_buf[self._n - keep:self._n]
+            self._stamp_buf[:keep] = self._stamp_buf[self._n - keep:self._n]
+            self._n, self._trimmed = keep, True
+        n = self._n
+        if b == 1:                                     # one message: no array to build
+            first = self._src_buf[n] = source_ns[-1]
+            self._stamp_buf[n] = stamp_ns[-1]
+            ordered = True
+        else:
+            src = np.asarray(source_ns, np.int64)[-b:]
+            self._src_buf[n:n + b] = src
+            self._stamp_buf[n:n + b] = np.asarray(stamp_ns, np.int64)[-b:]
+            first, ordered = src[0], not np.any(src[1:] < src[:-1])
+        self._n = n + b
+        if not ordered or (n and first < self._src_buf[n - 1]):
+            order = np.argsort(self._src, kind='stable')   # another publisher's clock
+            self._src_buf[:self._n] = self._src[order]
+            self._stamp_buf[:self._n] = self._stamp[order]
 
     def add_reading(self, index: int, source_ns: int, value: float) -> None:
         """Add one reading of input ``index`` (its source timestamp, ns)."""
@@ -145,7 +173,7 @@ class LiveImuClock:
     def take(self, index: int, everything: bool = False) -> TemperatureColumns:
         """Return input ``index``'s readings that can be stamped now (all with ``everything``)."""
         wait = self._wait[index]
-        if not wait or not len(self._src):
+        if not wait or not self._n:
             if everything:
                 self.left_out += len(wait)
                 wait.clear()
