@@ -27,6 +27,8 @@ BENCHES = [
     ('noisier_imu.py', []),           # the posing recordings with accel noise x3/x10 (~8 min)
     ('robot_log_calibrate.py', []),   # calibrate of robot logs, seeds 24-31 (~4 min)
     ('scoreboard.py', []),     # every shared real recording, offline and live (~17 min)
+    ('headerless_real.py', []),       # the temperature logs as std_msgs/Float64 (~1.5 min)
+    ('bench_headerless_clock.py', []),   # LiveImuClock per IMU message (~5 s)
 ]
 #: scripts that name their outputs by a base path instead of --json FILE
 OUT_BASE = {'scoreboard.py'}
