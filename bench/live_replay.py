@@ -222,7 +222,7 @@ class _Driver:
         from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
         from sensor_msgs.msg import Imu
         from std_msgs.msg import String
-        from thermal_imu_calib.nodes.common import THERMAL_TYPES
+        from thermal_imu_calib.nodes.common import headerless, THERMAL_TYPES
         self.context = Context()
         rclpy.init(context=self.context, domain_id=domain_id)
         self.node = rclpy.create_node('scoreboard_player', context=self.context)
@@ -230,6 +230,7 @@ class _Driver:
                          reliability=ReliabilityPolicy.RELIABLE)
         self.imu_pub = self.node.create_publisher(Imu, 'imu/data_raw', qos)
         self.temp_cls = THERMAL_TYPES[temperature_type][0]
+        self.temp_headerless = headerless(self.temp_cls)
         self.temp_pub = (self.node.create_publisher(self.temp_cls, temperature_topic, qos)
                          if temperature_topic else None)
         self.progress = None
@@ -361,7 +362,7 @@ def _publish(driver, imu, temps, i0, i1, t_lo, t_hi, pace):
         pace.wait(k)
         if kind == 0:
             driver.imu_pub.publish(imu_msg(stamp, imu.accel[i], imu.gyro[i], frame))
-        elif hasattr(driver.temp_cls, 'data'):     # header-less: the value alone
+        elif driver.temp_headerless:     # the value alone
             driver.temp_pub.publish(driver.temp_cls(data=float(temps.temperature[i])))
         else:
             driver.temp_pub.publish(temperature_msg(stamp, temps.temperature[i], frame))

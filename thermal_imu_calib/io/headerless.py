@@ -2,10 +2,9 @@
 
 Some drivers publish the die temperature as a bare number: the ROS 2 um6/um7 drivers
 publish ``std_msgs/msg/Float32`` on ``imu/temperature``. With no header stamp, a reading is
-placed on the IMU's clock the way a node receiving both topics places it: it takes the
-header stamp of the newest IMU message logged (offline) or received (live) before it. A
-log is read in log-time order, so offline that is exact; live it is exact to the node's
-batching of IMU messages (one message when it keeps up). Readings before the first IMU
+placed on the IMU's clock: it takes the header stamp of the IMU message logged before it
+(offline, :func:`on_imu_clock`; a log is read in log-time order) or published before it
+(live, :class:`LiveImuClock`, by the DDS source timestamps). Readings before the first IMU
 message are not used. Several readings between two IMU messages share that stamp and the
 last one counts (``align.TemperatureTrack`` keeps the last value added at a stamp).
 
@@ -32,14 +31,18 @@ THERMAL_MSGTYPES = (*SCALAR_MSGTYPES, *HEADERLESS_MSGTYPES)
 _ENCAPSULATION = b'\x00\x01\x00\x00'   # little-endian XCDR1 (what ROS 2 writes)
 
 
-def _check(u8: np.ndarray, msgtype: str) -> None:
-    """Raise ValueError unless every row of ``u8`` starts with the little-endian header."""
+def _values(u8: np.ndarray, msgtype: str) -> np.ndarray:
+    """Return the values (float64) of (n, 4 + value size) payload rows of ``msgtype``.
+
+    Raises ValueError unless every row starts with the little-endian CDR header.
+    """
     bad = np.flatnonzero((u8[:, 0] != 0) | (u8[:, 1] != 1))
     if len(bad):
         row = int(bad[0])
         raise ValueError(f'{msgtype} message {row} is not little-endian CDR (encapsulation '
                          f'{bytes(u8[row, :2]).hex()}); re-record or convert the log with a '
                          'little-endian ROS 2 middleware.')
+    return u8[:, 4:].copy().view(HEADERLESS_MSGTYPES[msgtype])[:, 0].astype(np.float64)
 
 
 def _too_short(msgtype: str, sizes: np.ndarray, size: int) -> None:
@@ -52,28 +55,23 @@ def _too_short(msgtype: str, sizes: np.ndarray, size: int) -> None:
 
 def decode_values(raws: Sequence[bytes], msgtype: str) -> np.ndarray:
     """Return the values (float64) of serialized ``msgtype`` messages (Float32/Float64)."""
-    dtype = HEADERLESS_MSGTYPES[msgtype]
-    size = 4 + dtype.itemsize
+    size = 4 + HEADERLESS_MSGTYPES[msgtype].itemsize
     n = len(raws)
     if not n:
         return np.zeros(0)
     _too_short(msgtype, np.fromiter(map(len, raws), np.int64, n), size)
-    u8 = np.frombuffer(b''.join(r[:size] for r in raws), np.uint8).reshape(n, size)
-    _check(u8, msgtype)
-    return u8[:, 4:].copy().view(dtype)[:, 0].astype(np.float64)
+    return _values(np.frombuffer(b''.join(r[:size] for r in raws), np.uint8).reshape(n, size),
+                   msgtype)
 
 
 def decode_values_packed(buf: np.ndarray, starts, lengths, msgtype: str) -> np.ndarray:
     """Like :func:`decode_values` for payloads packed in one uint8 buffer."""
-    dtype = HEADERLESS_MSGTYPES[msgtype]
-    size = 4 + dtype.itemsize
+    size = 4 + HEADERLESS_MSGTYPES[msgtype].itemsize
     lengths = np.asarray(lengths, np.int64)
     if not len(lengths):
         return np.zeros(0)
     _too_short(msgtype, lengths, size)
-    u8 = take_rows(buf, size, np.asarray(starts, np.int64))
-    _check(u8, msgtype)
-    return u8[:, 4:].copy().view(dtype)[:, 0].astype(np.float64)
+    return _values(take_rows(buf, size, np.asarray(starts, np.int64)), msgtype)
 
 
 def encode_values(values, msgtype: str) -> list[bytes]:
@@ -111,8 +109,9 @@ class LiveImuClock:
     readings published before the newest IMU message seen, each with the header stamp of
     the newest IMU message published before it, as offline (:func:`on_imu_clock`). A
     reading published after every IMU message seen waits for the next one (one topic is
-    delivered in order, so none published before it can still come); :meth:`flush` stamps
-    the waiting ones with the newest IMU stamp (the end of a stream, as offline). Readings
+    delivered in order, so none published before it can still come); ``take(index,
+    everything=True)`` stamps the waiting ones with the newest IMU stamp (the end of a
+    stream, as offline). Readings
     published before the first IMU message are left out. The newest ``history`` IMU messages
     at least are kept (at most twice that; a reading published before all of them takes the
     oldest's stamp).
