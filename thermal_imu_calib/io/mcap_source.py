@@ -179,7 +179,8 @@ def chunk_stream(batches, imu_topic: str, imu_ids, temp_topics: Sequence[str],
             part = rows[:cut]
             pend.append((decode_imu(b.take(part[is_imu[part]])),
                          [compact(b.take(part[m[part]])) for m in is_temp],
-                         [ci[:cut][m[part]] for m in is_temp]))   # IMU rows before
+                         [ci[:cut][m[part]] if t in headerless else None   # IMU rows before
+                          for t, m in zip(temp_topics, is_temp)]))
             n_imu, n_temp = int(ci[cut - 1]), int(ct[cut - 1])
             rows = rows[cut:]
             if len(full):
