@@ -347,8 +347,12 @@ def _wait(cond, what, node, stall=STALL_S, progress=None):
         time.sleep(0.02)
 
 
-def _publish(driver, imu, temps, i0, i1, t_lo, t_hi, pace):
-    """Publish IMU rows i0..i1 and the temperatures stamped in [t_lo, t_hi), in stamp order."""
+def _publish(driver, imu, temps, i0, i1, t_lo, t_hi, pace, header_ns=None):
+    """Publish IMU rows i0..i1 and the temperatures stamped in [t_lo, t_hi), in stamp order.
+
+    ``header_ns``: the temperatures' header stamps when not their stamps (a driver on
+    another clock; the stamps still give the publish order, as a log's times do).
+    """
     from thermal_imu_calib.nodes.player import imu_msg, temperature_msg
     events = [(int(imu.stamp_ns[i]), 0, i) for i in range(i0, i1)]
     n_t = 0
@@ -365,13 +369,14 @@ def _publish(driver, imu, temps, i0, i1, t_lo, t_hi, pace):
         elif driver.temp_headerless:     # the value alone
             driver.temp_pub.publish(driver.temp_cls(data=float(temps.temperature[i])))
         else:
-            driver.temp_pub.publish(temperature_msg(stamp, temps.temperature[i], frame))
+            driver.temp_pub.publish(temperature_msg(
+                stamp if header_ns is None else int(header_ns[i]), temps.temperature[i], frame))
     return i1 - i0, n_t
 
 
 def run_live(imu, temps, gravity, domain_id, temperature_topics=None, workdir=None,
              calibration_name='live.yaml', extra_params=None, attempts=3,
-             temperature_type=TEMPERATURE_TYPE):
+             temperature_type=TEMPERATURE_TYPE, temperature_header_ns=None):
     """Run ``run_live_once`` until every message arrives, at most ``attempts`` times.
 
     Best effort may lose messages on a loaded machine (counted, never hidden): a run that
@@ -381,7 +386,7 @@ def run_live(imu, temps, gravity, domain_id, temperature_topics=None, workdir=No
     for i in range(1, attempts + 1):
         out = run_live_once(imu, temps, gravity, domain_id, temperature_topics,
                             os.path.join(workdir, f'attempt{i}'), calibration_name,
-                            extra_params, temperature_type)
+                            extra_params, temperature_type, temperature_header_ns)
         out.attempts = i
         if out.complete or (out.error and not out.error.startswith('not every message')):
             return out
@@ -390,13 +395,14 @@ def run_live(imu, temps, gravity, domain_id, temperature_topics=None, workdir=No
 
 def run_live_once(imu, temps, gravity, domain_id, temperature_topics=None, workdir=None,
                   calibration_name='live.yaml', extra_params=None,
-                  temperature_type=TEMPERATURE_TYPE):
+                  temperature_type=TEMPERATURE_TYPE, temperature_header_ns=None):
     """Replay ``imu`` (+ ``temps`` on /imu/temperature) into a launched calibrator_node.
 
     ``temperature_topics``: the launch argument (None: the shipped config's
     [imu/temperature]; '[]': none); ``gravity`` is given as the launch argument
     ``gravity:=G``; ``HARNESS_PARAMS`` and ``extra_params`` (for experiments; by
-    default none) are added as one more parameters dict. Returns a Replay; never raises
+    default none) are added as one more parameters dict. ``temperature_header_ns``: the
+    header stamps of ``temps`` when not their stamps (``_publish``). Returns a Replay; never raises
     for node failures (they are in ``Replay.error``).
     """
     from thermal_imu_calib.nodes.player import Pacer
@@ -444,7 +450,8 @@ def run_live_once(imu, temps, gravity, domain_id, temperature_topics=None, workd
                       progress=lambda: driver.reported('imu_received'))
             lo = -2 ** 62 if i0 == 0 else int(imu.stamp_ns[i0])
             hi = 2 ** 62 if i1 == n else int(imu.stamp_ns[i1])
-            a, b = _publish(driver, imu, temps, i0, i1, lo, hi, Pacer(RATE))
+            a, b = _publish(driver, imu, temps, i0, i1, lo, hi, Pacer(RATE),
+                            temperature_header_ns)
             out.imu_sent += a
             out.temp_sent += b
 

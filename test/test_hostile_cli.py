@@ -104,8 +104,6 @@ REFUSED = {
     'temperature_all_nan': (lambda a: a['temperature'].__setitem__(slice(None), np.nan),
                             'no usable reading'),
     'temperature_0.01_Hz': (_slow, '--max-gap'),
-    'temperature_stamps_0': (lambda a: a['temp_stamp_ns'].__setitem__(slice(None), 0),
-                             'header stamp 0'),
     'imu_all_zero': (lambda a: (a['accel'].__setitem__(slice(None), 0.0),
                                 a['gyro'].__setitem__(slice(None), 0.0)), 'all-zero'),
     'imu_stamps_duplicated': (_dup, 'do not increase'),
@@ -114,9 +112,6 @@ REFUSED = {
                                                                  a['stamp_ns'][::-1].copy()),
                              'running backwards'),
     'no_imu_messages': (_no_imu, '0 messages'),
-    # IMU stamped by a hardware clock, the temperature by the system's: no reading near
-    'temperature_on_another_clock': (lambda a: a['temp_stamp_ns'].__setitem__(
-        slice(None), a['temp_stamp_ns'] + 10 ** 12), 'stamped by different clocks'),
     # a driver publishing g or raw counts: the loader's "a coefficient is corrupt" before
     'accel_in_g': (lambda a: a['accel'].__setitem__(slice(None), a['accel'] / 9.80665),
                    'its values look in g, while sensor_msgs/Imu linear_acceleration is in '
@@ -143,6 +138,44 @@ def test_unusable_logs_are_refused_with_the_real_cause(case, rec, tmp_path, capf
     line = _one_error_line(err, 'calibrate')
     assert code == 2 and cause in line and not out.exists()
     assert 'hold the IMU still' not in line and 'DLASCL' not in stdout + err
+
+
+def _on_imu_clock(a):
+    """Stamp each reading with the IMU stamp logged before it (the log times are the
+    original stamps, an IMU message first at a tie; none before: never used)."""
+    st = a['stamp_ns']
+    before = np.searchsorted(st, a['temp_stamp_ns'], side='right')
+    a['temp_stamp_ns'][:] = np.where(before > 0, st[np.maximum(before - 1, 0)], 1)
+
+
+ANOTHER_CLOCK = {
+    'temperature_stamps_0': lambda a: a['temp_stamp_ns'].__setitem__(slice(None), 0),
+    # IMU stamped by a hardware clock, the temperature by the system's: no reading near
+    'temperature_on_another_clock': lambda a: a['temp_stamp_ns'].__setitem__(
+        slice(None), a['temp_stamp_ns'] + 10 ** 12),
+}
+
+
+@pytest.mark.parametrize('case', sorted(ANOTHER_CLOCK))
+def test_a_temperature_on_another_clock_goes_on_the_imu_clock(case, rec, tmp_path, capfd):
+    """Refused before ("different clocks?", "header stamp 0"); now each reading takes the
+    stamp of the IMU message logged before it, as a header-less one's, with a warning: the
+    calibration equals the one of the same log with those stamps written in."""
+    ref = write_bag(str(tmp_path / 'ref.mcap'), *rec, _on_imu_clock)
+    code, _, _ = _run(['calibrate', ref, '-o', str(tmp_path / 'ref.yaml')], capfd)
+    assert code == 0
+    want = Calibration.load(str(tmp_path / 'ref.yaml'))
+    for storage in ('mcap', 'sqlite3'):
+        bag = write_bag(str(tmp_path / f'in_{storage}'), *rec, ANOTHER_CLOCK[case], storage)
+        out = tmp_path / f'{storage}.yaml'
+        code, _, err = _run(['calibrate', bag, '-o', str(out), '--chunk-size', '7'], capfd)
+        assert code == 0
+        assert 'not stamped by the IMU\'s clock' in err and (
+            'header stamp 0' in err if case.endswith('0') else 'is stamped +1000 s' in err)
+        got = Calibration.load(str(out))
+        assert got.accel.to_dict() == want.accel.to_dict()
+        assert got.gyro.to_dict() == want.gyro.to_dict()
+        np.testing.assert_array_equal(got.valid_range, want.valid_range)
 
 
 def test_a_gyro_in_deg_per_s_is_found_by_its_pose_changes(clean, tmp_path):

@@ -75,14 +75,39 @@ def _slow(temps):
     return TemperatureColumns(temps.stamp_ns[keep], temps.temperature[keep], temps.frame_id)
 
 
+#: a temperature driver stamping by another clock than the IMU's (s ahead)
+OTHER_CLOCK_S = 1000
+
+
+def _write_other_clock(path, imu, temps):
+    """Write the log with the readings logged at their stamps, stamped OTHER_CLOCK_S later."""
+    from thermal_imu_calib.io import cdr
+    from thermal_imu_calib.io.bag_writer import LogWriter
+    shifted = TemperatureColumns(temps.stamp_ns + OTHER_CLOCK_S * 10 ** 9, temps.temperature,
+                                 temps.frame_id)
+    imu_raw, temp_raw = cdr.encode_imu(imu), cdr.encode_temperature(shifted)
+    order = sorted([(int(t), 0, i) for i, t in enumerate(imu.stamp_ns)]       # IMU first
+                   + [(int(t), 1, i) for i, t in enumerate(temps.stamp_ns)])   # at a tie
+    with LogWriter(path, 'mcap') as w:
+        w.add_topic('/imu', cdr.IMU_MSGTYPE)
+        w.add_topic(real_recordings.TEMP_TOPIC, cdr.TEMPERATURE_MSGTYPE)
+        for t, kind, i in order:
+            w.write(real_recordings.TEMP_TOPIC if kind else '/imu', t,
+                    temp_raw[i] if kind else imu_raw[i])
+
+
 @pytest.mark.parametrize('thermal', ['none', 'room_temperature', 'bad_samples',
-                                     'slow_temperature', 'float32_temperature'])
+                                     'slow_temperature', 'float32_temperature',
+                                     'temperature_on_another_clock'])
 def test_live_calibration_equals_offline(tmp_path, thermal):
     """``bad_samples``: the room-temperature case with samples ``calibrate`` drops; the
     node drops the same ones (before 2026-11-28 it dropped only non-finite ones).
     ``slow_temperature``: readings every 4 s and a 12-s dropout. ``float32_temperature``:
     the room temperature as std_msgs/Float32 without a header (the um6/um7 drivers), logged
-    at its time and published in that order; the node gets ``temperature_types``."""
+    at its time and published in that order; the node gets ``temperature_types``.
+    ``temperature_on_another_clock``: the room temperature stamped ``OTHER_CLOCK_S`` ahead
+    of the IMU's clock, logged and published at its time: both put it on the IMU's clock
+    (``io.headerless.StampChoice``)."""
     imu = _recording()
     temps = None
     topics = {}
@@ -97,9 +122,12 @@ def test_live_calibration_equals_offline(tmp_path, thermal):
             temps = _slow(temps)
         topics = {real_recordings.TEMP_TOPIC: temps}
     log = str(tmp_path / 'mpu6050.mcap')
-    write_columns(log, '/imu', imu, topics,
-                  msgtypes={t: kind for t in topics} if kind != live_replay.TEMPERATURE_TYPE
-                  else None)
+    if thermal == 'temperature_on_another_clock':
+        _write_other_clock(log, imu, temps)
+    else:
+        write_columns(log, '/imu', imu, topics,
+                      msgtypes={t: kind for t in topics}
+                      if kind != live_replay.TEMPERATURE_TYPE else None)
 
     out = str(tmp_path / 'offline.yaml')
     cmd = [venv_exe('thermal-imu-calib'), 'calibrate', log, '--imu-topic', '/imu',
@@ -108,12 +136,16 @@ def test_live_calibration_equals_offline(tmp_path, thermal):
         cmd += ['--temperature-topic', real_recordings.TEMP_TOPIC]
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, r.stderr[-2000:]
+    if thermal == 'temperature_on_another_clock':
+        assert f'is stamped +{OTHER_CLOCK_S} s from the IMU messages' in r.stderr
     with open(out) as f:
         offline = f.read()
 
     live = live_replay.run_live(imu, temps, GRAVITY, DOMAIN_ID,
                                 temperature_topics='[]' if temps is None else None,
-                                workdir=str(tmp_path / 'live'), temperature_type=kind)
+                                workdir=str(tmp_path / 'live'), temperature_type=kind,
+                                temperature_header_ns=None if thermal != 'temperature_on_'
+                                'another_clock' else temps.stamp_ns + OTHER_CLOCK_S * 10 ** 9)
     assert not live.error, live.error
     assert live.imu_sent == len(imu) and live.imu_received == live.imu_sent, \
         f'{live.imu_received} of {live.imu_sent} IMU messages arrived'
@@ -121,6 +153,11 @@ def test_live_calibration_equals_offline(tmp_path, thermal):
         assert live.temp_sent == len(temps) and live.temp_received == live.temp_sent, \
             f'{live.temp_received} of {live.temp_sent} temperatures arrived'
     assert live.success, live.message
+    if thermal == 'temperature_on_another_clock':     # the node said what it did (the
+        # distance to the IMU stamps received so far: about OTHER_CLOCK_S)
+        with open(tmp_path / 'live' / f'attempt{live.attempts}' / 'node.log') as f:
+            assert "s from the IMU messages before it (more than 5 s: not stamped by the " \
+                "IMU's clock)" in f.read()
     c = compare(offline, live.calibration_text)
     assert c['same_holds'], (f'holds/windows offline {c["offline"]} vs live {c["live"]}')
     assert c['same_model'], (f'model offline {c["offline"]} vs live {c["live"]}')

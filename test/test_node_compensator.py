@@ -783,3 +783,58 @@ def test_a_headerless_float32_temperature_takes_the_stamp_of_the_imu_before_it(r
     temp_pub.publish(Float32(data=40.0))      # the IMU stream has ended: it waits, unused
     wait_for(lambda: node._imu_clock._wait[0], WAIT, 'the third reading at the node')
     assert node.temps.received == [2]
+
+
+def test_a_temperature_stamped_0_is_put_on_the_imu_clock(ros, tmp_path):
+    # a driver that never sets header.stamp: its sensor_msgs/Temperature readings cannot be
+    # matched by stamp, so each takes the stamp of the IMU message published before it, as
+    # a header-less reading (io.headerless.StampChoice; offline alike). A reading before
+    # the first IMU message waits for one to judge its stamp by, and is then left out
+    cal = make_cal()
+    node = ros.add(CompensatorNode(context=ros.context, parameter_overrides=[
+        Parameter('calibration_file', value=str(cal.save(tmp_path / 'cal.yaml')))]))
+    driver = ros.node('zero_stamp_driver')
+    imu_pub = driver.create_publisher(Imu, 'imu/data_raw', 1000)
+    temp_pub = driver.create_publisher(Temperature, 'imu/temperature', 100)
+    out = ros.collect(driver, Imu, 'imu/data_compensated', 1000)
+    ros.wait_matched(imu_pub)
+    ros.wait_matched(temp_pub)
+    wait_for(lambda: node.pub.get_subscription_count() >= 1, WAIT, 'output subscriber')
+    stamps = [T0_NS + k * 10_000_000 for k in range(15)]
+
+    def imu(rows):
+        for k in rows:
+            imu_pub.publish(imu_msg(stamps[k], ACCEL, GYRO))
+        wait_for(lambda: node.counts['received'] >= rows[-1] + 1, WAIT, f'{rows[-1] + 1} IMU')
+    temp_pub.publish(temperature_msg(0, 20.0))      # before any IMU message: held
+    wait_for(lambda: node._choices[0].waiting, WAIT, 'the held reading')
+    assert node._choices[0].on_imu_clock is None and node.temps.received == [1]
+    imu(range(5))
+    assert node._choices[0].on_imu_clock is True and node._headerless[0]
+    assert node.counts['temperature_before_imu'] == 1 and node.temps.received == [0]
+    temp_pub.publish(temperature_msg(0, 25.0))      # after IMU 4: waits for the next one
+    wait_for(lambda: node._imu_clock._wait[0], WAIT, 'the reading at the node')
+    imu(range(5, 10))
+    assert node.temps.tracks[0].stamps_ns.tolist() == [stamps[4]]
+    temp_pub.publish(temperature_msg(0, 35.0))
+    wait_for(lambda: node._imu_clock._wait[0], WAIT, 'the second reading at the node')
+    imu(range(10, 15))
+    assert node.temps.tracks[0].stamps_ns.tolist() == [stamps[4], stamps[9]]
+    wait_for(lambda: len(out) >= 10, WAIT, 'the compensated messages')
+    got = {common.stamp_to_ns(m.header.stamp): vec(m) for m in out}
+    for k, temp in [(5, 25.0), (9, 25.0), (10, 35.0), (14, 35.0)]:
+        exp = expected(cal, temp)
+        np.testing.assert_allclose(got[stamps[k]][0], exp.accel[0], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(got[stamps[k]][1], exp.gyro[0], rtol=0, atol=1e-12)
+
+
+def test_a_temperature_on_the_imu_clock_keeps_its_stamps(ros, tmp_path):
+    # the common case: readings stamped within seconds of the IMU's stamps keep them, those
+    # before the first IMU message included, and the node stops tracking publish order
+    cal = make_cal()
+    rig = Rig(ros, calibration_file=str(cal.save(tmp_path / 'cal.yaml')))
+    rig.temperature(24.0, T0_NS - 3 * S)          # 3 s before the first IMU stamp: kept
+    rig.send(1)
+    wait_for(lambda: rig.node._choices[0].on_imu_clock is False, WAIT, 'the choice')
+    assert not rig.node._clock_on and not rig.node._headerless[0]
+    assert rig.node.temps.tracks[0].stamps_ns.tolist() == [T0_NS - 3 * S]

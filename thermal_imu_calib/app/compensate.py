@@ -105,7 +105,7 @@ def _compensate(src, dst, calibration, imu_topic, temperature_topics, output_top
                  'out_of_range': 0, 'copied': reader.message_count, 'stamp_jumps': 0,
                  'stamp_jumped_back': 0,
                  'compensated': 0, 'temp_min': np.full(len(temps), np.inf),
-                 'temp_max': np.full(len(temps), -np.inf)}
+                 'temp_max': np.full(len(temps), -np.inf), 'notes': []}
         newest = [None]     # the newest IMU header stamp so far (ns)
         aligner = StreamAligner(temps, max_gap_s)
         stream = calibration.stream()  # carries the temperature filter state across chunks
@@ -122,6 +122,7 @@ def _compensate(src, dst, calibration, imu_topic, temperature_topics, output_top
             for raw in copy_and_stream(reader, writer, imu_topic, temps,
                                        chunk_size=chunk_size, keep_raw=True):
                 stats['imu_in'] += len(raw.imu)
+                stats['notes'] += raw.notes       # a thermal input put on the IMU's clock
                 if bar is not None:
                     bar.update(len(raw.imu))
                 # the payloads wait in the store; the aligner carries their row numbers

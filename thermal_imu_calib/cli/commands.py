@@ -130,6 +130,8 @@ def cmd_compensate(args):
              if st['stamp_jumps'] > st['stamp_jumped_back'] else '')
           + (f', {st["spikes"]} spike values replaced' if args.despike else '') + '), '
           f'{st["msgs_per_s"]:,.0f} msgs/s')
+    for note in st['notes']:
+        print(f'note: {note}')
     return 0
 
 

@@ -144,6 +144,7 @@ class InputGate:
     def push(self, raw):
         """Return ``raw`` with invalid rows removed (a new RawChunk; counts in ``report``)."""
         r = self.report
+        r.notes.extend(raw.notes)     # e.g. a thermal input put on the IMU's clock
         imu = raw.imu
         n = len(imu)
         r.imu_in += n

@@ -10,6 +10,11 @@ last one counts (``align.TemperatureTrack`` keeps the last value added at a stam
 
 Values are degC for a temperature, or a thermal proxy in its declared unit, as for the
 header-stamped types of ``cdr.SCALAR_MSGTYPES``.
+
+A header-stamped input whose stamps cannot be matched to the IMU's (a driver that leaves
+them 0, or stamps by another clock: device time against ROS time) is put on the IMU's clock
+the same way (:class:`StampChoice`), decided once per input at its first reading after the
+first IMU message.
 """
 
 from __future__ import annotations
@@ -188,3 +193,126 @@ class LiveImuClock:
         self.left_out += int(n - first.sum())
         self._wait[index] = [w for w, r in zip(wait, ready) if not r]
         return TemperatureColumns(self._stamp[np.maximum(before[first] - 1, 0)], values[first])
+
+
+#: a header stamp further than this (s) from the IMU message logged or published before it
+#: is on another clock than the IMU's (the default ``--max-gap`` / ``temperature_timeout``:
+#: within it, the reading would be matched by its stamp). One constant, not a setting, so
+#: the offline readers and the nodes choose alike whatever their gap.
+OTHER_CLOCK_S = 5.0
+
+
+class StampChoice:
+    """Keep a thermal input's header stamps, or put its readings on the IMU's clock.
+
+    Decided once, at the input's first reading after the first IMU message (logged after
+    it offline, taken after it live): its header stamp is 0, or further than
+    ``OTHER_CLOCK_S`` from the span of the IMU header stamps before it (the first IMU
+    message's to the one logged before it offline; to the newest received live). Then
+    every reading takes the stamp of the IMU message before it, as a header-less input's
+    (``on_imu_clock``, ``LiveImuClock``), and the readings before the first IMU message are
+    left out; otherwise the header stamps are used, those readings included. Readings
+    before the choice wait for it. The two paths choose alike wherever the stamps are on
+    one clock (a reading within seconds of the IMU's) or clearly not (0, another epoch).
+    ``on_imu_clock`` is None until then (True from the start for a header-less input).
+    """
+
+    def __init__(self, topic: str, headerless: bool = False):
+        self.topic = topic
+        self.on_imu_clock: bool | None = True if headerless else None
+        self.left_out = 0             # readings before the first IMU message (not used)
+        self._note = ''
+        self._held: list[TemperatureColumns] = []
+        self._waiting: list = []       # live: readings before the choice
+        self._first_imu: int | None = None   # offline: the first IMU header stamp, ns
+
+    def decide(self, stamp_ns: int, first_ns: int, last_ns: int) -> bool:
+        """Choose from a reading's header stamp and the IMU stamps' span (ns); return it."""
+        stamp_ns, first_ns, last_ns = int(stamp_ns), int(first_ns), int(last_ns)
+        lo, hi = min(first_ns, last_ns), max(first_ns, last_ns)
+        off = (stamp_ns - hi if stamp_ns > hi else min(stamp_ns - lo, 0)) * 1e-9
+        self.on_imu_clock = bool(stamp_ns == 0 or abs(off) > OTHER_CLOCK_S)
+        if self.on_imu_clock:
+            what = ('has header stamp 0' if stamp_ns == 0 else
+                    f'is stamped {off:+.6g} s from the IMU messages before it')
+            self._note = (f'{self.topic}: the first reading after the first IMU message {what} '
+                          f'(more than {OTHER_CLOCK_S:g} s: not stamped by the IMU\'s clock), so '
+                          'its readings take the header stamp of the IMU message before each, '
+                          'as a header-less input\'s; stamp both with one clock to use its own '
+                          'stamps')
+        return self.on_imu_clock
+
+    def take_live(self, items: list, imu_span: tuple[int, int] | None, stamp_of) -> list:
+        """Live, before the choice: hold ``items``; return every held one once it is made.
+
+        The choice is made at the first held reading (``stamp_of(item)``: its header stamp,
+        ns) once an IMU message has been received (``imu_span``: the first and the newest
+        IMU header stamps received; None before any). [] while it waits.
+        """
+        self._waiting += list(items)
+        if self.on_imu_clock is None:
+            if imu_span is None or not self._waiting:
+                return []
+            self.decide(stamp_of(self._waiting[0]), *imu_span)
+        out, self._waiting = self._waiting, []
+        return out
+
+    @property
+    def waiting(self) -> int:
+        """Return how many readings wait for the choice (live)."""
+        return len(self._waiting)
+
+    @property
+    def holding(self) -> bool:
+        """Return True while readings wait for the choice (offline)."""
+        return bool(self._held)
+
+    def pop_note(self) -> str:
+        """Return the note of an input put on the IMU's clock, once ('' otherwise)."""
+        note, self._note = self._note, ''
+        return note
+
+    def place(self, stamp_ns, values, imu_before, imu_stamp_ns,
+              carry_ns: int | None, final: bool = False,
+              frame_id: str = '') -> TemperatureColumns:
+        """Return the readings of one span to use now (offline), on the chosen clock.
+
+        ``stamp_ns`` and ``values`` are the span's readings (header stamps; any for a
+        header-less input), the rest as for :func:`on_imu_clock`. Before the choice the
+        readings wait (none is returned); at the ``final`` span of a log with no IMU
+        message after them, they keep their header stamps (nothing to judge them by).
+        ``frame_id``: the readings' frame, kept with their header stamps.
+        """
+        if self.on_imu_clock is False:
+            return TemperatureColumns(np.asarray(stamp_ns, np.int64),
+                                      np.asarray(values, np.float64), frame_id)
+        before = np.asarray(imu_before, np.int64)
+        if self.on_imu_clock is None:
+            if self._first_imu is None and len(imu_stamp_ns):
+                self._first_imu = int(imu_stamp_ns[0])
+            after = np.flatnonzero((before > 0) | (carry_ns is not None))
+            if not len(after):
+                self._held.append(TemperatureColumns(np.asarray(stamp_ns, np.int64),
+                                                     np.asarray(values, np.float64),
+                                                     frame_id))
+                if not final:
+                    return TemperatureColumns.empty()
+            held, self._held = self._held, []
+            if final and not len(after):
+                return TemperatureColumns(np.concatenate([h.stamp_ns for h in held]),
+                                          np.concatenate([h.temperature for h in held]),
+                                          frame_id or next((h.frame_id for h in held), ''))
+            i = int(after[0])
+            table = np.concatenate([[0 if carry_ns is None else carry_ns],
+                                    np.asarray(imu_stamp_ns, np.int64)])
+            if not self.decide(int(stamp_ns[i]), self._first_imu, int(table[before[i]])):
+                return TemperatureColumns(
+                    np.concatenate([h.stamp_ns for h in held] + [np.asarray(stamp_ns,
+                                                                            np.int64)]),
+                    np.concatenate([h.temperature for h in held] + [np.asarray(values,
+                                                                               np.float64)]),
+                    next((h.frame_id for h in held if h.frame_id), frame_id))
+            self.left_out += sum(map(len, held))
+        out = on_imu_clock(values, before, imu_stamp_ns, carry_ns)
+        self.left_out += len(before) - len(out)
+        return out

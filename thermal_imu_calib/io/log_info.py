@@ -6,7 +6,7 @@ Plain data shared by the reader (``bag``) and the writer
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -129,6 +129,9 @@ class RawChunk:
     #: the Imu payloads when asked for: a list of bytes, or from the bulk MCAP reader an
     #: (n, size) uint8 array when every payload of the chunk has one size
     imu_raw: list[bytes] | np.ndarray | None = None
+    #: what the reader decided on the way, for the summary (e.g. a thermal input put on the
+    #: IMU's clock: ``headerless.StampChoice``)
+    notes: list[str] = field(default_factory=list)
 
     def __len__(self):
         return len(self.imu)

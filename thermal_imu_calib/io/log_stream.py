@@ -17,7 +17,7 @@ import numpy as np
 from . import cdr
 from .bag_writer import LogWriter
 from .cdr import IMU_MSGTYPE
-from .headerless import decode_values, HEADERLESS_MSGTYPES, on_imu_clock, THERMAL_MSGTYPES
+from .headerless import decode_values, HEADERLESS_MSGTYPES, StampChoice, THERMAL_MSGTYPES
 from .log_info import LogError, RawChunk
 
 
@@ -40,7 +40,9 @@ class _Chunker:
         #: header-less topics -> their type; their readings take the IMU's stamps
         self.headerless = {t: types[t] for t in temperature_topics
                            if types[t] in HEADERLESS_MSGTYPES}
-        self._imu_before: dict[str, list[int]] = {t: [] for t in self.headerless}
+        #: per temperature topic: its header stamps, or the IMU's clock (``StampChoice``)
+        self.choices = {t: StampChoice(t, t in self.headerless) for t in temperature_topics}
+        self._imu_before: dict[str, list[int]] = {t: [] for t in temperature_topics}
         self._carry_ns: int | None = None     # the last IMU stamp of the chunks before
         self.imu_topic = imu_topic
         self.temperature_topics = temperature_topics
@@ -60,41 +62,47 @@ class _Chunker:
                 return self._build()
         elif topic in self._temp_raw:
             self._temp_raw[topic].append(raw)
-            if topic in self._imu_before:
-                self._imu_before[topic].append(len(self._imu_raw))
+            self._imu_before[topic].append(len(self._imu_raw))
             self._n_temp += 1
             if self._n_temp >= self.chunk_size:
                 return self._build()
         return None
 
     def flush(self) -> RawChunk | None:
-        if self._imu_raw or self._n_temp:
-            return self._build()
+        if self._imu_raw or self._n_temp or any(c.holding for c in self.choices.values()):
+            return self._build(final=True)
         return None
 
-    def _build(self) -> RawChunk:
+    def _build(self, final: bool = False) -> RawChunk:
         try:
             imu = cdr.decode_imu(self._imu_raw)
         except ValueError as err:
             raise LogError(f'topic {self.imu_topic!r}: {err}') from err
-        temps = {}
+        temps, notes = {}, []
         for topic, raws in self._temp_raw.items():
+            choice = self.choices[topic]
             try:
                 if topic in self.headerless:
-                    temps[topic] = on_imu_clock(
-                        decode_values(raws, self.headerless[topic]),
-                        self._imu_before[topic], imu.stamp_ns, self._carry_ns)
+                    stamps, values, frame = np.zeros(len(raws), np.int64), decode_values(
+                        raws, self.headerless[topic]), ''
                 else:
-                    temps[topic] = cdr.decode_temperature(raws)
+                    cols = cdr.decode_temperature(raws)
+                    stamps, values, frame = cols.stamp_ns, cols.temperature, cols.frame_id
             except ValueError as err:
                 raise LogError(f'topic {topic!r}: {err}') from err
+            if choice.on_imu_clock is False:     # header stamps (the common case)
+                temps[topic] = cols
+                continue
+            temps[topic] = choice.place(stamps, values, self._imu_before[topic],
+                                        imu.stamp_ns, self._carry_ns, final, frame)
+            notes += [n for n in [choice.pop_note()] if n]
         chunk = RawChunk(imu, np.array(self._imu_t, dtype=np.int64), temps,
-                         self._imu_raw if self.keep_raw else None)
+                         self._imu_raw if self.keep_raw else None, notes)
         if len(imu):
             self._carry_ns = int(imu.stamp_ns[-1])
         self._imu_raw, self._imu_t = [], []
         self._temp_raw = {t: [] for t in self.temperature_topics}
-        self._imu_before = {t: [] for t in self.headerless}
+        self._imu_before = {t: [] for t in self.temperature_topics}
         self._n_temp = 0
         return chunk
 
@@ -109,8 +117,10 @@ def _bulk_chunks(reader, chunker, batches, on_batch=None) -> Iterator[RawChunk]:
                 batches, chunker.imu_topic, src.channel_ids({chunker.imu_topic}),
                 chunker.temperature_topics,
                 [src.channel_ids({t}) for t in chunker.temperature_topics],
-                chunker.chunk_size, chunker.keep_raw, on_batch, chunker.headerless):
-            yield RawChunk(imu, times, temps, raws)
+                chunker.chunk_size, chunker.keep_raw, on_batch, chunker.headerless,
+                chunker.choices):
+            yield RawChunk(imu, times, temps, raws,
+                           [n for n in (c.pop_note() for c in chunker.choices.values()) if n])
     except ValueError as err:
         raise LogError(f'{err}') from err
 

@@ -15,7 +15,7 @@ import numpy as np
 
 from . import cdr
 from .columns import ImuColumns
-from .headerless import decode_values_packed, on_imu_clock
+from .headerless import decode_values_packed, StampChoice
 from .mcap_read import (Batch, compact, concat_batches, iter_batches, McapBulkReader,
                         McapFormatError)
 
@@ -99,7 +99,8 @@ def _payload_rows(b: Batch):
 def chunk_stream(batches, imu_topic: str, imu_ids, temp_topics: Sequence[str],
                  temp_ids: Sequence, chunk_size: int, keep_raw: bool,
                  on_batch: Callable[[Batch], None] | None = None,
-                 headerless: Mapping[str, str] | None = None
+                 headerless: Mapping[str, str] | None = None,
+                 choices: Mapping[str, StampChoice] | None = None
                  ) -> Iterator[tuple[ImuColumns, np.ndarray, dict, list | None]]:
     """Group batches into ``(imu, imu_log_time_ns, {topic: temps}, imu_raw)`` chunks.
 
@@ -110,9 +111,12 @@ def chunk_stream(batches, imu_topic: str, imu_ids, temp_topics: Sequence[str],
     uint8 array when every payload of the chunk has one size, else a list of bytes.
     ``headerless`` maps the temperature topics without a header (std_msgs/Float32, Float64)
     to their type: their readings take the stamp of the IMU message logged before each
-    (:func:`.headerless.on_imu_clock`).
+    (:func:`.headerless.on_imu_clock`). ``choices`` (per temperature topic, made here when
+    not given) keep a header-stamped topic's stamps or put it on the IMU's clock likewise
+    (:class:`.headerless.StampChoice`).
     """
     headerless = dict(headerless or {})
+    choices = dict(choices or {t: StampChoice(t, t in headerless) for t in temp_topics})
     pend: list = []
     n_imu = n_temp = 0
     carry: list = [None]    # the last IMU stamp of the chunks before
@@ -131,7 +135,13 @@ def chunk_stream(batches, imu_topic: str, imu_ids, temp_topics: Sequence[str],
             raise ValueError(f'topic {imu_topic!r}: {err}') from err
         return cols, b.log_time, _payload_rows(b) if keep_raw else None
 
-    def build():
+    def build(final=False):
+        if not pend:              # the end, with readings still waiting for their clock
+            return (ImuColumns.empty(), np.zeros(0, np.int64),
+                    {t: choices[t].place(np.zeros(0, np.int64), np.zeros(0),
+                                         np.zeros(0, np.int64), np.zeros(0, np.int64),
+                                         carry[0], True) for t in temp_topics},
+                    [] if keep_raw else None)
         parts = [p[0] for p in pend]
         cols = ImuColumns.concat([c for c, _, _ in parts])
         frames = {c.frame_id for c, _, _ in parts if len(c)}
@@ -142,15 +152,21 @@ def chunk_stream(batches, imu_topic: str, imu_ids, temp_topics: Sequence[str],
             t = concat_batches([p[1][j] for p in pend])
             try:
                 if topic in headerless:
-                    temps[topic] = on_imu_clock(
-                        decode_values_packed(t.buf, t.data_start, t.data_len,
-                                             headerless[topic]),
-                        np.concatenate([p[2][j] for p in pend]), cols.stamp_ns, carry[0])
+                    values = decode_values_packed(t.buf, t.data_start, t.data_len,
+                                                  headerless[topic])
+                    stamps, frame = np.zeros(len(values), np.int64), ''
                 else:
-                    temps[topic] = cdr.decode_temperature_packed(t.buf, t.data_start,
-                                                                 t.data_len)
+                    tc = cdr.decode_temperature_packed(t.buf, t.data_start, t.data_len)
+                    stamps, values, frame = tc.stamp_ns, tc.temperature, tc.frame_id
             except ValueError as err:
                 raise ValueError(f'topic {topic!r}: {err}') from err
+            choice = choices[topic]
+            if choice.on_imu_clock is False:     # header stamps (the common case)
+                temps[topic] = tc
+            else:
+                temps[topic] = choice.place(stamps, values,
+                                            np.concatenate([p[2][j] for p in pend]),
+                                            cols.stamp_ns, carry[0], final, frame)
         if len(cols):
             carry[0] = int(cols.stamp_ns[-1])
         raws = None
@@ -179,12 +195,12 @@ def chunk_stream(batches, imu_topic: str, imu_ids, temp_topics: Sequence[str],
             part = rows[:cut]
             pend.append((decode_imu(b.take(part[is_imu[part]])),
                          [compact(b.take(part[m[part]])) for m in is_temp],
-                         [ci[:cut][m[part]] if t in headerless else None   # IMU rows before
-                          for t, m in zip(temp_topics, is_temp)]))
+                         [ci[:cut][m[part]] if choices[t].on_imu_clock is not False
+                          else None for t, m in zip(temp_topics, is_temp)]))  # IMU rows before
             n_imu, n_temp = int(ci[cut - 1]), int(ct[cut - 1])
             rows = rows[cut:]
             if len(full):
                 yield build()
                 pend, n_imu, n_temp = [], 0, 0
-    if n_imu or n_temp:
-        yield build()
+    if n_imu or n_temp or any(c.holding for c in choices.values()):
+        yield build(final=True)

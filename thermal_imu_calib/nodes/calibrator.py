@@ -46,7 +46,7 @@ from ..calibration import CalibrationError
 from ..collection.segments import FACE_NAMES, Windows
 from ..estimation.calibrate import CalibrationRefused
 from ..io.gate import gyro_unit_problem, unit_refusal
-from ..io.headerless import LiveImuClock
+from ..io.headerless import LiveImuClock, StampChoice
 
 NODE_NAME = 'thermal_imu_calibrator'
 #: what ``_write`` says when calibration_file is empty (the node is set up not to write)
@@ -66,7 +66,12 @@ class CalibratorNode(LiveCollection, Node):
         super().__init__(node_name, **kwargs)
         in_depth, period, scalar_types = params.declare(self)
         self._headerless = [common.headerless(cls) for cls, _ in scalar_types]
-        self._imu_clock = LiveImuClock(self.k) if any(self._headerless) else None
+        #: per input: its header stamps, or the IMU's clock (``io.headerless.StampChoice``)
+        self._choices = [StampChoice(t, h) for t, h in zip(self.temperature_topics,
+                                                           self._headerless)]
+        self._imu_clock = LiveImuClock(self.k) if self.k else None
+        self._clock_on = bool(self.k)    # while an input is (or may be) on the IMU's clock
+        self._imu_span = None            # the first and newest IMU header stamps received
 
         self._lock = threading.Lock()    # detector, aligner, windows, pending data
         self._busy = threading.Lock()    # held while an estimation runs

@@ -258,7 +258,9 @@ class LiveCollection:
     def _temperature_cb(self, index, value='temperature'):
         unit = self.temperature_units[index]
 
-        def add(m, when):   # when: the header stamp, or a header-less one's source timestamp
+        bare = self._headerless[index]
+
+        def add(m, info):
             v = getattr(m, value)
             finite, out = temperature_checks([v], unit)   # what calibrate drops
             if not finite[0] or out[0]:
@@ -266,20 +268,18 @@ class LiveCollection:
                 return
             self.counts['temperature_readings'] += 1
             self.readings_per_topic[index] += 1
+            # (header stamp, DDS source timestamp, value): the source timestamp orders a
+            # reading put on the IMU's clock (header-less, or ``StampChoice``)
             with self._lock:
-                self._pending_temp[index].append((when, v))
+                self._pending_temp[index].append(
+                    (0 if bare else common.stamp_to_ns(m.header.stamp),
+                     info['source_timestamp'], v))
 
-        # drained too, so temperature keeps pace with batched IMU data under load
-        if self._headerless[index]:
-            def bare(msg, info):     # no header: the DDS source timestamp orders it
-                for m, i in [(msg, info)] + common.drain(self.temp_subs[index], 100, self,
-                                                         with_info=True):
-                    add(m, i['source_timestamp'])
-            return bare
-
-        def cb(msg):
-            for m in [msg] + common.drain(self.temp_subs[index], 100, self):
-                add(m, common.stamp_to_ns(m.header.stamp))
+        def cb(msg, info):
+            # drained too, so temperature keeps pace with batched IMU data under load
+            for m, i in [(msg, info)] + common.drain(self.temp_subs[index], 100, self,
+                                                     with_info=True):
+                add(m, i)
         return cb
 
     def _on_imu(self, msg, info):
@@ -291,7 +291,7 @@ class LiveCollection:
         self._rate.add(len(msgs))
         with self._lock:
             self._pending_imu.append((stamps, accel, gyro))
-            if self._imu_clock is not None:      # the publish order, for header-less readings
+            if self._clock_on:      # the publish order, for readings on the IMU's clock
                 self._pending_source.append([i['source_timestamp'] for _, i in taken])
 
     def _process(self):
@@ -302,10 +302,17 @@ class LiveCollection:
                 return
             imu = ImuColumns(*(np.concatenate(c) for c in zip(*pending))) if pending \
                 else ImuColumns.empty()
-            tcols = [TemperatureColumns(np.array([s for s, _ in t], np.int64),
-                                        np.array([v for _, v in t], float)) for t in temps]
-            if self._imu_clock is not None:
+            if len(imu):
+                first, newest = int(imu.stamp_ns[0]), int(imu.stamp_ns.max())
+                self._imu_span = (first, newest) if self._imu_span is None else (
+                    self._imu_span[0], max(self._imu_span[1], newest))
+            temps = self._choose_clocks(temps)
+            tcols = [TemperatureColumns(np.array([s for s, _, _ in t], np.int64),
+                                        np.array([v for _, _, v in t], float)) for t in temps]
+            if self._clock_on:
                 tcols = self._stamp_headerless(imu.stamp_ns, temps, tcols)
+                self._clock_on = any(c.on_imu_clock is not False for c in self._choices)
+            self._pending_source = [] if not self._clock_on else self._pending_source
             imu = self._filtered(imu)       # an invalid row's stamp counts for nothing
             if len(imu) and self._resumed_until is not None:
                 self._check_session(int(imu.stamp_ns[0]))
@@ -316,19 +323,38 @@ class LiveCollection:
             for chunk in self.aligner.push_columns(imu, tcols):
                 self._collect(chunk)
 
+    def _choose_clocks(self, temps):
+        """Return ``temps`` with the readings of inputs whose clock is not chosen yet held.
+
+        A header-stamped input is put on the IMU's clock when its first reading after the
+        first IMU message is stamped 0 or more than ``OTHER_CLOCK_S`` outside the IMU
+        stamps received (``io.headerless.StampChoice``, as offline); its held readings are
+        returned once that is decided. The choice is logged once.
+        """
+        out = list(temps)
+        for j, choice in enumerate(self._choices):
+            if choice.on_imu_clock is not None:
+                continue
+            out[j] = choice.take_live(temps[j], self._imu_span, lambda r: r[0])
+            if choice.on_imu_clock:
+                self._headerless[j] = True
+                self.get_logger().warning(choice.pop_note())
+        return out
+
     def _stamp_headerless(self, imu_stamps, temps, tcols):
-        """Put the header-less inputs' readings on the IMU's clock (``LiveImuClock``).
+        """Put the readings of inputs on the IMU's clock there (``LiveImuClock``).
 
         ``imu_stamps`` are the IMU messages taken since the last call (before the input
-        gate, as offline); a header-less input's ``temps`` entries are (source timestamp,
-        value) pairs. Returns ``tcols`` with those inputs' stamped readings.
+        gate, as offline); ``temps`` entries are (header stamp, source timestamp, value).
+        Returns ``tcols`` with those inputs' stamped readings (header-less inputs, and
+        header-stamped ones whose stamps are on another clock, ``_choose_clocks``).
         """
         sources, self._pending_source = self._pending_source, []
         self._imu_clock.add_imu([s for part in sources for s in part], imu_stamps)
         out = list(tcols)
         for j, bare in enumerate(self._headerless):
             if bare:
-                for source, value in temps[j]:
+                for _, source, value in temps[j]:
                     self._imu_clock.add_reading(j, source, value)
                 out[j] = self._imu_clock.take(j)
         self.counts['temperature_before_imu'] = self._imu_clock.left_out   # not used
@@ -457,7 +483,7 @@ class LiveCollection:
         self._process()
         with self._lock:
             tail = None     # header-less readings after the newest IMU message (as offline)
-            if self._imu_clock is not None:
+            if any(self._headerless):
                 clock = copy.deepcopy(self._imu_clock)
                 tail = [clock.take(j, everything=True) if bare else TemperatureColumns.empty()
                         for j, bare in enumerate(self._headerless)]

@@ -41,7 +41,7 @@ from ..collection.feed import DEFAULT_MAX_GAP_S
 from ..collection.outliers import ImuSpikeFilter
 from ..gravity import STANDARD_GRAVITY
 from ..io.columns import AlignedChunk, ImuColumns
-from ..io.headerless import LiveImuClock
+from ..io.headerless import LiveImuClock, StampChoice
 from ..io.imu_units import UnitWatch
 from ..thermal_input import CalibrationStream
 
@@ -176,7 +176,12 @@ class CompensatorNode(Node):
 
         self._temp_fields = [value for _, value in scalar_types]
         self._headerless = [common.headerless(cls) for cls, _ in scalar_types]
-        self._imu_clock = (LiveImuClock(len(scalar_types)) if any(self._headerless) else None)
+        #: per input: its header stamps, or the IMU's clock (``io.headerless.StampChoice``)
+        self._choices = [StampChoice(t, h) for t, h in zip(self.temperature_topics,
+                                                           self._headerless)]
+        self._imu_clock = LiveImuClock(len(scalar_types)) if scalar_types else None
+        self._clock_on = bool(scalar_types)   # while an input is (or may be) on the IMU's clock
+        self._imu_span = None                 # the first and newest IMU header stamps received
         self.temp_subs = [
             self.create_subscription(cls, topic, self._temperature_cb(i, value),
                                      common.sensor_qos(in_depth))
@@ -302,18 +307,51 @@ class CompensatorNode(Node):
 
     # ------------------------------------------------------------------ data
     def _temperature_cb(self, index, value='temperature'):
-        if self._headerless[index]:
-            def bare(msg, info):
-                taken = [(msg, info)] + common.drain(self.temp_subs[index], 100, self,
-                                                     with_info=True)
-                self._add_headerless(index, value, taken)
-            return bare
-
-        def cb(msg):
+        def cb(msg, info):
             # drained too, so temperature keeps pace with batched IMU data under load
-            taken = [msg] + common.drain(self.temp_subs[index], 100, self)
-            self._add_temperatures(index, value, taken)
+            taken = [(msg, info)] + common.drain(self.temp_subs[index], 100, self,
+                                                 with_info=True)
+            if self._headerless[index]:
+                self._add_headerless(index, value, taken)
+            elif self._choices[index].on_imu_clock is False:
+                self._add_temperatures(index, value, [m for m, _ in taken])
+            else:
+                later = self._choose_clock(index, taken)
+                self._add_temperatures(index, value, later)
         return cb
+
+    def _choose_clock(self, index, taken, until=None):
+        """Hold (message, info) readings of an input whose clock is not chosen yet.
+
+        Once its first reading after the first IMU message is judged
+        (``io.headerless.StampChoice``, as offline) the held readings go on: on the IMU's
+        clock, or by their header stamps, those stamped at or before ``until`` (ns) added
+        now. Returns the messages to add after the batch (see
+        ``_take_queued_temperatures``).
+        """
+        choice = self._choices[index]
+        self.temps.received[index] += len(taken)    # received while held, counted once
+        arrived = choice.waiting     # taken in their own callbacks before this batch
+        held = choice.take_live(taken, self._imu_span,
+                                lambda t: common.stamp_to_ns(t[0].header.stamp))
+        if choice.on_imu_clock is None:
+            return []
+        self.temps.received[index] -= len(held)     # counted again as they are added
+        value = self._temp_fields[index]
+        if choice.on_imu_clock:
+            self._headerless[index] = True
+            self.get_logger().warning(choice.pop_note())
+            self._add_headerless(index, value, held)
+            later = []
+        else:
+            msgs = [m for m, _ in held]
+            cut = len(msgs) if until is None else next(
+                (j for j, m in enumerate(msgs[arrived:], arrived)
+                 if common.stamp_to_ns(m.header.stamp) > until), len(msgs))
+            self._add_temperatures(index, value, msgs[:cut])
+            later = msgs[cut:]
+        self._clock_on = any(c.on_imu_clock is not False for c in self._choices)
+        return later
 
     def _add_temperatures(self, index, value, msgs):
         for m in msgs:
@@ -351,6 +389,10 @@ class CompensatorNode(Node):
                                      common.drain(sub, 1000, self, with_info=True))
                 later.append([])
                 continue
+            if self._choices[i].on_imu_clock is None:      # its clock not chosen yet
+                later.append(self._choose_clock(
+                    i, common.drain(sub, 1000, self, with_info=True), until))
+                continue
             taken = common.drain(sub, 1000, self)
             cut = next((j for j, m in enumerate(taken)
                         if common.stamp_to_ns(m.header.stamp) > until), len(taken))
@@ -366,7 +408,10 @@ class CompensatorNode(Node):
         taken = [(msg, info)] + common.drain(self.imu_sub, self.batch_limit - 1, self,
                                              with_info=True)
         msgs = [m for m, _ in taken]
-        if self._imu_clock is not None:     # the publish order, for header-less readings
+        newest = max(common.stamp_to_ns(m.header.stamp) for m in msgs)
+        self._imu_span = ((common.stamp_to_ns(msg.header.stamp), newest) if self._imu_span is None
+                          else (self._imu_span[0], max(self._imu_span[1], newest)))
+        if self._clock_on:     # the publish order, for readings on the IMU's clock
             self._imu_clock.add_imu([i['source_timestamp'] for _, i in taken],
                                     [common.stamp_to_ns(m.header.stamp) for m in msgs])
         later = self._take_queued_temperatures(msgs)

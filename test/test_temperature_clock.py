@@ -1,0 +1,120 @@
+"""Thermal inputs whose header stamps are not on the IMU's clock (``io.headerless.StampChoice``).
+
+A driver that leaves ``header.stamp`` 0, or stamps its readings by another clock than the
+IMU's (device time against ROS time), used to be refused ("header stamp 0", "different
+clocks?"). Such an input is now put on the IMU's clock like a header-less one: each reading
+takes the stamp of the IMU message logged before it. So such a log must read, through both
+readers and at any chunk size, exactly as the same log with those stamps written in; and a
+log on one clock must read as it did, the readings before the first IMU message included.
+"""
+
+import numpy as np
+import pytest
+
+from _hostile import recording, TEMP_TOPIC, write_bag
+from thermal_imu_calib.io.bag import open_log
+from thermal_imu_calib.io.columns import TemperatureColumns
+from thermal_imu_calib.io.headerless import OTHER_CLOCK_S, StampChoice
+
+S = 10 ** 9
+
+
+@pytest.fixture(scope='module')
+def rec():
+    return recording()
+
+
+def test_the_choice_is_made_by_the_distance_to_the_imu_stamps():
+    def choice(stamp, first, last):
+        return StampChoice('/t').decide(stamp, first, last)
+    assert choice(0, 100 * S, 101 * S)                                  # never set
+    assert not choice(100 * S, 100 * S, 100 * S)
+    assert not choice(95 * S, 100 * S, 200 * S)               # within OTHER_CLOCK_S
+    assert not choice(150 * S, 100 * S, 200 * S)              # inside the IMU stamps
+    assert choice(int(94.9 * S), 100 * S, 200 * S)
+    assert choice(int(205.1 * S), 100 * S, 200 * S)
+    assert OTHER_CLOCK_S == 5.0
+    c = StampChoice('/t')
+    c.decide(10 ** 12 + 100 * S, 100 * S, 100 * S)
+    assert 'is stamped +1000 s from the IMU messages before it' in c.pop_note()
+    assert c.pop_note() == ''                                  # said once
+
+
+def test_readings_wait_for_the_first_imu_message_and_the_end_releases_them():
+    c = StampChoice('/t')
+    got = c.place([5 * S, 6 * S], [20.0, 21.0], [0, 0], np.zeros(0, np.int64), None)
+    assert len(got) == 0 and c.holding and c.on_imu_clock is None
+    got = c.place([7 * S], [22.0], [1], np.array([int(6.5 * S)]), None)   # one clock
+    assert c.on_imu_clock is False and not c.holding
+    assert got.stamp_ns.tolist() == [5 * S, 6 * S, 7 * S]
+    c = StampChoice('/t')
+    c.place([0, 0], [20.0, 21.0], [0, 0], np.zeros(0, np.int64), None)
+    got = c.place([0, 0], [22.0, 23.0], [1, 2], np.array([100, 200]), None)
+    assert c.on_imu_clock is True and c.left_out == 2
+    assert got.stamp_ns.tolist() == [100, 200] and got.temperature.tolist() == [22.0, 23.0]
+    c = StampChoice('/t')                                  # no IMU message after them
+    c.place([5 * S], [20.0], [0], np.zeros(0, np.int64), None)
+    got = c.place([], [], [], np.zeros(0, np.int64), None, final=True)
+    assert got.stamp_ns.tolist() == [5 * S] and c.on_imu_clock is None
+
+
+def _on_imu_clock(a):
+    """The reference: each reading stamped with the IMU stamp logged before it (the log
+    times are the original stamps, the IMU first at a tie); none before: dropped."""
+    st = a['stamp_ns']
+    before = np.searchsorted(st, a['temp_stamp_ns'], side='right')
+    keep = before > 0
+    a['temp_stamp_ns'] = st[before[keep] - 1]
+    a['temperature'] = a['temperature'][keep]
+
+
+def _early(a):
+    """Move the first reading 2 s before the first IMU message (log time and stamp)."""
+    a['temp_stamp_ns'][0] = a['stamp_ns'][0] - 2 * S
+
+
+EDITS = {'stamps_0': lambda a: a['temp_stamp_ns'].__setitem__(slice(None), 0),
+         'another_clock': lambda a: a['temp_stamp_ns'].__setitem__(
+             slice(None), a['temp_stamp_ns'] - 3600 * S)}
+
+
+def _stream(path, chunk_size):
+    with open_log(path) as r:
+        chunks = list(r.stream('/imu/data_raw', [TEMP_TOPIC], chunk_size=chunk_size))
+    notes = [n for c in chunks for n in c.notes]
+    return (np.concatenate([c.temps[TEMP_TOPIC].stamp_ns for c in chunks]),
+            np.concatenate([c.temps[TEMP_TOPIC].temperature for c in chunks]), notes)
+
+
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+@pytest.mark.parametrize('case', sorted(EDITS))
+def test_a_log_on_another_clock_reads_as_the_log_stamped_by_the_imu(rec, tmp_path, storage,
+                                                                    case):
+    imu, temp = rec
+    n_before = 3                  # readings logged before the first IMU message
+    stamps = temp.stamp_ns.copy()
+    stamps[:n_before] = imu.stamp_ns[0] - np.arange(n_before, 0, -1) * S // 10
+    temp = TemperatureColumns(stamps, temp.temperature.copy())
+    ref = write_bag(str(tmp_path / 'ref.mcap'), imu, temp, _on_imu_clock)
+    want, want_t, notes = _stream(ref, 20000)
+    assert len(want) == len(temp.stamp_ns) - n_before and not notes
+    log = write_bag(str(tmp_path / f'{case}_{storage}'), imu, temp, EDITS[case], storage)
+    for size in (20000, 7, 1):
+        got, got_t, notes = _stream(log, size)
+        np.testing.assert_array_equal(got, want)
+        np.testing.assert_array_equal(got_t, want_t)
+        assert len(notes) == 1 and "not stamped by the IMU's clock" in notes[0]
+        assert ('header stamp 0' in notes[0]) == (case == 'stamps_0')
+
+
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_a_log_on_one_clock_reads_as_before(rec, tmp_path, storage):
+    imu, temp = rec
+    log = write_bag(str(tmp_path / f'one_{storage}'), imu, temp, _early, storage)
+    a = {'stamp_ns': imu.stamp_ns, 'temp_stamp_ns': temp.stamp_ns.copy()}
+    _early(a)
+    for size in (20000, 7, 1):
+        got, got_t, notes = _stream(log, size)
+        np.testing.assert_array_equal(got, a['temp_stamp_ns'])   # the early one included
+        np.testing.assert_array_equal(got_t, temp.temperature)
+        assert not notes
