@@ -1,20 +1,25 @@
-"""The real recordings with a temperature, their temperature published without a header.
+"""The real recordings with a temperature, their temperature without a usable header stamp.
 
 Usage (from the repository root; a ROS domain of your own for the live runs)::
 
     ROS_DOMAIN_ID=72 .venv/bin/python bench/headerless_real.py [--work DIR] [--json OUT]
-        [--no-live]
+        [--no-live] [--kinds float64 stamp0]
 
 For the BMI270 soaks and the chamber log's training part (``real_recordings``), the log is
-written again with its temperature as std_msgs/Float64, each reading logged half an IMU
-period after its sample (a driver publishing the temperature after the IMU message it read
-it with). Then, default options as in ``scoreboard.py``:
+written again with each temperature reading logged half an IMU period after its sample (a
+driver publishing the temperature after the IMU message it read it with), in one of two
+forms (``KINDS``):
 
-* offline: ``calibrate`` on the Float64 log must equal ``calibrate`` on the original log
-  (sensor_msgs/Temperature stamped with the IMU sample's stamp): each Float64 reading takes
-  the stamp of the IMU message logged before it, which is that sample's;
-* live: the Float64 log replayed into calibrator_node launched with
-  ``temperature_types:=[std_msgs/msg/Float64]``, every message counted, must equal the
+* ``float64``: as std_msgs/Float64, no header (the nodes get ``temperature_types``);
+* ``stamp0``: as sensor_msgs/Temperature with header stamp 0 (a driver that never sets it;
+  ``io.headerless.StampChoice`` puts it on the IMU's clock).
+
+Then, default options as in ``scoreboard.py``:
+
+* offline: ``calibrate`` on that log must equal ``calibrate`` on the original log
+  (sensor_msgs/Temperature stamped with the IMU sample's stamp): each reading takes the
+  stamp of the IMU message logged before it, which is that sample's;
+* live: that log replayed into calibrator_node, every message counted, must equal the
   offline calibration (``scoreboard.compare``, 1e-9 relative).
 """
 
@@ -37,6 +42,8 @@ from thermal_imu_calib.io.bag_writer import write_columns  # noqa: E402
 from thermal_imu_calib.io.columns import TemperatureColumns  # noqa: E402
 
 FLOAT = 'std_msgs/msg/Float64'
+#: the forms of the temperature: no header, or a header stamp of 0
+KINDS = ('float64', 'stamp0')
 
 
 def _verdict(c):
@@ -44,28 +51,51 @@ def _verdict(c):
                               'max_rel_diff_at', 'structure')}
 
 
-def run(rec, work, domain_id, live=True):
-    """Return the row of one recording: offline original vs Float64, live vs offline."""
+def _write_stamp0(path, rec, imu, temps, log_ns):
+    """Write the log with Temperature readings stamped 0, logged at ``log_ns``."""
+    from thermal_imu_calib.io import cdr
+    from thermal_imu_calib.io.bag_writer import LogWriter
+    imu_raw = cdr.encode_imu(imu)
+    temp_raw = cdr.encode_temperature(TemperatureColumns(np.zeros(len(temps), np.int64),
+                                                         temps.temperature, temps.frame_id))
+    order = sorted([(int(t), 0, i) for i, t in enumerate(imu.stamp_ns)]
+                   + [(int(t), 1, i) for i, t in enumerate(log_ns)])
+    with LogWriter(path, 'mcap', overwrite=True) as w:
+        w.add_topic(rec.imu_topic, cdr.IMU_MSGTYPE)
+        w.add_topic(rec.temperature_topic, cdr.TEMPERATURE_MSGTYPE)
+        for t, kind, i in order:
+            w.write(rec.temperature_topic if kind else rec.imu_topic, t,
+                    temp_raw[i] if kind else imu_raw[i])
+
+
+def run(rec, work, domain_id, live=True, kind='float64'):
+    """Return the row of one recording: offline original vs ``kind``, live vs offline."""
     imu, temps = rr.read_log(rec.log, rec.imu_topic, rec.temperature_topic)
     half = int(round(0.5 * 1e9 / rec_rate(imu)))
-    bare = os.path.join(work, f'{rec.name}_float64.mcap')
+    bare = os.path.join(work, f'{rec.name}_{kind}.mcap')
     # log time = stamp + half a period: after the IMU message of the same stamp
-    write_columns(bare, rec.imu_topic, imu, {rec.temperature_topic: TemperatureColumns(
-        temps.stamp_ns + half, temps.temperature)}, msgtypes={rec.temperature_topic: FLOAT},
-        overwrite=True)
+    if kind == 'float64':
+        write_columns(bare, rec.imu_topic, imu, {rec.temperature_topic: TemperatureColumns(
+            temps.stamp_ns + half, temps.temperature)}, msgtypes={rec.temperature_topic: FLOAT},
+            overwrite=True)
+    else:
+        _write_stamp0(bare, rec, imu, temps, temps.stamp_ns + half)
     a = offline(rec.log, rec, os.path.join(work, f'{rec.name}_stamped.yaml'),
                 rec.temperature_topic)
-    b = offline(bare, rec, os.path.join(work, f'{rec.name}_float64.yaml'),
+    b = offline(bare, rec, os.path.join(work, f'{rec.name}_{kind}.yaml'),
                 rec.temperature_topic)
-    row = {'name': rec.name, 'imu_messages': len(imu), 'readings': len(temps),
+    row = {'name': rec.name, 'kind': kind, 'imu_messages': len(imu), 'readings': len(temps),
            'offline_rc': [a['rc'], b['rc']], 'offline_summary': b['summary'],
-           'float64_vs_stamped': _verdict(compare(a['yaml'], b['yaml'])) if a['rc'] == 0
+           'vs_stamped': _verdict(compare(a['yaml'], b['yaml'])) if a['rc'] == 0
            == b['rc'] else None, 'seconds_offline': [a['seconds'], b['seconds']]}
     if live:
         shifted = TemperatureColumns(temps.stamp_ns + half, temps.temperature)
         r = live_replay.run_live(imu, shifted, rec.gravity, domain_id,
-                                 workdir=os.path.join(work, f'{rec.name}_live'),
-                                 temperature_type=FLOAT)
+                                 workdir=os.path.join(work, f'{rec.name}_{kind}_live'),
+                                 temperature_type=FLOAT if kind == 'float64'
+                                 else live_replay.TEMPERATURE_TYPE,
+                                 temperature_header_ns=None if kind == 'float64'
+                                 else np.zeros(len(temps), np.int64))
         row['live'] = {'error': r.error, 'success': r.success, 'message': r.message[:300],
                        'imu': [r.imu_received, r.imu_sent], 'readings': [r.temp_received,
                                                                          r.temp_sent],
@@ -91,6 +121,7 @@ def main(argv=None):
     ap.add_argument('--work', default=None)
     ap.add_argument('--json', default=None)
     ap.add_argument('--no-live', action='store_true')
+    ap.add_argument('--kinds', nargs='+', choices=KINDS, default=list(KINDS))
     a = ap.parse_args(argv)
     work = a.work or tempfile.mkdtemp(prefix='headerless-')
     os.makedirs(work, exist_ok=True)
@@ -103,16 +134,16 @@ def main(argv=None):
             sys.exit(f'headerless_real: {e}')
     recs = [rr.bmi270(work, 'hot'), rr.bmi270(work, 'cold'), rr.chamber(work)]
     rows = []
-    for rec in recs:
-        row = run(rec, work, domain, live=not a.no_live)
+    for rec, kind in [(r, k) for k in a.kinds for r in recs]:
+        row = run(rec, work, domain, live=not a.no_live, kind=kind)
         rows.append(row)
-        ok_off = equal(row['float64_vs_stamped'])
+        ok_off = equal(row['vs_stamped'])
         ok_live = equal(row.get('live_vs_offline')) and row['live']['imu'][0] == row[
             'live']['imu'][1] and row['live']['readings'][0] == row['live']['readings'][1] \
             if 'live' in row else None
-        print(f"{rec.name}: {row['imu_messages']} IMU, {row['readings']} Float64 readings; "
-              f"offline Float64 == stamped: {ok_off} "
-              f"(max rel {(row['float64_vs_stamped'] or {}).get('max_rel_diff')}); "
+        print(f"{rec.name}: {row['imu_messages']} IMU, {row['readings']} {kind} readings; "
+              f"offline {kind} == stamped: {ok_off} "
+              f"(max rel {(row['vs_stamped'] or {}).get('max_rel_diff')}); "
               f"live == offline: {ok_live}"
               + (f" (max rel {row['live_vs_offline']['max_rel_diff']}, IMU "
                  f"{row['live']['imu'][0]}/{row['live']['imu'][1]}, readings "
@@ -121,7 +152,7 @@ def main(argv=None):
     if a.json:
         with open(a.json, 'w') as f:
             json.dump({'rows': rows}, f, indent=1, default=str)
-    return 0 if all(equal(r['float64_vs_stamped']) and (a.no_live or equal(
+    return 0 if all(equal(r['vs_stamped']) and (a.no_live or equal(
         r.get('live_vs_offline'))) for r in rows) else 1
 
 

@@ -307,9 +307,10 @@ def test_fuzz_node_callbacks(nodes, events):
                 comp._on_imu(msg, {'source_timestamp': stamp})
                 calib._on_imu(msg, {'source_timestamp': stamp})
             elif ev[0] == 'temp':
-                msg = temperature_msg(ev[1] * 1_000_000_000 + ev[2], ev[3])
-                comp._temperature_cb(0)(msg)
-                calib._temperature_cb(0)(msg)
+                stamp = ev[1] * 1_000_000_000 + ev[2]
+                msg = temperature_msg(stamp, ev[3])
+                comp._temperature_cb(0)(msg, {'source_timestamp': stamp})
+                calib._temperature_cb(0)(msg, {'source_timestamp': stamp})
             else:
                 comp._on_calibration(String(data=ev[1]))
         calib._process()
@@ -339,7 +340,7 @@ def test_calibrator_survives_stamps_that_imply_no_usable_sample_rate(nodes):
     base = 1_700_000_057 * 1_000_000_000
     stamps = [base + k * 850_000_000 * 1_000_000_000 for k in range(4)] + [base]
     for stamp in stamps:                  # 850 million seconds apart, then back: closes it
-        calib._temperature_cb(0)(temperature_msg(stamp, 35.0))
+        calib._temperature_cb(0)(temperature_msg(stamp, 35.0), {'source_timestamp': stamp})
         calib._on_imu(imu_msg(stamp, [0, 0, 9.81], [0, 0, 0]), {'source_timestamp': stamp})
         calib._process()
     assert calib.counts.get('detector_restarts', 0) > before

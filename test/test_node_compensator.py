@@ -764,13 +764,13 @@ def test_a_headerless_float32_temperature_takes_the_stamp_of_the_imu_before_it(r
         wait_for(lambda: node.counts['received'] >= rows[-1] + 1, WAIT, f'{rows[-1] + 1} IMU')
     imu(range(5))
     temp_pub.publish(Float32(data=25.0))       # after IMU 4: waits for the next IMU message
-    wait_for(lambda: node._imu_clock._wait[0], WAIT, 'the reading at the node')
+    wait_for(lambda: node._clocks.clock._wait[0], WAIT, 'the reading at the node')
     assert node.temps.received == [0]
     imu(range(5, 10))
     assert node.temps.received == [1]
     assert node.temps.tracks[0].stamps_ns.tolist() == [stamps[4]]
     temp_pub.publish(Float32(data=35.0))
-    wait_for(lambda: node._imu_clock._wait[0], WAIT, 'the second reading at the node')
+    wait_for(lambda: node._clocks.clock._wait[0], WAIT, 'the second reading at the node')
     imu(range(10, 15))
     assert node.temps.tracks[0].stamps_ns.tolist() == [stamps[4], stamps[9]]
     wait_for(lambda: len(out) >= 10, WAIT, 'the compensated messages')
@@ -781,7 +781,7 @@ def test_a_headerless_float32_temperature_takes_the_stamp_of_the_imu_before_it(r
         np.testing.assert_allclose(got[stamps[k]][1], exp.gyro[0], rtol=0, atol=1e-12)
     assert node.counts['temperature_before_imu'] == 0
     temp_pub.publish(Float32(data=40.0))      # the IMU stream has ended: it waits, unused
-    wait_for(lambda: node._imu_clock._wait[0], WAIT, 'the third reading at the node')
+    wait_for(lambda: node._clocks.clock._wait[0], WAIT, 'the third reading at the node')
     assert node.temps.received == [2]
 
 
@@ -807,17 +807,17 @@ def test_a_temperature_stamped_0_is_put_on_the_imu_clock(ros, tmp_path):
             imu_pub.publish(imu_msg(stamps[k], ACCEL, GYRO))
         wait_for(lambda: node.counts['received'] >= rows[-1] + 1, WAIT, f'{rows[-1] + 1} IMU')
     temp_pub.publish(temperature_msg(0, 20.0))      # before any IMU message: held
-    wait_for(lambda: node._choices[0].waiting, WAIT, 'the held reading')
-    assert node._choices[0].on_imu_clock is None and node.temps.received == [1]
+    wait_for(lambda: node._clocks.choices[0].waiting, WAIT, 'the held reading')
+    assert node._clocks.choices[0].on_imu_clock is None and node.temps.received == [1]
     imu(range(5))
-    assert node._choices[0].on_imu_clock is True and node._headerless[0]
+    assert node._clocks.choices[0].on_imu_clock is True and node._clocks.bare[0]
     assert node.counts['temperature_before_imu'] == 1 and node.temps.received == [0]
     temp_pub.publish(temperature_msg(0, 25.0))      # after IMU 4: waits for the next one
-    wait_for(lambda: node._imu_clock._wait[0], WAIT, 'the reading at the node')
+    wait_for(lambda: node._clocks.clock._wait[0], WAIT, 'the reading at the node')
     imu(range(5, 10))
     assert node.temps.tracks[0].stamps_ns.tolist() == [stamps[4]]
     temp_pub.publish(temperature_msg(0, 35.0))
-    wait_for(lambda: node._imu_clock._wait[0], WAIT, 'the second reading at the node')
+    wait_for(lambda: node._clocks.clock._wait[0], WAIT, 'the second reading at the node')
     imu(range(10, 15))
     assert node.temps.tracks[0].stamps_ns.tolist() == [stamps[4], stamps[9]]
     wait_for(lambda: len(out) >= 10, WAIT, 'the compensated messages')
@@ -835,6 +835,6 @@ def test_a_temperature_on_the_imu_clock_keeps_its_stamps(ros, tmp_path):
     rig = Rig(ros, calibration_file=str(cal.save(tmp_path / 'cal.yaml')))
     rig.temperature(24.0, T0_NS - 3 * S)          # 3 s before the first IMU stamp: kept
     rig.send(1)
-    wait_for(lambda: rig.node._choices[0].on_imu_clock is False, WAIT, 'the choice')
-    assert not rig.node._clock_on and not rig.node._headerless[0]
+    wait_for(lambda: rig.node._clocks.choices[0].on_imu_clock is False, WAIT, 'the choice')
+    assert not rig.node._clocks.on and not rig.node._clocks.bare[0]
     assert rig.node.temps.tracks[0].stamps_ns.tolist() == [T0_NS - 3 * S]

@@ -14,7 +14,7 @@ import pytest
 from _hostile import recording, TEMP_TOPIC, write_bag
 from thermal_imu_calib.io.bag import open_log
 from thermal_imu_calib.io.columns import TemperatureColumns
-from thermal_imu_calib.io.headerless import OTHER_CLOCK_S, StampChoice
+from thermal_imu_calib.io.headerless import LiveClocks, OTHER_CLOCK_S, StampChoice
 
 S = 10 ** 9
 
@@ -118,3 +118,29 @@ def test_a_log_on_one_clock_reads_as_before(rec, tmp_path, storage):
         np.testing.assert_array_equal(got, a['temp_stamp_ns'])   # the early one included
         np.testing.assert_array_equal(got_t, temp.temperature)
         assert not notes
+
+
+def test_live_clocks_hold_until_an_imu_message_then_follow_the_choice():
+    """The nodes' helper: (header stamp, source timestamp, value) readings, as they come."""
+    def stamp_of(r):
+        return r[0]
+    c = LiveClocks(['/a', '/b', '/c'], [False, False, True])
+    assert c.on and c.bare == [False, False, True]
+    assert c.choose(0, [(0, 5, 20.0)], stamp_of) == ([], '')        # no IMU message yet
+    assert c.choose(1, [(90 * S, 6, 21.0)], stamp_of) == ([], '')
+    c.add_imu([10, 20], [100 * S, 101 * S])
+    out, note = c.choose(0, [(0, 15, 22.0), (0, 25, 23.0)], stamp_of)   # stamp 0: IMU clock
+    assert c.bare[0] and 'header stamp 0' in note and len(out) == 3
+    got = c.stamp(0, [(s_, v) for _, s_, v in out])      # the one before any IMU: left out
+    assert got.stamp_ns.tolist() == [100 * S] and got.temperature.tolist() == [22.0]
+    assert c.clock.left_out == 1                          # the last waits for the next IMU
+    c.add_imu([30], [102 * S])
+    assert c.stamp(0, []).stamp_ns.tolist() == [101 * S]
+    out, note = c.choose(1, [], stamp_of)                 # 10 s before the first: on its own
+    assert c.bare[1] and 'is stamped -10 s' in note
+    c = LiveClocks(['/a'], [False])
+    c.add_imu([10], [100 * S])
+    out, note = c.choose(0, [(99 * S, 11, 20.0)], stamp_of)
+    assert out == [(99 * S, 11, 20.0)] and note == '' and not c.bare[0] and not c.on
+    c.add_imu([12], [101 * S])                           # nothing kept once all are decided
+    assert c.span == (100 * S, 100 * S) and c.clock._n == 1

@@ -316,3 +316,58 @@ class StampChoice:
         out = on_imu_clock(values, before, imu_stamp_ns, carry_ns)
         self.left_out += len(before) - len(out)
         return out
+
+
+class LiveClocks:
+    """Live, for one node: each thermal input's clock, chosen and applied as offline.
+
+    Holds a :class:`StampChoice` per input (``bare[j]``: input ``j``'s readings go on the
+    IMU's clock, from the start for a header-less type, or once its stamps are judged to
+    be on another clock) and the :class:`LiveImuClock` that stamps them. The IMU messages'
+    source timestamps are needed only while an input is, or may still be, on the IMU's
+    clock (``on``); once every input keeps its header stamps the node stops collecting
+    them.
+    """
+
+    def __init__(self, topics: Sequence[str], headerless: Sequence[bool]):
+        self.choices = [StampChoice(t, h) for t, h in zip(topics, headerless)]
+        self.bare = [bool(h) for h in headerless]
+        self.clock = LiveImuClock(len(self.choices))
+        self.span: tuple[int, int] | None = None    # first, newest IMU header stamp (ns)
+        self.on = bool(self.choices)
+
+    def add_imu(self, source_ns, stamp_ns) -> None:
+        """Add IMU messages (source timestamps, header stamps; ns, in arrival order).
+
+        Needed only while ``on``: afterwards nothing is kept.
+        """
+        if not len(stamp_ns) or not self.on:
+            return
+        newest = int(np.max(stamp_ns))
+        self.span = ((int(stamp_ns[0]), newest) if self.span is None
+                     else (self.span[0], max(self.span[1], newest)))
+        self.clock.add_imu(source_ns, stamp_ns)
+
+    def choose(self, index: int, items: list, stamp_of) -> tuple[list, str]:
+        """Hold readings of an input whose clock is not chosen yet (``StampChoice.take_live``).
+
+        Returns (the readings to go on now, by the chosen clock; the note to log once the
+        input is put on the IMU's clock, else '').
+        """
+        choice = self.choices[index]
+        out = choice.take_live(items, self.span, stamp_of)
+        if choice.on_imu_clock is None:
+            return out, ''
+        self.bare[index] = bool(choice.on_imu_clock)
+        self.on = any(c.on_imu_clock is not False for c in self.choices)
+        return out, choice.pop_note()
+
+    def undecided(self, index: int) -> bool:
+        """Return True while input ``index``'s clock is not chosen."""
+        return self.choices[index].on_imu_clock is None
+
+    def stamp(self, index: int, readings) -> TemperatureColumns:
+        """Return input ``index``'s readings that can be stamped now, (source ns, value) in."""
+        for source, value in readings:
+            self.clock.add_reading(index, source, value)
+        return self.clock.take(index)

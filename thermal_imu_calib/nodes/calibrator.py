@@ -46,7 +46,7 @@ from ..calibration import CalibrationError
 from ..collection.segments import FACE_NAMES, Windows
 from ..estimation.calibrate import CalibrationRefused
 from ..io.gate import gyro_unit_problem, unit_refusal
-from ..io.headerless import LiveImuClock, StampChoice
+from ..io.headerless import LiveClocks
 
 NODE_NAME = 'thermal_imu_calibrator'
 #: what ``_write`` says when calibration_file is empty (the node is set up not to write)
@@ -65,13 +65,10 @@ class CalibratorNode(LiveCollection, Node):
     def __init__(self, node_name=NODE_NAME, **kwargs):
         super().__init__(node_name, **kwargs)
         in_depth, period, scalar_types = params.declare(self)
-        self._headerless = [common.headerless(cls) for cls, _ in scalar_types]
-        #: per input: its header stamps, or the IMU's clock (``io.headerless.StampChoice``)
-        self._choices = [StampChoice(t, h) for t, h in zip(self.temperature_topics,
-                                                           self._headerless)]
-        self._imu_clock = LiveImuClock(self.k) if self.k else None
-        self._clock_on = bool(self.k)    # while an input is (or may be) on the IMU's clock
-        self._imu_span = None            # the first and newest IMU header stamps received
+        #: per input: its header stamps, or the IMU's clock (header-less, or stamps 0 or
+        #: on another clock), as offline
+        self._clocks = LiveClocks(self.temperature_topics,
+                                  [common.headerless(cls) for cls, _ in scalar_types])
 
         self._lock = threading.Lock()    # detector, aligner, windows, pending data
         self._busy = threading.Lock()    # held while an estimation runs
@@ -332,8 +329,7 @@ class CalibratorNode(LiveCollection, Node):
             n, h, t = len(self.windows), len(self.windows.hold_ids), len(self.transitions)
             self._new_collection()
             self.counts.update({k: 0 for k in self.counts})
-            if self._imu_clock is not None:
-                self._imu_clock.left_out = 0
+            self._clocks.clock.left_out = 0
             self._rows.gyro_unit = 0      # a driver fixed since: its data are judged afresh
             self.readings_per_topic = [0] * self.k
             path = self._collection_path()

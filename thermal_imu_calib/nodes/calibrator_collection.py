@@ -258,7 +258,7 @@ class LiveCollection:
     def _temperature_cb(self, index, value='temperature'):
         unit = self.temperature_units[index]
 
-        bare = self._headerless[index]
+        bare = self._clocks.bare[index]          # the type has no header
 
         def add(m, info):
             v = getattr(m, value)
@@ -291,7 +291,7 @@ class LiveCollection:
         self._rate.add(len(msgs))
         with self._lock:
             self._pending_imu.append((stamps, accel, gyro))
-            if self._clock_on:      # the publish order, for readings on the IMU's clock
+            if self._clocks.on:     # the publish order, for readings on the IMU's clock
                 self._pending_source.append([i['source_timestamp'] for _, i in taken])
 
     def _process(self):
@@ -302,17 +302,7 @@ class LiveCollection:
                 return
             imu = ImuColumns(*(np.concatenate(c) for c in zip(*pending))) if pending \
                 else ImuColumns.empty()
-            if len(imu):
-                first, newest = int(imu.stamp_ns[0]), int(imu.stamp_ns.max())
-                self._imu_span = (first, newest) if self._imu_span is None else (
-                    self._imu_span[0], max(self._imu_span[1], newest))
-            temps = self._choose_clocks(temps)
-            tcols = [TemperatureColumns(np.array([s for s, _, _ in t], np.int64),
-                                        np.array([v for _, _, v in t], float)) for t in temps]
-            if self._clock_on:
-                tcols = self._stamp_headerless(imu.stamp_ns, temps, tcols)
-                self._clock_on = any(c.on_imu_clock is not False for c in self._choices)
-            self._pending_source = [] if not self._clock_on else self._pending_source
+            tcols = self._on_clocks(imu.stamp_ns, temps)
             imu = self._filtered(imu)       # an invalid row's stamp counts for nothing
             if len(imu) and self._resumed_until is not None:
                 self._check_session(int(imu.stamp_ns[0]))
@@ -323,41 +313,29 @@ class LiveCollection:
             for chunk in self.aligner.push_columns(imu, tcols):
                 self._collect(chunk)
 
-    def _choose_clocks(self, temps):
-        """Return ``temps`` with the readings of inputs whose clock is not chosen yet held.
+    def _on_clocks(self, imu_stamps, temps):
+        """Return the readings taken since the last call as TemperatureColumns per input.
 
-        A header-stamped input is put on the IMU's clock when its first reading after the
-        first IMU message is stamped 0 or more than ``OTHER_CLOCK_S`` outside the IMU
-        stamps received (``io.headerless.StampChoice``, as offline); its held readings are
-        returned once that is decided. The choice is logged once.
+        ``imu_stamps``: the IMU messages taken meanwhile (before the input gate, as
+        offline); ``temps`` entries: (header stamp, source timestamp, value). Each input's
+        clock is chosen and applied as offline (``io.headerless.LiveClocks``): header
+        stamps, or the stamp of the IMU message published before each reading (header-less,
+        or stamped 0 or by another clock: logged once; held until that is decided).
         """
-        out = list(temps)
-        for j, choice in enumerate(self._choices):
-            if choice.on_imu_clock is not None:
-                continue
-            out[j] = choice.take_live(temps[j], self._imu_span, lambda r: r[0])
-            if choice.on_imu_clock:
-                self._headerless[j] = True
-                self.get_logger().warning(choice.pop_note())
-        return out
-
-    def _stamp_headerless(self, imu_stamps, temps, tcols):
-        """Put the readings of inputs on the IMU's clock there (``LiveImuClock``).
-
-        ``imu_stamps`` are the IMU messages taken since the last call (before the input
-        gate, as offline); ``temps`` entries are (header stamp, source timestamp, value).
-        Returns ``tcols`` with those inputs' stamped readings (header-less inputs, and
-        header-stamped ones whose stamps are on another clock, ``_choose_clocks``).
-        """
+        clocks = self._clocks
         sources, self._pending_source = self._pending_source, []
-        self._imu_clock.add_imu([s for part in sources for s in part], imu_stamps)
-        out = list(tcols)
-        for j, bare in enumerate(self._headerless):
-            if bare:
-                for _, source, value in temps[j]:
-                    self._imu_clock.add_reading(j, source, value)
-                out[j] = self._imu_clock.take(j)
-        self.counts['temperature_before_imu'] = self._imu_clock.left_out   # not used
+        clocks.add_imu([s for part in sources for s in part], imu_stamps)
+        out = []
+        for j, t in enumerate(temps):
+            if clocks.undecided(j):
+                t, note = clocks.choose(j, t, lambda r: r[0])
+                if note:
+                    self.get_logger().warning(note)
+            out.append(clocks.stamp(j, [(s, v) for _, s, v in t]) if clocks.bare[j] else
+                       TemperatureColumns(np.array([h for h, _, _ in t], np.int64),
+                                          np.array([v for _, _, v in t], float)))
+        if any(clocks.bare):
+            self.counts['temperature_before_imu'] = clocks.clock.left_out   # not used
         return out
 
     def _check_session(self, stamp_ns):
@@ -483,10 +461,10 @@ class LiveCollection:
         self._process()
         with self._lock:
             tail = None     # header-less readings after the newest IMU message (as offline)
-            if any(self._headerless):
-                clock = copy.deepcopy(self._imu_clock)
+            if any(self._clocks.bare):
+                clock = copy.deepcopy(self._clocks.clock)
                 tail = [clock.take(j, everything=True) if bare else TemperatureColumns.empty()
-                        for j, bare in enumerate(self._headerless)]
+                        for j, bare in enumerate(self._clocks.bare)]
             return (self.windows, self.transitions, copy.deepcopy(self.detector),
                     copy.deepcopy(self.aligner), self._hold_offset, tail)
 

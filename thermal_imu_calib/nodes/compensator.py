@@ -41,7 +41,7 @@ from ..collection.feed import DEFAULT_MAX_GAP_S
 from ..collection.outliers import ImuSpikeFilter
 from ..gravity import STANDARD_GRAVITY
 from ..io.columns import AlignedChunk, ImuColumns
-from ..io.headerless import LiveImuClock, StampChoice
+from ..io.headerless import LiveClocks
 from ..io.imu_units import UnitWatch
 from ..thermal_input import CalibrationStream
 
@@ -175,13 +175,10 @@ class CompensatorNode(Node):
             event_callbacks=SubscriptionEventCallbacks(message_lost=self._on_lost))
 
         self._temp_fields = [value for _, value in scalar_types]
-        self._headerless = [common.headerless(cls) for cls, _ in scalar_types]
-        #: per input: its header stamps, or the IMU's clock (``io.headerless.StampChoice``)
-        self._choices = [StampChoice(t, h) for t, h in zip(self.temperature_topics,
-                                                           self._headerless)]
-        self._imu_clock = LiveImuClock(len(scalar_types)) if scalar_types else None
-        self._clock_on = bool(scalar_types)   # while an input is (or may be) on the IMU's clock
-        self._imu_span = None                 # the first and newest IMU header stamps received
+        #: per input: its header stamps, or the IMU's clock (header-less, or stamps 0 or
+        #: on another clock), as offline
+        self._clocks = LiveClocks(self.temperature_topics,
+                                  [common.headerless(cls) for cls, _ in scalar_types])
         self.temp_subs = [
             self.create_subscription(cls, topic, self._temperature_cb(i, value),
                                      common.sensor_qos(in_depth))
@@ -311,13 +308,12 @@ class CompensatorNode(Node):
             # drained too, so temperature keeps pace with batched IMU data under load
             taken = [(msg, info)] + common.drain(self.temp_subs[index], 100, self,
                                                  with_info=True)
-            if self._headerless[index]:
+            if self._clocks.bare[index]:
                 self._add_headerless(index, value, taken)
-            elif self._choices[index].on_imu_clock is False:
-                self._add_temperatures(index, value, [m for m, _ in taken])
+            elif self._clocks.undecided(index):
+                self._add_temperatures(index, value, self._choose_clock(index, taken))
             else:
-                later = self._choose_clock(index, taken)
-                self._add_temperatures(index, value, later)
+                self._add_temperatures(index, value, [m for m, _ in taken])
         return cb
 
     def _choose_clock(self, index, taken, until=None):
@@ -329,18 +325,16 @@ class CompensatorNode(Node):
         now. Returns the messages to add after the batch (see
         ``_take_queued_temperatures``).
         """
-        choice = self._choices[index]
         self.temps.received[index] += len(taken)    # received while held, counted once
-        arrived = choice.waiting     # taken in their own callbacks before this batch
-        held = choice.take_live(taken, self._imu_span,
-                                lambda t: common.stamp_to_ns(t[0].header.stamp))
-        if choice.on_imu_clock is None:
+        arrived = self._clocks.choices[index].waiting   # taken before this batch
+        held, note = self._clocks.choose(index, taken,
+                                         lambda t: common.stamp_to_ns(t[0].header.stamp))
+        if self._clocks.undecided(index):
             return []
         self.temps.received[index] -= len(held)     # counted again as they are added
         value = self._temp_fields[index]
-        if choice.on_imu_clock:
-            self._headerless[index] = True
-            self.get_logger().warning(choice.pop_note())
+        if self._clocks.bare[index]:
+            self.get_logger().warning(note)
             self._add_headerless(index, value, held)
             later = []
         else:
@@ -350,7 +344,6 @@ class CompensatorNode(Node):
                  if common.stamp_to_ns(m.header.stamp) > until), len(msgs))
             self._add_temperatures(index, value, msgs[:cut])
             later = msgs[cut:]
-        self._clock_on = any(c.on_imu_clock is not False for c in self._choices)
         return later
 
     def _add_temperatures(self, index, value, msgs):
@@ -364,12 +357,11 @@ class CompensatorNode(Node):
         timestamps, ``io.headerless.LiveImuClock``); one published after every IMU message
         received so far waits for the next.
         """
-        for m, info in taken:
-            self._imu_clock.add_reading(index, info['source_timestamp'], getattr(m, value))
-        got = self._imu_clock.take(index)
+        got = self._clocks.stamp(index, [(info['source_timestamp'], getattr(m, value))
+                                         for m, info in taken])
         for stamp, v in zip(got.stamp_ns.tolist(), got.temperature.tolist()):
             self.temps.add(index, stamp, v)
-        self.counts['temperature_before_imu'] = self._imu_clock.left_out   # not used
+        self.counts['temperature_before_imu'] = self._clocks.clock.left_out   # not used
 
     def _take_queued_temperatures(self, msgs):
         """Take readings still queued that are stamped within the IMU batch ``msgs``.
@@ -384,12 +376,12 @@ class CompensatorNode(Node):
         until = max(common.stamp_to_ns(m.header.stamp) for m in msgs)
         later = []
         for i, sub in enumerate(self.temp_subs):
-            if self._headerless[i]:      # stamped by the IMU messages published before them
+            if self._clocks.bare[i]:     # stamped by the IMU messages published before them
                 self._add_headerless(i, self._temp_fields[i],
                                      common.drain(sub, 1000, self, with_info=True))
                 later.append([])
                 continue
-            if self._choices[i].on_imu_clock is None:      # its clock not chosen yet
+            if self._clocks.undecided(i):      # its clock not chosen yet
                 later.append(self._choose_clock(
                     i, common.drain(sub, 1000, self, with_info=True), until))
                 continue
@@ -408,12 +400,9 @@ class CompensatorNode(Node):
         taken = [(msg, info)] + common.drain(self.imu_sub, self.batch_limit - 1, self,
                                              with_info=True)
         msgs = [m for m, _ in taken]
-        newest = max(common.stamp_to_ns(m.header.stamp) for m in msgs)
-        self._imu_span = ((common.stamp_to_ns(msg.header.stamp), newest) if self._imu_span is None
-                          else (self._imu_span[0], max(self._imu_span[1], newest)))
-        if self._clock_on:     # the publish order, for readings on the IMU's clock
-            self._imu_clock.add_imu([i['source_timestamp'] for _, i in taken],
-                                    [common.stamp_to_ns(m.header.stamp) for m in msgs])
+        if self._clocks.on:     # the publish order, for readings on the IMU's clock
+            self._clocks.add_imu([i['source_timestamp'] for _, i in taken],
+                                 [common.stamp_to_ns(m.header.stamp) for m in msgs])
         later = self._take_queued_temperatures(msgs)
         try:
             if not self.registry_dir:
