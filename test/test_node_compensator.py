@@ -644,10 +644,10 @@ def test_a_temperature_of_another_type_is_named_in_a_warning(ros, tmp_path, requ
     bare = rclpy.create_node('float_driver', context=context).create_publisher(
         Float32, '/imu/temperature', 10)
 
-    def on_graph():
-        return any(i.topic_type == 'std_msgs/msg/Float32'
+    def on_graph():      # with its node's name (discovered after the endpoint, at times)
+        return any(i.topic_type == 'std_msgs/msg/Float32' and i.node_name == 'float_driver'
                    for i in rig.node.get_publishers_info_by_topic('/imu/temperature'))
-    wait_for(on_graph, WAIT, 'the Float32 publisher on the graph')
+    wait_for(on_graph, WAIT, 'the Float32 publisher and its node on the graph')
     bare.publish(Float32(data=30.0))
     rig.send(1200, dt=0.001)       # the warning comes after SILENT_WARN_AFTER samples
     rig.receive(1200)
