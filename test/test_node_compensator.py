@@ -740,18 +740,16 @@ def test_imu_input_in_si_units_raises_no_unit_warning(ros, tmp_path):
     assert not [k for k in rig.node._warned if k.startswith('unit_')]
 
 
-def test_a_headerless_float32_temperature_takes_the_stamp_of_the_imu_before_it(ros, tmp_path):
-    # the um6/um7 drivers publish the temperature as std_msgs/Float32 on imu/temperature.
-    # Each reading is put on the IMU's clock: the stamp of the IMU message published
-    # before it (DDS source timestamps), so it applies from the next IMU message on
-    from std_msgs.msg import Float32
-    cal = make_cal()
+def _imu_clock_rig(ros, cal, tmp_path, temp_cls, params=()):
+    """Return (node, temperature publisher, output, 15 IMU stamps 10 ms apart, imu(rows))
+    for the tests of readings put on the IMU's clock; ``imu(rows)`` publishes those rows
+    and waits until the node has them."""
     node = ros.add(CompensatorNode(context=ros.context, parameter_overrides=[
         Parameter('calibration_file', value=str(cal.save(tmp_path / 'cal.yaml'))),
-        Parameter('temperature_types', value=['std_msgs/msg/Float32'])]))
-    driver = ros.node('float_driver')
+        *params]))
+    driver = ros.node('clock_driver')
     imu_pub = driver.create_publisher(Imu, 'imu/data_raw', 1000)
-    temp_pub = driver.create_publisher(Float32, 'imu/temperature', 100)
+    temp_pub = driver.create_publisher(temp_cls, 'imu/temperature', 100)
     out = ros.collect(driver, Imu, 'imu/data_compensated', 1000)
     ros.wait_matched(imu_pub)
     ros.wait_matched(temp_pub)
@@ -762,14 +760,19 @@ def test_a_headerless_float32_temperature_takes_the_stamp_of_the_imu_before_it(r
         for k in rows:
             imu_pub.publish(imu_msg(stamps[k], ACCEL, GYRO))
         wait_for(lambda: node.counts['received'] >= rows[-1] + 1, WAIT, f'{rows[-1] + 1} IMU')
-    imu(range(5))
-    temp_pub.publish(Float32(data=25.0))       # after IMU 4: waits for the next IMU message
+    return node, temp_pub, out, stamps, imu
+
+
+def _two_readings_on_the_imu_clock(node, cal, out, stamps, imu, publish):
+    """After IMU messages 0-4: a reading of 25 degC, IMU 5-9, 35 degC, IMU 10-14. Each
+    reading must take the stamp of the IMU message before it and apply from the next."""
+    publish(25.0)                  # after IMU 4: waits for the next IMU message
     wait_for(lambda: node._clocks.clock._wait[0], WAIT, 'the reading at the node')
     assert node.temps.received == [0]
     imu(range(5, 10))
     assert node.temps.received == [1]
     assert node.temps.tracks[0].stamps_ns.tolist() == [stamps[4]]
-    temp_pub.publish(Float32(data=35.0))
+    publish(35.0)
     wait_for(lambda: node._clocks.clock._wait[0], WAIT, 'the second reading at the node')
     imu(range(10, 15))
     assert node.temps.tracks[0].stamps_ns.tolist() == [stamps[4], stamps[9]]
@@ -779,6 +782,20 @@ def test_a_headerless_float32_temperature_takes_the_stamp_of_the_imu_before_it(r
         exp = expected(cal, temp)
         np.testing.assert_allclose(got[stamps[k]][0], exp.accel[0], rtol=0, atol=1e-9)
         np.testing.assert_allclose(got[stamps[k]][1], exp.gyro[0], rtol=0, atol=1e-12)
+
+
+def test_a_headerless_float32_temperature_takes_the_stamp_of_the_imu_before_it(ros, tmp_path):
+    # the um6/um7 drivers publish the temperature as std_msgs/Float32 on imu/temperature.
+    # Each reading is put on the IMU's clock: the stamp of the IMU message published
+    # before it (DDS source timestamps), so it applies from the next IMU message on
+    from std_msgs.msg import Float32
+    cal = make_cal()
+    node, temp_pub, out, stamps, imu = _imu_clock_rig(
+        ros, cal, tmp_path, Float32, [Parameter('temperature_types',
+                                                value=['std_msgs/msg/Float32'])])
+    imu(range(5))
+    _two_readings_on_the_imu_clock(node, cal, out, stamps, imu,
+                                   lambda v: temp_pub.publish(Float32(data=v)))
     assert node.counts['temperature_before_imu'] == 0
     temp_pub.publish(Float32(data=40.0))      # the IMU stream has ended: it waits, unused
     wait_for(lambda: node._clocks.clock._wait[0], WAIT, 'the third reading at the node')
@@ -791,41 +808,15 @@ def test_a_temperature_stamped_0_is_put_on_the_imu_clock(ros, tmp_path):
     # a header-less reading (io.headerless.StampChoice; offline alike). A reading before
     # the first IMU message waits for one to judge its stamp by, and is then left out
     cal = make_cal()
-    node = ros.add(CompensatorNode(context=ros.context, parameter_overrides=[
-        Parameter('calibration_file', value=str(cal.save(tmp_path / 'cal.yaml')))]))
-    driver = ros.node('zero_stamp_driver')
-    imu_pub = driver.create_publisher(Imu, 'imu/data_raw', 1000)
-    temp_pub = driver.create_publisher(Temperature, 'imu/temperature', 100)
-    out = ros.collect(driver, Imu, 'imu/data_compensated', 1000)
-    ros.wait_matched(imu_pub)
-    ros.wait_matched(temp_pub)
-    wait_for(lambda: node.pub.get_subscription_count() >= 1, WAIT, 'output subscriber')
-    stamps = [T0_NS + k * 10_000_000 for k in range(15)]
-
-    def imu(rows):
-        for k in rows:
-            imu_pub.publish(imu_msg(stamps[k], ACCEL, GYRO))
-        wait_for(lambda: node.counts['received'] >= rows[-1] + 1, WAIT, f'{rows[-1] + 1} IMU')
+    node, temp_pub, out, stamps, imu = _imu_clock_rig(ros, cal, tmp_path, Temperature)
     temp_pub.publish(temperature_msg(0, 20.0))      # before any IMU message: held
     wait_for(lambda: node._clocks.choices[0].waiting, WAIT, 'the held reading')
     assert node._clocks.choices[0].on_imu_clock is None and node.temps.received == [1]
     imu(range(5))
     assert node._clocks.choices[0].on_imu_clock is True and node._clocks.bare[0]
-    assert node.counts['temperature_before_imu'] == 1 and node.temps.received == [0]
-    temp_pub.publish(temperature_msg(0, 25.0))      # after IMU 4: waits for the next one
-    wait_for(lambda: node._clocks.clock._wait[0], WAIT, 'the reading at the node')
-    imu(range(5, 10))
-    assert node.temps.tracks[0].stamps_ns.tolist() == [stamps[4]]
-    temp_pub.publish(temperature_msg(0, 35.0))
-    wait_for(lambda: node._clocks.clock._wait[0], WAIT, 'the second reading at the node')
-    imu(range(10, 15))
-    assert node.temps.tracks[0].stamps_ns.tolist() == [stamps[4], stamps[9]]
-    wait_for(lambda: len(out) >= 10, WAIT, 'the compensated messages')
-    got = {common.stamp_to_ns(m.header.stamp): vec(m) for m in out}
-    for k, temp in [(5, 25.0), (9, 25.0), (10, 35.0), (14, 35.0)]:
-        exp = expected(cal, temp)
-        np.testing.assert_allclose(got[stamps[k]][0], exp.accel[0], rtol=0, atol=1e-9)
-        np.testing.assert_allclose(got[stamps[k]][1], exp.gyro[0], rtol=0, atol=1e-12)
+    assert node.counts['temperature_before_imu'] == 1
+    _two_readings_on_the_imu_clock(node, cal, out, stamps, imu,
+                                   lambda v: temp_pub.publish(temperature_msg(0, v)))
 
 
 def test_a_temperature_on_the_imu_clock_keeps_its_stamps(ros, tmp_path):
