@@ -824,8 +824,9 @@ def test_a_temperature_on_the_imu_clock_keeps_its_stamps(ros, tmp_path):
     # before the first IMU message included, and the node stops tracking publish order
     cal = make_cal()
     rig = Rig(ros, calibration_file=str(cal.save(tmp_path / 'cal.yaml')))
-    rig.temperature(24.0, T0_NS - 3 * S)          # 3 s before the first IMU stamp: kept
+    rig.temperature(24.0, T0_NS - 10 * S)    # a driver started 10 s before the IMU's
+    rig.temperature(24.5, T0_NS - S // 2)
     rig.send(1)
     wait_for(lambda: rig.node._clocks.choices[0].on_imu_clock is False, WAIT, 'the choice')
     assert not rig.node._clocks.on and not rig.node._clocks.bare[0]
-    assert rig.node.temps.tracks[0].stamps_ns.tolist() == [T0_NS - 3 * S]
+    assert rig.node.temps.tracks[0].stamps_ns.tolist() == [T0_NS - 10 * S, T0_NS - S // 2]

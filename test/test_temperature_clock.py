@@ -68,11 +68,6 @@ def _on_imu_clock(a):
     a['temperature'] = a['temperature'][keep]
 
 
-def _early(a):
-    """Move the first reading 2 s before the first IMU message (log time and stamp)."""
-    a['temp_stamp_ns'][0] = a['stamp_ns'][0] - 2 * S
-
-
 EDITS = {'stamps_0': lambda a: a['temp_stamp_ns'].__setitem__(slice(None), 0),
          'another_clock': lambda a: a['temp_stamp_ns'].__setitem__(
              slice(None), a['temp_stamp_ns'] - 3600 * S)}
@@ -110,12 +105,13 @@ def test_a_log_on_another_clock_reads_as_the_log_stamped_by_the_imu(rec, tmp_pat
 @pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
 def test_a_log_on_one_clock_reads_as_before(rec, tmp_path, storage):
     imu, temp = rec
-    log = write_bag(str(tmp_path / f'one_{storage}'), imu, temp, _early, storage)
-    a = {'stamp_ns': imu.stamp_ns, 'temp_stamp_ns': temp.stamp_ns.copy()}
-    _early(a)
+    stamps = temp.stamp_ns.copy()    # the first reading 10 s before the first IMU message,
+    stamps[0] = imu.stamp_ns[0] - 10 * S     # logged then: a driver started before the IMU's
+    temp = TemperatureColumns(stamps, temp.temperature.copy())
+    log = write_bag(str(tmp_path / f'one_{storage}'), imu, temp, None, storage)
     for size in (20000, 7, 1):
         got, got_t, notes = _stream(log, size)
-        np.testing.assert_array_equal(got, a['temp_stamp_ns'])   # the early one included
+        np.testing.assert_array_equal(got, stamps)   # the early one included
         np.testing.assert_array_equal(got_t, temp.temperature)
         assert not notes
 
@@ -144,3 +140,8 @@ def test_live_clocks_hold_until_an_imu_message_then_follow_the_choice():
     assert out == [(99 * S, 11, 20.0)] and note == '' and not c.bare[0] and not c.on
     c.add_imu([12], [101 * S])                           # nothing kept once all are decided
     assert c.span == (100 * S, 100 * S) and c.clock._n == 1
+    c = LiveClocks(['/a'], [False])          # a driver started 10 s before the IMU's
+    c.choose(0, [(90 * S, 1, 20.0), (99 * S, 2, 20.1)], stamp_of)
+    c.add_imu([3], [100 * S])
+    out, note = c.choose(0, [], stamp_of)     # judged at the newest held reading
+    assert len(out) == 2 and note == '' and not c.bare[0]

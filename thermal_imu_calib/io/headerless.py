@@ -245,15 +245,18 @@ class StampChoice:
     def take_live(self, items: list, imu_span: tuple[int, int] | None, stamp_of) -> list:
         """Live, before the choice: hold ``items``; return every held one once it is made.
 
-        The choice is made at the first held reading (``stamp_of(item)``: its header stamp,
-        ns) once an IMU message has been received (``imu_span``: the first and the newest
-        IMU header stamps received; None before any). [] while it waits.
+        The choice is made once an IMU message has been received (``imu_span``: the first
+        and the newest IMU header stamps received; None before any), at the newest held
+        reading (``stamp_of(item)``: its header stamp, ns): offline judges the first one
+        logged after the first IMU message, and the older held ones may come from before
+        it (a temperature driver started 10 s before the IMU's is on its clock). []
+        while it waits.
         """
         self._waiting += list(items)
         if self.on_imu_clock is None:
             if imu_span is None or not self._waiting:
                 return []
-            self.decide(stamp_of(self._waiting[0]), *imu_span)
+            self.decide(stamp_of(self._waiting[-1]), *imu_span)
         out, self._waiting = self._waiting, []
         return out
 
