@@ -100,6 +100,10 @@ def test_a_log_on_another_clock_reads_as_the_log_stamped_by_the_imu(rec, tmp_pat
         np.testing.assert_array_equal(got_t, want_t)
         assert len(notes) == 1 and "not stamped by the IMU's clock" in notes[0]
         assert ('header stamp 0' in notes[0]) == (case == 'stamps_0')
+    with open_log(log) as r:         # info: the rate over log times, and why
+        line = next(ln for ln in r.info().format().splitlines() if TEMP_TOPIC in ln)
+    assert ' 9.97 Hz' in line or '10.00 Hz' in line, line   # 10 Hz, 3 readings moved early
+    assert ('header stamps all 0 (rate over log times' in line) == (case == 'stamps_0'), line
 
 
 @pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])

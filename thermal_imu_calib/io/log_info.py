@@ -66,6 +66,9 @@ class TopicStats:
     frame_id: str | None = None
     temperature_min: float | None = None
     temperature_max: float | None = None
+    #: every header stamp equal (0: never set): the rate is over log times, and the
+    #: readings go on the IMU's clock when far from its stamps (``headerless.StampChoice``)
+    stamps_constant: bool = False
 
 
 @dataclass
@@ -103,7 +106,10 @@ class LogInfo:
             line = f'  {name:<{width}}  {t.msgtype:<30} {t.count:>9}'
             if t.rate_hz:
                 line += f'  {t.rate_hz:9.2f} Hz'
-            if t.max_gap_s is not None:
+            if t.stamps_constant:
+                line += (f'  header stamps all {t.first_stamp_ns} (rate over log times; '
+                         'put on the IMU\'s clock when far from its stamps)')
+            elif t.max_gap_s is not None:
                 line += f'  max gap {t.max_gap_s:.3f} s'
             if t.stamps_backwards:
                 line += f'  {t.stamps_backwards} stamps backwards'
@@ -210,7 +216,9 @@ class _StatsBuilder:
         if self.n_stamps > 1 and st.last_stamp_ns != st.first_stamp_ns:
             st.mean_rate_hz = (self.n_stamps - 1) * 1e9 / (st.last_stamp_ns - st.first_stamp_ns)
         span = (st.last_log_time_ns or 0) - (st.first_log_time_ns or 0)
-        if self.values_only and st.count > 1 and span > 0:
+        st.stamps_constant = (st.msgtype != IMU_MSGTYPE and self.n_stamps > 1
+                              and st.last_stamp_ns == st.first_stamp_ns and not self.medians)
+        if (self.values_only or st.stamps_constant) and st.count > 1 and span > 0:
             st.rate_hz = (st.count - 1) * 1e9 / span
         if st.temperature_min is not None:
             st.temperature_min, st.temperature_max = (float(st.temperature_min),
