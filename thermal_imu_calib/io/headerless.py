@@ -13,8 +13,8 @@ header-stamped types of ``cdr.SCALAR_MSGTYPES``.
 
 A header-stamped input whose stamps cannot be matched to the IMU's (a driver that leaves
 them 0, or stamps by another clock: device time against ROS time) is put on the IMU's clock
-the same way (:class:`StampChoice`), decided once per input at its first reading after the
-first IMU message.
+the same way (:class:`StampChoice`), decided once per input at its first readings after
+the first IMU message; the nodes use :class:`LiveClocks` for both.
 """
 
 from __future__ import annotations
@@ -205,10 +205,11 @@ OTHER_CLOCK_S = 5.0
 class StampChoice:
     """Keep a thermal input's header stamps, or put its readings on the IMU's clock.
 
-    Decided once, at the input's first reading after the first IMU message (logged after
-    it offline, taken after it live): its header stamp is 0, or further than
-    ``OTHER_CLOCK_S`` from the span of the IMU header stamps before it (the first IMU
-    message's to the one logged before it offline; to the newest received live). Then
+    Decided once, from one reading: offline the first logged after the first IMU message,
+    live the newest taken once an IMU message has come (``take_live``). Its header stamp
+    is 0, or further than ``OTHER_CLOCK_S`` from the span of the IMU header stamps before
+    it (the first IMU message's to the one logged before it offline; to the newest
+    received live): then
     every reading takes the stamp of the IMU message before it, as a header-less input's
     (``on_imu_clock``, ``LiveImuClock``), and the readings before the first IMU message are
     left out; otherwise the header stamps are used, those readings included. Readings
