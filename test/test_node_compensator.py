@@ -763,6 +763,13 @@ def _imu_clock_rig(ros, cal, tmp_path, temp_cls, params=()):
     return node, temp_pub, out, stamps, imu
 
 
+def _clock_shown(node):
+    """Return what /diagnostics says of the one temperature input's clock."""
+    (how,) = [v for k, v in node.diagnostics_values()[2].items()
+              if k.startswith('temperature_clock[')]
+    return how
+
+
 def _two_readings_on_the_imu_clock(node, cal, out, stamps, imu, publish):
     """After IMU messages 0-4: a reading of 25 degC, IMU 5-9, 35 degC, IMU 10-14. Each
     reading must take the stamp of the IMU message before it and apply from the next."""
@@ -793,6 +800,7 @@ def test_a_headerless_float32_temperature_takes_the_stamp_of_the_imu_before_it(r
     node, temp_pub, out, stamps, imu = _imu_clock_rig(
         ros, cal, tmp_path, Float32, [Parameter('temperature_types',
                                                 value=['std_msgs/msg/Float32'])])
+    assert _clock_shown(node) == "IMU's clock (no header)"
     imu(range(5))
     _two_readings_on_the_imu_clock(node, cal, out, stamps, imu,
                                    lambda v: temp_pub.publish(Float32(data=v)))
@@ -815,6 +823,7 @@ def test_a_temperature_stamped_0_is_put_on_the_imu_clock(ros, tmp_path):
     imu(range(5))
     assert node._clocks.choices[0].on_imu_clock is True and node._clocks.bare[0]
     assert node.counts['temperature_before_imu'] == 1
+    assert _clock_shown(node) == "IMU's clock (header stamps 0 or on another clock)"
     _two_readings_on_the_imu_clock(node, cal, out, stamps, imu,
                                    lambda v: temp_pub.publish(temperature_msg(0, v)))
 
@@ -829,4 +838,5 @@ def test_a_temperature_on_the_imu_clock_keeps_its_stamps(ros, tmp_path):
     rig.send(1)
     wait_for(lambda: rig.node._clocks.choices[0].on_imu_clock is False, WAIT, 'the choice')
     assert not rig.node._clocks.on and not rig.node._clocks.bare[0]
+    assert _clock_shown(rig.node) == 'header stamps'
     assert rig.node.temps.tracks[0].stamps_ns.tolist() == [T0_NS - 10 * S, T0_NS - S // 2]

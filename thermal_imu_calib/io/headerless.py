@@ -220,6 +220,7 @@ class StampChoice:
 
     def __init__(self, topic: str, headerless: bool = False):
         self.topic = topic
+        self.headerless = bool(headerless)
         self.on_imu_clock: bool | None = True if headerless else None
         self.left_out = 0             # readings before the first IMU message (not used)
         self._note = ''
@@ -365,6 +366,17 @@ class LiveClocks:
         self.bare[index] = bool(choice.on_imu_clock)
         self.on = any(c.on_imu_clock is not False for c in self.choices)
         return out, choice.pop_note()
+
+    def describe(self) -> dict[str, str]:
+        """Return {topic: how its readings are stamped} (for /diagnostics)."""
+        def what(c):
+            if c.on_imu_clock is None:
+                return 'not chosen yet (no reading after the first IMU message)'
+            if not c.on_imu_clock:
+                return 'header stamps'
+            return ("IMU's clock (no header)" if c.headerless else
+                    "IMU's clock (header stamps 0 or on another clock)")
+        return {c.topic: what(c) for c in self.choices}
 
     def undecided(self, index: int) -> bool:
         """Return True while input ``index``'s clock is not chosen."""

@@ -382,6 +382,8 @@ class CalibratorNode(LiveCollection, Node):
         values.update({f'face {f}': n for f, n in prog['faces'].items()})
         values['input_rate_hz'] = rate
         values.update(self.counts)
+        for topic, how in self._clocks.describe().items():
+            values[f'temperature_clock[{topic}]'] = how
         level = common.OK
         msg = ('ready: ' if prog['ready'] else 'collecting: ') + prog['reason']
         if prog['next_pose']:

@@ -594,6 +594,8 @@ class CompensatorNode(Node):
                 else {t: math.inf for t in self.temperature_topics})
         for topic, age in ages.items():
             values[f'temperature_age_s[{topic}]'] = age
+        for topic, how in self._clocks.describe().items():
+            values[f'temperature_clock[{topic}]'] = how
         values.update(self.counts)
         values['temperature_invalid'] = self.temps.invalid
         values['temperature_time_resets'] = self.temps.time_resets
