@@ -60,7 +60,8 @@ class UnitWatch:
     def push(self, accel, gyro):
         """Take (n, 3) accel (m/s^2) and gyro (rad/s) rows, finite or not."""
         self.gyro_unit += int(gyro_unit_rows(accel, gyro).sum())
-        a = np.linalg.norm(np.asarray(accel, float), axis=1)
+        with np.errstate(over='ignore', invalid='ignore'):   # a value near 1e308: inf, left out
+            a = np.linalg.norm(np.asarray(accel, float), axis=1)
         norms = np.concatenate([self._norms, a[np.isfinite(a)]])
         full = len(norms) // self.window
         if full:
