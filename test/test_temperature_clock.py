@@ -14,7 +14,8 @@ import pytest
 from _hostile import recording, TEMP_TOPIC, write_bag
 from thermal_imu_calib.io.bag import open_log
 from thermal_imu_calib.io.columns import TemperatureColumns
-from thermal_imu_calib.io.headerless import LiveClocks, OTHER_CLOCK_S, StampChoice
+from thermal_imu_calib.io.headerless import (clock_notes, LiveClocks, OTHER_CLOCK_S,
+                                             StampChoice)
 
 S = 10 ** 9
 
@@ -101,9 +102,13 @@ def test_a_log_on_another_clock_reads_as_the_log_stamped_by_the_imu(rec, tmp_pat
         assert len(notes) == 1 and "not stamped by the IMU's clock" in notes[0]
         assert ('header stamp 0' in notes[0]) == (case == 'stamps_0')
     with open_log(log) as r:         # info: the rate over log times, and why
-        line = next(ln for ln in r.info().format().splitlines() if TEMP_TOPIC in ln)
+        info = r.info()
+        line = next(ln for ln in info.format().splitlines() if TEMP_TOPIC in ln)
+        notes = clock_notes(info, '/imu/data_raw', [TEMP_TOPIC])
     assert ' 9.97 Hz' in line or '10.00 Hz' in line, line   # 10 Hz, 3 readings moved early
     assert ('header stamps all 0 (rate over log times' in line) == (case == 'stamps_0'), line
+    assert len(notes) == 1 and ('every header stamp is 0' in notes[0] if case == 'stamps_0'
+                                else 'header stamps run -3600 s from the IMU' in notes[0])
 
 
 @pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
@@ -118,6 +123,8 @@ def test_a_log_on_one_clock_reads_as_before(rec, tmp_path, storage):
         np.testing.assert_array_equal(got, stamps)   # the early one included
         np.testing.assert_array_equal(got_t, temp.temperature)
         assert not notes
+    with open_log(log) as r:
+        assert clock_notes(r.info(), '/imu/data_raw', [TEMP_TOPIC]) == []
 
 
 def test_live_clocks_hold_until_an_imu_message_then_follow_the_choice():

@@ -191,12 +191,15 @@ def cmd_simulate(args):
 def cmd_info(args):
     """Run the info subcommand."""
     from ..io.bag import open_log
+    from ..io.headerless import clock_notes
     from ..io.topics import resolve_topics
     with open_log(args.input) as reader:
-        print(reader.info().format())
+        info = reader.info()
+        print(info.format())
         notes = []
         try:
             imu, temps = resolve_topics(reader, args.imu_topic, args.temperature_topic, notes)
+            notes += clock_notes(info, imu, temps)
         except LogError as e:
             print(f'calibrate would refuse: {e}')
         else:

@@ -387,3 +387,34 @@ class LiveClocks:
         for source, value in readings:
             self.clock.add_reading(index, source, value)
         return self.clock.take(index)
+
+
+def clock_notes(info, imu_topic: str, temperature_topics: Sequence[str]) -> list[str]:
+    """Return what ``info`` (a scanned ``LogInfo``) suggests :class:`StampChoice` will do.
+
+    For ``info``: a header-stamped thermal topic whose stamps are all 0, or whose header
+    stamp minus log time differs from the IMU's by more than ``OTHER_CLOCK_S`` at their
+    first messages (another clock), is named. A preview from the first messages only; the
+    choice itself is made while reading (a warning then says it).
+    """
+    imu = info.topics.get(imu_topic)
+    if imu is None or imu.first_stamp_ns is None or imu.first_log_time_ns is None:
+        return []
+    imu_off = imu.first_stamp_ns - imu.first_log_time_ns
+    out = []
+    for topic in temperature_topics:
+        t = info.topics.get(topic)
+        if t is None or t.msgtype in HEADERLESS_MSGTYPES or t.first_stamp_ns is None:
+            continue
+        if t.stamps_constant and t.first_stamp_ns == 0:
+            out.append(f'{topic}: every header stamp is 0, so calibrate puts its readings on '
+                       'the IMU\'s clock (each takes the stamp of the IMU message logged '
+                       'before it)')
+            continue
+        off = (t.first_stamp_ns - t.first_log_time_ns - imu_off) * 1e-9
+        if abs(off) > OTHER_CLOCK_S:
+            out.append(f'{topic}: its header stamps run {off:+.6g} s from the IMU\'s clock '
+                       '(header stamp minus log time at the first messages), so calibrate '
+                       'will likely put its readings on the IMU\'s clock (each takes the stamp '
+                       'of the IMU message logged before it)')
+    return out
