@@ -19,6 +19,7 @@ from _hostile import clean_pair, recording, write_bag
 from thermal_imu_calib.calibration import Calibration
 from thermal_imu_calib.cli import main
 from thermal_imu_calib.cli.checks import UserError, validated
+from thermal_imu_calib.io.bag import open_log
 from thermal_imu_calib.io.bag_writer import write_columns
 
 #: the installed console script, as users run it (through cli.entry). Not ``python -m
@@ -176,6 +177,17 @@ def test_a_temperature_on_another_clock_goes_on_the_imu_clock(case, rec, tmp_pat
         assert got.accel.to_dict() == want.accel.to_dict()
         assert got.gyro.to_dict() == want.gyro.to_dict()
         np.testing.assert_array_equal(got.valid_range, want.valid_range)
+    accel = []       # compensate: the same output, sample for sample, and the note printed
+    for log in (ref, str(tmp_path / 'in_mcap')):
+        out = str(tmp_path / f'{os.path.basename(log)}.comp.mcap')
+        code, stdout, _ = _run(['compensate', log, '--calibration', str(tmp_path / 'ref.yaml'),
+                                '-o', out], capfd)
+        assert code == 0 and ("not stamped by the IMU's clock" in stdout) == (log != ref)
+        with open_log(out) as r:
+            accel.append(np.concatenate([c.imu.accel for c in r.stream(
+                '/imu/data_compensated')]))
+    assert len(accel[0]) > 10000
+    np.testing.assert_array_equal(accel[0], accel[1])
 
 
 def test_a_gyro_in_deg_per_s_is_found_by_its_pose_changes(clean, tmp_path):
