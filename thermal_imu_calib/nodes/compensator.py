@@ -311,7 +311,7 @@ class CompensatorNode(Node):
             if self._clocks.bare[index]:
                 self._add_headerless(index, value, taken)
             elif self._clocks.undecided(index):
-                self._add_temperatures(index, value, self._choose_clock(index, taken))
+                self._choose_clock(index, taken)     # no ``until``: nothing is left over
             else:
                 self._add_temperatures(index, value, [m for m, _ in taken])
         return cb
@@ -332,23 +332,27 @@ class CompensatorNode(Node):
         if self._clocks.undecided(index):
             return []
         self.temps.received[index] -= len(held)     # counted again as they are added
-        value = self._temp_fields[index]
         if self._clocks.bare[index]:
             self.get_logger().warning(note)
-            self._add_headerless(index, value, held)
-            later = []
-        else:
-            msgs = [m for m, _ in held]
-            cut = len(msgs) if until is None else next(
-                (j for j, m in enumerate(msgs[arrived:], arrived)
-                 if common.stamp_to_ns(m.header.stamp) > until), len(msgs))
-            self._add_temperatures(index, value, msgs[:cut])
-            later = msgs[cut:]
-        return later
+            self._add_headerless(index, self._temp_fields[index], held)
+            return []
+        return self._add_until(index, [m for m, _ in held], until, arrived)
 
     def _add_temperatures(self, index, value, msgs):
         for m in msgs:
             self.temps.add(index, common.stamp_to_ns(m.header.stamp), getattr(m, value))
+
+    def _add_until(self, index, msgs, until, start=0):
+        """Add header-stamped readings up to the first after ``until`` (ns); return the rest.
+
+        Only ``msgs[start:]`` are compared (the ones before arrived in their own callbacks
+        and are all added); ``until`` None adds all.
+        """
+        cut = len(msgs) if until is None else next(
+            (j for j, m in enumerate(msgs[start:], start)
+             if common.stamp_to_ns(m.header.stamp) > until), len(msgs))
+        self._add_temperatures(index, self._temp_fields[index], msgs[:cut])
+        return msgs[cut:]
 
     def _add_headerless(self, index, value, taken):
         """Add (message, info) readings without a header, on the IMU's clock.
@@ -385,11 +389,7 @@ class CompensatorNode(Node):
                 later.append(self._choose_clock(
                     i, common.drain(sub, 1000, self, with_info=True), until))
                 continue
-            taken = common.drain(sub, 1000, self)
-            cut = next((j for j, m in enumerate(taken)
-                        if common.stamp_to_ns(m.header.stamp) > until), len(taken))
-            self._add_temperatures(i, self._temp_fields[i], taken[:cut])
-            later.append(taken[cut:])
+            later.append(self._add_until(i, common.drain(sub, 1000, self), until))
         return later
 
     def _on_lost(self, info):
