@@ -10,6 +10,10 @@ relative bias left out) and judged by ``registry.assess``:
 * ``robot DIR ...``: lifelong registries (``bench_lifelong.py month --work W``: W/seedN/
   registry, or a node's ``<lifelong_dir>/registry``): every test over the threshold.
 
+``--without-yardstick``: the accelerometer's alarm terms are each model's own, as before
+the alarm yardstick (``estimation/alarm_yardstick.py``): the before figure of the same
+calibrations.
+
     .venv/bin/python bench/registry_alarms.py fleet /tmp/alarms_cache/8x3/seed_*
     .venv/bin/python bench/registry_alarms.py robot /tmp/ws2/seed2/registry
 """
@@ -25,11 +29,16 @@ from thermal_imu_calib.calibration import Calibration
 from thermal_imu_calib.fleet import registry as reg
 
 
-def reindex(directory):
-    """Return the index rows of ``directory`` rebuilt from its calibration files."""
+def reindex(directory, yardstick=True):
+    """Return the index rows of ``directory`` rebuilt from its calibration files.
+
+    ``yardstick`` False: without the calibrations' ``fit.alarm_yardstick``.
+    """
     out = []
     for r in reg.read_index(directory):
         cal = Calibration.load(os.path.join(directory, r['file']))
+        if not yardstick:
+            cal.fit = {k: v for k, v in (cal.fit or {}).items() if k != 'alarm_yardstick'}
         row = reg.index_row(r['sensor'], cal, reg.parse_time(r['time']),
                             reg.parse_time(r['valid_from']), r['file'], [])
         row['logs'] = r['logs']
@@ -44,13 +53,13 @@ def over(rows):
             if abs(z) > info['threshold_sigma']], info
 
 
-def fleet(dirs):
+def fleet(dirs, yardstick=True):
     counts = {'stable': [0, 0], 'drifting or step': [0, 0]}
     gz = []
     for d in dirs:
         truth = {r['unit']: r['kind'] for r in csv.DictReader(
             open(os.path.join(d, 'fleet_truth.csv')))}
-        rows = reindex(os.path.join(d, 'reg'))
+        rows = reindex(os.path.join(d, 'reg'), yardstick)
         found, info = reg.assess(rows)
         for s, rs in reg.by_sensor(rows).items():
             stable = truth.get(s) == 'stable'
@@ -83,8 +92,13 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('what', choices=('fleet', 'robot'))
     ap.add_argument('dirs', nargs='+')
+    ap.add_argument('--without-yardstick', action='store_true',
+                    help="each model's own accelerometer alarm terms (the before figure)")
     args = ap.parse_args(argv)
-    (fleet if args.what == 'fleet' else robot)(args.dirs)
+    if args.what == 'fleet':
+        fleet(args.dirs, not args.without_yardstick)
+    else:
+        robot(args.dirs)
 
 
 if __name__ == '__main__':

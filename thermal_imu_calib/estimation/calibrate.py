@@ -23,6 +23,7 @@ from ..collection.segments import (coverage, distinct_orientations, FACE_NAMES,
                                    MOUNTING_POSE_DEG, mounting_pose_mask)
 from ..input_units import is_temperature
 from ..io.imu_units import accel_unit_problem
+from . import alarm_yardstick
 from .allan import window_noise
 from .builtin_estimators import (_gyro_bias, check_faces_up_and_down,  # noqa: F401
                                  DEFAULT_GYRO, estimate_field, estimate_offset,
@@ -285,6 +286,8 @@ def calibrate_windows(windows, options=None):
                                 'before_max': _amax(before), 'after_max': _amax(after),
                                 'note': 'per hold, |mean f| - g in micro-g, on the fit data'},
     })
+    if alarm_yardstick.needed(name, ctx.n_orientations, est.accel):
+        fit_stats['alarm_yardstick'] = alarm_yardstick.yardstick(ctx)
     rot = _rotation_stats(est.fit, report)
     if o.transitions or rot:
         fit_stats['pose_changes'] = report['pose_changes'] = {

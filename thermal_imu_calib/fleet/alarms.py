@@ -6,9 +6,12 @@ coefficients about the model's T0, index columns ``accel.alarm_b0.x`` ..
 ``accel.alarm_k2.z`` with stds; registries written before them: the field model's db0,
 dk0 and polynomial), are carried to a common temperature (stds propagated as independent)
 and tested per axis: every change between a calibration and the unit's previous one of
-the same model family (step test) and the slope over all of the unit's calibrations of
-its latest family (trend test, constant vs line), each as z = value / sigma. All tests
-of the fleet form one family: a unit is flagged when any |z| passes the Sidak threshold
+the same family of alarm terms (step test) and the slope over all of the unit's
+calibrations of its latest family (trend test, constant vs line), each as z = value /
+sigma. A calibration of several orientations carries the field model's terms on its
+holds whatever model compensates (``estimation/alarm_yardstick.py``), so a unit's
+chain does not break when ``auto`` changes family. All tests of the fleet form one
+family: a unit is flagged when any |z| passes the Sidak threshold
 that keeps the family-wise false-alarm rate of the whole fleet at ``FAMILY_RATE`` (1 %)
 when the stds are honest (checked on simulated fleets, ``STD_SCALE``). A
 latest residual more than ``RESIDUAL_MADS`` robust standard deviations above the fleet
@@ -25,6 +28,7 @@ the accelerometer's) is not tested (``models.alarm_terms.relative_bias``). No RO
 
 import numpy as np
 
+from ..estimation.alarm_yardstick import terms_of
 from ..models.alarm_terms import bias_scale_terms
 from .times import parse_time
 
@@ -53,6 +57,8 @@ MIN_GYRO_TESTS = 12
 #: std are N(0, 1) (Kolmogorov-Smirnov p 0.52-0.88; std 1.05 +- 0.03 over 477 changes, 1.02-
 #: 1.09 over 237 trends; see docs/fleet.md), so no correction is applied.
 STD_SCALE = {'b': 1.0, 'k': 1.0}
+#: index column naming the model kind the accelerometer's alarm terms come from
+FAMILY_COLUMN = 'accel.alarm_family'
 #: degC: a calibration whose accelerometer scale factor has no temperature terms, fitted
 #: over a wider span of temperatures than this (the span below which no temperature term
 #: is resolved, ``selection`` ORDER_SPAN[1]), has stds that leave out the scale factor's
@@ -68,13 +74,22 @@ def alarm_columns(cal):
     ``accel.alarm_T0.x``, ``accel.alarm_b0.x`` (m/s^2), ``accel.alarm_b1.x`` (m/s^2/degC),
     ``accel.alarm_b2.x``, ``accel.alarm_k0.x`` (1) .. with ``_std``; ``gyro.alarm_T0.x``,
     ``gyro.alarm_b0.x`` (rad/s) .. with ``_std``; none for a model without a forward model
-    or stds (``models.alarm_terms.bias_scale_terms``).
+    or stds (``models.alarm_terms.bias_scale_terms``). The accelerometer's are those of
+    the calibration's alarm yardstick when it has one (``fit.alarm_yardstick``: the field
+    model on the same holds, ``estimation/alarm_yardstick.py``), else its model's;
+    ``accel.alarm_family`` names the model kind they come from (the chain ``unit_tests``
+    follows).
     """
     out = {}
+    yard = terms_of(cal.fit) if cal.accel is not None else None
     for model, stem, names in ((cal.accel, ALARM_STEM, ALARM_ON), (cal.gyro, GYRO_STEM, ('b',))):
         terms = bias_scale_terms(model) if model is not None else None
+        if stem == ALARM_STEM and yard is not None:
+            terms = yard
         if terms is None:
             continue
+        if stem == ALARM_STEM:
+            out[FAMILY_COLUMN] = yard['kind'] if yard is not None else model.kind
         for i, a in enumerate(AXES):
             out[f'{stem}T0.{a}'] = float(terms['T0'][i])
             for name in names:
@@ -244,12 +259,27 @@ def family_threshold(n_tests, family_rate=FAMILY_RATE):
     return float(-ndtri(p / 2))
 
 
+def accel_family(row):
+    """Return the family of a row's accelerometer alarm terms (its chain of changes).
+
+    ``accel.alarm_family`` (the yardstick's or the model's kind); rows written before it:
+    the accelerometer model's kind.
+    """
+    return row.get(FAMILY_COLUMN) or row.get('accel_model', '')
+
+
+def _gyro_family(row):
+    return row.get('gyro_model', '')
+
+
 def unit_tests(rows, std_scale=None):
     """Return [(label, z)] of one unit's tests: every consecutive change and the trend.
 
     For each alarmed parameter (``ALARM_ON``) and axis: the change between a calibration
-    and the unit's previous one of the same accelerometer model family (a unit whose
-    family changes keeps one chain per family), and (>= 3 calibrations of the latest
+    and the unit's previous one of the same family of accelerometer alarm terms
+    (``accel_family``: the field yardstick of any calibration of several orientations, so a
+    change of the compensating model keeps the chain; a unit whose family changes keeps
+    one chain per family), and (>= 3 calibrations of the latest
     family) the slope over all of them; the same for the gyro bias (``GYRO_ALARM_ON``,
     labels starting ``gyro``) over the gyro model families. Non-finite z (a missing std,
     a scale factor an offset model does not fit, a row without gyro terms) are left out,
@@ -257,20 +287,20 @@ def unit_tests(rows, std_scale=None):
     """
     out = []
     accel_rows = [r for r in rows if not untested_accel(r)]
-    for family, names, prefix, chain in (('accel_model', ALARM_ON, '', accel_rows),
-                                         ('gyro_model', GYRO_ALARM_ON, GYRO_PREFIX, rows)):
+    for family, names, prefix, chain in ((accel_family, ALARM_ON, '', accel_rows),
+                                         (_gyro_family, GYRO_ALARM_ON, GYRO_PREFIX, rows)):
         last = {}
         if not chain:
             continue
         for cur in chain:
-            prev = last.get(cur.get(family, ''))
-            last[cur.get(family, '')] = cur
+            prev = last.get(family(cur))
+            last[family(cur)] = cur
             if prev is None:
                 continue
             z = compare(prev, cur, names, std_scale)
             out += [(f'{prefix}d{name[-1]}0 {a} changed {prev["time"]} -> {cur["time"]}',
                      z[f'd{name}0'][i]) for name in names for i, a in enumerate(AXES)]
-        same = [r for r in chain if r.get(family, '') == chain[-1].get(family, '')]
+        same = [r for r in chain if family(r) == family(chain[-1])]
         if len(same) >= 3:
             for name in names:
                 z = trend(same, name, std_scale)
@@ -359,9 +389,12 @@ def assess(rows, family_rate=FAMILY_RATE, residual_mads=RESIDUAL_MADS, std_scale
                 out[s].append(f'latest residual {v:.3g} m/s^2 out of family (fleet median '
                               f'{med:.3g}, {(v - med) / mad:.1f} robust sigma above)')
     notes = {s: [f'accel model changed {p["accel_model"] or "-"} -> {c["accel_model"] or "-"} '
-                 f'{p["time"]} -> {c["time"]}: that change is not tested (each family is '
-                 'compared with its own previous calibration; pin the family, e.g. fleet '
-                 'calibrate --model field, to test every step)'
+                 f'{p["time"]} -> {c["time"]}: '
+                 + ('tested on the terms of the field model fitted to the same holds (the '
+                    'alarm yardstick)' if accel_family(p) == accel_family(c) else
+                    'that change is not tested (each family is compared with its own '
+                    'previous calibration; pin the family, e.g. fleet calibrate --model '
+                    'field, to test every step)')
                  for p, c in zip(rs, rs[1:]) if p['accel_model'] != c['accel_model']]
              + [f'accel of {r["time"]} not tested: its scale factor has no temperature '
                 f'terms over {_f(r, "temp_max") - _f(r, "temp_min"):.1f} degC of holds, so '
