@@ -247,6 +247,8 @@ def main():
     ap.add_argument('--cache', default='/tmp/alarms_cache',
                     help='alarms: one calibrated registry per fleet size and seed is kept here '
                          '(DIR/<units>x<logs>/seed_N); delete it to recalibrate')
+    ap.add_argument('--out', default=None,
+                    help='write the JSON here (default bench/results/bench_fleet_<mode>.json)')
     args = ap.parse_args()
     big = args.mode == 'speed'
     args.units = args.units or (20 if big else 8)
@@ -255,7 +257,7 @@ def main():
     os.makedirs(os.path.join(HERE, 'results'), exist_ok=True)
     name = args.mode if big or (args.units, args.logs_per_unit) == (8, 3) else \
         f'alarms_{args.units}x{args.logs_per_unit}'
-    path = os.path.join(HERE, 'results', f'bench_fleet_{name}.json')
+    path = args.out or os.path.join(HERE, 'results', f'bench_fleet_{name}.json')
     with open(path, 'w') as f:
         json.dump(out, f, indent=1)
     print(f'wrote {path}')

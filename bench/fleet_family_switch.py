@@ -15,6 +15,11 @@ tails and a KS test against N(0, 1) are printed per comparison kind. On drifting
 units the cross-family |z| say what the test can detect. Registries are cached in
 ``--cache`` (DIR/seed_N/<model>/); results go to bench/results/fleet_family_switch.json.
 
+Since the alarm yardstick (2026-12-02, ``estimation/alarm_yardstick.py``) a standard-fit
+calibration's alarm terms are the field model's on the same holds, so ``standard`` here
+compares those; ``standard-own`` is the standard fit's own terms (the rows rebuilt
+without the yardstick, ``registry_alarms.reindex``), what was compared before.
+
     nice -n 10 .venv/bin/python bench/fleet_family_switch.py --first-seed 20 --seeds 5
 """
 
@@ -32,6 +37,7 @@ sys.path.insert(0, os.path.dirname(HERE))
 sys.path.insert(0, HERE)
 
 from bench_fleet import _z_summary  # noqa: E402
+from registry_alarms import reindex  # noqa: E402
 from thermal_imu_calib import cli  # noqa: E402
 from thermal_imu_calib.app.fleet import calibrate_unit  # noqa: E402
 from thermal_imu_calib.cli.fleet import fleet_settings  # noqa: E402
@@ -76,14 +82,15 @@ def changes(d):
     """Return {(kind, comparison): [z]}: kind 'stable' or 'changing', all change z."""
     truth = read_truth(d)
     per = {m: reg.by_sensor(reg.read_index(os.path.join(d, m))) for m in MODELS}
+    per['standard-own'] = reg.by_sensor(reindex(os.path.join(d, 'standard'), yardstick=False))
     out = {}
     for s in per[MODELS[0]]:
         kind = 'stable' if truth[s]['kind'] == 'stable' else 'changing'
-        rows = {m: per[m].get(s, []) for m in MODELS}
+        rows = {m: per[m].get(s, []) for m in per}
         n = min(len(r) for r in rows.values())
         for k in range(n - 1):
-            for a in MODELS:
-                for b in MODELS:
+            for a in per:
+                for b in per:
                     z = reg.compare(rows[a][k], rows[b][k + 1], reg.ALARM_ON)
                     for name, v in z.items():
                         out.setdefault((kind, f'{a} -> {b} {name}'), []).extend(v.tolist())
