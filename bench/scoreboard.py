@@ -108,13 +108,22 @@ def summary_of(text):
 
 
 def compare(text_a, text_b):
-    """Compare two calibration files: holds, model, every accel/gyro number (relative)."""
+    """Compare two calibration files: holds, model, every accel/gyro number (relative).
+
+    Also the drift alarms' yardstick (``fit.alarm_yardstick``, since 2026-12-02), which
+    a registry tests instead of the accelerometer model's own terms.
+    """
     a, b = yaml.safe_load(text_a), yaml.safe_load(text_b)
     sa, sb = summary_of(text_a), summary_of(text_b)
     worst, where, count, differ = 0.0, '', 0, []
-    for sec in ('accel', 'gyro', 'temperature', 'gravity'):
-        na = dict(_numbers(a.get(sec) or {}, sec))
-        nb = dict(_numbers(b.get(sec) or {}, sec))
+    for sec in ('accel', 'gyro', 'temperature', 'gravity', 'alarm_yardstick'):
+        if sec == 'alarm_yardstick':
+            da = (a.get('fit') or {}).get(sec) or {}
+            db = (b.get('fit') or {}).get(sec) or {}
+        else:
+            da, db = a.get(sec) or {}, b.get(sec) or {}
+        na = dict(_numbers(da, sec))
+        nb = dict(_numbers(db, sec))
         if set(na) != set(nb):
             differ.append(f'{sec}: different fields ({sorted(set(na) ^ set(nb))[:4]})')
         for k in set(na) & set(nb):
