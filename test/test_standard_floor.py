@@ -296,8 +296,11 @@ def test_a_yardstick_that_cannot_be_fitted_says_why_and_keeps_the_models_terms()
     from thermal_imu_calib.estimation import alarm_yardstick
     from thermal_imu_calib.estimation.calibrate import make_context
     w = _session(1e-4, faces=5, visits=6)
-    y = alarm_yardstick.yardstick(make_context(w, options()))
+    # a derived minimum hold of 0.5 s is advised as such (it read "at least 0 s")
+    y = alarm_yardstick.yardstick(make_context(w, dataclasses.replace(options(),
+                                                                      min_hold_s=0.5)))
     assert y['family'] == 'field' and 'cannot be fitted' in y['error']
+    assert 'missing -z' in y['error'] and 'still for at least 0.5 s' in y['error']
     assert alarm_yardstick.terms_of({'alarm_yardstick': y}) is None
     cal = Calibration(accel=_whole_unit([0.1, 0.2, 0.3]), fit={'alarm_yardstick': y})
     cols = _accel_columns(cal)

@@ -14,7 +14,7 @@ from .context import Estimate, register_estimator
 from .field_estimator import fit_field_model, per_axis_vertical_range
 from .observability import ORDER_SPAN
 from .offset_fit import fit_offset_model, time_groups
-from .options import CalibrationRefused, input_units
+from .options import CalibrationRefused, hold_seconds, input_units
 from .summary import _face_text
 
 #: warn when an axis was never vertical within this many degC of the collected range's ends
@@ -77,7 +77,7 @@ def check_faces_up_and_down(ctx):
             f'scale factor and bias of axis {",".join(weak)} are not observable: faces held '
             f'{_face_text(cov)}; missing {" ".join(missing) or "none"}',
             f'hold each missing face ({" ".join(missing)}) still for at least '
-            f'{o.min_hold_s:.0f} s, ideally repeated during the warm-up so each face is '
+            f'{hold_seconds(o.min_hold_s)} s, ideally repeated during the warm-up so each face is '
             'seen at several temperatures')
 
 

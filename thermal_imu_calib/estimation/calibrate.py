@@ -37,8 +37,8 @@ from .hold_rules import (consistency_notes, HOLD_MAGNITUDES,  # noqa: F401
 from .observability import ORDER_SPAN
 from .thermal_lag import with_restart_spread
 from .options import (CalibrateOptions, CalibrationRefused,  # noqa: F401
-                      CalibrationResult, default_input_map, gyro_reference, input_margins,
-                      input_units, PROXY_MARGIN_FRACTION, valid_range)
+                      CalibrationResult, default_input_map, gyro_reference, hold_seconds,
+                      input_margins, input_units, PROXY_MARGIN_FRACTION, valid_range)
 from .summary import (_adequacy_notes, _amax, _face_text, _margin_report,  # noqa: F401
                       _model_choice, _pose_change_text, _rms, _rotation_stats, _span_text,
                       ADEQUACY_CHI2, gravity_residuals)
@@ -232,8 +232,8 @@ def calibrate_windows(windows, options=None):
     if len(windows) == 0:
         raise CalibrationRefused(
             'no stationary segments were found',
-            f'hold the IMU still for at least {o.min_hold_s:.0f} s in each pose (check the '
-            'IMU topic, and that the log contains still periods)')
+            f'hold the IMU still for at least {hold_seconds(o.min_hold_s)} s in each pose '
+            '(check the IMU topic, and that the log contains still periods)')
     if len(o.inputs) != windows.n_inputs:
         raise ValueError(f'{len(o.inputs)} temperature inputs named but windows carry '
                          f'{windows.n_inputs}')

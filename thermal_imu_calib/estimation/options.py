@@ -21,6 +21,11 @@ from ..input_units import DEGC, is_temperature
 PROXY_MARGIN_FRACTION = 0.05
 
 
+def hold_seconds(s):
+    """Return a hold duration (s) for a refusal's advice: '0.5', '10' (not '0' or '0.50')."""
+    return f'{round(float(s), 2):g}'
+
+
 class CalibrationRefused(Exception):
     """Estimation refused: ``reason`` says what is wrong, ``advice`` what to collect."""
 

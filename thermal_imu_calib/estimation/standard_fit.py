@@ -325,6 +325,7 @@ def calibrated_magnitudes(ctx):
 def _register():
     """Register the ``standard`` estimator (imported by calibrate.ESTIMATOR_MODULES)."""
     from .calibrate import CalibrationRefused, Estimate, HOLD_MAGNITUDES, register_estimator
+    from .options import hold_seconds
     HOLD_MAGNITUDES[0] = calibrated_magnitudes
 
     @register_estimator('standard')
@@ -337,7 +338,7 @@ def _register():
             raise CalibrationRefused(
                 str(e).split(': ')[0] + (f' (faces missing: {missing})' if missing else ''),
                 (f'hold each missing face ({missing}) still for at least '
-                 f'{ctx.options.min_hold_s:.0f} s, or ' if missing else '')
+                 f'{hold_seconds(ctx.options.min_hold_s)} s, or ' if missing else '')
                 + str(e).split(': ', 1)[-1]) from None
         notes = ['standard static fit (imu_tk, Tedaldi et al. 2014): bias, scale and '
                  'misalignment per axis from |a| = g on every hold, each hold weighted the '

@@ -113,6 +113,7 @@ def fit_whole_unit_context(ctx, rows=None, transitions=None):
 def _register():
     """Register the ``whole_unit`` estimator (imported by calibrate.ESTIMATOR_MODULES)."""
     from .calibrate import CalibrationRefused, Estimate, register_estimator
+    from .options import hold_seconds
 
     @register_estimator('whole_unit')
     def estimate_whole_unit(ctx):
@@ -128,7 +129,7 @@ def _register():
                 f'only {ctx.n_orientations} distinct orientations were held',
                 'the whole-unit model needs at least the six faces (+x -x +y -y +z -z up), '
                 'plus tilted poses for misalignment, each still for '
-                f'{o.min_hold_s:.0f} s or more')
+                f'{hold_seconds(o.min_hold_s)} s or more')
         res = fit_whole_unit_context(ctx, transitions=o.transitions)
         am = res.accel.model
         weak = [f'{a}' for i, a in enumerate('xyz')
