@@ -283,6 +283,12 @@ def test_a_step_across_a_family_switch_is_tested_on_the_yardstick():
     alarms, info = reg.assess(rows)
     assert any('db0 x changed' in a for a in alarms['u']), info['unit_tests']
     assert [n for n in info['notes']['u'] if 'tested on the terms of the field model' in n]
+    # `history` shows the terms it tested, the standard fit's row too
+    from thermal_imu_calib.fleet.history import format_history
+    text = format_history(rows, alarms, info)
+    assert 'b0 at T0 x/y/z [mm/s^2]' in text and ' db0 x/y/z' not in text
+    line = next(ln.split() for ln in text.splitlines() if ln.strip().startswith(rows[1]['time']))
+    assert line[1] == 'whole_unit_accel' and not line[3].startswith('-/'), line
     bare = dataclasses.replace(after.calibration, fit={
         k: v for k, v in after.calibration.fit.items() if k != 'alarm_yardstick'})
     old = _rows([before.calibration, bare])

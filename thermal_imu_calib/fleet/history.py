@@ -11,11 +11,21 @@ import numpy as np
 from ..io.output import write_atomic
 from .alarms import _f, AXES
 
-#: (index column, label, scale to display, display unit)
-SHOWN = (('accel.db0', 'db0', 1e3, 'mm/s^2'), ('accel.dk0', 'dk0', 1e6, 'ppm'),
+#: (index column, label, scale to display, display unit); the accelerometer's bias and
+#: scale factor at T0 that the alarms test (``accel.alarm_*``: any family's, or the field
+#: model's on the same holds, the alarm yardstick), then the field model's own parameters
+SHOWN = (('accel.alarm_b0', 'b0 at T0', 1e3, 'mm/s^2'),
+         ('accel.alarm_k0', 'k0 - 1 at T0', 1e6, 'ppm'),
+         ('accel.alarm_b1', 'b1', 1e3, 'mm/s^2/degC'), ('accel.alarm_k1', 'k1', 1e6, 'ppm/degC'),
+         ('accel.db0', 'db0', 1e3, 'mm/s^2'), ('accel.dk0', 'dk0', 1e6, 'ppm'),
          ('accel.b1', 'b1', 1e3, 'mm/s^2/degC'), ('accel.k1', 'k1', 1e6, 'ppm/degC'),
          ('gyro.c0', 'gyro c0', 1e3, 'mrad/s'), ('gyro.c1', 'gyro c1', 1e3, 'mrad/s/degC'),
          ('gyro.alarm_b0', 'gyro b0 at T0', 1e3, 'mrad/s'))
+#: shown values less this (the scale factor's 1), per column
+OFFSET = {'accel.alarm_k0': 1.0}
+#: columns the alarm terms make redundant (the field model's db0, dk0, b1, k1 are its
+#: alarm terms b0, k0 - 1, b1, k1; ``models.alarm_terms``)
+SAME_AS_ALARM = ('accel.db0', 'accel.dk0', 'accel.b1', 'accel.k1')
 
 
 def _by_sensor(rows):
@@ -29,7 +39,20 @@ def _cell(row, col, scale):
     v, s = _f(row, col), _f(row, col + '_std')
     if not np.isfinite(v):
         return '-'
+    v -= OFFSET.get(col.rsplit('.', 1)[0], 0.0)
     return f'{v * scale:.3g}' + (f'+-{s * scale:.2g}' if np.isfinite(s) else '')
+
+
+def _columns(rs):
+    """Return the SHOWN columns with a value in any of ``rs``.
+
+    The field model's own db0, dk0, b1, k1 are left out beside the alarm terms, which are
+    the same numbers for it.
+    """
+    cols = [c for c in SHOWN if any(np.isfinite(_f(r, f'{c[0]}.x')) for r in rs)]
+    if any(c[0] == 'accel.alarm_b0' for c in cols):
+        cols = [c for c in cols if c[0] not in SAME_AS_ALARM]
+    return cols
 
 
 def format_history(rows, alarms, info=None):
@@ -45,8 +68,7 @@ def format_history(rows, alarms, info=None):
         out.append(f'{sensor}: {len(rs)} calibrations' + ('  ALARM' if flag else '  ok') + (
             f' (largest |z| {zmax:.2f}, threshold {info["threshold_sigma"]:.2f})'
             if np.isfinite(zmax) else ''))
-        cols = [(c, lbl, sc, u) for c, lbl, sc, u in SHOWN
-                if any(np.isfinite(_f(r, f'{c}.x')) for r in rs)]
+        cols = _columns(rs)
         out.append('  ' + f'{"time":17s} {"model":17s} {"resid":>8s}  ' + '  '.join(
             f'{lbl} x/y/z [{u}]' for _, lbl, _, u in cols))
         for r in rs:
@@ -111,18 +133,19 @@ def write_html(path, rows, alarms, info=None):
         body.extend(f'<p style="color:#c00">{html.escape(a)}</p>' for a in flag)
         body.extend(f'<p>note: {html.escape(n)}</p>'
                     for n in info.get('notes', {}).get(sensor, []))
-        body.append('<div>' + ''.join(_svg(rs, c, sc, u) for c, _, sc, u in SHOWN
-                                      if any(np.isfinite(_f(r, f'{c}.x')) for r in rs))
+        cols = _columns(rs)
+        body.append('<div>' + ''.join(_svg(rs, c, sc, u) for c, _, sc, u in cols)
                     + '</div>')
         body.append('<table border="1" cellspacing="0"><tr><th>time</th><th>valid from'
                     '</th><th>model</th><th>holds</th><th>residual m/s^2</th>' + ''.join(
-                        f'<th>{lbl} [{u}]</th>' for _, lbl, _, u in SHOWN) + '</tr>')
+                        f'<th>{html.escape(lbl)} [{u}]</th>' for _, lbl, _, u in cols)
+                    + '</tr>')
         for r in rs:
             body.append(f'<tr><td>{r["time"]}</td><td>{r["valid_from"]}</td>'
                         f'<td>{html.escape(r["accel_model"])}</td><td>{r["holds"]}</td>'
                         f'<td>{_f(r, "residual_rms_mps2"):.3g}</td>' + ''.join(
                             '<td>' + '<br>'.join(_cell(r, f'{c}.{a}', sc) for a in AXES)
-                            + '</td>' for c, _, sc, _ in SHOWN) + '</tr>')
+                            + '</td>' for c, _, sc, _ in cols) + '</tr>')
         body.append('</table>')
     return write_atomic(path, '<!DOCTYPE html><html><head><meta charset="utf-8"><title>fleet '
                         'history</title></head><body style="font-family:sans-serif">'
