@@ -289,6 +289,9 @@ def test_a_step_across_a_family_switch_is_tested_on_the_yardstick():
     assert 'b0 at T0 x/y/z [mm/s^2]' in text and ' db0 x/y/z' not in text
     line = next(ln.split() for ln in text.splitlines() if ln.strip().startswith(rows[1]['time']))
     assert line[1] == 'whole_unit_accel' and not line[3].startswith('-/'), line
+    # a row of a registry written before the alarm columns keeps its field parameters shown
+    legacy = [{k: v for k, v in rows[0].items() if not k.startswith('accel.alarm_')}, rows[1]]
+    assert ' db0 x/y/z' in format_history(legacy, alarms, info)
     bare = dataclasses.replace(after.calibration, fit={
         k: v for k, v in after.calibration.fit.items() if k != 'alarm_yardstick'})
     old = _rows([before.calibration, bare])

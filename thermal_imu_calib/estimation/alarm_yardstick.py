@@ -19,12 +19,13 @@ import.
 import numpy as np
 
 from ..models.alarm_terms import bias_scale_terms
+from ..models.field import FieldPolynomialModel
 from .builtin_estimators import estimate_field
 from .options import CalibrationRefused
 
 #: the family whose terms the alarms read (``ESTIMATORS`` name and model kind)
 YARDSTICK_FAMILY = 'field'
-YARDSTICK_KIND = 'field_polynomial'
+YARDSTICK_KIND = FieldPolynomialModel.kind
 #: the keys of ``bias_scale_terms`` stored (arrays as nested lists)
 TERMS = ('T0', 'b', 'b_std', 'k', 'k_std')
 

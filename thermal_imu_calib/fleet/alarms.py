@@ -81,15 +81,17 @@ def alarm_columns(cal):
     follows).
     """
     out = {}
-    yard = terms_of(cal.fit) if cal.accel is not None else None
-    for model, stem, names in ((cal.accel, ALARM_STEM, ALARM_ON), (cal.gyro, GYRO_STEM, ('b',))):
-        terms = bias_scale_terms(model) if model is not None else None
-        if stem == ALARM_STEM and yard is not None:
-            terms = yard
+    accel = terms_of(cal.fit) if cal.accel is not None else None
+    if accel is None and cal.accel is not None:
+        accel = bias_scale_terms(cal.accel)
+        if accel is not None:
+            accel['kind'] = cal.accel.kind
+    if accel is not None:
+        out[FAMILY_COLUMN] = accel['kind']
+    gyro = bias_scale_terms(cal.gyro) if cal.gyro is not None else None
+    for terms, stem, names in ((accel, ALARM_STEM, ALARM_ON), (gyro, GYRO_STEM, ('b',))):
         if terms is None:
             continue
-        if stem == ALARM_STEM:
-            out[FAMILY_COLUMN] = yard['kind'] if yard is not None else model.kind
         for i, a in enumerate(AXES):
             out[f'{stem}T0.{a}'] = float(terms['T0'][i])
             for name in names:

@@ -47,10 +47,12 @@ def _columns(rs):
     """Return the SHOWN columns with a value in any of ``rs``.
 
     The field model's own db0, dk0, b1, k1 are left out beside the alarm terms, which are
-    the same numbers for it.
+    the same numbers for it, unless a row has them without alarm terms (a registry written
+    before 2026-11-27).
     """
     cols = [c for c in SHOWN if any(np.isfinite(_f(r, f'{c[0]}.x')) for r in rs)]
-    if any(c[0] == 'accel.alarm_b0' for c in cols):
+    if not any(np.isfinite(_f(r, 'accel.db0.x')) and not np.isfinite(_f(r, 'accel.alarm_k0.x'))
+               for r in rs):
         cols = [c for c in cols if c[0] not in SAME_AS_ALARM]
     return cols
 
