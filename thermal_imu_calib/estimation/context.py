@@ -115,6 +115,16 @@ def model_choices():
     return ('auto',) + tuple(ESTIMATORS)
 
 
+def estimator(name):
+    """Return the estimator registered as ``name`` (its module imported first if needed).
+
+    KeyError for a name no module registers.
+    """
+    if name not in ESTIMATORS:
+        _load_plugins()
+    return ESTIMATORS[name]
+
+
 def _load_plugins():
     import importlib
     for mod in ESTIMATOR_MODULES:

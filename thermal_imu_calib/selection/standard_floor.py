@@ -42,8 +42,8 @@ import numpy as np
 from scipy.special import ndtri
 
 from ..collection.segments import face_of
-from ..estimation.calibrate import (CalibrationRefused, ESTIMATORS, FLOOR_REASON,
-                                    input_margins)
+from ..estimation.calibrate import CalibrationRefused, FLOOR_REASON, input_margins
+from ..estimation.context import estimator
 from ..estimation.standard_fit import StandardFitError
 from ..estimation.thermal_lag import lagged_axis_temperatures
 from .heldout import _hold_folds, clamp_to_training, fold_masks, Selection
@@ -92,7 +92,7 @@ def _family_model(ctx, name, train):
         return _fit(ctx, name, train), ctx.ta
     rows = train if ctx.accel_rows is None else train & ctx.accel_rows
     try:
-        est = ESTIMATORS[name](ctx.subset(rows))
+        est = estimator(name)(ctx.subset(rows))
     except (CalibrationRefused, StandardFitError, ValueError, np.linalg.LinAlgError):
         return None, None
     filt = getattr(est, 'temperature_filter', None)
