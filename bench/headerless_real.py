@@ -3,7 +3,7 @@
 Usage (from the repository root; a ROS domain of your own for the live runs)::
 
     ROS_DOMAIN_ID=72 .venv/bin/python bench/headerless_real.py [--work DIR] [--json OUT]
-        [--no-live] [--kinds float64 stamp0]
+        [--no-live] [--kinds float64 float64_followed stamp0]
 
 For the BMI270 soaks and the chamber log's training part (``real_recordings``), the log is
 written again with each temperature reading logged half an IMU period after its sample (a
@@ -11,6 +11,9 @@ driver publishing the temperature after the IMU message it read it with), in one
 forms (``KINDS``):
 
 * ``float64``: as std_msgs/Float64, no header (the nodes get ``temperature_types``);
+* ``float64_followed``: the same log, the node left at its default type (sensor_msgs/
+  Temperature): it must subscribe as Float64 once it sees the player's publisher on the
+  graph (``nodes/thermal_types``);
 * ``stamp0``: as sensor_msgs/Temperature with header stamp 0 (a driver that never sets it;
   ``io.headerless.StampChoice`` puts it on the IMU's clock).
 
@@ -43,7 +46,7 @@ from thermal_imu_calib.io.columns import TemperatureColumns  # noqa: E402
 
 FLOAT = 'std_msgs/msg/Float64'
 #: the forms of the temperature: no header, or a header stamp of 0
-KINDS = ('float64', 'stamp0')
+KINDS = ('float64', 'float64_followed', 'stamp0')
 
 
 def _verdict(c):
@@ -74,7 +77,7 @@ def run(rec, work, domain_id, live=True, kind='float64'):
     half = int(round(0.5 * 1e9 / rec_rate(imu)))
     bare = os.path.join(work, f'{rec.name}_{kind}.mcap')
     # log time = stamp + half a period: after the IMU message of the same stamp
-    if kind == 'float64':
+    if kind.startswith('float64'):
         write_columns(bare, rec.imu_topic, imu, {rec.temperature_topic: TemperatureColumns(
             temps.stamp_ns + half, temps.temperature)}, msgtypes={rec.temperature_topic: FLOAT},
             overwrite=True)
@@ -92,10 +95,11 @@ def run(rec, work, domain_id, live=True, kind='float64'):
         shifted = TemperatureColumns(temps.stamp_ns + half, temps.temperature)
         r = live_replay.run_live(imu, shifted, rec.gravity, domain_id,
                                  workdir=os.path.join(work, f'{rec.name}_{kind}_live'),
-                                 temperature_type=FLOAT if kind == 'float64'
+                                 temperature_type=FLOAT if kind.startswith('float64')
                                  else live_replay.TEMPERATURE_TYPE,
-                                 temperature_header_ns=None if kind == 'float64'
-                                 else np.zeros(len(temps), np.int64))
+                                 temperature_header_ns=None if kind.startswith('float64')
+                                 else np.zeros(len(temps), np.int64),
+                                 set_temperature_type=kind != 'float64_followed')
         row['live'] = {'error': r.error, 'success': r.success, 'message': r.message[:300],
                        'imu': [r.imu_received, r.imu_sent], 'readings': [r.temp_received,
                                                                          r.temp_sent],

@@ -376,7 +376,8 @@ def _publish(driver, imu, temps, i0, i1, t_lo, t_hi, pace, header_ns=None):
 
 def run_live(imu, temps, gravity, domain_id, temperature_topics=None, workdir=None,
              calibration_name='live.yaml', extra_params=None, attempts=3,
-             temperature_type=TEMPERATURE_TYPE, temperature_header_ns=None):
+             temperature_type=TEMPERATURE_TYPE, temperature_header_ns=None,
+             set_temperature_type=True):
     """Run ``run_live_once`` until every message arrives, at most ``attempts`` times.
 
     Best effort may lose messages on a loaded machine (counted, never hidden): a run that
@@ -386,7 +387,8 @@ def run_live(imu, temps, gravity, domain_id, temperature_topics=None, workdir=No
     for i in range(1, attempts + 1):
         out = run_live_once(imu, temps, gravity, domain_id, temperature_topics,
                             os.path.join(workdir, f'attempt{i}'), calibration_name,
-                            extra_params, temperature_type, temperature_header_ns)
+                            extra_params, temperature_type, temperature_header_ns,
+                            set_temperature_type)
         out.attempts = i
         if out.complete or (out.error and not out.error.startswith('not every message')):
             return out
@@ -395,14 +397,18 @@ def run_live(imu, temps, gravity, domain_id, temperature_topics=None, workdir=No
 
 def run_live_once(imu, temps, gravity, domain_id, temperature_topics=None, workdir=None,
                   calibration_name='live.yaml', extra_params=None,
-                  temperature_type=TEMPERATURE_TYPE, temperature_header_ns=None):
+                  temperature_type=TEMPERATURE_TYPE, temperature_header_ns=None,
+                  set_temperature_type=True):
     """Replay ``imu`` (+ ``temps`` on /imu/temperature) into a launched calibrator_node.
 
     ``temperature_topics``: the launch argument (None: the shipped config's
     [imu/temperature]; '[]': none); ``gravity`` is given as the launch argument
     ``gravity:=G``; ``HARNESS_PARAMS`` and ``extra_params`` (for experiments; by
     default none) are added as one more parameters dict. ``temperature_header_ns``: the
-    header stamps of ``temps`` when not their stamps (``_publish``). Returns a Replay; never raises
+    header stamps of ``temps`` when not their stamps (``_publish``). ``set_temperature_type``
+    False: the node is not given ``temperature_types`` for a ``temperature_type`` other than
+    sensor_msgs/Temperature, and must follow the type it sees on the graph
+    (``nodes/thermal_types``). Returns a Replay; never raises
     for node failures (they are in ``Replay.error``).
     """
     from thermal_imu_calib.nodes.player import Pacer
@@ -418,7 +424,7 @@ def run_live_once(imu, temps, gravity, domain_id, temperature_topics=None, workd
         args['temperature_topics'] = temperature_topics
     out = Replay()
     t_start = time.monotonic()
-    typed = ({} if temperature_type == TEMPERATURE_TYPE
+    typed = ({} if temperature_type == TEMPERATURE_TYPE or not set_temperature_type
              else {'temperature_types': [temperature_type]})
     node = LiveCalibrator(workdir, args, {**HARNESS_PARAMS, **typed, **(extra_params or {})},
                           domain_id)

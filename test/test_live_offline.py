@@ -98,13 +98,15 @@ def _write_other_clock(path, imu, temps):
 
 @pytest.mark.parametrize('thermal', ['none', 'room_temperature', 'bad_samples',
                                      'slow_temperature', 'float32_temperature',
-                                     'temperature_on_another_clock'])
+                                     'float32_followed', 'temperature_on_another_clock'])
 def test_live_calibration_equals_offline(tmp_path, thermal):
     """``bad_samples``: the room-temperature case with samples ``calibrate`` drops; the
     node drops the same ones (before 2026-11-28 it dropped only non-finite ones).
     ``slow_temperature``: readings every 4 s and a 12-s dropout. ``float32_temperature``:
     the room temperature as std_msgs/Float32 without a header (the um6/um7 drivers), logged
     at its time and published in that order; the node gets ``temperature_types``.
+    ``float32_followed``: the same, the node left at its default type: it subscribes as
+    Float32 once it sees the publisher on the graph (``nodes/thermal_types``), and says so.
     ``temperature_on_another_clock``: the room temperature stamped ``OTHER_CLOCK_S`` ahead
     of the IMU's clock, logged and published at its time: both put it on the IMU's clock
     (``io.headerless.StampChoice``)."""
@@ -112,7 +114,7 @@ def test_live_calibration_equals_offline(tmp_path, thermal):
     temps = None
     topics = {}
     kind = live_replay.TEMPERATURE_TYPE
-    if thermal == 'float32_temperature':
+    if thermal in ('float32_temperature', 'float32_followed'):
         kind = 'std_msgs/msg/Float32'
     if thermal != 'none':
         temps = real_recordings.flat_temperature(imu)
@@ -145,7 +147,8 @@ def test_live_calibration_equals_offline(tmp_path, thermal):
                                 temperature_topics='[]' if temps is None else None,
                                 workdir=str(tmp_path / 'live'), temperature_type=kind,
                                 temperature_header_ns=None if thermal != 'temperature_on_'
-                                'another_clock' else temps.stamp_ns + OTHER_CLOCK_S * 10 ** 9)
+                                'another_clock' else temps.stamp_ns + OTHER_CLOCK_S * 10 ** 9,
+                                set_temperature_type=thermal != 'float32_followed')
     assert not live.error, live.error
     assert live.imu_sent == len(imu) and live.imu_received == live.imu_sent, \
         f'{live.imu_received} of {live.imu_sent} IMU messages arrived'
@@ -153,6 +156,11 @@ def test_live_calibration_equals_offline(tmp_path, thermal):
         assert live.temp_sent == len(temps) and live.temp_received == live.temp_sent, \
             f'{live.temp_received} of {live.temp_sent} temperatures arrived'
     assert live.success, live.message
+    if thermal == 'float32_followed':        # the node said what it did
+        with open(tmp_path / 'live' / f'attempt{live.attempts}' / 'node.log') as f:
+            assert ('/imu/temperature is published as std_msgs/msg/Float32 by '
+                    '/scoreboard_player, not sensor_msgs/msg/Temperature: subscribed as '
+                    'std_msgs/msg/Float32') in f.read()
     if thermal == 'temperature_on_another_clock':     # the node said what it did (the
         # distance to the IMU stamps received so far: about OTHER_CLOCK_S)
         with open(tmp_path / 'live' / f'attempt{live.attempts}' / 'node.log') as f:

@@ -497,10 +497,10 @@ def test_a_temperature_on_another_topic_is_named_in_the_refusal(ros, tmp_path, r
     # a driver publishing its temperature as imu/temp while the shipped config listens on
     # imu/temperature: every IMU sample waits for a temperature and none is collected.
     # The answer said "no stationary segments were found. ... check the IMU topic"
-    # A second driver publishes std_msgs/Float32 on imu/temperature itself (another
-    # participant, as a driver's process is): DDS never connects it; the answer says so.
+    # A second driver publishes std_msgs/String on imu/temperature itself (another
+    # participant, as a driver's process is): DDS never connects it; the answer says so
+    # (a thermal type, std_msgs/Float32 say, would be followed: ``thermal_types``).
     import rclpy
-    from std_msgs.msg import Float32
     from conftest import replay_flow
     rec = recording(repetitions=1, faces=('+z', '-z'))
     calibrator(ros, tmp_path)
@@ -508,7 +508,7 @@ def test_a_temperature_on_another_topic_is_named_in_the_refusal(ros, tmp_path, r
     rclpy.init(context=context)
     request.addfinalizer(context.try_shutdown)
     bare = rclpy.create_node('float_driver', context=context).create_publisher(
-        Float32, '/imu/temperature', 10)
+        String, '/imu/temperature', 10)
     node, imu_pub, temp_pub, progress = _driver(ros, 'driver_with_imu_temp', '/imu/temp')
     imu = rec.imu()
     (_, tc), = rec.temperatures.items()
@@ -516,16 +516,16 @@ def test_a_temperature_on_another_topic_is_named_in_the_refusal(ros, tmp_path, r
                        lambda: progress[-1]['imu_received'], what='the calibrator input')
     wait_for(lambda: progress[-1]['imu_received'] >= sent
              and progress[-1]['stale_temperature_samples'] > 0, WAIT, 'the IMU messages')
-    bare.publish(Float32(data=30.0))
+    bare.publish(String(data='30.0'))
     resp = ros.call(node, Trigger, '/thermal_imu_calibrator/calibrate', timeout=180)
     assert not resp.success
     assert resp.message.startswith('refused: no temperature reading arrived on '
                                    '/imu/temperature (0 publishers)'), resp.message
     assert "thermal-input topics on the graph: /imu/temp (set temperature_topics:='[/imu/temp]')" \
         in resp.message, resp.message
-    assert ('/imu/temperature is published as std_msgs/msg/Float32 by /float_driver, not '
-            "sensor_msgs/msg/Temperature, so none of it is received: set "
-            "temperature_types:='[std_msgs/msg/Float32]'" in resp.message), resp.message
+    assert ('/imu/temperature is published as std_msgs/msg/String by /float_driver, not '
+            'sensor_msgs/msg/Temperature, so none of it is received: publish '
+            'sensor_msgs/msg/Temperature on it' in resp.message), resp.message
     assert "temperature_topics:='[]'" in resp.message
     assert not os.path.exists(tmp_path / 'calibration.yaml')
 
@@ -646,3 +646,28 @@ def test_a_second_recording_later_in_one_run_is_named_in_the_answer(ros, tmp_pat
     resp = player.call('calibrate')
     assert 'stamps jumped ahead by more than resume_max_gap 1 time(s) while collecting' \
         in resp.message, resp.message
+
+
+def test_reset_judges_the_temperature_stamps_afresh(ros, tmp_path):
+    # a driver that left its Temperature header stamp 0 (put on the IMU's clock, as
+    # calibrate does) and was fixed since: after ~/reset its readings are judged again, as
+    # calibrate judges each log, and keep their header stamps. Before, the choice was kept
+    from conftest import imu_msg, temperature_msg
+    node = calibrator(ros, tmp_path)
+    drv, imu_pub, temp_pub, progress = _driver(ros, 'driver_fixed_since', 'imu/temperature')
+    ros.wait_matched(temp_pub, 1, timeout=WAIT)
+    t0 = 1_700_000_000 * 10 ** 9
+    imu_pub.publish(imu_msg(t0, (0.0, 0.0, 9.81), (0.0, 0.0, 0.0)))
+    wait_for(lambda: progress[-1]['imu_received'] >= 1, WAIT, 'the first IMU message')
+    temp_pub.publish(temperature_msg(0, 25.0))
+    wait_for(lambda: node._clocks.choices[0].on_imu_clock is not None, WAIT, 'the choice')
+    assert node._clocks.describe() == {
+        'imu/temperature': "IMU's clock (header stamps 0 or on another clock)"}
+    assert ros.call(drv, Trigger, '/thermal_imu_calibrator/reset', timeout=60).success
+    assert node._clocks.describe() == {
+        'imu/temperature': 'not chosen yet (no reading after the first IMU message)'}
+    imu_pub.publish(imu_msg(t0 + 10 ** 9, (0.0, 0.0, 9.81), (0.0, 0.0, 0.0)))
+    wait_for(lambda: progress[-1]['imu_received'] >= 1, WAIT, 'an IMU message after the reset')
+    temp_pub.publish(temperature_msg(t0 + 10 ** 9, 25.0))
+    wait_for(lambda: node._clocks.choices[0].on_imu_clock is not None, WAIT, 'the new choice')
+    assert node._clocks.describe() == {'imu/temperature': 'header stamps'}

@@ -627,10 +627,10 @@ def test_a_temperature_on_another_topic_is_named_in_a_warning(ros, tmp_path):
 
 
 def test_a_temperature_of_another_type_is_named_in_a_warning(ros, tmp_path, request):
-    # a driver publishing its temperature as std_msgs/Float32 on imu/temperature: DDS never
-    # connects it to the node's sensor_msgs/Temperature subscription, so nothing arrives and
-    # the topic looked right. The log names the type, the publisher and what to do
-    from std_msgs.msg import Float32
+    # a publisher of a type that is no thermal input (std_msgs/String) on imu/temperature:
+    # DDS never connects it to the node's sensor_msgs/Temperature subscription, so nothing
+    # arrives and the topic looked right. The log names the type, the publisher and what to
+    # do. (A thermal type, std_msgs/Float32 say, is followed: the test above.)
     cal = make_cal()
     rig = Rig(ros, calibration_file=str(cal.save(tmp_path / 'cal.yaml')))
     warned = []
@@ -642,13 +642,13 @@ def test_a_temperature_of_another_type_is_named_in_a_warning(ros, tmp_path, requ
     rclpy.init(context=context)
     request.addfinalizer(context.try_shutdown)
     bare = rclpy.create_node('float_driver', context=context).create_publisher(
-        Float32, '/imu/temperature', 10)
+        String, '/imu/temperature', 10)
 
     def on_graph():      # with its node's name (discovered after the endpoint, at times)
-        return any(i.topic_type == 'std_msgs/msg/Float32' and i.node_name == 'float_driver'
+        return any(i.topic_type == 'std_msgs/msg/String' and i.node_name == 'float_driver'
                    for i in rig.node.get_publishers_info_by_topic('/imu/temperature'))
-    wait_for(on_graph, WAIT, 'the Float32 publisher and its node on the graph')
-    bare.publish(Float32(data=30.0))
+    wait_for(on_graph, WAIT, 'the String publisher and its node on the graph')
+    bare.publish(String(data='30.0'))
     rig.send(1200, dt=0.001)       # the warning comes after SILENT_WARN_AFTER samples
     rig.receive(1200)
     wait_for(lambda: rig.node.counts['passthrough'] >= 1200, WAIT,
@@ -656,9 +656,10 @@ def test_a_temperature_of_another_type_is_named_in_a_warning(ros, tmp_path, requ
     assert rig.node.counts['compensated'] == 0
     texts = [t for k, t in warned if k == 'silent']
     assert texts, warned
-    assert ('/imu/temperature is published as std_msgs/msg/Float32 by /float_driver, not '
-            "sensor_msgs/msg/Temperature, so none of it is received: set "
-            "temperature_types:='[std_msgs/msg/Float32]'") in texts[0], texts[0]
+    assert ('/imu/temperature is published as std_msgs/msg/String by /float_driver, not '
+            'sensor_msgs/msg/Temperature, so none of it is received: publish '
+            'sensor_msgs/msg/Temperature on it') in texts[0], texts[0]
+    assert rig.node.type_follower.types == ['sensor_msgs/msg/Temperature']
 
 
 def test_diagnostics_keep_coming_with_sim_time_and_no_clock(ros, tmp_path):
@@ -749,10 +750,12 @@ def _imu_clock_rig(ros, cal, tmp_path, temp_cls, params=()):
         *params]))
     driver = ros.node('clock_driver')
     imu_pub = driver.create_publisher(Imu, 'imu/data_raw', 1000)
-    temp_pub = driver.create_publisher(temp_cls, 'imu/temperature', 100)
+    temp_pub = (driver.create_publisher(temp_cls, 'imu/temperature', 100)
+                if temp_cls is not None else None)      # None: the test publishes it
     out = ros.collect(driver, Imu, 'imu/data_compensated', 1000)
     ros.wait_matched(imu_pub)
-    ros.wait_matched(temp_pub)
+    if temp_pub is not None:
+        ros.wait_matched(temp_pub)
     wait_for(lambda: node.pub.get_subscription_count() >= 1, WAIT, 'output subscriber')
     stamps = [T0_NS + k * 10_000_000 for k in range(15)]
 
@@ -813,6 +816,38 @@ def test_a_headerless_float32_temperature_takes_the_stamp_of_the_imu_before_it(r
     temp_pub.publish(Float32(data=40.0))      # the IMU stream has ended: it waits, unused
     wait_for(lambda: node._clocks.clock._wait[0], WAIT, 'the third reading at the node')
     assert node.temps.received == [2]
+
+
+def test_a_float32_temperature_is_followed_without_temperature_types(ros, tmp_path, request):
+    # the same driver, and the node left at its default type (sensor_msgs/Temperature):
+    # DDS never connects the two (the node only warned, naming temperature_types, while
+    # calibrate read the same topic from a log). It now sees the publisher's type on the
+    # graph, subscribes as Float32 and says so; the readings then go on the IMU's clock
+    import rclpy
+    from std_msgs.msg import Float32
+    cal = make_cal()
+    node, _, out, stamps, imu = _imu_clock_rig(ros, cal, tmp_path, None)
+    assert node.type_follower.types == ['sensor_msgs/msg/Temperature']
+    context = rclpy.Context()     # another participant, as a driver's process is
+    rclpy.init(context=context)
+    request.addfinalizer(context.try_shutdown)
+    temp_pub = rclpy.create_node('um7_driver', context=context).create_publisher(
+        Float32, '/imu/temperature', 100)
+    wait_for(lambda: temp_pub.get_subscription_count() >= 1 and node.type_follower.notes,
+             WAIT, lambda: f'the node to subscribe as Float32 ({node.type_follower.notes})')
+    assert node.type_follower.types == ['std_msgs/msg/Float32']
+    note, = node.type_follower.notes
+    assert note.startswith('/imu/temperature is published as std_msgs/msg/Float32 by '
+                           '/um7_driver, not sensor_msgs/msg/Temperature: subscribed as '
+                           'std_msgs/msg/Float32 (no header: each reading takes the header '
+                           'stamp of the IMU message published before it)'), note
+    assert "temperature_types:='[std_msgs/msg/Float32]'" in note
+    values = node.diagnostics_values()[2]
+    assert values['temperature_type[/imu/temperature]'] == 'std_msgs/msg/Float32'
+    assert _clock_shown(node) == "IMU's clock (no header)"
+    imu(range(5))
+    _two_readings_on_the_imu_clock(node, cal, out, stamps, imu,
+                                   lambda v: temp_pub.publish(Float32(data=v)))
 
 
 def test_a_temperature_stamped_0_is_put_on_the_imu_clock(ros, tmp_path):

@@ -156,3 +156,52 @@ def test_live_clocks_hold_until_an_imu_message_then_follow_the_choice():
     c.add_imu([3], [100 * S])
     out, note = c.choose(0, [], stamp_of)     # judged at the newest held reading
     assert len(out) == 2 and note == '' and not c.bare[0]
+
+
+def test_live_clocks_retype_an_input_as_the_type_its_topic_is_published_as():
+    """``nodes/thermal_types``: a node re-subscribes an input as another type; its clock
+    starts again, and when nothing was tracking the IMU's publish order any more the IMU
+    history starts again too (a reading before the next IMU message is left out)."""
+    def stamp_of(r):
+        return r[0]
+    c = LiveClocks(['/a'], [False])
+    c.retype(0, True)                         # undecided header-stamped -> header-less
+    assert c.bare == [True] and c.on and c.choices[0].headerless
+    c.add_imu([10], [100 * S])
+    assert c.stamp(0, [(11, 20.0)]).stamp_ns.tolist() == []   # waits for the next IMU
+    c.add_imu([12], [101 * S])
+    assert c.stamp(0, []).stamp_ns.tolist() == [100 * S]
+    c = LiveClocks(['/a'], [False])          # decided on header stamps: the IMU not tracked
+    c.add_imu([10], [100 * S])
+    c.choose(0, [(100 * S, 11, 20.0)], stamp_of)
+    assert not c.on
+    c.add_imu([12], [101 * S])               # not kept: the newest known is still 100 s
+    c.clock.add_reading(0, 13, 21.0)          # (a reading of the old type, still waiting)
+    left = c.clock.left_out
+    c.retype(0, True)                         # the driver now publishes a header-less type
+    assert c.on and c.bare == [True] and c.span is None and c.clock._n == 0
+    assert c.clock.left_out == left and not c.clock._wait[0]   # the old reading dropped
+    assert c.stamp(0, [(14, 22.0)]).stamp_ns.tolist() == []    # before the next IMU message
+    c.add_imu([15], [102 * S])
+    assert c.stamp(0, []).stamp_ns.tolist() == [] and c.clock.left_out == left + 1
+    assert c.stamp(0, [(16, 23.0)]).stamp_ns.tolist() == []
+    c.add_imu([17], [103 * S])
+    assert c.stamp(0, []).stamp_ns.tolist() == [102 * S]
+    c.retype(0, False)                        # and back: the choice waits again
+    assert c.undecided(0) and not c.bare[0] and c.on
+
+
+def test_fresh_live_clocks_choose_again():
+    """A calibrator's ``~/reset``: the inputs and their types stay, every choice is redone."""
+    def stamp_of(r):
+        return r[0]
+    c = LiveClocks(['/a', '/b'], [False, True])
+    c.add_imu([10], [100 * S])
+    c.choose(0, [(0, 11, 20.0)], stamp_of)          # stamp 0: the IMU's clock
+    assert c.bare == [True, True]
+    f = c.fresh()
+    assert f.undecided(0) and f.bare == [False, True] and f.on and f.clock._n == 0
+    assert [x.topic for x in f.choices] == ['/a', '/b'] and f.clock.left_out == 0
+    f.add_imu([20], [200 * S])
+    f.choose(0, [(200 * S, 21, 20.0)], stamp_of)    # now stamped by the IMU's clock
+    assert f.bare == [False, True] and not f.undecided(0)

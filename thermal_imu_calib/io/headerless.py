@@ -174,6 +174,10 @@ class LiveImuClock:
         """Add one reading of input ``index`` (its source timestamp, ns)."""
         self._wait[index].append((int(source_ns), float(value)))
 
+    def forget(self, index: int) -> None:
+        """Drop input ``index``'s readings still waiting for an IMU message."""
+        self._wait[index] = []
+
     def take(self, index: int, everything: bool = False) -> TemperatureColumns:
         """Return input ``index``'s readings that can be stamped now (all with ``everything``)."""
         wait = self._wait[index]
@@ -381,6 +385,36 @@ class LiveClocks:
     def undecided(self, index: int) -> bool:
         """Return True while input ``index``'s clock is not chosen."""
         return self.choices[index].on_imu_clock is None
+
+    def fresh(self) -> 'LiveClocks':
+        """Return new clocks of the same inputs and types, every choice to be made again.
+
+        For a node's ``~/reset``: a new collection judges its inputs' stamps afresh, as
+        ``calibrate`` does each log (a driver whose header stamps were 0 and that has been
+        fixed since is then matched by its stamps).
+        """
+        return LiveClocks([c.topic for c in self.choices], [c.headerless for c in self.choices])
+
+    def retype(self, index: int, headerless: bool) -> None:
+        """Start input ``index`` anew as a header-less (or header-stamped) type.
+
+        For a node that re-subscribes the input as the type its topic is published as
+        (``nodes/thermal_types``): its choice starts again (decided at once for a
+        header-less type), and readings of the old type still held are dropped. When no
+        input needed the IMU's clock before, its IMU history starts again too (it was not
+        kept meanwhile), so a reading published before the next IMU message is left out,
+        as before the first.
+        """
+        was_on = self.on
+        self.choices[index] = StampChoice(self.choices[index].topic, headerless)
+        self.bare[index] = bool(headerless)
+        self.clock.forget(index)
+        self.on = any(c.on_imu_clock is not False for c in self.choices)
+        if self.on and not was_on:
+            left_out = self.clock.left_out
+            self.clock = LiveImuClock(len(self.choices), self.clock.history)
+            self.clock.left_out = left_out
+            self.span = None
 
     def stamp(self, index: int, readings) -> TemperatureColumns:
         """Return input ``index``'s readings that can be stamped now, (source ns, value) in."""

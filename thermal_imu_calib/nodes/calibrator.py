@@ -39,7 +39,7 @@ from sensor_msgs.msg import Imu
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from . import calibrator_params as params, common, input_hints, process
+from . import calibrator_params as params, common, input_hints, process, thermal_types
 from .calibrator_collection import LiveCollection
 from ..app import calibrate as app
 from ..calibration import CalibrationError
@@ -104,7 +104,13 @@ class CalibratorNode(LiveCollection, Node):
                                      common.sensor_qos(in_depth), callback_group=data)
             for i, (topic, (cls, value)) in enumerate(zip(self.temperature_topics,
                                                           scalar_types))]
+        self._in_depth, self._data_group = in_depth, data
+        #: a silent input whose topic is published as another thermal type is
+        #: re-subscribed as that type (``thermal_types``), as calibrate reads a log
+        self.type_follower = thermal_types.TypeFollower(self, self.temp_subs, self._resubscribe)
         common.steady_timer(self, 0.1, self._process, callback_group=data)
+        common.steady_timer(self, thermal_types.FOLLOW_PERIOD_S, self.type_follower,
+                            callback_group=data)
         services = ReentrantCallbackGroup()
         # every call answered: a request queue deeper than the default 10 (a burst of calls
         # while one estimates is each refused with the reason, never dropped unanswered)
@@ -119,6 +125,18 @@ class CalibratorNode(LiveCollection, Node):
                             callback_group=MutuallyExclusiveCallbackGroup())
         if self.lifelong is not None:
             self.lifelong.start()
+
+    def _resubscribe(self, index, typ):
+        """Subscribe thermal input ``index`` as message type ``typ`` (``thermal_types``)."""
+        def subscribe(typ):
+            cls, value = common.THERMAL_TYPES[typ]
+            with self._lock:
+                self._clocks.retype(index, common.headerless(cls))
+                self._pending_temp[index] = []
+            self.temp_subs[index] = self.create_subscription(
+                cls, self.temperature_topics[index], self._temperature_cb(index, value),
+                common.sensor_qos(self._in_depth), callback_group=self._data_group)
+        thermal_types.resubscribe(self, self.temp_subs, index, typ, subscribe)
 
     # ------------------------------------------------------------------ services
     def settings(self):
@@ -329,7 +347,7 @@ class CalibratorNode(LiveCollection, Node):
             n, h, t = len(self.windows), len(self.windows.hold_ids), len(self.transitions)
             self._new_collection()
             self.counts.update({k: 0 for k in self.counts})
-            self._clocks.clock.left_out = 0
+            self._clocks = self._clocks.fresh()   # stamps judged afresh, as a new log's
             self._rows.gyro_unit = 0      # a driver fixed since: its data are judged afresh
             self.readings_per_topic = [0] * self.k
             path = self._collection_path()
@@ -384,6 +402,8 @@ class CalibratorNode(LiveCollection, Node):
         values.update(self.counts)
         for topic, how in self._clocks.describe().items():
             values[f'temperature_clock[{topic}]'] = how
+        for topic, typ in self.type_follower.describe().items():
+            values[f'temperature_type[{topic}]'] = typ
         level = common.OK
         msg = ('ready: ' if prog['ready'] else 'collecting: ') + prog['reason']
         if prog['next_pose']:

@@ -248,7 +248,10 @@ def declare_thermal_inputs(p, topics, description_suffix='', read_only=True):
         'Message type of each temperature_topics entry (one entry: all): a header-stamped '
         'scalar, one of ' + ', '.join(SCALAR_TYPES) + ', or a header-less '
         + ' or '.join(HEADERLESS_TYPES) + ' (as the um6/um7 drivers publish), whose readings '
-        'take the header stamp of the IMU message published before each.',
+        'take the header stamp of the IMU message published before each. The type subscribed '
+        'first: an input whose topic is published only as another of these types is '
+        're-subscribed as that type once its publisher is seen on the graph (readings '
+        'published before are not received).',
         read_only=read_only))
     units = broadcast_units(units, topics)
     if len(types) == 1:

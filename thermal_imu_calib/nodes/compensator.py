@@ -34,7 +34,7 @@ from sensor_msgs.msg import Imu
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from . import common, input_hints, process, units
+from . import common, input_hints, process, thermal_types, units
 from .compensator_state import StreamStateFile
 from ..calibration import Calibration, CalibrationError
 from ..collection.feed import DEFAULT_MAX_GAP_S
@@ -186,6 +186,11 @@ class CompensatorNode(Node):
                                                           scalar_types))]
         units.refuse_loop(self.pub.topic_name, [s.topic_name for s in [self.imu_sub]
                                                 + self.temp_subs])
+        self._in_depth = in_depth
+        #: a silent input whose topic is published as another thermal type is
+        #: re-subscribed as that type (``thermal_types``), as calibrate reads a log
+        self.type_follower = thermal_types.TypeFollower(self, self.temp_subs, self._resubscribe)
+        common.steady_timer(self, thermal_types.FOLLOW_PERIOD_S, self.type_follower)
         self.cal_sub = self.create_subscription(String, 'imu/calibration', self._on_calibration,
                                                 common.CALIBRATION_QOS)
         self.reload_srv = self.create_service(Trigger, '~/reload', self._on_reload)
@@ -303,6 +308,17 @@ class CompensatorNode(Node):
                 self.fill_covariance = value
 
     # ------------------------------------------------------------------ data
+    def _resubscribe(self, index, typ):
+        """Subscribe thermal input ``index`` as message type ``typ`` (``thermal_types``)."""
+        def subscribe(typ):
+            cls, value = common.THERMAL_TYPES[typ]
+            self._clocks.retype(index, common.headerless(cls))
+            self._temp_fields[index] = value
+            self.temp_subs[index] = self.create_subscription(
+                cls, self.temperature_topics[index], self._temperature_cb(index, value),
+                common.sensor_qos(self._in_depth))
+        thermal_types.resubscribe(self, self.temp_subs, index, typ, subscribe)
+
     def _temperature_cb(self, index, value='temperature'):
         def cb(msg, info):
             # drained too, so temperature keeps pace with batched IMU data under load
@@ -596,6 +612,8 @@ class CompensatorNode(Node):
             values[f'temperature_age_s[{topic}]'] = age
         for topic, how in self._clocks.describe().items():
             values[f'temperature_clock[{topic}]'] = how
+        for topic, typ in self.type_follower.describe().items():
+            values[f'temperature_type[{topic}]'] = typ
         values.update(self.counts)
         values['temperature_invalid'] = self.temps.invalid
         values['temperature_time_resets'] = self.temps.time_resets

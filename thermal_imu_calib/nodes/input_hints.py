@@ -10,6 +10,7 @@ graph. The graph is a hint only: an error reading it gives no hint, never a fail
 import time
 
 from . import common
+from .thermal_types import type_name
 
 
 def thermal_topics_hint(node, subscriptions):
@@ -41,11 +42,6 @@ def thermal_topics_hint(node, subscriptions):
             f"temperature_topics:='[{topic}]'{kind})")
 
 
-def _type_name(cls):
-    """Return 'pkg/msg/Name' of a message class (e.g. 'sensor_msgs/msg/Temperature')."""
-    return f'{cls.__module__.split(".")[0]}/msg/{cls.__name__}'
-
-
 def wrong_type_hint(node, subscriptions):
     """Return '; /imu/temperature is published as std_msgs/msg/Float32 (by ...) ...', or ''.
 
@@ -58,7 +54,7 @@ def wrong_type_hint(node, subscriptions):
     out = []
     try:
         for sub in subscriptions:
-            ours = _type_name(sub.msg_type)
+            ours = type_name(sub.msg_type)
             others = sorted({(i.topic_type, (i.node_namespace.rstrip('/') + '/' + i.node_name))
                              for i in node.get_publishers_info_by_topic(sub.topic_name)
                              if i.topic_type != ours})
