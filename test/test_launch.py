@@ -127,6 +127,35 @@ def test_a_headerless_temperature_type_reaches_both_nodes(launch_module, ros, tm
         assert subs['/imu/temperature'] == 'Float32', subs
 
 
+def test_both_nodes_in_one_process_follow_a_float32_temperature(
+        launch_module, ros, tmp_path, monkeypatch, request):
+    """Both nodes with the shipped types in one context (``bringup``: one DDS participant,
+    which refuses a second type on a topic) and a um7 driver publishing std_msgs/Float32 on
+    imu/temperature: both re-subscribe as Float32, switched together (``thermal_types``)."""
+    import rclpy
+    from std_msgs.msg import Float32
+    from conftest import wait_for
+    _, nodes = _resolve(launch_module)
+    monkeypatch.setenv('HOME', str(tmp_path))
+    started = [_start(ros, n) for n in nodes]
+    assert len(started) == 2
+    context = rclpy.Context()      # another participant, as a driver's process is
+    rclpy.init(context=context)
+    request.addfinalizer(context.try_shutdown)
+    pub = rclpy.create_node('um7_driver', context=context).create_publisher(
+        Float32, '/imu/temperature', 10)
+    wait_for(lambda: pub.get_subscription_count() >= 2, 60,
+             lambda: f'both nodes to subscribe as Float32 '
+                     f'({[n.type_follower.types for n in started]})')
+    for node in started:
+        subs = {s.topic_name: s.msg_type.__name__ for s in node.subscriptions}
+        assert subs['/imu/temperature'] == 'Float32', subs
+        assert node.type_follower.types == ['std_msgs/msg/Float32']
+        note, = node.type_follower.notes
+        assert note.startswith('/imu/temperature is published as std_msgs/msg/Float32 by '
+                               '/um7_driver, not sensor_msgs/msg/Temperature'), note
+
+
 def test_gravity_and_latitude_reach_the_calibrator(launch_module, ros, tmp_path,
                                                    monkeypatch, capfd):
     # the issue's new user sets only gravity; ros2 launch keeps an undeclared argument

@@ -107,7 +107,7 @@ class CalibratorNode(LiveCollection, Node):
         self._in_depth, self._data_group = in_depth, data
         #: a silent input whose topic is published as another thermal type is
         #: re-subscribed as that type (``thermal_types``), as calibrate reads a log
-        self.type_follower = thermal_types.TypeFollower(self, self.temp_subs, self._resubscribe)
+        self.type_follower = thermal_types.TypeFollower(self, self.temp_subs, self._subscribe_as)
         common.steady_timer(self, 0.1, self._process, callback_group=data)
         common.steady_timer(self, thermal_types.FOLLOW_PERIOD_S, self.type_follower,
                             callback_group=data)
@@ -126,17 +126,15 @@ class CalibratorNode(LiveCollection, Node):
         if self.lifelong is not None:
             self.lifelong.start()
 
-    def _resubscribe(self, index, typ):
+    def _subscribe_as(self, index, typ):
         """Subscribe thermal input ``index`` as message type ``typ`` (``thermal_types``)."""
-        def subscribe(typ):
-            cls, value = common.THERMAL_TYPES[typ]
-            with self._lock:
-                self._clocks.retype(index, common.headerless(cls))
-                self._pending_temp[index] = []
-            self.temp_subs[index] = self.create_subscription(
-                cls, self.temperature_topics[index], self._temperature_cb(index, value),
-                common.sensor_qos(self._in_depth), callback_group=self._data_group)
-        thermal_types.resubscribe(self, self.temp_subs, index, typ, subscribe)
+        cls, value = common.THERMAL_TYPES[typ]
+        with self._lock:
+            self._clocks.retype(index, common.headerless(cls))
+            self._pending_temp[index] = []
+        self.temp_subs[index] = self.create_subscription(
+            cls, self.temperature_topics[index], self._temperature_cb(index, value),
+            common.sensor_qos(self._in_depth), callback_group=self._data_group)
 
     # ------------------------------------------------------------------ services
     def settings(self):

@@ -189,7 +189,7 @@ class CompensatorNode(Node):
         self._in_depth = in_depth
         #: a silent input whose topic is published as another thermal type is
         #: re-subscribed as that type (``thermal_types``), as calibrate reads a log
-        self.type_follower = thermal_types.TypeFollower(self, self.temp_subs, self._resubscribe)
+        self.type_follower = thermal_types.TypeFollower(self, self.temp_subs, self._subscribe_as)
         common.steady_timer(self, thermal_types.FOLLOW_PERIOD_S, self.type_follower)
         self.cal_sub = self.create_subscription(String, 'imu/calibration', self._on_calibration,
                                                 common.CALIBRATION_QOS)
@@ -308,16 +308,14 @@ class CompensatorNode(Node):
                 self.fill_covariance = value
 
     # ------------------------------------------------------------------ data
-    def _resubscribe(self, index, typ):
+    def _subscribe_as(self, index, typ):
         """Subscribe thermal input ``index`` as message type ``typ`` (``thermal_types``)."""
-        def subscribe(typ):
-            cls, value = common.THERMAL_TYPES[typ]
-            self._clocks.retype(index, common.headerless(cls))
-            self._temp_fields[index] = value
-            self.temp_subs[index] = self.create_subscription(
-                cls, self.temperature_topics[index], self._temperature_cb(index, value),
-                common.sensor_qos(self._in_depth))
-        thermal_types.resubscribe(self, self.temp_subs, index, typ, subscribe)
+        cls, value = common.THERMAL_TYPES[typ]
+        self._clocks.retype(index, common.headerless(cls))
+        self._temp_fields[index] = value
+        self.temp_subs[index] = self.create_subscription(
+            cls, self.temperature_topics[index], self._temperature_cb(index, value),
+            common.sensor_qos(self._in_depth))
 
     def _temperature_cb(self, index, value='temperature'):
         def cb(msg, info):

@@ -11,6 +11,7 @@ not received; ``temperature_types`` still sets the type subscribed from the star
 """
 
 import time
+import weakref
 
 from . import common
 
@@ -48,21 +49,27 @@ def type_to_follow(node, subscription):
 class TypeFollower:
     """Look at the graph now and then for thermal inputs published as another type.
 
-    ``resubscribe(index, type name)`` is the node's: it replaces ``subscriptions[index]``
-    (and whatever depends on the type); when it raises, the input must be left subscribed
-    as before, and that type is not tried again. ``types``: the type name subscribed per input,
-    updated here (for /diagnostics).
+    ``subscribe(index, type name)`` is the node's: it creates ``subscriptions[index]`` as
+    that type (and sets whatever depends on the type); the follower has destroyed the old
+    one first. DDS refuses a second type on a topic in one participant, so every
+    follower's input on that topic in the same context (``bringup``: the calibrator and
+    the compensator in one process) is switched at once: all old subscriptions destroyed,
+    then all new ones made. When one cannot be made, all go back to the old type, and
+    that type is not tried again. ``types``: the type subscribed per input (for
+    /diagnostics).
     """
 
-    def __init__(self, node, subscriptions, resubscribe, period_s=FOLLOW_PERIOD_S):
+    def __init__(self, node, subscriptions, subscribe, period_s=FOLLOW_PERIOD_S):
         self.node = node
         self.subscriptions = subscriptions      # the node's list, replaced entries seen
-        self.resubscribe = resubscribe
+        self.subscribe = subscribe
+        self.topics = [s.topic_name for s in subscriptions]     # resolved names
         self.types = [type_name(s.msg_type) for s in subscriptions]
         self.period_s = float(period_s)
         self.notes = []                         # what was followed, as logged
-        self._failed = set()                    # (input, type) that could not be subscribed
+        self._failed = set()                    # (topic, type) that could not be subscribed
         self._next = 0.0
+        _FOLLOWERS.add(self)
 
     def __call__(self, now=None):
         """Re-subscribe the inputs to follow (at most once per period); return their notes."""
@@ -73,48 +80,57 @@ class TypeFollower:
         notes = []
         for i, sub in enumerate(list(self.subscriptions)):
             typ, by = type_to_follow(self.node, sub)
-            if not typ:
-                continue
-            topic = sub.topic_name         # before the subscription is destroyed
-            old = self.types[i]
-            if (i, typ) in self._failed:
-                continue
-            try:
-                self.resubscribe(i, typ)
-            except Exception as e:  # noqa: B902 - the node keeps its input as it was
-                self._failed.add((i, typ))
-                self.node.get_logger().warning(
-                    f'{topic} is published as {typ}, but subscribing as that type '
-                    f'failed ({e}); still subscribed as {old}')
-                continue
-            self.types[i] = typ
-            bare = (' (no header: each reading takes the header stamp of the IMU message '
-                    'published before it)' if typ in common.HEADERLESS_TYPES else '')
-            notes.append(f'{topic} is published as {typ} by {", ".join(by)}, not '
-                         f'{old}: subscribed as {typ}{bare}, as calibrate reads such a topic '
-                         'from a log; readings published before now were not received (set '
-                         f"temperature_types:='[{typ}]' to subscribe so from the start)")
-        for note in notes:
-            self.node.get_logger().warning(note)
-        self.notes += notes
+            if typ and (self.topics[i], typ) not in self._failed:
+                notes += self._switch(self.topics[i], self.types[i], typ, by)
         return notes
+
+    def _peers(self, topic, old):
+        """Return (follower, index) of every input on ``topic`` as ``old`` in this context."""
+        context = self.node.context
+
+        def alive(f, j):         # not of a destroyed node (its subscriptions are gone)
+            return any(x is f.subscriptions[j] for x in f.node.subscriptions)
+        return [(f, j) for f in [self] + [f for f in list(_FOLLOWERS) if f is not self]
+                if f.node.context is context
+                for j, (t, ty) in enumerate(zip(f.topics, f.types))
+                if t == topic and ty == old and alive(f, j)]
+
+    def _switch(self, topic, old, typ, by):
+        peers = self._peers(topic, old)
+        for f, j in peers:
+            f.node.destroy_subscription(f.subscriptions[j])
+        made = []
+        try:
+            for f, j in peers:
+                f.subscribe(j, typ)
+                made.append((f, j))
+        except Exception as e:  # noqa: B902 - every input goes back to the old type
+            for f, j in made:
+                f.node.destroy_subscription(f.subscriptions[j])
+            for f, j in peers:
+                f.subscribe(j, old)
+                f._failed.add((topic, typ))
+            self.node.get_logger().warning(
+                f'{topic} is published as {typ}, but subscribing as that type failed ({e}); '
+                f'still subscribed as {old}')
+            return []
+        bare = (' (no header: each reading takes the header stamp of the IMU message '
+                'published before it)' if typ in common.HEADERLESS_TYPES else '')
+        note = (f'{topic} is published as {typ} by {", ".join(by)}, not {old}: subscribed as '
+                f'{typ}{bare}, as calibrate reads such a topic from a log; readings published '
+                f"before now were not received (set temperature_types:='[{typ}]' to subscribe "
+                'so from the start)')
+        for f, j in peers:
+            f.types[j] = typ
+            if note not in f.notes:
+                f.node.get_logger().warning(note)
+                f.notes.append(note)
+        return [note]
 
     def describe(self):
         """Return {topic: the type subscribed} (for /diagnostics)."""
-        return {s.topic_name: t for s, t in zip(self.subscriptions, self.types)}
+        return dict(zip(self.topics, self.types))
 
 
-def resubscribe(node, subscriptions, index, typ, subscribe):
-    """Destroy ``subscriptions[index]``, then ``subscribe(typ)`` (the node's: it sets the entry).
-
-    The old one goes first: DDS refuses a second type on a topic in one participant. When
-    ``subscribe(typ)`` fails, ``subscribe`` runs again with the old type and the error is
-    raised.
-    """
-    old = type_name(subscriptions[index].msg_type)
-    node.destroy_subscription(subscriptions[index])
-    try:
-        subscribe(typ)
-    except Exception:
-        subscribe(old)
-        raise
+#: every follower of the process (the peers of a switch are found among them)
+_FOLLOWERS = weakref.WeakSet()
