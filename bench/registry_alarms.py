@@ -12,7 +12,8 @@ relative bias left out) and judged by ``registry.assess``:
 
 ``--without-yardstick``: the accelerometer's alarm terms are each model's own, as before
 the alarm yardstick (``estimation/alarm_yardstick.py``): the before figure of the same
-calibrations.
+calibrations. ``--family-rate P``: the fleet-wide false-alarm rate the threshold follows
+from (``history --family-rate``; default ``registry.FAMILY_RATE``).
 
     .venv/bin/python bench/registry_alarms.py fleet /tmp/alarms_cache/8x3/seed_*
     .venv/bin/python bench/registry_alarms.py robot /tmp/ws2/seed2/registry
@@ -46,21 +47,21 @@ def reindex(directory, yardstick=True):
     return out
 
 
-def over(rows):
+def over(rows, family_rate=reg.FAMILY_RATE):
     """Return ([(sensor, label, z)] over the threshold, assess info)."""
-    _, info = reg.assess(rows)
+    _, info = reg.assess(rows, family_rate)
     return [(s, lbl, z) for s, ts in info['unit_tests'].items() for lbl, z in ts
             if abs(z) > info['threshold_sigma']], info
 
 
-def fleet(dirs, yardstick=True):
+def fleet(dirs, yardstick=True, family_rate=reg.FAMILY_RATE):
     counts = {'stable': [0, 0], 'drifting or step': [0, 0]}
     gz = []
     for d in dirs:
         truth = {r['unit']: r['kind'] for r in csv.DictReader(
             open(os.path.join(d, 'fleet_truth.csv')))}
         rows = reindex(os.path.join(d, 'reg'), yardstick)
-        found, info = reg.assess(rows)
+        found, info = reg.assess(rows, family_rate)
         for s, rs in reg.by_sensor(rows).items():
             stable = truth.get(s) == 'stable'
             counts['stable' if stable else 'drifting or step'][0] += 1
@@ -78,10 +79,10 @@ def fleet(dirs, yardstick=True):
               f'{gz.std():.2f}, robust std {1.4826 * np.median(np.abs(gz)):.2f}')
 
 
-def robot(dirs):
+def robot(dirs, family_rate=reg.FAMILY_RATE):
     for d in dirs:
         rows = reindex(d)
-        hits, info = over(rows)
+        hits, info = over(rows, family_rate)
         print(f'{d}: {len(rows)} calibrations, {info["tests"]} tests, threshold '
               f'{info["threshold_sigma"]:.2f}, gyro spread {info["gyro_scale"] or 0:.2f}')
         for s, lbl, z in hits:
@@ -94,11 +95,12 @@ def main(argv=None):
     ap.add_argument('dirs', nargs='+')
     ap.add_argument('--without-yardstick', action='store_true',
                     help="each model's own accelerometer alarm terms (the before figure)")
+    ap.add_argument('--family-rate', type=float, default=reg.FAMILY_RATE, metavar='P')
     args = ap.parse_args(argv)
     if args.what == 'fleet':
-        fleet(args.dirs, not args.without_yardstick)
+        fleet(args.dirs, not args.without_yardstick, args.family_rate)
     else:
-        robot(args.dirs)
+        robot(args.dirs, args.family_rate)
 
 
 if __name__ == '__main__':

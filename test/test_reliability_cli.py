@@ -206,6 +206,26 @@ def test_history_refuses_the_registry_index(clean, tmp_path, capfd):
     capfd.readouterr()
 
 
+def test_history_takes_the_fleet_false_alarm_rate(clean, tmp_path, capfd):
+    # --family-rate sets the threshold every test must pass (Sidak over the fleet's tests);
+    # a value that is no probability is refused, saying what it must be
+    from thermal_imu_calib.fleet.alarms import family_threshold
+    reg_dir = _fleet_registry(tmp_path, clean[1])
+    shown = {}
+    for rate in (0.01, 0.2):
+        assert main(['history', str(reg_dir), '--family-rate', str(rate)]) == 0
+        out = capfd.readouterr().out
+        rule = next(ln for ln in out.splitlines() if 'family-wise' in ln)
+        n = int(rule.split(' tests over the fleet')[0].rsplit(' ', 1)[1])
+        assert f'flagged when |z| > {family_threshold(n, rate):.2f} (Sidak: {100 * rate:g} % ' \
+            'family-wise' in rule, rule
+        shown[rate] = family_threshold(n, rate)
+    assert shown[0.2] < shown[0.01]
+    for bad in ('0', '1', '-0.1', 'nan'):
+        _refused(['history', reg_dir, '--family-rate', bad], capfd,
+                 f'--family-rate {float(bad):g} must lie between 0 and 1')
+
+
 # ------------------------------------------------------------------ time and inputs
 def _jump_back(start, length):
     def edit(a):

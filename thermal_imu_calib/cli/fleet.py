@@ -77,6 +77,11 @@ def add_fleet_parsers(sub, commands):
     p.add_argument('--html', metavar='FILE', help='also write an HTML report')
     p.add_argument('--force', action='store_true',
                    help='replace an existing --html file that is not an HTML page')
+    p.add_argument('--family-rate', type=float, default=reg.FAMILY_RATE, metavar='P',
+                   help='false-alarm probability for the whole fleet (default '
+                        f'{reg.FAMILY_RATE:g}): the |z| threshold of every test follows '
+                        'from it and the number of tests (Sidak); smaller flags fewer '
+                        'stable units and later drift')
 
     p = sub.add_parser('simulate-fleet', help='write DIR/<unit>/<log>.mcap for a simulated '
                                               'fleet (some units drift, one has a step)')
@@ -230,11 +235,15 @@ def cmd_history(args):
     from ..fleet.history import format_history, write_html
     if args.html:
         Outputs([args.registry], args.force).file(args.html, '--html', 'HTML page', HTML)
+    if not 0.0 < args.family_rate < 1.0:
+        raise ValueError(f'--family-rate {args.family_rate:g} must lie between 0 and 1 (a '
+                         f'probability, e.g. {reg.FAMILY_RATE:g} for 1 %)')
     rows = reg.read_index(args.registry)
     if not rows:
         raise ValueError(f'{args.registry}: no {reg.INDEX}; run `thermal-imu-calib fleet '
                          'calibrate ... -o REGISTRY_DIR` first')
-    fleet_alarms, info = reg.assess(rows)   # the family (tests, residuals) = the whole fleet
+    # the family (tests, residuals) = the whole fleet
+    fleet_alarms, info = reg.assess(rows, family_rate=args.family_rate)
     if args.sensor:
         unknown = sorted(set(args.sensor) - {r['sensor'] for r in rows})
         if unknown:
