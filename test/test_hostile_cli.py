@@ -177,6 +177,10 @@ def test_a_temperature_on_another_clock_goes_on_the_imu_clock(case, rec, tmp_pat
         assert got.accel.to_dict() == want.accel.to_dict()
         assert got.gyro.to_dict() == want.gyro.to_dict()
         np.testing.assert_array_equal(got.valid_range, want.valid_range)
+        # the file says so too (since 2026-12-02), once; the reference has no such note
+        said = [n for n in got.notes if n.startswith('input: ') and 'IMU\'s clock' in n]
+        assert len(said) == 1, got.notes
+        assert not [n for n in want.notes if n.startswith('input: ')], want.notes
     accel = []       # compensate: the same output, sample for sample, and the note printed
     for log in (ref, str(tmp_path / 'in_mcap')):
         out = str(tmp_path / f'{os.path.basename(log)}.comp.mcap')

@@ -29,6 +29,7 @@ import sys
 from conftest import DOMAIN_ID, venv_exe
 import numpy as np
 import pytest
+import yaml
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, 'bench'))
@@ -156,16 +157,23 @@ def test_live_calibration_equals_offline(tmp_path, thermal):
         assert live.temp_sent == len(temps) and live.temp_received == live.temp_sent, \
             f'{live.temp_received} of {live.temp_sent} temperatures arrived'
     assert live.success, live.message
-    if thermal == 'float32_followed':        # the node said what it did
+    if thermal == 'float32_followed':        # the node said what it did, and the file
+        said = ('/imu/temperature is published as std_msgs/msg/Float32 by '
+                '/scoreboard_player, not sensor_msgs/msg/Temperature: subscribed as '
+                'std_msgs/msg/Float32')
         with open(tmp_path / 'live' / f'attempt{live.attempts}' / 'node.log') as f:
-            assert ('/imu/temperature is published as std_msgs/msg/Float32 by '
-                    '/scoreboard_player, not sensor_msgs/msg/Temperature: subscribed as '
-                    'std_msgs/msg/Float32') in f.read()
+            assert said in f.read()
+        notes = yaml.safe_load(live.calibration_text)['notes']
+        assert [n for n in notes if n.startswith('input: ' + said)], notes
     if thermal == 'temperature_on_another_clock':     # the node said what it did (the
         # distance to the IMU stamps received so far: about OTHER_CLOCK_S)
         with open(tmp_path / 'live' / f'attempt{live.attempts}' / 'node.log') as f:
             assert "s from the IMU messages before it (more than 5 s: not stamped by the " \
                 "IMU's clock)" in f.read()
+        for text in (offline, live.calibration_text):     # both files say so (the offset
+            notes = yaml.safe_load(text)['notes']          # differs: the spans it is from)
+            assert len([n for n in notes if n.startswith('input: ')
+                        and "not stamped by the IMU's clock" in n]) == 1, notes
     c = compare(offline, live.calibration_text)
     assert c['same_holds'], (f'holds/windows offline {c["offline"]} vs live {c["live"]}')
     assert c['same_model'], (f'model offline {c["offline"]} vs live {c["live"]}')

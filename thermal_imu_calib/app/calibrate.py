@@ -282,6 +282,8 @@ def calibrate_collected(settings, collected, paths=(), imu_topic=None):
     if paths:
         note = add_random_walk(cal, paths, windows, imu_topic)
         cal.notes += [note] if note else []
+    for c in collected:     # an input put on the IMU's clock, a type followed: in the file
+        cal.notes += [f'input: {n}' for n in c.input_notes if f'input: {n}' not in cal.notes]
     try:
         Calibration.from_yaml(cal.to_yaml(), 'the new calibration')
     except CalibrationError as e:

@@ -61,6 +61,7 @@ def collect_windows(path, imu_topic=None, temperature_topics=None, detector=None
     with open_log(path) as reader:
         notes = []
         imu_topic, temps = resolve_topics(reader, imu_topic, temperature_topics, notes)
+        n_topic_notes = len(notes)     # the readers' notes follow (``RawChunk.notes``)
         try:
             units = ([''] * len(temps) if input_units is None
                      else parse_unit_map(input_units, temps))
@@ -94,4 +95,4 @@ def collect_windows(path, imu_topic=None, temperature_topics=None, detector=None
                      det.transitions if motion else [],
                      {'dropped': dict(det.dropped), 'peak_bytes': peak} if motion else None,
                      sd.settings(), list(sd.holds),
-                     gate.report)
+                     gate.report, notes[n_topic_notes:])

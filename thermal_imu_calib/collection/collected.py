@@ -33,6 +33,9 @@ class Collected:
     holds: list = field(default_factory=list)
     #: what the input gate dropped and saw (io.gate.GateReport)
     gate: Optional[object] = None
+    #: what was done to the thermal inputs while reading (put on the IMU's clock; live: a
+    #: message type followed), for the calibration file's notes
+    input_notes: list = field(default_factory=list)
 
 
 def hold_offsets(collected):

@@ -344,6 +344,7 @@ class LiveClocks:
         self.clock = LiveImuClock(len(self.choices))
         self.span: tuple[int, int] | None = None    # first, newest IMU header stamp (ns)
         self.on = bool(self.choices)
+        self.notes: list[str] = []     # the choices' notes (an input put on the IMU's clock)
 
     def add_imu(self, source_ns, stamp_ns) -> None:
         """Add IMU messages (source timestamps, header stamps; ns, in arrival order).
@@ -369,7 +370,9 @@ class LiveClocks:
             return out, ''
         self.bare[index] = bool(choice.on_imu_clock)
         self.on = any(c.on_imu_clock is not False for c in self.choices)
-        return out, choice.pop_note()
+        note = choice.pop_note()
+        self.notes += [note] if note else []
+        return out, note
 
     def describe(self) -> dict[str, str]:
         """Return {topic: how its readings are stamped} (for /diagnostics)."""

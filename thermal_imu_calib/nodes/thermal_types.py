@@ -17,6 +17,10 @@ from . import common
 
 #: seconds (steady clock) between looks at the graph for inputs without a publisher
 FOLLOW_PERIOD_S = 0.2
+#: the name the graph gives a publisher whose node it has not discovered yet (rmw)
+UNKNOWN_NODE = '_NODE_NAME_UNKNOWN_'
+#: seconds (steady clock) a switch waits for the publishers' node names, to name them
+NAME_WAIT_S = 1.0
 
 
 def type_name(cls):
@@ -43,7 +47,8 @@ def type_to_follow(node, subscription):
     typ, = types
     if typ not in common.THERMAL_TYPES:
         return '', []
-    return typ, sorted({i.node_namespace.rstrip('/') + '/' + i.node_name for i in infos})
+    return typ, sorted({i.node_namespace.rstrip('/') + '/' + i.node_name
+                        if i.node_name != UNKNOWN_NODE else UNKNOWN_NODE for i in infos})
 
 
 class TypeFollower:
@@ -68,6 +73,7 @@ class TypeFollower:
         self.period_s = float(period_s)
         self.notes = []                         # what was followed, as logged
         self._failed = set()                    # (topic, type) that could not be subscribed
+        self._unnamed = {}                      # (topic, type) -> when seen without a name
         self._next = 0.0
         _FOLLOWERS.add(self)
 
@@ -80,8 +86,13 @@ class TypeFollower:
         notes = []
         for i, sub in enumerate(list(self.subscriptions)):
             typ, by = type_to_follow(self.node, sub)
-            if typ and (self.topics[i], typ) not in self._failed:
-                notes += self._switch(self.topics[i], self.types[i], typ, by)
+            if not typ or (self.topics[i], typ) in self._failed:
+                continue
+            if UNKNOWN_NODE in by:        # the endpoint is known before its node's name
+                first = self._unnamed.setdefault((self.topics[i], typ), now)
+                if now - first < NAME_WAIT_S:
+                    continue
+            notes += self._switch(self.topics[i], self.types[i], typ, by)
         return notes
 
     def _peers(self, topic, old):
