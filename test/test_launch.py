@@ -144,7 +144,8 @@ def test_both_nodes_in_one_process_follow_a_float32_temperature(
     request.addfinalizer(context.try_shutdown)
     pub = rclpy.create_node('um7_driver', context=context).create_publisher(
         Float32, '/imu/temperature', 10)
-    wait_for(lambda: pub.get_subscription_count() >= 2, 60,
+    wait_for(lambda: pub.get_subscription_count() >= 2
+             and all(n.type_follower.notes for n in started), 60,
              lambda: f'both nodes to subscribe as Float32 '
                      f'({[n.type_follower.types for n in started]})')
     for node in started:
