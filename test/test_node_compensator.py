@@ -843,7 +843,7 @@ def test_a_float32_temperature_is_followed_without_temperature_types(ros, tmp_pa
                            'stamp of the IMU message published before it)'), note
     assert "temperature_types:='[std_msgs/msg/Float32]'" in note
     values = node.diagnostics_values()[2]
-    assert values['temperature_type[/imu/temperature]'] == 'std_msgs/msg/Float32'
+    assert values['temperature_type[imu/temperature]'] == 'std_msgs/msg/Float32'
     assert _clock_shown(node) == "IMU's clock (no header)"
     imu(range(5))
     _two_readings_on_the_imu_clock(node, cal, out, stamps, imu,

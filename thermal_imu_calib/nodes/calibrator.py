@@ -400,7 +400,7 @@ class CalibratorNode(LiveCollection, Node):
         values.update(self.counts)
         for topic, how in self._clocks.describe().items():
             values[f'temperature_clock[{topic}]'] = how
-        for topic, typ in self.type_follower.describe().items():
+        for topic, typ in zip(self.temperature_topics, self.type_follower.types):
             values[f'temperature_type[{topic}]'] = typ
         level = common.OK
         msg = ('ready: ' if prog['ready'] else 'collecting: ') + prog['reason']

@@ -610,7 +610,7 @@ class CompensatorNode(Node):
             values[f'temperature_age_s[{topic}]'] = age
         for topic, how in self._clocks.describe().items():
             values[f'temperature_clock[{topic}]'] = how
-        for topic, typ in self.type_follower.describe().items():
+        for topic, typ in zip(self.temperature_topics, self.type_follower.types):
             values[f'temperature_type[{topic}]'] = typ
         values.update(self.counts)
         values['temperature_invalid'] = self.temps.invalid

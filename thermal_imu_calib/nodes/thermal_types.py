@@ -61,7 +61,7 @@ class TypeFollower:
     the compensator in one process) is switched at once: all old subscriptions destroyed,
     then all new ones made. When one cannot be made, all go back to the old type, and
     that type is not tried again. ``types``: the type subscribed per input (for
-    /diagnostics).
+    /diagnostics, keyed as the node's other per-input values).
     """
 
     def __init__(self, node, subscriptions, subscribe, period_s=FOLLOW_PERIOD_S):
@@ -137,10 +137,6 @@ class TypeFollower:
                 f.node.get_logger().warning(note)
                 f.notes.append(note)
         return [note]
-
-    def describe(self):
-        """Return {topic: the type subscribed} (for /diagnostics)."""
-        return dict(zip(self.topics, self.types))
 
 
 #: every follower of the process (the peers of a switch are found among them)
