@@ -437,8 +437,10 @@ def run_live_once(imu, temps, gravity, domain_id, temperature_topics=None, workd
 
         def connected():
             p = driver.progress
+            # without a temperature the node's inputs have no publisher: with the shipped
+            # config it decides to collect without them after the first IMU messages
             return (p is not None and p['imu_publishers'] >= 1
-                    and all(n >= 1 for n in p['temperature_publishers'])
+                    and (temps is None or all(n >= 1 for n in p['temperature_publishers']))
                     and driver.imu_pub.get_subscription_count() >= 1)
         _wait(connected, 'the node to match the player', node)
         if temps is not None and driver.temp_pub.get_subscription_count() < 1:

@@ -14,7 +14,9 @@ For each recording of ``../shared/data/real`` (``real_recordings``):
   ``gravity``; the harness's ``progress_period`` 0.1 s), the same log replayed on
   ``imu/data_raw`` (+ ``/imu/temperature``) with every message counted, ``~/calibrate``
   called, the written file read (``live_replay``).
-  Logs without temperature are launched with ``temperature_topics:='[]'``; they are also
+  Logs without temperature are launched with the shipped ``temperature_topics`` too (since
+  2026-12-02; nothing is published on them, so the node collects without a temperature,
+  ``nodes/absent_inputs``; before, with ``temperature_topics:='[]'``); they are also
   run the way a ROS user meets them (issue 20): the shipped topics and a room temperature
   (24 +- 0.15 degC) on ``/imu/temperature``, compared with ``calibrate`` on that same log;
 * live == offline: same holds and windows, same model (accel kind, auto's choice, gyro
@@ -260,8 +262,9 @@ def run_row(rec, work, domain_id, live=True):
         row['legs'] = chamber_legs(rec, imu, temps, work)
     if not live:
         return row
-    r = live_run(rec, imu, temps, work, 'log', domain_id,
-                 None if rec.temperature_topic else '[]')
+    # the shipped config and gravity only, with or without a temperature (since
+    # 2026-12-02; before, logs without one were launched with temperature_topics:='[]')
+    r = live_run(rec, imu, temps, work, 'log', domain_id)
     row['live'], cmp = _live_scored(r, rec, imu, temps, g, off['yaml'])
     if cmp is not None:
         row['live_vs_offline'] = cmp
@@ -412,7 +415,8 @@ def markdown(rows, command, meta):
            'calibrator_node started as the launch file describes it (shipped config + '
            '`gravity`; the harness reads progress every 0.1 s), the log replayed over DDS, '
            '`~/calibrate`. Logs without temperature: '
-           'live with `temperature_topics:=[]`; the second line (flat T) is the issue-20 user '
+           'live with the shipped config too (nothing on `/imu/temperature`: the node '
+           'collects without a temperature); the second line (flat T) is the issue-20 user '
            'path: shipped topics, room temperature on `/imu/temperature`, compared with '
            '`calibrate` on that same log.', '',
            '| ' + ' | '.join(h) + ' |', '|' + '---|' * len(h)]

@@ -97,7 +97,8 @@ def _write_other_clock(path, imu, temps):
                     temp_raw[i] if kind else imu_raw[i])
 
 
-@pytest.mark.parametrize('thermal', ['none', 'room_temperature', 'bad_samples',
+@pytest.mark.parametrize('thermal', ['none', 'none_shipped_config', 'room_temperature',
+                                     'bad_samples',
                                      'slow_temperature', 'float32_temperature',
                                      'float32_followed', 'temperature_on_another_clock'])
 def test_live_calibration_equals_offline(tmp_path, thermal):
@@ -106,6 +107,9 @@ def test_live_calibration_equals_offline(tmp_path, thermal):
     ``slow_temperature``: readings every 4 s and a 12-s dropout. ``float32_temperature``:
     the room temperature as std_msgs/Float32 without a header (the um6/um7 drivers), logged
     at its time and published in that order; the node gets ``temperature_types``.
+    ``none_shipped_config``: no temperature, and the node with the shipped
+    ``temperature_topics`` ([imu/temperature]) instead of ``[]``: nothing is published on
+    it, so it collects without a temperature, as calibrate does (``nodes/absent_inputs``).
     ``float32_followed``: the same, the node left at its default type: it subscribes as
     Float32 once it sees the publisher on the graph (``nodes/thermal_types``), and says so.
     ``temperature_on_another_clock``: the room temperature stamped ``OTHER_CLOCK_S`` ahead
@@ -117,7 +121,7 @@ def test_live_calibration_equals_offline(tmp_path, thermal):
     kind = live_replay.TEMPERATURE_TYPE
     if thermal in ('float32_temperature', 'float32_followed'):
         kind = 'std_msgs/msg/Float32'
-    if thermal != 'none':
+    if not thermal.startswith('none'):
         temps = real_recordings.flat_temperature(imu)
         if thermal == 'bad_samples':
             imu, temps = _with_bad_samples(imu, temps)
@@ -145,7 +149,7 @@ def test_live_calibration_equals_offline(tmp_path, thermal):
         offline = f.read()
 
     live = live_replay.run_live(imu, temps, GRAVITY, DOMAIN_ID,
-                                temperature_topics='[]' if temps is None else None,
+                                temperature_topics='[]' if thermal == 'none' else None,
                                 workdir=str(tmp_path / 'live'), temperature_type=kind,
                                 temperature_header_ns=None if thermal != 'temperature_on_'
                                 'another_clock' else temps.stamp_ns + OTHER_CLOCK_S * 10 ** 9,
@@ -157,6 +161,12 @@ def test_live_calibration_equals_offline(tmp_path, thermal):
         assert live.temp_sent == len(temps) and live.temp_received == live.temp_sent, \
             f'{live.temp_received} of {live.temp_sent} temperatures arrived'
     assert live.success, live.message
+    if thermal == 'none_shipped_config':     # the node said what it did, and the file
+        with open(tmp_path / 'live' / f'attempt{live.attempts}' / 'node.log') as f:
+            assert 'no temperature is published: nothing on /imu/temperature and no thermal ' \
+                'topic on the graph' in f.read()
+        notes = yaml.safe_load(live.calibration_text)['notes']
+        assert [n for n in notes if n.startswith('input: no temperature is published')], notes
     if thermal == 'float32_followed':        # the node said what it did, and the file
         said = ('/imu/temperature is published as std_msgs/msg/Float32 by '
                 '/scoreboard_player, not sensor_msgs/msg/Temperature: subscribed as '

@@ -671,3 +671,37 @@ def test_reset_judges_the_temperature_stamps_afresh(ros, tmp_path):
     temp_pub.publish(temperature_msg(t0 + 10 ** 9, 25.0))
     wait_for(lambda: node._clocks.choices[0].on_imu_clock is not None, WAIT, 'the new choice')
     assert node._clocks.describe() == {'imu/temperature': 'header stamps'}
+
+
+def test_no_temperature_published_collects_without_one_and_says_so(ros, tmp_path):
+    # the shipped temperature_topics and nothing published on them: after the first IMU
+    # messages the node collects without a temperature, as calibrate does a log without one
+    # (nodes/absent_inputs), and says so in its log and in the file; a temperature
+    # published afterwards is named, not used
+    from conftest import replay_flow
+    rec = recording(repetitions=1)
+    node = calibrator(ros, tmp_path)
+    drv = ros.node('driver_without_temperature')
+    imu_pub = drv.create_publisher(Imu, 'imu/data_raw', 1000)
+    progress = []
+    drv.create_subscription(String, '/thermal_imu_calibrator/progress',
+                            lambda m: progress.append(json.loads(m.data)), 10)
+    ros.wait_matched(imu_pub, 1, timeout=WAIT)
+    wait_for(lambda: progress, WAIT, 'progress')
+    imu = rec.imu()
+    sent = replay_flow(imu_pub, imu, [], RATE, lambda: progress[-1]['imu_received'],
+                       what='the calibrator input')
+    wait_for(lambda: progress[-1]['imu_received'] >= sent, WAIT, 'the IMU messages')
+    resp = ros.call(drv, Trigger, '/thermal_imu_calibrator/calibrate', timeout=180)
+    assert resp.success, resp.message
+    assert node.k == 0 and node.temperature_topics == [] and not node.temp_subs
+    cal = Calibration.load(str(tmp_path / 'calibration.yaml'))
+    assert cal.inputs == []
+    assert [n for n in cal.notes if n.startswith('input: no temperature is published: nothing '
+                                                 'on /imu/temperature')], cal.notes
+    late = drv.create_publisher(Temperature, 'imu/temperature', 10)
+    warned = []
+    node.get_logger().warning = warned.append
+    wait_for(lambda: warned, WAIT, lambda: f'the warning ({late.get_subscription_count()})')
+    assert warned[0].startswith('/imu/temperature is published now, after the node decided '
+                                'to collect without a temperature; it is not used'), warned

@@ -39,7 +39,8 @@ from sensor_msgs.msg import Imu
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from . import calibrator_params as params, common, input_hints, process, thermal_types
+from . import (absent_inputs, calibrator_params as params, common, input_hints, process,
+               thermal_types)
 from .calibrator_collection import LiveCollection
 from ..app import calibrate as app
 from ..calibration import CalibrationError
@@ -108,7 +109,13 @@ class CalibratorNode(LiveCollection, Node):
         #: a silent input whose topic is published as another thermal type is
         #: re-subscribed as that type (``thermal_types``), as calibrate reads a log
         self.type_follower = thermal_types.TypeFollower(self, self.temp_subs, self._subscribe_as)
-        common.steady_timer(self, 0.1, self._process, callback_group=data)
+        #: no temperature published at all: collect without one, as calibrate does a log
+        #: without one (``absent_inputs``); decided once, before anything is collected
+        self._inputs_decided = not self.k or self.lifelong is not None or self.resumed_holds > 0
+        self._imu_seen_at = None      # steady clock at the first tick that saw an IMU message
+        self._input_notes = []        # what was decided about the inputs (the file's notes)
+        self._absent_topics = []      # the inputs' topics when decided without them
+        common.steady_timer(self, 0.1, self._tick, callback_group=data)
         common.steady_timer(self, thermal_types.FOLLOW_PERIOD_S, self.type_follower,
                             callback_group=data)
         services = ReentrantCallbackGroup()
@@ -125,6 +132,31 @@ class CalibratorNode(LiveCollection, Node):
                             callback_group=MutuallyExclusiveCallbackGroup())
         if self.lifelong is not None:
             self.lifelong.start()
+
+    def _tick(self):
+        """Process what arrived, once the thermal inputs are decided (``absent_inputs``)."""
+        if self._inputs_decided or self._decide_inputs():
+            self._process()
+        if self._absent_topics:
+            absent_inputs.warn_late(self)
+
+    def _decide_inputs(self, force=False):
+        """Decide whether to collect with the thermal inputs; return True once decided."""
+        if self._inputs_decided:
+            return True
+        if self._imu_seen_at is None and self._rate.total:
+            self._imu_seen_at = time.monotonic()
+        how, why = absent_inputs.decide(self, self._imu_seen_at, force)
+        if how == absent_inputs.UNDECIDED:
+            return False
+        if how == absent_inputs.ABSENT:
+            absent_inputs.drop_inputs(self, why)
+        self._inputs_decided = True
+        return True
+
+    def input_notes(self):
+        """Return what was done to the thermal inputs (the calibration file's notes)."""
+        return self._input_notes + self.type_follower.notes + self._clocks.notes
 
     def _subscribe_as(self, index, typ):
         """Subscribe thermal input ``index`` as message type ``typ`` (``thermal_types``)."""
@@ -161,6 +193,7 @@ class CalibratorNode(LiveCollection, Node):
                 response.message = f'refused: {unit_refusal(gyro_unit)}'
                 return response
             self._busy_since = time.monotonic()
+            self._decide_inputs(force=True)      # no temperature published: without one
             response.success, response.message = await self._on_worker(
                 self._estimate, *self.snapshot())
         finally:

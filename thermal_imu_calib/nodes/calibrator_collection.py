@@ -496,4 +496,4 @@ class LiveCollection:
         """Return the live collection as the Collected a log gives (``app.collect``)."""
         return Collected(windows, self._seen_frame, self._rate.total, 0.0,
                          list(self.temperature_topics), list(transitions), detector=detector,
-                         input_notes=self.type_follower.notes + self._clocks.notes)
+                         input_notes=self.input_notes())

@@ -84,7 +84,7 @@ class TypeFollower:
             return []
         self._next = now + self.period_s
         notes = []
-        for i, sub in enumerate(list(self.subscriptions)):
+        for i, sub in enumerate(list(self.subscriptions)[:len(self.topics)]):
             typ, by = type_to_follow(self.node, sub)
             if not typ or (self.topics[i], typ) in self._failed:
                 continue
@@ -94,6 +94,10 @@ class TypeFollower:
                     continue
             notes += self._switch(self.topics[i], self.types[i], typ, by)
         return notes
+
+    def clear(self):
+        """Forget every input (the node has destroyed its subscriptions and has none)."""
+        del self.topics[:], self.types[:]
 
     def _peers(self, topic, old):
         """Return (follower, index) of every input on ``topic`` as ``old`` in this context."""

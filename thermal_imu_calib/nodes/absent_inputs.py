@@ -1,0 +1,103 @@
+"""No temperature published at all: the calibrator collects without one, as calibrate does.
+
+``calibrate`` calibrates a log without a temperature topic without one (a
+temperature-independent calibration). The calibrator, with the shipped
+``temperature_topics: [imu/temperature]`` and nothing published on it, collected nothing
+(every IMU sample waits for a temperature) and ``~/calibrate`` named
+``temperature_topics:='[]'`` to set: live and offline differed on such a recording with the
+shipped config. Now the node decides once, before it collects anything:
+
+* **with its inputs** as soon as one has a reading or a matched publisher; also when a
+  publisher of any type is on an input's topic, or a thermal topic is on the graph under
+  another name (``input_hints.thermal_topics_hint``), once ``GRACE_S`` have passed (the
+  type follower may switch; otherwise the refusal names what is there, as before);
+* **without** them when ``GRACE_S`` after the first IMU message (or at ``~/calibrate``) no
+  input has a reading or a publisher of any type and no thermal topic is on the graph: the
+  node then runs as with ``temperature_topics: []`` and says so once.
+
+Until then the IMU messages wait in the node's queue (at most ``GRACE_S`` of them), so the
+holds are those ``calibrate`` finds from the first message. Not for lifelong mode, a
+collection resumed from its file, or a node without inputs (decided at the start). A
+temperature published after a decision without it is not used until the node is
+restarted (a warning says so).
+"""
+
+import time
+
+from . import input_hints
+from ..io.headerless import LiveClocks
+
+#: seconds (steady clock) after the first IMU message before deciding without a temperature
+GRACE_S = 5.0
+
+PRESENT, ABSENT, UNDECIDED = 'with inputs', 'without inputs', ''
+
+
+def decide(node, imu_seen_at, force=False, now=None):
+    """Return (PRESENT, ABSENT or UNDECIDED, why) for ``node``'s thermal inputs.
+
+    ``imu_seen_at``: ``time.monotonic()`` when the first IMU message was seen (None: none
+    yet); ``force``: decide now (``~/calibrate``). The graph is read as a hint: an error
+    reading it counts as something on it.
+    """
+    now = time.monotonic() if now is None else now
+    if any(node.readings_per_topic) or any(node._pending_temp):
+        return PRESENT, ''
+    try:
+        if any(s.get_publisher_count() for s in node.temp_subs):
+            return PRESENT, ''
+        on_topics = [s.topic_name for s in node.temp_subs
+                     if node.get_publishers_info_by_topic(s.topic_name)]
+    except Exception:  # noqa: B902 - the graph is only a hint
+        on_topics = ['?']
+    waited = imu_seen_at is not None and now - imu_seen_at >= GRACE_S
+    if not (force or waited):
+        return UNDECIDED, ''
+    if on_topics or input_hints.thermal_topics_hint(node, node.temp_subs):
+        return PRESENT, ''
+    if imu_seen_at is None:         # nothing to decide on yet, even at ~/calibrate
+        return UNDECIDED, ''
+    names = ', '.join(s.topic_name for s in node.temp_subs)
+    when = (f'{now - imu_seen_at:.1f} s after the first IMU message' if not waited
+            else f'{GRACE_S:g} s after the first IMU message')
+    return ABSENT, (f'no temperature is published: nothing on {names} and no thermal topic on '
+                    f'the graph {when}, so the node collects without a temperature, as '
+                    'calibrate does a log without one (a temperature-independent '
+                    'calibration); one published later is not used until the node is '
+                    "restarted (set temperature_topics:='[]' to say so from the start)")
+
+
+def drop_inputs(node, why):
+    """Run ``node`` (the calibrator) as with ``temperature_topics: []`` from here on.
+
+    Only before anything is collected: its subscriptions are destroyed, the inputs
+    forgotten, and a new collection without them takes the IMU messages still queued.
+    """
+    node._absent_topics = [s.topic_name for s in node.temp_subs]
+    for s in node.temp_subs:
+        node.destroy_subscription(s)
+    node.temp_subs.clear()
+    node.type_follower.clear()
+    node.temperature_topics, node.temperature_units, node.inputs, node.k = [], [], [], 0
+    with node._lock:
+        pending, source = node._pending_imu, node._pending_source
+        node._new_collection()
+        node._pending_imu, node._pending_source = pending, source
+        node._clocks = LiveClocks([], [])
+        node.readings_per_topic = []
+    node._write_inputs_signature()
+    node._input_notes.append(why)
+    node.get_logger().warning(why)
+
+
+def warn_late(node):
+    """Say once that a temperature appeared on an input's topic after ``drop_inputs``."""
+    try:
+        late = [t for t in node._absent_topics if node.get_publishers_info_by_topic(t)]
+    except Exception:  # noqa: B902 - the graph is only a hint
+        late = []
+    if late:
+        node._absent_topics = []
+        node.get_logger().warning(
+            f'{", ".join(late)} is published now, after the node decided to collect without '
+            'a temperature; it is not used: restart the node to calibrate with it')
