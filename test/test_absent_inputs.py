@@ -38,7 +38,8 @@ def test_nothing_published_decides_without_them_after_the_grace_or_at_calibrate(
     how, why = ai.decide(n, 100.0, now=100.0 + ai.GRACE_S)
     assert how == ai.ABSENT
     assert why.startswith('no temperature is published: nothing on /imu/temperature and no '
-                          'thermal topic on the graph 5 s after the first IMU message')
+                          f'thermal topic on the graph {ai.GRACE_S:g} s after the first IMU '
+                          'message')
     assert "temperature_topics:='[]'" in why
     how, why = ai.decide(n, 100.0, force=True, now=101.5)        # ~/calibrate
     assert how == ai.ABSENT and '1.5 s after the first IMU message' in why

@@ -27,8 +27,10 @@ import time
 from . import input_hints
 from ..io.headerless import LiveClocks
 
-#: seconds (steady clock) after the first IMU message before deciding without a temperature
-GRACE_S = 5.0
+#: seconds (steady clock) after the first IMU message before deciding without a temperature:
+#: a temperature driver started with the IMU's is on the graph well within it; the IMU
+#: messages wait meanwhile (10 s at 1 kHz: 10000 messages)
+GRACE_S = 10.0
 
 PRESENT, ABSENT, UNDECIDED = 'with inputs', 'without inputs', ''
 
