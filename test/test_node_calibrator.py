@@ -705,3 +705,42 @@ def test_no_temperature_published_collects_without_one_and_says_so(ros, tmp_path
     wait_for(lambda: warned, WAIT, lambda: f'the warning ({late.get_subscription_count()})')
     assert warned[0].startswith('/imu/temperature is published now, after the node decided '
                                 'to collect without a temperature; it is not used'), warned
+
+
+def test_a_restart_without_a_temperature_resumes_its_collection(ros, tmp_path):
+    # a calibrator restarted in a session where no temperature is published: the
+    # collection it made without one is resumed once it has decided without one again
+    # (absent_inputs.made_without); before, its inputs ([]) differed from the shipped ones
+    # and the collection was moved aside
+    from conftest import replay_flow
+    rec = recording(repetitions=1)
+    imu = rec.imu()
+    cut = int(np.searchsorted(imu.stamp_ns, (rec.schedule[2].stamp_end_ns
+                                             + rec.schedule[3].stamp_start_ns) // 2))
+
+    def drive(name, part):
+        drv = ros.node(name)
+        pub = drv.create_publisher(Imu, 'imu/data_raw', 1000)
+        progress = []
+        drv.create_subscription(String, '/thermal_imu_calibrator/progress',
+                                lambda m: progress.append(json.loads(m.data)), 10)
+        ros.wait_matched(pub, 1, timeout=WAIT)
+        wait_for(lambda: progress, WAIT, 'progress')
+        sent = replay_flow(pub, part, [], RATE, lambda: progress[-1]['imu_received'],
+                           what='the calibrator input')
+        wait_for(lambda: progress[-1]['imu_received'] >= sent, WAIT, 'the IMU messages')
+        return drv, ros.call(drv, Trigger, '/thermal_imu_calibrator/calibrate', timeout=180)
+
+    node = calibrator(ros, tmp_path)
+    _, first = drive('first_driver', imu.slice(slice(0, cut)))
+    assert node.k == 0 and node.resumed_holds == 0
+    held = len(node.windows.hold_ids)
+    assert held >= 2, first.message
+    ros.remove(node)
+    node = calibrator(ros, tmp_path)
+    assert node._resume_later and node.k == 1 and len(node.windows) == 0   # not yet
+    _, second = drive('second_driver', imu.slice(slice(cut, None)))
+    assert second.success, second.message
+    assert node.k == 0 and node.resumed_holds == held
+    assert f'{held} of the holds were resumed from' in second.message, second.message
+    assert not list(tmp_path.glob('collection.jsonl.incompatible-*'))

@@ -17,11 +17,14 @@ shipped config. Now the node decides once, before it collects anything:
 
 Until then the IMU messages wait in the node's queue (at most ``GRACE_S`` of them), so the
 holds are those ``calibrate`` finds from the first message. Not for lifelong mode, a
-collection resumed from its file, or a node without inputs (decided at the start). A
-temperature published after a decision without it is not used until the node is
-restarted (a warning says so).
+collection resumed from its file, or a node without inputs (decided at the start); a
+collection made without the inputs (a restart in such a session) is resumed once decided
+(``made_without``). A temperature published after a decision without it is not used until
+the node is restarted (a warning says so).
 """
 
+import json
+import os
 import time
 
 from . import input_hints
@@ -103,3 +106,21 @@ def warn_late(node):
         node.get_logger().warning(
             f'{", ".join(late)} is published now, after the node decided to collect without '
             'a temperature; it is not used: restart the node to calibrate with it')
+
+
+def made_without(node):
+    """Return True when ``node``'s collection file was made without its thermal inputs.
+
+    A calibrator restarted in a session without a temperature: the file's inputs are none
+    (``drop_inputs`` wrote them) while the node has its configured ones. The resume then
+    waits for the decision: without the inputs it goes on with that collection, with them
+    it is moved aside, as any collection of other inputs.
+    """
+    path = node._collection_path()
+    if not node.k or node.lifelong is not None or not path or not os.path.exists(path):
+        return False
+    try:
+        with open(path + '.inputs.json') as f:
+            return json.load(f).get('temperature_topics') == []
+    except (OSError, ValueError, AttributeError):
+        return False

@@ -91,11 +91,11 @@ class CalibratorNode(LiveCollection, Node):
         self._started = time.monotonic()
         self._collection_error = ''
         self._new_collection()
-        self._resume()
-        try:
-            self._resume_transitions()
-        except OSError as e:
-            self._degrade(e)
+        #: a collection made without a temperature nobody published is resumed once the
+        #: inputs are decided (``absent_inputs``): without them, or moved aside with them
+        self._resume_later = absent_inputs.made_without(self)
+        if not self._resume_later:
+            self._resume_all()
 
         data = MutuallyExclusiveCallbackGroup()
         self.imu_sub = self.create_subscription(Imu, 'imu/data_raw', self._on_imu,
@@ -133,6 +133,14 @@ class CalibratorNode(LiveCollection, Node):
         if self.lifelong is not None:
             self.lifelong.start()
 
+    def _resume_all(self):
+        """Resume the collection and its pose changes from their files."""
+        self._resume()
+        try:
+            self._resume_transitions()
+        except OSError as e:
+            self._degrade(e)
+
     def _tick(self):
         """Process what arrived, once the thermal inputs are decided (``absent_inputs``)."""
         if self._inputs_decided or self._decide_inputs():
@@ -151,6 +159,12 @@ class CalibratorNode(LiveCollection, Node):
             return False
         if how == absent_inputs.ABSENT:
             absent_inputs.drop_inputs(self, why)
+        if self._resume_later:       # before anything is collected: the queue still waits
+            self._resume_later = False
+            with self._lock:
+                queued = self._pending_imu, self._pending_source, self._pending_temp
+                self._resume_all()
+                self._pending_imu, self._pending_source, self._pending_temp = queued
         self._inputs_decided = True
         return True
 
