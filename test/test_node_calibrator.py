@@ -673,26 +673,33 @@ def test_reset_judges_the_temperature_stamps_afresh(ros, tmp_path):
     assert node._clocks.describe() == {'imu/temperature': 'header stamps'}
 
 
+def _imu_only(ros, name, imu):
+    """Replay ``imu`` (no temperature) from driver ``name``, then call ~/calibrate.
+
+    Returns (the driver node, the response) once the calibrator reports every message.
+    """
+    from conftest import replay_flow
+    drv = ros.node(name)
+    pub = drv.create_publisher(Imu, 'imu/data_raw', 1000)
+    progress = []
+    drv.create_subscription(String, '/thermal_imu_calibrator/progress',
+                            lambda m: progress.append(json.loads(m.data)), 10)
+    ros.wait_matched(pub, 1, timeout=WAIT)
+    wait_for(lambda: progress, WAIT, 'progress')
+    sent = replay_flow(pub, imu, [], RATE, lambda: progress[-1]['imu_received'],
+                       what='the calibrator input')
+    wait_for(lambda: progress[-1]['imu_received'] >= sent, WAIT, 'the IMU messages')
+    return drv, ros.call(drv, Trigger, '/thermal_imu_calibrator/calibrate', timeout=180)
+
+
 def test_no_temperature_published_collects_without_one_and_says_so(ros, tmp_path):
     # the shipped temperature_topics and nothing published on them: after the first IMU
     # messages the node collects without a temperature, as calibrate does a log without one
     # (nodes/absent_inputs), and says so in its log and in the file; a temperature
     # published afterwards is named, not used
-    from conftest import replay_flow
     rec = recording(repetitions=1)
     node = calibrator(ros, tmp_path)
-    drv = ros.node('driver_without_temperature')
-    imu_pub = drv.create_publisher(Imu, 'imu/data_raw', 1000)
-    progress = []
-    drv.create_subscription(String, '/thermal_imu_calibrator/progress',
-                            lambda m: progress.append(json.loads(m.data)), 10)
-    ros.wait_matched(imu_pub, 1, timeout=WAIT)
-    wait_for(lambda: progress, WAIT, 'progress')
-    imu = rec.imu()
-    sent = replay_flow(imu_pub, imu, [], RATE, lambda: progress[-1]['imu_received'],
-                       what='the calibrator input')
-    wait_for(lambda: progress[-1]['imu_received'] >= sent, WAIT, 'the IMU messages')
-    resp = ros.call(drv, Trigger, '/thermal_imu_calibrator/calibrate', timeout=180)
+    drv, resp = _imu_only(ros, 'driver_without_temperature', rec.imu())
     assert resp.success, resp.message
     assert node.k == 0 and node.temperature_topics == [] and not node.temp_subs
     cal = Calibration.load(str(tmp_path / 'calibration.yaml'))
@@ -712,34 +719,19 @@ def test_a_restart_without_a_temperature_resumes_its_collection(ros, tmp_path):
     # collection it made without one is resumed once it has decided without one again
     # (absent_inputs.made_without); before, its inputs ([]) differed from the shipped ones
     # and the collection was moved aside
-    from conftest import replay_flow
     rec = recording(repetitions=1)
     imu = rec.imu()
     cut = int(np.searchsorted(imu.stamp_ns, (rec.schedule[2].stamp_end_ns
                                              + rec.schedule[3].stamp_start_ns) // 2))
-
-    def drive(name, part):
-        drv = ros.node(name)
-        pub = drv.create_publisher(Imu, 'imu/data_raw', 1000)
-        progress = []
-        drv.create_subscription(String, '/thermal_imu_calibrator/progress',
-                                lambda m: progress.append(json.loads(m.data)), 10)
-        ros.wait_matched(pub, 1, timeout=WAIT)
-        wait_for(lambda: progress, WAIT, 'progress')
-        sent = replay_flow(pub, part, [], RATE, lambda: progress[-1]['imu_received'],
-                           what='the calibrator input')
-        wait_for(lambda: progress[-1]['imu_received'] >= sent, WAIT, 'the IMU messages')
-        return drv, ros.call(drv, Trigger, '/thermal_imu_calibrator/calibrate', timeout=180)
-
     node = calibrator(ros, tmp_path)
-    _, first = drive('first_driver', imu.slice(slice(0, cut)))
+    _, first = _imu_only(ros, 'first_driver', imu.slice(slice(0, cut)))
     assert node.k == 0 and node.resumed_holds == 0
     held = len(node.windows.hold_ids)
     assert held >= 2, first.message
     ros.remove(node)
     node = calibrator(ros, tmp_path)
     assert node._resume_later and node.k == 1 and len(node.windows) == 0   # not yet
-    _, second = drive('second_driver', imu.slice(slice(cut, None)))
+    _, second = _imu_only(ros, 'second_driver', imu.slice(slice(cut, None)))
     assert second.success, second.message
     assert node.k == 0 and node.resumed_holds == held
     assert f'{held} of the holds were resumed from' in second.message, second.message
