@@ -424,6 +424,22 @@ def test_collection_of_other_thermal_inputs_is_not_resumed(ros, tmp_path):
     assert json.loads((tmp_path / 'collection.jsonl.inputs.json').read_text())[
         'temperature_units'] == ['Hz']
     ros.remove(node)
+    # set aside again within the same second: a new name, the first one kept (os.replace
+    # overwrote it, and the pose changes' directory failed, before 2026-12-02)
+    first = {p: (tmp_path / p).read_bytes() for p in aside if (tmp_path / p).is_file()}
+    (tmp_path / 'collection.jsonl').write_text(win.to_jsonl())
+    stamp = aside[0].split('incompatible-')[1].split('.')[0]
+    for sec in range(int(stamp), int(stamp) + 120):     # every name of the next 2 minutes
+        taken = tmp_path / f'collection.jsonl.incompatible-{sec}'
+        if not taken.exists():
+            taken.write_text('earlier\n')
+    node = calibrator(ros, tmp_path)                      # degC again: other inputs
+    assert len(node.windows) == 0 and not node._collection_error
+    again = [p.name for p in tmp_path.glob('collection.jsonl.incompatible-*-1')]
+    assert len(again) == 1, sorted(os.listdir(tmp_path))
+    assert (tmp_path / again[0]).read_text() == win.to_jsonl()
+    assert all((tmp_path / p).read_bytes() == b for p, b in first.items())
+    ros.remove(node)
 
 
 def test_bringup_process_calibrates_over_dds_and_compensates(ros, tmp_path):

@@ -83,6 +83,19 @@ def _raise_if_interrupted():
         raise Interrupted(_INTERRUPTS[0])
 
 
+def free_name(base, suffixes=()):
+    """Return ``base``, or ``base-N`` (N = 1, 2, ...), whose name and ``name + suffix`` are free.
+
+    For renaming files aside without replacing an earlier one of the same second
+    (``os.replace`` overwrites a file silently).
+    """
+    name, n = base, 0
+    while any(os.path.lexists(name + s) for s in ('',) + tuple(suffixes)):
+        n += 1
+        name = f'{base}-{n}'
+    return name
+
+
 def shown(path):
     """Return ``path`` printable on any terminal (bytes that are not UTF-8 escaped)."""
     text = os.fspath(path)

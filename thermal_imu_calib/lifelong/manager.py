@@ -56,7 +56,7 @@ import numpy as np
 from ..app.calibrate import calibrate_collected, SettingsError
 from ..calibration import Calibration, CalibrationError
 from ..estimation.calibrate import CalibrationRefused
-from ..io.output import write_atomic
+from ..io.output import free_name, write_atomic
 from ..collection.collected import Collected
 from . import ageing, compose, gate
 from ..collection.segments import MOUNTING_POSE_DEG, Windows
@@ -227,7 +227,7 @@ class Lifelong:
             return Calibration.load(path)
         except (OSError, CalibrationError, ValueError) as e:
             self.log('error', f'{path} not loaded ({e}); moved aside')
-            os.replace(path, path + f'.unreadable-{int(time.time())}')
+            os.replace(path, free_name(path + f'.unreadable-{int(time.time())}'))
             return None
 
     def _save_state(self):

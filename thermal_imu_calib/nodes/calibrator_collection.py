@@ -29,7 +29,7 @@ from ..collection.stationary import DetectorConfig, DetectorSettingsError
 from ..io.align import StreamAligner
 from ..io.columns import ImuColumns, TemperatureColumns
 from ..io.gate import LiveImuFilter, temperature_checks
-from ..io.output import OutputError, write_atomic
+from ..io.output import free_name, OutputError, write_atomic
 
 
 class LiveCollection:
@@ -151,7 +151,7 @@ class LiveCollection:
                                f'{path}')
 
     def _move_aside(self, tag):
-        """Rename the collection file (and its pose changes and inputs) to ``PATH.TAG-TIME``.
+        """Rename the collection file (and its pose changes and inputs) to ``PATH.TAG-TIME[-N]``.
 
         Returns the new name ('' when there is no file, or it could not be moved: then the
         collection continues in memory only, ``_degrade``).
@@ -159,7 +159,7 @@ class LiveCollection:
         path = self._collection_path()
         if not path or not os.path.exists(path):
             return ''
-        aside = f'{path}.{tag}-{int(time.time())}'
+        aside = free_name(f'{path}.{tag}-{int(time.time())}', ('.transitions', '.inputs.json'))
         try:
             os.replace(path, aside)
             tdir = self._transitions_dir()
