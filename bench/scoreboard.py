@@ -176,9 +176,8 @@ def drift_rms(t, accel, window_s=DRIFT_WINDOW_S):
 NODE_PARAMS = {}
 
 
-def live_run(rec, imu, temps, work, tag, domain_id, temperature_topics=None):
+def live_run(rec, imu, temps, work, tag, domain_id):
     return live_replay.run_live(imu, temps, rec.gravity, domain_id,
-                                temperature_topics=temperature_topics,
                                 workdir=os.path.join(work, f'live_{rec.name}_{tag}'),
                                 extra_params=NODE_PARAMS)
 

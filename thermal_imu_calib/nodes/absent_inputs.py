@@ -51,10 +51,9 @@ def decide(node, imu_seen_at, force=False, now=None):
     try:
         if any(s.get_publisher_count() for s in node.temp_subs):
             return PRESENT, ''
-        on_topics = [s.topic_name for s in node.temp_subs
-                     if node.get_publishers_info_by_topic(s.topic_name)]
+        on_topics = any(node.get_publishers_info_by_topic(s.topic_name) for s in node.temp_subs)
     except Exception:  # noqa: B902 - the graph is only a hint
-        on_topics = ['?']
+        on_topics = True
     waited = imu_seen_at is not None and now - imu_seen_at >= GRACE_S
     if not (force or waited):
         return UNDECIDED, ''

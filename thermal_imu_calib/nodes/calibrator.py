@@ -159,12 +159,10 @@ class CalibratorNode(LiveCollection, Node):
             return False
         if how == absent_inputs.ABSENT:
             absent_inputs.drop_inputs(self, why)
-        if self._resume_later:       # before anything is collected: the queue still waits
+        if self._resume_later:       # before anything is collected (the queue waits)
             self._resume_later = False
             with self._lock:
-                queued = self._pending_imu, self._pending_source, self._pending_temp
                 self._resume_all()
-                self._pending_imu, self._pending_source, self._pending_temp = queued
         self._inputs_decided = True
         return True
 

@@ -84,7 +84,7 @@ class TypeFollower:
             return []
         self._next = now + self.period_s
         notes = []
-        for i, sub in enumerate(list(self.subscriptions)[:len(self.topics)]):
+        for i, sub in enumerate(list(self.subscriptions)):
             typ, by = type_to_follow(self.node, sub)
             if not typ or (self.topics[i], typ) in self._failed:
                 continue
