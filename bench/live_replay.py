@@ -50,6 +50,8 @@ RATE = 2000.0
 HARNESS_PARAMS = {'progress_period': 0.1}
 #: the message type readings are published as by default (header-stamped)
 TEMPERATURE_TYPE = 'sensor_msgs/msg/Temperature'
+#: the topic readings are published on by default (the shipped config's)
+TEMPERATURE_TOPIC = '/imu/temperature'
 #: a wait fails when its condition has made no progress for this long (a busy 2-core
 #: machine can starve a process for tens of seconds; a broken path does not move at all)
 STALL_S = 180.0
@@ -377,7 +379,7 @@ def _publish(driver, imu, temps, i0, i1, t_lo, t_hi, pace, header_ns=None):
 def run_live(imu, temps, gravity, domain_id, temperature_topics=None, workdir=None,
              calibration_name='live.yaml', extra_params=None, attempts=3,
              temperature_type=TEMPERATURE_TYPE, temperature_header_ns=None,
-             set_temperature_type=True):
+             set_temperature_type=True, published_on=TEMPERATURE_TOPIC):
     """Run ``run_live_once`` until every message arrives, at most ``attempts`` times.
 
     Best effort may lose messages on a loaded machine (counted, never hidden): a run that
@@ -388,7 +390,7 @@ def run_live(imu, temps, gravity, domain_id, temperature_topics=None, workdir=No
         out = run_live_once(imu, temps, gravity, domain_id, temperature_topics,
                             os.path.join(workdir, f'attempt{i}'), calibration_name,
                             extra_params, temperature_type, temperature_header_ns,
-                            set_temperature_type)
+                            set_temperature_type, published_on)
         out.attempts = i
         if out.complete or (out.error and not out.error.startswith('not every message')):
             return out
@@ -398,8 +400,8 @@ def run_live(imu, temps, gravity, domain_id, temperature_topics=None, workdir=No
 def run_live_once(imu, temps, gravity, domain_id, temperature_topics=None, workdir=None,
                   calibration_name='live.yaml', extra_params=None,
                   temperature_type=TEMPERATURE_TYPE, temperature_header_ns=None,
-                  set_temperature_type=True):
-    """Replay ``imu`` (+ ``temps`` on /imu/temperature) into a launched calibrator_node.
+                  set_temperature_type=True, published_on=TEMPERATURE_TOPIC):
+    """Replay ``imu`` (+ ``temps`` on ``published_on``) into a launched calibrator_node.
 
     ``temperature_topics``: the launch argument (None: the shipped config's
     [imu/temperature]; '[]': none); ``gravity`` is given as the launch argument
@@ -408,7 +410,9 @@ def run_live_once(imu, temps, gravity, domain_id, temperature_topics=None, workd
     header stamps of ``temps`` when not their stamps (``_publish``). ``set_temperature_type``
     False: the node is not given ``temperature_types`` for a ``temperature_type`` other than
     sensor_msgs/Temperature, and must follow the type it sees on the graph
-    (``nodes/thermal_types``). Returns a Replay; never raises
+    (``nodes/thermal_types``). ``published_on``: the readings' topic (another than the
+    node's /imu/temperature: the node must follow it, ``nodes/topic_follower``). Returns a
+    Replay; never raises
     for node failures (they are in ``Replay.error``).
     """
     from thermal_imu_calib.nodes.player import Pacer
@@ -432,7 +436,7 @@ def run_live_once(imu, temps, gravity, domain_id, temperature_topics=None, workd
     driver = None
     try:
         # inside the try: an exit while the player starts still stops the launched node
-        driver = _Driver(domain_id, '/imu/temperature' if temps is not None else None,
+        driver = _Driver(domain_id, published_on if temps is not None else None,
                          temperature_type)
 
         def connected():
@@ -441,10 +445,11 @@ def run_live_once(imu, temps, gravity, domain_id, temperature_topics=None, workd
             # config it decides to collect without them after the first IMU messages
             return (p is not None and p['imu_publishers'] >= 1
                     and (temps is None or all(n >= 1 for n in p['temperature_publishers']))
-                    and driver.imu_pub.get_subscription_count() >= 1)
+                    and driver.imu_pub.get_subscription_count() >= 1
+                    and (temps is None or driver.temp_pub.get_subscription_count() >= 1))
         _wait(connected, 'the node to match the player', node)
         if temps is not None and driver.temp_pub.get_subscription_count() < 1:
-            raise NodeFailed('the node does not subscribe /imu/temperature (launch arguments)')
+            raise NodeFailed(f'the node does not subscribe {published_on} (launch arguments)')
         out.seconds['start'] = time.monotonic() - t_start
         t0 = time.monotonic()
         n = len(imu)

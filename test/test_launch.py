@@ -157,6 +157,58 @@ def test_both_nodes_in_one_process_follow_a_float32_temperature(
                                '/um7_driver, not sensor_msgs/msg/Temperature'), note
 
 
+def test_both_nodes_follow_a_temperature_under_another_name(
+        launch_module, ros, tmp_path, monkeypatch, request):
+    """Both launched nodes, a driver publishing its temperature on /imu/temp (the IMU on
+    imu/data_raw, nothing on the shipped imu/temperature): the calibrator subscribes
+    /imu/temp, as calibrate picks a log's temperature, and calibrates with it; the
+    compensator takes that calibration by subscribing its input (``topic_follower``) and
+    compensates."""
+    import rclpy
+    from sensor_msgs.msg import Imu, Temperature
+    from std_srvs.srv import Trigger
+    from conftest import replay_flow, wait_for
+    from thermal_imu_calib import sim
+    _, nodes = _resolve(launch_module)
+    monkeypatch.setenv('HOME', str(tmp_path))
+    comp, calib = [_start(ros, n) for n in nodes]
+    context = rclpy.Context()      # another participant, as a driver's process is
+    rclpy.init(context=context)
+    request.addfinalizer(context.try_shutdown)
+    driver = rclpy.create_node('imu_driver', context=context)
+    imu_pub = driver.create_publisher(Imu, 'imu/data_raw', 1000)
+    temp_pub = driver.create_publisher(Temperature, '/imu/temp', 100)
+    wait_for(lambda: temp_pub.get_subscription_count() >= 1
+             and imu_pub.get_subscription_count() >= 2, 60,
+             lambda: f'the calibrator to follow /imu/temp ({calib.temperature_topics})')
+    assert calib.temperature_topics == ['/imu/temp']
+    assert comp.temperature_topics == ['imu/temperature'] and comp._active is None
+    rec = sim.simulate('demo', 5, hold_s=(14.0, 15.0), transition_s=(1.5, 2.0),
+                       repetitions=1)
+    (_, tc), = rec.temperatures.items()
+    replay_flow(imu_pub, rec.imu(), [(temp_pub, tc.stamp_ns, tc.temperature)], 2000.0,
+                lambda: calib.progress()['imu_received'], what='the calibrator input',
+                readings=lambda: calib.progress()['temperature_readings'])
+    resp = ros.call(ros.node('caller'), Trigger, '/thermal_imu_calibrator/calibrate',
+                    timeout=180)
+    assert resp.success, resp.message
+    wait_for(lambda: comp._active is not None, 60,
+             lambda: f'the compensator to take the calibration ({comp.last_rejection})')
+    assert comp.temperature_topics == ['/imu/temp']
+    assert comp._active.calibration.temperature_topics == ['/imu/temp']
+    # more data (stamped later: a copy of what was passed through would be taken for the
+    # node's own output coming back), compensated with the readings from /imu/temp
+    from thermal_imu_calib.io.columns import ImuColumns
+    tail = rec.imu().slice(slice(-200, None))
+    shift = int(rec.imu().stamp_ns[-1] - rec.imu().stamp_ns[0]) + 10 ** 9
+    tail = ImuColumns(tail.stamp_ns + shift, tail.accel, tail.gyro, tail.frame_id)
+    m = tc.stamp_ns >= tail.stamp_ns[0] - shift
+    replay_flow(imu_pub, tail, [(temp_pub, tc.stamp_ns[m] + shift, tc.temperature[m])],
+                2000.0, lambda: comp.counts['received'], what='the compensator input')
+    wait_for(lambda: comp.counts['compensated'] >= 100, 60,
+             lambda: f'compensated messages ({comp.counts})')
+
+
 def test_gravity_and_latitude_reach_the_calibrator(launch_module, ros, tmp_path,
                                                    monkeypatch, capfd):
     # the issue's new user sets only gravity; ros2 launch keeps an undeclared argument

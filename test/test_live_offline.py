@@ -76,6 +76,8 @@ def _slow(temps):
     return TemperatureColumns(temps.stamp_ns[keep], temps.temperature[keep], temps.frame_id)
 
 
+#: where the Xsens ROS 2 driver publishes its temperature (not the shipped imu/temperature)
+RENAMED = '/temperature'
 #: a temperature driver stamping by another clock than the IMU's (s ahead)
 OTHER_CLOCK_S = 1000
 
@@ -100,7 +102,8 @@ def _write_other_clock(path, imu, temps):
 @pytest.mark.parametrize('thermal', ['none', 'none_shipped_config', 'room_temperature',
                                      'bad_samples',
                                      'slow_temperature', 'float32_temperature',
-                                     'float32_followed', 'temperature_on_another_clock'])
+                                     'float32_followed', 'temperature_on_another_clock',
+                                     'renamed_followed'])
 def test_live_calibration_equals_offline(tmp_path, thermal):
     """``bad_samples``: the room-temperature case with samples ``calibrate`` drops; the
     node drops the same ones (before 2026-11-28 it dropped only non-finite ones).
@@ -114,7 +117,11 @@ def test_live_calibration_equals_offline(tmp_path, thermal):
     Float32 once it sees the publisher on the graph (``nodes/thermal_types``), and says so.
     ``temperature_on_another_clock``: the room temperature stamped ``OTHER_CLOCK_S`` ahead
     of the IMU's clock, logged and published at its time: both put it on the IMU's clock
-    (``io.headerless.StampChoice``)."""
+    (``io.headerless.StampChoice``). ``renamed_followed``: the room temperature on
+    ``/temperature`` (as the Xsens driver publishes it), ``calibrate`` without
+    ``--temperature-topic`` (it takes the log's only Temperature topic) and the node with the
+    shipped ``[imu/temperature]``: it subscribes ``/temperature``, published with the IMU
+    topic, by the same rule (``nodes/topic_follower``), and says so."""
     imu = _recording()
     temps = None
     topics = {}
@@ -127,7 +134,8 @@ def test_live_calibration_equals_offline(tmp_path, thermal):
             imu, temps = _with_bad_samples(imu, temps)
         if thermal == 'slow_temperature':
             temps = _slow(temps)
-        topics = {real_recordings.TEMP_TOPIC: temps}
+        topics = {RENAMED if thermal == 'renamed_followed' else real_recordings.TEMP_TOPIC:
+                  temps}
     log = str(tmp_path / 'mpu6050.mcap')
     if thermal == 'temperature_on_another_clock':
         _write_other_clock(log, imu, temps)
@@ -139,7 +147,7 @@ def test_live_calibration_equals_offline(tmp_path, thermal):
     out = str(tmp_path / 'offline.yaml')
     cmd = [venv_exe('thermal-imu-calib'), 'calibrate', log, '--imu-topic', '/imu',
            '--gravity', str(GRAVITY), '-o', out]
-    if temps is not None:
+    if temps is not None and thermal != 'renamed_followed':
         cmd += ['--temperature-topic', real_recordings.TEMP_TOPIC]
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, r.stderr[-2000:]
@@ -153,7 +161,9 @@ def test_live_calibration_equals_offline(tmp_path, thermal):
                                 workdir=str(tmp_path / 'live'), temperature_type=kind,
                                 temperature_header_ns=None if thermal != 'temperature_on_'
                                 'another_clock' else temps.stamp_ns + OTHER_CLOCK_S * 10 ** 9,
-                                set_temperature_type=thermal != 'float32_followed')
+                                set_temperature_type=thermal != 'float32_followed',
+                                published_on=(RENAMED if thermal == 'renamed_followed'
+                                              else live_replay.TEMPERATURE_TOPIC))
     assert not live.error, live.error
     assert live.imu_sent == len(imu) and live.imu_received == live.imu_sent, \
         f'{live.imu_received} of {live.imu_sent} IMU messages arrived'
@@ -175,6 +185,16 @@ def test_live_calibration_equals_offline(tmp_path, thermal):
             assert said in f.read()
         notes = yaml.safe_load(live.calibration_text)['notes']
         assert [n for n in notes if n.startswith('input: ' + said)], notes
+    if thermal == 'renamed_followed':        # the node said what it did, and the file
+        said = ('nothing is published on /imu/temperature; /temperature '
+                '(sensor_msgs/msg/Temperature), published with the IMU topic by '
+                '/scoreboard_player, is the only sensor_msgs/Temperature topic it publishes: '
+                'subscribed to it instead')
+        with open(tmp_path / 'live' / f'attempt{live.attempts}' / 'node.log') as f:
+            assert said in f.read()
+        cal = yaml.safe_load(live.calibration_text)
+        assert [n for n in cal['notes'] if n.startswith('input: ' + said)], cal['notes']
+        assert cal['temperature']['inputs'] == yaml.safe_load(offline)['temperature']['inputs']
     if thermal == 'temperature_on_another_clock':     # the node said what it did (the
         # distance to the IMU stamps received so far: about OTHER_CLOCK_S)
         with open(tmp_path / 'live' / f'attempt{live.attempts}' / 'node.log') as f:

@@ -50,11 +50,12 @@ def motion_recording():
 class Player:
     """A driver node publishing a recording and reading the calibrator's progress."""
 
-    def __init__(self, ros, n_subscribers=1):
+    def __init__(self, ros, n_subscribers=1, temperature_topic='/imu/temperature', also=()):
         self.ros = ros
         self.node = ros.node('player')
+        self.also = [self.node.create_publisher(Temperature, t, 10) for t in also]
         self.imu_pub = self.node.create_publisher(Imu, 'imu/data_raw', 1000)
-        self.temp_pub = self.node.create_publisher(Temperature, '/imu/temperature', 100)
+        self.temp_pub = self.node.create_publisher(Temperature, temperature_topic, 100)
         self.progress = []
         self.sent = [0, 0]
         self._progress_sub = self._subscribe_progress()
@@ -519,12 +520,16 @@ def test_a_temperature_on_another_topic_is_named_in_the_refusal(ros, tmp_path, r
     import rclpy
     from conftest import replay_flow
     rec = recording(repetitions=1, faces=('+z', '-z'))
-    calibrator(ros, tmp_path)
+    calib = calibrator(ros, tmp_path)
     context = rclpy.Context()
     rclpy.init(context=context)
     request.addfinalizer(context.try_shutdown)
     bare = rclpy.create_node('float_driver', context=context).create_publisher(
         String, '/imu/temperature', 10)
+    # something is published on imu/temperature, so /imu/temp is not followed
+    # (nodes/topic_follower): seen before the driver's topics are
+    wait_for(lambda: calib.get_publishers_info_by_topic('/imu/temperature'), WAIT,
+             'the String publisher on the graph')
     node, imu_pub, temp_pub, progress = _driver(ros, 'driver_with_imu_temp', '/imu/temp')
     imu = rec.imu()
     (_, tc), = rec.temperatures.items()
@@ -752,3 +757,57 @@ def test_a_restart_without_a_temperature_resumes_its_collection(ros, tmp_path):
     assert node.k == 0 and node.resumed_holds == held
     assert f'{held} of the holds were resumed from' in second.message, second.message
     assert not list(tmp_path.glob('collection.jsonl.incompatible-*'))
+
+
+def test_a_temperature_under_another_name_is_followed_and_resumed_after_a_restart(ros, tmp_path):
+    # the shipped temperature_topics, nothing on imu/temperature, and the IMU's driver
+    # publishing /imu/temp and /battery/temperature: the node subscribes /imu/temp (the one
+    # in the IMU topic's namespace), as calibrate picks a log's temperature
+    # (nodes/topic_follower); a temperature another node publishes is not a candidate. A
+    # restart in that session resumes the collection (absent_inputs.made_without)
+    from thermal_imu_calib.nodes import topic_follower
+    motor = ros.node('motor_driver')
+    motor.create_publisher(Temperature, '/motor/temperature', 10)
+    rec = recording(repetitions=1)
+    cut = int(np.searchsorted(rec.imu().stamp_ns, (rec.schedule[2].stamp_end_ns
+                                                   + rec.schedule[3].stamp_start_ns) // 2))
+    node = calibrator(ros, tmp_path)
+    player = Player(ros, temperature_topic='/imu/temp', also=['/battery/temperature'])
+    assert node.temperature_topics == ['/imu/temp']
+    player.play(rec, 0, cut)
+    player.wait_received()
+    held = len(node.windows.hold_ids)
+    assert held >= 2 and node.k == 1
+    said = ('nothing is published on /imu/temperature; /imu/temp (sensor_msgs/msg/Temperature), '
+            'published with the IMU topic by /player, is the one of its Temperature topics '
+            "in the IMU topic's namespace: subscribed to it instead")
+    assert [n for n in node.input_notes() if n.startswith(said)], node.input_notes()
+    with open(tmp_path / 'collection.jsonl.inputs.json') as f:
+        assert json.load(f)['temperature_topics'] == ['/imu/temp']
+    ros.remove(node)
+    node = calibrator(ros, tmp_path)
+    assert node._resume_later and len(node.windows) == 0          # not yet: undecided
+    player.forget_progress()
+    player.sent = [0, 0]
+    player.wait_connected()
+    player.play(rec, cut)
+    player.wait_received()
+    resp = player.call('calibrate')
+    assert resp.success, resp.message
+    assert node.temperature_topics == ['/imu/temp'] and node.resumed_holds == held
+    assert f'{held} of the holds were resumed from' in resp.message, resp.message
+    assert not list(tmp_path.glob('collection.jsonl.incompatible-*'))
+    cal = Calibration.load(str(tmp_path / 'calibration.yaml'))
+    assert [i.topic for i in cal.inputs] == ['/imu/temp']
+    assert [n for n in cal.notes if n.startswith('input: ' + said)], cal.notes
+    # another node's temperature alone is not followed; a list the user set is never
+    for name in ('/imu/temp', '/battery/temperature'):
+        player.node.destroy_publisher(next(p for p in player.also + [player.temp_pub]
+                                           if p.topic_name == name))
+    wait_for(lambda: not node.get_publishers_info_by_topic('/imu/temp')
+             and not node.get_publishers_info_by_topic('/battery/temperature')
+             and node.get_publishers_info_by_topic('/motor/temperature'), WAIT, 'the graph')
+    assert topic_follower.topic_to_follow(node, node.imu_sub, node.temp_subs[0])[0] == ''
+    assert topic_follower.follows(['imu/temperature'])
+    assert not topic_follower.follows(['imu/temp_die'])
+    assert not topic_follower.follows(['imu/temperature', 'imu/board_temperature'])

@@ -880,3 +880,37 @@ def test_a_temperature_on_the_imu_clock_keeps_its_stamps(ros, tmp_path):
     assert not rig.node._clocks.on and not rig.node._clocks.bare[0]
     assert _clock_shown(rig.node) == 'header stamps'
     assert rig.node.temps.tracks[0].stamps_ns.tolist() == [T0_NS - 10 * S, T0_NS - S // 2]
+
+
+def test_a_calibration_of_a_followed_topic_waits_for_it_then_is_served_from_it(ros, tmp_path):
+    # a calibration made on /imu/temp (calibrator_node followed it, or calibrate picked it
+    # from a log) and the compensator with the shipped imu/temperature: refused at start
+    # (nothing on the graph yet), it waits; once a driver publishes /imu/temp and nothing
+    # is on imu/temperature, the node subscribes /imu/temp and activates it
+    # (nodes/topic_follower.InputAdopter)
+    cal = make_cal(topics=('/imu/temp',))
+    node = ros.add(CompensatorNode(context=ros.context, parameter_overrides=[
+        Parameter('calibration_file', value=str(cal.save(tmp_path / 'cal.yaml')))]))
+    assert node._active is None and node.adopter.waiting is not None
+    assert node.last_rejection.endswith("is not among temperature_topics ['imu/temperature']; "
+                                        'add it to the parameter or remap it; it is activated '
+                                        'once /imu/temp is published while nothing is on '
+                                        '/imu/temperature'), node.last_rejection
+    driver = ros.node('driver')
+    imu_pub = driver.create_publisher(Imu, 'imu/data_raw', 1000)
+    temp_pub = driver.create_publisher(Temperature, '/imu/temp', 100)
+    out = ros.collect(driver, Imu, 'imu/data_compensated', 1000)
+    wait_for(lambda: node._active is not None and temp_pub.get_subscription_count() >= 1,
+             WAIT, lambda: f'the calibration to activate ({node.last_rejection})')
+    assert node.temperature_topics == ['/imu/temp'] and node.adopter.waiting is None
+    ros.wait_matched(imu_pub)
+    wait_for(lambda: node.pub.get_subscription_count() >= 1, WAIT, 'output subscriber')
+    temp_pub.publish(temperature_msg(T0_NS, 30.0))
+    wait_for(lambda: node.temps.received[0] >= 1, WAIT, 'the reading')
+    imu_pub.publish(imu_msg(T0_NS + S // 100, ACCEL, GYRO))
+    wait_for(lambda: out, WAIT, 'the compensated message')
+    a, w = vec(out[0])
+    exp = expected(cal, 30.0)
+    np.testing.assert_allclose(a, exp.accel[0], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(w, exp.gyro[0], rtol=0, atol=1e-12)
+    assert not np.allclose(exp.accel[0], ACCEL, atol=1e-3)

@@ -27,7 +27,7 @@ import json
 import os
 import time
 
-from . import input_hints
+from . import input_hints, topic_follower
 from ..io.headerless import LiveClocks
 
 #: seconds (steady clock) after the first IMU message before deciding without a temperature:
@@ -108,18 +108,23 @@ def warn_late(node):
 
 
 def made_without(node):
-    """Return True when ``node``'s collection file was made without its thermal inputs.
+    """Return True when ``node``'s collection file was made with inputs the decision may change.
 
     A calibrator restarted in a session without a temperature: the file's inputs are none
-    (``drop_inputs`` wrote them) while the node has its configured ones. The resume then
-    waits for the decision: without the inputs it goes on with that collection, with them
-    it is moved aside, as any collection of other inputs.
+    (``drop_inputs`` wrote them) while the node has its configured ones; or in a session
+    whose temperature was followed under another name (``topic_follower``): the file has
+    one other topic while the node has the default one. The resume then waits for the
+    decision: with the file's inputs it goes on with that collection, with others it is
+    moved aside, as any collection of other inputs.
     """
     path = node._collection_path()
     if not node.k or node.lifelong is not None or not path or not os.path.exists(path):
         return False
     try:
         with open(path + '.inputs.json') as f:
-            return json.load(f).get('temperature_topics') == []
+            topics = json.load(f).get('temperature_topics')
     except (OSError, ValueError, AttributeError):
         return False
+    return topics == [] or (topic_follower.follows(node.temperature_topics)
+                            and isinstance(topics, list) and len(topics) == 1
+                            and topics != list(node.temperature_topics))

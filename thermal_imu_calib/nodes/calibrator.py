@@ -40,7 +40,7 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from . import (absent_inputs, calibrator_params as params, common, input_hints, process,
-               thermal_types)
+               thermal_types, topic_follower)
 from .calibrator_collection import LiveCollection
 from ..app import calibrate as app
 from ..calibration import CalibrationError
@@ -115,6 +115,9 @@ class CalibratorNode(LiveCollection, Node):
         self._imu_seen_at = None      # steady clock at the first tick that saw an IMU message
         self._input_notes = []        # what was decided about the inputs (the file's notes)
         self._absent_topics = []      # the inputs' topics when decided without them
+        #: the IMU's temperature under another name, as calibrate picks it (``topic_follower``)
+        self._name_follower = (topic_follower.NameFollower() if not self._inputs_decided
+                               and topic_follower.follows(self.temperature_topics) else None)
         common.steady_timer(self, 0.1, self._tick, callback_group=data)
         common.steady_timer(self, thermal_types.FOLLOW_PERIOD_S, self.type_follower,
                             callback_group=data)
@@ -154,6 +157,8 @@ class CalibratorNode(LiveCollection, Node):
             return True
         if self._imu_seen_at is None and self._rate.total:
             self._imu_seen_at = time.monotonic()
+        if self._name_follower and self._name_follower(self):
+            self._name_follower = None
         how, why = absent_inputs.decide(self, self._imu_seen_at, force)
         if how == absent_inputs.UNDECIDED:
             return False

@@ -34,7 +34,7 @@ from sensor_msgs.msg import Imu
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from . import common, input_hints, process, thermal_types, units
+from . import common, input_hints, process, thermal_types, topic_follower, units
 from .compensator_state import StreamStateFile
 from ..calibration import Calibration, CalibrationError
 from ..collection.feed import DEFAULT_MAX_GAP_S
@@ -190,7 +190,10 @@ class CompensatorNode(Node):
         #: a silent input whose topic is published as another thermal type is
         #: re-subscribed as that type (``thermal_types``), as calibrate reads a log
         self.type_follower = thermal_types.TypeFollower(self, self.temp_subs, self._subscribe_as)
-        common.steady_timer(self, thermal_types.FOLLOW_PERIOD_S, self.type_follower)
+        #: a calibration whose one input was followed under another name is served from
+        #: that topic when nothing is on the default one (``topic_follower``)
+        self.adopter = topic_follower.InputAdopter(self)
+        common.steady_timer(self, thermal_types.FOLLOW_PERIOD_S, self._follow)
         self.cal_sub = self.create_subscription(String, 'imu/calibration', self._on_calibration,
                                                 common.CALIBRATION_QOS)
         self.reload_srv = self.create_service(Trigger, '~/reload', self._on_reload)
@@ -221,6 +224,7 @@ class CompensatorNode(Node):
             return self._reject(source, reason)
         # one reference swap: a message is compensated entirely with the old or the new model
         self._active = model
+        self.adopter.waiting = None
         self.state.activated(model)
         self.counts['calibrations_loaded'] += 1
         return True, units.active_text(model)
@@ -229,6 +233,14 @@ class CompensatorNode(Node):
         """Return (ActiveModel, None) if this node can serve ``cal``'s inputs, else (None, why)."""
         columns, reason = common.match_topics(self, cal.temperature_topics,
                                               self.temperature_topics)
+        if reason and self.adopter.applies(cal):     # a followed input's
+            if self.adopter.adopt(cal.temperature_topics[0]):      # (topic_follower)
+                columns, reason = common.match_topics(self, cal.temperature_topics,
+                                                      self.temperature_topics)
+            else:
+                self.adopter.waiting = (cal, source)
+                reason += (f'; it is activated once {cal.temperature_topics[0]} is published '
+                           f'while nothing is on {self.temp_subs[0].topic_name}')
         reason = reason or self._unit_mismatch(cal, columns) or _probe(cal)
         if reason:
             return None, reason
@@ -308,6 +320,13 @@ class CompensatorNode(Node):
                 self.fill_covariance = value
 
     # ------------------------------------------------------------------ data
+    def _follow(self):
+        """Follow an input's type (``thermal_types``) or a waiting calibration's input."""
+        self.type_follower()
+        done = self.adopter.poll()
+        if done is not None:
+            common.log(self, *done)
+
     def _subscribe_as(self, index, typ):
         """Subscribe thermal input ``index`` as message type ``typ`` (``thermal_types``)."""
         cls, value = common.THERMAL_TYPES[typ]

@@ -1,0 +1,214 @@
+"""Follow the IMU's temperature under another topic name, as ``calibrate`` picks it from a log.
+
+``calibrate`` without ``--temperature-topic`` takes the log's only sensor_msgs/Temperature
+topic as the IMU's (of several: the one with the IMU's frame_id, else the one in the IMU
+topic's namespace; a Float32/Float64 ``temp...`` topic beside the IMU's when there is
+none): ``io.topics.choose_temperatures``. ``calibrator_node`` subscribed its
+``temperature_topics`` only. A driver publishing ``/temperature`` (Xsens, the BNO055 USB
+stick) or ``imu/temp``, or ``ros2 bag play`` of its bag, with the shipped
+``temperature_topics: [imu/temperature]`` gave no reading and ``~/calibrate`` refused,
+naming the topic to set, while ``calibrate`` on the same bag calibrated with it.
+
+Now, while its thermal input is undecided (``absent_inputs``) and only with the default
+``temperature_topics`` (one input, ``DEFAULT_TOPICS``; a list the user chose otherwise is
+never second-guessed), the calibrator looks at the topics the IMU topic's own publishers
+publish (the driver's, or the bag player's: the log's topics), and when nothing at all is
+published on its input's topic it applies that same rule to them: the topic chosen (the
+same for ``SETTLE_S``) is subscribed instead (as the type it is published as), with a
+warning and a note in the calibration file; the IMU messages wait meanwhile, as for the
+decision. A restart in such a session resumes the collection
+(``absent_inputs.made_without``). The frame_id test needs messages, so on the graph the
+rule has no frame ids (several Temperature topics: the namespace decides; none singled
+out: nothing is followed and ``~/calibrate`` names them, as before). A temperature
+published by another node than the IMU's is not followed (on a robot that is a
+battery's or a motor's as often as the IMU's); its name is in the refusal. Not in
+lifelong mode, nor for a collection resumed from its file (decided at the start).
+
+``compensator_node`` with the default list takes such a calibration by subscribing its
+input's topic (``InputAdopter``).
+"""
+
+import time
+
+from . import common
+from .thermal_types import UNKNOWN_NODE
+from ..io.headerless import LiveClocks
+from ..io.topics import AmbiguousTemperature, choose_temperatures
+
+#: the code's default ``temperature_topics`` (both nodes); only that list is followed
+DEFAULT_TOPICS = ('imu/temperature',)
+
+
+def follows(topics):
+    """Return True when a node with these ``temperature_topics`` may follow another name."""
+    return tuple(topics) == DEFAULT_TOPICS
+
+
+def topic_to_follow(node, imu_sub, temp_sub):
+    """Return (topic, type, how, publishers) of the IMU's temperature under another name.
+
+    ('', '', '', []) unless nothing of any type is published on ``temp_sub``'s topic, the
+    IMU subscription's publishers are on the graph with their node names, and the topics
+    those nodes publish single out one thermal topic other than ``temp_sub``'s by
+    ``choose_temperatures`` (without frame ids). The graph is a hint only: an error reading
+    it gives nothing.
+    """
+    none = ('', '', '', [])
+    try:
+        if node.get_publishers_info_by_topic(temp_sub.topic_name):
+            return none
+        infos = node.get_publishers_info_by_topic(imu_sub.topic_name)
+        if not infos or any(i.node_name == UNKNOWN_NODE for i in infos):
+            return none
+        publishers = sorted({(i.node_name, i.node_namespace) for i in infos})
+        published = {}
+        for name, ns in publishers:
+            for topic, types in node.get_publisher_names_and_types_by_node(name, ns):
+                if len(types) == 1 and types[0] in common.THERMAL_TYPES:
+                    published[topic] = types[0]
+    except Exception:  # noqa: B902 - the graph is only a hint
+        return none
+    try:
+        choice = choose_temperatures(published, imu_sub.topic_name)
+    except AmbiguousTemperature:
+        return none
+    if len(choice.topics) != 1 or choice.topics[0] == temp_sub.topic_name:
+        return none
+    topic, = choice.topics
+    return topic, published[topic], choice.how, [
+        ns.rstrip('/') + '/' + name for name, ns in publishers]
+
+
+def note(old, topic, typ, how, by):
+    """Return the warning (and calibration-file note) of a followed topic name."""
+    why = {'only': 'the only sensor_msgs/Temperature topic it publishes',
+           'namespace': "the one of its Temperature topics in the IMU topic's namespace",
+           'headerless': ("its header-less 'temp...' topic in the IMU topic's namespace (each "
+                          'reading takes the header stamp of the IMU message published '
+                          'before it)')}.get(how, how)
+    return (f'nothing is published on {old}; {topic} ({typ}), published with the IMU topic '
+            f'by {", ".join(by)}, is {why}: subscribed to it instead, as calibrate picks a '
+            "log's temperature; readings published before now were not received (set "
+            f"temperature_topics:='[{topic}]' to subscribe so from the start, "
+            "or temperature_topics:='[]' for no thermal input)")
+
+
+#: seconds (steady clock) the same topic must be singled out before it is followed: the
+#: graph learns a driver's publishers one by one, and a second Temperature topic may
+#: change the choice
+SETTLE_S = 0.5
+
+
+class NameFollower:
+    """Follow the calibrator's one input to the IMU's temperature under another name, once.
+
+    Called while the inputs are undecided (``absent_inputs``), before anything is
+    collected; returns True when it followed a topic (then it is not called again). The
+    old subscription is destroyed, the input's topic, clock choice and pending readings
+    start afresh, the collection file's inputs are rewritten (by the deferred resume when
+    one waits), and the note is logged and kept for the calibration file.
+    """
+
+    def __init__(self, settle_s=SETTLE_S):
+        self.settle_s = float(settle_s)
+        self._seen = None                 # ((topic, type, how, publishers), since)
+
+    def __call__(self, node, now=None):
+        """Follow the topic singled out for ``SETTLE_S`` (``topic_to_follow``); True if so."""
+        now = time.monotonic() if now is None else now
+        found = topic_to_follow(node, node.imu_sub, node.temp_subs[0])
+        if not found[0]:
+            self._seen = None
+            return False
+        if self._seen is None or self._seen[0] != found:
+            self._seen = (found, now)
+        if now - self._seen[1] < self.settle_s:
+            return False
+        _switch(node, *found)
+        return True
+
+
+def _switch(node, topic, typ, how, by):
+    cls, value = common.THERMAL_TYPES[typ]
+    old = node.temp_subs[0].topic_name
+    node.destroy_subscription(node.temp_subs[0])
+    with node._lock:
+        node.temperature_topics[0] = topic
+        node._clocks = LiveClocks(node.temperature_topics, [common.headerless(cls)])
+        node._pending_temp[0] = []
+    node.temp_subs[0] = node.create_subscription(
+        cls, topic, node._temperature_cb(0, value), common.sensor_qos(node._in_depth),
+        callback_group=node._data_group)
+    node.type_follower.topics[0] = node.temp_subs[0].topic_name
+    node.type_follower.types[0] = typ
+    if not node._resume_later:    # else the resume compares the file's inputs, then writes
+        node._write_inputs_signature()
+    text = note(old, topic, typ, how, by)
+    node._input_notes.append(text)
+    node.get_logger().warning(text)
+
+
+class InputAdopter:
+    """compensator_node: serve a calibration whose one input was followed under another name.
+
+    A calibration made on a followed topic (above, or by ``calibrate`` on a log) names it
+    as its input; a compensator with the default ``temperature_topics`` refused it ("not
+    among temperature_topics"), so ``~/calibrate`` handed the calibrator's result to a
+    compensator that would not take it. Now, with the default list only, the compensator
+    subscribes its one input to the calibration's topic instead when nothing is published
+    on its own and the calibration's is published as one thermal type. When that is not
+    yet so (at start the graph is still empty), the calibration waits: ``poll`` activates
+    it once it is. A calibration activated meanwhile ends the wait. Not with
+    ``registry_dir`` (one subscription serves every unit).
+    """
+
+    def __init__(self, node):
+        self.node = node
+        self.enabled = follows(node.temperature_topics) and not node.registry_dir
+        self.waiting = None             # (calibration, source) until its input is published
+
+    def applies(self, cal):
+        """Return True when ``cal``'s one input may be adopted (the default list here)."""
+        return self.enabled and len(cal.temperature_topics) == 1
+
+    def adopt(self, topic):
+        """Subscribe the input to ``topic`` if ours is silent and it is published; True if so."""
+        node = self.node
+        try:
+            resolved = node.resolve_topic_name(topic)
+            if node.get_publishers_info_by_topic(node.temp_subs[0].topic_name):
+                return False
+            types = {i.topic_type for i in node.get_publishers_info_by_topic(resolved)}
+        except Exception:  # noqa: B902 - the graph is only a hint
+            return False
+        if len(types) != 1 or not types <= set(common.THERMAL_TYPES):
+            return False
+        typ, = types
+        cls, value = common.THERMAL_TYPES[typ]
+        old = node.temp_subs[0].topic_name
+        node.destroy_subscription(node.temp_subs[0])
+        node.temperature_topics[0] = topic
+        node.temps.topics[0] = topic
+        node.temps.tracks[0].clear()
+        node.temps.received[0] = 0
+        node._clocks = LiveClocks(node.temperature_topics, [common.headerless(cls)])
+        node._temp_fields[0] = value
+        node.temp_subs[0] = node.create_subscription(
+            cls, topic, node._temperature_cb(0, value), common.sensor_qos(node._in_depth))
+        node.type_follower.topics[0] = node.temp_subs[0].topic_name
+        node.type_follower.types[0] = typ
+        node.get_logger().warning(
+            f'nothing is published on {old}; the calibration\'s input {topic} is published '
+            f'as {typ}: subscribed to it instead (set temperature_topics:=\'[{topic}]\' to '
+            'subscribe so from the start)')
+        return True
+
+    def poll(self):
+        """Activate the waiting calibration once its input can be adopted; return its result."""
+        if self.waiting is None:
+            return None
+        cal, source = self.waiting
+        if not self.adopt(cal.temperature_topics[0]):
+            return None
+        self.waiting = None
+        return self.node.activate(cal, source)
