@@ -3,7 +3,7 @@
 Usage (from the repository root; a ROS domain of your own for the live runs)::
 
     ROS_DOMAIN_ID=72 .venv/bin/python bench/headerless_real.py [--work DIR] [--json OUT]
-        [--no-live] [--kinds float64 float64_followed stamp0]
+        [--no-live] [--kinds float64 float64_followed stamp0 renamed]
 
 For the BMI270 soaks and the chamber log's training part (``real_recordings``), the log is
 written again with each temperature reading logged half an IMU period after its sample (a
@@ -15,7 +15,11 @@ forms (``KINDS``):
   Temperature): it must subscribe as Float64 once it sees the player's publisher on the
   graph (``nodes/thermal_types``);
 * ``stamp0``: as sensor_msgs/Temperature with header stamp 0 (a driver that never sets it;
-  ``io.headerless.StampChoice`` puts it on the IMU's clock).
+  ``io.headerless.StampChoice`` puts it on the IMU's clock);
+* ``renamed``: as sensor_msgs/Temperature with its stamps, on ``/temperature`` (where the
+  Xsens driver publishes it) instead of the node's ``imu/temperature``: ``calibrate`` runs
+  without ``--temperature-topic`` (it takes the log's only Temperature topic) and the node
+  with the shipped config follows it (``nodes/topic_follower``).
 
 Then, default options as in ``scoreboard.py``:
 
@@ -45,8 +49,10 @@ from thermal_imu_calib.io.bag_writer import write_columns  # noqa: E402
 from thermal_imu_calib.io.columns import TemperatureColumns  # noqa: E402
 
 FLOAT = 'std_msgs/msg/Float64'
-#: the forms of the temperature: no header, or a header stamp of 0
-KINDS = ('float64', 'float64_followed', 'stamp0')
+#: the forms of the temperature: no header, a header stamp of 0, or another topic name
+KINDS = ('float64', 'float64_followed', 'stamp0', 'renamed')
+#: the topic of ``renamed`` (the Xsens ROS 2 driver's)
+RENAMED = '/temperature'
 
 
 def _verdict(c):
@@ -81,25 +87,32 @@ def run(rec, work, domain_id, live=True, kind='float64'):
         write_columns(bare, rec.imu_topic, imu, {rec.temperature_topic: TemperatureColumns(
             temps.stamp_ns + half, temps.temperature)}, msgtypes={rec.temperature_topic: FLOAT},
             overwrite=True)
+    elif kind == 'renamed':
+        write_columns(bare, rec.imu_topic, imu, {RENAMED: TemperatureColumns(
+            temps.stamp_ns, temps.temperature)}, overwrite=True)
     else:
         _write_stamp0(bare, rec, imu, temps, temps.stamp_ns + half)
     a = offline(rec.log, rec, os.path.join(work, f'{rec.name}_stamped.yaml'),
                 rec.temperature_topic)
     b = offline(bare, rec, os.path.join(work, f'{rec.name}_{kind}.yaml'),
-                rec.temperature_topic)
+                None if kind == 'renamed' else rec.temperature_topic)
     row = {'name': rec.name, 'kind': kind, 'imu_messages': len(imu), 'readings': len(temps),
            'offline_rc': [a['rc'], b['rc']], 'offline_summary': b['summary'],
            'vs_stamped': _verdict(compare(a['yaml'], b['yaml'])) if a['rc'] == 0
            == b['rc'] else None, 'seconds_offline': [a['seconds'], b['seconds']]}
     if live:
-        shifted = TemperatureColumns(temps.stamp_ns + half, temps.temperature)
+        shifted = TemperatureColumns(temps.stamp_ns + (0 if kind == 'renamed' else half),
+                                     temps.temperature)
         r = live_replay.run_live(imu, shifted, rec.gravity, domain_id,
                                  workdir=os.path.join(work, f'{rec.name}_{kind}_live'),
                                  temperature_type=FLOAT if kind.startswith('float64')
                                  else live_replay.TEMPERATURE_TYPE,
                                  temperature_header_ns=None if kind.startswith('float64')
+                                 else None if kind == 'renamed'
                                  else np.zeros(len(temps), np.int64),
-                                 set_temperature_type=kind != 'float64_followed')
+                                 set_temperature_type=kind != 'float64_followed',
+                                 published_on=RENAMED if kind == 'renamed'
+                                 else live_replay.TEMPERATURE_TOPIC)
         row['live'] = {'error': r.error, 'success': r.success, 'message': r.message[:300],
                        'imu': [r.imu_received, r.imu_sent], 'readings': [r.temp_received,
                                                                          r.temp_sent],
