@@ -914,3 +914,20 @@ def test_a_calibration_of_a_followed_topic_waits_for_it_then_is_served_from_it(r
     np.testing.assert_allclose(a, exp.accel[0], rtol=0, atol=1e-12)
     np.testing.assert_allclose(w, exp.gyro[0], rtol=0, atol=1e-12)
     assert not np.allclose(exp.accel[0], ACCEL, atol=1e-3)
+
+
+def test_a_calibration_of_another_robots_topic_is_not_followed(ros, tmp_path):
+    # the same under a namespace: a calibration naming /robot1/imu/temp (another robot's
+    # temperature) is not served from that topic by robot2's compensator, even while it is
+    # published and nothing is on robot2's own input
+    cal = make_cal(topics=('/robot1/imu/temp',))
+    node = ros.add(CompensatorNode(context=ros.context, namespace='robot2',
+                                   parameter_overrides=[Parameter(
+                                       'calibration_file',
+                                       value=str(cal.save(tmp_path / 'cal.yaml')))]))
+    driver = ros.node('robot1_driver')
+    driver.create_publisher(Temperature, '/robot1/imu/temp', 10)
+    wait_for(lambda: node.get_publishers_info_by_topic('/robot1/imu/temp'), WAIT, 'the graph')
+    assert not node.adopter.adopt('/robot1/imu/temp')
+    assert node.temperature_topics == ['imu/temperature'] and node._active is None
+    assert node.temp_subs[0].topic_name == '/robot2/imu/temperature'

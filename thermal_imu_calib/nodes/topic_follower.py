@@ -159,7 +159,8 @@ class InputAdopter:
     on its own and the calibration's is published as one thermal type. When that is not
     yet so (at start the graph is still empty), the calibration waits: ``poll`` activates
     it once it is. A calibration activated meanwhile ends the wait. Not with
-    ``registry_dir`` (one subscription serves every unit).
+    ``registry_dir`` (one subscription serves every unit), nor a topic outside the node's
+    namespace (another robot's).
     """
 
     def __init__(self, node):
@@ -176,6 +177,9 @@ class InputAdopter:
         node = self.node
         try:
             resolved = node.resolve_topic_name(topic)
+            space = node.get_namespace().rstrip('/') + '/'
+            if not resolved.startswith(space):       # another robot's, under a namespace
+                return False
             if node.get_publishers_info_by_topic(node.temp_subs[0].topic_name):
                 return False
             types = {i.topic_type for i in node.get_publishers_info_by_topic(resolved)}
