@@ -811,3 +811,24 @@ def test_a_temperature_under_another_name_is_followed_and_resumed_after_a_restar
     assert topic_follower.follows(['imu/temperature'])
     assert not topic_follower.follows(['imu/temp_die'])
     assert not topic_follower.follows(['imu/temperature', 'imu/board_temperature'])
+
+
+def test_another_robots_temperature_is_not_followed(ros):
+    # a player publishing two robots' topics (a multi-robot bag): robot2's calibrator
+    # follows a temperature inside its namespace only (nodes/topic_follower)
+    from rclpy.node import Node
+    from thermal_imu_calib.nodes import topic_follower
+    node = ros.add(Node('thermal_imu_calibrator', namespace='robot2', context=ros.context))
+    imu_sub = node.create_subscription(Imu, 'imu/data_raw', lambda m: None, 10)
+    temp_sub = node.create_subscription(Temperature, 'imu/temperature', lambda m: None, 10)
+    player = ros.node('rosbag2_player')
+    player.create_publisher(Imu, '/robot2/imu/data_raw', 10)
+    player.create_publisher(Temperature, '/robot1/imu/temp', 10)
+    wait_for(lambda: node.get_publishers_info_by_topic('/robot1/imu/temp')
+             and imu_sub.get_publisher_count(), WAIT, 'the graph')
+    assert topic_follower.topic_to_follow(node, imu_sub, temp_sub)[0] == ''
+    player.create_publisher(Temperature, '/robot2/temperature', 10)
+    wait_for(lambda: topic_follower.topic_to_follow(node, imu_sub, temp_sub)[0], WAIT,
+             'the follower to see /robot2/temperature')
+    assert topic_follower.topic_to_follow(node, imu_sub, temp_sub)[:3] == (
+        '/robot2/temperature', 'sensor_msgs/msg/Temperature', 'only')

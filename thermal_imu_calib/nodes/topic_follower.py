@@ -21,7 +21,8 @@ decision. A restart in such a session resumes the collection
 rule has no frame ids (several Temperature topics: the namespace decides; none singled
 out: nothing is followed and ``~/calibrate`` names them, as before). A temperature
 published by another node than the IMU's is not followed (on a robot that is a
-battery's or a motor's as often as the IMU's); its name is in the refusal. Not in
+battery's or a motor's as often as the IMU's), nor one outside the node's namespace
+(another robot's); its name is in the refusal. Not in
 lifelong mode, nor for a collection resumed from its file (decided at the start).
 
 ``compensator_node`` with the default list takes such a calibration by subscribing its
@@ -49,9 +50,9 @@ def topic_to_follow(node, imu_sub, temp_sub):
 
     ('', '', '', []) unless nothing of any type is published on ``temp_sub``'s topic, the
     IMU subscription's publishers are on the graph with their node names, and the topics
-    those nodes publish single out one thermal topic other than ``temp_sub``'s by
-    ``choose_temperatures`` (without frame ids). The graph is a hint only: an error reading
-    it gives nothing.
+    those nodes publish inside ``node``'s namespace (not another robot's) single out one
+    thermal topic other than ``temp_sub``'s by ``choose_temperatures`` (without frame ids).
+    The graph is a hint only: an error reading it gives nothing.
     """
     none = ('', '', '', [])
     try:
@@ -61,10 +62,12 @@ def topic_to_follow(node, imu_sub, temp_sub):
         if not infos or any(i.node_name == UNKNOWN_NODE for i in infos):
             return none
         publishers = sorted({(i.node_name, i.node_namespace) for i in infos})
+        space = node.get_namespace().rstrip('/') + '/'
         published = {}
         for name, ns in publishers:
             for topic, types in node.get_publisher_names_and_types_by_node(name, ns):
-                if len(types) == 1 and types[0] in common.THERMAL_TYPES:
+                if (len(types) == 1 and types[0] in common.THERMAL_TYPES
+                        and topic.startswith(space)):      # not another robot's
                     published[topic] = types[0]
     except Exception:  # noqa: B902 - the graph is only a hint
         return none
