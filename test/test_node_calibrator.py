@@ -674,6 +674,7 @@ def test_reset_judges_the_temperature_stamps_afresh(ros, tmp_path):
     # calibrate does) and was fixed since: after ~/reset its readings are judged again, as
     # calibrate judges each log, and keep their header stamps. Before, the choice was kept
     from conftest import imu_msg, temperature_msg
+    t0 = 1_700_000_000 * 10 ** 9
     node = calibrator(ros, tmp_path)
     drv, imu_pub, temp_pub, progress = _driver(ros, 'driver_fixed_since', 'imu/temperature')
     ros.wait_matched(temp_pub, 1, timeout=WAIT)
@@ -832,3 +833,30 @@ def test_another_robots_temperature_is_not_followed(ros):
              'the follower to see /robot2/temperature')
     assert topic_follower.topic_to_follow(node, imu_sub, temp_sub)[:3] == (
         '/robot2/temperature', 'sensor_msgs/msg/Temperature', 'only')
+
+
+def test_of_several_temperatures_the_one_with_the_imus_frame_id_is_followed(ros, tmp_path):
+    # a bag player publishing a robot's /temperature (the IMU's frame_id) and
+    # /battery/temperature, neither in the IMU topic's namespace: calibrate picks the one
+    # whose first message has the IMU's frame_id; the node probes both for theirs and
+    # follows the same (nodes/topic_follower)
+    from conftest import imu_msg, temperature_msg
+    t0 = 1_700_000_000 * 10 ** 9
+    node = calibrator(ros, tmp_path)
+    player = ros.node('rosbag2_player')
+    imu_pub = player.create_publisher(Imu, 'imu/data_raw', 1000)
+    pubs = {t: player.create_publisher(Temperature, t, 10)
+            for t in ('/temperature', '/battery/temperature')}
+
+    def followed():
+        imu_pub.publish(imu_msg(t0, (0.0, 0.0, 9.8), (0.0, 0.0, 0.0), 'imu_link'))
+        pubs['/temperature'].publish(temperature_msg(t0, 30.0, 'imu_link'))
+        pubs['/battery/temperature'].publish(temperature_msg(t0, 40.0, 'battery'))
+        return node.temperature_topics == ['/temperature']
+    wait_for(followed, WAIT, lambda: f'the node to follow /temperature '
+                                     f'({node.temperature_topics}, {node._name_follower})',
+             poll=0.1)
+    note = [n for n in node.input_notes() if n.startswith('nothing is published')]
+    assert "is the one of its Temperature topics whose header.frame_id is the IMU " \
+        "messages'" in note[0], note
+    assert not [s for s in node.subscriptions if s.topic_name == '/battery/temperature']

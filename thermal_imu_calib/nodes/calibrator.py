@@ -162,6 +162,7 @@ class CalibratorNode(LiveCollection, Node):
         how, why = absent_inputs.decide(self, self._imu_seen_at, force)
         if how == absent_inputs.UNDECIDED:
             return False
+        self._name_follower = self._name_follower and self._name_follower.close(self)
         if how == absent_inputs.ABSENT:
             absent_inputs.drop_inputs(self, why)
         if self._resume_later:       # before anything is collected (the queue waits)

@@ -17,13 +17,15 @@ published on its input's topic it applies that same rule to them: the topic chos
 same for ``SETTLE_S``) is subscribed instead (as the type it is published as), with a
 warning and a note in the calibration file; the IMU messages wait meanwhile, as for the
 decision. A restart in such a session resumes the collection
-(``absent_inputs.made_without``). The frame_id test needs messages, so on the graph the
-rule has no frame ids (several Temperature topics: the namespace decides; none singled
-out: nothing is followed and ``~/calibrate`` names them, as before). A temperature
-published by another node than the IMU's is not followed (on a robot that is a
-battery's or a motor's as often as the IMU's), nor one outside the node's namespace
-(another robot's); its name is in the refusal. Not in
-lifelong mode, nor for a collection resumed from its file (decided at the start).
+(``absent_inputs.made_without``). The rule's frame_id test needs messages: of several
+Temperature topics, each is probed (subscribed until its first message, at most
+``PROBE_S``) and the IMU messages' frame_id is compared with theirs, as ``calibrate``
+compares the first messages in a log; none singled out: nothing is followed and
+``~/calibrate`` names them, as before. A temperature published by another node than the
+IMU's is not followed (on a robot that is a battery's or a motor's as often as the
+IMU's), nor one outside the node's namespace (another robot's); its name is in the
+refusal. Not in lifelong mode, nor for a collection resumed from its file (decided at
+the start).
 
 ``compensator_node`` with the default list takes such a calibration by subscribing its
 input's topic (``InputAdopter``).
@@ -34,6 +36,7 @@ import time
 from . import common
 from .thermal_types import UNKNOWN_NODE
 from ..io.headerless import LiveClocks
+from ..io.cdr import TEMPERATURE_MSGTYPE
 from ..io.topics import AmbiguousTemperature, choose_temperatures
 
 #: the code's default ``temperature_topics`` (both nodes); only that list is followed
@@ -45,22 +48,21 @@ def follows(topics):
     return tuple(topics) == DEFAULT_TOPICS
 
 
-def topic_to_follow(node, imu_sub, temp_sub):
-    """Return (topic, type, how, publishers) of the IMU's temperature under another name.
+def candidates(node, imu_sub, temp_sub):
+    """Return ({topic: type}, publishers) the IMU's temperature may be found among, or None.
 
-    ('', '', '', []) unless nothing of any type is published on ``temp_sub``'s topic, the
-    IMU subscription's publishers are on the graph with their node names, and the topics
-    those nodes publish inside ``node``'s namespace (not another robot's) single out one
-    thermal topic other than ``temp_sub``'s by ``choose_temperatures`` (without frame ids).
-    The graph is a hint only: an error reading it gives nothing.
+    None when something of any type is published on ``temp_sub``'s topic, or the IMU
+    subscription's publishers are not on the graph with their node names yet; else the
+    thermal topics (one type each) those nodes publish inside ``node``'s namespace (not
+    another robot's) and the nodes' names. The graph is a hint only: an error reading it
+    gives None.
     """
-    none = ('', '', '', [])
     try:
         if node.get_publishers_info_by_topic(temp_sub.topic_name):
-            return none
+            return None
         infos = node.get_publishers_info_by_topic(imu_sub.topic_name)
         if not infos or any(i.node_name == UNKNOWN_NODE for i in infos):
-            return none
+            return None
         publishers = sorted({(i.node_name, i.node_namespace) for i in infos})
         space = node.get_namespace().rstrip('/') + '/'
         published = {}
@@ -70,21 +72,37 @@ def topic_to_follow(node, imu_sub, temp_sub):
                         and topic.startswith(space)):      # not another robot's
                     published[topic] = types[0]
     except Exception:  # noqa: B902 - the graph is only a hint
-        return none
+        return None
+    return published, [ns.rstrip('/') + '/' + name for name, ns in publishers]
+
+
+def topic_to_follow(node, imu_sub, temp_sub, frames=None):
+    """Return (topic, type, how, publishers) of the IMU's temperature under another name.
+
+    ('', '', '', []) unless ``candidates`` single out one thermal topic other than
+    ``temp_sub``'s by ``choose_temperatures``, with the ``frames`` known (topic ->
+    header.frame_id of its first message, the IMU topic's among them; on the graph alone
+    none are).
+    """
+    found = candidates(node, imu_sub, temp_sub)
+    if found is None:
+        return ('', '', '', [])
+    published, by = found
     try:
-        choice = choose_temperatures(published, imu_sub.topic_name)
+        choice = choose_temperatures(published, imu_sub.topic_name, frames)
     except AmbiguousTemperature:
-        return none
+        return ('', '', '', [])
     if len(choice.topics) != 1 or choice.topics[0] == temp_sub.topic_name:
-        return none
+        return ('', '', '', [])
     topic, = choice.topics
-    return topic, published[topic], choice.how, [
-        ns.rstrip('/') + '/' + name for name, ns in publishers]
+    return topic, published[topic], choice.how, by
 
 
 def note(old, topic, typ, how, by):
     """Return the warning (and calibration-file note) of a followed topic name."""
     why = {'only': 'the only sensor_msgs/Temperature topic it publishes',
+           'frame': ("the one of its Temperature topics whose header.frame_id is the IMU "
+                     "messages'"),
            'namespace': "the one of its Temperature topics in the IMU topic's namespace",
            'headerless': ("its header-less 'temp...' topic in the IMU topic's namespace (each "
                           'reading takes the header stamp of the IMU message published '
@@ -100,6 +118,10 @@ def note(old, topic, typ, how, by):
 #: graph learns a driver's publishers one by one, and a second Temperature topic may
 #: change the choice
 SETTLE_S = 0.5
+#: seconds (steady clock) the probes of several Temperature topics wait for their first
+#: messages' frame_ids before the rule runs with those known (``calibrate`` reads the
+#: first message of every topic in the log)
+PROBE_S = 3.0
 
 
 class NameFollower:
@@ -115,11 +137,30 @@ class NameFollower:
     def __init__(self, settle_s=SETTLE_S):
         self.settle_s = float(settle_s)
         self._seen = None                 # ((topic, type, how, publishers), since)
+        self.frames = {}                  # topic -> frame_id of its first message (probes)
+        self._probes = {}                 # topic -> a probe subscription
+        self._probing_since = None        # steady clock at the first probe
 
     def __call__(self, node, now=None):
-        """Follow the topic singled out for ``SETTLE_S`` (``topic_to_follow``); True if so."""
+        """Follow the topic singled out for ``SETTLE_S`` (``topic_to_follow``); True if so.
+
+        Of several Temperature topics, each is probed first (``_probe``): the rule runs
+        once their frame_ids and the IMU messages' are known, or ``PROBE_S`` after the
+        probes began, with what is known then.
+        """
         now = time.monotonic() if now is None else now
-        found = topic_to_follow(node, node.imu_sub, node.temp_subs[0])
+        found = candidates(node, node.imu_sub, node.temp_subs[0])
+        several = [t for t, ty in (found[0] if found else {}).items()
+                   if ty == TEMPERATURE_MSGTYPE]
+        if len(several) > 1:
+            self._probe(node, several, now)
+            if now - self._probing_since < PROBE_S and (
+                    not node._seen_frame or any(t not in self.frames for t in several)):
+                return False
+        frames = dict(self.frames)
+        if node._seen_frame:
+            frames[node.imu_sub.topic_name] = node._seen_frame
+        found = topic_to_follow(node, node.imu_sub, node.temp_subs[0], frames)
         if not found[0]:
             self._seen = None
             return False
@@ -127,8 +168,30 @@ class NameFollower:
             self._seen = (found, now)
         if now - self._seen[1] < self.settle_s:
             return False
+        self.close(node)
         _switch(node, *found)
         return True
+
+    def _probe(self, node, topics, now):
+        """Subscribe each of ``topics`` not yet probed, to learn its first frame_id."""
+        from sensor_msgs.msg import Temperature
+        for topic in topics:
+            if topic in self._probes:
+                continue
+
+            def first(msg, topic=topic):
+                self.frames.setdefault(topic, msg.header.frame_id)
+            self._probes[topic] = node.create_subscription(
+                Temperature, topic, first, common.sensor_qos(10),
+                callback_group=node._data_group)
+            if self._probing_since is None:
+                self._probing_since = now
+
+    def close(self, node):
+        """Destroy the probes (the inputs are decided); return None."""
+        for sub in self._probes.values():
+            node.destroy_subscription(sub)
+        self._probes.clear()
 
 
 def _switch(node, topic, typ, how, by):
