@@ -610,9 +610,13 @@ def test_use_sim_time_without_a_clock_still_collects(ros, tmp_path):
     player = Player(ros)
     player.play(rec)
     player.wait_received()
-    prog = player.latest_progress(lambda p: p['segments'] >= 1 and p['stationary'],
-                                  what='a closed hold and one in progress')
-    assert prog['samples'] >= prog['imu_received'] - 10, prog
+    # every message taken in: a progress message may be sent between a batch's arrival and
+    # the next processing tick (seen once in a clean clone: 17 of 3079 not yet processed),
+    # so the condition is waited for, not asserted on the newest snapshot
+    prog = player.latest_progress(lambda p: p['segments'] >= 1 and p['stationary']
+                                  and p['samples'] >= p['imu_received'] - 10,
+                                  what='a closed hold, one in progress, every message taken in')
+    assert prog['imu_received'] >= player.sent[0], prog
 
 
 def test_a_restart_into_another_session_does_not_merge_the_resumed_holds(ros, tmp_path):
