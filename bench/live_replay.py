@@ -447,9 +447,8 @@ def run_live_once(imu, temps, gravity, domain_id, temperature_topics=None, workd
                     and (temps is None or all(n >= 1 for n in p['temperature_publishers']))
                     and driver.imu_pub.get_subscription_count() >= 1
                     and (temps is None or driver.temp_pub.get_subscription_count() >= 1))
-        _wait(connected, 'the node to match the player', node)
-        if temps is not None and driver.temp_pub.get_subscription_count() < 1:
-            raise NodeFailed(f'the node does not subscribe {published_on} (launch arguments)')
+        _wait(connected, 'the node to match the player (the IMU on imu/data_raw'
+              + (f', the temperature on {published_on})' if temps is not None else ')'), node)
         out.seconds['start'] = time.monotonic() - t_start
         t0 = time.monotonic()
         n = len(imu)

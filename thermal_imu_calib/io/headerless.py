@@ -398,18 +398,19 @@ class LiveClocks:
         """
         return LiveClocks([c.topic for c in self.choices], [c.headerless for c in self.choices])
 
-    def retype(self, index: int, headerless: bool) -> None:
+    def retype(self, index: int, headerless: bool, topic: str | None = None) -> None:
         """Start input ``index`` anew as a header-less (or header-stamped) type.
 
         For a node that re-subscribes the input as the type its topic is published as
-        (``nodes/thermal_types``): its choice starts again (decided at once for a
+        (``nodes/thermal_types``), or to another ``topic`` (``nodes/topic_follower``): its
+        choice starts again (decided at once for a
         header-less type), and readings of the old type still held are dropped. When no
         input needed the IMU's clock before, its IMU history starts again too (it was not
         kept meanwhile), so a reading published before the next IMU message is left out,
         as before the first.
         """
         was_on = self.on
-        self.choices[index] = StampChoice(self.choices[index].topic, headerless)
+        self.choices[index] = StampChoice(topic or self.choices[index].topic, headerless)
         self.bare[index] = bool(headerless)
         self.clock.forget(index)
         self.on = any(c.on_imu_clock is not False for c in self.choices)

@@ -59,9 +59,8 @@ def imu_temperatures(reader, imu_topic, notes=None):
     types = reader.topic_types()
     counts = reader.topics()
     published = {t: ty for t, ty in types.items() if counts[t].count != 0}
-    several = [t for t, ty in published.items() if ty == TEMPERATURE_MSGTYPE]
-    frames = _first_frames(reader, [imu_topic] + sorted(several)) if len(several) > 1 or (
-        several and notes is not None) else {}
+    found = sorted(t for t, ty in published.items() if ty == TEMPERATURE_MSGTYPE)
+    frames = _first_frames(reader, [imu_topic] + found) if found else {}
     try:
         choice = choose_temperatures(published, imu_topic, frames)
     except AmbiguousTemperature as e:

@@ -116,8 +116,7 @@ class CalibratorNode(LiveCollection, Node):
         self._input_notes = []        # what was decided about the inputs (the file's notes)
         self._absent_topics = []      # the inputs' topics when decided without them
         #: the IMU's temperature under another name, as calibrate picks it (``topic_follower``)
-        self._name_follower = (topic_follower.NameFollower() if not self._inputs_decided
-                               and topic_follower.follows(self.temperature_topics) else None)
+        self._name_follower = topic_follower.NameFollower.for_node(self)
         common.steady_timer(self, 0.1, self._tick, callback_group=data)
         common.steady_timer(self, thermal_types.FOLLOW_PERIOD_S, self.type_follower,
                             callback_group=data)
@@ -176,11 +175,12 @@ class CalibratorNode(LiveCollection, Node):
         """Return what was done to the thermal inputs (the calibration file's notes)."""
         return self._input_notes + self.type_follower.notes + self._clocks.notes
 
-    def _subscribe_as(self, index, typ):
-        """Subscribe thermal input ``index`` as message type ``typ`` (``thermal_types``)."""
+    def _subscribe_as(self, index, typ, topic=None):
+        """Subscribe input ``index`` as ``typ`` (``thermal_types``), on ``topic`` if given."""
         cls, value = common.THERMAL_TYPES[typ]
         with self._lock:
-            self._clocks.retype(index, common.headerless(cls))
+            self.temperature_topics[index] = topic or self.temperature_topics[index]
+            self._clocks.retype(index, common.headerless(cls), topic)
             self._pending_temp[index] = []
         self.temp_subs[index] = self.create_subscription(
             cls, self.temperature_topics[index], self._temperature_cb(index, value),

@@ -327,10 +327,17 @@ class CompensatorNode(Node):
         if done is not None:
             common.log(self, *done)
 
-    def _subscribe_as(self, index, typ):
-        """Subscribe thermal input ``index`` as message type ``typ`` (``thermal_types``)."""
+    def _subscribe_as(self, index, typ, topic=None):
+        """Subscribe input ``index`` as ``typ`` (``thermal_types``), on ``topic`` if given.
+
+        Another topic (``topic_follower.InputAdopter``) starts the input's readings afresh.
+        """
         cls, value = common.THERMAL_TYPES[typ]
-        self._clocks.retype(index, common.headerless(cls))
+        if topic:
+            self.temperature_topics[index] = self.temps.topics[index] = topic
+            self.temps.tracks[index].clear()
+            self.temps.received[index] = 0
+        self._clocks.retype(index, common.headerless(cls), topic)
         self._temp_fields[index] = value
         self.temp_subs[index] = self.create_subscription(
             cls, self.temperature_topics[index], self._temperature_cb(index, value),

@@ -35,7 +35,6 @@ import time
 
 from . import common
 from .thermal_types import UNKNOWN_NODE
-from ..io.headerless import LiveClocks
 from ..io.cdr import TEMPERATURE_MSGTYPE
 from ..io.topics import AmbiguousTemperature, choose_temperatures
 
@@ -76,16 +75,16 @@ def candidates(node, imu_sub, temp_sub):
     return published, [ns.rstrip('/') + '/' + name for name, ns in publishers]
 
 
-def topic_to_follow(node, imu_sub, temp_sub, frames=None):
+def topic_to_follow(node, imu_sub, temp_sub, frames=None, found=None):
     """Return (topic, type, how, publishers) of the IMU's temperature under another name.
 
-    ('', '', '', []) unless ``candidates`` single out one thermal topic other than
-    ``temp_sub``'s by ``choose_temperatures``, with the ``frames`` known (topic ->
-    header.frame_id of its first message, the IMU topic's among them; on the graph alone
-    none are).
+    ('', '', '', []) unless ``candidates`` (or ``found``, their result already read) single
+    out one thermal topic other than ``temp_sub``'s by ``choose_temperatures``, with the
+    ``frames`` known (topic -> header.frame_id of its first message, the IMU topic's among
+    them; on the graph alone none are).
     """
-    found = candidates(node, imu_sub, temp_sub)
-    if found is None:
+    found = candidates(node, imu_sub, temp_sub) if found is None else found
+    if not found:
         return ('', '', '', [])
     published, by = found
     try:
@@ -134,6 +133,11 @@ class NameFollower:
     one waits), and the note is logged and kept for the calibration file.
     """
 
+    @classmethod
+    def for_node(cls, node):
+        """Return a follower for a calibrator whose inputs are undecided and default, else None."""
+        return cls() if not node._inputs_decided and follows(node.temperature_topics) else None
+
     def __init__(self, settle_s=SETTLE_S):
         self.settle_s = float(settle_s)
         self._seen = None                 # ((topic, type, how, publishers), since)
@@ -149,8 +153,8 @@ class NameFollower:
         probes began, with what is known then.
         """
         now = time.monotonic() if now is None else now
-        found = candidates(node, node.imu_sub, node.temp_subs[0])
-        several = [t for t, ty in (found[0] if found else {}).items()
+        among = candidates(node, node.imu_sub, node.temp_subs[0])
+        several = [t for t, ty in (among[0] if among else {}).items()
                    if ty == TEMPERATURE_MSGTYPE]
         if len(several) > 1:
             self._probe(node, several, now)
@@ -160,7 +164,7 @@ class NameFollower:
         frames = dict(self.frames)
         if node._seen_frame:
             frames[node.imu_sub.topic_name] = node._seen_frame
-        found = topic_to_follow(node, node.imu_sub, node.temp_subs[0], frames)
+        found = topic_to_follow(node, node.imu_sub, node.temp_subs[0], frames, among or ())
         if not found[0]:
             self._seen = None
             return False
@@ -194,19 +198,18 @@ class NameFollower:
         self._probes.clear()
 
 
-def _switch(node, topic, typ, how, by):
-    cls, value = common.THERMAL_TYPES[typ]
+def _resubscribe(node, topic, typ):
+    """Move ``node``'s one input to ``topic`` as ``typ`` (``_subscribe_as``); return the old."""
     old = node.temp_subs[0].topic_name
     node.destroy_subscription(node.temp_subs[0])
-    with node._lock:
-        node.temperature_topics[0] = topic
-        node._clocks = LiveClocks(node.temperature_topics, [common.headerless(cls)])
-        node._pending_temp[0] = []
-    node.temp_subs[0] = node.create_subscription(
-        cls, topic, node._temperature_cb(0, value), common.sensor_qos(node._in_depth),
-        callback_group=node._data_group)
+    node._subscribe_as(0, typ, topic)
     node.type_follower.topics[0] = node.temp_subs[0].topic_name
     node.type_follower.types[0] = typ
+    return old
+
+
+def _switch(node, topic, typ, how, by):
+    old = _resubscribe(node, topic, typ)
     if not node._resume_later:    # else the resume compares the file's inputs, then writes
         node._write_inputs_signature()
     text = note(old, topic, typ, how, by)
@@ -254,19 +257,7 @@ class InputAdopter:
         if len(types) != 1 or not types <= set(common.THERMAL_TYPES):
             return False
         typ, = types
-        cls, value = common.THERMAL_TYPES[typ]
-        old = node.temp_subs[0].topic_name
-        node.destroy_subscription(node.temp_subs[0])
-        node.temperature_topics[0] = topic
-        node.temps.topics[0] = topic
-        node.temps.tracks[0].clear()
-        node.temps.received[0] = 0
-        node._clocks = LiveClocks(node.temperature_topics, [common.headerless(cls)])
-        node._temp_fields[0] = value
-        node.temp_subs[0] = node.create_subscription(
-            cls, topic, node._temperature_cb(0, value), common.sensor_qos(node._in_depth))
-        node.type_follower.topics[0] = node.temp_subs[0].topic_name
-        node.type_follower.types[0] = typ
+        old = _resubscribe(node, topic, typ)
         node.get_logger().warning(
             f'nothing is published on {old}; the calibration\'s input {topic} is published '
             f'as {typ}: subscribed to it instead (set temperature_topics:=\'[{topic}]\' to '
