@@ -131,6 +131,22 @@ def test_field_estimator_recovers_parameters(six_face_recording):
                   / fit.model.thermal_std) < 0.5
 
 
+def test_a_joint_refinement_stopped_by_its_budget_is_not_used(six_face_recording,
+                                                                 monkeypatch):
+    """Non-convergence is explicit: the two-step estimate stands and the notes say why."""
+    import thermal_imu_calib.estimation.field_estimator as fe
+    model, t, a, g, temps, holds, dirs = six_face_recording
+    w = _detect(t, a, g, temps)
+    two_step = fit_field_model(w, np.repeat(w.temp, 3, 1), G, model.t0, refine=False)
+    monkeypatch.setattr(fe, 'REFINE_MAX_NFEV', 1)
+    fit = fit_field_model(w, np.repeat(w.temp, 3, 1), G, model.t0)
+    assert not fit.refined and 'did not converge in 1 evaluations' in fit.refine_note
+    assert np.array_equal(fit.model.thermal, two_step.model.thermal)
+    opts = CalibrateOptions(inputs=[TemperatureInput('t', '/imu/temperature')], model='field')
+    res = calibrate_windows(w, opts)
+    assert any('joint refinement did not converge' in n for n in res.calibration.notes)
+
+
 def test_calibrate_refuses_missing_faces_and_names_them(six_face_recording):
     model, t, a, g, temps, holds, dirs = six_face_recording
     w = _detect(t, a, g, temps)

@@ -105,6 +105,27 @@ def test_rotation_fit_recovers_the_scale_from_large_increments():
     assert np.max(fit.error_after_deg) < 1e-5          # arccos resolution near 0 deg
 
 
+def test_a_rotation_fit_that_does_not_converge_leaves_the_terms_at_their_prior(monkeypatch):
+    """The final fit's point is used only when the solver converged; else the prior, said."""
+    import thermal_imu_calib.estimation.gyro_rotations as gr
+    rng = np.random.default_rng(3)
+    prep = _transitions(rng, k=12, n=10)
+    true = np.eye(3) + np.diag([0.03, -0.02, 0.01])
+    prep.u_to = prep.u_to - rotation_residuals(prep, true, np.zeros(3), np.zeros(3))
+    real = gr.fit_free
+
+    def final_stops(resid, std, base, free, with_prior=False, robust=False, **kw):
+        p, res = real(resid, std, base, free, with_prior, robust, **kw)
+        if robust:
+            res.success = False
+        return p, res
+    monkeypatch.setattr(gr, 'fit_free', final_stops)
+    fit = fit_gyro_rotations(prep, robust=True, select=False)
+    assert np.array_equal(fit.omega1, np.eye(3))                   # the prior
+    assert not np.any(fit.estimated['Omega1'])
+    assert any('did not converge' in n and 'fixed at the prior' in n for n in fit.notes)
+
+
 def test_every_robust_stage_moves_even_from_a_start_next_to_zero():
     """scipy sizes the first trust region by |x0|: a start of 1e-14 must not freeze a stage.
 

@@ -125,6 +125,13 @@ def estimate_field(ctx):
                     f'{vert[i, 1]:.1f} {u} of the {lo:.1f}-{hi:.1f} {u} collected: its '
                     'temperature terms are extrapolated outside that; next time hold every '
                     'face once early in the warm-up (a quick first pass of ~1 min per face)')
+    if fit.refine_note:
+        notes.append(f'field model: {fit.refine_note}')
+    if not fit.converged:
+        notes.append(f'field model: the two-step estimation did not settle in {fit.iterations} '
+                     'iterations (the fitted window means still moved by more than 1e-3 of '
+                     'their noise)' + ('; the joint refinement started from there'
+                                       if fit.refined else ''))
     stats = {'iterations': fit.iterations, 'converged': bool(fit.converged),
              'joint_refinement': bool(fit.refined), 'order': order,
              'residual_rms': {'value': fit.residual_rms, 'unit': 'm/s^2'},

@@ -23,6 +23,9 @@ from ..models.field import FieldPolynomialModel, THERMAL_NAMES
 #: columns of the per-axis design for each polynomial order
 _COLS = {0: [0, 3], 1: [0, 1, 3, 4], 2: [0, 1, 2, 3, 4, 5]}
 
+#: evaluations of the joint refinement (``_refine``) before it counts as not converged
+REFINE_MAX_NFEV = 200
+
 
 @dataclass
 class FieldFit:
@@ -36,6 +39,8 @@ class FieldFit:
     residual_rms: float        # m/s^2, RMS of window-mean residuals
     chi2_dof: float            # reduced chi-square with the windows' standard errors
     refined: bool
+    #: why the joint refinement was not used ('' when it was, or was not asked for)
+    refine_note: str = ''
 
 
 def kkt_unit_tilt(a_mats, y, w, c0, max_iter=50, tol=1e-14):
@@ -224,17 +229,21 @@ def fit_field_model(windows, axis_temps, gravity, t0, k0=None, b0=None, s=None, 
 
     refined = False
     thermal_std = None
+    refine_note = ''
     if refine:
-        thermal, tilts, thermal_std = _refine(raw, w, dt, hold_idx, tilts, thermal, gravity,
-                                              t0, k0, b0, s, order)
-        refined = True
+        joint = _refine(raw, w, dt, hold_idx, tilts, thermal, gravity, t0, k0, b0, s, order)
+        if joint[0] is None:        # stopped by its budget: the two-step estimate stands
+            refine_note = joint[2]
+        else:
+            thermal, tilts, thermal_std = joint
+            refined = True
     model = FieldPolynomialModel(t0, thermal, k0, b0, s, thermal_std)
     pred = model.forward(gravity * tilts[hold_idx], t0 + dt)
     res = raw - pred
     dof = max(res.size - (3 * len(cols) + 2 * nh), 1)
     return FieldFit(model, tilts, hold_ids, it, converged,
                     float(np.sqrt(np.mean(res ** 2))), float(np.sum((res * w) ** 2) / dof),
-                    refined)
+                    refined, refine_note)
 
 
 def _tangent_basis(c):
@@ -246,7 +255,11 @@ def _tangent_basis(c):
 
 
 def _refine(raw, w, dt, hold_idx, tilts, thermal, gravity, t0, k0, b0, s, order):
-    """Joint least squares over the thermal vector and all tilts (analytic Jacobian)."""
+    """Joint least squares over the thermal vector and all tilts (analytic Jacobian).
+
+    Returns (thermal, tilts, thermal std), or (None, None, why) when the solver ran out of
+    evaluations (``REFINE_MAX_NFEV``) before converging.
+    """
     cols = _COLS[order]
     nh = len(tilts)
     nc = len(cols)
@@ -290,7 +303,11 @@ def _refine(raw, w, dt, hold_idx, tilts, thermal, gravity, t0, k0, b0, s, order)
 
     p0 = np.r_[thermal[:, cols].ravel(), np.zeros(2 * nh)]
     sol = least_squares(fun, p0, jac=jac, method='trf', x_scale='jac', xtol=1e-15,
-                        ftol=1e-15, gtol=1e-15, max_nfev=200)
+                        ftol=1e-15, gtol=1e-15, max_nfev=REFINE_MAX_NFEV)
+    if not sol.success or not np.all(np.isfinite(sol.x)):
+        return None, None, (f'the joint refinement did not converge in {sol.nfev} evaluations '
+                            f'({sol.message}): the two-step estimate is used, without its '
+                            'standard deviations')
     th, v = unpack(sol.x)
     c = v / np.linalg.norm(v, axis=1, keepdims=True)
     j = sol.jac

@@ -21,11 +21,15 @@ from typing import List, Optional
 import numpy as np
 
 from ..collection.outliers import robust_scale
-from .observability import decide_determined, DETERMINED_RATIO, fit_free, Layout, Priors
+from .observability import (converged, decide_determined, DETERMINED_RATIO, fit_free, Layout,
+                            Priors)
 
 from ..rotations import (cross, integrate_quaternions, prefix_products, quat_from_rotvec,
                          quat_rotate_inverse, quat_to_matrix, quat_to_rotvec, right_jacobian,
                          right_jacobian_inverse, SKEW, sum_sq)
+
+#: why every rotation term is at its prior when their final fit ran out of evaluations
+NOT_CONVERGED_REASON = 'the fit on the pose changes did not converge: fixed at the prior'
 
 
 # ------------------------------------------------------------------------ rotation fit
@@ -420,6 +424,11 @@ def fit_gyro_rotations(prep, priors=None, omega1_prior=None, ratio=DETERMINED_RA
         p0 = lay.mean.copy()
         p0[free] = p1[free]
         p, res = solve(free, p0, False, robust)
+        stopped = [lay.label(i) for i in np.flatnonzero(free)] if not converged(res) else []
+        if stopped:         # a point where the solver ran out of evaluations is no fit
+            p, free = lay.mean.copy(), np.zeros(lay.size, bool)
+            for i in range(lay.size):
+                lay.reason[i] = NOT_CONVERGED_REASON
         std = np.where(free, 0.0, lay.std)
         if estimate_only:
             std[free] = np.nan
@@ -436,9 +445,12 @@ def fit_gyro_rotations(prep, priors=None, omega1_prior=None, ratio=DETERMINED_RA
             after = direction_error_deg(prep, lay.get(p, 'Omega1'), lay.get(p, 'Omega2'),
                                         lay.get(p, 'Omega3'))
         notes = []
+        if stopped:
+            notes.append(f'gyroscope {", ".join(stopped)} not estimated: their fit on the {k} '
+                         f'pose changes did not converge ({res.message}); fixed at the prior')
         by_cv = [lay.label(i) for i in range(lay.size) if not free[i]
                  and (lay.reason[i] or '').startswith('determined, but')]
-        labels = [lay.label(i) for i in range(lay.size) if not free[i]
+        labels = [lay.label(i) for i in range(lay.size) if not free[i] and not stopped
                   and lay.label(i) not in by_cv]
         if labels:
             notes.append(f'gyroscope {", ".join(labels)} not determined by the {k} pose '

@@ -32,6 +32,25 @@ ORDER_SPAN = {1: 1.0, 2: 3.0}
 CONVENTION = 'convention'
 
 
+class FitNotConverged(ValueError):
+    """A least-squares fit stopped before converging; ``advice`` says what to do."""
+
+    def __init__(self, what, advice):
+        super().__init__(f'{what}; {advice}')
+        self.what, self.advice = what, advice
+
+
+def converged(res):
+    """Return True when a least-squares result met its tolerances at a finite point.
+
+    ``scipy.optimize.least_squares`` (and ``outliers.robust_least_squares``) report
+    ``success`` False when the evaluation budget (``max_nfev``) ran out first (status 0): the
+    point returned is where the solver stopped, not a minimum, typically in the flat valley
+    of parameters the rows do not determine. Callers must not use such a point as a fit.
+    """
+    return bool(getattr(res, 'success', False)) and bool(np.all(np.isfinite(res.x)))
+
+
 # ------------------------------------------------------------------------ parameter layout
 
 def fit_free(resid, std, base, free, with_prior=False, robust=False, tight=True, **kwargs):

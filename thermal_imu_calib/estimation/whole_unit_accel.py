@@ -22,8 +22,8 @@ from ..models.whole_unit import WholeUnitAccelModel
 from .field_estimator import kkt_unit_tilt_batch
 from ..collection.outliers import group_outliers, robust_scale
 
-from .observability import (CONVENTION, decide_determined, DETERMINED_RATIO, fit_free, Layout,
-                            Priors)
+from .observability import (CONVENTION, converged, decide_determined, DETERMINED_RATIO,
+                            fit_free, FitNotConverged, Layout, Priors)
 
 
 #: the accel frame convention of the field fit (A1 lower-triangular)
@@ -34,6 +34,10 @@ FRAME_CONVENTION = ('A1 lower-triangular: frame x = accelerometer x sensing axis
 
 #: folds and parsimony tolerance of the leave-holds-out selection of optional terms
 CV_FOLDS = 5
+#: ``cv`` entry counting the fold fits that ran out of evaluations (``_select_by_cv``)
+NOT_CONVERGED_KEY = 'fold fits stopped by their evaluation budget'
+#: evaluations of one least-squares fit (``fit_free``'s ``max_nfev``)
+MAX_NFEV = 200
 CV_TOLERANCE = 0.01
 #: reason stored for a determined parameter that cross-validation drops
 CV_REASON = ('determined, but leave-holds-out cross-validation does not support it: fixed at '
@@ -217,7 +221,7 @@ def fit_whole_unit_accel(windows, axis_temps, gravity, t0, priors=None, order=2,
 
     def run(free, base, with_prior, loss_robust, rows=None):
         return fit_free(lambda p, want_jac=False: resid(p, rows, want_jac), lay.std, base,
-                        free, with_prior, loss_robust, max_nfev=200,
+                        free, with_prior, loss_robust, max_nfev=MAX_NFEV,
                         **({'x_scale': 1.0} if loss_robust else {}))
 
     # 1. prior-regularised fit of every candidate: a point to judge observability at
@@ -234,6 +238,13 @@ def fit_whole_unit_accel(windows, axis_temps, gravity, t0, priors=None, order=2,
     p0 = lay.mean.copy()
     p0[free] = p1[free]
     p, res = run(free, p0, False, robust)
+    for what, result in (('prior-regularised', res1), ('final', res)):
+        if not converged(result):
+            raise FitNotConverged(
+                f'the whole-unit accelerometer fit ({what}) did not converge in {MAX_NFEV} '
+                f'evaluations ({result.message}) on {len(windows.hold_ids)} holds',
+                'the holds do not determine its parameters well: use the standard fit '
+                '(--model standard), or hold more poses, tilted ones included')
     r, jac = resid(p, None, True)
     scale = robust_scale(r) if robust else float(np.sqrt(np.mean(r * r)))
     idx = np.flatnonzero(free)
@@ -259,6 +270,11 @@ def fit_whole_unit_accel(windows, axis_temps, gravity, t0, priors=None, order=2,
     holds_bad = group_outliers(r, np.repeat(windows.hold, per_window),
                                max(scale, 1.0)) if robust else []
     notes = _notes(lay, free, ratios, holds_bad)
+    if NOT_CONVERGED_KEY in cv:
+        notes.append(f'optional terms (A2, A3, kt, order >= 2) chosen by cross-validation in '
+                     f'which {cv[NOT_CONVERGED_KEY]} fold fits stopped at {MAX_NFEV} '
+                     'evaluations before converging: their held-out errors are taken where '
+                     'they stopped, so that choice is uncertain')
     resid = (np.linalg.norm(model.correct(raw, np.asarray(t0) + dt), axis=1) - gravity)
     return AccelFit(model, float(np.sqrt(np.mean(resid ** 2))), chi2, float(scale),
                     holds_bad, {lay.label(i): v for i, v in ratios.items()}, fixed, notes,
@@ -293,13 +309,17 @@ def _select_by_cv(lay, free, p1, run, resid, windows, ns, no, tol):
                                          or [np.zeros(0, int)])}
     groups = {g: i[free[i]] for g, i in groups.items() if np.any(free[i])}
 
+    stopped = [0, 0]                     # fold fits stopped by their budget, fold fits
+
     def cv_error(fr):
         base = lay.mean.copy()
         base[fr] = p1[fr]
         err = 0.0
         for f in np.unique(folds):
             test = folds == f
-            p, _ = run(fr, base, False, False, rows=~test)
+            p, res = run(fr, base, False, False, rows=~test)
+            stopped[0] += not converged(res)
+            stopped[1] += 1
             r = resid(p, test)
             err += float(np.sum(r * r))
         return err / len(folds)
@@ -322,6 +342,8 @@ def _select_by_cv(lay, free, p1, run, resid, windows, ns, no, tol):
             if lay.reason[i] is None:
                 lay.reason[i] = CV_REASON
         best = min(best, trials[g])
+    if stopped[0]:
+        scores[NOT_CONVERGED_KEY] = f'{stopped[0]} of {stopped[1]}'
     return current, scores
 
 

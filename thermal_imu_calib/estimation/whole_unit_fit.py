@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .observability import DETERMINED_RATIO, Priors
+from .observability import DETERMINED_RATIO, FitNotConverged, Priors
 from .whole_unit_accel import AccelFit, fit_whole_unit_accel
 
 
@@ -130,7 +130,10 @@ def _register():
                 'the whole-unit model needs at least the six faces (+x -x +y -y +z -z up), '
                 'plus tilted poses for misalignment, each still for '
                 f'{hold_seconds(o.min_hold_s)} s or more')
-        res = fit_whole_unit_context(ctx, transitions=o.transitions)
+        try:
+            res = fit_whole_unit_context(ctx, transitions=o.transitions)
+        except FitNotConverged as e:
+            raise CalibrationRefused(e.what, e.advice) from None
         am = res.accel.model
         weak = [f'{a}' for i, a in enumerate('xyz')
                 if not (am.estimated_mask('ct0')[i] and am.estimated_mask('A1')[i, i])]

@@ -17,6 +17,7 @@ import time
 import numpy as np
 
 from ..collection.segments import face_of
+from ..estimation.observability import FitNotConverged
 from .heldout import _weighted_rms, _whole_unit_folds, clamp_to_training, fold_masks
 from .multi_select import _field_fit
 
@@ -86,7 +87,11 @@ def select_whole_unit(ctx, sel):
                        'would be dominated by extrapolation)')
         return sel
     t_start = time.perf_counter()
-    res, n_folds = heldout_whole_unit(ctx)
+    try:
+        res, n_folds = heldout_whole_unit(ctx)
+    except FitNotConverged as e:
+        sel.reason += f'; whole_unit not a candidate: on a training fold {e.what}'
+        return sel
     g = ctx.options.gravity
     held = np.isfinite(res['accel']['field'])
     n = ctx.windows.n[held]
