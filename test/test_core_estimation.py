@@ -131,8 +131,7 @@ def test_field_estimator_recovers_parameters(six_face_recording):
                   / fit.model.thermal_std) < 0.5
 
 
-def test_a_joint_refinement_stopped_by_its_budget_is_not_used(six_face_recording,
-                                                                 monkeypatch):
+def test_a_joint_refinement_stopped_by_its_budget_is_not_used(six_face_recording, monkeypatch):
     """Non-convergence is explicit: the two-step estimate stands and the notes say why."""
     import thermal_imu_calib.estimation.field_estimator as fe
     model, t, a, g, temps, holds, dirs = six_face_recording
