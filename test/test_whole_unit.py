@@ -14,6 +14,7 @@ from thermal_imu_calib.estimation.whole_unit_accel import (_vector_residual, acc
                                                            fit_whole_unit_accel)
 from thermal_imu_calib.models.base import model_from_dict
 from thermal_imu_calib.models.whole_unit import WholeUnitAccelModel, WholeUnitGyroModel
+from _stopped_fits import final_fit_stops
 
 G = 9.80665
 SEED002_ACCEL = ('ct0', 'ct1', 'ct2', 'A0', 'A1', 'A2', 'A3')                 # 27 numbers
@@ -260,14 +261,7 @@ def test_a_final_fit_that_does_not_converge_is_refused_and_auto_chooses_without_
     rng = np.random.default_rng(3)
     truth = truth_accel(rng)
     w = synth_windows(rng, truth, directions(rng, tilted=4), reps=4)
-    real_fit_free = wua.fit_free
-
-    def final_stops(resid, std, base, free, with_prior=False, robust=False, **kw):
-        p, res = real_fit_free(resid, std, base, free, with_prior, robust, **kw)
-        if robust:
-            res.success = False
-        return p, res
-    monkeypatch.setattr(wua, 'fit_free', final_stops)
+    final_fit_stops(wua, monkeypatch)
     with pytest.raises(FitNotConverged, match='did not converge in 200 evaluations'):
         fit_whole_unit_accel(w, w.temp[:, [0, 0, 0]], G, truth.t0)
     from thermal_imu_calib.estimation.calibrate import CalibrationRefused
