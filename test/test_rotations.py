@@ -118,6 +118,7 @@ def test_a_rotation_fit_that_does_not_converge_leaves_the_terms_at_their_prior(m
     assert np.array_equal(fit.omega1, np.eye(3))                   # the prior
     assert not np.any(fit.estimated['Omega1'])
     assert any('did not converge' in n and 'fixed at the prior' in n for n in fit.notes)
+    assert gr.NOT_CONVERGED_REASON in fit.fixed['Omega1']
 
 
 def test_every_robust_stage_moves_even_from_a_start_next_to_zero():

@@ -28,7 +28,8 @@ from ..rotations import (cross, integrate_quaternions, prefix_products, quat_fro
                          quat_rotate_inverse, quat_to_matrix, quat_to_rotvec, right_jacobian,
                          right_jacobian_inverse, SKEW, sum_sq)
 
-#: why every rotation term is at its prior when their final fit ran out of evaluations
+#: why the estimated rotation terms are at their prior when their final fit ran out of
+#: evaluations
 NOT_CONVERGED_REASON = 'the fit on the pose changes did not converge: fixed at the prior'
 
 
@@ -426,9 +427,9 @@ def fit_gyro_rotations(prep, priors=None, omega1_prior=None, ratio=DETERMINED_RA
         p, res = solve(free, p0, False, robust)
         stopped = [lay.label(i) for i in np.flatnonzero(free)] if not converged(res) else []
         if stopped:         # a point where the solver ran out of evaluations is no fit
-            p, free = lay.mean.copy(), np.zeros(lay.size, bool)
-            for i in range(lay.size):
+            for i in np.flatnonzero(free):
                 lay.reason[i] = NOT_CONVERGED_REASON
+            p, free = lay.mean.copy(), np.zeros(lay.size, bool)
         std = np.where(free, 0.0, lay.std)
         if estimate_only:
             std[free] = np.nan
