@@ -28,8 +28,7 @@ from ..rotations import (cross, integrate_quaternions, prefix_products, quat_fro
                          quat_rotate_inverse, quat_to_matrix, quat_to_rotvec, right_jacobian,
                          right_jacobian_inverse, SKEW, sum_sq)
 
-#: why the estimated rotation terms are at their prior when their final fit ran out of
-#: evaluations
+#: reason of the estimated rotation terms left at their prior by a fit that did not converge
 NOT_CONVERGED_REASON = 'the fit on the pose changes did not converge: fixed at the prior'
 
 
