@@ -19,6 +19,7 @@ import numpy as np
 from scipy.optimize import brentq, least_squares
 
 from ..models.field import FieldPolynomialModel, THERMAL_NAMES
+from .observability import converged, FitNotConverged
 
 #: columns of the per-axis design for each polynomial order
 _COLS = {0: [0, 3], 1: [0, 1, 3, 4], 2: [0, 1, 2, 3, 4, 5]}
@@ -231,12 +232,12 @@ def fit_field_model(windows, axis_temps, gravity, t0, k0=None, b0=None, s=None, 
     thermal_std = None
     refine_note = ''
     if refine:
-        joint = _refine(raw, w, dt, hold_idx, tilts, thermal, gravity, t0, k0, b0, s, order)
-        if joint[0] is None:        # stopped by its budget: the two-step estimate stands
-            refine_note = joint[2]
-        else:
-            thermal, tilts, thermal_std = joint
+        try:
+            thermal, tilts, thermal_std = _refine(raw, w, dt, hold_idx, tilts, thermal,
+                                                  gravity, t0, k0, b0, s, order)
             refined = True
+        except FitNotConverged as e:    # stopped by its budget: the two-step estimate stands
+            refine_note = f'{e.what}: {e.advice}'
     model = FieldPolynomialModel(t0, thermal, k0, b0, s, thermal_std)
     pred = model.forward(gravity * tilts[hold_idx], t0 + dt)
     res = raw - pred
@@ -257,8 +258,8 @@ def _tangent_basis(c):
 def _refine(raw, w, dt, hold_idx, tilts, thermal, gravity, t0, k0, b0, s, order):
     """Joint least squares over the thermal vector and all tilts (analytic Jacobian).
 
-    Returns (thermal, tilts, thermal std), or (None, None, why) when the solver ran out of
-    evaluations (``REFINE_MAX_NFEV``) before converging.
+    Returns (thermal, tilts, thermal std); raises ``FitNotConverged`` when the solver ran
+    out of evaluations (``REFINE_MAX_NFEV``) before converging.
     """
     cols = _COLS[order]
     nh = len(tilts)
@@ -304,10 +305,10 @@ def _refine(raw, w, dt, hold_idx, tilts, thermal, gravity, t0, k0, b0, s, order)
     p0 = np.r_[thermal[:, cols].ravel(), np.zeros(2 * nh)]
     sol = least_squares(fun, p0, jac=jac, method='trf', x_scale='jac', xtol=1e-15,
                         ftol=1e-15, gtol=1e-15, max_nfev=REFINE_MAX_NFEV)
-    if not sol.success or not np.all(np.isfinite(sol.x)):
-        return None, None, (f'the joint refinement did not converge in {sol.nfev} evaluations '
-                            f'({sol.message}): the two-step estimate is used, without its '
-                            'standard deviations')
+    if not converged(sol):
+        raise FitNotConverged(f'the joint refinement did not converge in {sol.nfev} '
+                              f'evaluations ({sol.message})', 'the two-step estimate is used, '
+                              'without its standard deviations')
     th, v = unpack(sol.x)
     c = v / np.linalg.norm(v, axis=1, keepdims=True)
     j = sol.jac

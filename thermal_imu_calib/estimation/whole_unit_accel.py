@@ -34,11 +34,11 @@ FRAME_CONVENTION = ('A1 lower-triangular: frame x = accelerometer x sensing axis
 
 #: folds and parsimony tolerance of the leave-holds-out selection of optional terms
 CV_FOLDS = 5
+CV_TOLERANCE = 0.01
 #: ``cv`` entry counting the fold fits that ran out of evaluations (``_select_by_cv``)
 NOT_CONVERGED_KEY = 'fold fits stopped by their evaluation budget'
 #: evaluations of one least-squares fit (``fit_free``'s ``max_nfev``)
 MAX_NFEV = 200
-CV_TOLERANCE = 0.01
 #: reason stored for a determined parameter that cross-validation drops
 CV_REASON = ('determined, but leave-holds-out cross-validation does not support it: fixed at '
              'its prior')
