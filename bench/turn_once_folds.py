@@ -5,8 +5,8 @@ real chamber log's training part), ``selection.time_folds`` holds out the last p
 last leg, fitted on what came before. Those folds test one direction only (the last
 leg's); the calibration is then used on the next leg, which runs the other way. The
 question is whether adding folds that hold out the first part of the first leg (fitted on
-what came after, ``time_folds.BACKWARD_CUTS``) chooses models that predict the next leg
-better.
+what came after; ``with_backward_folds`` wraps ``time_folds.time_folds`` for the run, the
+package itself has no such option) chooses models that predict the next leg better.
 
 Judged on data neither the fit nor the choice saw: simulated ``chamber-2hz`` logs (one
 pose, -20..75 degC at 1 degC/min, 10-min dwells, errors through a 300-s lag) with two
@@ -68,6 +68,26 @@ def score(cal, w, rows):
             block_drift(t[order][sel], res.gyro[sel]))
 
 
+def with_backward_folds(forward, cuts=time_folds.FORWARD_CUTS):
+    """Return ``time_folds.time_folds`` plus, for a history that turns once, backward folds.
+
+    The first leg before each fraction ``cuts`` of its time span is held out, fitted on what
+    came after it (at least 8 training and 2 test windows, as the forward folds).
+    """
+    def folds_of(windows, column=0):
+        folds, kind = forward(windows, column)
+        leg_ids, info = legs(windows, column)
+        if len(info) == 2:
+            tm = 0.5 * (windows.t0 + windows.t1)
+            first = tm[leg_ids == info[0]['leg']]
+            for f in cuts:
+                test = tm < first.min() + f * (first.max() - first.min())
+                if (~test).sum() >= 8 and test.sum() >= 2:
+                    folds.append((~test, test, f'before {100 * f:.0f} % of the first leg'))
+        return folds, kind
+    return folds_of
+
+
 def run_case(w, ids, train_legs, test_leg):
     """Return {method: (accel, gyro)} and the default's choices for one split."""
     train = np.isin(ids, train_legs)
@@ -78,12 +98,13 @@ def run_case(w, ids, train_legs, test_leg):
     out, chose = {}, {}
     t = 0.5 * (w.t0 + w.t1)
     out['raw'] = (block_drift(t[rows], w.accel[rows]), block_drift(t[rows], w.gyro[rows]))
-    for name, cuts in (('today', ()), ('backward', time_folds.FORWARD_CUTS)):
-        time_folds.BACKWARD_CUTS = cuts
+    forward = time_folds.time_folds
+    for name, folds in (('today', forward), ('backward', with_backward_folds(forward))):
+        time_folds.time_folds = folds
         try:
             r = calibrate_windows(wt, opts)
         finally:
-            time_folds.BACKWARD_CUTS = ()
+            time_folds.time_folds = forward
         out[name] = score(r.calibration, w, rows)
         mc = r.calibration.fit.get('model_choice', {})
         chose[name] = {k: mc.get(k) for k in ('accel', 'gyro', 'family') if k in mc}

@@ -41,9 +41,6 @@ from ..estimation.thermal_lag import cv_groups, legs
 BLOCK_S = 30.0
 #: forward folds: the last leg after this fraction of its time span is held out
 FORWARD_CUTS = (0.25, 0.5, 0.75)
-#: backward folds (a history that turns once): the first leg before this fraction of its
-#: time span is held out, fitted on what came after; () = none (bench/turn_once_folds.py)
-BACKWARD_CUTS = ()
 #: fewest held-out windows inside the training range for the range to be used
 MIN_TEST_WINDOWS = 12
 #: a richer candidate must be this much better (relative) than a simpler one
@@ -94,13 +91,6 @@ def time_folds(windows, column=0):
         train = tm < cut
         if train.sum() >= 8 and (~train).sum() >= 2:
             folds.append((train, ~train, f'after {100 * f:.0f} % of the last leg'))
-    first = leg_ids == (info[0]['leg'] if info else 0)
-    if len(info) == 2 and first.any():
-        f_lo, f_hi = tm[first].min(), tm[first].max()
-        for f in BACKWARD_CUTS:
-            test = tm < f_lo + f * (f_hi - f_lo)
-            if (~test).sum() >= 8 and test.sum() >= 2:
-                folds.append((~test, test, f'before {100 * f:.0f} % of the first leg'))
     return folds, (f'last part of the history held out, fitted on what came before (cuts at '
                    f'{", ".join(f"{100 * f:.0f}" for f in FORWARD_CUTS)} % of the last leg)')
 
