@@ -27,7 +27,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from ..models.whole_unit import WholeUnitAccelModel
-from .observability import DETERMINED_RATIO, ORDER_SPAN, posterior_ratio, Priors
+from .observability import converged, DETERMINED_RATIO, ORDER_SPAN, posterior_ratio, Priors
 
 #: lower-triangular entries of L (row, column): the three diagonal scale factors first
 TRI = ((0, 0), (1, 1), (2, 2), (1, 0), (2, 0), (2, 1))
@@ -208,7 +208,7 @@ def _solve(fun, jac, x0, free):
     res = least_squares(lambda z: fun(full(z)), x0[idx], jac=lambda z: jac(full(z))[:, idx],
                         method='trf', x_scale='jac', xtol=1e-12, ftol=1e-12, gtol=1e-12,
                         max_nfev=MAX_NFEV)
-    if not res.success or not np.all(np.isfinite(res.x)):
+    if not converged(res):
         raise StandardFitError(f'the standard fit did not converge ({res.message}, '
                                f'{res.nfev} evaluations): the holds may not be still, or the '
                                'data not in m/s^2')
