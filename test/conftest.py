@@ -224,7 +224,8 @@ class RosHarness:
         wait_for(lambda: client.service_is_ready(), timeout, f'service {name}')
         future = client.call_async(request if request is not None else srv_type.Request())
         wait_for(future.done, timeout, f'the response of {name}')
-        node.destroy_client(client)
+        with self._lock:        # the client is in the executor's wait set: between spins
+            node.destroy_client(client)
         return future.result()
 
     def wait_matched(self, publisher, count=1, timeout=10.0):

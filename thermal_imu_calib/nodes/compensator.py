@@ -496,9 +496,14 @@ class CompensatorNode(Node):
         """
         if active is False:
             active = self._active  # read once: the whole batch uses one model
+        try:
+            self._process(msgs, arrays, active)
+        finally:    # counted once handled, so a reader of the counts sees the whole batch
+            self.counts['received'] += len(msgs)
+
+    def _process(self, msgs, arrays, active):
         c = self.counts
         n = len(msgs)
-        c['received'] += n
         self._rate.add(n)
         stamps, accel, gyro = arrays if arrays is not None else common.imu_to_arrays(msgs)
         self._last_stamp_ns = int(stamps[-1])
