@@ -259,8 +259,8 @@ class CompensatorNode(Node):
                 'or use a calibration made for them')
 
     def _reject(self, source, reason):
-        self.counts['calibrations_rejected'] += 1
         self.last_rejection = f'{source}: {reason}'
+        self.counts['calibrations_rejected'] += 1     # last: a reader of the count sees the why
         keep = (f'; keeping calibration {self._active.id}' if self._active
                 else '; no calibration active')
         return False, f'rejected calibration from {source}: {reason}{keep}'

@@ -57,8 +57,8 @@ class RegistryUnits:
             model, reason = None, str(e)
         self.models[frame] = model
         if model is None:
-            self._counts['calibrations_rejected'] += 1
             self.last_rejection = f'unit {display_id(frame)}: {reason}'
+            self._counts['calibrations_rejected'] += 1   # after the why, for its readers
             self._log.warning(f'IMU unit {display_id(frame)}: no usable calibration in '
                               f'registry {self.root} ({reason}); its messages pass through '
                               'uncompensated')
