@@ -209,11 +209,11 @@ def _resubscribe(node, topic, typ):
 
 
 def _switch(node, topic, typ, how, by):
-    old = _resubscribe(node, topic, typ)
+    text = note(node.temp_subs[0].topic_name, topic, typ, how, by)
+    node._input_notes.append(text)      # first: a reader seeing the new topic sees the note
+    _resubscribe(node, topic, typ)
     if not node._resume_later:    # else the resume compares the file's inputs, then writes
         node._write_inputs_signature()
-    text = note(old, topic, typ, how, by)
-    node._input_notes.append(text)
     node.get_logger().warning(text)
 
 
