@@ -58,6 +58,7 @@ def run(rec, work):
 
 
 def main(argv=None):
+    """Run every recording; print a JSON line each and the total; write ``--out``."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--work', default='/tmp/rotation_convergence')
     ap.add_argument('--out', default=None)
