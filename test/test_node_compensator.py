@@ -612,7 +612,7 @@ def test_a_temperature_on_another_topic_is_named_in_a_warning(ros, tmp_path):
     other.publish(temperature_msg(rig.stamp, 30.0))
     rig.send(1200, dt=0.001)
     rig.receive(1200)
-    # received is counted as a batch is taken in, passthrough as it is published
+    # received and passthrough are counted once a batch is handled
     wait_for(lambda: rig.node.counts['passthrough'] >= 1200, WAIT,
              lambda: f'1200 passed through ({rig.node.counts})')
     assert rig.node.counts['compensated'] == 0
