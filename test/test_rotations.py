@@ -121,6 +121,35 @@ def test_a_rotation_fit_that_does_not_converge_leaves_the_terms_at_their_prior(m
     assert gr.NOT_CONVERGED_REASON in fit.fixed['Omega1']
 
 
+def test_term_selection_fold_fits_stopped_by_their_budget_are_counted_and_said(monkeypatch):
+    """The leave-pose-changes-out fold fits that run out of evaluations are said in a note
+    (the Omega2/Omega3 choice is uncertain), as the accelerometer's are; converged: none."""
+    import thermal_imu_calib.estimation.gyro_rotations as gr
+    rng = np.random.default_rng(3)
+    prep = _transitions(rng, k=12, n=10)
+    true = np.eye(3) + np.diag([0.03, -0.02, 0.01])
+    prep.u_to = prep.u_to - rotation_residuals(prep, true, np.zeros(3), np.zeros(3))
+    ratio = 0.9999     # Omega2 counts as determined here, so the selection runs
+    fit = fit_gyro_rotations(prep, robust=True, ratio=ratio)
+    assert np.all(fit.estimated['Omega2'])
+    assert not [n for n in fit.notes if 'fold fits stopped' in n], fit.notes
+    real = gr.fit_free
+    budgets = []
+
+    def folds_stop(resid, std, base, free, with_prior=False, robust=False, **kw):
+        p, res = real(resid, std, base, free, with_prior, robust, **kw)
+        if not with_prior and not robust:            # the selection's fold fits
+            budgets.append(kw['max_nfev'])
+            res.success = False
+        return p, res
+    monkeypatch.setattr(gr, 'fit_free', folds_stop)
+    fit = fit_gyro_rotations(prep, robust=True, ratio=ratio)
+    assert budgets and set(budgets) == {gr.FOLD_MAX_NFEV}
+    said = [n for n in fit.notes if f'{len(budgets)} of {len(budgets)} fold fits stopped at '
+            f'{gr.FOLD_MAX_NFEV} evaluations' in n]
+    assert said and said[0].endswith('that choice is uncertain'), fit.notes
+
+
 def test_every_robust_stage_moves_even_from_a_start_next_to_zero():
     """scipy sizes the first trust region by |x0|: a start of 1e-14 must not freeze a stage.
 

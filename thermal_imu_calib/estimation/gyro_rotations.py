@@ -13,6 +13,8 @@ Unknowns: Omega1 (3x3 scale/misalignment relative to the accelerometer frame)
 and the per-axis nonlinearity Omega2, Omega3; observability as in
 ``observability``. The earth rate during a 2-4 s pose change (< 3e-4 rad) is
 neglected. The pose changes come from ``collection.motion``.
+
+Cohesive: one fit (residuals with their Jacobian, the term selection, the fit, its notes).
 """
 
 from dataclasses import dataclass, field
@@ -30,6 +32,10 @@ from ..rotations import (cross, integrate_quaternions, prefix_products, quat_fro
 
 #: reason of the estimated rotation terms left at their prior by a fit that did not converge
 NOT_CONVERGED_REASON = 'the fit on the pose changes did not converge: fixed at the prior'
+#: key of the term selection's scores counting its fold fits stopped by their budget
+NOT_CONVERGED_KEY = 'fold fits stopped by their evaluation budget'
+#: evaluations of each fold fit of the term selection
+FOLD_MAX_NFEV = 50
 
 
 # ------------------------------------------------------------------------ rotation fit
@@ -320,12 +326,15 @@ def _select_rotation_terms(lay, free, p1, prep, solve_rows, k, tol=0.01):
     if k < 6 or not any(np.any(free[lay.slices[g]]) for g in ('Omega3', 'Omega2')):
         return free, {}
     folds = np.arange(k) % min(5, k)
+    stopped = [0, 0]                     # fold fits stopped by their budget, fold fits
 
     def cv_error(fr):
         err = 0.0
         for f in np.unique(folds):
             test = folds == f
-            p = solve_rows(fr, p1, ~test)
+            p, res = solve_rows(fr, p1, ~test)
+            stopped[0] += not converged(res)
+            stopped[1] += 1
             r = rotation_residuals(_subset(prep, test), lay.get(p, 'Omega1'),
                                    lay.get(p, 'Omega2'), lay.get(p, 'Omega3'))
             err += float(np.sum((r / prep.sigma[test, None]) ** 2))
@@ -351,6 +360,8 @@ def _select_rotation_terms(lay, free, p1, prep, solve_rows, k, tol=0.01):
                                  'support it: fixed at its prior')
         else:
             break
+    if stopped[0]:
+        scores[NOT_CONVERGED_KEY] = f'{stopped[0]} of {stopped[1]}'
     return current, scores
 
 
@@ -395,9 +406,9 @@ def fit_gyro_rotations(prep, priors=None, omega1_prior=None, ratio=DETERMINED_RA
         return fit_free(resid, lay.std, base, free, with_prior, use_robust, max_nfev=100)
 
     def solve_rows(free, base, rows):
-        """Plain least squares of the free parameters on a subset of transitions."""
+        """Plain least squares of the free parameters on a subset: (parameters, result)."""
         return fit_free(residuals_of(_subset(prep, rows)), lay.std, base, free, tight=False,
-                        max_nfev=50)[0]
+                        max_nfev=FOLD_MAX_NFEV)
 
     if k < 2:
         free = np.zeros(lay.size, bool)
@@ -456,6 +467,10 @@ def fit_gyro_rotations(prep, priors=None, omega1_prior=None, ratio=DETERMINED_RA
             notes.append(f'gyroscope {", ".join(labels)} not determined by the {k} pose '
                          'changes: fixed at the prior (scale needs rotations about each axis; '
                          'nonlinearity needs fast ones)')
+        if NOT_CONVERGED_KEY in cv:
+            notes.append(f'gyroscope Omega2/Omega3 chosen by leave-pose-changes-out validation '
+                         f'in which {cv[NOT_CONVERGED_KEY]} fold fits stopped at {FOLD_MAX_NFEV} '
+                         'evaluations before converging: that choice is uncertain')
         if by_cv:
             notes.append(f'gyroscope {", ".join(by_cv)}: determined, but held-out pose changes '
                          'do not support it (leave-pose-changes-out validation): fixed at the '
