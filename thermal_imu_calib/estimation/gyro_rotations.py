@@ -24,7 +24,7 @@ import numpy as np
 
 from ..collection.outliers import robust_scale
 from .observability import (converged, decide_determined, DETERMINED_RATIO, fit_free, Layout,
-                            Priors)
+                            NOT_CONVERGED_KEY, Priors, StoppedFolds)
 
 from ..rotations import (cross, integrate_quaternions, prefix_products, quat_from_rotvec,
                          quat_rotate_inverse, quat_to_matrix, quat_to_rotvec, right_jacobian,
@@ -32,8 +32,6 @@ from ..rotations import (cross, integrate_quaternions, prefix_products, quat_fro
 
 #: reason of the estimated rotation terms left at their prior by a fit that did not converge
 NOT_CONVERGED_REASON = 'the fit on the pose changes did not converge: fixed at the prior'
-#: key of the term selection's scores counting its fold fits stopped by their budget
-NOT_CONVERGED_KEY = 'fold fits stopped by their evaluation budget'
 #: evaluations of each fold fit of the term selection
 FOLD_MAX_NFEV = 50
 
@@ -326,15 +324,14 @@ def _select_rotation_terms(lay, free, p1, prep, solve_rows, k, tol=0.01):
     if k < 6 or not any(np.any(free[lay.slices[g]]) for g in ('Omega3', 'Omega2')):
         return free, {}
     folds = np.arange(k) % min(5, k)
-    stopped = [0, 0]                     # fold fits stopped by their budget, fold fits
+    stopped = StoppedFolds()
 
     def cv_error(fr):
         err = 0.0
         for f in np.unique(folds):
             test = folds == f
             p, res = solve_rows(fr, p1, ~test)
-            stopped[0] += not converged(res)
-            stopped[1] += 1
+            stopped.add(res)
             r = rotation_residuals(_subset(prep, test), lay.get(p, 'Omega1'),
                                    lay.get(p, 'Omega2'), lay.get(p, 'Omega3'))
             err += float(np.sum((r / prep.sigma[test, None]) ** 2))
@@ -360,8 +357,7 @@ def _select_rotation_terms(lay, free, p1, prep, solve_rows, k, tol=0.01):
                                  'support it: fixed at its prior')
         else:
             break
-    if stopped[0]:
-        scores[NOT_CONVERGED_KEY] = f'{stopped[0]} of {stopped[1]}'
+    stopped.record(scores)
     return current, scores
 
 

@@ -51,6 +51,27 @@ def converged(res):
     return bool(getattr(res, 'success', False)) and bool(np.all(np.isfinite(res.x)))
 
 
+#: entry of a term selection's scores counting its fold fits that did not converge
+NOT_CONVERGED_KEY = 'fold fits stopped by their evaluation budget'
+
+
+class StoppedFolds:
+    """Count a cross-validation's fold fits that did not converge (``converged``)."""
+
+    def __init__(self):
+        self.stopped = self.fits = 0
+
+    def add(self, res):
+        """Count one fold fit's least-squares result."""
+        self.stopped += not converged(res)
+        self.fits += 1
+
+    def record(self, scores):
+        """Put 'N of M' under ``NOT_CONVERGED_KEY`` in ``scores`` when any stopped."""
+        if self.stopped:
+            scores[NOT_CONVERGED_KEY] = f'{self.stopped} of {self.fits}'
+
+
 # ------------------------------------------------------------------------ parameter layout
 
 def fit_free(resid, std, base, free, with_prior=False, robust=False, tight=True, **kwargs):

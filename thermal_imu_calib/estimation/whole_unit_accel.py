@@ -23,7 +23,8 @@ from .field_estimator import kkt_unit_tilt_batch
 from ..collection.outliers import group_outliers, robust_scale
 
 from .observability import (CONVENTION, converged, decide_determined, DETERMINED_RATIO,
-                            fit_free, FitNotConverged, Layout, Priors)
+                            fit_free, FitNotConverged, Layout, NOT_CONVERGED_KEY, Priors,
+                            StoppedFolds)
 
 
 #: the accel frame convention of the field fit (A1 lower-triangular)
@@ -35,8 +36,6 @@ FRAME_CONVENTION = ('A1 lower-triangular: frame x = accelerometer x sensing axis
 #: folds and parsimony tolerance of the leave-holds-out selection of optional terms
 CV_FOLDS = 5
 CV_TOLERANCE = 0.01
-#: ``cv`` entry counting the fold fits that ran out of evaluations (``_select_by_cv``)
-NOT_CONVERGED_KEY = 'fold fits stopped by their evaluation budget'
 #: evaluations of one least-squares fit (``fit_free``'s ``max_nfev``)
 MAX_NFEV = 200
 #: reason stored for a determined parameter that cross-validation drops
@@ -309,7 +308,7 @@ def _select_by_cv(lay, free, p1, run, resid, windows, ns, no, tol):
                                          or [np.zeros(0, int)])}
     groups = {g: i[free[i]] for g, i in groups.items() if np.any(free[i])}
 
-    stopped = [0, 0]                     # fold fits stopped by their budget, fold fits
+    stopped = StoppedFolds()
 
     def cv_error(fr):
         base = lay.mean.copy()
@@ -318,8 +317,7 @@ def _select_by_cv(lay, free, p1, run, resid, windows, ns, no, tol):
         for f in np.unique(folds):
             test = folds == f
             p, res = run(fr, base, False, False, rows=~test)
-            stopped[0] += not converged(res)
-            stopped[1] += 1
+            stopped.add(res)
             r = resid(p, test)
             err += float(np.sum(r * r))
         return err / len(folds)
@@ -342,8 +340,7 @@ def _select_by_cv(lay, free, p1, run, resid, windows, ns, no, tol):
             if lay.reason[i] is None:
                 lay.reason[i] = CV_REASON
         best = min(best, trials[g])
-    if stopped[0]:
-        scores[NOT_CONVERGED_KEY] = f'{stopped[0]} of {stopped[1]}'
+    stopped.record(scores)
     return current, scores
 
 
