@@ -139,14 +139,29 @@ def reference(row, axis, name='b'):
     return _f(row, f'accel.T0.{axis}')
 
 
-def at_temperature(row, name, t_ref):
+def at_temperature(row, name, t_ref, memo=None):
     """Return (value, std) per axis of accel bias ('b'), scale ('k') or gyro bias ('gb').
 
     At ``t_ref`` degC: value = c0 + c1 dT + c2 dT^2 with dT = t_ref - T0: the alarm-term
     columns of any family, or (registries written before them, accelerometer) the field
     model's d{name}0, {name}1, {name}2; std from the three stds as independent.
+    ``memo``: a dict shared by calls on rows that stay alive meanwhile (``_terms_memo``).
     """
-    return _evaluate(_terms(row, name), t_ref)
+    return _evaluate(_terms_memo(row, name, memo), t_ref)
+
+
+def _terms_memo(row, name, memo):
+    """Return ``_terms(row, name)``, read once per row and name into ``memo`` (None: no memo).
+
+    The key is the row's identity, so a memo lives no longer than one call over rows that
+    are alive meanwhile (``unit_tests``): parsing the index strings was most of its time.
+    """
+    if memo is None:
+        return _terms(row, name)
+    key = (id(row), name)
+    if key not in memo:
+        memo[key] = _terms(row, name)
+    return memo[key]
 
 
 def _terms(row, name):
@@ -187,7 +202,7 @@ def by_sensor(rows):
     return {s: sorted(rs, key=lambda r: r['time']) for s, rs in by.items()}
 
 
-def _best_common(prev, cur, name, points=41):
+def _best_common(prev, cur, name, points=41, memo=None):
     """Return per axis the temperature (degC) where the difference of two rows is sharpest.
 
     On the overlap of the two calibrations' temperature spans (else between their T0) the
@@ -195,50 +210,52 @@ def _best_common(prev, cur, name, points=41):
     (after a knock) is known near its own data only, and its polynomial's stds grow fast
     away from them. The choice depends on the stds, not on the values.
     """
-    t0 = np.array([[reference(r, a, name) for a in AXES] for r in (prev, cur)])
+    t_prev, t_cur = _terms_memo(prev, name, memo), _terms_memo(cur, name, memo)
+    t0 = np.array([t_prev[2], t_cur[2]])
     lo = max(_f(prev, 'temp_min'), _f(cur, 'temp_min'))
     hi = min(_f(prev, 'temp_max'), _f(cur, 'temp_max'))
     if not (np.isfinite(lo) and np.isfinite(hi) and hi >= lo):
         lo, hi = t0.min(0), t0.max(0)
     grid = np.linspace(np.broadcast_to(lo, 3), np.broadcast_to(hi, 3), points)   # (p, 3)
-    sd = np.hypot(_evaluate(_terms(prev, name), grid)[1], _evaluate(_terms(cur, name), grid)[1])
+    sd = np.hypot(_evaluate(t_prev, grid)[1], _evaluate(t_cur, grid)[1])
     sd = np.where(np.isfinite(sd), sd, np.inf)
     return grid[np.argmin(sd, axis=0), np.arange(3)]
 
 
-def compare(prev, cur, names=ALARM_ON, std_scale=None):
+def compare(prev, cur, names=ALARM_ON, std_scale=None, memo=None):
     """Return {'db0': z (3,), ...}: consecutive change at a common temperature in sigmas.
 
     The common temperature is the mean of the two T0 per axis (the gyro bias 'gb': where
     the difference is sharpest, ``_best_common``); sigma is the std of the difference,
     each calibration's std multiplied by ``std_scale[name]`` (default ``STD_SCALE``; 1 for
-    names it lacks).
+    names it lacks). ``memo``: see ``at_temperature``.
     """
     scale = STD_SCALE if std_scale is None else std_scale
     out = {}
     for name in names:
-        t_ref = (_best_common(prev, cur, name) if name == 'gb' else
-                 np.array([(reference(prev, a, name) + reference(cur, a, name)) / 2
-                           for a in AXES]))
-        v0, s0 = at_temperature(prev, name, t_ref)
-        v1, s1 = at_temperature(cur, name, t_ref)
+        t_ref = (_best_common(prev, cur, name, memo=memo) if name == 'gb' else
+                 (_terms_memo(prev, name, memo)[2] + _terms_memo(cur, name, memo)[2]) / 2)
+        v0, s0 = at_temperature(prev, name, t_ref, memo)
+        v1, s1 = at_temperature(cur, name, t_ref, memo)
         sd = scale.get(name, 1.0) * np.sqrt(s0 ** 2 + s1 ** 2)
         # a term a family does not fit (an offset model's scale, std 0): no test (NaN)
         out[f'd{name}0'] = np.divide(v1 - v0, sd, out=np.full(3, np.nan), where=sd > 0)
     return out
 
 
-def trend(rows, name, std_scale=None):
+def trend(rows, name, std_scale=None, memo=None):
     """Return z (3,) of the slope of d{name}0 over time (weighted least squares).
 
     All calibrations of one unit (>= 3, oldest first) carried to the mean of their T0 per
     axis; z = slope / std(slope) with weights 1 / (std_scale * std)^2. Under "constant"
     z is N(0, 1): z^2 is the chi-square drop from a constant to a line (1 dof).
+    ``memo``: see ``at_temperature``.
     """
     scale = (STD_SCALE if std_scale is None else std_scale).get(name, 1.0)
-    t_ref = np.array([np.mean([reference(r, a, name) for r in rows]) for a in AXES])
+    t0 = np.array([_terms_memo(r, name, memo)[2] for r in rows])            # (n, 3)
+    t_ref = np.array([np.mean(t0[:, i]) for i in range(len(AXES))])
     t = np.array([parse_time(r['time']) for r in rows], float) / 86400e9   # days
-    vs = np.array([at_temperature(r, name, t_ref) for r in rows])          # (n, 2, 3)
+    vs = np.array([at_temperature(r, name, t_ref, memo) for r in rows])    # (n, 2, 3)
     sd = scale * vs[:, 1]
     ok = np.all(sd > 0, axis=0)      # an axis whose term has no std (not fitted): no test
     sd = np.where(ok, sd, 1.0)
@@ -287,7 +304,7 @@ def unit_tests(rows, std_scale=None):
     a scale factor an offset model does not fit, a row without gyro terms) are left out,
     and so is the accelerometer of a row ``untested_accel`` names.
     """
-    out = []
+    out, memo = [], {}       # each row's terms parsed once (``at_temperature``)
     accel_rows = [r for r in rows if not untested_accel(r)]
     for family, names, prefix, chain in ((accel_family, ALARM_ON, '', accel_rows),
                                          (_gyro_family, GYRO_ALARM_ON, GYRO_PREFIX, rows)):
@@ -299,13 +316,13 @@ def unit_tests(rows, std_scale=None):
             last[family(cur)] = cur
             if prev is None:
                 continue
-            z = compare(prev, cur, names, std_scale)
+            z = compare(prev, cur, names, std_scale, memo)
             out += [(f'{prefix}d{name[-1]}0 {a} changed {prev["time"]} -> {cur["time"]}',
                      z[f'd{name}0'][i]) for name in names for i, a in enumerate(AXES)]
         same = [r for r in chain if family(r) == family(chain[-1])]
         if len(same) >= 3:
             for name in names:
-                z = trend(same, name, std_scale)
+                z = trend(same, name, std_scale, memo)
                 out += [(f'{prefix}d{name[-1]}0 {a} trend over {len(same)} '
                          f'calibrations {same[0]["time"]} .. {same[-1]["time"]}', z[i])
                         for i, a in enumerate(AXES)]
