@@ -114,6 +114,17 @@ def summarise(units):
     return out
 
 
+def compact(x):
+    """Return ``x`` with every float to 6 significant digits (the per-log values)."""
+    if isinstance(x, float):
+        return float(f'{x:.6g}')
+    if isinstance(x, dict):
+        return {k: compact(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [compact(v) for v in x]
+    return x
+
+
 def main():
     """Run one variant over ``--units`` stable units and write the JSON (``--out``)."""
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
@@ -147,7 +158,7 @@ def main():
                       if 'error' in r],
            'summary': summarise(units), 'units': units}
     with open(args.out, 'w') as f:
-        json.dump(res, f, indent=1)
+        json.dump(compact(res), f)
     for k, v in res['summary'].items():
         print(k, {a: (s.get('std'), s.get('max_abs')) for a, s in v.items()})
 
