@@ -337,9 +337,10 @@ def gyro_scale(tests, min_tests=MIN_GYRO_TESTS):
     earth rate, a per-hold nuisance without ``--latitude``, is not in them). So the gyro
     tests are put in units of their own spread: the robust std of all of them (1.4826 x
     median |z|, z centred at 0 under "no change"; never below 1), which a few real
-    changes do not move (Efron's empirical null). It assumes most calibrations of the registry did not change. It fixes their
-    width, not their far tail, which is heavier than normal (3 of 4791 stable-unit tests
-    beyond 4 sigma on the 20 x 5 simulated fleets, docs/fleet.md).
+    changes do not move (Efron's empirical null). It assumes most calibrations of the
+    registry did not change. It fixes their width, not their far tail, which is heavier
+    than normal (3 of 4791 stable-unit tests beyond 4 sigma on the 20 x 5 simulated
+    fleets, docs/fleet.md).
     """
     z = np.abs([v for lbl, v in tests if lbl.startswith(GYRO_PREFIX)])
     if len(z) < min_tests:
