@@ -55,7 +55,11 @@ MIN_GYRO_TESTS = 12
 #: factor on the fit's std of d{name}0 (1: the fit's own). Checked on the stable units of
 #: 20 simulated fleets (bench_fleet.py alarms, 8 x 3, seeds 0-19): their z with the fit's
 #: std are N(0, 1) (Kolmogorov-Smirnov p 0.52-0.88; std 1.05 +- 0.03 over 477 changes, 1.02-
-#: 1.09 over 237 trends; see docs/fleet.md), so no correction is applied.
+#: 1.09 over 237 trends; see docs/fleet.md), so no correction is applied. They are honest
+#: only as far as the accelerometer's non-orthogonality S is known: the field model takes
+#: it from the prior (identity without one); with a datasheet's cross-axis sensitivity
+#: (up to 2e-2) and no lab S, simulated stable units' z had std up to 10
+#: (``bench/alarm_truth_z.py``, docs/fleet.md "Where the excess comes from").
 STD_SCALE = {'b': 1.0, 'k': 1.0}
 #: index column naming the model kind the accelerometer's alarm terms come from
 FAMILY_COLUMN = 'accel.alarm_family'
