@@ -34,6 +34,7 @@ def one_device(seed, work, variant):
     """Return {model: |a|-g RMS ug on the next cold start} of one device (None: refused)."""
     from thermal_imu_calib import sim
     from thermal_imu_calib.cli import main
+    from thermal_imu_calib.formats import read_calibration
     from thermal_imu_calib.gravity import normal_gravity
     from thermal_imu_calib.sim import devices as dv
     if variant != 'base':
@@ -64,9 +65,7 @@ def one_device(seed, work, variant):
     out = {m: res['results'][m]['gravity_residual_ug']['rms'] if m in cals else None
            for m in MODELS}
     out['raw'] = res['results']['raw']['gravity_residual_ug']['rms']
-    with open(cals['auto']) as f:
-        out['auto_chose'] = next((ln.split(':', 1)[1].strip() for ln in f
-                                  if ln.startswith('  kind:')), None)
+    out['auto_chose'] = read_calibration(cals['auto']).accel.kind
     return out
 
 

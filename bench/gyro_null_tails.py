@@ -57,17 +57,18 @@ def main():
         truth = read_truth(d)
         by = reg.by_sensor(reg.read_index(os.path.join(d, 'reg')))
         tests = {s: al.unit_tests(rs) for s, rs in by.items()}
-        g = al.gyro_scale([t for ts in tests.values() for t in ts])
+        scaled, g = al.scaled_tests(tests)      # the z as ``assess`` judges them
         if not g:
             continue
-        stable = [(s, lbl, z) for s, ts in tests.items() if truth[s]['kind'] == 'stable'
-                  for lbl, z in ts if lbl.startswith(al.GYRO_PREFIX)]
-        raw_z += [z for _, _, z in stable]
-        judged += [z / g for _, _, z in stable]
+        stable = [s for s in tests if truth[s]['kind'] == 'stable']
+        raw_z += [z for s in stable for lbl, z in tests[s] if lbl.startswith(al.GYRO_PREFIX)]
+        judged_fleet = [(s, lbl, z) for s in stable for lbl, z in scaled[s]
+                        if lbl.startswith(al.GYRO_PREFIX)]
+        judged += [z for _, _, z in judged_fleet]
         per.append({'fleet': os.path.basename(d), 'scale': round(g, 3),
-                    'max_abs_stable': round(max(abs(z) / g for _, _, z in stable), 2)})
-        extreme += [{'fleet': os.path.basename(d), 'unit': s, 'test': lbl,
-                     'z': round(z / g, 2)} for s, lbl, z in stable if abs(z / g) > args.show]
+                    'max_abs_stable': round(max(abs(z) for _, _, z in judged_fleet), 2)})
+        extreme += [{'fleet': os.path.basename(d), 'unit': s, 'test': lbl, 'z': round(z, 2)}
+                    for s, lbl, z in judged_fleet if abs(z) > args.show]
     out = {'cache': args.cache, 'fleets': len(per), 'judged': _summary(judged),
            'raw': _summary(raw_z), 'normal_0_1': {'frac_abs_gt_3': 0.0027,
                                                   'frac_abs_gt_4': 0.000063},
