@@ -12,9 +12,11 @@ change z of consecutive logs with the truth removed, (e1 - e0) / hypot(s0, s1): 
 stable unit's step test sees.
 
 Variant ``no-nonorthogonality`` draws the same devices with S = identity (the ``mems``
-devices have 2e-4 - 8e-4 below-diagonal terms that a calibration without a lab prior,
-``field`` included, does not estimate); ``datasheet-cross-axis`` with 1e-3 - 2e-2 (a
-consumer datasheet's cross-axis sensitivity, ``VARIANTS``).
+devices have 2e-4 - 8e-4 below-diagonal terms); ``datasheet-cross-axis`` with 1e-3 - 2e-2
+(a consumer datasheet's cross-axis sensitivity, ``VARIANTS``). Before 2026-12-03 a
+calibration without a lab prior took S = identity for its alarm terms; since, its alarm
+yardstick estimates S (``estimation/alarm_yardstick.py``; results ``*_s_identity`` and
+``*_s_estimated``, docs/fleet.md).
 
     .venv/bin/python bench/alarm_truth_z.py --units 30 --out bench/results/alarm_truth_z_base.json
     .venv/bin/python bench/alarm_truth_z.py --units 30 --variant no-nonorthogonality \\

@@ -26,13 +26,22 @@ G = 9.80665
 FACES = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
 
 
-def _session(scale_slope, visits=5, seed=0, misalign=True, bias_x=0.05, faces=6):
+def _truth(temp, bias_x=0.05, scale_slope=1e-4):
+    """Return the session's true bias (m/s^2) and scale factor at ``temp`` (n,) degC."""
+    dt = (np.asarray(temp, float) - 30.0)[:, None]
+    bias = np.array([bias_x, -0.08, 0.12]) + 2e-3 * dt + 4e-5 * dt ** 2
+    return bias, 1 + np.array([2e-3, -1e-3, 1.5e-3]) + scale_slope * dt
+
+
+def _session(scale_slope, visits=5, seed=0, misalign=True, bias_x=0.05, faces=6, s=None,
+             tilt=0.0):
     """Six faces visited ``visits`` times along a 20 -> 40 degC warm-up, 3 windows a hold.
 
     Truth: raw = b(T) + k(T) * f with a bias polynomial in T, a fixed 2e-3 scale error and
-    a misalignment (``misalign``; else none), and a scale factor changing by
-    ``scale_slope`` per degC; x's bias at 30 degC ``bias_x`` m/s^2; the first ``faces``
-    faces only.
+    a misalignment (``misalign``, or the lower-triangular ``s`` given; else none), and a
+    scale factor changing by ``scale_slope`` per degC; x's bias at 30 degC ``bias_x``
+    m/s^2; the first ``faces`` faces only, each hold tilted off its face by ``tilt`` rad
+    (1-sigma per axis; 0: exactly on it).
     """
     rng = np.random.default_rng(seed)
     order = np.concatenate([rng.permutation(faces) for _ in range(visits)])
@@ -40,11 +49,15 @@ def _session(scale_slope, visits=5, seed=0, misalign=True, bias_x=0.05, faces=6)
     t = np.repeat(np.arange(n_holds) * 120.0, 3) + np.tile([0.0, 5.0, 10.0], n_holds)
     temp = 20.0 + 20.0 * (1 - np.exp(-t / t.max() * 3)) / (1 - np.exp(-3))
     hold = np.repeat(np.arange(n_holds), 3)
-    f = G * FACES[order][hold]
-    s = np.array([[1.0, 0, 0], [4e-4, 1.0, 0], [-3e-4, 5e-4, 1.0]]) if misalign else np.eye(3)
-    dt = (temp - 30.0)[:, None]
-    bias = np.array([bias_x, -0.08, 0.12]) + 2e-3 * dt + 4e-5 * dt ** 2
-    k = 1 + np.array([2e-3, -1e-3, 1.5e-3]) + scale_slope * dt
+    up = FACES[order].astype(float)
+    if tilt:
+        up += rng.normal(0.0, tilt, up.shape)
+        up /= np.linalg.norm(up, axis=1, keepdims=True)
+    f = G * up[hold]
+    if s is None:
+        s = np.array([[1.0, 0, 0], [4e-4, 1.0, 0], [-3e-4, 5e-4, 1.0]]) if misalign else \
+            np.eye(3)
+    bias, k = _truth(temp, bias_x, scale_slope)
     accel = bias + k * (f @ s.T)
     return make_windows(t, temp, accel, np.zeros_like(accel), hold=hold, n=500,
                         sigma_a=2e-3, rng=rng)
@@ -246,21 +259,25 @@ def test_a_calibration_of_another_family_carries_the_field_yardstick(tmp_path):
 
     The standard fit's stds are 3-4x too small across a warm-up (docs/fleet.md), so its
     own terms cannot be compared with a field calibration's; its yardstick is the field
-    model fitted to the same holds: exactly what ``--model field`` gives, through a file.
+    model fitted to the same holds, with S estimated when no prior gives it: exactly the
+    yardstick ``--model field`` gets, through a file.
     """
     w = _session(1e-4)
     std = calibrate_windows(w, dataclasses.replace(options(), model='standard')).calibration
     field = calibrate_windows(w, dataclasses.replace(options(), model='field')).calibration
     assert std.accel.kind == 'whole_unit_accel' and field.accel.kind == 'field_polynomial'
-    assert 'alarm_yardstick' not in field.fit
     y = std.fit['alarm_yardstick']
     assert y['family'] == 'field' and 'error' not in y and 'drift alarms' in y['note']
-    want = bias_scale_terms(field.accel)
+    assert y['kind'] == 'field_polynomial+S' and 'S is estimated' in y['note']
+    want = field.fit['alarm_yardstick']
     for k in ('T0', 'b', 'b_std', 'k', 'k_std'):
         np.testing.assert_allclose(y[k], want[k], rtol=1e-9, atol=1e-15)
+    # S's terms (truth 4e-4, -3e-4, 5e-4) within their stds
+    z = (np.array(y['s_terms']['value']) - [4e-4, -3e-4, 5e-4]) / y['s_terms']['std']
+    assert np.all(np.abs(z) < 4), z
     loaded = Calibration.load(std.save(str(tmp_path / 'std.yaml')))
     cols, ref = _accel_columns(loaded), _accel_columns(field)
-    assert cols['accel.alarm_family'] == ref['accel.alarm_family'] == 'field_polynomial'
+    assert cols['accel.alarm_family'] == ref['accel.alarm_family'] == 'field_polynomial+S'
     assert cols.keys() == ref.keys()
     for k, v in ref.items():
         if k != 'accel.alarm_family':
@@ -315,7 +332,57 @@ def test_a_yardstick_that_cannot_be_fitted_says_why_and_keeps_the_models_terms()
     cols = _accel_columns(cal)
     assert cols['accel.alarm_family'] == 'whole_unit_accel'
     assert cols['accel.alarm_b0.x'] == pytest.approx(0.1)
-    # one orientation, or the field model itself: no yardstick is fitted
+    # one orientation, or the field model itself with a lab S: no yardstick is fitted
+    field = FieldPolynomialModel([30.0] * 3, np.zeros((3, 6)))
     assert not alarm_yardstick.needed('offset', 1, cal.accel)
-    assert not alarm_yardstick.needed('field', 6, cal.accel)
-    assert alarm_yardstick.needed('standard', 6, cal.accel)
+    assert not alarm_yardstick.needed('field', 6, field, lab_s=True)
+    assert alarm_yardstick.needed('field', 6, field)
+    assert alarm_yardstick.needed('standard', 6, cal.accel, lab_s=True)
+
+
+def test_the_yardstick_estimates_a_datasheet_cross_axis_and_stays_honest():
+    """With 1-2 % cross-axis terms, tilted holds and no prior, the yardstick estimates S and
+    its terms are within their stds, which are far narrower than the S = identity fit's."""
+    il = np.tril_indices(3, -1)
+    s = np.eye(3)
+    s[il] = [1.5e-2, -1.2e-2, 1.8e-2]      # unit diagonal, as the yardstick estimates it
+    w = _session(1e-4, s=s, tilt=0.05)
+    field = calibrate_windows(w, dataclasses.replace(options(), model='field')).calibration
+    y = field.fit['alarm_yardstick']
+    assert 'error' not in y, y
+    z_s = (np.array(y['s_terms']['value']) - s[il]) / y['s_terms']['std']
+    assert np.all(np.abs(z_s) < 4), z_s
+    own = bias_scale_terms(field.accel)
+    b_true, k_true = (np.diag(v) for v in _truth(own['T0']))     # per axis at its T0
+    z_own = (own['k'][:, 0] - k_true) / own['k_std'][:, 0]
+    z_yard = (np.array(y['k'])[:, 0] - k_true) / np.array(y['k_std'])[:, 0]
+    zb_yard = (np.array(y['b'])[:, 0] - b_true) / np.array(y['b_std'])[:, 0]
+    # S = identity does not fit the tilted holds: its stds are inflated by the misfit
+    # (chi^2/dof ~ 5000 here, honest but ~60x wider); the yardstick's are not
+    assert field.fit['chi2_per_dof'] > 100 and np.all(np.abs(z_own) < 4), z_own
+    assert np.all(own['k_std'][:, 0] > 20 * np.array(y['k_std'])[:, 0])
+    assert np.all(np.array(y['s_terms']['std']) < 1e-3)        # S is determined by the tilts
+    assert np.max(np.abs(z_yard)) < 4 and np.max(np.abs(zb_yard)) < 4, (z_yard, zb_yard)
+    # with the part's S from a lab prior the field model is honest itself: no yardstick
+    from thermal_imu_calib.calibration import Calibration as Cal
+    prior = Cal(accel=FieldPolynomialModel([30.0] * 3, np.zeros((3, 6)), s=s))
+    lab = calibrate_windows(w, dataclasses.replace(options(), model='field', prior=prior))
+    assert 'alarm_yardstick' not in lab.calibration.fit
+
+
+def test_a_registry_written_before_the_s_yardstick_starts_a_new_chain_and_says_so():
+    """An old field row (S = identity terms) is not compared with a new one (S estimated)."""
+    o = dataclasses.replace(options(), model='field')
+    old, new = (calibrate_windows(_session(1e-4, seed=s), o).calibration for s in (1, 2))
+    legacy = dataclasses.replace(old, fit={k: v for k, v in old.fit.items()
+                                           if k != 'alarm_yardstick'})
+    rows = _rows([legacy, new])
+    assert [r['accel.alarm_family'] for r in rows] == ['field_polynomial', 'field_polynomial+S']
+    _, info = reg.assess(rows)
+    assert not [lbl for lbl, _ in info['unit_tests']['u'] if lbl.startswith(('db0', 'dk0'))]
+    assert [n for n in info['notes']['u'] if 'changed family field_polynomial -> '
+            'field_polynomial+S' in n and 'not tested' in n]
+    # two new rows are compared
+    _, info2 = reg.assess(_rows([old, new]))
+    assert [lbl for lbl, _ in info2['unit_tests']['u'] if lbl.startswith('db0')]
+    assert not info2['notes']['u']

@@ -82,8 +82,12 @@ def check_faces_up_and_down(ctx):
 
 
 @register_estimator('field')
-def estimate_field(ctx):
-    """Seed 000 field model: two-step iteration plus joint refinement."""
+def estimate_field(ctx, free_s=False):
+    """Seed 000 field model: two-step iteration plus joint refinement.
+
+    ``free_s``: without a prior, also estimate the non-orthogonality S (its three
+    below-diagonal terms, ``field_estimator.fit_field_model``); the alarm yardstick's use.
+    """
     ctx = ctx.accel_view()
     w, o, k, ta = ctx.windows, ctx.options, ctx.k, ctx.ta
     check_faces_up_and_down(ctx)
@@ -101,15 +105,21 @@ def estimate_field(ctx):
                      'only (dk0, db0)')
     k0 = b0 = s = None
     pm = ctx.prior_model
+    free_s = bool(free_s and pm is None and o.refine)
     if pm is not None:
         k0 = pm.k0 + pm.thermal[:, 0]
         b0 = pm.b0 + pm.thermal[:, 3]
         s = pm.s
+    elif free_s:
+        notes.append('no prior calibration: k0 = 1, b0 = 0; dk0 and db0 hold the full '
+                     'scale-factor and bias errors at T0; the non-orthogonality S is '
+                     'estimated with them (unit diagonal, a +-2 % prior)')
     else:
         notes.append('no prior calibration: k0 = 1, b0 = 0, S = identity; dk0 and db0 hold '
                      'the full scale-factor and bias errors at T0, non-orthogonality is not '
                      'estimated')
-    fit = fit_field_model(w, ta, o.gravity, ctx.t0, k0, b0, s, order=order, refine=o.refine)
+    fit = fit_field_model(w, ta, o.gravity, ctx.t0, k0, b0, s, order=order, refine=o.refine,
+                          free_s=free_s)
     vert = per_axis_vertical_range(w, ta, fit.tilts, fit.hold_ids)
     axis_span = np.nan_to_num(vert[:, 1] - vert[:, 0])
     for i, a in enumerate('xyz'):
@@ -137,4 +147,8 @@ def estimate_field(ctx):
              'residual_rms': {'value': fit.residual_rms, 'unit': 'm/s^2'},
              'chi2_per_dof': fit.chi2_dof,
              'axis_vertical_temperature_range': {'value': vert.tolist(), 'unit': u}}
+    if fit.s_std is not None:
+        il = np.tril_indices(3, -1)
+        stats['s_terms'] = {'value': fit.model.s[il].tolist(), 'std': fit.s_std.tolist(),
+                            'unit': '1', 'terms': ['s10', 's20', 's21']}
     return Estimate(accel=fit.model, notes=notes, fit=stats)

@@ -286,7 +286,8 @@ def calibrate_windows(windows, options=None):
                                 'before_max': _amax(before), 'after_max': _amax(after),
                                 'note': 'per hold, |mean f| - g in micro-g, on the fit data'},
     })
-    if alarm_yardstick.needed(name, ctx.n_orientations, est.accel):
+    if alarm_yardstick.needed(name, ctx.n_orientations, est.accel,
+                              lab_s=ctx.prior_model is not None):
         fit_stats['alarm_yardstick'] = alarm_yardstick.yardstick(ctx)
     rot = _rotation_stats(est.fit, report)
     if o.transitions or rot:

@@ -42,6 +42,8 @@ class FieldFit:
     refined: bool
     #: why the joint refinement was not used ('' when it was, or was not asked for)
     refine_note: str = ''
+    #: with ``free_s``: stds of S's below-diagonal terms (s10, s20, s21), else None
+    s_std: object = None
 
 
 def kkt_unit_tilt(a_mats, y, w, c0, max_iter=50, tol=1e-14):
@@ -167,7 +169,7 @@ def _design(f, dt, order):
 
 
 def fit_field_model(windows, axis_temps, gravity, t0, k0=None, b0=None, s=None, order=2,
-                    refine=True, max_iter=1000, tol=1e-3):
+                    refine=True, max_iter=1000, tol=1e-3, free_s=False):
     """Estimate the seed 000 model from stationary windows.
 
     windows: estimation.segments.Windows (accel means in m/s^2 with per-sample variances).
@@ -175,7 +177,13 @@ def fit_field_model(windows, axis_temps, gravity, t0, k0=None, b0=None, s=None, 
     gravity: local gravity magnitude, m/s^2. t0: (3,) reference temperatures, degC.
     k0, b0, s: prior scale factor, bias (m/s^2) and lower-triangular S (identity if None).
     order: temperature polynomial order 0, 1 or 2 (0 = temperature-independent dk0, db0).
+    free_s: also estimate S in the joint refinement (``s`` must be None): its three
+    below-diagonal terms, unit diagonal (``s_of_terms``), zero-mean prior
+    ``S_PRIOR_STD``; needs ``refine``.
     """
+    if free_s and (s is not None or not refine):
+        raise ValueError('free_s estimates S from identity in the joint refinement: '
+                         'pass s=None and refine=True')
     k0 = np.ones(3) if k0 is None else np.asarray(k0, float)
     b0 = np.zeros(3) if b0 is None else np.asarray(b0, float)
     s = np.eye(3) if s is None else np.asarray(s, float)
@@ -231,20 +239,21 @@ def fit_field_model(windows, axis_temps, gravity, t0, k0=None, b0=None, s=None, 
     refined = False
     thermal_std = None
     refine_note = ''
+    s_std = None
     if refine:
         try:
-            thermal, tilts, thermal_std = _refine(raw, w, dt, hold_idx, tilts, thermal,
-                                                  gravity, t0, k0, b0, s, order)
+            thermal, tilts, thermal_std, s, s_std = _refine(
+                raw, w, dt, hold_idx, tilts, thermal, gravity, t0, k0, b0, s, order, free_s)
             refined = True
         except FitNotConverged as e:    # stopped by its budget: the two-step estimate stands
             refine_note = f'{e.what}: {e.advice}'
     model = FieldPolynomialModel(t0, thermal, k0, b0, s, thermal_std)
     pred = model.forward(gravity * tilts[hold_idx], t0 + dt)
     res = raw - pred
-    dof = max(res.size - (3 * len(cols) + 2 * nh), 1)
+    dof = max(res.size - (3 * len(cols) + 2 * nh + (3 if refined and free_s else 0)), 1)
     return FieldFit(model, tilts, hold_ids, it, converged,
                     float(np.sqrt(np.mean(res ** 2))), float(np.sum((res * w) ** 2) / dof),
-                    refined, refine_note)
+                    refined, refine_note, s_std)
 
 
 def _tangent_basis(c):
@@ -255,73 +264,108 @@ def _tangent_basis(c):
     return e1, np.cross(c, e1)
 
 
-def _refine(raw, w, dt, hold_idx, tilts, thermal, gravity, t0, k0, b0, s, order):
+#: (row, column) of S's below-diagonal terms estimated with ``free_s``
+_S_TERMS = ((1, 0), (2, 0), (2, 1))
+#: 1-sigma prior of each of S's below-diagonal terms with ``free_s`` (zero mean): a
+#: consumer MEMS datasheet's cross-axis sensitivity bound, +-2 % (MPU-6050, PS-MPU-6000A-00
+#: rev. 3.4 sect. 6.2), taken as one sigma. Holds at the six faces alone do not determine
+#: S (each hold gives only |S^-1 v| = 1, whose cross terms need tilted holds): the prior
+#: keeps S, and the stds of the terms it moves, finite there.
+S_PRIOR_STD = 2e-2
+
+
+def s_of_terms(q):
+    """Return the unit-diagonal lower-triangular S with below-diagonal terms q (s10, s20, s21).
+
+    Unit diagonal (``sim.devices`` draws unit rows; the two differ in how the gain along an
+    axis, k_i S_ii, is split, which ``models.alarm_terms`` reads whole): the terms enter
+    linearly.
+    """
+    u = np.eye(3)
+    for (r, c), v in zip(_S_TERMS, q):
+        u[r, c] = v
+    return u
+
+
+def _refine(raw, w, dt, hold_idx, tilts, thermal, gravity, t0, k0, b0, s, order,
+            free_s=False):
     """Joint least squares over the thermal vector and all tilts (analytic Jacobian).
 
-    Returns (thermal, tilts, thermal std); raises ``FitNotConverged`` when the solver ran
-    out of evaluations (``REFINE_MAX_NFEV``) before converging.
+    With ``free_s`` also over S's three below-diagonal terms (``s_of_terms``; S starts at
+    identity, zero-mean prior ``S_PRIOR_STD`` as three extra residuals). Returns (thermal,
+    tilts, thermal std, S, stds of S's terms or None); raises ``FitNotConverged`` when the
+    solver ran out of evaluations (``REFINE_MAX_NFEV``) before converging.
     """
     cols = _COLS[order]
     nh = len(tilts)
     nc = len(cols)
     m = len(raw)
+    ns = len(_S_TERMS) if free_s else 0
     bases = [_tangent_basis(c) for c in tilts]
     e1 = np.array([b[0] for b in bases])
     e2 = np.array([b[1] for b in bases])
     c0 = tilts.copy()
+    n_tilt = 3 * nc + 2 * nh          # first S term's column
 
     def unpack(p):
         th = np.zeros((3, 6))
         th[:, cols] = p[:3 * nc].reshape(3, nc)
-        ab = p[3 * nc:].reshape(nh, 2)
+        ab = p[3 * nc:n_tilt].reshape(nh, 2)
         v = c0 + ab[:, :1] * e1 + ab[:, 1:] * e2
-        return th, v
+        return th, v, (s_of_terms(p[n_tilt:]) if free_s else s)
 
     def fun(p):
-        th, v = unpack(p)
+        th, v, sp = unpack(p)
         c = v / np.linalg.norm(v, axis=1, keepdims=True)
-        model = FieldPolynomialModel(t0, th, k0, b0, s)
+        model = FieldPolynomialModel(t0, th, k0, b0, sp)
         pred = model.forward(gravity * c[hold_idx], t0 + dt)
-        return ((raw - pred) * w).ravel()
+        return np.r_[((raw - pred) * w).ravel(), p[n_tilt:] / S_PRIOR_STD]
 
     def jac(p):
-        th, v = unpack(p)
+        th, v, sp = unpack(p)
         nv = np.linalg.norm(v, axis=1, keepdims=True)
         c = v / nv
-        k, _ = FieldPolynomialModel(t0, th, k0, b0, s).scale_bias(t0 + dt)
-        fa = gravity * (c[hold_idx] @ s.T)
-        jm = np.zeros((m, 3, 3 * nc + 2 * nh))
+        k, _ = FieldPolynomialModel(t0, th, k0, b0, sp).scale_bias(t0 + dt)
+        fa = gravity * (c[hold_idx] @ sp.T)
+        jm = np.zeros((m, 3, n_tilt + ns))
         for i in range(3):
             d = _design(fa[:, i], dt[:, i], order)
             jm[:, i, i * nc:(i + 1) * nc] = -d * w[:, i:i + 1]
         # d c / d(a, b) = (e - c (c.e)) / |v|
         for q, e in enumerate((e1, e2)):
             dc = (e - c * np.sum(c * e, axis=1, keepdims=True)) / nv     # (nh, 3)
-            dfa = gravity * (dc[hold_idx] @ s.T)                        # (m, 3)
+            dfa = gravity * (dc[hold_idx] @ sp.T)                       # (m, 3)
             col = 3 * nc + 2 * hold_idx + q
             jm[np.arange(m), :, col] = -(k * dfa) * w
-        return jm.reshape(m * 3, -1)
+        if free_s:                # d(S f)_r / d s_rc = f_c
+            f = gravity * c[hold_idx]                                      # (m, 3)
+            for q, (r, cc) in enumerate(_S_TERMS):
+                jm[:, r, n_tilt + q] = -k[:, r] * f[:, cc] * w[:, r]
+        prior = np.zeros((ns, n_tilt + ns))
+        prior[:, n_tilt:] = np.eye(ns) / S_PRIOR_STD
+        return np.vstack([jm.reshape(m * 3, -1), prior])
 
-    p0 = np.r_[thermal[:, cols].ravel(), np.zeros(2 * nh)]
+    p0 = np.r_[thermal[:, cols].ravel(), np.zeros(2 * nh + ns)]
     sol = least_squares(fun, p0, jac=jac, method='trf', x_scale='jac', xtol=1e-15,
                         ftol=1e-15, gtol=1e-15, max_nfev=REFINE_MAX_NFEV)
     if not converged(sol):
         raise FitNotConverged(f'the joint refinement did not converge in {sol.nfev} '
                               f'evaluations ({sol.message})', 'the two-step estimate is used, '
                               'without its standard deviations')
-    th, v = unpack(sol.x)
+    th, v, sp = unpack(sol.x)
     c = v / np.linalg.norm(v, axis=1, keepdims=True)
     j = sol.jac
     dof = max(j.shape[0] - j.shape[1], 1)
     s2 = 2.0 * sol.cost / dof
     try:
         cov = np.linalg.pinv(j.T @ j) * max(s2, 1.0)
-        sd = np.sqrt(np.maximum(np.diag(cov)[:3 * nc], 0)).reshape(3, nc)
+        var = np.diag(cov)
     except np.linalg.LinAlgError:
-        sd = np.full((3, nc), np.nan)
+        var = np.full(j.shape[1], np.nan)
     std = np.zeros((3, 6))
-    std[:, cols] = sd
-    return th, c, std
+    std[:, cols] = np.sqrt(np.maximum(var[:3 * nc], 0)).reshape(3, nc)
+    s_std = np.sqrt(np.maximum(var[n_tilt:], 0)) if free_s else None
+    return th, c, std, sp, s_std
 
 
 def per_axis_vertical_range(windows, axis_temps, tilts, hold_ids, min_cos=0.7):
