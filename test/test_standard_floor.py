@@ -386,3 +386,33 @@ def test_a_registry_written_before_the_s_yardstick_starts_a_new_chain_and_says_s
     _, info2 = reg.assess(_rows([old, new]))
     assert [lbl for lbl, _ in info2['unit_tests']['u'] if lbl.startswith('db0')]
     assert not info2['notes']['u']
+
+
+def test_a_pinned_field_calibration_does_not_import_scipy_stats():
+    """scipy.stats costs 0.1-0.3 s of start-up (docs/speed.md: `calibrate --model field`
+    against a rosbags loop); only a held-out comparison (``selection.paired``) needs it."""
+    import os
+    import subprocess
+    import sys
+    import textwrap
+    code = textwrap.dedent('''
+        import dataclasses, sys
+        sys.path.insert(0, sys.argv[1])
+        import numpy as np
+        from _thermal_data import G, make_windows, options
+        import thermal_imu_calib.cli.commands  # noqa: F401  (what the CLI loads)
+        from thermal_imu_calib.estimation.calibrate import calibrate_windows
+        rng = np.random.default_rng(0)
+        order = np.concatenate([rng.permutation(6) for _ in range(3)])
+        t = np.repeat(np.arange(len(order)) * 120.0, 3) + np.tile([0.0, 5.0, 10.0], len(order))
+        temp = 20.0 + 20.0 * t / t.max()
+        hold = np.repeat(np.arange(len(order)), 3)
+        up = np.vstack([np.eye(3), -np.eye(3)])[order][hold]
+        w = make_windows(t, temp, 0.05 + 1.002 * G * up, np.zeros_like(up), hold=hold,
+                         n=500, sigma_a=2e-3, rng=rng)
+        cal = calibrate_windows(w, dataclasses.replace(options(), model='field')).calibration
+        print(cal.accel.kind, 'scipy.stats' in sys.modules)
+    ''')
+    out = subprocess.run([sys.executable, '-c', code, os.path.dirname(__file__)],
+                         capture_output=True, text=True, check=True)
+    assert out.stdout.split()[-2:] == ['field_polynomial', 'False'], out.stdout + out.stderr

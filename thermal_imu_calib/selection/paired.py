@@ -10,7 +10,6 @@ RMS of its windows' |a| - g. Used by ``static_select`` (no temperature span) and
 
 import numpy as np
 from scipy.special import ndtri
-from scipy.stats import wilcoxon
 
 from ..estimation.calibrate import check_faces_up_and_down, CalibrationRefused
 from ..estimation.standard_fit import fit_standard_context, StandardFitError
@@ -106,5 +105,8 @@ def paired_test(r_ref, r_cand, mask=None):
     d = r_ref[ok] ** 2 - r_cand[ok] ** 2
     if not np.any(d != 0):
         return 0.0, int(ok.sum())
+    # imported here: scipy.stats costs ~0.1-0.3 s of start-up, which a calibration that
+    # compares nothing (``--model field``) should not pay (docs/speed.md)
+    from scipy.stats import wilcoxon
     p = float(wilcoxon(d, alternative='greater').pvalue)
     return float(-ndtri(p)), int(ok.sum())
