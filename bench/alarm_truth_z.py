@@ -57,7 +57,7 @@ def _one(variant, fleet_seed, unit, logs, work):
     from thermal_imu_calib.fleet.simulate import FleetDesign, write_log
     from thermal_imu_calib.formats import read_calibration
     from thermal_imu_calib.gravity import normal_gravity
-    from thermal_imu_calib.models.alarm_terms import _coefficients
+    from thermal_imu_calib.models.alarm_terms import coefficients
     design = FleetDesign(units=unit + 1, logs_per_unit=logs, seed=fleet_seed)
     plan = {'unit': f'u{unit:02d}', 'device_seed': fleet_seed * 1000 + unit, 'kind': 'stable',
             'axis': 0, 'step_log': logs}
@@ -77,8 +77,8 @@ def _one(variant, fleet_seed, unit, logs, work):
         row = al.alarm_columns(cal)
         rec = {'log': k, 'family': row.get(al.FAMILY_COLUMN), 'model': cal.accel.kind}
         for name in ('b', 'k'):
-            c, s, t0 = al._terms(row, name)
-            tb, tk = _coefficients(truth.accel, t0)
+            c, s, t0 = al.row_terms(row, name)
+            tb, tk = coefficients(truth.accel, t0)
             err = c - (tb if name == 'b' else tk)
             rec[f'err_{name}'], rec[f'std_{name}'] = err.tolist(), s.tolist()
         out.append(rec)

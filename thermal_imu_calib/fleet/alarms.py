@@ -156,20 +156,20 @@ def at_temperature(row, name, t_ref, memo=None):
 
 
 def _terms_memo(row, name, memo):
-    """Return ``_terms(row, name)``, read once per row and name into ``memo`` (None: no memo).
+    """Return ``row_terms(row, name)``, read once per row and name into ``memo`` (None: no memo).
 
     The key is the row's identity, so a memo lives no longer than one call over rows that
     are alive meanwhile (``unit_tests``): parsing the index strings was most of its time.
     """
     if memo is None:
-        return _terms(row, name)
+        return row_terms(row, name)
     key = (id(row), name)
     if key not in memo:
-        memo[key] = _terms(row, name)
+        memo[key] = row_terms(row, name)
     return memo[key]
 
 
-def _terms(row, name):
+def row_terms(row, name):
     """Return (c, s, t0) of ``at_temperature``: (3 axes, 3 orders) values and stds, (3,) T0.
 
     A higher-order column a lower-order model leaves empty counts as 0 with std 0; a
@@ -192,7 +192,7 @@ def _terms(row, name):
 
 
 def _evaluate(terms, t_ref):
-    """Return (value, std) of ``_terms`` at ``t_ref`` degC, (..., 3) (vectorised over ...)."""
+    """Return (value, std) of ``row_terms`` at ``t_ref`` degC, (..., 3) (vectorised over ...)."""
     c, s, t0 = terms
     dt = np.asarray(t_ref, float) - t0
     pw = dt[..., None] ** np.arange(3)

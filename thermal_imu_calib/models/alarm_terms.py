@@ -42,7 +42,7 @@ def _at(model, t0, dt):
     return bias, scale
 
 
-def _coefficients(model, t0):
+def coefficients(model, t0):
     """Return (b (3, 3), k (3, 3)): columns the dT^0, dT^1, dT^2 coefficients per axis."""
     (b_m, k_m), (b_0, k_0), (b_p, k_p) = (_at(model, t0, d) for d in (-STEP, 0.0, STEP))
 
@@ -89,7 +89,7 @@ def bias_scale_terms(model):
     if not fitted:
         return None
     try:
-        b, k = _coefficients(model, t0)
+        b, k = coefficients(model, t0)
     except (NotImplementedError, ValueError, np.linalg.LinAlgError):
         return None
     if not np.all(np.isfinite(b)) or not np.all(np.isfinite(k)):
@@ -103,7 +103,7 @@ def bias_scale_terms(model):
             v[idx] += std[idx]
             moved = dict(params, **{name: dataclasses.replace(p, value=v)})
             try:
-                db, dk = _coefficients(type(model).from_params(moved, meta), t0)
+                db, dk = coefficients(type(model).from_params(moved, meta), t0)
             except (NotImplementedError, ValueError, np.linalg.LinAlgError):
                 return None
             var_b += (db - b) ** 2
