@@ -46,12 +46,17 @@ VARIANTS = {'no-nonorthogonality': ('const', 0.0),
             'datasheet-cross-axis': ('uniform+-', 1e-3, 2e-2)}
 
 
-def _one(variant, fleet_seed, unit, logs, work):
-    """Return the per-log truth z of one stable unit (runs in a worker process)."""
+def use_variant(variant):
+    """Draw this process's ``mems`` devices with ``variant``'s S (``VARIANTS``; 'base': as is)."""
     from thermal_imu_calib.sim import devices as dv
     if variant in VARIANTS:
         dv.DEVICES['mems'] = dataclasses.replace(dv.DEVICES['mems'],
                                                  s_offdiag=VARIANTS[variant])
+
+
+def _one(variant, fleet_seed, unit, logs, work):
+    """Return the per-log truth z of one stable unit (runs in a worker process)."""
+    use_variant(variant)
     from thermal_imu_calib.cli import main
     from thermal_imu_calib.fleet import alarms as al
     from thermal_imu_calib.fleet.simulate import FleetDesign, write_log

@@ -14,7 +14,6 @@ SI units; z unitless. No ROS import.
 """
 
 import argparse
-import dataclasses
 import json
 import os
 import shutil
@@ -25,12 +24,9 @@ import time
 
 def one_fleet(seed, variant, work):
     """Return {'threshold', 'tests', 'units': {unit: {kind, flagged, max_abs_z, first}}}."""
-    from thermal_imu_calib.sim import devices as dv
-    if variant != 'base':
-        sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-        from alarm_truth_z import VARIANTS
-        dv.DEVICES['mems'] = dataclasses.replace(dv.DEVICES['mems'],
-                                                 s_offdiag=VARIANTS[variant])
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    from alarm_truth_z import use_variant
+    use_variant(variant)
     from thermal_imu_calib.cli import main
     from thermal_imu_calib.fleet import registry as reg
     from thermal_imu_calib.fleet.simulate import FleetDesign, read_truth, simulate_fleet

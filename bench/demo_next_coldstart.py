@@ -17,7 +17,6 @@ Device seeds 95000 + i by default (no other bench uses them). No ROS import.
 """
 
 import argparse
-import dataclasses
 import json
 import os
 import shutil
@@ -36,12 +35,9 @@ def one_device(seed, work, variant):
     from thermal_imu_calib.cli import main
     from thermal_imu_calib.formats import read_calibration
     from thermal_imu_calib.gravity import normal_gravity
-    from thermal_imu_calib.sim import devices as dv
-    if variant != 'base':
-        sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-        from alarm_truth_z import VARIANTS
-        dv.DEVICES['mems'] = dataclasses.replace(dv.DEVICES['mems'],
-                                                 s_offdiag=VARIANTS[variant])
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    from alarm_truth_z import use_variant
+    use_variant(variant)
     g = repr(normal_gravity(45.0))
     d = os.path.join(work, str(seed))
     os.makedirs(d)
