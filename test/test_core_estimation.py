@@ -144,6 +144,9 @@ def test_a_joint_refinement_stopped_by_its_budget_is_not_used(six_face_recording
     opts = CalibrateOptions(inputs=[TemperatureInput('t', '/imu/temperature')], model='field')
     res = calibrate_windows(w, opts)
     assert any('joint refinement did not converge' in n for n in res.calibration.notes)
+    # the alarm yardstick (the field model again, S estimated) says why it has no terms
+    err = res.calibration.fit['alarm_yardstick']['error']
+    assert 'no finite bias and scale terms' in err and 'did not converge in 1 evaluations' in err
 
 
 def test_calibrate_refuses_missing_faces_and_names_them(six_face_recording):

@@ -80,14 +80,14 @@ def yardstick(ctx):
     except (CalibrationRefused, ValueError, ArithmeticError, np.linalg.LinAlgError) as e:
         return {'family': YARDSTICK_FAMILY, 'error': _reason(e), 'note': note}
     if terms is None or not all(np.all(np.isfinite(terms[k])) for k in TERMS):
+        why = next((f' ({n})' for n in est.notes if n.startswith('field model: ')), '')
         return {'family': YARDSTICK_FAMILY, 'error': 'the field model has no finite bias and '
-                'scale terms with stds on these holds', 'note': note}
+                f'scale terms with stds on these holds{why}', 'note': note}
     s_terms = est.fit.get('s_terms')
     if free_s and (s_terms is None or not np.all(np.isfinite(s_terms['std']))
                    or min(s_terms['std']) <= 0):
-        return {'family': YARDSTICK_FAMILY, 'error': 'the non-orthogonality S could not be '
-                'estimated on these holds (' + (est.notes[-1] if est.notes else 'no '
-                                                'joint refinement') + ')', 'note': note}
+        return {'family': YARDSTICK_FAMILY, 'error': 'the non-orthogonality S has no finite, '
+                'positive stds on these holds', 'note': note}
     out = {'family': YARDSTICK_FAMILY, 'kind': FREE_S_KIND if free_s else YARDSTICK_KIND}
     out.update({k: np.asarray(terms[k], float).tolist() for k in TERMS})
     if s_terms is not None:

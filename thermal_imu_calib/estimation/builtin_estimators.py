@@ -11,7 +11,7 @@ import numpy as np
 
 from ..input_units import DEGC
 from .context import Estimate, register_estimator
-from .field_estimator import fit_field_model, per_axis_vertical_range
+from .field_estimator import fit_field_model, per_axis_vertical_range, S_TERM_NAMES, S_TERMS
 from .observability import ORDER_SPAN
 from .offset_fit import fit_offset_model, time_groups
 from .options import CalibrationRefused, hold_seconds, input_units
@@ -148,7 +148,6 @@ def estimate_field(ctx, free_s=False):
              'chi2_per_dof': fit.chi2_dof,
              'axis_vertical_temperature_range': {'value': vert.tolist(), 'unit': u}}
     if fit.s_std is not None:
-        il = np.tril_indices(3, -1)
-        stats['s_terms'] = {'value': fit.model.s[il].tolist(), 'std': fit.s_std.tolist(),
-                            'unit': '1', 'terms': ['s10', 's20', 's21']}
+        stats['s_terms'] = {'value': fit.model.s[S_TERMS].tolist(), 'std': fit.s_std.tolist(),
+                            'unit': '1', 'terms': list(S_TERM_NAMES)}
     return Estimate(accel=fit.model, notes=notes, fit=stats)

@@ -250,7 +250,8 @@ def fit_field_model(windows, axis_temps, gravity, t0, k0=None, b0=None, s=None, 
     model = FieldPolynomialModel(t0, thermal, k0, b0, s, thermal_std)
     pred = model.forward(gravity * tilts[hold_idx], t0 + dt)
     res = raw - pred
-    dof = max(res.size - (3 * len(cols) + 2 * nh + (3 if refined and free_s else 0)), 1)
+    n_s = len(S_TERM_NAMES) if refined and free_s else 0
+    dof = max(res.size - (3 * len(cols) + 2 * nh + n_s), 1)
     return FieldFit(model, tilts, hold_ids, it, converged,
                     float(np.sqrt(np.mean(res ** 2))), float(np.sum((res * w) ** 2) / dof),
                     refined, refine_note, s_std)
@@ -264,8 +265,10 @@ def _tangent_basis(c):
     return e1, np.cross(c, e1)
 
 
-#: (row, column) of S's below-diagonal terms estimated with ``free_s``
-_S_TERMS = ((1, 0), (2, 0), (2, 1))
+#: (rows, columns) of S's below-diagonal terms estimated with ``free_s``: s10, s20, s21
+S_TERMS = np.tril_indices(3, -1)
+#: their names, in that order (``FieldFit.s_std``)
+S_TERM_NAMES = tuple(f's{r}{c}' for r, c in zip(*S_TERMS))
 #: 1-sigma prior of each of S's below-diagonal terms with ``free_s`` (zero mean): a
 #: consumer MEMS datasheet's cross-axis sensitivity bound, +-2 % (MPU-6050, PS-MPU-6000A-00
 #: rev. 3.4 sect. 6.2), taken as one sigma. Holds at the six faces alone do not determine
@@ -282,8 +285,7 @@ def s_of_terms(q):
     linearly.
     """
     u = np.eye(3)
-    for (r, c), v in zip(_S_TERMS, q):
-        u[r, c] = v
+    u[S_TERMS] = q
     return u
 
 
@@ -300,7 +302,7 @@ def _refine(raw, w, dt, hold_idx, tilts, thermal, gravity, t0, k0, b0, s, order,
     nh = len(tilts)
     nc = len(cols)
     m = len(raw)
-    ns = len(_S_TERMS) if free_s else 0
+    ns = len(S_TERM_NAMES) if free_s else 0
     bases = [_tangent_basis(c) for c in tilts]
     e1 = np.array([b[0] for b in bases])
     e2 = np.array([b[1] for b in bases])
@@ -339,7 +341,7 @@ def _refine(raw, w, dt, hold_idx, tilts, thermal, gravity, t0, k0, b0, s, order,
             jm[np.arange(m), :, col] = -(k * dfa) * w
         if free_s:                # d(S f)_r / d s_rc = f_c
             f = gravity * c[hold_idx]                                      # (m, 3)
-            for q, (r, cc) in enumerate(_S_TERMS):
+            for q, (r, cc) in enumerate(zip(*S_TERMS)):
                 jm[:, r, n_tilt + q] = -k[:, r] * f[:, cc] * w[:, r]
         prior = np.zeros((ns, n_tilt + ns))
         prior[:, n_tilt:] = np.eye(ns) / S_PRIOR_STD
