@@ -299,6 +299,32 @@ def test_alarms_history_and_compensate(fleet, tmp_path, capsys):
                      '-o', str(out_dir / step)]) == 2
 
 
+def test_a_fleet_without_a_temperature_is_calibrated_and_indexed(tmp_path, capsys):
+    """Logs without a temperature (a posing session of a driver that publishes none).
+
+    Each is calibrated temperature-independent; its index row has no temperature span and
+    ``history`` reads it. Until 2026-12-03 the index row read the span None as an array and
+    ``fleet calibrate`` ended in "cannot reshape array of size 1 into shape (2)".
+    """
+    from thermal_imu_calib.io.bag import write_columns
+    from thermal_imu_calib.io.csv_logs import read_mpu6050_csv
+    fix = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'fixtures', 'real',
+                       'mpu6050_tomisuarez', 'example_data_calibration.csv.gz')
+    logs = tmp_path / 'logs'
+    logs.mkdir()
+    write_columns(str(logs / 'mpu.mcap'), '/imu', read_mpu6050_csv(fix).imu)
+    registry = str(tmp_path / 'reg')
+    assert cli.main(['fleet', 'calibrate', str(logs), '--workers', '1', '--gravity', '9.81',
+                     '-o', registry]) == 0
+    rows = reg.read_index(registry)
+    assert len(rows) == 1 and rows[0]['temp_min'] == rows[0]['temp_max'] == 'nan'
+    cal = Calibration.load(os.path.join(registry, rows[0]['file']))
+    assert cal.inputs == [] and cal.fit['temperature_span'] is None
+    capsys.readouterr()
+    assert cli.main(['history', registry]) == 0
+    assert '1 calibrations' in capsys.readouterr().out
+
+
 def _imu_values(path):
     from thermal_imu_calib.io.bag import open_log
     with open_log(path) as r:

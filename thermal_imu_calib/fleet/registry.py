@@ -126,7 +126,8 @@ def key_parameters(cal):
 def index_row(sensor, cal, time_ns, valid_from_ns, file, logs):
     """Return the index.csv row (dict) of one calibration."""
     fit = cal.fit or {}
-    span = np.asarray(fit.get('temperature_span', [[np.nan, np.nan]]), float).reshape(-1, 2)
+    # a calibration without a thermal input has temperature_span None: no span
+    span = np.asarray(fit.get('temperature_span') or [[np.nan, np.nan]], float).reshape(-1, 2)
     res = fit.get('residual_rms', {})
     row = {'sensor': sensor, 'time': iso(time_ns), 'valid_from': iso(valid_from_ns),
            'file': file, 'accel_model': cal.accel.kind if cal.accel else '',
