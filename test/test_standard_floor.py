@@ -416,3 +416,86 @@ def test_a_pinned_field_calibration_does_not_import_scipy_stats():
     out = subprocess.run([sys.executable, '-c', code, os.path.dirname(__file__)],
                          capture_output=True, text=True, check=True)
     assert out.stdout.split()[-2:] == ['field_polynomial', 'False'], out.stdout + out.stderr
+
+
+def test_the_yardsticks_terms_given_s_are_the_fit_at_that_s():
+    """The yardstick's thermal vector given S (gains, stds) is the field fit redone at S.
+
+    The drift alarms carry each calibration's terms to the S pooled over the unit's logs
+    (``fleet/pooled_s.py``) with these gains; they must predict the fit at another S.
+    """
+    from thermal_imu_calib.estimation.context import make_context
+    from thermal_imu_calib.estimation.field_estimator import fit_field_model, s_of_terms
+    il = np.tril_indices(3, -1)
+    s = np.eye(3)
+    s[il] = [1.5e-2, -1.2e-2, 1.8e-2]
+    w = _session(1e-4, s=s, tilt=0.05)
+    ctx = make_context(w, dataclasses.replace(options(), model='field'))
+    g = ctx.options.gravity
+    free = fit_field_model(w, ctx.ta, g, ctx.t0, free_s=True)
+    q, cond = free.model.s[il], free.s_condition
+    at_q = fit_field_model(w, ctx.ta, g, ctx.t0, s=s_of_terms(q))
+    np.testing.assert_allclose(at_q.model.thermal, free.model.thermal, atol=1e-7)
+    np.testing.assert_allclose(at_q.model.thermal_std, cond.std, rtol=0.02)
+    d = np.array([1e-3, -2e-3, 1.5e-3])
+    moved = fit_field_model(w, ctx.ta, g, ctx.t0, s=s_of_terms(q + d)).model.thermal
+    change = moved - free.model.thermal
+    assert np.abs(change - cond.gain @ d).max() < 0.02 * np.abs(change).max()
+    # what the data say about S: with the prior's information once, its fitted terms
+    info = cond.info + np.eye(3) / 2e-2 ** 2
+    np.testing.assert_allclose(np.linalg.solve(info, cond.eta), q, atol=0.05 * free.s_std.max())
+
+
+def _pooled_rows(gains, values, std_s=1e-4, info=1e2):
+    """Rows of one unit whose bias terms have the gains ``gains[i]`` (3, 3) on S."""
+    from thermal_imu_calib.fleet import pooled_s
+    rows = []
+    for i, (gain, value) in enumerate(zip(gains, values)):
+        field = FieldPolynomialModel([30.0] * 3, np.zeros((3, 6)),
+                                     thermal_std=np.full((3, 6), 1e-3))
+        r = reg.index_row('u', Calibration(accel=field), (1_700_000_000 + 86400 * i) * 10 ** 9,
+                          (1_700_000_000 + 86400 * i - 3600) * 10 ** 9, f'u/{i}.yaml', ['a'])
+        r['accel.alarm_family'] = 'field_polynomial+S'
+        r['accel.alarm_b0.x'] = value
+        terms = {'s': np.zeros(3), 's_eta': np.zeros(3), 's_info': np.eye(3) * info,
+                 'b_std_s': np.full((3, 3), std_s), 'k_std_s': np.full((3, 3), std_s),
+                 'b_ds': np.zeros((3, 3, 3)), 'k_ds': np.zeros((3, 3, 3))}
+        terms['b_ds'][:, 0] = gain
+        r.update(pooled_s.columns(terms))
+        rows.append({k: str(v) for k, v in r.items()})
+    return rows
+
+
+def test_the_alarms_compare_terms_at_the_units_pooled_s():
+    """A change is tested at the pooled S: the S part cancels between equal gains.
+
+    The fit's marginal std (1e-3 here) carries S's whole uncertainty; given S the terms are
+    known to 1e-4, and S* (prior 2e-2, each log's information 1e2) is uncertain by
+    (1 / 2e-2^2 + 3e2)^-1/2, so a gain difference adds (G1 - G0) Cov(S*) (G1 - G0)'.
+    """
+    same = np.full((3, 3), 0.1)
+    rows = _pooled_rows([same] * 3, [0.0, 1e-3, 1e-3])
+    z = dict(reg.unit_tests(rows))
+    first = next(v for k, v in z.items() if k.startswith('db0 x changed'))
+    assert first == pytest.approx(1e-3 / np.sqrt(2 * 1e-4 ** 2), rel=1e-6)
+    other = [same, same + np.diag([0.5, 0, 0]), same]
+    var_s = 1.0 / (1 / 2e-2 ** 2 + 3 * 1e2)
+    z2 = dict(reg.unit_tests(_pooled_rows(other, [0.0, 1e-3, 1e-3])))
+    first2 = next(v for k, v in z2.items() if k.startswith('db0 x changed'))
+    assert first2 == pytest.approx(1e-3 / np.sqrt(2 * 1e-4 ** 2 + 0.5 ** 2 * var_s), rel=1e-6)
+    # the trend: slope over equal steps of a day, variance with the shared S part
+    trend = next(v for k, v in z2.items() if k.startswith('db0 x trend'))
+    t = np.arange(3.0)
+    a = (t - t.mean()) / np.sum((t - t.mean()) ** 2)
+    g = np.array([0.1, 0.6, 0.1])
+    slope = a @ np.array([0.0, 1e-3, 1e-3])
+    assert trend == pytest.approx(slope / np.sqrt(a @ a * 1e-8 + (a @ g) ** 2 * var_s), rel=1e-6)
+    # without the columns (a registry written before them): the marginal stds
+    from thermal_imu_calib.fleet.pooled_s import without_given_s
+    plain = without_given_s(rows)
+    assert len(rows[0]) - len(plain[0]) == 3 + 3 + 9 + 2 * 9 * (1 + 3)
+    z3 = dict(reg.unit_tests(plain))
+    first3 = next(v for k, v in z3.items() if k.startswith('db0 x changed'))
+    assert first3 == pytest.approx(1e-3 / np.sqrt(2 * 1e-3 ** 2), rel=1e-6)
+    assert 'S pooled over' in reg.assess(rows)[1]['rule']
+    assert 'S pooled over' not in reg.assess(plain)[1]['rule']

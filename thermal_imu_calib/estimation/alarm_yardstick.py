@@ -17,8 +17,10 @@ consumer datasheet's cross-axis sensitivity the stable units' changes had z std 
 (``bench/alarm_truth_z.py``, docs/fleet.md). So without a prior the yardstick estimates S
 with the terms (``field_estimator.fit_field_model(free_s=True)``: unit diagonal, a zero-
 mean +-2 % prior per term), for the field model too, and is family ``FREE_S_KIND``: its
-terms are compared only with other such yardsticks. With a prior, S is the prior's and
-a field calibration's own terms serve, as before.
+terms are compared only with other such yardsticks; it also stores the terms given S and
+what its holds say about S (``given_s``), so the alarms can test a unit's calibrations at
+S pooled over them (``fleet/pooled_s.py``). With a prior, S is the prior's and a field
+calibration's own terms serve, as before.
 
 A yardstick that cannot be fitted (faces missing, no convergence, non-finite terms) is
 recorded with the reason; the calibration's own terms are then used, as before. No ROS
@@ -27,9 +29,10 @@ import.
 
 import numpy as np
 
-from ..models.alarm_terms import bias_scale_terms
+from ..models.alarm_terms import bias_scale_terms, coefficients
 from ..models.field import FieldPolynomialModel
 from .builtin_estimators import estimate_field
+from .field_estimator import s_of_terms
 from .options import CalibrationRefused
 
 #: the family whose terms the alarms read (``ESTIMATORS`` name and model kind)
@@ -40,6 +43,10 @@ YARDSTICK_KIND = FieldPolynomialModel.kind
 FREE_S_KIND = YARDSTICK_KIND + '+S'
 #: the keys of ``bias_scale_terms`` stored (arrays as nested lists)
 TERMS = ('T0', 'b', 'b_std', 'k', 'k_std')
+#: with S estimated: the terms' stds given S and their gains on S's terms (``given_s``)
+GIVEN_S = ('b_std_s', 'k_std_s', 'b_ds', 'k_ds')
+#: the fit's thermal vector given S, read by ``given_s`` and not stored
+GIVEN_S_INPUTS = ('thermal_gain', 'thermal_std_given_s')
 #: why the yardstick estimates S when no prior gives it
 FREE_S_WHY = ('without a prior the non-orthogonality S is estimated with them: with S = '
               'identity its cross-axis terms move the scale factors and biases with the '
@@ -91,9 +98,44 @@ def yardstick(ctx):
     out = {'family': YARDSTICK_FAMILY, 'kind': FREE_S_KIND if free_s else YARDSTICK_KIND}
     out.update({k: np.asarray(terms[k], float).tolist() for k in TERMS})
     if s_terms is not None:
-        out['s_terms'] = s_terms
+        given = given_s(est.accel, s_terms)
+        out['s_terms'] = {k: v for k, v in s_terms.items() if k not in GIVEN_S_INPUTS}
+        if given is not None:
+            out.update({k: np.asarray(v, float).tolist() for k, v in given.items()})
     out['note'] = note
     return out
+
+
+def given_s(model, s_terms):
+    """Return the terms' stds given S and their gains on S's terms, or None.
+
+    {'b_std_s', 'k_std_s' (3, 3): as ``b_std``/``k_std`` at a known S; 'b_ds', 'k_ds'
+    (3, 3, 3): d b / d (s10, s20, s21) and d k / d ..}, from the fit's thermal vector given S
+    (``field_estimator.SCondition``; the terms are linear in it, so the gains are exact).
+    None when the fit has no condition or it is not finite.
+    """
+    try:
+        gain = np.asarray(s_terms['thermal_gain'], float).reshape(3, 6, 3)
+        std = np.asarray(s_terms['thermal_std_given_s'], float).reshape(3, 6)
+    except (KeyError, TypeError, ValueError):
+        return None
+    if not (np.all(np.isfinite(gain)) and np.all(np.isfinite(std))):
+        return None
+    m = model
+    cond = bias_scale_terms(FieldPolynomialModel(m.t0, m.thermal, m.k0, m.b0, m.s, std,
+                                                 m.input_unit))
+    if cond is None:
+        return None
+    b, k = coefficients(m, m.t0)
+    b_ds, k_ds = np.zeros((3, 3, 3)), np.zeros((3, 3, 3))
+    q = np.asarray(s_terms['value'], float)
+    for i in range(3):
+        step = np.eye(3)[i]
+        moved = FieldPolynomialModel(m.t0, m.thermal + gain[:, :, i], m.k0, m.b0,
+                                     s_of_terms(q + step), input_unit=m.input_unit)
+        bi, ki = coefficients(moved, m.t0)
+        b_ds[:, :, i], k_ds[:, :, i] = bi - b, ki - k
+    return {'b_std_s': cond['b_std'], 'k_std_s': cond['k_std'], 'b_ds': b_ds, 'k_ds': k_ds}
 
 
 def _reason(e):
@@ -114,4 +156,25 @@ def terms_of(fit):
     if any(out[k].shape != s for k, s in shapes.items()):
         return None
     out['kind'] = str(y.get('kind', YARDSTICK_KIND))
+    out.update(_given_s_of(y))
+    return out
+
+
+def _given_s_of(y):
+    """Return the stored terms given S with S's fit ({} when the yardstick has none).
+
+    {'b_std_s', 'k_std_s' (3, 3), 'b_ds', 'k_ds' (3, 3, 3), 's' (3,) fitted terms,
+    's_info' (3, 3), 's_eta' (3,)}: see ``given_s`` and ``field_estimator.SCondition``.
+    """
+    st = y.get('s_terms') or {}
+    try:
+        out = {k: np.asarray(y[k], float) for k in GIVEN_S}
+        out.update(s=np.asarray(st['value'], float), s_info=np.asarray(st['information'], float),
+                   s_eta=np.asarray(st['information_vector'], float))
+    except (KeyError, TypeError, ValueError):
+        return {}
+    shapes = {'b_std_s': (3, 3), 'k_std_s': (3, 3), 'b_ds': (3, 3, 3), 'k_ds': (3, 3, 3),
+              's': (3,), 's_info': (3, 3), 's_eta': (3,)}
+    if any(out[k].shape != v or not np.all(np.isfinite(out[k])) for k, v in shapes.items()):
+        return {}
     return out

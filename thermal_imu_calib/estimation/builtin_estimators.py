@@ -150,4 +150,10 @@ def estimate_field(ctx, free_s=False):
     if fit.s_std is not None:
         stats['s_terms'] = {'value': fit.model.s[S_TERMS].tolist(), 'std': fit.s_std.tolist(),
                             'unit': '1', 'terms': list(S_TERM_NAMES)}
+        cond = fit.s_condition
+        if cond is not None:      # the thermal vector given S (``SCondition``)
+            stats['s_terms'].update({'information': cond.info.tolist(),
+                                     'information_vector': cond.eta.tolist(),
+                                     'thermal_gain': cond.gain.tolist(),
+                                     'thermal_std_given_s': cond.std.tolist()})
     return Estimate(accel=fit.model, notes=notes, fit=stats)

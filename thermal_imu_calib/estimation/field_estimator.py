@@ -44,6 +44,27 @@ class FieldFit:
     refine_note: str = ''
     #: with ``free_s``: stds of S's below-diagonal terms (s10, s20, s21), else None
     s_std: object = None
+    #: with ``free_s``: the thermal vector given S (``SCondition``), else None
+    s_condition: object = None
+
+
+@dataclass
+class SCondition:
+    """The thermal vector given S, and what the data say about S (``free_s``).
+
+    In the linearised fit at its solution: thermal(S) = thermal + gain (S terms - fitted
+    terms), with stds ``std`` at a known S; the data's information about S's terms without
+    the prior (``info``, 1/1^2) and their information vector ``eta`` (``info`` times the
+    data's own estimate of the terms; with the prior's zero mean, the posterior information
+    times the fitted terms). Both are divided by the covariance's misfit factor. Logs of one
+    unit share S: summing their ``info`` and ``eta`` with the prior's information once pools
+    it (``fleet.alarms``).
+    """
+
+    gain: np.ndarray        # (3, 6, 3): d thermal (THERMAL_NAMES layout) / d (s10, s20, s21)
+    std: np.ndarray         # (3, 6): stds of the thermal vector given S
+    info: np.ndarray        # (3, 3): data information about S's terms, prior removed
+    eta: np.ndarray         # (3,): data information vector about S's terms
 
 
 def kkt_unit_tilt(a_mats, y, w, c0, max_iter=50, tol=1e-14):
@@ -239,10 +260,10 @@ def fit_field_model(windows, axis_temps, gravity, t0, k0=None, b0=None, s=None, 
     refined = False
     thermal_std = None
     refine_note = ''
-    s_std = None
+    s_std = s_cond = None
     if refine:
         try:
-            thermal, tilts, thermal_std, s, s_std = _refine(
+            thermal, tilts, thermal_std, s, s_std, s_cond = _refine(
                 raw, w, dt, hold_idx, tilts, thermal, gravity, t0, k0, b0, s, order, free_s)
             refined = True
         except FitNotConverged as e:    # stopped by its budget: the two-step estimate stands
@@ -254,7 +275,7 @@ def fit_field_model(windows, axis_temps, gravity, t0, k0=None, b0=None, s=None, 
     dof = max(res.size - (3 * len(cols) + 2 * nh + n_s), 1)
     return FieldFit(model, tilts, hold_ids, it, converged,
                     float(np.sqrt(np.mean(res ** 2))), float(np.sum((res * w) ** 2) / dof),
-                    refined, refine_note, s_std)
+                    refined, refine_note, s_std, s_cond)
 
 
 def _tangent_basis(c):
@@ -295,8 +316,9 @@ def _refine(raw, w, dt, hold_idx, tilts, thermal, gravity, t0, k0, b0, s, order,
 
     With ``free_s`` also over S's three below-diagonal terms (``s_of_terms``; S starts at
     identity, zero-mean prior ``S_PRIOR_STD`` as three extra residuals). Returns (thermal,
-    tilts, thermal std, S, stds of S's terms or None); raises ``FitNotConverged`` when the
-    solver ran out of evaluations (``REFINE_MAX_NFEV``) before converging.
+    tilts, thermal std, S, stds of S's terms or None, ``SCondition`` or None); raises
+    ``FitNotConverged`` when the solver ran out of evaluations (``REFINE_MAX_NFEV``) before
+    converging.
     """
     cols = _COLS[order]
     nh = len(tilts)
@@ -359,15 +381,37 @@ def _refine(raw, w, dt, hold_idx, tilts, thermal, gravity, t0, k0, b0, s, order,
     j = sol.jac
     dof = max(j.shape[0] - j.shape[1], 1)
     s2 = 2.0 * sol.cost / dof
+    hess = j.T @ j
     try:
-        cov = np.linalg.pinv(j.T @ j) * max(s2, 1.0)
+        cov = np.linalg.pinv(hess) * max(s2, 1.0)
         var = np.diag(cov)
+        cond = (_s_condition(hess, n_tilt, cols, max(s2, 1.0), sol.x[n_tilt:]) if free_s
+                else None)
     except np.linalg.LinAlgError:
-        var = np.full(j.shape[1], np.nan)
+        var, cond = np.full(j.shape[1], np.nan), None
     std = np.zeros((3, 6))
     std[:, cols] = np.sqrt(np.maximum(var[:3 * nc], 0)).reshape(3, nc)
     s_std = np.sqrt(np.maximum(var[n_tilt:], 0)) if free_s else None
-    return th, c, std, sp, s_std
+    return th, c, std, sp, s_std, cond
+
+
+def _s_condition(hess, n_x, cols, scale, q):
+    """Return the ``SCondition`` of a refinement with S free (Gauss-Newton ``hess``).
+
+    ``n_x``: thermal and tilt columns before S's; ``scale``: the covariance's factor
+    (reduced chi-square, at least 1); ``q``: the fitted terms. Given S, the thermal and tilt
+    block's covariance is pinv(H_xx) scale and its regression on S -pinv(H_xx) H_xs; S's
+    marginal information is the Schur complement, from which the prior's is removed.
+    """
+    hxx, hxs, hss = hess[:n_x, :n_x], hess[:n_x, n_x:], hess[n_x:, n_x:]
+    hxx_inv = np.linalg.pinv(hxx)
+    nc = len(cols)
+    gain, std = np.zeros((3, 6, len(q))), np.zeros((3, 6))
+    gain[:, cols] = (-hxx_inv[:3 * nc] @ hxs).reshape(3, nc, len(q))
+    std[:, cols] = np.sqrt(np.maximum(np.diag(hxx_inv)[:3 * nc] * scale, 0)).reshape(3, nc)
+    post = hss - hxs.T @ hxx_inv @ hxs
+    return SCondition(gain, std, (post - np.eye(len(q)) / S_PRIOR_STD ** 2) / scale,
+                      post @ q / scale)
 
 
 def per_axis_vertical_range(windows, axis_temps, tilts, hold_ids, min_cos=0.7):

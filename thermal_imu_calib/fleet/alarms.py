@@ -10,7 +10,11 @@ the same family of alarm terms (step test) and the slope over all of the unit's
 calibrations of its latest family (trend test, constant vs line), each as z = value /
 sigma. A calibration of several orientations carries the field model's terms on its
 holds whatever model compensates (``estimation/alarm_yardstick.py``), so a unit's
-chain does not break when ``auto`` changes family. All tests of the fleet form one
+chain does not break when ``auto`` changes family. A yardstick that estimated the
+non-orthogonality S (no lab prior) also stores its terms given S: a unit's changes and
+trends are then tested at S pooled over its calibrations (``pooled_s``), so S's
+uncertainty, which six-face logs leave near its prior, cancels between logs with similar
+gains instead of widening every test. All tests of the fleet form one
 family: a unit is flagged when any |z| passes the Sidak threshold
 that keeps the family-wise false-alarm rate of the whole fleet at ``FAMILY_RATE`` (1 %)
 when the stds are honest (checked on simulated fleets, ``STD_SCALE``). A
@@ -30,6 +34,7 @@ import numpy as np
 
 from ..estimation.alarm_yardstick import terms_of
 from ..models.alarm_terms import bias_scale_terms
+from . import pooled_s
 from .times import parse_time
 
 AXES = 'xyz'
@@ -93,6 +98,7 @@ def alarm_columns(cal):
             accel['kind'] = cal.accel.kind
     if accel is not None:
         out[FAMILY_COLUMN] = accel['kind']
+        out.update(pooled_s.columns(accel))
     gyro = bias_scale_terms(cal.gyro) if cal.gyro is not None else None
     for terms, stem, names in ((accel, ALARM_STEM, ALARM_ON), (gyro, GYRO_STEM, ('b',))):
         if terms is None:
@@ -227,19 +233,32 @@ def _best_common(prev, cur, name, points=41, memo=None):
     return grid[np.argmin(sd, axis=0), np.arange(3)]
 
 
-def compare(prev, cur, names=ALARM_ON, std_scale=None, memo=None):
+def compare(prev, cur, names=ALARM_ON, std_scale=None, memo=None, pooled=None):
     """Return {'db0': z (3,), ...}: consecutive change at a common temperature in sigmas.
 
     The common temperature is the mean of the two T0 per axis (the gyro bias 'gb': where
     the difference is sharpest, ``_best_common``); sigma is the std of the difference,
     each calibration's std multiplied by ``std_scale[name]`` (default ``STD_SCALE``; 1 for
-    names it lacks). ``memo``: see ``at_temperature``.
+    names it lacks). ``memo``: see ``at_temperature``. ``pooled``: the unit's pooled S
+    (S*, Cov(S*), ``pooled_s.pool``): when both rows have their terms given S
+    (``pooled_s.row_s``), the accelerometer's bias is compared at S* (``pooled_s.POOLED``).
     """
     scale = STD_SCALE if std_scale is None else std_scale
+    parts = [_s_memo(r, memo) for r in (prev, cur)] if pooled is not None else [None]
     out = {}
     for name in names:
         t_ref = (_best_common(prev, cur, name, memo=memo) if name == 'gb' else
                  (_terms_memo(prev, name, memo)[2] + _terms_memo(cur, name, memo)[2]) / 2)
+        if name in pooled_s.POOLED and all(p is not None for p in parts):
+            (v0, s0, g0), (v1, s1, g1) = (
+                pooled_s.at_temperature(_terms_memo(r, name, memo)[0], p, name, t_ref,
+                                        _terms_memo(r, name, memo)[2], pooled[0])
+                for r, p in zip((prev, cur), parts))
+            dg = g1 - g0
+            var_s = np.einsum('am,mn,an->a', dg, pooled[1], dg)
+            sd = scale.get(name, 1.0) * np.sqrt(s0 ** 2 + s1 ** 2 + var_s)
+            out[f'd{name}0'] = np.divide(v1 - v0, sd, out=np.full(3, np.nan), where=sd > 0)
+            continue
         v0, s0 = at_temperature(prev, name, t_ref, memo)
         v1, s1 = at_temperature(cur, name, t_ref, memo)
         sd = scale.get(name, 1.0) * np.sqrt(s0 ** 2 + s1 ** 2)
@@ -248,19 +267,30 @@ def compare(prev, cur, names=ALARM_ON, std_scale=None, memo=None):
     return out
 
 
-def trend(rows, name, std_scale=None, memo=None):
+def trend(rows, name, std_scale=None, memo=None, pooled=None):
     """Return z (3,) of the slope of d{name}0 over time (weighted least squares).
 
     All calibrations of one unit (>= 3, oldest first) carried to the mean of their T0 per
     axis; z = slope / std(slope) with weights 1 / (std_scale * std)^2. Under "constant"
     z is N(0, 1): z^2 is the chi-square drop from a constant to a line (1 dof).
-    ``memo``: see ``at_temperature``.
+    ``memo``: see ``at_temperature``. ``pooled``: see ``compare``; at S* (every row with
+    its terms given S) the weights are the stds given S and the slope's variance also
+    carries S*'s error, which the rows share (G Cov(S*) G^T).
     """
     scale = (STD_SCALE if std_scale is None else std_scale).get(name, 1.0)
     t0 = np.array([_terms_memo(r, name, memo)[2] for r in rows])            # (n, 3)
     t_ref = np.array([np.mean(t0[:, i]) for i in range(len(AXES))])
     t = np.array([parse_time(r['time']) for r in rows], float) / 86400e9   # days
-    vs = np.array([at_temperature(r, name, t_ref, memo) for r in rows])    # (n, 2, 3)
+    parts = [_s_memo(r, memo) for r in rows] if pooled is not None else [None]
+    given = name in pooled_s.POOLED and all(p is not None for p in parts)
+    if given:
+        got = [pooled_s.at_temperature(_terms_memo(r, name, memo)[0], p, name, t_ref,
+                                       _terms_memo(r, name, memo)[2], pooled[0])
+               for r, p in zip(rows, parts)]
+        vs = np.array([(v, sd) for v, sd, _ in got])                       # (n, 2, 3)
+        gains = np.array([g for _, _, g in got])                           # (n, 3, 3)
+    else:
+        vs = np.array([at_temperature(r, name, t_ref, memo) for r in rows])
     sd = scale * vs[:, 1]
     ok = np.all(sd > 0, axis=0)      # an axis whose term has no std (not fitted): no test
     sd = np.where(ok, sd, 1.0)
@@ -268,7 +298,33 @@ def trend(rows, name, std_scale=None, memo=None):
     tm = (w * t[:, None]).sum(0) / w.sum(0)
     sxx = (w * (t[:, None] - tm) ** 2).sum(0)
     slope = (w * (t[:, None] - tm) * x).sum(0) / sxx
-    return np.where(ok, slope * np.sqrt(sxx), np.nan)
+    if not given:
+        return np.where(ok, slope * np.sqrt(sxx), np.nan)
+    # var(slope) = a' (diag(sd^2) + G Cov G') a, a the slope's weights per row
+    a = w * (t[:, None] - tm) / sxx                                         # (n, 3)
+    ga = np.einsum('na,nam->am', a, gains) * scale                          # (3, 3)
+    var = 1.0 / sxx + np.einsum('am,mn,an->a', ga, pooled[1], ga)
+    return np.where(ok, slope / np.sqrt(var), np.nan)
+
+
+def _s_memo(row, memo):
+    """Return ``pooled_s.row_s(row)``, read once per row into ``memo`` (see ``_terms_memo``)."""
+    if memo is None:
+        return pooled_s.row_s(row)
+    key = (id(row), 'given S')
+    if key not in memo:
+        memo[key] = pooled_s.row_s(row)
+    return memo[key]
+
+
+def unit_pooled_s(rows, memo=None):
+    """Return {accel family: (S*, Cov(S*))} over a unit's rows with terms given S."""
+    by = {}
+    for r in rows:
+        part = _s_memo(r, memo)
+        if part is not None:
+            by.setdefault(accel_family(r), []).append(part)
+    return {f: pooled_s.pool(parts) for f, parts in by.items()}
 
 
 def family_threshold(n_tests, family_rate=FAMILY_RATE):
@@ -311,6 +367,7 @@ def unit_tests(rows, std_scale=None):
     """
     out, memo = [], {}       # each row's terms parsed once (``at_temperature``)
     accel_rows = [r for r in rows if not untested_accel(r)]
+    pooled = unit_pooled_s(accel_rows, memo)
     for family, names, prefix, chain in ((accel_family, ALARM_ON, '', accel_rows),
                                          (_gyro_family, GYRO_ALARM_ON, GYRO_PREFIX, rows)):
         last = {}
@@ -321,13 +378,15 @@ def unit_tests(rows, std_scale=None):
             last[family(cur)] = cur
             if prev is None:
                 continue
-            z = compare(prev, cur, names, std_scale, memo)
+            z = compare(prev, cur, names, std_scale, memo,
+                        pooled.get(family(cur)) if family is accel_family else None)
             out += [(f'{prefix}d{name[-1]}0 {a} changed {prev["time"]} -> {cur["time"]}',
                      z[f'd{name}0'][i]) for name in names for i, a in enumerate(AXES)]
         same = [r for r in chain if family(r) == family(chain[-1])]
         if len(same) >= 3:
             for name in names:
-                z = trend(same, name, std_scale, memo)
+                z = trend(same, name, std_scale, memo,
+                          pooled.get(family(chain[-1])) if family is accel_family else None)
                 out += [(f'{prefix}d{name[-1]}0 {a} trend over {len(same)} '
                          f'calibrations {same[0]["time"]} .. {same[-1]["time"]}', z[i])
                         for i, a in enumerate(AXES)]
@@ -366,11 +425,12 @@ def scaled_tests(tests):
 
 
 def rule_text(n_tests, z_c, family_rate=FAMILY_RATE, residual_mads=RESIDUAL_MADS,
-              gyro=None):
+              gyro=None, pooled_units=0):
     """Return the alarm rule in words, with the numbers of this fleet.
 
     ``gyro``: the gyro tests' empirical-null std (``gyro_scale``), 0 when there are too
-    few to test the gyro, None when the registry has no gyro-bias terms.
+    few to test the gyro, None when the registry has no gyro-bias terms; ``pooled_units``:
+    units whose accelerometer terms are tested at their pooled S (``pooled_s``).
     """
     names = ', '.join(f'd{n}0' for n in ALARM_ON)
     if gyro:
@@ -384,6 +444,10 @@ def rule_text(n_tests, z_c, family_rate=FAMILY_RATE, residual_mads=RESIDUAL_MADS
     if gyro == 0:
         text += (f'; the gyro bias is not tested (fewer than {MIN_GYRO_TESTS} gyro tests '
                  'to measure their spread)')
+    if pooled_units:
+        text += (f'; the accelerometer terms of {pooled_units} unit(s) whose calibrations '
+                 'estimated the non-orthogonality S are compared at S pooled over the '
+                 'unit\'s calibrations')
     return text
 
 
@@ -438,7 +502,9 @@ def assess(rows, family_rate=FAMILY_RATE, residual_mads=RESIDUAL_MADS, std_scale
              for s, rs in by.items()}
     info = {'tests': n, 'threshold_sigma': z_c, 'family_rate': family_rate, 'notes': notes,
             'rule': rule_text(n, z_c, family_rate, residual_mads,
-                              (g_scale or 0.0) if has_gyro else None),
+                              (g_scale or 0.0) if has_gyro else None,
+                              sum(any(pooled_s.has_given_s(r) for r in rs)
+                                  for rs in by.values())),
             'gyro_scale': g_scale, 'unit_tests': tests,
             'max_abs_z': {s: max((abs(z) for _, z in t), default=np.nan)
                           for s, t in tests.items()}}
