@@ -16,7 +16,8 @@ devices have 2e-4 - 8e-4 below-diagonal terms); ``datasheet-cross-axis`` with 1e
 (a consumer datasheet's cross-axis sensitivity, ``VARIANTS``). Before 2026-12-03 a
 calibration without a lab prior took S = identity for its alarm terms; since, its alarm
 yardstick estimates S (``estimation/alarm_yardstick.py``; results ``*_s_identity`` and
-``*_s_estimated``, docs/fleet.md).
+``*_s_estimated``, docs/fleet.md). ``summary_pooled_s``: the same at each unit's S pooled
+over its logs, as ``history`` tests them since 2026-12-03 (``fleet/pooled_s.py``).
 
     .venv/bin/python bench/alarm_truth_z.py --units 30 --out bench/results/alarm_truth_z_base.json
     .venv/bin/python bench/alarm_truth_z.py --units 30 --variant no-nonorthogonality \\
@@ -59,6 +60,7 @@ def _one(variant, fleet_seed, unit, logs, work):
     use_variant(variant)
     from thermal_imu_calib.cli import main
     from thermal_imu_calib.fleet import alarms as al
+    from thermal_imu_calib.fleet import pooled_s
     from thermal_imu_calib.fleet.simulate import FleetDesign, write_log
     from thermal_imu_calib.formats import read_calibration
     from thermal_imu_calib.gravity import normal_gravity
@@ -81,11 +83,18 @@ def _one(variant, fleet_seed, unit, logs, work):
         truth = read_calibration(path + '.truth.yaml')
         row = al.alarm_columns(cal)
         rec = {'log': k, 'family': row.get(al.FAMILY_COLUMN), 'model': cal.accel.kind}
+        part = pooled_s.row_s(row)
         for name in ('b', 'k'):
             c, s, t0 = al.row_terms(row, name)
             tb, tk = coefficients(truth.accel, t0)
             err = c - (tb if name == 'b' else tk)
             rec[f'err_{name}'], rec[f'std_{name}'] = err.tolist(), s.tolist()
+            if part is not None:      # the terms given S (fleet/pooled_s.py)
+                rec[f'std_s_{name}'] = part[f'{name}_std_s'].tolist()
+                rec[f'ds_{name}'] = part[f'{name}_ds'].tolist()
+        if part is not None:
+            rec.update(s=part['q'].tolist(), s_info=part['info'].tolist(),
+                       s_eta=part['eta'].tolist())
         out.append(rec)
         for f in (path, cal_path):
             os.remove(f)
@@ -104,8 +113,43 @@ def _summary(v):
             'ks_p_vs_normal_0_1': round(float(kstest(v, 'norm').pvalue), 4)}
 
 
-def summarise(units):
-    """Return {term: {axis: summary}} of the truth z and of the truth-removed change z."""
+def at_pooled_s(recs):
+    """Return the unit's records with 'err_*', 'std_*' at S pooled over them, or None.
+
+    As ``history`` tests them (``fleet/pooled_s.py``): each log's error carried to S* by its
+    gains, its std given S; 'ds_*' the gains (for the change z's shared part) and 'cov_s'.
+    None when a log has no terms given S.
+    """
+    from thermal_imu_calib.fleet import pooled_s
+    ok = [r for r in recs if 'error' not in r]
+    if not ok or any('s' not in r for r in ok):
+        return None
+    parts = [{'info': np.array(r['s_info']), 'eta': np.array(r['s_eta'])} for r in ok]
+    s_star, cov = pooled_s.pool(parts)
+    out = []
+    for r in ok:
+        rec = {'log': r['log'], 'cov_s': cov}
+        for name in ('b', 'k'):
+            g = np.array(r[f'ds_{name}'])                          # (3 axes, 3 orders, 3)
+            rec[f'err_{name}'] = np.array(r[f'err_{name}']) + g @ (s_star - np.array(r['s']))
+            own = np.array(r[f'std_s_{name}']) ** 2 + np.einsum('ajm,mn,ajn->aj', g, cov, g)
+            rec[f'std_{name}'] = np.sqrt(own)
+            rec[f'ds_{name}'] = g
+        out.append(rec)
+    return out
+
+
+def summarise(units, pooled=False):
+    """Return {term: {axis: summary}} of the truth z and of the truth-removed change z.
+
+    ``pooled``: at each unit's pooled S (``at_pooled_s``; units without terms given S are
+    left out); a change's std then has the shared S part removed, as ``history`` has.
+    """
+    if pooled:
+        units = {u: p for u, p in ((u, at_pooled_s(r)) for u, r in units.items())
+                 if p is not None}
+        if not units:
+            return {}
     out = {}
     for name in ('b', 'k'):
         for j in range(3):
@@ -120,7 +164,14 @@ def summarise(units):
             for r0, r1 in zip(ok, ok[1:]):
                 e0, e1 = (np.array(r[f'err_{name}'])[:, 0] for r in (r0, r1))
                 s0, s1 = (np.array(r[f'std_{name}'])[:, 0] for r in (r0, r1))
-                ch.append((e1 - e0) / np.hypot(s0, s1))
+                var = s0 ** 2 + s1 ** 2
+                if pooled:       # S*'s error: only the part the two do not share
+                    g0, g1 = (r[f'ds_{name}'][:, 0] for r in (r0, r1))
+                    cov = r0['cov_s']
+                    var = (var - np.einsum('am,mn,an->a', g0, cov, g0)
+                           - np.einsum('am,mn,an->a', g1, cov, g1)
+                           + np.einsum('am,mn,an->a', g1 - g0, cov, g1 - g0))
+                ch.append((e1 - e0) / np.sqrt(var))
         ch = np.array(ch)
         out[f'd{name}0 change z (truth removed)'] = {a: _summary(ch[:, i])
                                                      for i, a in enumerate(AXES)}
@@ -170,11 +221,14 @@ def main():
            'families': sorted({r.get('family') or '-' for rs in units.values() for r in rs}),
            'failed': [(u, r['log'], r['error']) for u, rs in units.items() for r in rs
                       if 'error' in r],
-           'summary': summarise(units), 'units': units}
+           'summary': summarise(units),
+           'summary_pooled_s': summarise(units, pooled=True), 'units': units}
     with open(args.out, 'w') as f:
         json.dump(compact(res), f)
-    for k, v in res['summary'].items():
-        print(k, {a: (s.get('std'), s.get('max_abs')) for a, s in v.items()})
+    for which in ('summary', 'summary_pooled_s'):
+        print(which)
+        for k, v in res[which].items():
+            print(' ', k, {a: (s.get('std'), s.get('max_abs')) for a, s in v.items()})
 
 
 if __name__ == '__main__':

@@ -137,9 +137,20 @@ def calibrated_fleet(client, cache, units, logs_per_unit, seed, reduce_fn):
     return d
 
 
-def evaluate_seed(d, seed, std_scale=None):
-    """Return one seed's row: stable units flagged (false) and drifting/step units flagged."""
+def read_rows(d, pooled=True):
+    """Return the registry rows of a cached fleet; ``pooled`` False: without the terms given S.
+
+    A registry without the columns of ``fleet/pooled_s.py`` is tested on the terms' own
+    (marginal) stds, as before they existed: the same calibrations, judged both ways.
+    """
+    from thermal_imu_calib.fleet.pooled_s import without_given_s
     rows = reg.read_index(os.path.join(d, 'reg'))
+    return rows if pooled else without_given_s(rows)
+
+
+def evaluate_seed(d, seed, std_scale=None, pooled=True):
+    """Return one seed's row: stable units flagged (false) and drifting/step units flagged."""
+    rows = read_rows(d, pooled)
     found, info = reg.assess(rows, std_scale=std_scale)
     flagged = {s for s, a in found.items() if a}
     truth = read_truth(d)
@@ -159,23 +170,26 @@ def evaluate_seed(d, seed, std_scale=None):
             'refused': len(refused['failed_logs']) + len(refused['failed_units'])}
 
 
-def stable_z(d, std_scale):
+def stable_z(d, std_scale, pooled=True):
     """Return {test kind: z list} of the stable units (truth): consecutive changes, trends.
 
-    With ``std_scale`` {} the fit's own stds: what says whether they are honest.
+    With ``std_scale`` {} the fit's own stds: what says whether they are honest. At the
+    unit's pooled S when the rows have their terms given S (``pooled``).
     """
+    from thermal_imu_calib.fleet.alarms import accel_family, unit_pooled_s
     truth = read_truth(d)
-    rows = [r for r in reg.read_index(os.path.join(d, 'reg'))
-            if truth[r['sensor']]['kind'] == 'stable']
+    rows = [r for r in read_rows(d, pooled) if truth[r['sensor']]['kind'] == 'stable']
     out = {}
     for rs in reg.by_sensor(rows).values():
+        ps = unit_pooled_s(rs)
         for prev, cur in zip(rs, rs[1:]):
-            for name, z in reg.compare(prev, cur, std_scale=std_scale).items():
+            for name, z in reg.compare(prev, cur, std_scale=std_scale,
+                                       pooled=ps.get(accel_family(cur))).items():
                 out.setdefault(f'{name} change', []).extend(z.tolist())
         if len(rs) >= 3:
             for name in reg.ALARM_ON:
-                out.setdefault(f'd{name}0 trend', []).extend(
-                    reg.trend(rs, name, std_scale).tolist())
+                out.setdefault(f'd{name}0 trend', []).extend(reg.trend(
+                    rs, name, std_scale, pooled=ps.get(accel_family(rs[-1]))).tolist())
     return out
 
 
@@ -210,10 +224,10 @@ def alarms(args):
     rows_out, zs_fit = [], {}
     for seed in seeds:
         d = cache_dir(args.cache, args.units, args.logs_per_unit, seed)
-        row = evaluate_seed(d, seed)
+        row = evaluate_seed(d, seed, pooled=not args.no_pooled_s)
         rows_out.append(row)
         print(row, flush=True)
-        for k, v in stable_z(d, {}).items():
+        for k, v in stable_z(d, {}, pooled=not args.no_pooled_s).items():
             zs_fit.setdefault(k, []).extend(v)
     fa = sum(r['false_alarms'] for r in rows_out)
     st = sum(r['stable'] for r in rows_out)
@@ -221,6 +235,7 @@ def alarms(args):
     sp = sum(r['special'] for r in rows_out)
     out = {'units': args.units, 'logs_per_unit': args.logs_per_unit, 'seeds': list(seeds),
            'family_rate': reg.FAMILY_RATE, 'std_scale': reg.STD_SCALE,
+           'pooled_s': not args.no_pooled_s,
            'alarm_on': [f'd{n}0' for n in reg.ALARM_ON],
            'false_alarms': fa, 'stable_units': st, 'false_alarm_rate': fa / max(st, 1),
            'seeds_with_false_alarm': sum(r['false_alarms'] > 0 for r in rows_out),
@@ -249,6 +264,9 @@ def main():
                          '(DIR/<units>x<logs>/seed_N); delete it to recalibrate')
     ap.add_argument('--out', default=None,
                     help='write the JSON here (default bench/results/bench_fleet_<mode>.json)')
+    ap.add_argument('--no-pooled-s', action='store_true',
+                    help='alarms: test the cached calibrations on their terms\' own stds, '
+                         'without the pooled S (fleet/pooled_s.py), as before it existed')
     args = ap.parse_args()
     big = args.mode == 'speed'
     args.units = args.units or (20 if big else 8)

@@ -38,12 +38,17 @@ def one_fleet(seed, variant, work):
     except SystemExit as e:
         if e.code:
             raise RuntimeError(f'fleet calibrate exited {e.code} on seed {seed}') from None
+    from thermal_imu_calib.fleet.pooled_s import without_given_s
     rows = reg.read_index(os.path.join(d, 'reg'))
     found, info = reg.assess(rows)
+    # the same calibrations on the terms' own stds (before the pooled S, fleet/pooled_s.py)
+    found_m, info_m = reg.assess(without_given_s(rows))
     truth = read_truth(os.path.join(d, 'logs'))
     units = {s: {'kind': truth[s]['kind'], 'flagged': bool(a),
                  'max_abs_z': round(float(info['max_abs_z'][s]), 2),
-                 'first': a[0] if a else ''} for s, a in sorted(found.items())}
+                 'first': a[0] if a else '', 'flagged_marginal': bool(found_m[s]),
+                 'max_abs_z_marginal': round(float(info_m['max_abs_z'][s]), 2)}
+             for s, a in sorted(found.items())}
     return {'threshold': round(float(info['threshold_sigma']), 2), 'tests': info['tests'],
             'units': units}
 
@@ -64,14 +69,22 @@ def main():
             fleets[seed] = r = one_fleet(seed, args.variant, work)
             for s, u in r['units'].items():
                 print(f"seed {seed} {s} {u['kind']:8s} {'FLAGGED' if u['flagged'] else 'ok':7s} "
-                      f"max |z| {u['max_abs_z']:5.1f} {u['first'][:90]}", flush=True)
+                      f"max |z| {u['max_abs_z']:5.1f} (own stds {u['max_abs_z_marginal']:5.1f}) "
+                      f"{u['first'][:80]}", flush=True)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     stable = [u for r in fleets.values() for u in r['units'].values() if u['kind'] == 'stable']
     special = [u for r in fleets.values() for u in r['units'].values() if u['kind'] != 'stable']
     summary = {'stable_flagged': f"{sum(u['flagged'] for u in stable)} of {len(stable)}",
                'special_flagged': f"{sum(u['flagged'] for u in special)} of {len(special)}",
-               'stable_max_abs_z': max((u['max_abs_z'] for u in stable), default=None)}
+               'stable_max_abs_z': max((u['max_abs_z'] for u in stable), default=None),
+               'marginal_stable_flagged': f"{sum(u['flagged_marginal'] for u in stable)} of "
+                                          f"{len(stable)}",
+               'marginal_special_flagged': f"{sum(u['flagged_marginal'] for u in special)} "
+                                           f"of {len(special)}",
+               'weakest_special': min((u['max_abs_z'] for u in special), default=None),
+               'weakest_special_marginal': min((u['max_abs_z_marginal'] for u in special),
+                                               default=None)}
     print(summary)
     if args.json:
         with open(args.json, 'w') as f:

@@ -9,11 +9,12 @@ with one ROS 2 driver on different days (2023-08-11 and 08-19 for data1 and data
 temperature). Each is calibrated with default options as ``scoreboard.py`` does, and the
 terms a registry's drift alarms test (``fleet/alarms``: accelerometer bias and scale at
 T0 per axis, with their stds) are compared between consecutive sessions as z = change /
-sqrt(std_a^2 + std_b^2), twice: on the alarm yardstick (``fit.alarm_yardstick``, the field
-model fitted to the same holds, what the alarms read since 2026-12-02) and on the
-calibration's own model (``models.alarm_terms.bias_scale_terms``: the standard fit's,
-what they read before). A session whose yardstick could not be fitted is left out, with
-the reason.
+sqrt(std_a^2 + std_b^2), three times: at S pooled over the sessions as ``history`` tests
+them (``fleet/pooled_s.py``, since 2026-12-03; the variance given S plus S's part), on the
+alarm yardstick's own stds (``fit.alarm_yardstick``, the field model fitted to the same
+holds, what the alarms read 2026-12-02/03) and on the calibration's own model
+(``models.alarm_terms.bias_scale_terms``: the standard fit's, what they read before). A
+session whose yardstick could not be fitted is left out, with the reason.
 
 Nobody knows whether the sensor changed between the sessions (no temperature, days apart),
 so this does not measure the stds' honesty; it shows what the alarms would say of a real
@@ -39,6 +40,26 @@ from thermal_imu_calib.calibration import Calibration  # noqa: E402
 from thermal_imu_calib.models.alarm_terms import bias_scale_terms  # noqa: E402
 
 SESSIONS = ('data1', 'data2', 'data3', 'data4')
+
+
+def pooled_z(texts):
+    """Return [(b z (3,), k z (3,))] of consecutive changes at the sessions' pooled S.
+
+    The calibrations as one unit's registry rows, a day apart, tested as ``history`` tests
+    them (``fleet/pooled_s.py``: terms given S, S pooled over the sessions).
+    """
+    from thermal_imu_calib.fleet import registry as reg
+    from thermal_imu_calib.fleet.alarms import accel_family, unit_pooled_s
+    rows = [{k: str(v) for k, v in reg.index_row(
+        'gom', Calibration.from_yaml(t, 'session calibration'),
+        (1_700_000_000 + 86400 * i) * 10 ** 9, (1_700_000_000 + 86400 * i - 3600) * 10 ** 9,
+        f'{i}.yaml', [str(i)]).items()} for i, t in enumerate(texts)]
+    pooled = unit_pooled_s(rows).get(accel_family(rows[-1]))
+    out = []
+    for a, b in zip(rows, rows[1:]):
+        z = reg.compare(a, b, pooled=pooled)
+        out.append((z['db0'], z['dk0']))
+    return out, pooled
 
 
 def terms(text):
@@ -76,12 +97,18 @@ def main(argv=None):
             continue
         yard, own, why = terms(out['yaml'])
         model = yaml.safe_load(out['yaml'])['fit']['model_choice']['model']
-        got[s] = {'yardstick': yard, 'own': own, 'model': model, 'why': why}
+        got[s] = {'yardstick': yard, 'own': own, 'model': model, 'why': why,
+                  'text': out['yaml']}
         print(f'{s}: auto {model}' + (f'; no yardstick: {why[:120]}' if why else ''))
     rows = []
     names = [s for s in SESSIONS if s in got and got[s]['yardstick'] is not None]
-    for x, y in zip(names, names[1:]):
+    at_pooled, pooled = pooled_z([got[s]['text'] for s in names])
+    if pooled is not None:
+        print(f'pooled S over {len(names)} sessions: {np.round(pooled[0], 5).tolist()} +- '
+              f'{np.round(np.sqrt(np.diag(pooled[1])), 5).tolist()}')
+    for (x, y), (pb, pk) in zip(zip(names, names[1:]), at_pooled):
         row = {'from': x, 'to': y}
+        row['pooled_s'] = {'b_z': np.round(pb, 2).tolist(), 'k_z': np.round(pk, 2).tolist()}
         for which in ('yardstick', 'own'):
             zb, zk = z_of(got[x][which], got[y][which])
             row[which] = {'b_z': np.round(zb, 2).tolist(), 'k_z': np.round(zk, 2).tolist()}
@@ -92,11 +119,16 @@ def main(argv=None):
         rows.append(row)
         print(f"{x} -> {y}: yardstick b z {row['yardstick']['b_z']}, k z "
               f"{row['yardstick']['k_z']}; own model b z {row['own']['b_z']}, k z "
-              f"{row['own']['k_z']}; change b {row['db_mm_s2']} mm/s^2, k {row['dk_ppm']} ppm")
+              f"{row['own']['k_z']}; at the pooled S b z {row['pooled_s']['b_z']}, k z "
+              f"{row['pooled_s']['k_z']}; change b {row['db_mm_s2']} mm/s^2, k "
+              f"{row['dk_ppm']} ppm")
     if a.json:
         with open(a.json, 'w') as f:
             json.dump({'sessions': {s: {'model': v['model'], 'no_yardstick': v['why']}
-                                    for s, v in got.items()}, 'changes': rows}, f, indent=1)
+                                    for s, v in got.items()}, 'changes': rows,
+                       'pooled_s': None if pooled is None else {
+                           'value': pooled[0].tolist(),
+                           'std': np.sqrt(np.diag(pooled[1])).tolist()}}, f, indent=1)
     return 0
 
 
