@@ -176,12 +176,13 @@ def stable_z(d, std_scale, pooled=True):
     With ``std_scale`` {} the fit's own stds: what says whether they are honest. At the
     unit's pooled S when the rows have their terms given S (``pooled``).
     """
-    from thermal_imu_calib.fleet.alarms import accel_family, unit_pooled_s
+    from thermal_imu_calib.fleet.alarms import accel_family
+    from thermal_imu_calib.fleet.pooled_s import unit_pools
     truth = read_truth(d)
     rows = [r for r in read_rows(d, pooled) if truth[r['sensor']]['kind'] == 'stable']
     out = {}
     for rs in reg.by_sensor(rows).values():
-        ps = unit_pooled_s(rs)
+        ps = unit_pools(rs, accel_family)
         for prev, cur in zip(rs, rs[1:]):
             for name, z in reg.compare(prev, cur, std_scale=std_scale,
                                        pooled=ps.get(accel_family(cur))).items():

@@ -49,12 +49,13 @@ def pooled_z(texts):
     them (``fleet/pooled_s.py``: terms given S, S pooled over the sessions).
     """
     from thermal_imu_calib.fleet import registry as reg
-    from thermal_imu_calib.fleet.alarms import accel_family, unit_pooled_s
+    from thermal_imu_calib.fleet.alarms import accel_family
+    from thermal_imu_calib.fleet.pooled_s import unit_pools
     rows = [{k: str(v) for k, v in reg.index_row(
         'gom', Calibration.from_yaml(t, 'session calibration'),
         (1_700_000_000 + 86400 * i) * 10 ** 9, (1_700_000_000 + 86400 * i - 3600) * 10 ** 9,
         f'{i}.yaml', [str(i)]).items()} for i, t in enumerate(texts)]
-    pooled = unit_pooled_s(rows).get(accel_family(rows[-1]))
+    pooled = unit_pools(rows, accel_family).get(accel_family(rows[-1]))
     out = []
     for a, b in zip(rows, rows[1:]):
         z = reg.compare(a, b, pooled=pooled)

@@ -244,7 +244,7 @@ def compare(prev, cur, names=ALARM_ON, std_scale=None, memo=None, pooled=None):
     (``pooled_s.row_s``), the accelerometer's bias is compared at S* (``pooled_s.POOLED``).
     """
     scale = STD_SCALE if std_scale is None else std_scale
-    parts = [_s_memo(r, memo) for r in (prev, cur)] if pooled is not None else [None]
+    parts = [pooled_s.row_s_memo(r, memo) for r in (prev, cur)] if pooled is not None else [None]
     out = {}
     for name in names:
         t_ref = (_best_common(prev, cur, name, memo=memo) if name == 'gb' else
@@ -281,7 +281,7 @@ def trend(rows, name, std_scale=None, memo=None, pooled=None):
     t0 = np.array([_terms_memo(r, name, memo)[2] for r in rows])            # (n, 3)
     t_ref = np.array([np.mean(t0[:, i]) for i in range(len(AXES))])
     t = np.array([parse_time(r['time']) for r in rows], float) / 86400e9   # days
-    parts = [_s_memo(r, memo) for r in rows] if pooled is not None else [None]
+    parts = [pooled_s.row_s_memo(r, memo) for r in rows] if pooled is not None else [None]
     given = name in pooled_s.POOLED and all(p is not None for p in parts)
     if given:
         got = [pooled_s.at_temperature(_terms_memo(r, name, memo)[0], p, name, t_ref,
@@ -305,26 +305,6 @@ def trend(rows, name, std_scale=None, memo=None, pooled=None):
     ga = np.einsum('na,nam->am', a, gains) * scale                          # (3, 3)
     var = 1.0 / sxx + np.einsum('am,mn,an->a', ga, pooled[1], ga)
     return np.where(ok, slope / np.sqrt(var), np.nan)
-
-
-def _s_memo(row, memo):
-    """Return ``pooled_s.row_s(row)``, read once per row into ``memo`` (see ``_terms_memo``)."""
-    if memo is None:
-        return pooled_s.row_s(row)
-    key = (id(row), 'given S')
-    if key not in memo:
-        memo[key] = pooled_s.row_s(row)
-    return memo[key]
-
-
-def unit_pooled_s(rows, memo=None):
-    """Return {accel family: (S*, Cov(S*))} over a unit's rows with terms given S."""
-    by = {}
-    for r in rows:
-        part = _s_memo(r, memo)
-        if part is not None:
-            by.setdefault(accel_family(r), []).append(part)
-    return {f: pooled_s.pool(parts) for f, parts in by.items()}
 
 
 def family_threshold(n_tests, family_rate=FAMILY_RATE):
@@ -367,7 +347,7 @@ def unit_tests(rows, std_scale=None):
     """
     out, memo = [], {}       # each row's terms parsed once (``at_temperature``)
     accel_rows = [r for r in rows if not untested_accel(r)]
-    pooled = unit_pooled_s(accel_rows, memo)
+    pooled = pooled_s.unit_pools(accel_rows, accel_family, memo)
     for family, names, prefix, chain in ((accel_family, ALARM_ON, '', accel_rows),
                                          (_gyro_family, GYRO_ALARM_ON, GYRO_PREFIX, rows)):
         last = {}

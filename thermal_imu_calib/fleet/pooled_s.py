@@ -97,6 +97,30 @@ def row_s(row):
     return out
 
 
+def row_s_memo(row, memo):
+    """Return ``row_s(row)``, read once per row into ``memo`` (``alarms._terms_memo``)."""
+    if memo is None:
+        return row_s(row)
+    key = (id(row), 'given S')
+    if key not in memo:
+        memo[key] = row_s(row)
+    return memo[key]
+
+
+def unit_pools(rows, family, memo=None):
+    """Return {family(row): (S*, Cov(S*))} over a unit's rows with terms given S.
+
+    ``family``: a row's chain of alarm terms (``alarms.accel_family``); ``memo``: see
+    ``row_s_memo``.
+    """
+    by = {}
+    for r in rows:
+        part = row_s_memo(r, memo)
+        if part is not None:
+            by.setdefault(family(r), []).append(part)
+    return {f: pool(parts) for f, parts in by.items()}
+
+
 def pool(parts):
     """Return (S* (3,), Cov(S*) (3, 3)) from ``row_s`` of a unit's calibrations.
 
