@@ -35,6 +35,7 @@ import numpy as np
 from ..estimation.alarm_yardstick import terms_of
 from ..models.alarm_terms import bias_scale_terms
 from . import pooled_s
+from .pooled_s import cell as _f
 from .times import parse_time
 
 AXES = 'xyz'
@@ -110,13 +111,6 @@ def alarm_columns(cal):
                     out[f'{stem}{name}{j}.{a}'] = float(terms[name][i, j])
                     out[f'{stem}{name}{j}.{a}_std'] = float(terms[f'{name}_std'][i, j])
     return out
-
-
-def _f(row, key):
-    try:
-        return float(row.get(key, ''))
-    except ValueError:
-        return np.nan
 
 
 def _has_alarm_terms(row, stem=ALARM_STEM):

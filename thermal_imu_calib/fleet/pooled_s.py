@@ -62,7 +62,8 @@ def columns(terms):
     return out
 
 
-def _f(row, key):
+def cell(row, key):
+    """Return an index row's cell as a float (NaN when missing, empty or not a number)."""
     try:
         return float(row.get(key, ''))
     except ValueError:
@@ -71,7 +72,7 @@ def _f(row, key):
 
 def has_given_s(row):
     """Return True when an index row has S's fit (``columns``), without parsing the rest."""
-    return np.isfinite(_f(row, f'{STEM}s.{S_TERM_NAMES[0]}'))
+    return np.isfinite(cell(row, f'{STEM}s.{S_TERM_NAMES[0]}'))
 
 
 def row_s(row):
@@ -82,14 +83,14 @@ def row_s(row):
     """
     if not has_given_s(row):
         return None
-    out = {'q': np.array([_f(row, f'{STEM}s.{t}') for t in S_TERM_NAMES]),
-           'eta': np.array([_f(row, f'{STEM}s_eta.{t}') for t in S_TERM_NAMES]),
-           'info': np.array([[_f(row, f'{STEM}s_info.{t}.{u}') for u in S_TERM_NAMES]
+    out = {'q': np.array([cell(row, f'{STEM}s.{t}') for t in S_TERM_NAMES]),
+           'eta': np.array([cell(row, f'{STEM}s_eta.{t}') for t in S_TERM_NAMES]),
+           'info': np.array([[cell(row, f'{STEM}s_info.{t}.{u}') for u in S_TERM_NAMES]
                              for t in S_TERM_NAMES])}
     for name in NAMES:
-        out[f'{name}_std_s'] = np.array([[_f(row, f'{STEM}{name}{j}.{a}_std_s')
+        out[f'{name}_std_s'] = np.array([[cell(row, f'{STEM}{name}{j}.{a}_std_s')
                                           for j in range(3)] for a in AXES])
-        out[f'{name}_ds'] = np.array([[[_f(row, f'{STEM}{name}{j}.{a}_ds.{t}')
+        out[f'{name}_ds'] = np.array([[[cell(row, f'{STEM}{name}{j}.{a}_ds.{t}')
                                         for t in S_TERM_NAMES] for j in range(3)]
                                       for a in AXES])
     if not all(np.all(np.isfinite(v)) for v in out.values()):
