@@ -11,10 +11,11 @@ calibrations of its latest family (trend test, constant vs line), each as z = va
 sigma. A calibration of several orientations carries the field model's terms on its
 holds whatever model compensates (``estimation/alarm_yardstick.py``), so a unit's
 chain does not break when ``auto`` changes family. A yardstick that estimated the
-non-orthogonality S (no lab prior) also stores its terms given S: a unit's changes and
-trends are then tested at S pooled over its calibrations (``pooled_s``), so S's
+non-orthogonality S (no lab prior) also stores its terms given S: a unit's bias changes
+and trends are then tested at S pooled over its calibrations (``pooled_s``), so S's
 uncertainty, which six-face logs leave near its prior, cancels between logs with similar
-gains instead of widening every test. All tests of the fleet form one
+gains instead of widening every test (the scale factor, second order in S, keeps its own
+stds). All tests of the fleet form one
 family: a unit is flagged when any |z| passes the Sidak threshold
 that keeps the family-wise false-alarm rate of the whole fleet at ``FAMILY_RATE`` (1 %)
 when the stds are honest (checked on simulated fleets, ``STD_SCALE``). A
