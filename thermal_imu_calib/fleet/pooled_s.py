@@ -11,7 +11,8 @@ about S (information ``s_info`` and vector ``s_eta``, prior removed). So the ala
 
 * pool S over the unit's calibrations: information = prior's (1 / ``S_PRIOR_STD``^2) +
   the sum of the data's, S* = information^-1 (sum of the vectors), Cov(S*) its inverse;
-* carry each calibration's terms to S*: value + gain (S* - its own S), std given S;
+* carry each calibration's terms (those of ``POOLED``: the bias) to S*: value + gain
+  (S* - its own S), std given S;
 * test a change (or a trend) with the variance given S plus the part of S*'s error that
   does not cancel between the calibrations: (G1 - G0) Cov(S*) (G1 - G0)^T, G the gains at
   the test's temperature. Between logs with similar poses G1 ~ G0 and the S part cancels.
