@@ -192,6 +192,12 @@ def row_terms(row, name):
     return c, s, np.array([reference(row, a, name) for a in AXES])
 
 
+def _at_pooled_s(row, part, name, t_ref, s_star, memo):
+    """Return ``pooled_s.at_temperature`` of a row's ``name`` terms at S* (``compare``)."""
+    c, _, t0 = _terms_memo(row, name, memo)
+    return pooled_s.at_temperature(c, part, name, t_ref, t0, s_star)
+
+
 def _evaluate(terms, t_ref):
     """Return (value, std) of ``row_terms`` at ``t_ref`` degC, (..., 3) (vectorised over ...)."""
     c, s, t0 = terms
@@ -245,10 +251,8 @@ def compare(prev, cur, names=ALARM_ON, std_scale=None, memo=None, pooled=None):
         t_ref = (_best_common(prev, cur, name, memo=memo) if name == 'gb' else
                  (_terms_memo(prev, name, memo)[2] + _terms_memo(cur, name, memo)[2]) / 2)
         if name in pooled_s.POOLED and all(p is not None for p in parts):
-            (v0, s0, g0), (v1, s1, g1) = (
-                pooled_s.at_temperature(_terms_memo(r, name, memo)[0], p, name, t_ref,
-                                        _terms_memo(r, name, memo)[2], pooled[0])
-                for r, p in zip((prev, cur), parts))
+            (v0, s0, g0), (v1, s1, g1) = (_at_pooled_s(r, p, name, t_ref, pooled[0], memo)
+                                          for r, p in zip((prev, cur), parts))
             dg = g1 - g0
             var_s = np.einsum('am,mn,an->a', dg, pooled[1], dg)
             sd = scale.get(name, 1.0) * np.sqrt(s0 ** 2 + s1 ** 2 + var_s)
@@ -279,9 +283,7 @@ def trend(rows, name, std_scale=None, memo=None, pooled=None):
     parts = [pooled_s.row_s_memo(r, memo) for r in rows] if pooled is not None else [None]
     given = name in pooled_s.POOLED and all(p is not None for p in parts)
     if given:
-        got = [pooled_s.at_temperature(_terms_memo(r, name, memo)[0], p, name, t_ref,
-                                       _terms_memo(r, name, memo)[2], pooled[0])
-               for r, p in zip(rows, parts)]
+        got = [_at_pooled_s(r, p, name, t_ref, pooled[0], memo) for r, p in zip(rows, parts)]
         vs = np.array([(v, sd) for v, sd, _ in got])                       # (n, 2, 3)
         gains = np.array([g for _, _, g in got])                           # (n, 3, 3)
     else:
