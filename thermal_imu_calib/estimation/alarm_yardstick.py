@@ -17,10 +17,10 @@ consumer datasheet's cross-axis sensitivity the stable units' changes had z std 
 (``bench/alarm_truth_z.py``, docs/fleet.md). So without a prior the yardstick estimates S
 with the terms (``field_estimator.fit_field_model(free_s=True)``: unit diagonal, a zero-
 mean +-2 % prior per term), for the field model too, and is family ``FREE_S_KIND``: its
-terms are compared only with other such yardsticks; it also stores the terms given S and
-what its holds say about S (``given_s``), so the alarms can test a unit's calibrations at
-S pooled over them (``fleet/pooled_s.py``). With a prior, S is the prior's and a field
-calibration's own terms serve, as before.
+terms are compared only with other such yardsticks; it also stores the terms given S, the
+scale factor's curvature on S, and what its holds say about S (``given_s``), so the alarms
+can test a unit's calibrations at S pooled over them (``fleet/pooled_s.py``). With a
+prior, S is the prior's and a field calibration's own terms serve, as before.
 
 A yardstick that cannot be fitted (faces missing, no convergence, non-finite terms) is
 recorded with the reason; the calibration's own terms are then used, as before. No ROS
@@ -45,8 +45,11 @@ FREE_S_KIND = YARDSTICK_KIND + '+S'
 TERMS = ('T0', 'b', 'b_std', 'k', 'k_std')
 #: with S estimated: the terms' stds given S and their gains on S's terms (``given_s``)
 GIVEN_S = ('b_std_s', 'k_std_s', 'b_ds', 'k_ds')
+#: with S estimated and the fit's curvature on S (``field_estimator.s_curvature``): the
+#: scale factor's second derivatives on S's terms at T0 (yardsticks written before have none)
+K_CURVATURE = 'k_dss'
 #: the fit's thermal vector given S, read by ``given_s`` and not stored
-GIVEN_S_INPUTS = ('thermal_gain', 'thermal_std_given_s')
+GIVEN_S_INPUTS = ('thermal_gain', 'thermal_std_given_s', 'thermal_curvature')
 #: why the yardstick estimates S when no prior gives it
 FREE_S_WHY = ('without a prior the non-orthogonality S is estimated with them: with S = '
               'identity its cross-axis terms move the scale factors and biases with the '
@@ -111,8 +114,9 @@ def given_s(model, s_terms):
 
     {'b_std_s', 'k_std_s' (3, 3): as ``b_std``/``k_std`` at a known S; 'b_ds', 'k_ds'
     (3, 3, 3): d b / d (s10, s20, s21) and d k / d ..}, from the fit's thermal vector given S
-    (``field_estimator.SCondition``; the terms are linear in it, so the gains are exact).
-    None when the fit has no condition or it is not finite.
+    (``field_estimator.SCondition``; the terms are linear in it, so the gains are exact);
+    with the fit's curvature on S also ``K_CURVATURE`` (3 axes, 3, 3): d^2 k(T0) / d (s_m,
+    s_n). None when the fit has no condition or it is not finite.
     """
     try:
         gain = np.asarray(s_terms['thermal_gain'], float).reshape(3, 6, 3)
@@ -135,7 +139,34 @@ def given_s(model, s_terms):
                                      s_of_terms(q + step), input_unit=m.input_unit)
         bi, ki = coefficients(moved, m.t0)
         b_ds[:, :, i], k_ds[:, :, i] = bi - b, ki - k
-    return {'b_std_s': cond['b_std'], 'k_std_s': cond['k_std'], 'b_ds': b_ds, 'k_ds': k_ds}
+    out = {'b_std_s': cond['b_std'], 'k_std_s': cond['k_std'], 'b_ds': b_ds, 'k_ds': k_ds}
+    curv = _k_curvature(m, s_terms.get('thermal_curvature'), k)
+    if curv is not None:
+        out[K_CURVATURE] = curv
+    return out
+
+
+def _k_curvature(m, curvature, k):
+    """Return (3 axes, 3, 3) d^2 k(T0) / d (s_m, s_n) from the fit's thermal curvature, or None.
+
+    The terms are linear in the thermal vector, so each pair's curvature moves them as a
+    thermal step would. Only the scale factor at T0: its curvature is k itself times
+    (s^2) / 2 (``field_estimator.s_curvature``), that of its temperature coefficients and
+    of the bias (read from opposite faces, where it cancels) is smaller by their size.
+    """
+    try:
+        c = np.asarray(curvature, float).reshape(3, 6, 3, 3)
+    except (TypeError, ValueError):
+        return None
+    if not np.all(np.isfinite(c)):
+        return None
+    out = np.zeros((3, 3, 3))
+    for i in range(3):
+        for j in range(3):
+            moved = FieldPolynomialModel(m.t0, m.thermal + c[:, :, i, j], m.k0, m.b0, m.s,
+                                         input_unit=m.input_unit)
+            out[:, i, j] = coefficients(moved, m.t0)[1][:, 0] - k[:, 0]
+    return out
 
 
 def _reason(e):
@@ -177,4 +208,10 @@ def _given_s_of(y):
               's': (3,), 's_info': (3, 3), 's_eta': (3,)}
     if any(out[k].shape != v or not np.all(np.isfinite(out[k])) for k, v in shapes.items()):
         return {}
+    try:            # optional: yardsticks written before it have none
+        curv = np.asarray(y[K_CURVATURE], float)
+        if curv.shape == (3, 3, 3) and np.all(np.isfinite(curv)):
+            out[K_CURVATURE] = curv
+    except (KeyError, TypeError, ValueError):
+        pass
     return out

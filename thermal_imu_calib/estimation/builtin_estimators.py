@@ -156,4 +156,6 @@ def estimate_field(ctx, free_s=False):
                                      'information_vector': cond.eta.tolist(),
                                      'thermal_gain': cond.gain.tolist(),
                                      'thermal_std_given_s': cond.std.tolist()})
+            if cond.curvature is not None:
+                stats['s_terms']['thermal_curvature'] = cond.curvature.tolist()
     return Estimate(accel=fit.model, notes=notes, fit=stats)

@@ -65,6 +65,9 @@ class SCondition:
     std: np.ndarray         # (3, 6): stds of the thermal vector given S
     info: np.ndarray        # (3, 3): data information about S's terms, prior removed
     eta: np.ndarray         # (3,): data information vector about S's terms
+    #: (3, 6, 3, 3): d^2 thermal / d (s_m, s_n), from refits at fixed S (``s_curvature``);
+    #: None when one of them did not converge
+    curvature: object = None
 
 
 def kkt_unit_tilt(a_mats, y, w, c0, max_iter=50, tol=1e-14):
@@ -268,6 +271,10 @@ def fit_field_model(windows, axis_temps, gravity, t0, k0=None, b0=None, s=None, 
             refined = True
         except FitNotConverged as e:    # stopped by its budget: the two-step estimate stands
             refine_note = f'{e.what}: {e.advice}'
+    if s_cond is not None:
+        s_cond.curvature = s_curvature(
+            lambda sp: _refine(raw, w, dt, hold_idx, tilts, thermal, gravity, t0, k0, b0, sp,
+                               order)[0], s[S_TERMS])
     model = FieldPolynomialModel(t0, thermal, k0, b0, s, thermal_std)
     pred = model.forward(gravity * tilts[hold_idx], t0 + dt)
     res = raw - pred
@@ -393,6 +400,41 @@ def _refine(raw, w, dt, hold_idx, tilts, thermal, gravity, t0, k0, b0, s, order,
     std[:, cols] = np.sqrt(np.maximum(var[:3 * nc], 0)).reshape(3, nc)
     s_std = np.sqrt(np.maximum(var[n_tilt:], 0)) if free_s else None
     return th, c, std, sp, s_std, cond
+
+
+#: step of the refits at fixed S (``s_curvature``): half the prior's std
+CURVATURE_STEP = S_PRIOR_STD / 2
+
+
+def s_curvature(thermal_at, q, h=CURVATURE_STEP):
+    """Return (3, 6, 3, 3) d^2 thermal / d (s_m, s_n) at S's terms ``q``, or None.
+
+    ``thermal_at(S)``: the thermal vector refitted at a fixed S (3, 3). The thermal vector
+    depends on S to second order even where the gains (``SCondition.gain``) vanish: a
+    face's tilt takes up the cross terms, and |c| = 1 then shortens the axis' own
+    component by (s^2) / 2 (on the +x face the scale factor of x grows by
+    (s10^2 + s20^2) / 2). Central differences over ten refits (at q, q +- h e_m,
+    q + h (e_m + e_n)), each started from the fitted solution; None when one does not
+    converge (``FitNotConverged``).
+    """
+    q = np.asarray(q, float)
+    n = len(q)
+    eye = np.eye(n)
+    try:
+        at = {(): thermal_at(s_of_terms(q))}
+        for m in range(n):
+            at[(m, 1)] = thermal_at(s_of_terms(q + h * eye[m]))
+            at[(m, -1)] = thermal_at(s_of_terms(q - h * eye[m]))
+        curv = np.zeros((3, 6, n, n))
+        for m in range(n):
+            curv[:, :, m, m] = (at[(m, 1)] + at[(m, -1)] - 2 * at[()]) / h ** 2
+            for k in range(m + 1, n):
+                both = thermal_at(s_of_terms(q + h * (eye[m] + eye[k])))
+                curv[:, :, m, k] = curv[:, :, k, m] = (
+                    both - at[(m, 1)] - at[(k, 1)] + at[()]) / h ** 2
+    except FitNotConverged:
+        return None
+    return curv if np.all(np.isfinite(curv)) else None
 
 
 def _s_condition(hess, n_x, cols, scale, q):
