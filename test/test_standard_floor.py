@@ -446,8 +446,45 @@ def test_the_yardsticks_terms_given_s_are_the_fit_at_that_s():
     np.testing.assert_allclose(np.linalg.solve(info, cond.eta), q, atol=0.05 * free.s_std.max())
 
 
-def _pooled_rows(gains, values, std_s=1e-4, info=1e2):
-    """Rows of one unit whose bias terms have the gains ``gains[i]`` (3, 3) on S."""
+def test_the_yardsticks_curvature_on_s_predicts_the_fit_far_from_its_s():
+    """The scale factor at another S, to second order: six faces leave its gain near 0.
+
+    On the +-x faces the tilt takes up s10 and s20 and |c| = 1 shortens x's own component
+    by (s10^2 + s20^2) / 2, so k_x grows by that (k_y by s21^2 / 2 on the +-y faces); the
+    gains at the fitted S miss it, the stored curvature (``alarm_yardstick.K_CURVATURE``)
+    follows a refit at S two prior stds away.
+    """
+    from thermal_imu_calib.estimation.alarm_yardstick import _k_curvature
+    from thermal_imu_calib.estimation.context import make_context
+    from thermal_imu_calib.estimation.field_estimator import fit_field_model, s_of_terms
+    from thermal_imu_calib.models.alarm_terms import coefficients
+    il = np.tril_indices(3, -1)
+    s = np.eye(3)
+    s[il] = [1.5e-2, -1.2e-2, 1.8e-2]
+    w = _session(1e-4, s=s)
+    ctx = make_context(w, dataclasses.replace(options(), model='field'))
+    g = ctx.options.gravity
+    free = fit_field_model(w, ctx.ta, g, ctx.t0, free_s=True)
+    q, cond, m = free.model.s[il], free.s_condition, free.model
+    k = coefficients(m, m.t0)[1]
+    curv = _k_curvature(m, cond.curvature.tolist(), k)
+    np.testing.assert_allclose(curv[0], np.diag([1.0, 1.0, 0.0]), atol=0.03)
+    np.testing.assert_allclose(curv[1], np.diag([0.0, 0.0, 1.0]), atol=0.03)
+    d = np.array([4e-2, -3e-2, 4e-2])
+    moved = fit_field_model(w, ctx.ta, g, ctx.t0, s=s_of_terms(q + d)).model
+    change = coefficients(moved, m.t0)[1][:, 0] - k[:, 0]
+    linear = cond.gain[:, 0] @ d
+    quadratic = linear + 0.5 * np.einsum('amn,m,n->a', curv, d, d)
+    assert np.abs(change[:2] - linear[:2]).min() > 5e-4          # the gains alone miss it
+    assert np.abs(change - quadratic).max() < 0.05 * np.abs(change - linear).max()
+
+
+def _pooled_rows(gains, values, std_s=1e-4, info=1e2, name='b', q=None, k_dss=None):
+    """Rows of one unit whose ``name`` terms have the gains ``gains[i]`` (3, 3) on S.
+
+    ``q[i]``: row i's own S terms (0), with its information vector info q[i];
+    ``k_dss``: the scale factor's curvature on S (3, 3, 3), stored in every row.
+    """
     from thermal_imu_calib.fleet import pooled_s
     rows = []
     for i, (gain, value) in enumerate(zip(gains, values)):
@@ -456,11 +493,14 @@ def _pooled_rows(gains, values, std_s=1e-4, info=1e2):
         r = reg.index_row('u', Calibration(accel=field), (1_700_000_000 + 86400 * i) * 10 ** 9,
                           (1_700_000_000 + 86400 * i - 3600) * 10 ** 9, f'u/{i}.yaml', ['a'])
         r['accel.alarm_family'] = 'field_polynomial+S'
-        r['accel.alarm_b0.x'] = value
-        terms = {'s': np.zeros(3), 's_eta': np.zeros(3), 's_info': np.eye(3) * info,
+        r[f'accel.alarm_{name}0.x'] = value
+        own = np.zeros(3) if q is None else np.asarray(q[i], float)
+        terms = {'s': own, 's_eta': info * own, 's_info': np.eye(3) * info,
                  'b_std_s': np.full((3, 3), std_s), 'k_std_s': np.full((3, 3), std_s),
                  'b_ds': np.zeros((3, 3, 3)), 'k_ds': np.zeros((3, 3, 3))}
-        terms['b_ds'][:, 0] = gain
+        terms[f'{name}_ds'][:, 0] = gain
+        if k_dss is not None:
+            terms['k_dss'] = np.asarray(k_dss, float)
         r.update(pooled_s.columns(terms))
         rows.append({k: str(v) for k, v in r.items()})
     return rows
@@ -499,3 +539,32 @@ def test_the_alarms_compare_terms_at_the_units_pooled_s():
     assert first3 == pytest.approx(1e-3 / np.sqrt(2 * 1e-3 ** 2), rel=1e-6)
     assert 'S pooled over' in reg.assess(rows)[1]['rule']
     assert 'S pooled over' not in reg.assess(plain)[1]['rule']
+
+
+def test_the_scale_factor_is_compared_at_the_pooled_s_with_its_curvature():
+    """With its curvature stored, dk0 goes to S* to second order; without, its own stds.
+
+    Two logs whose own S differ in s10 (2e-2 and 0, each log's information 1e2): S* is their
+    information-weighted mean with the prior's, each scale factor moves by
+    0.5 H (S* - q)^2 and its gain at S* is H (S* - q), whose difference carries Cov(S*).
+    """
+    h = np.zeros((3, 3, 3))
+    h[0] = np.diag([1.0, 1.0, 0.0])
+    q = [[2e-2, 0, 0], [0, 0, 0]]
+    zero = np.zeros((3, 3))
+    rows = _pooled_rows([zero, zero], [1.0, 1.0005], name='k', q=q, k_dss=h)
+    info = np.eye(3) / 2e-2 ** 2 + 2 * 1e2 * np.eye(3)
+    cov = np.linalg.inv(info)
+    s_star = cov @ (1e2 * np.array(q).sum(0))
+    ds = [s_star - np.array(qi) for qi in q]
+    v = [1.0 + 0.5 * ds[0] @ h[0] @ ds[0], 1.0005 + 0.5 * ds[1] @ h[0] @ ds[1]]
+    dg = h[0] @ ds[1] - h[0] @ ds[0]
+    want = (v[1] - v[0]) / np.sqrt(2 * 1e-4 ** 2 + dg @ cov @ dg)
+    z = dict(reg.unit_tests(rows))
+    got = next(val for key, val in z.items() if key.startswith('dk0 x changed'))
+    assert got == pytest.approx(want, rel=1e-6)
+    # rows written before the curvature: the scale factor with its own stds (1e-3)
+    plain = _pooled_rows([zero, zero], [1.0, 1.0005], name='k', q=q)
+    z2 = dict(reg.unit_tests(plain))
+    got2 = next(val for key, val in z2.items() if key.startswith('dk0 x changed'))
+    assert got2 == pytest.approx(5e-4 / np.sqrt(2 * 1e-3 ** 2), rel=1e-6)

@@ -14,8 +14,8 @@ chain does not break when ``auto`` changes family. A yardstick that estimated th
 non-orthogonality S (no lab prior) also stores its terms given S: a unit's bias changes
 and trends are then tested at S pooled over its calibrations (``pooled_s``), so S's
 uncertainty, which six-face logs leave near its prior, cancels between logs with similar
-gains instead of widening every test (the scale factor, second order in S, keeps its own
-stds). All tests of the fleet form one
+gains instead of widening every test (the scale factor, second order in S, with its
+curvature on S; calibrations without it keep its own stds). All tests of the fleet form one
 family: a unit is flagged when any |z| passes the Sidak threshold
 that keeps the family-wise false-alarm rate of the whole fleet at ``FAMILY_RATE`` (1 %)
 when the stds are honest (checked on simulated fleets, ``STD_SCALE``). A
@@ -242,7 +242,8 @@ def compare(prev, cur, names=ALARM_ON, std_scale=None, memo=None, pooled=None):
     each calibration's std multiplied by ``std_scale[name]`` (default ``STD_SCALE``; 1 for
     names it lacks). ``memo``: see ``at_temperature``. ``pooled``: the unit's pooled S
     (S*, Cov(S*), ``pooled_s.pool``): when both rows have their terms given S
-    (``pooled_s.row_s``), the accelerometer's bias is compared at S* (``pooled_s.POOLED``).
+    (``pooled_s.row_s``), the accelerometer's bias (and the scale factor with its
+    curvature) is compared at S* (``pooled_s.can_pool``).
     """
     scale = STD_SCALE if std_scale is None else std_scale
     parts = [pooled_s.row_s_memo(r, memo) for r in (prev, cur)] if pooled is not None else [None]
@@ -250,7 +251,7 @@ def compare(prev, cur, names=ALARM_ON, std_scale=None, memo=None, pooled=None):
     for name in names:
         t_ref = (_best_common(prev, cur, name, memo=memo) if name == 'gb' else
                  (_terms_memo(prev, name, memo)[2] + _terms_memo(cur, name, memo)[2]) / 2)
-        if name in pooled_s.POOLED and all(p is not None for p in parts):
+        if pooled_s.can_pool(name, parts):
             (v0, s0, g0), (v1, s1, g1) = (_at_pooled_s(r, p, name, t_ref, pooled[0], memo)
                                           for r, p in zip((prev, cur), parts))
             dg = g1 - g0
@@ -281,7 +282,7 @@ def trend(rows, name, std_scale=None, memo=None, pooled=None):
     t_ref = np.array([np.mean(t0[:, i]) for i in range(len(AXES))])
     t = np.array([parse_time(r['time']) for r in rows], float) / 86400e9   # days
     parts = [pooled_s.row_s_memo(r, memo) for r in rows] if pooled is not None else [None]
-    given = name in pooled_s.POOLED and all(p is not None for p in parts)
+    given = pooled_s.can_pool(name, parts)
     if given:
         got = [_at_pooled_s(r, p, name, t_ref, pooled[0], memo) for r, p in zip(rows, parts)]
         vs = np.array([(v, sd) for v, sd, _ in got])                       # (n, 2, 3)
