@@ -95,6 +95,8 @@ def _one(variant, fleet_seed, unit, logs, work):
         if part is not None:
             rec.update(s=part['q'].tolist(), s_info=part['info'].tolist(),
                        s_eta=part['eta'].tolist())
+            if 'k_dss' in part:       # the scale factor's curvature on S (at T0)
+                rec['dss_k'] = part['k_dss'].tolist()
         out.append(rec)
         for f in (path, cal_path):
             os.remove(f)
@@ -113,12 +115,13 @@ def _summary(v):
             'ks_p_vs_normal_0_1': round(float(kstest(v, 'norm').pvalue), 4)}
 
 
-def at_pooled_s(recs):
+def at_pooled_s(recs, linear_k=False):
     """Return the unit's records with 'err_*', 'std_*' at S pooled over them, or None.
 
     As ``history`` tests them (``fleet/pooled_s.py``): each log's error carried to S* by its
     gains, its std given S; 'ds_*' the gains (for the change z's shared part) and 'cov_s'.
-    None when a log has no terms given S.
+    The scale factor at T0 also with its curvature on S ('dss_k', when stored) unless
+    ``linear_k`` (the gains alone, as before it). None when a log has no terms given S.
     """
     from thermal_imu_calib.fleet import pooled_s
     ok = [r for r in recs if 'error' not in r]
@@ -129,9 +132,15 @@ def at_pooled_s(recs):
     out = []
     for r in ok:
         rec = {'log': r['log'], 'cov_s': cov}
+        ds = s_star - np.array(r['s'])
         for name in ('b', 'k'):
             g = np.array(r[f'ds_{name}'])                          # (3 axes, 3 orders, 3)
-            rec[f'err_{name}'] = np.array(r[f'err_{name}']) + g @ (s_star - np.array(r['s']))
+            rec[f'err_{name}'] = np.array(r[f'err_{name}']) + g @ ds
+            if name == 'k' and 'dss_k' in r and not linear_k:      # T0's second order
+                curv = np.array(r['dss_k'])
+                rec['err_k'][:, 0] += 0.5 * np.einsum('amn,m,n->a', curv, ds, ds)
+                g = g.copy()
+                g[:, 0] += curv @ ds
             own = np.array(r[f'std_s_{name}']) ** 2 + np.einsum('ajm,mn,ajn->aj', g, cov, g)
             rec[f'std_{name}'] = np.sqrt(own)
             rec[f'ds_{name}'] = g
@@ -139,14 +148,14 @@ def at_pooled_s(recs):
     return out
 
 
-def summarise(units, pooled=False):
+def summarise(units, pooled=False, linear_k=False):
     """Return {term: {axis: summary}} of the truth z and of the truth-removed change z.
 
     ``pooled``: at each unit's pooled S (``at_pooled_s``; units without terms given S are
     left out); a change's std then has the shared S part removed, as ``history`` has.
     """
     if pooled:
-        units = {u: p for u, p in ((u, at_pooled_s(r)) for u, r in units.items())
+        units = {u: p for u, p in ((u, at_pooled_s(r, linear_k)) for u, r in units.items())
                  if p is not None}
         if not units:
             return {}
@@ -222,10 +231,12 @@ def main():
            'failed': [(u, r['log'], r['error']) for u, rs in units.items() for r in rs
                       if 'error' in r],
            'summary': summarise(units),
-           'summary_pooled_s': summarise(units, pooled=True), 'units': units}
+           'summary_pooled_s': summarise(units, pooled=True),
+           'summary_pooled_s_linear_k': summarise(units, pooled=True, linear_k=True),
+           'units': units}
     with open(args.out, 'w') as f:
         json.dump(compact(res), f)
-    for which in ('summary', 'summary_pooled_s'):
+    for which in ('summary', 'summary_pooled_s', 'summary_pooled_s_linear_k'):
         print(which)
         for k, v in res[which].items():
             print(' ', k, {a: (s.get('std'), s.get('max_abs')) for a, s in v.items()})

@@ -137,20 +137,24 @@ def calibrated_fleet(client, cache, units, logs_per_unit, seed, reduce_fn):
     return d
 
 
-def read_rows(d, pooled=True):
+def read_rows(d, pooled=True, pooled_k=True):
     """Return the registry rows of a cached fleet; ``pooled`` False: without the terms given S.
 
     A registry without the columns of ``fleet/pooled_s.py`` is tested on the terms' own
     (marginal) stds, as before they existed: the same calibrations, judged both ways.
+    ``pooled_k`` False: without the scale factor's curvature on S, so only the bias is
+    tested at the pooled S (as from 2026-12-03 morning to its curvature).
     """
     from thermal_imu_calib.fleet.pooled_s import without_given_s
     rows = reg.read_index(os.path.join(d, 'reg'))
+    if not pooled_k:
+        rows = [{k: v for k, v in r.items() if '_dss.' not in k} for r in rows]
     return rows if pooled else without_given_s(rows)
 
 
-def evaluate_seed(d, seed, std_scale=None, pooled=True):
+def evaluate_seed(d, seed, std_scale=None, pooled=True, pooled_k=True):
     """Return one seed's row: stable units flagged (false) and drifting/step units flagged."""
-    rows = read_rows(d, pooled)
+    rows = read_rows(d, pooled, pooled_k)
     found, info = reg.assess(rows, std_scale=std_scale)
     flagged = {s for s, a in found.items() if a}
     truth = read_truth(d)
@@ -170,7 +174,7 @@ def evaluate_seed(d, seed, std_scale=None, pooled=True):
             'refused': len(refused['failed_logs']) + len(refused['failed_units'])}
 
 
-def stable_z(d, std_scale, pooled=True):
+def stable_z(d, std_scale, pooled=True, pooled_k=True):
     """Return {test kind: z list} of the stable units (truth): consecutive changes, trends.
 
     With ``std_scale`` {} the fit's own stds: what says whether they are honest. At the
@@ -179,7 +183,8 @@ def stable_z(d, std_scale, pooled=True):
     from thermal_imu_calib.fleet.alarms import accel_family
     from thermal_imu_calib.fleet.pooled_s import unit_pools
     truth = read_truth(d)
-    rows = [r for r in read_rows(d, pooled) if truth[r['sensor']]['kind'] == 'stable']
+    rows = [r for r in read_rows(d, pooled, pooled_k)
+            if truth[r['sensor']]['kind'] == 'stable']
     out = {}
     for rs in reg.by_sensor(rows).values():
         ps = unit_pools(rs, accel_family)
@@ -225,10 +230,12 @@ def alarms(args):
     rows_out, zs_fit = [], {}
     for seed in seeds:
         d = cache_dir(args.cache, args.units, args.logs_per_unit, seed)
-        row = evaluate_seed(d, seed, pooled=not args.no_pooled_s)
+        row = evaluate_seed(d, seed, pooled=not args.no_pooled_s,
+                            pooled_k=not args.no_pooled_k)
         rows_out.append(row)
         print(row, flush=True)
-        for k, v in stable_z(d, {}, pooled=not args.no_pooled_s).items():
+        for k, v in stable_z(d, {}, pooled=not args.no_pooled_s,
+                             pooled_k=not args.no_pooled_k).items():
             zs_fit.setdefault(k, []).extend(v)
     fa = sum(r['false_alarms'] for r in rows_out)
     st = sum(r['stable'] for r in rows_out)
@@ -237,6 +244,7 @@ def alarms(args):
     out = {'units': args.units, 'logs_per_unit': args.logs_per_unit, 'seeds': list(seeds),
            'family_rate': reg.FAMILY_RATE, 'std_scale': reg.STD_SCALE,
            'pooled_s': not args.no_pooled_s,
+           'pooled_k': not (args.no_pooled_s or args.no_pooled_k),
            'alarm_on': [f'd{n}0' for n in reg.ALARM_ON],
            'false_alarms': fa, 'stable_units': st, 'false_alarm_rate': fa / max(st, 1),
            'seeds_with_false_alarm': sum(r['false_alarms'] > 0 for r in rows_out),
@@ -268,6 +276,9 @@ def main():
     ap.add_argument('--no-pooled-s', action='store_true',
                     help='alarms: test the cached calibrations on their terms\' own stds, '
                          'without the pooled S (fleet/pooled_s.py), as before it existed')
+    ap.add_argument('--no-pooled-k', action='store_true',
+                    help='alarms: the bias alone at the pooled S (the scale factor on its '
+                         'own stds: its curvature on S left out), as before the curvature')
     args = ap.parse_args()
     big = args.mode == 'speed'
     args.units = args.units or (20 if big else 8)
