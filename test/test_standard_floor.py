@@ -451,8 +451,8 @@ def test_the_yardsticks_curvature_on_s_predicts_the_fit_far_from_its_s():
 
     On the +-x faces the tilt takes up s10 and s20 and |c| = 1 shortens x's own component
     by (s10^2 + s20^2) / 2, so k_x grows by that (k_y by s21^2 / 2 on the +-y faces); the
-    gains at the fitted S miss it, the stored curvature (``alarm_yardstick.K_CURVATURE``)
-    follows a refit at S two prior stds away.
+    gains at the fitted S miss it, the stored curvature (``alarm_yardstick.K_CURVATURE``,
+    the Gauss-Newton gain's derivative) follows a refit at S two prior stds away.
     """
     from thermal_imu_calib.estimation.alarm_yardstick import _k_curvature
     from thermal_imu_calib.estimation.context import make_context

