@@ -45,7 +45,7 @@ FREE_S_KIND = YARDSTICK_KIND + '+S'
 TERMS = ('T0', 'b', 'b_std', 'k', 'k_std')
 #: with S estimated: the terms' stds given S and their gains on S's terms (``given_s``)
 GIVEN_S = ('b_std_s', 'k_std_s', 'b_ds', 'k_ds')
-#: with S estimated and the fit's curvature on S (``field_estimator.s_curvature``): the
+#: with S estimated and the fit's curvature on S (``field_estimator.SCondition``): the
 #: scale factor's second derivatives on S's terms at T0 (yardsticks written before have none)
 K_CURVATURE = 'k_dss'
 #: the fit's thermal vector given S, read by ``given_s`` and not stored
@@ -151,7 +151,7 @@ def _k_curvature(m, curvature, k):
 
     The terms are linear in the thermal vector, so each pair's curvature moves them as a
     thermal step would. Only the scale factor at T0: its curvature is k itself times
-    (s^2) / 2 (``field_estimator.s_curvature``), that of its temperature coefficients and
+    (s^2) / 2 (``field_estimator.SCondition.curvature``), that of its temperature coefficients and
     of the bias (read from opposite faces, where it cancels) is smaller by their size.
     """
     try:
