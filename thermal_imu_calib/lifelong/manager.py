@@ -13,18 +13,14 @@ and, when ``registry_dir`` is given, adds every calibration it activates to a re
 the fleet format (``fleet.registry``: ``history``, drift alarms and the compensator's
 registry mode then work for one robot; ``valid_from`` is the time it was activated).
 
-When to re-estimate (``due``): the first time enough holds are in; when the collected
-temperatures extend by ``range_extension_degc`` both the active calibration's valid range
-(where neither sensor's model clamps) and what the last estimate fitted (so a sensor kept
-with a narrow range does not make every few holds an estimate of the same temperatures);
-when ``new_holds`` holds came in since the last estimate; when ``misfit_holds`` new holds
-since the last estimate were missed by the active calibration (``gate.misses``: the change
-alarm's limit, at any temperature, consecutive or not; a re-estimate only makes a candidate
-that must pass the swap gate, so it needs no stronger evidence); after a change alarm. The
-estimate is ``app.calibrate.calibrate_collected`` (the command line's calibrate) on the
-store's windows without the newest ``holdout_holds`` holds, which the swap gate
-(``gate.decide``) scores both calibrations on. When it is better for one sensor only, that
-sensor's model alone replaces the active one's (``compose``, ``per_sensor``).
+When to re-estimate (``due``, ``trigger.due``): the first time enough holds are in; when
+the collected temperatures extend the active calibration's valid range and what the last
+estimate fitted; when ``new_holds`` holds came in, or ``misfit_holds`` holds the active
+calibration misses, since the last estimate; after a change alarm. The estimate is
+``app.calibrate.calibrate_collected`` (the command line's calibrate) on the store's windows
+without the newest ``holdout_holds`` holds, which the swap gate (``gate.decide``) scores
+both calibrations on. When it is better for one sensor only, that sensor's model alone
+replaces the active one's (``compose``, ``per_sensor``).
 
 Change alarm (a knock): every new hold inside the active valid range (``alarm_window``:
 inside both sensors' ranges, or each sensor's own) is scored with the active calibration;
@@ -57,7 +53,7 @@ from ..calibration import Calibration, CalibrationError
 from ..estimation.calibrate import CalibrationRefused
 from ..io.output import free_name, write_atomic
 from ..collection.collected import Collected
-from . import ageing, compose, gate
+from . import ageing, compose, gate, trigger
 from ..collection.segments import Windows
 from .archive import ArchiveFull, archive_collection, MAX_ARCHIVES  # noqa: F401 (API)
 from .config import (ALARM_CUTS, ALARM_REFERENCES, ALARM_WINDOWS,  # noqa: F401 (API)
@@ -287,58 +283,9 @@ class Lifelong:
         return float(rec.t0[rec.hold == h].min())
 
     # ------------------------------------------------------------------ when
-    def _holds_after(self, t):
-        """Return how many raw holds begin after ``t`` (s)."""
-        rec = self.store.recent
-        if not len(rec):
-            return 0
-        ids = rec.hold_ids
-        starts = np.array([rec.t0[rec.hold == h].min() for h in ids])
-        return int(np.sum(starts > t))
-
     def due(self):
-        """Return why a re-estimate is due now ('' when it is not)."""
-        c, s = self.config, self.state
-        raw = len(self.store.recent.hold_ids) if len(self.store.recent) else 0
-        enough = self.store.total_holds and raw + (1 if len(self.store.bins) else 0) >= \
-            c.min_holds + c.holdout_holds
-        if not enough:
-            return ''
-        until = s.get('active_fit_until')
-        if until is not None and self._holds_after(until) < c.min_holds + c.holdout_holds:
-            # the gate's held-out holds must be ones the active never saw, and the new fit
-            # needs new holds of its own (as the first estimate: 6 to fit, 8 to judge)
-            return ''
-        if s.get('alarm_pending'):
-            return 'change alarm'
-        if self.active is None:
-            if self.store.total_holds - s['holds_at_estimate'] >= c.min_holds or \
-                    not s['estimates']:
-                return 'no active calibration'
-            return ''
-        new = self.store.total_holds - s['holds_at_estimate']
-        if new >= c.new_holds:
-            return f'{new} new holds'
-        missed = s.get('missed') or []
-        if len(missed) >= c.misfit_holds:
-            temps = ', '.join(f'{x[1]:.1f}' for x in missed[-c.misfit_holds:])
-            return (f'the active calibration missed {len(missed)} new holds (the newest at '
-                    f'{temps} degC)')
-        span = self.store.temperature_span()
-        if span and self.active.valid_range is not None and self.k and new >= c.min_holds:
-            lo, hi = compose.common_range(self.active)[0]
-            ref_lo, ref_hi, also = lo, hi, ''
-            seen = s.get('fit_span')
-            if seen:
-                ref_lo, ref_hi = min(lo, seen[0]), max(hi, seen[1])
-                if (ref_lo, ref_hi) != (lo, hi):
-                    also = (f' and what the last estimate fitted '
-                            f'({seen[0]:.1f}..{seen[1]:.1f})')
-            ext = max(ref_lo - span[0], span[1] - ref_hi)
-            if ext >= c.range_extension_degc:
-                return (f'collected {span[0]:.1f}..{span[1]:.1f} degC extends the valid range '
-                        f'{lo:.1f}..{hi:.1f}{also} by {ext:.1f} degC')
-        return ''
+        """Return why a re-estimate is due now ('' when it is not; ``trigger.due``)."""
+        return trigger.due(self.store, self.state, self.config, self.active, self.k)
 
     # ------------------------------------------------------------------ estimate
     def estimate(self, reason='requested'):
@@ -543,8 +490,7 @@ class Lifelong:
 
     def _note_fit_span(self, fit):
         """Keep the temperature span (degC) an estimate fitted (``due``'s range trigger)."""
-        self.state['fit_span'] = ([float(fit.temp[:, 0].min()), float(fit.temp[:, 0].max())]
-                                  if len(fit) and self.k else None)
+        self.state['fit_span'] = trigger.fit_span(fit, self.k)
 
     def _calibrate(self, windows):
         """Return ``calibrate_collected``'s result on these windows (the CLI's calibrate)."""
