@@ -22,14 +22,11 @@ without the newest ``holdout_holds`` holds, which the swap gate (``gate.decide``
 both calibrations on. When it is better for one sensor only, that sensor's model alone
 replaces the active one's (``compose``, ``per_sensor``).
 
-Change alarm (a knock): every new hold inside the active valid range (``alarm_window``:
-inside both sensors' ranges, or each sensor's own) is scored with the active calibration;
-when, for one sensor, the last ``alarm_holds`` of them all exceed ``alarm_factor`` times
-the active's held-out error (floored at ``alarm_floor`` times their noise), the store is
-cut at the first of them (older data no longer describe the sensor), an alarm is logged
-and a re-estimate from the holds after the cut follows. With ``alarm_cut`` 'sensor' an
-alarm of one sensor cuts that sensor's history only: the other's model is still fitted on
-the older holds too (``_with_kept``).
+Change alarm (a knock, ``alarm``): every new hold inside the active valid range is scored
+with the active calibration; when, for one sensor, the last ``alarm_holds`` of them all
+miss its reference by the alarm's limit, the store is cut at the first of them, an alarm is
+logged and a re-estimate from the holds after the cut follows. A swap measures the alarm's
+reference anew (``_activate``).
 
 Reset (``reset``, the node's ``~/reset``): the collection starts afresh without losing
 data: the hold store and the candidate move into ``archive/<UTC time>/`` (at most
@@ -44,7 +41,6 @@ history share its state and counters); the pieces that stand alone are ``gate``,
 import json
 import os
 import time
-from typing import NamedTuple
 
 import numpy as np
 
@@ -53,7 +49,7 @@ from ..calibration import Calibration, CalibrationError
 from ..estimation.calibrate import CalibrationRefused
 from ..io.output import free_name, write_atomic
 from ..collection.collected import Collected
-from . import ageing, compose, gate, trigger
+from . import ageing, alarm, compose, gate, trigger
 from ..collection.segments import Windows
 from .archive import ArchiveFull, archive_collection, MAX_ARCHIVES  # noqa: F401 (API)
 from .config import (ALARM_CUTS, ALARM_REFERENCES, ALARM_WINDOWS,  # noqa: F401 (API)
@@ -62,18 +58,6 @@ from .pose import main_pose, main_pose_mask, pose_of
 from .store import HoldStore
 
 MAX_DECISIONS = 2000
-
-
-class Tracked(NamedTuple):
-    """A hold the change alarm watches: its time and the active calibration's errors."""
-
-    t: float            #: end of the hold (s)
-    gyro: float         #: gyro error (rad/s)
-    accel: float        #: accelerometer error less the active's median (m/s^2)
-    se_gyro: float      #: the hold's standard error of its gyro mean (rad/s)
-    se_accel: float     #: ... of its accelerometer mean (m/s^2)
-    in_gyro: bool       #: inside the gyro's alarm range (``Lifelong._alarm_ranges``)
-    in_accel: bool      #: inside the accelerometer's alarm range
 
 
 class Lifelong:
@@ -109,7 +93,7 @@ class Lifelong:
             pass
         except (OSError, ValueError) as e:
             self.log('warn', f'{self._path("state.json")} unreadable ({e}); counters reset')
-        #: [Tracked]: the newest holds the change alarm watches
+        #: [alarm.Tracked]: the newest holds the change alarm watches
         self.track = []
         self.recent_scores = None  # the active's score on the newest holds (diagnostics)
 
@@ -196,91 +180,29 @@ class Lifelong:
             self._check_change(self.store.holds(ids))
         return ids
 
-    def _alarm_ranges(self, cal):
-        """Return {sensor: (lo, hi) degC} inside which a hold counts for that sensor's alarm."""
-        if cal.valid_range is None or not self.k:
-            return {w: (-np.inf, np.inf) for w in compose.SENSORS}
-        if self.config.alarm_window == 'sensor':
-            return {w: tuple(compose.own_range(cal, w)[0]) for w in compose.SENSORS}
-        common = tuple(compose.common_range(cal)[0])
-        return {w: common for w in compose.SENSORS}
-
     def _check_change(self, windows):
-        cal = self.active
+        """Score new holds with the active calibration; on a change alarm, cut the store."""
+        cal, s, c = self.active, self.state, self.config
         e = gate.hold_errors(cal, windows, cal.gravity, self.latitude)
-        self._note_misses(e)
-        ranges = self._alarm_ranges(cal)
-        base_acc = self.state.get('active_accel_median') or 0.0
-        for j in range(len(e['ids'])):
-            inside = [bool(lo <= e['temp'][j] <= hi) for lo, hi in
-                      (ranges['gyro'], ranges['accel'])]
-            if not any(inside):
-                continue
-            self.track.append(Tracked(float(e['t'][j]), float(e['gyro'][j]),
-                                      float(e['accel'][j] - base_acc), float(e['se_gyro'][j]),
-                                      float(e['se_accel'][j]), *inside))
-        self.track = self.track[-200:]
-        c = self.config
-        if self.state.get('active_gyro_rms') is None or self.state.get('alarm_pending'):
+        missed = alarm.new_misses(e, s, c)
+        if missed:
+            s['missed'] = (s.get('missed') or []) + missed
+        self.track = alarm.tracked(self.track, e, alarm.alarm_ranges(cal, self.k, c.alarm_window),
+                                   s.get('active_accel_median') or 0.0)
+        if s.get('active_gyro_rms') is None or s.get('alarm_pending'):
             return
-        out, first = {}, []
-        for which in ('gyro', 'accel'):
-            last = [r for r in self.track if getattr(r, 'in_' + which)][-c.alarm_holds:]
-            if len(last) < c.alarm_holds:
-                continue
-            err = np.abs([getattr(r, which) for r in last])
-            base = self.state.get(f'active_{which}_rms') or 0.0
-            floor = c.alarm_floor * float(np.median([getattr(r, 'se_' + which) for r in last]))
-            limit = max(c.alarm_factor * base, floor)
-            if np.all(err > limit):
-                out[which] = (float(np.median(err)), limit)
-                first.append(last[0].t)
+        out, first = alarm.exceeded(self.track, s, c)
         if out:
-            t_cut, t_now = self._first_hold_start(min(first)), self.track[-1].t
-            text = '; '.join(f'{w} error {v:.3g} > {lim:.3g} on the last {c.alarm_holds} '
-                             'holds in range' for w, (v, lim) in out.items())
-            keep = None
-            if c.alarm_cut == 'sensor' and len(out) == 1:
-                keep = 'accel' if 'gyro' in out else 'gyro'
-            self.state['alarms'] += 1
-            self.state['alarm_pending'] = True
+            t_cut, t_now = alarm.first_hold_start(self.store.recent, min(first)), self.track[-1].t
+            decision, keep = alarm.alarm_decision(out, t_cut, t_now, c)
+            s['alarms'] += 1
+            s['alarm_pending'] = True
             self.track = []
             self.store.cut(t_cut, keep=keep)
-            dropped = (f'holds before t={t_cut:.0f} s dropped' if keep is None else
-                       f'holds before t={t_cut:.0f} s dropped for the {next(iter(out))} (the '
-                       f'{keep} keeps them)')
-            decision = {'time': t_now, 'action': 'alarm',
-                        'reason': f'the active calibration no longer fits: {text}; {dropped}, '
-                                  're-estimating from the holds after it', 'figures': out}
-            self.state['last_decision'] = decision['reason']
+            s['last_decision'] = decision['reason']
             self._record(decision)
             self._save_state()
             self.log('error', 'lifelong ALARM: ' + decision['reason'])
-
-    def _note_misses(self, e):
-        """Keep (t s, temperature degC) of the new holds the active calibration misses."""
-        s, c = self.state, self.config
-        if s.get('active_gyro_rms') is None:
-            return
-        bad = gate.misses(e, s.get('active_accel_median') or 0.0, s['active_gyro_rms'],
-                          s.get('active_accel_rms') or 0.0, c.alarm_factor, c.alarm_floor)
-        if bad.any():
-            s['missed'] = (s.get('missed') or []) + [
-                [float(e['t'][j]), float(e['temp'][j])] for j in np.flatnonzero(bad)]
-
-    def _first_hold_start(self, t_end):
-        """Return the start (s) of the raw hold ending at ``t_end``.
-
-        Matched to the millisecond: a relative tolerance on stamps of ~1.7e9 s (np.isclose's
-        default, used before 2026-11-28) matched any hold ending within ~4.8 h, so the cut
-        kept up to hours of holds from before the change in the new epoch.
-        """
-        rec = self.store.recent
-        m = np.isclose(rec.t1, t_end, rtol=0.0, atol=1e-3) if len(rec) else np.zeros(0, bool)
-        if not m.any():
-            return t_end
-        h = rec.hold[m][0]
-        return float(rec.t0[rec.hold == h].min())
 
     # ------------------------------------------------------------------ when
     def due(self):
@@ -571,7 +493,8 @@ class Lifelong:
         med = float(np.median(both['accel']))
         is_held = np.isin(both['ids'], held)
         errs = {'gyro': both['gyro'], 'accel': both['accel'] - med}
-        use, note = self._reference_holds(both, errs, before, only)
+        use, note = alarm.reference_holds(both, errs, before, self.config,
+                                          self.state.get('alarm_pending'), only)
         ref = {}
         held_rms = {'gyro': s_new['gyro_rms'], 'accel': s_new['accel_magnitude_rms']}
         for which, err in errs.items():
@@ -593,37 +516,6 @@ class Lifelong:
             except (OSError, ValueError) as e:
                 self.log('error', f'registry {self.registry_dir} not updated: {e}')
         return note
-
-    def _reference_holds(self, both, errs, before, only=None):
-        """Return ({sensor: (h,) mask of the holds its alarm reference is measured on}, note).
-
-        ``both``: ``gate.hold_errors`` of the new calibration; ``errs``: its per-sensor
-        errors (the accelerometer's about its new level). Every hold, unless
-        ``alarm_reference`` is 'explained' and there is an old reference: then a hold the
-        new calibration misses by the change alarm's limit against the old reference
-        (``gate.limit``, as in ``gate.misses``) is left out of that sensor's reference,
-        unless it would leave none.
-        Not after a change alarm: the old reference is then the old sensor's; not for the
-        sensor a one-sensor swap (``only``) keeps, whose reference stays as it was.
-        """
-        c = self.config
-        h = len(both['ids'])
-        use = {'gyro': np.ones(h, bool), 'accel': np.ones(h, bool)}
-        if c.alarm_reference != 'explained' or not h or self.state.get('alarm_pending'):
-            return use, ''
-        parts = []
-        for which in ('gyro', 'accel'):
-            old = before[f'active_{which}_rms']
-            if old is None or only not in (None, which):
-                continue
-            lim = gate.limit(both, which, old, c.alarm_factor, c.alarm_floor)
-            missed = np.abs(errs[which]) > lim
-            if missed.any() and not missed.all():
-                use[which] = ~missed
-                parts.append(f'{which} {int(missed.sum())} of {h}')
-        note = ('; alarm reference without the holds it misses by the alarm limit ('
-                + ', '.join(parts) + ')') if parts else ''
-        return use, note
 
     # ------------------------------------------------------------------ status
     def status(self, temperature=None, now=None):
