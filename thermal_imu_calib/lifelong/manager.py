@@ -1,12 +1,12 @@
 """The lifelong loop: holds in, re-estimate when due, swap only when proven, history out.
 
-``Lifelong`` owns a directory::
+``Lifelong`` owns a directory (its files are read and written by ``files``)::
 
     holds/        the bounded hold store (``store.HoldStore``)
     active.yaml   the calibration in use (the node publishes it)
     candidate.yaml the newest estimate that did not pass the swap gate
     state.json    counters (holds at the last estimate, the active's held-out figures)
-    decisions.jsonl every decision with its figures (the newest ``MAX_DECISIONS`` kept)
+    decisions.jsonl every decision with its figures (the newest ``files.MAX_DECISIONS`` kept)
     archive/<UTC time>/ what a reset moved aside (``holds/``, ``candidate.yaml``)
 
 and, when ``registry_dir`` is given, adds every calibration it activates to a registry in
@@ -38,26 +38,23 @@ history share its state and counters); the pieces that stand alone are ``gate``,
 ``compose``, ``ageing``, ``store`` and ``archive``.
 """
 
-import json
 import os
 import time
 
 import numpy as np
 
 from ..app.calibrate import calibrate_collected, SettingsError
-from ..calibration import Calibration, CalibrationError
+from ..calibration import CalibrationError
 from ..estimation.calibrate import CalibrationRefused
-from ..io.output import free_name, write_atomic
+from ..io.output import write_atomic
 from ..collection.collected import Collected
-from . import ageing, alarm, compose, gate, trigger
+from . import ageing, alarm, compose, files, gate, trigger
 from ..collection.segments import Windows
 from .archive import ArchiveFull, archive_collection, MAX_ARCHIVES  # noqa: F401 (API)
 from .config import (ALARM_CUTS, ALARM_REFERENCES, ALARM_WINDOWS,  # noqa: F401 (API)
                      LifelongConfig)
 from .pose import main_pose, main_pose_mask, pose_of
 from .store import HoldStore
-
-MAX_DECISIONS = 2000
 
 
 class Lifelong:
@@ -80,19 +77,13 @@ class Lifelong:
         self.store = HoldStore(os.path.join(self.dir, 'holds'), self.k, self.config.store)
         for note in self.store.notes:
             self.log('warn', note)
-        self.active = self._load_cal('active.yaml')
-        self.candidate = self._load_cal('candidate.yaml')
+        self.active = files.load_calibration(self._path('active.yaml'), self.log)
+        self.candidate = files.load_calibration(self._path('candidate.yaml'), self.log)
         self.state = {'holds_at_estimate': 0, 'active_since': None, 'active_gyro_rms': None,
                       'active_accel_rms': None, 'active_noise': None, 'alarms': 0,
                       'alarm_pending': False, 'swaps': 0, 'kept': 0, 'estimates': 0,
                       'last_decision': ''}
-        try:
-            with open(self._path('state.json')) as f:
-                self.state.update(json.load(f))
-        except FileNotFoundError:
-            pass
-        except (OSError, ValueError) as e:
-            self.log('warn', f'{self._path("state.json")} unreadable ({e}); counters reset')
+        files.load_state(self._path('state.json'), self.state, self.log)
         #: [alarm.Tracked]: the newest holds the change alarm watches
         self.track = []
         self.recent_scores = None  # the active's score on the newest holds (diagnostics)
@@ -101,38 +92,15 @@ class Lifelong:
     def _path(self, name):
         return os.path.join(self.dir, name)
 
-    def _load_cal(self, name):
-        path = self._path(name)
-        if not os.path.exists(path):
-            return None
-        try:
-            return Calibration.load(path)
-        except (OSError, CalibrationError, ValueError) as e:
-            self.log('error', f'{path} not loaded ({e}); moved aside')
-            os.replace(path, free_name(path + f'.unreadable-{int(time.time())}'))
-            return None
-
     def _save_state(self):
-        write_atomic(self._path('state.json'), json.dumps(self.state, indent=1))
+        files.write_state(self._path('state.json'), self.state)
 
     def _record(self, decision):
-        path = self._path('decisions.jsonl')
-        line = json.dumps(decision, separators=(',', ':'), default=_plain) + '\n'
-        with open(path, 'a') as f:
-            f.write(line)
-        if os.path.getsize(path) > 600 * MAX_DECISIONS:
-            with open(path) as f:
-                lines = f.readlines()[-MAX_DECISIONS:]
-            write_atomic(path, ''.join(lines))
+        files.append_decision(self._path('decisions.jsonl'), decision)
 
     def decisions(self, last=None):
         """Return the logged decision records (dicts), oldest first."""
-        try:
-            with open(self._path('decisions.jsonl')) as f:
-                out = [json.loads(x) for x in f if x.strip()]
-        except FileNotFoundError:
-            return []
-        return out[-last:] if last else out
+        return files.read_decisions(self._path('decisions.jsonl'), last)
 
     # ------------------------------------------------------------------ reset
     def reset(self, when=None):
@@ -540,11 +508,3 @@ class Lifelong:
                 out['recent_gyro_rms_rad_s'] = sc['gyro_rms']
                 out['recent_accel_rms_mps2'] = sc['accel_rms']
         return out
-
-
-def _plain(x):
-    if isinstance(x, np.generic):
-        return x.item()
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    return str(x)
