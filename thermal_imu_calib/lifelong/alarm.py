@@ -8,7 +8,7 @@ with the active calibration's errors (``tracked``). When, for one sensor, the la
 of them (``first_hold_start``: older data no longer describe the sensor), an alarm is
 logged (``alarm_decision``) and a re-estimate from the holds after the cut follows. With
 ``alarm_cut`` 'sensor' an alarm of one sensor cuts that sensor's history only: the other's
-model is still fitted on the older holds too (``manager.Lifelong._with_kept``).
+model is still fitted on the older holds too (``variants.with_kept``).
 
 The alarm's limit serves two more ends: the new holds the active calibration misses
 (``new_misses``, ``trigger.due``'s misfit trigger) and the holds a swap measures the

@@ -61,10 +61,9 @@ class LifelongConfig:
     alarm_reference: str = 'all'
     #: what a change alarm cuts: 'all' (every hold before it, for both sensors) or
     #: 'sensor' (when one sensor alone failed, its history only: the other keeps the
-    #: older holds for its fits, ``HoldStore.cut(keep=...)``,
-    #: ``manager.Lifelong._with_kept``; an alarm of both cuts both). Off: on seeds 7, 8 and
-    #: 12 (unseen) it never acted, every knock's alarm flagged both sensors (the simulated
-    #: knock steps both; docs/lifelong.md)
+    #: older holds for its fits, ``HoldStore.cut(keep=...)``, ``variants.with_kept``; an
+    #: alarm of both cuts both). Off: on seeds 7, 8 and 12 (unseen) it never acted, every
+    #: knock's alarm flagged both sensors (the simulated knock steps both; docs/lifelong.md)
     alarm_cut: str = 'all'
     #: how the swap gate measures the accelerometer on held-out holds
     #: (``gate.ACCEL_SCORES``): 'magnitude', |mean accel| - g about the median, blind to the
@@ -81,8 +80,8 @@ class LifelongConfig:
     #: (docs/lifelong.md)
     raw_kept: bool = False
     #: a swap activates the estimate fitted again with the same choices on every hold, the
-    #: held-out ones too (``manager.Lifelong._refit``); False: the estimate the gate judged,
-    #: whose fit left out the newest holds, often the very temperatures that made it due
+    #: held-out ones too (``variants.refit``); False: the estimate the gate judged, whose
+    #: fit left out the newest holds, often the very temperatures that made it due
     refit_on_swap: bool = False
     store: StoreConfig = field(default_factory=StoreConfig)
 

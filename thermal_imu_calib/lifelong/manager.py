@@ -20,7 +20,9 @@ calibration misses, since the last estimate; after a change alarm. The estimate 
 ``app.calibrate.calibrate_collected`` (the command line's calibrate) on the store's windows
 without the newest ``holdout_holds`` holds, which the swap gate (``gate.decide``) scores
 both calibrations on. When it is better for one sensor only, that sensor's model alone
-replaces the active one's (``compose``, ``per_sensor``).
+replaces the active one's (``compose``, ``per_sensor``). The fit with the gyro ageing
+removed, a sensor's kept history after a one-sensor alarm and the refit of a swap on every
+hold are ``variants``; the settings are ``config.LifelongConfig``.
 
 Change alarm (a knock, ``alarm``): every new hold inside the active valid range is scored
 with the active calibration; when, for one sensor, the last ``alarm_holds`` of them all
@@ -33,9 +35,9 @@ data: the hold store and the candidate move into ``archive/<UTC time>/`` (at mos
 ``MAX_ARCHIVES`` archives; one more is refused, saying what to do), the active
 calibration, the counters, the decisions and the registry stay. No ROS import.
 
-Cohesive: one loop over one directory (when to estimate, the gate, the alarm, reset and
-history share its state and counters); the pieces that stand alone are ``gate``,
-``compose``, ``ageing``, ``store`` and ``archive``.
+``Lifelong`` holds the state the pieces share (the counters, the active calibration, the
+store) and applies what they return; the pieces are ``trigger``, ``gate``, ``compose``,
+``variants``, ``ageing``, ``alarm``, ``store``, ``files`` and ``archive``.
 """
 
 import os
@@ -48,7 +50,7 @@ from ..calibration import CalibrationError
 from ..estimation.calibrate import CalibrationRefused
 from ..io.output import write_atomic
 from ..collection.collected import Collected
-from . import ageing, alarm, compose, files, gate, trigger
+from . import alarm, compose, files, gate, trigger, variants
 from ..collection.segments import Windows
 from .archive import ArchiveFull, archive_collection, MAX_ARCHIVES  # noqa: F401 (API)
 from .config import (ALARM_CUTS, ALARM_REFERENCES, ALARM_WINDOWS,  # noqa: F401 (API)
@@ -209,11 +211,13 @@ class Lifelong:
         new = result.calibration
         g = new.gravity
         s_new = gate.score(new, holdout, g, holdout_pose, self.latitude, c.accel_score)
-        aged = self._with_ageing(fit, times, now, holdout, holdout_pose, s_new, decision)
+        aged = variants.with_ageing(self._calibrate, fit, times, now, holdout, holdout_pose,
+                                    s_new, decision, c, self.latitude)
         if aged is not None:
             result, s_new = aged
             new = result.calibration
-        kept = self._with_kept(new, now, held, decision)
+        kept = variants.with_kept(self._calibrate, self.store, c.pose_deg, new, now, held,
+                                  decision)
         if kept is not None:
             new = kept
             s_new = gate.score(new, holdout, g, holdout_pose, self.latitude, c.accel_score)
@@ -236,7 +240,11 @@ class Lifelong:
             text += '; ' + decision['kept_history']['text']
         if swap:
             if c.refit_on_swap:
-                new = self._refit(new, now, decision, only and decision['one_sensor']['sensor'])
+                new, fitted = variants.refit(self._calibrate, self.store, c, self.active, new,
+                                             now, decision,
+                                             only and decision['one_sensor']['sensor'])
+                if decision['refit']['used']:
+                    self._note_fit_span(fitted)
                 text += '; ' + decision['refit']['text']
             # a refit active: the next estimate waits for min_holds + holdout_holds holds
             # newer than its fit (``due``); any other swap ends that wait
@@ -306,78 +314,6 @@ class Lifelong:
             decision['one_sensor'] = record
         return found
 
-    def _with_kept(self, new, now, held, decision):
-        """Return ``new`` with one sensor's model fitted on its kept history too, or None.
-
-        After a change alarm that cut one sensor's history (``alarm_cut`` 'sensor'), the
-        other sensor keeps the holds from before it (``HoldStore.cut``): its model is
-        fitted on them and this epoch's holds (the held-out ones left out, as always) and
-        composed with ``new``'s model of the sensor that changed. None: nothing is kept, or
-        that fit or the composition fails (the decision says so and ``new`` is used).
-        """
-        which = next((w for w in compose.SENSORS if self.store.has_kept(w)), None)
-        if which is None:
-            return None
-        windows, _ = self.store.fit_windows(now, exclude=held, sensor=which)
-        fit = windows.select(main_pose_mask(windows, self.config.pose_deg))
-        try:
-            long = self._calibrate(fit).calibration
-            pick = {which: long, 'gyro' if which == 'accel' else 'accel': new}
-            cal = compose.compose(pick['accel'], pick['gyro'],
-                                  note=f'the {which} fitted on its history kept across a '
-                                       'change alarm of the other sensor')
-        except (CalibrationRefused, SettingsError, CalibrationError, ValueError) as e:
-            decision['kept_history'] = {'sensor': which, 'used': False,
-                                        'text': f'{which} on its kept history: not used ({e})'}
-            return None
-        decision['kept_history'] = {
-            'sensor': which, 'used': True, 'holds': int(len(fit.hold_ids)),
-            'text': f'{which} fitted on {len(fit.hold_ids)} holds with its history kept '
-                    'across a change alarm of the other sensor'}
-        return cal
-
-    def _refit(self, judged, now, decision, only=None):
-        """Return the swap's calibration fitted again on every hold, or ``judged``.
-
-        The gate judged ``judged``, fitted without the newest holds; the same procedure
-        (the calibrate code's own choice, the gyro ageing removed when the judged estimate
-        removed it, the kept history of a sensor, one sensor's model only when ``only``
-        names it) runs again on every hold, so the calibration put in use covers the newest
-        temperatures too. A refit that fails or does not compose leaves ``judged`` in use;
-        ``decision['refit']`` says which.
-        """
-        everything, times = self.store.fit_windows(now)
-        in_pose = main_pose_mask(everything, self.config.pose_deg)
-        fit, times = everything.select(in_pose), times[in_pose]
-        scratch = {}
-        try:
-            found = ageing.trend(fit, times, now) \
-                if decision.get('ageing', {}).get('used') else None
-            if found is not None and found.resolved.any():
-                fit = ageing.detrended(fit, times, now, found)
-            cal = self._calibrate(fit).calibration
-            if decision.get('kept_history', {}).get('used'):
-                kept = self._with_kept(cal, now, (), scratch)
-                if kept is None:
-                    raise ValueError(scratch.get('kept_history', {}).get('text', 'kept history'))
-                cal = kept
-            if only:
-                cal, why = compose.with_sensor(
-                    self.active, cal, only, self.config.raw_kept,
-                    f'the {only} fitted again on every hold after passing the gate; the '
-                    'other sensor kept')
-                if why:
-                    raise ValueError(why)
-        except (CalibrationRefused, SettingsError, CalibrationError, ValueError) as e:
-            decision['refit'] = {'used': False, 'text': f'not fitted again on every hold ({e}); '
-                                                        f'the judged estimate {judged.id} is used'}
-            return judged
-        self._note_fit_span(fit)
-        decision['refit'] = {'used': True, 'judged_id': judged.id, 'holds': int(len(fit.hold_ids)),
-                             'text': f'in use: {cal.id}, fitted again on all {len(fit.hold_ids)} '
-                                     f'holds (the held-out ones too) after {judged.id} passed'}
-        return cal
-
     def _note_fit_span(self, fit):
         """Keep the temperature span (degC) an estimate fitted (``due``'s range trigger)."""
         self.state['fit_span'] = trigger.fit_span(fit, self.k)
@@ -386,44 +322,6 @@ class Lifelong:
         """Return ``calibrate_collected``'s result on these windows (the CLI's calibrate)."""
         collected = Collected(windows, self.frame_id, 0, 0.0, list(self.topics), [])
         return calibrate_collected(self.settings, [collected])
-
-    def _with_ageing(self, fit, times, now, holdout, pose, s_plain, decision):
-        """Return (result, score) of the fit with the gyro ageing removed, when it is better.
-
-        The gyro ageing rate is estimated jointly with a cubic in temperature
-        (``ageing.trend``); when an axis' rate is resolved, the fit is repeated with every
-        window's gyro mean moved to ``now`` (``ageing.detrended``), and that estimate is
-        kept only when its gyro error on the held-out holds is lower than the plain fit's
-        by more than their noise (``gate.decide``'s gyro verdict, the swap gate's margin).
-        Returns None otherwise; the decision records the rates and both figures.
-        """
-        if not self.config.ageing:
-            return None
-        found = ageing.trend(fit, times, now)
-        if found is None or not found.resolved.any():
-            if found is not None:
-                decision['ageing'] = {'text': found.text(), 'used': False}
-            return None
-        try:
-            result = self._calibrate(ageing.detrended(fit, times, now, found))
-        except (CalibrationRefused, SettingsError, CalibrationError, ValueError) as e:
-            decision['ageing'] = {'text': f'{found.text()}; the fit without it refused ({e})',
-                                  'used': False}
-            return None
-        score = gate.score(result.calibration, holdout, result.calibration.gravity, pose,
-                           self.latitude, self.config.accel_score)
-        _, fig = gate.decide(s_plain, score, self.config.swap_sigmas)
-        used = fig['gyro']['verdict'] == 'better'
-        plain_md, aged_md, margin_md = (np.degrees(x) * 1e3 for x in (
-            s_plain['gyro_rms'], score['gyro_rms'], fig['gyro']['margin']))
-        decision['ageing'] = {
-            'text': (f'{found.text()}; held-out gyro RMS {plain_md:.3g} mdeg/s as fitted, '
-                     f'{aged_md:.3g} with the ageing removed (margin {margin_md:.2g}): '
-                     f'{"removed" if used else "not removed"}'),
-            'margin': fig['gyro']['margin'],
-            'used': used, 'rate_rad_s_per_day': found.rate, 'std_rad_s_per_day': found.std,
-            'heldout_gyro_rms': [s_plain['gyro_rms'], score['gyro_rms']]}
-        return (result, score) if used else None
 
     def _finish(self, decision):
         self.state['last_decision'] = decision['text']
