@@ -10,7 +10,7 @@ error clustered by hold (the windows of one hold share its heading's earth rate 
 state). ``detrended`` moves every window's gyro mean to the time ``now`` along the rates
 that are resolved (more than ``RESOLVED_SIGMAS`` standard errors). The lifelong estimate
 fits with and without it and keeps the detrended fit only when the held-out holds say it
-is better by more than their noise, the swap gate's rule (``manager.Lifelong.estimate``).
+is better by more than their noise, the swap gate's rule (``variants.with_ageing``).
 Units: rad/s, s; rates in rad/s per day. No ROS import.
 """
 

@@ -1,181 +1,62 @@
 """The lifelong loop: holds in, re-estimate when due, swap only when proven, history out.
 
-``Lifelong`` owns a directory::
+``Lifelong`` owns a directory (its files are read and written by ``files``)::
 
     holds/        the bounded hold store (``store.HoldStore``)
     active.yaml   the calibration in use (the node publishes it)
     candidate.yaml the newest estimate that did not pass the swap gate
     state.json    counters (holds at the last estimate, the active's held-out figures)
-    decisions.jsonl every decision with its figures (the newest ``MAX_DECISIONS`` kept)
+    decisions.jsonl every decision with its figures (the newest ``files.MAX_DECISIONS`` kept)
     archive/<UTC time>/ what a reset moved aside (``holds/``, ``candidate.yaml``)
 
 and, when ``registry_dir`` is given, adds every calibration it activates to a registry in
 the fleet format (``fleet.registry``: ``history``, drift alarms and the compensator's
 registry mode then work for one robot; ``valid_from`` is the time it was activated).
 
-When to re-estimate (``due``): the first time enough holds are in; when the collected
-temperatures extend by ``range_extension_degc`` both the active calibration's valid range
-(where neither sensor's model clamps) and what the last estimate fitted (so a sensor kept
-with a narrow range does not make every few holds an estimate of the same temperatures);
-when ``new_holds`` holds came in since the last estimate; when ``misfit_holds`` new holds
-since the last estimate were missed by the active calibration (``gate.misses``: the change
-alarm's limit, at any temperature, consecutive or not; a re-estimate only makes a candidate
-that must pass the swap gate, so it needs no stronger evidence); after a change alarm. The
-estimate is ``app.calibrate.calibrate_collected`` (the command line's calibrate) on the
-store's windows without the newest ``holdout_holds`` holds, which the swap gate
-(``gate.decide``) scores both calibrations on. When it is better for one sensor only, that
-sensor's model alone replaces the active one's (``compose``, ``per_sensor``).
+When to re-estimate (``due``, ``trigger.due``): the first time enough holds are in; when
+the collected temperatures extend the active calibration's valid range and what the last
+estimate fitted; when ``new_holds`` holds came in, or ``misfit_holds`` holds the active
+calibration misses, since the last estimate; after a change alarm. The estimate is
+``app.calibrate.calibrate_collected`` (the command line's calibrate) on the store's windows
+without the newest ``holdout_holds`` holds, which the swap gate (``gate.decide``) scores
+both calibrations on. When it is better for one sensor only, that sensor's model alone
+replaces the active one's (``compose``, ``per_sensor``). The fit with the gyro ageing
+removed, a sensor's kept history after a one-sensor alarm and the refit of a swap on every
+hold are ``variants``; the settings are ``config.LifelongConfig``.
 
-Change alarm (a knock): every new hold inside the active valid range (``alarm_window``:
-inside both sensors' ranges, or each sensor's own) is scored with the active calibration;
-when, for one sensor, the last ``alarm_holds`` of them all exceed ``alarm_factor`` times
-the active's held-out error (floored at ``alarm_floor`` times their noise), the store is
-cut at the first of them (older data no longer describe the sensor), an alarm is logged
-and a re-estimate from the holds after the cut follows. With ``alarm_cut`` 'sensor' an
-alarm of one sensor cuts that sensor's history only: the other's model is still fitted on
-the older holds too (``_with_kept``).
+Change alarm (a knock, ``alarm``): every new hold inside the active valid range is scored
+with the active calibration; when, for one sensor, the last ``alarm_holds`` of them all
+miss its reference by the alarm's limit, the store is cut at the first of them, an alarm is
+logged and a re-estimate from the holds after the cut follows. A swap measures the alarm's
+reference anew (``_activate``).
 
 Reset (``reset``, the node's ``~/reset``): the collection starts afresh without losing
 data: the hold store and the candidate move into ``archive/<UTC time>/`` (at most
 ``MAX_ARCHIVES`` archives; one more is refused, saying what to do), the active
 calibration, the counters, the decisions and the registry stay. No ROS import.
 
-Cohesive: one loop over one directory (when to estimate, the gate, the alarm, reset and
-history share its state and counters); the pieces that stand alone are ``gate``,
-``compose``, ``ageing``, ``store`` and ``archive``.
+``Lifelong`` holds the state the pieces share (the counters, the active calibration, the
+store) and applies what they return; the pieces are ``trigger``, ``gate``, ``compose``,
+``variants``, ``ageing``, ``alarm``, ``store``, ``files`` and ``archive``.
 """
 
-from dataclasses import dataclass, field
-import json
 import os
 import time
-from typing import NamedTuple
 
 import numpy as np
 
 from ..app.calibrate import calibrate_collected, SettingsError
-from ..calibration import Calibration, CalibrationError
+from ..calibration import CalibrationError
 from ..estimation.calibrate import CalibrationRefused
-from ..io.output import free_name, write_atomic
+from ..io.output import write_atomic
 from ..collection.collected import Collected
-from . import ageing, compose, gate
-from ..collection.segments import MOUNTING_POSE_DEG, Windows
+from . import alarm, compose, files, gate, trigger, variants
+from ..collection.segments import Windows
 from .archive import ArchiveFull, archive_collection, MAX_ARCHIVES  # noqa: F401 (API)
+from .config import (ALARM_CUTS, ALARM_REFERENCES, ALARM_WINDOWS,  # noqa: F401 (API)
+                     LifelongConfig)
 from .pose import main_pose, main_pose_mask, pose_of
-from .store import HoldStore, StoreConfig
-
-MAX_DECISIONS = 2000
-
-
-@dataclass
-class LifelongConfig:
-    """When to re-estimate and how sure a swap must be (degC, holds, sigmas)."""
-
-    range_extension_degc: float = 3.0
-    new_holds: int = 40
-    holdout_holds: int = 8
-    min_holds: int = 6
-    swap_sigmas: float = 2.0
-    alarm_holds: int = 5
-    alarm_factor: float = 5.0
-    alarm_floor: float = 5.0
-    #: new holds the active misses (``gate.misses``) that make a re-estimate due
-    misfit_holds: int = 2
-    #: one orientation family: fit only the holds within this angle of the mounting pose
-    pose_deg: float = MOUNTING_POSE_DEG
-    #: also fit with the gyro ageing removed, kept when held-out holds prefer it (``ageing``)
-    ageing: bool = True
-    #: a new estimate better for one sensor only replaces that sensor's model alone
-    #: (``compose``); False: the whole calibration or nothing
-    per_sensor: bool = True
-    #: no swap to a calibration that misses ``misfit_holds`` of the held-out holds by the
-    #: change alarm's gyro limit (they say the sensor changed; ``Lifelong._unexplained``).
-    #: Off: on the month it was not built from (seed 4) the knock alarm came sooner (5.5 ->
-    #: 3.4 h) but the last week's gyro error tripled (docs/lifelong.md)
-    swap_must_explain: bool = False
-    #: which holds the change alarm watches: 'common', those inside both sensors' valid
-    #: range (``compose.common_range``); 'sensor', each sensor's holds inside its own range
-    #: (after one-sensor swaps the common range narrows and a knock is seen later)
-    alarm_window: str = 'common'
-    #: after a change alarm, a new estimate better for one sensor only also replaces that
-    #: sensor alone (False: after an alarm the whole new calibration is judged; on seeds 0-5
-    #: the first swap after the knock then took an accelerometer fitted on the few holds
-    #: after the cut, and the next day's accel drift was 1.5-32x worse)
-    one_sensor_after_alarm: bool = False
-    #: the holds a swap measures the change alarm's new reference on: 'all' (the raw holds
-    #: it was fitted on and the held-out ones), or 'explained' (of those, the ones the new
-    #: calibration does not miss by the alarm's limit against the old reference; a
-    #: reference measured on holds of a changed sensor hides the change: seeds 2, 9, 19).
-    #: Off: on seeds 9-11 (unseen) it brought seed 9's missing knock alarm (2.7 h) and the
-    #: gyro 35 % closer to the true model, but the accelerometer drift 26 % worse, past the
-    #: 10 % set before the runs (docs/lifelong.md)
-    alarm_reference: str = 'all'
-    #: what a change alarm cuts: 'all' (every hold before it, for both sensors) or
-    #: 'sensor' (when one sensor alone failed, its history only: the other keeps the
-    #: older holds for its fits, ``HoldStore.cut(keep=...)``, ``Lifelong._with_kept``; an
-    #: alarm of both cuts both). Off: on seeds 7, 8 and 12 (unseen) it never acted, every
-    #: knock's alarm flagged both sensors (the simulated knock steps both; docs/lifelong.md)
-    alarm_cut: str = 'all'
-    #: how the swap gate measures the accelerometer on held-out holds
-    #: (``gate.ACCEL_SCORES``): 'magnitude', |mean accel| - g about the median, blind to the
-    #: horizontal axes in a level mounting pose; 'vector', the whole mean vector about the
-    #: per-axis median, the floor's tilt in its scatter. 'magnitude' stays: on seeds 2-4
-    #: (unseen) 'vector' alone left the first day's accelerometer as it was (the gyro's gain
-    #: still carries a first estimate in whole; docs/lifelong.md)
-    accel_score: str = 'magnitude'
-    #: with no active calibration, a new estimate better than the raw output for one sensor
-    #: only replaces that sensor's raw output alone; the other stays raw (a calibration
-    #: without its model) until an estimate is proven better for it (``compose.one_sensor``).
-    #: Off: on seeds 5-7 (unseen), with 'vector', the first day's accelerometer drift halved
-    #: (raw's), but the last week's was 66 % worse and seed 7 had two false alarms
-    #: (docs/lifelong.md)
-    raw_kept: bool = False
-    #: a swap activates the estimate fitted again with the same choices on every hold, the
-    #: held-out ones too (``Lifelong._refit``); False: the estimate the gate judged, whose
-    #: fit left out the newest holds, often the very temperatures that made it due
-    refit_on_swap: bool = False
-    store: StoreConfig = field(default_factory=StoreConfig)
-
-    def __post_init__(self):
-        """Refuse a setting the loop cannot run with, saying which and what to give."""
-        for name, allowed in (('alarm_window', ALARM_WINDOWS),
-                              ('alarm_reference', ALARM_REFERENCES),
-                              ('alarm_cut', ALARM_CUTS),
-                              ('accel_score', gate.ACCEL_SCORES)):
-            if getattr(self, name) not in allowed:
-                raise ValueError(f'LifelongConfig.{name} {getattr(self, name)!r} is not one '
-                                 f'of {", ".join(allowed)}; give one of them')
-        least = {'new_holds': 1, 'holdout_holds': 2, 'min_holds': 1, 'alarm_holds': 1,
-                 'misfit_holds': 1}
-        for name, lo in least.items():
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
-                raise ValueError(f'LifelongConfig.{name} is {v!r}; give a whole number of '
-                                 f'holds, at least {lo}')
-        for name in ('range_extension_degc', 'swap_sigmas', 'alarm_factor', 'alarm_floor',
-                     'pose_deg'):
-            v = getattr(self, name)
-            if not isinstance(v, (int, float, np.floating)) or not np.isfinite(v) or v <= 0:
-                raise ValueError(f'LifelongConfig.{name} is {v!r}; give a finite number '
-                                 'above 0')
-
-
-#: the values of ``LifelongConfig.alarm_window``, ``alarm_reference`` and ``alarm_cut``
-ALARM_WINDOWS = ('common', 'sensor')
-ALARM_REFERENCES = ('all', 'explained')
-ALARM_CUTS = ('all', 'sensor')
-
-
-class Tracked(NamedTuple):
-    """A hold the change alarm watches: its time and the active calibration's errors."""
-
-    t: float            #: end of the hold (s)
-    gyro: float         #: gyro error (rad/s)
-    accel: float        #: accelerometer error less the active's median (m/s^2)
-    se_gyro: float      #: the hold's standard error of its gyro mean (rad/s)
-    se_accel: float     #: ... of its accelerometer mean (m/s^2)
-    in_gyro: bool       #: inside the gyro's alarm range (``Lifelong._alarm_ranges``)
-    in_accel: bool      #: inside the accelerometer's alarm range
+from .store import HoldStore
 
 
 class Lifelong:
@@ -198,20 +79,14 @@ class Lifelong:
         self.store = HoldStore(os.path.join(self.dir, 'holds'), self.k, self.config.store)
         for note in self.store.notes:
             self.log('warn', note)
-        self.active = self._load_cal('active.yaml')
-        self.candidate = self._load_cal('candidate.yaml')
+        self.active = files.load_calibration(self._path('active.yaml'), self.log)
+        self.candidate = files.load_calibration(self._path('candidate.yaml'), self.log)
         self.state = {'holds_at_estimate': 0, 'active_since': None, 'active_gyro_rms': None,
                       'active_accel_rms': None, 'active_noise': None, 'alarms': 0,
                       'alarm_pending': False, 'swaps': 0, 'kept': 0, 'estimates': 0,
                       'last_decision': ''}
-        try:
-            with open(self._path('state.json')) as f:
-                self.state.update(json.load(f))
-        except FileNotFoundError:
-            pass
-        except (OSError, ValueError) as e:
-            self.log('warn', f'{self._path("state.json")} unreadable ({e}); counters reset')
-        #: [Tracked]: the newest holds the change alarm watches
+        files.load_state(self._path('state.json'), self.state, self.log)
+        #: [alarm.Tracked]: the newest holds the change alarm watches
         self.track = []
         self.recent_scores = None  # the active's score on the newest holds (diagnostics)
 
@@ -219,38 +94,15 @@ class Lifelong:
     def _path(self, name):
         return os.path.join(self.dir, name)
 
-    def _load_cal(self, name):
-        path = self._path(name)
-        if not os.path.exists(path):
-            return None
-        try:
-            return Calibration.load(path)
-        except (OSError, CalibrationError, ValueError) as e:
-            self.log('error', f'{path} not loaded ({e}); moved aside')
-            os.replace(path, free_name(path + f'.unreadable-{int(time.time())}'))
-            return None
-
     def _save_state(self):
-        write_atomic(self._path('state.json'), json.dumps(self.state, indent=1))
+        files.write_state(self._path('state.json'), self.state)
 
     def _record(self, decision):
-        path = self._path('decisions.jsonl')
-        line = json.dumps(decision, separators=(',', ':'), default=_plain) + '\n'
-        with open(path, 'a') as f:
-            f.write(line)
-        if os.path.getsize(path) > 600 * MAX_DECISIONS:
-            with open(path) as f:
-                lines = f.readlines()[-MAX_DECISIONS:]
-            write_atomic(path, ''.join(lines))
+        files.append_decision(self._path('decisions.jsonl'), decision)
 
     def decisions(self, last=None):
         """Return the logged decision records (dicts), oldest first."""
-        try:
-            with open(self._path('decisions.jsonl')) as f:
-                out = [json.loads(x) for x in f if x.strip()]
-        except FileNotFoundError:
-            return []
-        return out[-last:] if last else out
+        return files.read_decisions(self._path('decisions.jsonl'), last)
 
     # ------------------------------------------------------------------ reset
     def reset(self, when=None):
@@ -298,145 +150,34 @@ class Lifelong:
             self._check_change(self.store.holds(ids))
         return ids
 
-    def _alarm_ranges(self, cal):
-        """Return {sensor: (lo, hi) degC} inside which a hold counts for that sensor's alarm."""
-        if cal.valid_range is None or not self.k:
-            return {w: (-np.inf, np.inf) for w in compose.SENSORS}
-        if self.config.alarm_window == 'sensor':
-            return {w: tuple(compose.own_range(cal, w)[0]) for w in compose.SENSORS}
-        common = tuple(compose.common_range(cal)[0])
-        return {w: common for w in compose.SENSORS}
-
     def _check_change(self, windows):
-        cal = self.active
+        """Score new holds with the active calibration; on a change alarm, cut the store."""
+        cal, s, c = self.active, self.state, self.config
         e = gate.hold_errors(cal, windows, cal.gravity, self.latitude)
-        self._note_misses(e)
-        ranges = self._alarm_ranges(cal)
-        base_acc = self.state.get('active_accel_median') or 0.0
-        for j in range(len(e['ids'])):
-            inside = [bool(lo <= e['temp'][j] <= hi) for lo, hi in
-                      (ranges['gyro'], ranges['accel'])]
-            if not any(inside):
-                continue
-            self.track.append(Tracked(float(e['t'][j]), float(e['gyro'][j]),
-                                      float(e['accel'][j] - base_acc), float(e['se_gyro'][j]),
-                                      float(e['se_accel'][j]), *inside))
-        self.track = self.track[-200:]
-        c = self.config
-        if self.state.get('active_gyro_rms') is None or self.state.get('alarm_pending'):
+        missed = alarm.new_misses(e, s, c)
+        if missed:
+            s['missed'] = (s.get('missed') or []) + missed
+        self.track = alarm.tracked(self.track, e, alarm.alarm_ranges(cal, self.k, c.alarm_window),
+                                   s.get('active_accel_median') or 0.0)
+        if s.get('active_gyro_rms') is None or s.get('alarm_pending'):
             return
-        out, first = {}, []
-        for which in ('gyro', 'accel'):
-            last = [r for r in self.track if getattr(r, 'in_' + which)][-c.alarm_holds:]
-            if len(last) < c.alarm_holds:
-                continue
-            err = np.abs([getattr(r, which) for r in last])
-            base = self.state.get(f'active_{which}_rms') or 0.0
-            floor = c.alarm_floor * float(np.median([getattr(r, 'se_' + which) for r in last]))
-            limit = max(c.alarm_factor * base, floor)
-            if np.all(err > limit):
-                out[which] = (float(np.median(err)), limit)
-                first.append(last[0].t)
+        out, first = alarm.exceeded(self.track, s, c)
         if out:
-            t_cut, t_now = self._first_hold_start(min(first)), self.track[-1].t
-            text = '; '.join(f'{w} error {v:.3g} > {lim:.3g} on the last {c.alarm_holds} '
-                             'holds in range' for w, (v, lim) in out.items())
-            keep = None
-            if c.alarm_cut == 'sensor' and len(out) == 1:
-                keep = 'accel' if 'gyro' in out else 'gyro'
-            self.state['alarms'] += 1
-            self.state['alarm_pending'] = True
+            t_cut, t_now = alarm.first_hold_start(self.store.recent, min(first)), self.track[-1].t
+            decision, keep = alarm.alarm_decision(out, t_cut, t_now, c)
+            s['alarms'] += 1
+            s['alarm_pending'] = True
             self.track = []
             self.store.cut(t_cut, keep=keep)
-            dropped = (f'holds before t={t_cut:.0f} s dropped' if keep is None else
-                       f'holds before t={t_cut:.0f} s dropped for the {next(iter(out))} (the '
-                       f'{keep} keeps them)')
-            decision = {'time': t_now, 'action': 'alarm',
-                        'reason': f'the active calibration no longer fits: {text}; {dropped}, '
-                                  're-estimating from the holds after it', 'figures': out}
-            self.state['last_decision'] = decision['reason']
+            s['last_decision'] = decision['reason']
             self._record(decision)
             self._save_state()
             self.log('error', 'lifelong ALARM: ' + decision['reason'])
 
-    def _note_misses(self, e):
-        """Keep (t s, temperature degC) of the new holds the active calibration misses."""
-        s, c = self.state, self.config
-        if s.get('active_gyro_rms') is None:
-            return
-        bad = gate.misses(e, s.get('active_accel_median') or 0.0, s['active_gyro_rms'],
-                          s.get('active_accel_rms') or 0.0, c.alarm_factor, c.alarm_floor)
-        if bad.any():
-            s['missed'] = (s.get('missed') or []) + [
-                [float(e['t'][j]), float(e['temp'][j])] for j in np.flatnonzero(bad)]
-
-    def _first_hold_start(self, t_end):
-        """Return the start (s) of the raw hold ending at ``t_end``.
-
-        Matched to the millisecond: a relative tolerance on stamps of ~1.7e9 s (np.isclose's
-        default, used before 2026-11-28) matched any hold ending within ~4.8 h, so the cut
-        kept up to hours of holds from before the change in the new epoch.
-        """
-        rec = self.store.recent
-        m = np.isclose(rec.t1, t_end, rtol=0.0, atol=1e-3) if len(rec) else np.zeros(0, bool)
-        if not m.any():
-            return t_end
-        h = rec.hold[m][0]
-        return float(rec.t0[rec.hold == h].min())
-
     # ------------------------------------------------------------------ when
-    def _holds_after(self, t):
-        """Return how many raw holds begin after ``t`` (s)."""
-        rec = self.store.recent
-        if not len(rec):
-            return 0
-        ids = rec.hold_ids
-        starts = np.array([rec.t0[rec.hold == h].min() for h in ids])
-        return int(np.sum(starts > t))
-
     def due(self):
-        """Return why a re-estimate is due now ('' when it is not)."""
-        c, s = self.config, self.state
-        raw = len(self.store.recent.hold_ids) if len(self.store.recent) else 0
-        enough = self.store.total_holds and raw + (1 if len(self.store.bins) else 0) >= \
-            c.min_holds + c.holdout_holds
-        if not enough:
-            return ''
-        until = s.get('active_fit_until')
-        if until is not None and self._holds_after(until) < c.min_holds + c.holdout_holds:
-            # the gate's held-out holds must be ones the active never saw, and the new fit
-            # needs new holds of its own (as the first estimate: 6 to fit, 8 to judge)
-            return ''
-        if s.get('alarm_pending'):
-            return 'change alarm'
-        if self.active is None:
-            if self.store.total_holds - s['holds_at_estimate'] >= c.min_holds or \
-                    not s['estimates']:
-                return 'no active calibration'
-            return ''
-        new = self.store.total_holds - s['holds_at_estimate']
-        if new >= c.new_holds:
-            return f'{new} new holds'
-        missed = s.get('missed') or []
-        if len(missed) >= c.misfit_holds:
-            temps = ', '.join(f'{x[1]:.1f}' for x in missed[-c.misfit_holds:])
-            return (f'the active calibration missed {len(missed)} new holds (the newest at '
-                    f'{temps} degC)')
-        span = self.store.temperature_span()
-        if span and self.active.valid_range is not None and self.k and new >= c.min_holds:
-            lo, hi = compose.common_range(self.active)[0]
-            ref_lo, ref_hi, also = lo, hi, ''
-            seen = s.get('fit_span')
-            if seen:
-                ref_lo, ref_hi = min(lo, seen[0]), max(hi, seen[1])
-                if (ref_lo, ref_hi) != (lo, hi):
-                    also = (f' and what the last estimate fitted '
-                            f'({seen[0]:.1f}..{seen[1]:.1f})')
-            ext = max(ref_lo - span[0], span[1] - ref_hi)
-            if ext >= c.range_extension_degc:
-                return (f'collected {span[0]:.1f}..{span[1]:.1f} degC extends the valid range '
-                        f'{lo:.1f}..{hi:.1f}{also} by {ext:.1f} degC')
-        return ''
+        """Return why a re-estimate is due now ('' when it is not; ``trigger.due``)."""
+        return trigger.due(self.store, self.state, self.config, self.active, self.k)
 
     # ------------------------------------------------------------------ estimate
     def estimate(self, reason='requested'):
@@ -470,11 +211,13 @@ class Lifelong:
         new = result.calibration
         g = new.gravity
         s_new = gate.score(new, holdout, g, holdout_pose, self.latitude, c.accel_score)
-        aged = self._with_ageing(fit, times, now, holdout, holdout_pose, s_new, decision)
+        aged = variants.with_ageing(self._calibrate, fit, times, now, holdout, holdout_pose,
+                                    s_new, decision, c, self.latitude)
         if aged is not None:
             result, s_new = aged
             new = result.calibration
-        kept = self._with_kept(new, now, held, decision)
+        kept = variants.with_kept(self._calibrate, self.store, c.pose_deg, new, now, held,
+                                  decision)
         if kept is not None:
             new = kept
             s_new = gate.score(new, holdout, g, holdout_pose, self.latitude, c.accel_score)
@@ -497,7 +240,11 @@ class Lifelong:
             text += '; ' + decision['kept_history']['text']
         if swap:
             if c.refit_on_swap:
-                new = self._refit(new, now, decision, only and decision['one_sensor']['sensor'])
+                new, fitted = variants.refit(self._calibrate, self.store, c, self.active, new,
+                                             now, decision,
+                                             only and decision['one_sensor']['sensor'])
+                if decision['refit']['used']:
+                    self._note_fit_span(fitted)
                 text += '; ' + decision['refit']['text']
             # a refit active: the next estimate waits for min_holds + holdout_holds holds
             # newer than its fit (``due``); any other swap ends that wait
@@ -567,125 +314,14 @@ class Lifelong:
             decision['one_sensor'] = record
         return found
 
-    def _with_kept(self, new, now, held, decision):
-        """Return ``new`` with one sensor's model fitted on its kept history too, or None.
-
-        After a change alarm that cut one sensor's history (``alarm_cut`` 'sensor'), the
-        other sensor keeps the holds from before it (``HoldStore.cut``): its model is
-        fitted on them and this epoch's holds (the held-out ones left out, as always) and
-        composed with ``new``'s model of the sensor that changed. None: nothing is kept, or
-        that fit or the composition fails (the decision says so and ``new`` is used).
-        """
-        which = next((w for w in compose.SENSORS if self.store.has_kept(w)), None)
-        if which is None:
-            return None
-        windows, _ = self.store.fit_windows(now, exclude=held, sensor=which)
-        fit = windows.select(main_pose_mask(windows, self.config.pose_deg))
-        try:
-            long = self._calibrate(fit).calibration
-            pick = {which: long, 'gyro' if which == 'accel' else 'accel': new}
-            cal = compose.compose(pick['accel'], pick['gyro'],
-                                  note=f'the {which} fitted on its history kept across a '
-                                       'change alarm of the other sensor')
-        except (CalibrationRefused, SettingsError, CalibrationError, ValueError) as e:
-            decision['kept_history'] = {'sensor': which, 'used': False,
-                                        'text': f'{which} on its kept history: not used ({e})'}
-            return None
-        decision['kept_history'] = {
-            'sensor': which, 'used': True, 'holds': int(len(fit.hold_ids)),
-            'text': f'{which} fitted on {len(fit.hold_ids)} holds with its history kept '
-                    'across a change alarm of the other sensor'}
-        return cal
-
-    def _refit(self, judged, now, decision, only=None):
-        """Return the swap's calibration fitted again on every hold, or ``judged``.
-
-        The gate judged ``judged``, fitted without the newest holds; the same procedure
-        (the calibrate code's own choice, the gyro ageing removed when the judged estimate
-        removed it, the kept history of a sensor, one sensor's model only when ``only``
-        names it) runs again on every hold, so the calibration put in use covers the newest
-        temperatures too. A refit that fails or does not compose leaves ``judged`` in use;
-        ``decision['refit']`` says which.
-        """
-        everything, times = self.store.fit_windows(now)
-        in_pose = main_pose_mask(everything, self.config.pose_deg)
-        fit, times = everything.select(in_pose), times[in_pose]
-        scratch = {}
-        try:
-            found = ageing.trend(fit, times, now) \
-                if decision.get('ageing', {}).get('used') else None
-            if found is not None and found.resolved.any():
-                fit = ageing.detrended(fit, times, now, found)
-            cal = self._calibrate(fit).calibration
-            if decision.get('kept_history', {}).get('used'):
-                kept = self._with_kept(cal, now, (), scratch)
-                if kept is None:
-                    raise ValueError(scratch.get('kept_history', {}).get('text', 'kept history'))
-                cal = kept
-            if only:
-                cal, why = compose.with_sensor(
-                    self.active, cal, only, self.config.raw_kept,
-                    f'the {only} fitted again on every hold after passing the gate; the '
-                    'other sensor kept')
-                if why:
-                    raise ValueError(why)
-        except (CalibrationRefused, SettingsError, CalibrationError, ValueError) as e:
-            decision['refit'] = {'used': False, 'text': f'not fitted again on every hold ({e}); '
-                                                        f'the judged estimate {judged.id} is used'}
-            return judged
-        self._note_fit_span(fit)
-        decision['refit'] = {'used': True, 'judged_id': judged.id, 'holds': int(len(fit.hold_ids)),
-                             'text': f'in use: {cal.id}, fitted again on all {len(fit.hold_ids)} '
-                                     f'holds (the held-out ones too) after {judged.id} passed'}
-        return cal
-
     def _note_fit_span(self, fit):
         """Keep the temperature span (degC) an estimate fitted (``due``'s range trigger)."""
-        self.state['fit_span'] = ([float(fit.temp[:, 0].min()), float(fit.temp[:, 0].max())]
-                                  if len(fit) and self.k else None)
+        self.state['fit_span'] = trigger.fit_span(fit, self.k)
 
     def _calibrate(self, windows):
         """Return ``calibrate_collected``'s result on these windows (the CLI's calibrate)."""
         collected = Collected(windows, self.frame_id, 0, 0.0, list(self.topics), [])
         return calibrate_collected(self.settings, [collected])
-
-    def _with_ageing(self, fit, times, now, holdout, pose, s_plain, decision):
-        """Return (result, score) of the fit with the gyro ageing removed, when it is better.
-
-        The gyro ageing rate is estimated jointly with a cubic in temperature
-        (``ageing.trend``); when an axis' rate is resolved, the fit is repeated with every
-        window's gyro mean moved to ``now`` (``ageing.detrended``), and that estimate is
-        kept only when its gyro error on the held-out holds is lower than the plain fit's
-        by more than their noise (``gate.decide``'s gyro verdict, the swap gate's margin).
-        Returns None otherwise; the decision records the rates and both figures.
-        """
-        if not self.config.ageing:
-            return None
-        found = ageing.trend(fit, times, now)
-        if found is None or not found.resolved.any():
-            if found is not None:
-                decision['ageing'] = {'text': found.text(), 'used': False}
-            return None
-        try:
-            result = self._calibrate(ageing.detrended(fit, times, now, found))
-        except (CalibrationRefused, SettingsError, CalibrationError, ValueError) as e:
-            decision['ageing'] = {'text': f'{found.text()}; the fit without it refused ({e})',
-                                  'used': False}
-            return None
-        score = gate.score(result.calibration, holdout, result.calibration.gravity, pose,
-                           self.latitude, self.config.accel_score)
-        _, fig = gate.decide(s_plain, score, self.config.swap_sigmas)
-        used = fig['gyro']['verdict'] == 'better'
-        plain_md, aged_md, margin_md = (np.degrees(x) * 1e3 for x in (
-            s_plain['gyro_rms'], score['gyro_rms'], fig['gyro']['margin']))
-        decision['ageing'] = {
-            'text': (f'{found.text()}; held-out gyro RMS {plain_md:.3g} mdeg/s as fitted, '
-                     f'{aged_md:.3g} with the ageing removed (margin {margin_md:.2g}): '
-                     f'{"removed" if used else "not removed"}'),
-            'margin': fig['gyro']['margin'],
-            'used': used, 'rate_rad_s_per_day': found.rate, 'std_rad_s_per_day': found.std,
-            'heldout_gyro_rms': [s_plain['gyro_rms'], score['gyro_rms']]}
-        return (result, score) if used else None
 
     def _finish(self, decision):
         self.state['last_decision'] = decision['text']
@@ -723,7 +359,8 @@ class Lifelong:
         med = float(np.median(both['accel']))
         is_held = np.isin(both['ids'], held)
         errs = {'gyro': both['gyro'], 'accel': both['accel'] - med}
-        use, note = self._reference_holds(both, errs, before, only)
+        use, note = alarm.reference_holds(both, errs, before, self.config,
+                                          self.state.get('alarm_pending'), only)
         ref = {}
         held_rms = {'gyro': s_new['gyro_rms'], 'accel': s_new['accel_magnitude_rms']}
         for which, err in errs.items():
@@ -745,37 +382,6 @@ class Lifelong:
             except (OSError, ValueError) as e:
                 self.log('error', f'registry {self.registry_dir} not updated: {e}')
         return note
-
-    def _reference_holds(self, both, errs, before, only=None):
-        """Return ({sensor: (h,) mask of the holds its alarm reference is measured on}, note).
-
-        ``both``: ``gate.hold_errors`` of the new calibration; ``errs``: its per-sensor
-        errors (the accelerometer's about its new level). Every hold, unless
-        ``alarm_reference`` is 'explained' and there is an old reference: then a hold the
-        new calibration misses by the change alarm's limit against the old reference
-        (``gate.limit``, as in ``gate.misses``) is left out of that sensor's reference,
-        unless it would leave none.
-        Not after a change alarm: the old reference is then the old sensor's; not for the
-        sensor a one-sensor swap (``only``) keeps, whose reference stays as it was.
-        """
-        c = self.config
-        h = len(both['ids'])
-        use = {'gyro': np.ones(h, bool), 'accel': np.ones(h, bool)}
-        if c.alarm_reference != 'explained' or not h or self.state.get('alarm_pending'):
-            return use, ''
-        parts = []
-        for which in ('gyro', 'accel'):
-            old = before[f'active_{which}_rms']
-            if old is None or only not in (None, which):
-                continue
-            lim = gate.limit(both, which, old, c.alarm_factor, c.alarm_floor)
-            missed = np.abs(errs[which]) > lim
-            if missed.any() and not missed.all():
-                use[which] = ~missed
-                parts.append(f'{which} {int(missed.sum())} of {h}')
-        note = ('; alarm reference without the holds it misses by the alarm limit ('
-                + ', '.join(parts) + ')') if parts else ''
-        return use, note
 
     # ------------------------------------------------------------------ status
     def status(self, temperature=None, now=None):
@@ -800,11 +406,3 @@ class Lifelong:
                 out['recent_gyro_rms_rad_s'] = sc['gyro_rms']
                 out['recent_accel_rms_mps2'] = sc['accel_rms']
         return out
-
-
-def _plain(x):
-    if isinstance(x, np.generic):
-        return x.item()
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    return str(x)
