@@ -64,8 +64,12 @@ def new_misses(e, state, config):
     return [[float(e['t'][j]), float(e['temp'][j])] for j in np.flatnonzero(bad)]
 
 
+#: holds the change alarm's track keeps (the newest)
+TRACK_HOLDS = 200
+
+
 def tracked(track, e, ranges, base_acc):
-    """Return ``track`` with the new holds inside an alarm range added (the newest 200).
+    """Return ``track`` with the new holds inside an alarm range added (newest ``TRACK_HOLDS``).
 
     ``e``: ``gate.hold_errors`` of the active calibration on the new holds; ``ranges``:
     ``alarm_ranges``; ``base_acc``: the active's accelerometer level (m/s^2), taken off
@@ -80,7 +84,7 @@ def tracked(track, e, ranges, base_acc):
         track.append(Tracked(float(e['t'][j]), float(e['gyro'][j]),
                              float(e['accel'][j] - base_acc), float(e['se_gyro'][j]),
                              float(e['se_accel'][j]), *inside))
-    return track[-200:]
+    return track[-TRACK_HOLDS:]
 
 
 def exceeded(track, state, config):

@@ -45,8 +45,7 @@ import time
 
 import numpy as np
 
-from ..app.calibrate import calibrate_collected, SettingsError
-from ..calibration import CalibrationError
+from ..app.calibrate import calibrate_collected
 from ..estimation.calibrate import CalibrationRefused
 from ..io.output import write_atomic
 from ..collection.collected import Collected
@@ -88,7 +87,6 @@ class Lifelong:
         files.load_state(self._path('state.json'), self.state, self.log)
         #: [alarm.Tracked]: the newest holds the change alarm watches
         self.track = []
-        self.recent_scores = None  # the active's score on the newest holds (diagnostics)
 
     # ------------------------------------------------------------------ files
     def _path(self, name):
@@ -201,7 +199,7 @@ class Lifelong:
             if len(fit) == 0 or len(fit.hold_ids) < c.min_holds // 2 or len(held) < 2:
                 raise CalibrationRefused('too few holds', 'wait for more stops')
             result = self._calibrate(fit)
-        except (CalibrationRefused, SettingsError, CalibrationError, ValueError) as e:
+        except variants.REFUSALS as e:
             decision.update(action='refused', text=f'no new calibration: {e}')
             return self._finish(decision)
         except Exception as e:  # noqa: B902 - an estimator bug must not end the loop

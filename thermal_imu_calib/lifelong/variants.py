@@ -25,6 +25,9 @@ from ..estimation.calibrate import CalibrationRefused
 from . import ageing, compose, gate
 from .pose import main_pose_mask
 
+#: what a fit raises when the holds do not allow a calibration (the loop records a refusal)
+REFUSALS = (CalibrationRefused, SettingsError, CalibrationError, ValueError)
+
 
 def with_ageing(calibrate, fit, times, now, holdout, pose, s_plain, decision, config,
                 latitude):
@@ -50,7 +53,7 @@ def with_ageing(calibrate, fit, times, now, holdout, pose, s_plain, decision, co
         return None
     try:
         result = calibrate(ageing.detrended(fit, times, now, found))
-    except (CalibrationRefused, SettingsError, CalibrationError, ValueError) as e:
+    except REFUSALS as e:
         decision['ageing'] = {'text': f'{found.text()}; the fit without it refused ({e})',
                               'used': False}
         return None
@@ -91,7 +94,7 @@ def with_kept(calibrate, store, pose_deg, new, now, held, decision):
         cal = compose.compose(pick['accel'], pick['gyro'],
                               note=f'the {which} fitted on its history kept across a '
                                    'change alarm of the other sensor')
-    except (CalibrationRefused, SettingsError, CalibrationError, ValueError) as e:
+    except REFUSALS as e:
         decision['kept_history'] = {'sensor': which, 'used': False,
                                     'text': f'{which} on its kept history: not used ({e})'}
         return None
@@ -135,7 +138,7 @@ def refit(calibrate, store, config, active, judged, now, decision, only=None):
                 'other sensor kept')
             if why:
                 raise ValueError(why)
-    except (CalibrationRefused, SettingsError, CalibrationError, ValueError) as e:
+    except REFUSALS as e:
         decision['refit'] = {'used': False, 'text': f'not fitted again on every hold ({e}); '
                                                     f'the judged estimate {judged.id} is used'}
         return judged, fit
