@@ -17,9 +17,10 @@ per unit (order kept within each unit). Loop guard (``units``): an output topic 
 an input is refused at start, and this node's own messages coming back are dropped.
 With ``state_file`` the thermal-history state outlives a restart (``compensator_state``).
 
-Cohesive: one node's parameters, calibration hand-over, per-batch compensation and
-diagnostics around one shared active model; the maths is in ``calibration`` and
-``thermal_input``, the registry units in ``units``, the saved state in ``compensator_state``.
+Cohesive: one node's calibration hand-over, per-batch compensation and diagnostics around
+one shared active model; the parameters are in ``compensator_params``, the maths in
+``calibration`` and ``thermal_input``, the registry units in ``units``, the saved state in
+``compensator_state``.
 """
 
 from dataclasses import dataclass
@@ -34,10 +35,10 @@ from sensor_msgs.msg import Imu
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from . import common, input_hints, process, thermal_types, topic_follower, units
+from . import (common, compensator_params as params, input_hints, process, thermal_types,
+               topic_follower, units)
 from .compensator_state import StreamStateFile
 from ..calibration import Calibration, CalibrationError
-from ..collection.feed import DEFAULT_MAX_GAP_S
 from ..collection.outliers import ImuSpikeFilter
 from ..gravity import STANDARD_GRAVITY
 from ..io.columns import AlignedChunk, ImuColumns
@@ -46,7 +47,6 @@ from ..io.imu_units import UnitWatch
 from ..thermal_input import CalibrationStream
 
 NODE_NAME = 'thermal_imu_compensator'
-MISSING_POLICIES = ('hold_last', 'passthrough', 'drop')
 #: IMU messages not compensated for want of any temperature reading before the log says why
 SILENT_WARN_AFTER = 1000
 
@@ -69,81 +69,10 @@ class CompensatorNode(Node):
 
     def __init__(self, node_name=NODE_NAME, **kwargs):
         super().__init__(node_name, **kwargs)
-        p = common.Parameters(self, apply=self._on_params)
-        self.calibration_file = p.declare(
-            'calibration_file', '~/.ros/thermal_imu_calib/calibration.yaml',
-            'Calibration YAML loaded at start and on ~/reload (~ is expanded; empty: none).')
-        self.registry_dir = p.declare(
-            'registry_dir', '',
-            'Fleet registry (thermal-imu-calib fleet calibrate -o DIR); when set, '
-            'calibration_file is ignored: the latest calibration of the IMU header frame_id '
-            'is loaded at the first message of each frame_id and on ~/reload.', read_only=True)
+        start = params.declare(self)
         self._unit_gates = {}             # registry mode: per unit despike state
         self._sent = units.SentMessages()
-        self.temperature_topics = common.topic_list(p.declare(
-            'temperature_topics', ['imu/temperature'],
-            'Thermal input topics to subscribe (sensor_msgs/Temperature unless '
-            'temperature_types says otherwise); the calibration file maps its inputs to them '
-            'by name (relative names follow namespaces and remaps); empty ([] or [\'\']): '
-            'no thermal input.', read_only=True))
-        self.temperature_timeout = p.declare(
-            'temperature_timeout', DEFAULT_MAX_GAP_S,
-            'Seconds (by header stamp) after which a temperature reading is stale; readings '
-            'closer than this are interpolated (compensate\'s --temperature-timeout and '
-            'the calibrator\'s temperature_timeout, the same default).', lo=0.001, hi=3600.0)
-        self.on_missing = p.declare(
-            'on_missing_temperature', 'hold_last',
-            'What to do when a temperature is stale or absent: hold_last compensates with the '
-            'nearest reading (passthrough if none was ever received), passthrough publishes '
-            'the raw sample, drop publishes nothing.', choices=MISSING_POLICIES)
-        self.passthrough_uncalibrated = p.declare(
-            'passthrough_without_calibration', True,
-            'With no calibration loaded: true publishes raw samples, false publishes nothing.')
-        out_rel = p.declare('output_reliability', 'reliable',
-                            'QoS reliability of imu/data_compensated.',
-                            choices=('reliable', 'best_effort'), read_only=True)
-        out_depth = p.declare('output_depth', 1000, 'QoS history depth of imu/data_compensated.',
-                              lo=1, hi=100000, read_only=True)
-        in_depth = p.declare('input_depth', 1000,
-                             'QoS history depth (best effort) of the IMU and temperature '
-                             'subscriptions; 1000 holds one second of a 1 kHz stream.',
-                             lo=1, hi=100000, read_only=True)
-        self.batch_limit = p.declare('max_batch', 200,
-                                     'Most queued IMU messages compensated together in one '
-                                     'callback under load.', lo=1, hi=10000)
-        self.fill_covariance = p.declare(
-            'fill_covariance', True,
-            'Write the calibration\'s 1-sigma (white noise + model predictive std, squared) '
-            'into the linear_acceleration/angular_velocity covariance diagonals; false keeps '
-            'the covariances as received.')
-        self.despike = p.declare(
-            'despike', False,
-            'Replace isolated spikes by the local median before compensation (median/MAD '
-            'gate, seed 002 sect. 3.2); delays the output by 3 samples.')
         self._gate = ImuSpikeFilter() if self.despike else None
-        period = p.declare('diagnostics_period', 1.0, 'Seconds between /diagnostics messages.',
-                           lo=0.05, hi=60.0, read_only=True)
-        state_file = p.declare(
-            'state_file', '',
-            'JSON file the thermal-history state (lag filters, hysteresis terms) is saved to '
-            'and resumed from after a restart of this node (~ is expanded, {node} is the node '
-            'name, e.g. imu_left.thermal_imu_compensator; empty: none, a restart starts the '
-            'history in equilibrium with a widened 1-sigma). Not used with registry_dir.',
-            read_only=True)
-        state_period = p.declare('state_save_period', 5.0,
-                                 'Seconds (wall time) between writes of state_file.',
-                                 lo=0.1, hi=3600.0, read_only=True)
-        state_gap = p.declare(
-            'state_max_gap', 600.0,
-            'Most seconds (header stamps) between the saved state and the first sample after '
-            'a restart for the state to be resumed; the gap is run through with the reading '
-            'interpolated.', lo=0.0, hi=86400.0, read_only=True)
-        if len(set(self.temperature_topics)) != len(self.temperature_topics):
-            raise ValueError(f'temperature_topics has duplicates: {self.temperature_topics}')
-        self.temperature_units, scalar_types = common.declare_thermal_inputs(
-            p, self.temperature_topics, ' A calibration whose inputs are in other units is '
-            'refused.')
-
         self.temps = common.TemperatureInputs(self.temperature_topics,
                                               max(60.0, 4 * self.temperature_timeout))
         self._active = None
@@ -155,12 +84,12 @@ class CompensatorNode(Node):
         self.last_rejection = ''
         self.units = (units.RegistryUnits(self.registry_dir, self._model, self.counts,
                                           self.get_logger()) if self.registry_dir else None)
-        if state_file and self.registry_dir:
+        if start.state_file and self.registry_dir:
             self.get_logger().warning('state_file is not used with registry_dir (one state '
                                       'per unit is not kept)')
-        self.state = StreamStateFile('' if self.registry_dir else state_file, state_period,
-                                     state_gap, self.get_logger(),
-                                     self.get_fully_qualified_name())
+        self.state = StreamStateFile('' if self.registry_dir else start.state_file,
+                                     start.state_save_period, start.state_max_gap,
+                                     self.get_logger(), self.get_fully_qualified_name())
         self._last_stamp_ns = None
         self._units_seen = UnitWatch(STANDARD_GRAVITY)   # g, milli-g, counts, deg/s in
         self._rate = common.RateMeter()
@@ -169,24 +98,25 @@ class CompensatorNode(Node):
         self._finished = False     # finish() has written the state on the way out
 
         self.pub = self.create_publisher(Imu, 'imu/data_compensated',
-                                         common.output_qos(out_rel, out_depth))
+                                         common.output_qos(start.output_reliability,
+                                                           start.output_depth))
         self.imu_sub = self.create_subscription(
-            Imu, 'imu/data_raw', self._on_imu, common.sensor_qos(in_depth),
+            Imu, 'imu/data_raw', self._on_imu, common.sensor_qos(start.input_depth),
             event_callbacks=SubscriptionEventCallbacks(message_lost=self._on_lost))
 
-        self._temp_fields = [value for _, value in scalar_types]
+        self._temp_fields = [value for _, value in start.scalar_types]
         #: per input: its header stamps, or the IMU's clock (header-less, or stamps 0 or
         #: on another clock), as offline
         self._clocks = LiveClocks(self.temperature_topics,
-                                  [common.headerless(cls) for cls, _ in scalar_types])
+                                  [common.headerless(cls) for cls, _ in start.scalar_types])
         self.temp_subs = [
             self.create_subscription(cls, topic, self._temperature_cb(i, value),
-                                     common.sensor_qos(in_depth))
+                                     common.sensor_qos(start.input_depth))
             for i, (topic, (cls, value)) in enumerate(zip(self.temperature_topics,
-                                                          scalar_types))]
+                                                          start.scalar_types))]
         units.refuse_loop(self.pub.topic_name, [s.topic_name for s in [self.imu_sub]
                                                 + self.temp_subs])
-        self._in_depth = in_depth
+        self._in_depth = start.input_depth
         #: a silent input whose topic is published as another thermal type is
         #: re-subscribed as that type (``thermal_types``), as calibrate reads a log
         self.type_follower = thermal_types.TypeFollower(self, self.temp_subs, self._subscribe_as)
@@ -198,7 +128,8 @@ class CompensatorNode(Node):
                                                 common.CALIBRATION_QOS)
         self.reload_srv = self.create_service(Trigger, '~/reload', self._on_reload)
         self.diagnostics = common.Diagnostics(self)
-        self.diag_timer = common.steady_timer(self, period, self._publish_diagnostics)
+        self.diag_timer = common.steady_timer(self, start.diagnostics_period,
+                                              self._publish_diagnostics)
         if self.calibration_file and not self.registry_dir:
             ok, msg = self.load_file()
             common.log(self, ok, msg, failure='warning')
@@ -305,19 +236,6 @@ class CompensatorNode(Node):
             ok, text = self._reject('imu/calibration', f'unusable ({e.__class__.__name__}: '
                                                        f'{str(e)[:300]})')
         common.log(self, ok, text)
-
-    def _on_params(self, changed):
-        for name, value in changed.items():
-            if name == 'temperature_timeout':
-                self.temperature_timeout = value
-            elif name == 'on_missing_temperature':
-                self.on_missing = value
-            elif name == 'passthrough_without_calibration':
-                self.passthrough_uncalibrated = value
-            elif name == 'max_batch':
-                self.batch_limit = value
-            elif name == 'fill_covariance':
-                self.fill_covariance = value
 
     # ------------------------------------------------------------------ data
     def _follow(self):
