@@ -17,9 +17,17 @@ per unit (order kept within each unit). Loop guard (``units``): an output topic 
 an input is refused at start, and this node's own messages coming back are dropped.
 With ``state_file`` the thermal-history state outlives a restart (``compensator_state``).
 
-Cohesive: one node's parameters, calibration hand-over, per-batch compensation and
-diagnostics around one shared active model; the maths is in ``calibration`` and
-``thermal_input``, the registry units in ``units``, the saved state in ``compensator_state``.
+The node is split by concern:
+
+* ``nodes/compensator_params.py``: the parameters, declared on the node and changed at run
+  time;
+* ``nodes/compensator_batch.py``: the data path (``LiveCompensation``: thermal readings in,
+  each IMU batch compensated with one model and published, counted);
+* here: the calibration hand-over (file, topic, ``~/reload``, registry units), the input
+  subscriptions, the saved state on the way out and the diagnostics.
+
+The maths is in ``calibration`` and ``thermal_input``, the registry units in ``units``, the
+saved state in ``compensator_state``.
 """
 
 from dataclasses import dataclass
@@ -34,21 +42,18 @@ from sensor_msgs.msg import Imu
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from . import common, input_hints, process, thermal_types, topic_follower, units
+from . import (common, compensator_params as params, input_hints, process, thermal_types,
+               topic_follower, units)
+from .compensator_batch import LiveCompensation
 from .compensator_state import StreamStateFile
 from ..calibration import Calibration, CalibrationError
-from ..collection.feed import DEFAULT_MAX_GAP_S
 from ..collection.outliers import ImuSpikeFilter
 from ..gravity import STANDARD_GRAVITY
-from ..io.columns import AlignedChunk, ImuColumns
 from ..io.headerless import LiveClocks
 from ..io.imu_units import UnitWatch
 from ..thermal_input import CalibrationStream
 
 NODE_NAME = 'thermal_imu_compensator'
-MISSING_POLICIES = ('hold_last', 'passthrough', 'drop')
-#: IMU messages not compensated for want of any temperature reading before the log says why
-SILENT_WARN_AFTER = 1000
 
 
 @dataclass(frozen=True)
@@ -64,86 +69,15 @@ class ActiveModel:
     stream: CalibrationStream = None
 
 
-class CompensatorNode(Node):
+class CompensatorNode(LiveCompensation, Node):
     """Apply a thermal calibration to a live IMU stream."""
 
     def __init__(self, node_name=NODE_NAME, **kwargs):
         super().__init__(node_name, **kwargs)
-        p = common.Parameters(self, apply=self._on_params)
-        self.calibration_file = p.declare(
-            'calibration_file', '~/.ros/thermal_imu_calib/calibration.yaml',
-            'Calibration YAML loaded at start and on ~/reload (~ is expanded; empty: none).')
-        self.registry_dir = p.declare(
-            'registry_dir', '',
-            'Fleet registry (thermal-imu-calib fleet calibrate -o DIR); when set, '
-            'calibration_file is ignored: the latest calibration of the IMU header frame_id '
-            'is loaded at the first message of each frame_id and on ~/reload.', read_only=True)
+        start = params.declare(self)
         self._unit_gates = {}             # registry mode: per unit despike state
         self._sent = units.SentMessages()
-        self.temperature_topics = common.topic_list(p.declare(
-            'temperature_topics', ['imu/temperature'],
-            'Thermal input topics to subscribe (sensor_msgs/Temperature unless '
-            'temperature_types says otherwise); the calibration file maps its inputs to them '
-            'by name (relative names follow namespaces and remaps); empty ([] or [\'\']): '
-            'no thermal input.', read_only=True))
-        self.temperature_timeout = p.declare(
-            'temperature_timeout', DEFAULT_MAX_GAP_S,
-            'Seconds (by header stamp) after which a temperature reading is stale; readings '
-            'closer than this are interpolated (compensate\'s --temperature-timeout and '
-            'the calibrator\'s temperature_timeout, the same default).', lo=0.001, hi=3600.0)
-        self.on_missing = p.declare(
-            'on_missing_temperature', 'hold_last',
-            'What to do when a temperature is stale or absent: hold_last compensates with the '
-            'nearest reading (passthrough if none was ever received), passthrough publishes '
-            'the raw sample, drop publishes nothing.', choices=MISSING_POLICIES)
-        self.passthrough_uncalibrated = p.declare(
-            'passthrough_without_calibration', True,
-            'With no calibration loaded: true publishes raw samples, false publishes nothing.')
-        out_rel = p.declare('output_reliability', 'reliable',
-                            'QoS reliability of imu/data_compensated.',
-                            choices=('reliable', 'best_effort'), read_only=True)
-        out_depth = p.declare('output_depth', 1000, 'QoS history depth of imu/data_compensated.',
-                              lo=1, hi=100000, read_only=True)
-        in_depth = p.declare('input_depth', 1000,
-                             'QoS history depth (best effort) of the IMU and temperature '
-                             'subscriptions; 1000 holds one second of a 1 kHz stream.',
-                             lo=1, hi=100000, read_only=True)
-        self.batch_limit = p.declare('max_batch', 200,
-                                     'Most queued IMU messages compensated together in one '
-                                     'callback under load.', lo=1, hi=10000)
-        self.fill_covariance = p.declare(
-            'fill_covariance', True,
-            'Write the calibration\'s 1-sigma (white noise + model predictive std, squared) '
-            'into the linear_acceleration/angular_velocity covariance diagonals; false keeps '
-            'the covariances as received.')
-        self.despike = p.declare(
-            'despike', False,
-            'Replace isolated spikes by the local median before compensation (median/MAD '
-            'gate, seed 002 sect. 3.2); delays the output by 3 samples.')
         self._gate = ImuSpikeFilter() if self.despike else None
-        period = p.declare('diagnostics_period', 1.0, 'Seconds between /diagnostics messages.',
-                           lo=0.05, hi=60.0, read_only=True)
-        state_file = p.declare(
-            'state_file', '',
-            'JSON file the thermal-history state (lag filters, hysteresis terms) is saved to '
-            'and resumed from after a restart of this node (~ is expanded, {node} is the node '
-            'name, e.g. imu_left.thermal_imu_compensator; empty: none, a restart starts the '
-            'history in equilibrium with a widened 1-sigma). Not used with registry_dir.',
-            read_only=True)
-        state_period = p.declare('state_save_period', 5.0,
-                                 'Seconds (wall time) between writes of state_file.',
-                                 lo=0.1, hi=3600.0, read_only=True)
-        state_gap = p.declare(
-            'state_max_gap', 600.0,
-            'Most seconds (header stamps) between the saved state and the first sample after '
-            'a restart for the state to be resumed; the gap is run through with the reading '
-            'interpolated.', lo=0.0, hi=86400.0, read_only=True)
-        if len(set(self.temperature_topics)) != len(self.temperature_topics):
-            raise ValueError(f'temperature_topics has duplicates: {self.temperature_topics}')
-        self.temperature_units, scalar_types = common.declare_thermal_inputs(
-            p, self.temperature_topics, ' A calibration whose inputs are in other units is '
-            'refused.')
-
         self.temps = common.TemperatureInputs(self.temperature_topics,
                                               max(60.0, 4 * self.temperature_timeout))
         self._active = None
@@ -155,12 +89,12 @@ class CompensatorNode(Node):
         self.last_rejection = ''
         self.units = (units.RegistryUnits(self.registry_dir, self._model, self.counts,
                                           self.get_logger()) if self.registry_dir else None)
-        if state_file and self.registry_dir:
+        if start.state_file and self.registry_dir:
             self.get_logger().warning('state_file is not used with registry_dir (one state '
                                       'per unit is not kept)')
-        self.state = StreamStateFile('' if self.registry_dir else state_file, state_period,
-                                     state_gap, self.get_logger(),
-                                     self.get_fully_qualified_name())
+        self.state = StreamStateFile('' if self.registry_dir else start.state_file,
+                                     start.state_save_period, start.state_max_gap,
+                                     self.get_logger(), self.get_fully_qualified_name())
         self._last_stamp_ns = None
         self._units_seen = UnitWatch(STANDARD_GRAVITY)   # g, milli-g, counts, deg/s in
         self._rate = common.RateMeter()
@@ -169,24 +103,25 @@ class CompensatorNode(Node):
         self._finished = False     # finish() has written the state on the way out
 
         self.pub = self.create_publisher(Imu, 'imu/data_compensated',
-                                         common.output_qos(out_rel, out_depth))
+                                         common.output_qos(start.output_reliability,
+                                                           start.output_depth))
         self.imu_sub = self.create_subscription(
-            Imu, 'imu/data_raw', self._on_imu, common.sensor_qos(in_depth),
+            Imu, 'imu/data_raw', self._on_imu, common.sensor_qos(start.input_depth),
             event_callbacks=SubscriptionEventCallbacks(message_lost=self._on_lost))
 
-        self._temp_fields = [value for _, value in scalar_types]
+        self._temp_fields = [value for _, value in start.scalar_types]
         #: per input: its header stamps, or the IMU's clock (header-less, or stamps 0 or
         #: on another clock), as offline
         self._clocks = LiveClocks(self.temperature_topics,
-                                  [common.headerless(cls) for cls, _ in scalar_types])
+                                  [common.headerless(cls) for cls, _ in start.scalar_types])
         self.temp_subs = [
             self.create_subscription(cls, topic, self._temperature_cb(i, value),
-                                     common.sensor_qos(in_depth))
+                                     common.sensor_qos(start.input_depth))
             for i, (topic, (cls, value)) in enumerate(zip(self.temperature_topics,
-                                                          scalar_types))]
+                                                          start.scalar_types))]
         units.refuse_loop(self.pub.topic_name, [s.topic_name for s in [self.imu_sub]
                                                 + self.temp_subs])
-        self._in_depth = in_depth
+        self._in_depth = start.input_depth
         #: a silent input whose topic is published as another thermal type is
         #: re-subscribed as that type (``thermal_types``), as calibrate reads a log
         self.type_follower = thermal_types.TypeFollower(self, self.temp_subs, self._subscribe_as)
@@ -198,7 +133,8 @@ class CompensatorNode(Node):
                                                 common.CALIBRATION_QOS)
         self.reload_srv = self.create_service(Trigger, '~/reload', self._on_reload)
         self.diagnostics = common.Diagnostics(self)
-        self.diag_timer = common.steady_timer(self, period, self._publish_diagnostics)
+        self.diag_timer = common.steady_timer(self, start.diagnostics_period,
+                                              self._publish_diagnostics)
         if self.calibration_file and not self.registry_dir:
             ok, msg = self.load_file()
             common.log(self, ok, msg, failure='warning')
@@ -306,19 +242,6 @@ class CompensatorNode(Node):
                                                        f'{str(e)[:300]})')
         common.log(self, ok, text)
 
-    def _on_params(self, changed):
-        for name, value in changed.items():
-            if name == 'temperature_timeout':
-                self.temperature_timeout = value
-            elif name == 'on_missing_temperature':
-                self.on_missing = value
-            elif name == 'passthrough_without_calibration':
-                self.passthrough_uncalibrated = value
-            elif name == 'max_batch':
-                self.batch_limit = value
-            elif name == 'fill_covariance':
-                self.fill_covariance = value
-
     # ------------------------------------------------------------------ data
     def _follow(self):
         """Follow an input's type (``thermal_types``) or a waiting calibration's input."""
@@ -342,265 +265,6 @@ class CompensatorNode(Node):
         self.temp_subs[index] = self.create_subscription(
             cls, self.temperature_topics[index], self._temperature_cb(index, value),
             common.sensor_qos(self._in_depth))
-
-    def _temperature_cb(self, index, value='temperature'):
-        def cb(msg, info):
-            # drained too, so temperature keeps pace with batched IMU data under load
-            taken = [(msg, info)] + common.drain(self.temp_subs[index], 100, self,
-                                                 with_info=True)
-            if self._clocks.bare[index]:
-                self._add_headerless(index, value, taken)
-            elif self._clocks.undecided(index):
-                self._choose_clock(index, taken)     # no ``until``: nothing is left over
-            else:
-                self._add_temperatures(index, value, [m for m, _ in taken])
-        return cb
-
-    def _choose_clock(self, index, taken, until=None):
-        """Hold (message, info) readings of an input whose clock is not chosen yet.
-
-        Once its first reading after the first IMU message is judged
-        (``io.headerless.StampChoice``, as offline) the held readings go on: on the IMU's
-        clock, or by their header stamps, those stamped at or before ``until`` (ns) added
-        now. Returns the messages to add after the batch (see
-        ``_take_queued_temperatures``).
-        """
-        self.temps.received[index] += len(taken)    # received while held, counted once
-        arrived = self._clocks.choices[index].waiting   # taken before this batch
-        held, note = self._clocks.choose(index, taken,
-                                         lambda t: common.stamp_to_ns(t[0].header.stamp))
-        if self._clocks.undecided(index):
-            return []
-        self.temps.received[index] -= len(held)     # counted again as they are added
-        if self._clocks.bare[index]:
-            self.get_logger().warning(note)
-            self._add_headerless(index, self._temp_fields[index], held)
-            return []
-        return self._add_until(index, [m for m, _ in held], until, arrived)
-
-    def _add_temperatures(self, index, value, msgs):
-        for m in msgs:
-            self.temps.add(index, common.stamp_to_ns(m.header.stamp), getattr(m, value))
-
-    def _add_until(self, index, msgs, until, start=0):
-        """Add header-stamped readings up to the first after ``until`` (ns); return the rest.
-
-        Only ``msgs[start:]`` are compared (the ones before arrived in their own callbacks
-        and are all added); ``until`` None adds all.
-        """
-        cut = len(msgs) if until is None else next(
-            (j for j, m in enumerate(msgs[start:], start)
-             if common.stamp_to_ns(m.header.stamp) > until), len(msgs))
-        self._add_temperatures(index, self._temp_fields[index], msgs[:cut])
-        return msgs[cut:]
-
-    def _add_headerless(self, index, value, taken):
-        """Add (message, info) readings without a header, on the IMU's clock.
-
-        Each takes the header stamp of the IMU message published before it (DDS source
-        timestamps, ``io.headerless.LiveImuClock``); one published after every IMU message
-        received so far waits for the next.
-        """
-        got = self._clocks.stamp(index, [(info['source_timestamp'], getattr(m, value))
-                                         for m, info in taken])
-        for stamp, v in zip(got.stamp_ns.tolist(), got.temperature.tolist()):
-            self.temps.add(index, stamp, v)
-        self.counts['temperature_before_imu'] = self._clocks.clock.left_out   # not used
-
-    def _take_queued_temperatures(self, msgs):
-        """Take readings still queued that are stamped within the IMU batch ``msgs``.
-
-        The executor runs the IMU callback before the temperature callbacks of the same
-        wake-up; under load, readings stamped within the batch would otherwise still wait in
-        their queue and the batch would be compensated with an older, held reading.
-        Readings stamped after the batch's newest IMU stamp are returned, to be added after
-        the batch as if taken in arrival order: what a sample uses never depends on
-        readings newer than the samples around it.
-        """
-        until = max(common.stamp_to_ns(m.header.stamp) for m in msgs)
-        later = []
-        for i, sub in enumerate(self.temp_subs):
-            if self._clocks.bare[i]:     # stamped by the IMU messages published before them
-                self._add_headerless(i, self._temp_fields[i],
-                                     common.drain(sub, 1000, self, with_info=True))
-                later.append([])
-                continue
-            if self._clocks.undecided(i):      # its clock not chosen yet
-                later.append(self._choose_clock(
-                    i, common.drain(sub, 1000, self, with_info=True), until))
-                continue
-            later.append(self._add_until(i, common.drain(sub, 1000, self), until))
-        return later
-
-    def _on_lost(self, info):
-        # DDS-reported losses on imu/data_raw (sequence gaps the reader saw): diagnostics
-        self.counts['input_lost'] += info.total_count_change
-
-    def _on_imu(self, msg, info):
-        taken = [(msg, info)] + common.drain(self.imu_sub, self.batch_limit - 1, self,
-                                             with_info=True)
-        msgs = [m for m, _ in taken]
-        if self._clocks.on:     # the publish order, for readings on the IMU's clock
-            self._clocks.add_imu([i['source_timestamp'] for _, i in taken],
-                                 [common.stamp_to_ns(m.header.stamp) for m in msgs])
-        later = self._take_queued_temperatures(msgs)
-        try:
-            if not self.registry_dir:
-                self._compensate(msgs, self._active)
-            else:
-                units = {}
-                for m in msgs:     # one model per unit: a batch may hold several units
-                    units.setdefault(m.header.frame_id, []).append(m)
-                for frame, group in units.items():
-                    model = self.units.model(frame)
-                    if model is None:
-                        self.counts['uncalibrated_unit'] += len(group)
-                    else:
-                        self._active = model
-                    self._compensate(group, model, frame)
-        finally:
-            for i, taken in enumerate(later):
-                self._add_temperatures(i, self._temp_fields[i], taken)
-
-    def _compensate(self, msgs, active, unit=None):
-        msgs = self._drop_own(msgs)
-        if not msgs:
-            return
-        gate = (self._unit_gates.setdefault(unit, ImuSpikeFilter())   # one per unit
-                if self._gate is not None and self.registry_dir else self._gate)
-        if gate is None:
-            self.process(msgs, active=active)
-            return
-        stamps, accel, gyro = common.imu_to_arrays(msgs)
-        obj = np.empty(len(msgs), object)
-        obj[:] = msgs
-        out = gate.push(AlignedChunk(ImuColumns(stamps, accel, gyro), np.zeros((
-            len(msgs), 0)), np.zeros((len(msgs), 0)), {'msg': obj}))
-        if len(out):
-            self.process(list(out.extra['msg']), (out.imu.stamp_ns, out.imu.accel,
-                                                  out.imu.gyro), active=active)
-
-    def _drop_own(self, msgs):
-        keep, own = self._sent.drop_own(msgs)    # the loop guard: never compensated twice
-        if own:
-            self.counts['own_messages_dropped'] += own
-            self._warn_once('own', 'received messages this node published (output routed '
-                                   'back to its input): dropped (own_messages_dropped)')
-        return keep
-
-    def process(self, msgs, arrays=None, active=False):
-        """Compensate and publish a batch of Imu messages (in arrival order).
-
-        ``arrays`` = (stamps, accel, gyro) replaces the messages' own values (despiked);
-        ``active`` is the model to use (default: the active calibration).
-        """
-        if active is False:
-            active = self._active  # read once: the whole batch uses one model
-        try:
-            self._process(msgs, arrays, active)
-        finally:    # counted once handled, so a reader of the counts sees the whole batch
-            self.counts['received'] += len(msgs)
-
-    def _process(self, msgs, arrays, active):
-        c = self.counts
-        n = len(msgs)
-        self._rate.add(n)
-        stamps, accel, gyro = arrays if arrays is not None else common.imu_to_arrays(msgs)
-        self._last_stamp_ns = int(stamps[-1])
-        send = np.isfinite(accel).all(1) & np.isfinite(gyro).all(1)  # rows to publish
-        c['invalid'] += n - int(send.sum())
-        self._check_units(accel, gyro)
-        if active is None:
-            if self.passthrough_uncalibrated:
-                c['passthrough'] += self._publish(msgs, send)
-            else:
-                c['dropped'] += int(send.sum())
-            return
-        cal = active.calibration
-        if cal.frame_id and msgs[0].header.frame_id != cal.frame_id:
-            c['frame_mismatch'] += n
-            self._warn_once('frame', f'IMU frame_id {msgs[0].header.frame_id!r} differs from '
-                                     f'the calibration frame {cal.frame_id!r}; compensating '
-                                     'anyway')
-        comp = send.copy()  # rows to compensate; the other sent rows pass through
-        temps = np.zeros((n, len(active.columns)))
-        if active.columns:
-            if self.temps.check_time(int(stamps.min())):
-                active.stream.reset()
-                self._warn_once('jump', 'IMU header stamps jumped back by more than '
-                                f'{common.JUMP_S:.0f} s: temperature history cleared')
-            temps, age = self.temps.resolve(stamps, active.columns, self.temperature_timeout)
-            known = np.isfinite(temps).all(1)
-            stale = send & (~known | (age > self.temperature_timeout).any(1))
-            if stale.any():
-                if self.on_missing == 'hold_last':
-                    c['temperature_held'] += int((stale & known).sum())
-                    c['temperature_missing'] += int((stale & ~known).sum())
-                    comp &= known
-                else:
-                    c['temperature_missing'] += int(stale.sum())
-                    comp &= ~stale
-                    if self.on_missing == 'drop':
-                        send &= ~stale
-                        c['dropped'] += int(stale.sum())
-                if 'silent' not in self._warned and \
-                        c['temperature_missing'] >= SILENT_WARN_AFTER:
-                    self._warn_silent_temperature(active.columns)
-        rows = np.flatnonzero(comp)
-        if len(rows):
-            self.state.before(active, stamps[rows[0]] * 1e-9)
-            res = active.stream.apply(stamps[rows] * 1e-9, accel[rows], gyro[rows], temps[rows])
-            self.state.after(active)
-            good = np.isfinite(res.accel).all(1) & np.isfinite(res.gyro).all(1)
-            if not good.all():  # never publish NaN/Inf
-                c['invalid'] += int((~good).sum())
-                send[rows[~good]] = False
-            sel = rows[good]
-            va = None if res.accel_std is None else res.accel_std[good] ** 2
-            vg = None if res.gyro_std is None else res.gyro_std[good] ** 2
-            va = va if va is not None and np.isfinite(va).all() else None
-            vg = vg if vg is not None and np.isfinite(vg).all() else None
-            if not self.fill_covariance:
-                va = vg = None
-            common.write_imu([msgs[i] for i in sel], res.accel[good], res.gyro[good], va, vg)
-            c['clamped'] += int(res.out_of_range[good].sum())
-            c['compensated'] += len(sel)
-            comp[:] = False
-            comp[sel] = True
-        c['passthrough'] += int((send & ~comp).sum())
-        self._publish(msgs, send)
-
-    def _check_units(self, accel, gyro):
-        """Watch the input for values not in m/s^2 and rad/s; warn once per sensor."""
-        self._units_seen.push(accel, gyro)
-        for sensor, (seen, rule, fix) in self._units_seen.problems().items():
-            self._warn_once(f'unit_{sensor}', f'{seen}, {rule}: {fix}. Every output sample is '
-                            'wrong until the driver publishes SI units: compensating anyway')
-
-    def _publish(self, msgs, send):
-        count = 0
-        for m, s in zip(msgs, send.tolist()):
-            if s:
-                self.pub.publish(m)
-                self._sent.add(m)
-                count += 1
-        self.counts['published'] += count
-        return count
-
-    def _warn_silent_temperature(self, columns):
-        """Say once which needed thermal input never had a reading, and what is on the graph."""
-        silent = [self.temp_subs[i] for i in columns if not self.temps.received[i]]
-        if not silent:
-            return
-        c = self.counts
-        self._warn_once('silent', 'no temperature reading has arrived on '
-                        + ', '.join(f'{s.topic_name} ({s.get_publisher_count()} publishers)'
-                                    for s in silent)
-                        + f' while {c["received"]} IMU messages did: they are '
-                        + ('dropped' if self.on_missing == 'drop' else 'published uncompensated')
-                        + f' (on_missing_temperature {self.on_missing})'
-                        + input_hints.wrong_type_hint(self, silent)
-                        + input_hints.thermal_topics_hint(self, self.temp_subs))
 
     def _warn_once(self, key, text):
         if key not in self._warned:
