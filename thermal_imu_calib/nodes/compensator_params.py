@@ -13,9 +13,8 @@ from dataclasses import dataclass
 import functools
 
 from . import common
+from ..app.compensate import MISSING_POLICIES
 from ..collection.feed import DEFAULT_MAX_GAP_S
-
-MISSING_POLICIES = ('hold_last', 'passthrough', 'drop')
 
 
 @dataclass(frozen=True)
