@@ -563,6 +563,12 @@ def test_the_scale_factor_is_compared_at_the_pooled_s_with_its_curvature():
     z = dict(reg.unit_tests(rows))
     got = next(val for key, val in z.items() if key.startswith('dk0 x changed'))
     assert got == pytest.approx(want, rel=1e-6)
+    # the history says at which S the z's are
+    from thermal_imu_calib.fleet.history import format_history
+    found, info = reg.assess(rows)
+    text = format_history(rows, found, info)
+    assert (f'S pooled over 2 calibration(s): s10 {s_star[0] * 1e4:.1f}'
+            f'+-{np.sqrt(cov[0, 0]) * 1e4:.1f}, s20 0.0') in text, text
     # rows written before the curvature: the scale factor with its own stds (1e-3)
     plain = _pooled_rows([zero, zero], [1.0, 1.0005], name='k', q=q)
     z2 = dict(reg.unit_tests(plain))

@@ -8,8 +8,10 @@ import html
 
 import numpy as np
 
+from ..estimation.field_estimator import S_TERM_NAMES
 from ..io.output import write_atomic
-from .alarms import _f, AXES
+from . import pooled_s
+from .alarms import _f, accel_family, AXES
 
 #: (index column, label, scale to display, display unit); the accelerometer's bias and
 #: scale factor at T0 that the alarms test (``accel.alarm_*``: any family's, or the field
@@ -57,6 +59,26 @@ def _columns(rs):
     return cols
 
 
+def pooled_line(rs):
+    """Return [the line stating a unit's pooled S], or [] when none of ``rs`` has it.
+
+    The alarms compare the latest family's terms at S pooled over its calibrations
+    (``pooled_s``) while the table shows each calibration's terms at its own S, with its
+    own stds; this says which S the z's are at (S's terms in 1e-4, +- 1 sigma).
+    """
+    family = accel_family(rs[-1])
+    got = pooled_s.unit_pools(rs, accel_family).get(family)
+    if got is None:
+        return []
+    n = sum(accel_family(r) == family and pooled_s.row_s(r) is not None for r in rs)
+    s_star, cov = got
+    terms = ', '.join(f'{t} {v * 1e4:.1f}+-{np.sqrt(cov[i, i]) * 1e4:.1f}'
+                      for i, (t, v) in enumerate(zip(S_TERM_NAMES, s_star)))
+    return [f'  accelerometer non-orthogonality S pooled over {n} calibration(s): {terms} '
+            '(1e-4); the alarms compare the terms at it, the table shows each calibration '
+            'at its own S']
+
+
 def format_history(rows, alarms, info=None):
     """Return the text report: one block per unit, one line per calibration.
 
@@ -77,6 +99,7 @@ def format_history(rows, alarms, info=None):
             res = _f(r, 'residual_rms_mps2')
             out.append(f'  {r["time"]:17s} {r["accel_model"][:17]:17s} {res:8.2e}  ' + '  '.join(
                 '/'.join(_cell(r, f'{c}.{a}', sc) for a in AXES) for c, _, sc, _ in cols))
+        out.extend(pooled_line(rs))
         out.extend(f'  ALARM {a}' for a in flag)
         out.extend(f'  note: {n}' for n in info.get('notes', {}).get(sensor, []))
     n = sum(bool(v) for s, v in alarms.items() if s in _by_sensor(rows))
