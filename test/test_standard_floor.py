@@ -541,7 +541,7 @@ def test_the_alarms_compare_terms_at_the_units_pooled_s():
     assert 'S pooled over' not in reg.assess(plain)[1]['rule']
 
 
-def test_the_scale_factor_is_compared_at_the_pooled_s_with_its_curvature():
+def test_the_scale_factor_is_compared_at_the_pooled_s_with_its_curvature(tmp_path):
     """With its curvature stored, dk0 goes to S* to second order; without, its own stds.
 
     Two logs whose own S differ in s10 (2e-2 and 0, each log's information 1e2): S* is their
@@ -567,8 +567,13 @@ def test_the_scale_factor_is_compared_at_the_pooled_s_with_its_curvature():
     from thermal_imu_calib.fleet.history import format_history
     found, info = reg.assess(rows)
     text = format_history(rows, found, info)
-    assert (f'S pooled over 2 calibration(s): s10 {s_star[0] * 1e4:.1f}'
-            f'+-{np.sqrt(cov[0, 0]) * 1e4:.1f}, s20 0.0') in text, text
+    said = (f'S pooled over 2 calibration(s): s10 {s_star[0] * 1e4:.1f}'
+            f'+-{np.sqrt(cov[0, 0]) * 1e4:.1f}, s20 0.0')
+    assert said in text, text
+    from thermal_imu_calib.fleet.history import write_html
+    page = tmp_path / 'history.html'
+    write_html(str(page), rows, found, info)
+    assert said in page.read_text()
     # rows written before the curvature: the scale factor with its own stds (1e-3)
     plain = _pooled_rows([zero, zero], [1.0, 1.0005], name='k', q=q)
     z2 = dict(reg.unit_tests(plain))

@@ -158,6 +158,7 @@ def write_html(path, rows, alarms, info=None):
         body.extend(f'<p style="color:#c00">{html.escape(a)}</p>' for a in flag)
         body.extend(f'<p>note: {html.escape(n)}</p>'
                     for n in info.get('notes', {}).get(sensor, []))
+        body.extend(f'<p>{html.escape(line.strip())}</p>' for line in pooled_line(rs))
         cols = _columns(rs)
         body.append('<div>' + ''.join(_svg(rs, c, sc, u) for c, _, sc, u in cols)
                     + '</div>')
