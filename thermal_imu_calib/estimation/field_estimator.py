@@ -393,7 +393,7 @@ def _refine(raw, w, dt, hold_idx, tilts, thermal, gravity, t0, k0, b0, s, order,
         cond = (_s_condition(hess, n_tilt, cols, max(s2, 1.0), sol.x[n_tilt:]) if free_s
                 else None)
         if cond is not None:
-            cond.curvature = _gain_curvature(jac, sol.x, n_tilt, cols)
+            cond.curvature = _gain_curvature(jac, sol.x, n_tilt, cols, hess)
     except np.linalg.LinAlgError:
         var, cond = np.full(j.shape[1], np.nan), None
     std = np.zeros((3, 6))
@@ -407,21 +407,23 @@ def _refine(raw, w, dt, hold_idx, tilts, thermal, gravity, t0, k0, b0, s, order,
 CURVATURE_STEP = S_PRIOR_STD / 2
 
 
-def _gain_curvature(jac, x, n_x, cols, h=CURVATURE_STEP):
+def _gain_curvature(jac, x, n_x, cols, hess, h=CURVATURE_STEP):
     """Return (3, 6, n_s, n_s) d^2 thermal / d (s_m, s_n): the Gauss-Newton gain's derivative.
 
-    ``jac(p)``: the refinement's Jacobian (S's columns last, after ``n_x``) at its solution
-    ``x``. The gain -H_xx^-1 H_xs is re-evaluated at the solution moved along itself by
-    +- ``h`` on each of S's terms (the first-order path of the fit at a fixed S), and
-    differenced: six Jacobians, no refit (on a simulated cold start, 1810 windows: 0.03 s,
-    and within 0.002 of ten refits at fixed S, which took 2.6 s).
+    ``jac(p)``: the refinement's Jacobian (S's columns last, after ``n_x``); ``hess``: its
+    J'J at the solution ``x``. The gain -H_xx^-1 H_xs is re-evaluated at the solution
+    moved along itself by +- ``h`` on each of S's terms (the first-order path of the fit at
+    a fixed S), and differenced: six Jacobians, no refit (on a simulated cold start, 1810
+    windows: 0.03 s, and within 0.002 of ten refits at fixed S, which took 2.6 s).
     """
+    def gain(hs):
+        return -np.linalg.pinv(hs[:n_x, :n_x]) @ hs[:n_x, n_x:]                # (n_x, n_s)
+
     def full_gain(p):
         j = jac(p)
-        hess = j.T @ j
-        return -np.linalg.pinv(hess[:n_x, :n_x]) @ hess[:n_x, n_x:]            # (n_x, n_s)
+        return gain(j.T @ j)
 
-    g0 = full_gain(x)
+    g0 = gain(hess)
     n_s, nc = g0.shape[1], len(cols)
     d = np.zeros((3 * nc, n_s, n_s))
     for m in range(n_s):

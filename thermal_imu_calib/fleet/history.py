@@ -11,7 +11,7 @@ import numpy as np
 from ..estimation.field_estimator import S_TERM_NAMES
 from ..io.output import write_atomic
 from . import pooled_s
-from .alarms import _f, accel_family, AXES
+from .alarms import _f, accel_family, AXES, untested_accel
 
 #: (index column, label, scale to display, display unit); the accelerometer's bias and
 #: scale factor at T0 that the alarms test (``accel.alarm_*``: any family's, or the field
@@ -64,13 +64,19 @@ def pooled_line(rs):
 
     The alarms compare the latest family's terms at S pooled over its calibrations
     (``pooled_s``) while the table shows each calibration's terms at its own S, with its
-    own stds; this says which S the z's are at (S's terms in 1e-4, +- 1 sigma).
+    own stds; this says which S the z's are at (S's terms in 1e-4, +- 1 sigma). Pooled
+    over the rows the alarms test (``alarms.untested_accel`` left out, as ``unit_tests``
+    does), each row's terms read once.
     """
-    family = accel_family(rs[-1])
-    got = pooled_s.unit_pools(rs, accel_family).get(family)
+    rs = [r for r in rs if not untested_accel(r)]
+    if not rs:
+        return []
+    family, memo = accel_family(rs[-1]), {}
+    got = pooled_s.unit_pools(rs, accel_family, memo).get(family)
     if got is None:
         return []
-    n = sum(accel_family(r) == family and pooled_s.row_s(r) is not None for r in rs)
+    n = sum(accel_family(r) == family and pooled_s.row_s_memo(r, memo) is not None
+            for r in rs)
     s_star, cov = got
     terms = ', '.join(f'{t} {v * 1e4:.1f}+-{np.sqrt(cov[i, i]) * 1e4:.1f}'
                       for i, (t, v) in enumerate(zip(S_TERM_NAMES, s_star)))
