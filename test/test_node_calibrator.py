@@ -732,9 +732,9 @@ def test_no_temperature_published_collects_without_one_and_says_so(ros, tmp_path
     assert cal.inputs == []
     assert [n for n in cal.notes if n.startswith('input: no temperature is published: nothing '
                                                  'on /imu/temperature')], cal.notes
-    late = drv.create_publisher(Temperature, 'imu/temperature', 10)
-    warned = []
+    warned = []     # listening before the publisher exists: the node may warn at once
     node.get_logger().warning = warned.append
+    late = drv.create_publisher(Temperature, 'imu/temperature', 10)
     wait_for(lambda: warned, WAIT, lambda: f'the warning ({late.get_subscription_count()})')
     assert warned[0].startswith('/imu/temperature is published now, after the node decided '
                                 'to collect without a temperature; it is not used'), warned
