@@ -40,6 +40,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+import dds_domain
 import launch_nodes
 
 #: IMU messages published before the node must have caught up (half the window in flight)
@@ -185,7 +186,14 @@ def domain_busy_message(nodes, domain_id):
 
 
 def check_domain(domain_id, wait_s=GUARD_S):
-    """Raise DomainBusy when another node is on ``domain_id``."""
+    """Raise DomainBusy when another node is on ``domain_id`` or its ids 0..31 are taken.
+
+    The second: a new node and player would never match there (``dds_domain``), and the
+    probe could not see the nodes either.
+    """
+    if dds_domain.saturated(dds_domain.participants(domain_id)):
+        raise DomainBusy(f'ROS domain {domain_id} is not free: '
+                         f'{dds_domain.describe(domain_id)}.')
     nodes = foreign_nodes(domain_id, wait_s)
     if nodes:
         raise DomainBusy(domain_busy_message(nodes, domain_id))
@@ -349,6 +357,19 @@ def _wait(cond, what, node, stall=STALL_S, progress=None):
         time.sleep(0.02)
 
 
+def _match_state(driver, with_temperature, domain_id):
+    """Return what the start-up wait saw: the node's counts, the player's matches, DDS."""
+    p = driver.progress
+    seen = ('no progress message from the node' if p is None else
+            f'the node sees {p["imu_publishers"]} IMU publisher(s)'
+            + (f', {p["temperature_publishers"]} temperature publisher(s)'
+               if with_temperature else ''))
+    subs = f'the player\'s IMU publisher has {driver.imu_pub.get_subscription_count()} match(es)'
+    if with_temperature:
+        subs += f', its temperature publisher {driver.temp_pub.get_subscription_count()}'
+    return f'{seen}; {subs}; {dds_domain.describe(domain_id)}'
+
+
 def _publish(driver, imu, temps, i0, i1, t_lo, t_hi, pace, header_ns=None):
     """Publish IMU rows i0..i1 and the temperatures stamped in [t_lo, t_hi), in stamp order.
 
@@ -430,6 +451,9 @@ def run_live_once(imu, temps, gravity, domain_id, temperature_topics=None, workd
     t_start = time.monotonic()
     typed = ({} if temperature_type == TEMPERATURE_TYPE or not set_temperature_type
              else {'temperature_types': [temperature_type]})
+    if dds_domain.saturated(dds_domain.participants(domain_id)):
+        out.error = f'not started: {dds_domain.describe(domain_id)}'
+        return out
     node = LiveCalibrator(workdir, args, {**HARNESS_PARAMS, **typed, **(extra_params or {})},
                           domain_id)
     out.command = node.argv
@@ -447,8 +471,13 @@ def run_live_once(imu, temps, gravity, domain_id, temperature_topics=None, workd
                     and (temps is None or all(n >= 1 for n in p['temperature_publishers']))
                     and driver.imu_pub.get_subscription_count() >= 1
                     and (temps is None or driver.temp_pub.get_subscription_count() >= 1))
-        _wait(connected, 'the node to match the player (the IMU on imu/data_raw'
-              + (f', the temperature on {published_on})' if temps is not None else ')'), node)
+        try:
+            _wait(connected, 'the node to match the player (the IMU on imu/data_raw'
+                  + (f', the temperature on {published_on})' if temps is not None else ')'),
+                  node)
+        except NodeFailed as e:
+            raise NodeFailed(f'{e}; {_match_state(driver, temps is not None, domain_id)}; '
+                             f'the node said: {node.log_tail(3) or "nothing"}') from None
         out.seconds['start'] = time.monotonic() - t_start
         t0 = time.monotonic()
         n = len(imu)

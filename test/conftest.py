@@ -1,10 +1,11 @@
 """Shared ROS 2 fixtures: an isolated rclpy Context per test, a background executor, waits.
 
 Isolation: every test gets its own rclpy ``Context`` on one ROS domain per test run (the
-``ROS_DOMAIN_ID`` from the environment, e.g. set by ``make test``, else 1 + pid % 101;
-under pytest-xdist one domain per worker, see ``WORKER``), with discovery limited to
-localhost; the context is shut down after the test, so no node of one test ever sees
-another's. Subprocesses started by tests inherit the same domain.
+``ROS_DOMAIN_ID`` from the environment, e.g. set by ``make test``, else 1 + pid % 101, or
+the next with no DDS participant on this host; under pytest-xdist one domain per worker,
+see ``WORKER``), with discovery limited to localhost; the context is shut down after the
+test, so no node of one test ever sees another's. Subprocesses started by tests inherit
+the same domain.
 """
 
 import atexit
@@ -23,21 +24,33 @@ from thermal_imu_calib.nodes.player import (imu_msg, Pacer, replay,  # noqa: F40
                                             temperature_msg)
 
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+                                'bench'))
+import dds_domain  # noqa: E402
+
 #: the pytest-xdist worker running this process ('gw0', 'gw1', ...; '' without -n)
 WORKER = os.environ.get('PYTEST_XDIST_WORKER', '')
 if WORKER:
     # ``make test`` runs two workers at once (``-n 2``). Each has a ROS domain of its own
-    # (the run's domain, the next one, ... within 1..101), so the nodes of two tests running
-    # at the same time never see each other, and a temporary folder of its own, so a test
-    # that looks at what is in the temporary folder sees only its own worker's files.
-    # Subprocesses inherit both from the environment.
-    _k = int(WORKER.lstrip('gw') or 0)
-    _base = int(os.environ.get('ROS_DOMAIN_ID', 1 + os.getppid() % 101))
-    os.environ['ROS_DOMAIN_ID'] = str(1 + (_base - 1 + _k) % 101)
+    # and a temporary folder of its own, so the nodes of two tests running at the same time
+    # never see each other and a test that looks at what is in the temporary folder sees
+    # only its own worker's files. Subprocesses inherit both from the environment.
     _tmp = tempfile.mkdtemp(prefix=f'thermal-imu-test-{WORKER}-')
     os.environ['TMPDIR'] = tempfile.tempdir = _tmp
     atexit.register(shutil.rmtree, _tmp, True)
-os.environ.setdefault('ROS_DOMAIN_ID', str(1 + os.getpid() % 101))
+# The domain: the run's (ROS_DOMAIN_ID, e.g. from ``make test``; else 1 + the pid % 101, the
+# parent's under xdist), or the first after it with no DDS participant on this host: worker
+# k of n takes base + k, base + k + n, ... (``dds_domain.worker_domains``; without xdist
+# k = 0, n = 1).
+# A domain shared with another process's participants can hold ids 0..31 that
+# rmw_fastrtps's localhost discovery needs (``dds_domain``: in CI on 2026-12-03 two live
+# tests never matched their node), and its nodes would share the tests' topics.
+_base = int(os.environ.get('ROS_DOMAIN_ID',
+                           1 + (os.getppid() if WORKER else os.getpid()) % 101))
+_k = int(WORKER.lstrip('gw') or 0) if WORKER else 0
+_n = int(os.environ.get('PYTEST_XDIST_WORKER_COUNT', 1)) if WORKER else 1
+_mine = dds_domain.worker_domains(_base, _k, _n)
+os.environ['ROS_DOMAIN_ID'] = str(dds_domain.free_domain(_mine) or _mine[0])
 DOMAIN_ID = int(os.environ['ROS_DOMAIN_ID'])
 
 

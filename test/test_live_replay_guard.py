@@ -3,6 +3,11 @@
 * The domain guard: before a live run, a probe node lists the other nodes on the ROS
   domain (``foreign_nodes``); ``bench/scoreboard.py`` refuses to start, naming them, when
   there are any (a node left by a killed run shares the topics and spoils every row).
+* The domain's participants (``bench/dds_domain.py``, read from the UDP ports they
+  listen on): a domain whose participant ids 0..31 are all taken cannot host a live run
+  (Fast DDS's localhost discovery reaches only those), so the guard refuses it and a live
+  run ends at once, saying so, instead of waiting 180 s for a match that never comes;
+  the tests' own domains are chosen free of participants (``conftest``).
 * The cleanup: a bench process that ends (normal exit, SIGTERM, SIGHUP, SIGINT) stops
   every node it launched. A helper process imports ``bench/live_replay``, starts a
   ``LiveCalibrator`` (the real calibrator_node, or a cheap shell stand-in with a child of
@@ -27,6 +32,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 BENCH = os.path.join(ROOT, 'bench')
 sys.path.insert(0, BENCH)
 
+import dds_domain  # noqa: E402
 import live_replay  # noqa: E402
 
 CALIBRATOR = 'thermal_imu_calibrator'
@@ -218,6 +224,52 @@ def test_scoreboard_refuses_a_busy_domain(tmp_path):
     assert 'pgrep -a calibrator_node' in r.stderr and 'ROS_DOMAIN_ID' in r.stderr, out
     assert 'Traceback' not in out, out
     assert not os.path.exists(tmp_path / 'board.json')
+
+
+def test_participants_are_read_from_their_ports():
+    assert dds_domain.participants(DOMAIN_ID) == []     # conftest chose a free domain
+    with _node_on_domain('port_probe'):
+        ids = dds_domain.participants(DOMAIN_ID)
+        assert len(ids) == 1 and 0 <= ids[0] < dds_domain.LOCALHOST_PEERS, ids
+        assert not dds_domain.saturated(ids)
+        assert dds_domain.free_domain([DOMAIN_ID, 200]) == 200
+        assert '1 DDS participant(s) bound' in dds_domain.describe(DOMAIN_ID)
+    assert dds_domain.participants(DOMAIN_ID) == []     # destroyed with its node
+    # two workers never share a candidate; each starts at base + its index
+    a, b = (dds_domain.worker_domains(100, k, 2) for k in (0, 1))
+    assert a[:3] == [100, 1, 3] and b[:3] == [101, 2, 4] and not set(a) & set(b)
+    assert set(a) | set(b) <= set(dds_domain.DOMAINS)
+
+
+def test_a_domain_with_ids_0_to_31_taken_is_refused_at_once(tmp_path):
+    """32 idle participants on the domain: the guard refuses and a live run does not start.
+
+    With them there, a node and a player on the domain never matched (the CI failure of
+    2026-12-03, reproduced: 180 s without a match); now the run ends at once, saying why.
+    """
+    import rclpy
+    from rclpy.context import Context
+    held = []
+    try:
+        for i in range(dds_domain.LOCALHOST_PEERS):
+            context = Context()
+            rclpy.init(context=context, domain_id=DOMAIN_ID)
+            held.append((context, rclpy.create_node(f'holder_{i}', context=context)))
+        ids = dds_domain.participants(DOMAIN_ID)
+        assert dds_domain.saturated(ids), ids
+        with pytest.raises(live_replay.DomainBusy) as e:
+            live_replay.check_domain(DOMAIN_ID, wait_s=FREE_S)
+        assert 'ids 0..31 all taken' in str(e.value) and 'ROS_DOMAIN_ID' in str(e.value)
+        # no recording: the run must end before the node starts, so none is read
+        out = live_replay.run_live_once(None, None, 9.81, DOMAIN_ID,
+                                        workdir=str(tmp_path / 'live'))
+        assert out.error.startswith('not started: ') and 'ids 0..31 all taken' in out.error
+        assert out.imu_sent == 0 and not live_replay.live_nodes()
+    finally:
+        for context, node in held:
+            node.destroy_node()
+            context.try_shutdown()
+    assert dds_domain.participants(DOMAIN_ID) == []
 
 
 def test_sigterm_stops_the_launched_calibrator_node(tmp_path):
