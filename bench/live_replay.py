@@ -241,6 +241,7 @@ class _Driver:
         self.imu_pub = self.node.create_publisher(Imu, 'imu/data_raw', qos)
         self.temp_cls = THERMAL_TYPES[temperature_type][0]
         self.temp_headerless = headerless(self.temp_cls)
+        self._qos = qos
         self.temp_pub = (self.node.create_publisher(self.temp_cls, temperature_topic, qos)
                          if temperature_topic else None)
         self.progress = None
@@ -251,6 +252,10 @@ class _Driver:
         self.executor.add_node(self.node)
         self._thread = threading.Thread(target=self._spin, daemon=True)
         self._thread.start()
+
+    def start_temperature(self, topic):
+        """Create the temperature publisher now (a driver started after the IMU's)."""
+        self.temp_pub = self.node.create_publisher(self.temp_cls, topic, self._qos)
 
     def _on_progress(self, msg):
         with self._lock:
@@ -370,6 +375,18 @@ def _match_state(driver, with_temperature, domain_id):
     return f'{seen}; {subs}; {dds_domain.describe(domain_id)}'
 
 
+def _start_late(driver, node, received, topic):
+    """Wait for the node to decide without a temperature, then start its publisher."""
+    _wait(lambda: (driver.reported('imu_received') >= received
+                   and driver.reported('temperature_publishers', None) == []
+                   and driver.reported('samples') > 0),
+          'the node to decide without a temperature', node,
+          progress=lambda: driver.reported('imu_received'))
+    driver.start_temperature(topic)
+    _wait(lambda: driver.temp_pub.get_subscription_count() >= 1,
+          f'the node to match the late temperature on {topic}', node)
+
+
 def _publish(driver, imu, temps, i0, i1, t_lo, t_hi, pace, header_ns=None):
     """Publish IMU rows i0..i1 and the temperatures stamped in [t_lo, t_hi), in stamp order.
 
@@ -400,7 +417,7 @@ def _publish(driver, imu, temps, i0, i1, t_lo, t_hi, pace, header_ns=None):
 def run_live(imu, temps, gravity, domain_id, temperature_topics=None, workdir=None,
              calibration_name='live.yaml', extra_params=None, attempts=3,
              temperature_type=TEMPERATURE_TYPE, temperature_header_ns=None,
-             set_temperature_type=True, published_on=TEMPERATURE_TOPIC):
+             set_temperature_type=True, published_on=TEMPERATURE_TOPIC, late_from=None):
     """Run ``run_live_once`` until every message arrives, at most ``attempts`` times.
 
     Best effort may lose messages on a loaded machine (counted, never hidden): a run that
@@ -411,7 +428,7 @@ def run_live(imu, temps, gravity, domain_id, temperature_topics=None, workdir=No
         out = run_live_once(imu, temps, gravity, domain_id, temperature_topics,
                             os.path.join(workdir, f'attempt{i}'), calibration_name,
                             extra_params, temperature_type, temperature_header_ns,
-                            set_temperature_type, published_on)
+                            set_temperature_type, published_on, late_from)
         out.attempts = i
         if out.complete or (out.error and not out.error.startswith('not every message')):
             return out
@@ -421,7 +438,7 @@ def run_live(imu, temps, gravity, domain_id, temperature_topics=None, workdir=No
 def run_live_once(imu, temps, gravity, domain_id, temperature_topics=None, workdir=None,
                   calibration_name='live.yaml', extra_params=None,
                   temperature_type=TEMPERATURE_TYPE, temperature_header_ns=None,
-                  set_temperature_type=True, published_on=TEMPERATURE_TOPIC):
+                  set_temperature_type=True, published_on=TEMPERATURE_TOPIC, late_from=None):
     """Replay ``imu`` (+ ``temps`` on ``published_on``) into a launched calibrator_node.
 
     ``temperature_topics``: the launch argument (None: the shipped config's
@@ -432,7 +449,11 @@ def run_live_once(imu, temps, gravity, domain_id, temperature_topics=None, workd
     False: the node is not given ``temperature_types`` for a ``temperature_type`` other than
     sensor_msgs/Temperature, and must follow the type it sees on the graph
     (``nodes/thermal_types``). ``published_on``: the readings' topic (another than the
-    node's /imu/temperature: the node must follow it, ``nodes/topic_follower``). Returns a
+    node's /imu/temperature: the node must follow it, ``nodes/topic_follower``).
+    ``late_from``: the IMU row at which the temperature's publisher starts (a driver started
+    later than the IMU's, ``nodes/late_inputs``; ``temps`` then has no earlier reading):
+    the rows before it are replayed first, the node must decide to collect without a
+    temperature, and then the publisher is created and matched. Returns a
     Replay; never raises
     for node failures (they are in ``Replay.error``).
     """
@@ -460,30 +481,31 @@ def run_live_once(imu, temps, gravity, domain_id, temperature_topics=None, workd
     driver = None
     try:
         # inside the try: an exit while the player starts still stops the launched node
-        driver = _Driver(domain_id, published_on if temps is not None else None,
-                         temperature_type)
+        now = temps is not None and late_from is None     # the temperature from the start
+        driver = _Driver(domain_id, published_on if now else None, temperature_type)
 
         def connected():
             p = driver.progress
             # without a temperature the node's inputs have no publisher: with the shipped
             # config it decides to collect without them after the first IMU messages
             return (p is not None and p['imu_publishers'] >= 1
-                    and (temps is None or all(n >= 1 for n in p['temperature_publishers']))
+                    and (not now or all(n >= 1 for n in p['temperature_publishers']))
                     and driver.imu_pub.get_subscription_count() >= 1
-                    and (temps is None or driver.temp_pub.get_subscription_count() >= 1))
+                    and (not now or driver.temp_pub.get_subscription_count() >= 1))
         try:
             _wait(connected, 'the node to match the player (the IMU on imu/data_raw'
-                  + (f', the temperature on {published_on})' if temps is not None else ')'),
-                  node)
+                  + (f', the temperature on {published_on})' if now else ')'), node)
         except NodeFailed as e:
-            raise NodeFailed(f'{e}; {_match_state(driver, temps is not None, domain_id)}; '
+            raise NodeFailed(f'{e}; {_match_state(driver, now, domain_id)}; '
                              f'the node said: {node.log_tail(3) or "nothing"}') from None
         out.seconds['start'] = time.monotonic() - t_start
         t0 = time.monotonic()
         n = len(imu)
         base = driver.reported('imu_received')
-        for i0 in range(0, n, CHUNK):
-            i1 = min(i0 + CHUNK, n)
+        starts = sorted(set(range(0, n, CHUNK)) | ({late_from} if late_from else set()))
+        for i0, i1 in zip(starts, starts[1:] + [n]):
+            if late_from and i0 == late_from:
+                _start_late(driver, node, out.imu_sent + base, published_on)
             if out.imu_sent:
                 need = out.imu_sent - CHUNK
                 _wait(lambda: driver.reported('imu_received') - base >= need,
@@ -491,8 +513,8 @@ def run_live_once(imu, temps, gravity, domain_id, temperature_topics=None, workd
                       progress=lambda: driver.reported('imu_received'))
             lo = -2 ** 62 if i0 == 0 else int(imu.stamp_ns[i0])
             hi = 2 ** 62 if i1 == n else int(imu.stamp_ns[i1])
-            a, b = _publish(driver, imu, temps, i0, i1, lo, hi, Pacer(RATE),
-                            temperature_header_ns)
+            a, b = _publish(driver, imu, None if late_from and i0 < late_from else temps,
+                            i0, i1, lo, hi, Pacer(RATE), temperature_header_ns)
             out.imu_sent += a
             out.temp_sent += b
 

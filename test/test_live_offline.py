@@ -78,6 +78,8 @@ def _slow(temps):
 
 #: where the Xsens ROS 2 driver publishes its temperature (not the shipped imu/temperature)
 RENAMED = '/temperature'
+#: where in the recording a late temperature driver starts (a fraction of the IMU rows)
+LATE_FROM = 0.2
 #: a temperature driver stamping by another clock than the IMU's (s ahead)
 OTHER_CLOCK_S = 1000
 
@@ -103,7 +105,7 @@ def _write_other_clock(path, imu, temps):
                                      'bad_samples',
                                      'slow_temperature', 'float32_temperature',
                                      'float32_followed', 'temperature_on_another_clock',
-                                     'renamed_followed'])
+                                     'renamed_followed', 'late_temperature'])
 def test_live_calibration_equals_offline(tmp_path, thermal):
     """``bad_samples``: the room-temperature case with samples ``calibrate`` drops; the
     node drops the same ones (before 2026-11-28 it dropped only non-finite ones).
@@ -121,7 +123,11 @@ def test_live_calibration_equals_offline(tmp_path, thermal):
     ``/temperature`` (as the Xsens driver publishes it), ``calibrate`` without
     ``--temperature-topic`` (it takes the log's only Temperature topic) and the node with the
     shipped ``[imu/temperature]``: it subscribes ``/temperature``, published with the IMU
-    topic, by the same rule (``nodes/topic_follower``), and says so."""
+    topic, by the same rule (``nodes/topic_follower``), and says so. ``late_temperature``: the
+    room temperature's driver starts ``LATE_FROM`` of the way into the recording, after the
+    node (shipped config) has decided to collect without a temperature: it takes the
+    temperature from its first reading (``nodes/late_inputs``), as ``calibrate`` takes the
+    log's (the IMU samples more than 5 s before it not collected), and says so."""
     imu = _recording()
     temps = None
     topics = {}
@@ -134,6 +140,10 @@ def test_live_calibration_equals_offline(tmp_path, thermal):
             imu, temps = _with_bad_samples(imu, temps)
         if thermal == 'slow_temperature':
             temps = _slow(temps)
+        if thermal == 'late_temperature':
+            late = temps.stamp_ns >= imu.stamp_ns[int(LATE_FROM * len(imu))]
+            temps = TemperatureColumns(temps.stamp_ns[late], temps.temperature[late],
+                                       temps.frame_id)
         topics = {RENAMED if thermal == 'renamed_followed' else real_recordings.TEMP_TOPIC:
                   temps}
     log = str(tmp_path / 'mpu6050.mcap')
@@ -163,7 +173,9 @@ def test_live_calibration_equals_offline(tmp_path, thermal):
                                 'another_clock' else temps.stamp_ns + OTHER_CLOCK_S * 10 ** 9,
                                 set_temperature_type=thermal != 'float32_followed',
                                 published_on=(RENAMED if thermal == 'renamed_followed'
-                                              else live_replay.TEMPERATURE_TOPIC))
+                                              else live_replay.TEMPERATURE_TOPIC),
+                                late_from=(int(LATE_FROM * len(imu))
+                                           if thermal == 'late_temperature' else None))
     assert not live.error, live.error
     assert live.imu_sent == len(imu) and live.imu_received == live.imu_sent, \
         f'{live.imu_received} of {live.imu_sent} IMU messages arrived'
@@ -177,6 +189,12 @@ def test_live_calibration_equals_offline(tmp_path, thermal):
                 'topic on the graph' in f.read()
         notes = yaml.safe_load(live.calibration_text)['notes']
         assert [n for n in notes if n.startswith('input: no temperature is published')], notes
+    if thermal == 'late_temperature':        # the node said what it did, and the file
+        said = '/imu/temperature: the first reading came'
+        with open(tmp_path / 'live' / f'attempt{live.attempts}' / 'node.log') as f:
+            assert said in f.read()
+        notes = yaml.safe_load(live.calibration_text)['notes']
+        assert [n for n in notes if n.startswith('input: ' + said)], notes
     if thermal == 'float32_followed':        # the node said what it did, and the file
         said = ('/imu/temperature is published as std_msgs/msg/Float32 by '
                 '/scoreboard_player, not sensor_msgs/msg/Temperature: subscribed as '

@@ -19,15 +19,15 @@ Until then the IMU messages wait in the node's queue (at most ``GRACE_S`` of the
 holds are those ``calibrate`` finds from the first message. Not for lifelong mode, a
 collection resumed from its file, or a node without inputs (decided at the start); a
 collection made without the inputs (a restart in such a session) is resumed once decided
-(``made_without``). A temperature published after a decision without it is not used until
-the node is restarted (a warning says so).
+(``made_without``). A temperature first published after a decision without it is taken
+then, as ``calibrate`` takes a log's late temperature (``late_inputs``).
 """
 
 import json
 import os
 import time
 
-from . import input_hints, topic_follower
+from . import input_hints, late_inputs, topic_follower
 from ..io.headerless import LiveClocks
 
 #: seconds (steady clock) after the first IMU message before deciding without a temperature:
@@ -67,8 +67,8 @@ def decide(node, imu_seen_at, force=False, now=None):
     return ABSENT, (f'no temperature is published: nothing on {names} and no thermal topic on '
                     f'the graph {when}, so the node collects without a temperature, as '
                     'calibrate does a log without one (a temperature-independent '
-                    'calibration); one published later is not used until the node is '
-                    "restarted (set temperature_topics:='[]' to say so from the start)")
+                    'calibration); one published later is taken from its first reading '
+                    "(set temperature_topics:='[]' to say none will come)")
 
 
 def drop_inputs(node, why):
@@ -78,6 +78,9 @@ def drop_inputs(node, why):
     forgotten, and a new collection without them takes the IMU messages still queued.
     """
     node._absent_topics = [s.topic_name for s in node.temp_subs]
+    # the inputs stay subscribed: a first reading brings them back (``late_inputs``)
+    node._late_inputs = (late_inputs.LateInputs(node, node.temp_subs)
+                         if late_inputs.watchable(node) else None)
     for s in node.temp_subs:
         node.destroy_subscription(s)
     node.temp_subs.clear()
@@ -89,22 +92,11 @@ def drop_inputs(node, why):
         node._pending_imu, node._pending_source = pending, source
         node._clocks = LiveClocks([], [])
         node.readings_per_topic = []
+    if node._late_inputs is not None:
+        node._late_inputs.shadow(node)      # from the first IMU message on, as offline
     node._write_inputs_signature()
     node._input_notes.append(why)
     node.get_logger().warning(why)
-
-
-def warn_late(node):
-    """Say once that a temperature appeared on an input's topic after ``drop_inputs``."""
-    try:
-        late = [t for t in node._absent_topics if node.get_publishers_info_by_topic(t)]
-    except Exception:  # noqa: B902 - the graph is only a hint
-        late = []
-    if late:
-        node._absent_topics = []
-        node.get_logger().warning(
-            f'{", ".join(late)} is published now, after the node decided to collect without '
-            'a temperature; it is not used: restart the node to calibrate with it')
 
 
 def made_without(node):

@@ -39,8 +39,8 @@ from sensor_msgs.msg import Imu
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from . import (absent_inputs, calibrator_params as params, common, input_hints, process,
-               thermal_types, topic_follower)
+from . import (absent_inputs, calibrator_params as params, common, input_hints, late_inputs,
+               process, thermal_types, topic_follower)
 from .calibrator_collection import LiveCollection
 from ..app import calibrate as app
 from ..calibration import CalibrationError
@@ -148,7 +148,7 @@ class CalibratorNode(LiveCollection, Node):
         if self._inputs_decided or self._decide_inputs():
             self._process()
         if self._absent_topics:
-            absent_inputs.warn_late(self)
+            late_inputs.watch(self)
 
     def _decide_inputs(self, force=False):
         """Decide whether to collect with the thermal inputs; return True once decided."""

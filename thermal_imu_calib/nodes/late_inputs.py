@@ -1,0 +1,198 @@
+"""A temperature first published after the calibrator decided to collect without one.
+
+``absent_inputs`` decides ``GRACE_S`` after the first IMU message that no temperature is
+published, and the node collects without one, as ``calibrate`` does a log without a
+temperature topic. A temperature driver started later than that (its own launch file, a
+board sensor's node) used to be named in a warning and not used until the node was
+restarted, while ``calibrate`` on the same log uses it: the IMU samples logged more than
+``temperature_timeout`` before its first reading are not collected (no temperature to give
+them, ``io.align.fresh_rows``), the rest are, with it.
+
+Now the dropped inputs stay subscribed (``LateInputs``), as the type they were configured
+with, and a *shadow* aligner (``io.align.StreamAligner`` with those inputs) takes every IMU
+row the node processes, as the node would have with the inputs: until a reading comes it
+releases only rows with no temperature (stale, ``max_wait_s`` behind the newest). At the
+first reading the node takes the inputs back (``adopt``): the collection made without them
+is moved aside (``<collection_file>.without_temperature-TIME``), a new one starts with the
+shadow aligner and its rows still pending, and the readings go through the node's own
+callbacks from then on. What it then collects is what the node with the inputs from the
+start would have collected, so ``~/calibrate`` equals ``calibrate`` on the log whenever
+every message arrives (``test_live_offline.py``, ``late_temperature``). Readings published
+before the node's subscription matched the new publisher are lost, as any first messages
+of a publisher (a player should wait for the match, as ``ros2 bag play --delay`` does).
+
+Not for a header-less input (std_msgs/Float32 or Float64: its readings take the IMU's
+clock, whose history the node did not keep meanwhile) nor a publisher of another type or
+name than the input's: those are still named in a warning (``warn_late``) and used after a
+restart. A jump back of the IMU stamps or ``~/reset`` gives the shadow a fresh aligner.
+"""
+
+import copy
+import time
+
+from . import common
+from ..io.align import StreamAligner
+from ..io.columns import TemperatureColumns
+from ..io.headerless import LiveClocks
+
+
+def _value_field(cls):
+    """Return the value field of thermal message class ``cls`` (``common.THERMAL_TYPES``)."""
+    return next(v for c, v in common.THERMAL_TYPES.values() if c is cls)
+
+
+class _Shadowed:
+    """The node's aligner (no inputs), also feeding every IMU row to the watched inputs'."""
+
+    def __init__(self, own, late):
+        self.own, self.late = own, late
+
+    def push_columns(self, imu, temps, extra=None):
+        self.late.take(self.late.aligner.push_columns(imu, self.late.no_readings))
+        if len(imu):
+            first, newest = int(imu.stamp_ns[0]), int(imu.stamp_ns.max())
+            span = self.late.span
+            self.late.span = (first if span is None else span[0],
+                              newest if span is None else max(span[1], newest))
+        return self.own.push_columns(imu, temps, extra)
+
+    def finish(self):
+        self.late.take(self.late.aligner.finish())
+        return self.own.finish()
+
+    def __deepcopy__(self, memo):
+        """Copy the node's own aligner only (a snapshot finishes its rows, not the shadow's)."""
+        return copy.deepcopy(self.own, memo)
+
+
+class LateInputs:
+    """The thermal inputs ``absent_inputs.drop_inputs`` dropped, still subscribed."""
+
+    def __init__(self, node, subs):
+        """Keep ``node``'s inputs (before they are dropped) and re-subscribe ``subs``' topics."""
+        self.topics = list(node.temperature_topics)
+        self.units = list(node.temperature_units)
+        self.inputs = list(node.inputs)
+        self.k = node.k
+        self.timeout = node.temperature_timeout
+        self.no_readings = [TemperatureColumns.empty() for _ in range(self.k)]
+        self.held = [[] for _ in range(self.k)]     # (message, info) until adopted
+        self.forward = None                         # then the node's own callbacks
+        self.stale = 0                              # shadow rows released without a reading
+        self.span = None                            # first, newest IMU header stamp (ns)
+        self.since = time.monotonic()
+        self.aligner = StreamAligner(self.k, self.timeout)
+        self.wrapper = None
+        self.types = [(s.msg_type, _value_field(s.msg_type)) for s in subs]
+        self.subs = [node.create_subscription(cls, topic, self._callback(i),
+                                              common.sensor_qos(node._in_depth),
+                                              callback_group=node._data_group)
+                     for i, ((cls, _), topic) in enumerate(zip(self.types, self.topics))]
+
+    def _callback(self, index):
+        def cb(msg, info):
+            if self.forward is not None:
+                self.forward[index](msg, info)
+            else:
+                self.held[index].append((msg, info))
+        return cb
+
+    def take(self, chunks):
+        """Count the shadow's released rows (no reading has come: none is fresh)."""
+        self.stale += sum(len(c.imu) for c in chunks)
+
+    def shadow(self, node):
+        """Put the shadow under ``node``'s aligner again when the node replaced it."""
+        if node.aligner is not self.wrapper:
+            if self.wrapper is not None:        # a jump back or ~/reset: a new timeline
+                self.aligner = StreamAligner(self.k, self.timeout)
+            self.wrapper = node.aligner = _Shadowed(node.aligner, self)
+
+    def destroy(self, node):
+        """Unsubscribe (the node will not use these inputs)."""
+        for s in self.subs:
+            node.destroy_subscription(s)
+        self.subs = []
+
+
+def watchable(node):
+    """Return True when ``node``'s inputs can be taken back at a late first reading."""
+    return node.k > 0 and not any(common.headerless(s.msg_type) for s in node.temp_subs)
+
+
+def adopt(node, late):
+    """Take the inputs back into ``node`` (the calibrator) at their first reading."""
+    first = min(int(common.stamp_to_ns(m.header.stamp)) for h in late.held for m, _ in h)
+    with node._lock:
+        keep = (node._pending_imu, node._pending_source, node._rows, node._newest_ns)
+        node.temperature_topics, node.temperature_units = late.topics, late.units
+        node.inputs, node.k = late.inputs, late.k
+        node.temp_subs = late.subs
+        aside = node._move_aside('without_temperature')
+        node._new_collection()
+        node._pending_imu, node._pending_source, node._rows, node._newest_ns = keep
+        node.aligner = late.aligner       # the rows of the last max_wait_s still pending
+        node._clocks = LiveClocks(late.topics, [False] * late.k)
+        node._clocks.span = late.span     # the stamps' clock is chosen at once, as offline
+        node.readings_per_topic = [0] * late.k
+        node.counts['samples'] = 0
+        node.counts['stale_temperature'] = late.stale
+    late.forward = [node._temperature_cb(i, value) for i, (_, value) in enumerate(late.types)]
+    held, late.held = late.held, [[] for _ in range(late.k)]
+    for i, items in enumerate(held):
+        for msg, info in items:
+            late.forward[i](msg, info)
+    node._write_inputs_signature()
+    node._absent_topics = []
+    behind = ('' if late.span is None else
+              f', stamped {(first - late.span[0]) * 1e-9:.1f} s after the first IMU message')
+    why = (f'{", ".join(s.topic_name for s in late.subs)}: the first reading came {time.monotonic() - late.since:.1f}'
+           f' s after the node decided to collect without a temperature{behind}; the node '
+           'collects with it from here, as calibrate does a log whose temperature starts '
+           f'late (IMU samples more than {late.timeout:g} s before its first reading are not '
+           'collected)' + (f'; the holds collected without it were moved to {aside}'
+                           if aside else ''))
+    node._input_notes[:] = [n for n in node._input_notes
+                            if not n.startswith('no temperature is published')] + [why]
+    node.get_logger().warning(why)
+
+
+def watch(node):
+    """Each tick after a decision without the inputs: adopt them, or warn (``warn_late``)."""
+    late = getattr(node, '_late_inputs', None)
+    if late is not None and late.forward is None:
+        if any(late.held):
+            adopt(node, late)
+            return
+        late.shadow(node)
+    if not getattr(node, '_warned_late', False):
+        warn_late(node, late)
+
+
+def warn_late(node, late=None):
+    """Say once that a temperature the node will not take appeared on an input's topic.
+
+    A publisher of the watched input's type is not named: its first reading is taken.
+    """
+    watched = {} if late is None else {t: c for t, (c, _) in zip(late.topics, late.types)}
+    try:
+        late_topics = [t for t in node._absent_topics
+                       if any(not _same_type(i.topic_type, watched.get(t))
+                              for i in node.get_publishers_info_by_topic(t))]
+    except Exception:  # noqa: B902 - the graph is only a hint
+        late_topics = []
+    if late_topics:
+        node._warned_late = True
+        node.get_logger().warning(
+            f'{", ".join(late_topics)} is published now, after the node decided to collect '
+            'without a temperature' + ('' if late is None else ", as another type than the "
+                                       "input's") +
+            '; it is not used: restart the node to calibrate with it')
+
+
+def _same_type(type_name, cls):
+    """Return True when graph type name ``type_name`` is message class ``cls``."""
+    if cls is None:
+        return False
+    module = cls.__module__.split('.')[0]
+    return type_name == f'{module}/msg/{cls.__name__}'
