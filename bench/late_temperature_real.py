@@ -1,0 +1,107 @@
+r"""A temperature driver started late, on real recordings: live against ``calibrate``.
+
+For each recording the temperature readings are kept from ``--from`` of the way into the
+IMU rows on (a driver started then), written as a log and calibrated offline with
+``calibrate`` (default options, the temperature topic given); then the IMU rows before that
+point are replayed into the launched calibrator_node (shipped config, ``gravity:=``), which
+decides to collect without a temperature; the temperature's publisher is created, matched,
+and the rest replayed with its readings (``live_replay.run_live(..., late_from=)``). The node
+takes the temperature from its first reading (``nodes/late_inputs``); the two files are
+compared as the scoreboard compares them (holds, model, every number to 1e-9 relative).
+
+    ROS_DOMAIN_ID=88 .venv/bin/python bench/late_temperature_real.py --work /tmp/late \
+        --json bench/results/late_temperature_real.json
+
+Times in the table: seconds of the recording; no unit elsewhere (counts, relative).
+"""
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+import live_replay  # noqa: E402
+import real_recordings  # noqa: E402
+from scoreboard import compare  # noqa: E402
+from thermal_imu_calib.io.bag_writer import write_columns  # noqa: E402
+from thermal_imu_calib.io.columns import TemperatureColumns  # noqa: E402
+
+#: the recordings with a real temperature, and one without (a flat room temperature added)
+NAMES = ('bmi270_hot', 'bmi270_cold', 'mpu6050')
+
+
+def _recording(name, work):
+    if name.startswith('bmi270'):
+        rec = real_recordings.bmi270(work, name.split('_')[1])
+    else:
+        rec = real_recordings.mpu6050(work)
+    imu, temps = real_recordings.read_log(rec.log, rec.imu_topic, rec.temperature_topic)
+    if temps is None:
+        temps = real_recordings.flat_temperature(imu)
+    return rec, imu, temps
+
+
+def run(name, work, frac, domain):
+    """Return the row of recording ``name`` with the temperature from ``frac`` on."""
+    rec, imu, temps = _recording(name, work)
+    i = int(frac * len(imu))
+    keep = temps.stamp_ns >= imu.stamp_ns[i]
+    late = TemperatureColumns(temps.stamp_ns[keep], temps.temperature[keep], temps.frame_id)
+    log = os.path.join(work, f'{name}_late.mcap')
+    write_columns(log, '/imu', imu, {real_recordings.TEMP_TOPIC: late}, overwrite=True)
+    out = os.path.join(work, f'{name}_late_offline.yaml')
+    r = subprocess.run([os.path.join(os.path.dirname(sys.executable), 'thermal-imu-calib'),
+                        'calibrate', log, '--imu-topic', '/imu', '--gravity', repr(rec.gravity),
+                        '--temperature-topic', real_recordings.TEMP_TOPIC, '-o', out],
+                       capture_output=True, text=True)
+    row = {'recording': name, 'imu_rows': len(imu), 'late_from_row': i,
+           'late_from_s': round((imu.stamp_ns[i] - imu.stamp_ns[0]) * 1e-9, 1),
+           'offline_exit': r.returncode}
+    if r.returncode:
+        row['offline_error'] = r.stderr.strip().splitlines()[-1]
+        return row
+    with open(out) as f:
+        offline = f.read()
+    live = live_replay.run_live(imu, late, rec.gravity, domain,
+                                workdir=os.path.join(work, f'{name}_live'), late_from=i)
+    row.update({'imu_sent': live.imu_sent, 'imu_received': live.imu_received,
+                'temp_sent': live.temp_sent, 'temp_received': live.temp_received,
+                'live_success': live.success, 'live_error': live.error,
+                'live_message': live.message})
+    if live.success and live.calibration_text:
+        c = compare(offline, live.calibration_text)
+        row.update({k: c[k] for k in ('equal', 'same_holds', 'same_model', 'max_rel_diff',
+                                      'numbers_compared')})
+        row['holds'] = c['offline']['holds']
+        row['model'] = c['offline']['accel_kind']
+    return row
+
+
+def main(argv=None):
+    """Run the recordings; print one line each and write the JSON."""
+    ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+    ap.add_argument('--work', required=True, help='folder for the logs and the live runs')
+    ap.add_argument('--from', dest='frac', type=float, default=0.2,
+                    help='where the temperature starts, as a fraction of the IMU rows')
+    ap.add_argument('--only', nargs='*', default=None, help='recording names')
+    ap.add_argument('--json', help='write the rows here')
+    a = ap.parse_args(argv)
+    domain = int(os.environ.get('ROS_DOMAIN_ID', '88'))
+    live_replay.check_domain(domain)
+    os.makedirs(a.work, exist_ok=True)
+    rows = []
+    for name in a.only or NAMES:
+        row = run(name, a.work, a.frac, domain)
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+    if a.json:
+        with open(a.json, 'w') as f:
+            json.dump({'from': a.frac, 'rows': rows}, f, indent=1)
+    return 0 if all(r.get('equal') for r in rows) else 1
+
+
+if __name__ == '__main__':
+    sys.exit(main())
