@@ -214,6 +214,7 @@ class Replay:
     error: str = ''
     command: list = field(default_factory=list)
     attempts: int = 1
+    domain: int = -1
 
     @property
     def complete(self):
@@ -417,22 +418,38 @@ def _publish(driver, imu, temps, i0, i1, t_lo, t_hi, pace, header_ns=None):
 def run_live(imu, temps, gravity, domain_id, temperature_topics=None, workdir=None,
              calibration_name='live.yaml', extra_params=None, attempts=3,
              temperature_type=TEMPERATURE_TYPE, temperature_header_ns=None,
-             set_temperature_type=True, published_on=TEMPERATURE_TOPIC, late_from=None):
+             set_temperature_type=True, published_on=TEMPERATURE_TOPIC, late_from=None,
+             spare_domains=()):
     """Run ``run_live_once`` until every message arrives, at most ``attempts`` times.
 
     Best effort may lose messages on a loaded machine (counted, never hidden): a run that
     lost some is repeated with a fresh node; the last run is returned with ``attempts``.
+    ``spare_domains``: where to run instead when ``domain_id``'s participant ids 0..31 are
+    all taken (``usable_domain``; ``Replay.domain`` says where it ran).
     """
     workdir = workdir or tempfile.mkdtemp(prefix='live-')
+    domain_id = usable_domain(domain_id, spare_domains)
     for i in range(1, attempts + 1):
         out = run_live_once(imu, temps, gravity, domain_id, temperature_topics,
                             os.path.join(workdir, f'attempt{i}'), calibration_name,
                             extra_params, temperature_type, temperature_header_ns,
                             set_temperature_type, published_on, late_from)
-        out.attempts = i
+        out.attempts, out.domain = i, domain_id
         if out.complete or (out.error and not out.error.startswith('not every message')):
             return out
     return out
+
+
+def usable_domain(domain_id, spare_domains=()):
+    """Return ``domain_id``, or the first free of ``spare_domains`` when it is saturated.
+
+    Saturated: its participant ids 0..31 are all taken on this host, so a new node and
+    player would never match there (``dds_domain``). Without a free spare the domain is
+    returned as it is (the run then ends at once, saying why).
+    """
+    if dds_domain.saturated(dds_domain.participants(domain_id)) and spare_domains:
+        return dds_domain.free_domain(spare_domains) or domain_id
+    return domain_id
 
 
 def run_live_once(imu, temps, gravity, domain_id, temperature_topics=None, workdir=None,

@@ -52,6 +52,9 @@ _n = int(os.environ.get('PYTEST_XDIST_WORKER_COUNT', 1)) if WORKER else 1
 _mine = dds_domain.worker_domains(_base, _k, _n)
 os.environ['ROS_DOMAIN_ID'] = str(dds_domain.free_domain(_mine) or _mine[0])
 DOMAIN_ID = int(os.environ['ROS_DOMAIN_ID'])
+#: this worker's other domains: a live run moves to a free one when DOMAIN_ID fills up
+#: (``live_replay.usable_domain``)
+SPARE_DOMAINS = [d for d in _mine if d != DOMAIN_ID]
 
 
 BIN = os.path.dirname(sys.executable)

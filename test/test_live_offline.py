@@ -26,7 +26,7 @@ import os
 import subprocess
 import sys
 
-from conftest import DOMAIN_ID, venv_exe
+from conftest import DOMAIN_ID, SPARE_DOMAINS, venv_exe
 import numpy as np
 import pytest
 import yaml
@@ -175,7 +175,8 @@ def test_live_calibration_equals_offline(tmp_path, thermal):
                                 published_on=(RENAMED if thermal == 'renamed_followed'
                                               else live_replay.TEMPERATURE_TOPIC),
                                 late_from=(int(LATE_FROM * len(imu))
-                                           if thermal == 'late_temperature' else None))
+                                           if thermal == 'late_temperature' else None),
+                                spare_domains=SPARE_DOMAINS)
     assert not live.error, live.error
     assert live.imu_sent == len(imu) and live.imu_received == live.imu_sent, \
         f'{live.imu_received} of {live.imu_sent} IMU messages arrived'

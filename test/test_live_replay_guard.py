@@ -6,8 +6,9 @@
 * The domain's participants (``bench/dds_domain.py``, read from the UDP ports they
   listen on): a domain whose participant ids 0..31 are all taken cannot host a live run
   (Fast DDS's localhost discovery reaches only those), so the guard refuses it and a live
-  run ends at once, saying so, instead of waiting 180 s for a match that never comes;
-  the tests' own domains are chosen free of participants (``conftest``).
+  run ends at once, saying so, instead of waiting 180 s for a match that never comes
+  (``run_live`` moves to a free spare domain when it is given some); the tests' own
+  domains are chosen free of participants (``conftest``).
 * The cleanup: a bench process that ends (normal exit, SIGTERM, SIGHUP, SIGINT) stops
   every node it launched. A helper process imports ``bench/live_replay``, starts a
   ``LiveCalibrator`` (the real calibrator_node, or a cheap shell stand-in with a child of
@@ -25,7 +26,7 @@ import subprocess
 import sys
 import textwrap
 
-from conftest import DOMAIN_ID, venv_env, wait_for
+from conftest import DOMAIN_ID, SPARE_DOMAINS, venv_env, wait_for
 import pytest
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -265,6 +266,10 @@ def test_a_domain_with_ids_0_to_31_taken_is_refused_at_once(tmp_path):
                                         workdir=str(tmp_path / 'live'))
         assert out.error.startswith('not started: ') and 'ids 0..31 all taken' in out.error
         assert out.imu_sent == 0 and not live_replay.live_nodes()
+        # run_live moves to a free spare domain (the worker's), else stays
+        spare = dds_domain.free_domain(SPARE_DOMAINS)
+        assert live_replay.usable_domain(DOMAIN_ID, SPARE_DOMAINS) == spare != DOMAIN_ID
+        assert live_replay.usable_domain(DOMAIN_ID, []) == DOMAIN_ID
     finally:
         for context, node in held:
             node.destroy_node()
