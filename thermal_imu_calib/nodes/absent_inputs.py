@@ -83,15 +83,9 @@ def drop_inputs(node, why):
                          if late_inputs.watchable(node) else None)
     for s in node.temp_subs:
         node.destroy_subscription(s)
-    node.temp_subs.clear()
     node.type_follower.clear()
-    node.temperature_topics, node.temperature_units, node.inputs, node.k = [], [], [], 0
     with node._lock:
-        pending, source = node._pending_imu, node._pending_source
-        node._new_collection()
-        node._pending_imu, node._pending_source = pending, source
-        node._clocks = LiveClocks([], [])
-        node.readings_per_topic = []
+        node._restart_with([], [], [], [], LiveClocks([], []))
     if node._late_inputs is not None:
         node._late_inputs.shadow(node)      # from the first IMU message on, as offline
     node._write_inputs_signature()

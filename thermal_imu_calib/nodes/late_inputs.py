@@ -123,18 +123,13 @@ def watchable(node):
 def adopt(node, late):
     """Take the inputs back into ``node`` (the calibrator) at their first reading."""
     first = min(int(common.stamp_to_ns(m.header.stamp)) for h in late.held for m, _ in h)
+    clocks = LiveClocks(late.topics, [False] * late.k)
+    clocks.span = late.span               # the stamps' clock is chosen at once, as offline
     with node._lock:
-        keep = (node._pending_imu, node._pending_source, node._rows, node._newest_ns)
-        node.temperature_topics, node.temperature_units = late.topics, late.units
-        node.inputs, node.k = late.inputs, late.k
-        node.temp_subs = late.subs
         aside = node._move_aside('without_temperature')
-        node._new_collection()
-        node._pending_imu, node._pending_source, node._rows, node._newest_ns = keep
-        node.aligner = late.aligner       # the rows of the last max_wait_s still pending
-        node._clocks = LiveClocks(late.topics, [False] * late.k)
-        node._clocks.span = late.span     # the stamps' clock is chosen at once, as offline
-        node.readings_per_topic = [0] * late.k
+        # the shadow aligner holds the rows of the last max_wait_s, as with the inputs
+        node._restart_with(late.topics, late.units, late.inputs, late.subs, clocks,
+                           late.aligner)
         node.counts['samples'] = 0
         node.counts['stale_temperature'] = late.stale
     late.forward = [node._temperature_cb(i, value) for i, (_, value) in enumerate(late.types)]
@@ -146,8 +141,9 @@ def adopt(node, late):
     node._absent_topics = []
     behind = ('' if late.span is None else
               f', stamped {(first - late.span[0]) * 1e-9:.1f} s after the first IMU message')
-    why = (f'{", ".join(s.topic_name for s in late.subs)}: the first reading came {time.monotonic() - late.since:.1f}'
-           f' s after the node decided to collect without a temperature{behind}; the node '
+    topics = ', '.join(s.topic_name for s in late.subs)
+    why = (f'{topics}: the first reading came {time.monotonic() - late.since:.1f} s after '
+           f'the node decided to collect without a temperature{behind}; the node '
            'collects with it from here, as calibrate does a log whose temperature starts '
            f'late (IMU samples more than {late.timeout:g} s before its first reading are not '
            'collected)' + (f'; the holds collected without it were moved to {aside}'
