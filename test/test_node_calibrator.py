@@ -699,12 +699,11 @@ def test_reset_judges_the_temperature_stamps_afresh(ros, tmp_path):
     assert node._clocks.describe() == {'imu/temperature': 'header stamps'}
 
 
-def _imu_only(ros, name, imu):
-    """Replay ``imu`` (no temperature) from driver ``name``, then call ~/calibrate.
+def imu_player(ros, name):
+    """Return (node, IMU publisher, ~/progress list) of a driver ``name`` without a temperature.
 
-    Returns (the driver node, the response) once the calibrator reports every message.
+    Waits until the calibrator has matched the publisher and reported its progress.
     """
-    from conftest import replay_flow
     drv = ros.node(name)
     pub = drv.create_publisher(Imu, 'imu/data_raw', 1000)
     progress = []
@@ -712,6 +711,16 @@ def _imu_only(ros, name, imu):
                             lambda m: progress.append(json.loads(m.data)), 10)
     ros.wait_matched(pub, 1, timeout=WAIT)
     wait_for(lambda: progress, WAIT, 'progress')
+    return drv, pub, progress
+
+
+def _imu_only(ros, name, imu):
+    """Replay ``imu`` (no temperature) from driver ``name``, then call ~/calibrate.
+
+    Returns (the driver node, the response) once the calibrator reports every message.
+    """
+    from conftest import replay_flow
+    drv, pub, progress = imu_player(ros, name)
     sent = replay_flow(pub, imu, [], RATE, lambda: progress[-1]['imu_received'],
                        what='the calibrator input')
     wait_for(lambda: progress[-1]['imu_received'] >= sent, WAIT, 'the IMU messages')

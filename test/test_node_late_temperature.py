@@ -11,30 +11,17 @@ happened, a snapshot taken before the first reading works, and a publisher of an
 type is still only named.
 """
 
-import json
-
 from conftest import replay_flow, wait_for
 import numpy as np
-from sensor_msgs.msg import Imu, Temperature
-from std_msgs.msg import Float32, String
+from sensor_msgs.msg import Temperature
+from std_msgs.msg import Float32
 from std_srvs.srv import Trigger
 from thermal_imu_calib.calibration import Calibration
 from thermal_imu_calib.nodes import absent_inputs
-from test_node_calibrator import calibrator, RATE, recording, WAIT
+from test_node_calibrator import calibrator, imu_player, RATE, recording, WAIT
 
 #: a shorter wait before deciding without a temperature (the node reads it at each tick)
 GRACE_S = 1.0
-
-
-def _player(ros, name):
-    node = ros.node(name)
-    imu_pub = node.create_publisher(Imu, 'imu/data_raw', 1000)
-    progress = []
-    node.create_subscription(String, '/thermal_imu_calibrator/progress',
-                             lambda m: progress.append(json.loads(m.data)), 10)
-    ros.wait_matched(imu_pub, 1, timeout=WAIT)
-    wait_for(lambda: progress, WAIT, 'progress')
-    return node, imu_pub, progress
 
 
 def test_a_temperature_published_late_is_taken_from_its_first_reading(ros, tmp_path,
@@ -46,7 +33,7 @@ def test_a_temperature_published_late_is_taken_from_its_first_reading(ros, tmp_p
     cut = int(np.searchsorted(imu.stamp_ns, (rec.schedule[1].stamp_end_ns
                                              + rec.schedule[2].stamp_start_ns) // 2))
     node = calibrator(ros, tmp_path)
-    drv, imu_pub, progress = _player(ros, 'late_driver')
+    drv, imu_pub, progress = imu_player(ros, 'late_driver')
     sent = replay_flow(imu_pub, imu.slice(slice(0, cut)), [], RATE,
                        lambda: progress[-1]['imu_received'], what='the first part')
     wait_for(lambda: progress[-1]['imu_received'] >= sent and node.k == 0
@@ -95,7 +82,7 @@ def test_a_late_publisher_of_another_type_is_named_not_taken(ros, tmp_path, monk
     rec = recording(repetitions=1)
     imu = rec.imu()
     node = calibrator(ros, tmp_path)
-    drv, imu_pub, progress = _player(ros, 'late_float_driver')
+    drv, imu_pub, progress = imu_player(ros, 'late_float_driver')
     sent = replay_flow(imu_pub, imu.slice(slice(0, 3000)), [], RATE,
                        lambda: progress[-1]['imu_received'], what='IMU messages')
     wait_for(lambda: progress[-1]['imu_received'] >= sent and node.k == 0, WAIT,
