@@ -102,3 +102,47 @@ def test_a_late_publisher_of_another_type_is_named_not_taken(ros, tmp_path, monk
                          "collect without a temperature, as another type than the input's; "
                          'it is not used: restart the node to calibrate with it'), warned
     assert node.k == 0
+
+
+class _ZeroStamps:
+    """A publisher whose messages leave with header stamp 0 (published in stamp order)."""
+
+    def __init__(self, pub):
+        self.pub = pub
+
+    def publish(self, msg):
+        msg.header.stamp.sec, msg.header.stamp.nanosec = 0, 0
+        self.pub.publish(msg)
+
+
+def test_a_late_temperature_stamped_0_goes_on_the_imus_clock(ros, tmp_path, monkeypatch):
+    # a late driver that leaves its header stamps 0: taken, and its readings put on the
+    # IMU's clock as for any input stamped so (io.headerless.StampChoice); the node kept no
+    # IMU history meanwhile, so only readings after the next IMU message are placed
+    monkeypatch.setattr(absent_inputs, 'GRACE_S', GRACE_S)
+    rec = recording(repetitions=2)
+    imu = rec.imu()
+    (_, tc), = rec.temperatures.items()
+    cut = int(np.searchsorted(imu.stamp_ns, (rec.schedule[1].stamp_end_ns
+                                             + rec.schedule[2].stamp_start_ns) // 2))
+    node = calibrator(ros, tmp_path)
+    drv, imu_pub, progress = imu_player(ros, 'late_zero_driver')
+    sent = replay_flow(imu_pub, imu.slice(slice(0, cut)), [], RATE,
+                       lambda: progress[-1]['imu_received'], what='the first part')
+    wait_for(lambda: progress[-1]['imu_received'] >= sent and node.k == 0, WAIT,
+             'the decision without a temperature')
+    temp_pub = drv.create_publisher(Temperature, 'imu/temperature', 100)
+    ros.wait_matched(temp_pub, 1, timeout=WAIT)
+    rest = imu.slice(slice(cut, None))
+    late = tc.stamp_ns >= rest.stamp_ns[0]
+    sent += replay_flow(imu_pub, rest, [(_ZeroStamps(temp_pub), tc.stamp_ns[late],
+                                         tc.temperature[late])],
+                        RATE, lambda: progress[-1]['imu_received'], what='the second part',
+                        readings=lambda: progress[-1]['temperature_readings'])
+    wait_for(lambda: progress[-1]['imu_received'] >= sent, WAIT, 'every IMU message')
+    assert node.k == 1 and node._clocks.bare == [True]
+    resp = ros.call(drv, Trigger, '/thermal_imu_calibrator/calibrate', timeout=180)
+    assert resp.success, resp.message
+    cal = Calibration.load(str(tmp_path / 'calibration.yaml'))
+    assert len(cal.inputs) == 1 and cal.valid_range is not None
+    assert [n for n in cal.notes if 'the first reading came' in n], cal.notes

@@ -86,8 +86,8 @@ def drop_inputs(node, why):
     node.type_follower.clear()
     with node._lock:
         node._restart_with([], [], [], [], LiveClocks([], []))
-    if node._late_inputs is not None:
-        node._late_inputs.shadow(node)      # from the first IMU message on, as offline
+        if node._late_inputs is not None:
+            node._late_inputs.shadow(node)  # from the first IMU message on, as offline
     node._write_inputs_signature()
     node._input_notes.append(why)
     node.get_logger().warning(why)

@@ -102,7 +102,10 @@ class LateInputs:
         self.stale += sum(len(c.imu) for c in chunks)
 
     def shadow(self, node):
-        """Put the shadow under ``node``'s aligner again when the node replaced it."""
+        """Put the shadow under ``node``'s aligner again when the node replaced it.
+
+        Called under ``node._lock``.
+        """
         if node.aligner is not self.wrapper:
             if self.wrapper is not None:        # a jump back or ~/reset: a new timeline
                 self.aligner = StreamAligner(self.k, self.timeout)
@@ -139,8 +142,9 @@ def adopt(node, late):
             late.forward[i](msg, info)
     node._write_inputs_signature()
     node._absent_topics = []
-    behind = ('' if late.span is None else
-              f', stamped {(first - late.span[0]) * 1e-9:.1f} s after the first IMU message')
+    on_clock = late.span is not None and late.span[0] <= first <= late.span[1] + 60 * 10 ** 9
+    behind = (f', stamped {(first - late.span[0]) * 1e-9:.1f} s after the first IMU message'
+              if on_clock else '')     # else its clock is chosen as for any input (a note)
     topics = ', '.join(s.topic_name for s in late.subs)
     why = (f'{topics}: the first reading came {time.monotonic() - late.since:.1f} s after '
            f'the node decided to collect without a temperature{behind}; the node '
@@ -160,7 +164,8 @@ def watch(node):
         if any(late.held):
             adopt(node, late)
             return
-        late.shadow(node)
+        with node._lock:                  # the node's aligner is replaced under it too
+            late.shadow(node)
     if not getattr(node, '_warned_late', False):
         warn_late(node, late)
 
