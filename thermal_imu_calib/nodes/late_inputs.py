@@ -111,12 +111,6 @@ class LateInputs:
                 self.aligner = StreamAligner(self.k, self.timeout)
             self.wrapper = node.aligner = _Shadowed(node.aligner, self)
 
-    def destroy(self, node):
-        """Unsubscribe (the node will not use these inputs)."""
-        for s in self.subs:
-            node.destroy_subscription(s)
-        self.subs = []
-
 
 def watchable(node):
     """Return True when ``node``'s inputs can be taken back at a late first reading."""
