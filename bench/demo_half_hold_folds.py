@@ -1,4 +1,4 @@
-"""Short six-face sessions: would half-hold folds pick whole_unit where it generalises?
+"""Short six-face sessions: whether half-hold folds pick whole_unit where it generalises.
 
 A measurement, not a default (criteria written before the run: docs/thermal_models.md).
 On a ``demo`` log (six faces twice) ``auto`` does not offer ``whole_unit``: with hold folds
@@ -17,16 +17,15 @@ against ``--model field`` and ``--model whole_unit`` on the same log.
 No ROS import.
 """
 
-import argparse
-import json
 import os
 import re
-import shutil
-import subprocess
 import sys
-import tempfile
 
 import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+from demo_next_coldstart import calibrate_and_score, device_rows, report  # noqa: E402
 
 
 def half_hold_folds(windows):
@@ -51,38 +50,10 @@ def _patch():
 
 def one_device(seed, work, variant):
     """Return the scores on the next cold start (ug) and the patched check's decision."""
-    from thermal_imu_calib import sim
-    from thermal_imu_calib.cli import main
     from thermal_imu_calib.formats import read_calibration
-    from thermal_imu_calib.gravity import normal_gravity
-    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-    from alarm_truth_z import use_variant
-    use_variant(variant)
-    g = repr(normal_gravity(45.0))
-    d = os.path.join(work, str(seed))
-    os.makedirs(d)
-    sim.write_scenario(os.path.join(d, 'cal.mcap'), 'demo', seed)
-    sim.write_scenario(os.path.join(d, 'val.mcap'), 'demo-validation', seed)
-    cals = {}
-    for name, model in (('field', 'field'), ('whole_unit', 'whole_unit'),
-                        ('auto_half_hold', 'auto')):
-        if name == 'auto_half_hold':
-            _patch()
-        path = os.path.join(d, f'{name}.yaml')
-        try:
-            main(['calibrate', os.path.join(d, 'cal.mcap'), '-o', path, '--gravity', g,
-                  '--model', model, '--no-progress'])
-        except SystemExit as e:
-            if e.code:
-                continue
-        cals[name] = path
-    cmd = [os.path.join(sys.prefix, 'bin', 'thermal-imu-calib'), 'evaluate',
-           os.path.join(d, 'val.mcap'), '--gravity', g, '--json', '--no-progress']
-    for path in cals.values():
-        cmd += ['--calibration', path]
-    res = json.loads(subprocess.run(cmd, capture_output=True, text=True, check=True).stdout)
-    out = {k: res['results'][k]['gravity_residual_ug']['rms'] if k in cals else None
-           for k in ('field', 'whole_unit', 'auto_half_hold')}
+    out, cals, _ = calibrate_and_score(seed, work, variant, [
+        ('field', 'field', None), ('whole_unit', 'whole_unit', None),
+        ('auto_half_hold', 'auto', _patch)])
     with open(cals['auto_half_hold']) as f:
         text = f.read()
     out['check_chose_whole_unit'] = 'chose whole_unit (seed 002)' in text
@@ -113,28 +84,8 @@ def summary(rows):
 
 def main():
     """Run the devices, print each row and the summary, optionally write the JSON."""
-    ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
-    ap.add_argument('--devices', type=int, default=12)
-    ap.add_argument('--first-seed', type=int, default=95100)
-    ap.add_argument('--variant', choices=('base', 'datasheet-cross-axis'), default='base')
-    ap.add_argument('--json', default=None)
-    args = ap.parse_args()
-    work = tempfile.mkdtemp(prefix='demo_half_hold_')
-    rows = {}
-    try:
-        for i in range(args.devices):
-            seed = args.first_seed + i
-            rows[seed] = one_device(seed, work, args.variant)
-            print(seed, {k: (round(v, 1) if isinstance(v, float) else v)
-                         for k, v in rows[seed].items()}, flush=True)
-    finally:
-        shutil.rmtree(work, ignore_errors=True)
-    s = summary(rows)
-    print(json.dumps(s, indent=1))
-    if args.json:
-        with open(args.json, 'w') as fh:
-            json.dump({'command': ' '.join(['python', *sys.argv]), 'variant': args.variant,
-                       'summary': s, 'devices': rows}, fh, indent=1)
+    args, rows = device_rows(__doc__, 95100, one_device)
+    report(args, summary(rows), rows)
 
 
 if __name__ == '__main__':

@@ -24,35 +24,62 @@ from test_node_calibrator import calibrator, imu_player, RATE, recording, WAIT
 GRACE_S = 1.0
 
 
+class _LateSession:
+    """A calibrator, a driver without a temperature, the first part played and decided.
+
+    ``recording(repetitions=2)``: the faces of the first round come before the readings.
+    ``play_rest(pub)`` then plays the rest with the readings on ``pub``.
+    """
+
+    def __init__(self, ros, tmp_path, name):
+        self.ros = ros
+        rec = recording(repetitions=2)
+        self.imu = rec.imu()
+        (_, self.tc), = rec.temperatures.items()
+        self.cut = int(np.searchsorted(self.imu.stamp_ns, (rec.schedule[1].stamp_end_ns
+                                                           + rec.schedule[2].stamp_start_ns)
+                                       // 2))
+        self.node = calibrator(ros, tmp_path)
+        self.drv, self.imu_pub, self.progress = imu_player(ros, name)
+        self.sent = replay_flow(self.imu_pub, self.imu.slice(slice(0, self.cut)), [], RATE,
+                                self.received, what='the first part')
+        wait_for(lambda: self.received() >= self.sent and self.node.k == 0
+                 and self.progress[-1]['samples'] > 0, WAIT,
+                 'the decision without a temperature')
+
+    def received(self):
+        return self.progress[-1]['imu_received']
+
+    def play_rest(self, temp_pub):
+        """Match ``temp_pub``, play the rest with its readings; return their stamps (ns)."""
+        self.ros.wait_matched(temp_pub, 1, timeout=WAIT)
+        rest = self.imu.slice(slice(self.cut, None))
+        late = self.tc.stamp_ns >= rest.stamp_ns[0]
+        self.sent += replay_flow(self.imu_pub, rest, [(temp_pub, self.tc.stamp_ns[late],
+                                                      self.tc.temperature[late])],
+                                 RATE, self.received, what='the second part',
+                                 readings=lambda: self.progress[-1]['temperature_readings'])
+        wait_for(lambda: self.received() >= self.sent, WAIT, 'every IMU message')
+        return self.tc.stamp_ns[late]
+
+    def calibrate(self):
+        return self.ros.call(self.drv, Trigger, '/thermal_imu_calibrator/calibrate',
+                             timeout=180)
+
+
 def test_a_temperature_published_late_is_taken_from_its_first_reading(ros, tmp_path,
                                                                       monkeypatch):
     monkeypatch.setattr(absent_inputs, 'GRACE_S', GRACE_S)
-    rec = recording(repetitions=2)      # the faces of the first round before the readings
-    imu = rec.imu()
-    (_, tc), = rec.temperatures.items()
-    cut = int(np.searchsorted(imu.stamp_ns, (rec.schedule[1].stamp_end_ns
-                                             + rec.schedule[2].stamp_start_ns) // 2))
-    node = calibrator(ros, tmp_path)
-    drv, imu_pub, progress = imu_player(ros, 'late_driver')
-    sent = replay_flow(imu_pub, imu.slice(slice(0, cut)), [], RATE,
-                       lambda: progress[-1]['imu_received'], what='the first part')
-    wait_for(lambda: progress[-1]['imu_received'] >= sent and node.k == 0
-             and progress[-1]['samples'] > 0, WAIT, 'the decision without a temperature')
+    late = _LateSession(ros, tmp_path, 'late_driver')
+    node = late.node
     held = len(node.windows.hold_ids)
     assert held >= 1 and node._late_inputs is not None
     # an estimate while the shadow aligner is under the node's (its snapshot copies it):
     # answered (a refusal or not), and nothing raised (the ``ros`` fixture checks)
-    assert ros.call(drv, Trigger, '/thermal_imu_calibrator/calibrate', timeout=180).message
+    assert late.calibrate().message
     warned = []
     node.get_logger().warning = warned.append
-    temp_pub = drv.create_publisher(Temperature, 'imu/temperature', 100)
-    ros.wait_matched(temp_pub, 1, timeout=WAIT)
-    rest = imu.slice(slice(cut, None))
-    late = tc.stamp_ns >= rest.stamp_ns[0]
-    sent += replay_flow(imu_pub, rest, [(temp_pub, tc.stamp_ns[late], tc.temperature[late])],
-                        RATE, lambda: progress[-1]['imu_received'], what='the second part',
-                        readings=lambda: progress[-1]['temperature_readings'])
-    wait_for(lambda: progress[-1]['imu_received'] >= sent, WAIT, 'every IMU message')
+    stamps = late.play_rest(late.drv.create_publisher(Temperature, 'imu/temperature', 100))
     assert node.k == 1 and node.temperature_topics == ['imu/temperature']
     said = [w for w in warned if w.startswith('/imu/temperature: the first reading came')]
     assert len(said) == 1 and 'moved to' in said[0], warned
@@ -61,7 +88,7 @@ def test_a_temperature_published_late_is_taken_from_its_first_reading(ros, tmp_p
              if p.suffix not in ('.transitions', '.json')]
     assert len(aside) == 1 and aside[0].read_text().count('\n') >= held, aside
 
-    resp = ros.call(drv, Trigger, '/thermal_imu_calibrator/calibrate', timeout=180)
+    resp = late.calibrate()
     assert resp.success, resp.message
     cal = Calibration.load(str(tmp_path / 'calibration.yaml'))
     assert len(cal.inputs) == 1
@@ -70,9 +97,37 @@ def test_a_temperature_published_late_is_taken_from_its_first_reading(ros, tmp_p
     assert not [n for n in notes if 'no temperature is published' in n], cal.notes
     # nothing collected from before the readings, but what calibrate keeps of a log whose
     # temperature starts there: samples at most temperature_timeout before the first one
-    t_first = tc.stamp_ns[late][0] * 1e-9
-    assert node.windows.t0.min() >= t_first - node.temperature_timeout
+    assert node.windows.t0.min() >= stamps[0] * 1e-9 - node.temperature_timeout
     assert len(node.windows.hold_ids) >= 2
+
+
+class _ZeroStamps:
+    """A publisher whose messages leave with header stamp 0 (published in stamp order)."""
+
+    def __init__(self, pub):
+        self.pub = pub
+
+    def publish(self, msg):
+        msg.header.stamp.sec, msg.header.stamp.nanosec = 0, 0
+        self.pub.publish(msg)
+
+    def __getattr__(self, name):          # topic_name, get_subscription_count, ...
+        return getattr(self.pub, name)
+
+
+def test_a_late_temperature_stamped_0_goes_on_the_imus_clock(ros, tmp_path, monkeypatch):
+    # a late driver that leaves its header stamps 0: taken, and its readings put on the
+    # IMU's clock as for any input stamped so (io.headerless.StampChoice); the node kept no
+    # IMU history meanwhile, so only readings after the next IMU message are placed
+    monkeypatch.setattr(absent_inputs, 'GRACE_S', GRACE_S)
+    late = _LateSession(ros, tmp_path, 'late_zero_driver')
+    late.play_rest(_ZeroStamps(late.drv.create_publisher(Temperature, 'imu/temperature', 100)))
+    assert late.node.k == 1 and late.node._clocks.bare == [True]
+    resp = late.calibrate()
+    assert resp.success, resp.message
+    cal = Calibration.load(str(tmp_path / 'calibration.yaml'))
+    assert len(cal.inputs) == 1 and cal.valid_range is not None
+    assert [n for n in cal.notes if 'the first reading came' in n], cal.notes
 
 
 def test_a_late_publisher_of_another_type_is_named_not_taken(ros, tmp_path, monkeypatch,
@@ -102,47 +157,3 @@ def test_a_late_publisher_of_another_type_is_named_not_taken(ros, tmp_path, monk
                          "collect without a temperature, as another type than the input's; "
                          'it is not used: restart the node to calibrate with it'), warned
     assert node.k == 0
-
-
-class _ZeroStamps:
-    """A publisher whose messages leave with header stamp 0 (published in stamp order)."""
-
-    def __init__(self, pub):
-        self.pub = pub
-
-    def publish(self, msg):
-        msg.header.stamp.sec, msg.header.stamp.nanosec = 0, 0
-        self.pub.publish(msg)
-
-
-def test_a_late_temperature_stamped_0_goes_on_the_imus_clock(ros, tmp_path, monkeypatch):
-    # a late driver that leaves its header stamps 0: taken, and its readings put on the
-    # IMU's clock as for any input stamped so (io.headerless.StampChoice); the node kept no
-    # IMU history meanwhile, so only readings after the next IMU message are placed
-    monkeypatch.setattr(absent_inputs, 'GRACE_S', GRACE_S)
-    rec = recording(repetitions=2)
-    imu = rec.imu()
-    (_, tc), = rec.temperatures.items()
-    cut = int(np.searchsorted(imu.stamp_ns, (rec.schedule[1].stamp_end_ns
-                                             + rec.schedule[2].stamp_start_ns) // 2))
-    node = calibrator(ros, tmp_path)
-    drv, imu_pub, progress = imu_player(ros, 'late_zero_driver')
-    sent = replay_flow(imu_pub, imu.slice(slice(0, cut)), [], RATE,
-                       lambda: progress[-1]['imu_received'], what='the first part')
-    wait_for(lambda: progress[-1]['imu_received'] >= sent and node.k == 0, WAIT,
-             'the decision without a temperature')
-    temp_pub = drv.create_publisher(Temperature, 'imu/temperature', 100)
-    ros.wait_matched(temp_pub, 1, timeout=WAIT)
-    rest = imu.slice(slice(cut, None))
-    late = tc.stamp_ns >= rest.stamp_ns[0]
-    sent += replay_flow(imu_pub, rest, [(_ZeroStamps(temp_pub), tc.stamp_ns[late],
-                                         tc.temperature[late])],
-                        RATE, lambda: progress[-1]['imu_received'], what='the second part',
-                        readings=lambda: progress[-1]['temperature_readings'])
-    wait_for(lambda: progress[-1]['imu_received'] >= sent, WAIT, 'every IMU message')
-    assert node.k == 1 and node._clocks.bare == [True]
-    resp = ros.call(drv, Trigger, '/thermal_imu_calibrator/calibrate', timeout=180)
-    assert resp.success, resp.message
-    cal = Calibration.load(str(tmp_path / 'calibration.yaml'))
-    assert len(cal.inputs) == 1 and cal.valid_range is not None
-    assert [n for n in cal.notes if 'the first reading came' in n], cal.notes
