@@ -56,6 +56,8 @@ TEMPERATURE_TOPIC = '/imu/temperature'
 #: a wait fails when its condition has made no progress for this long (a busy 2-core
 #: machine can starve a process for tens of seconds; a broken path does not move at all)
 STALL_S = 180.0
+#: what a start-up stall's error says (``run_live`` tries a spare domain once after it)
+NO_MATCH = 'the node to match the player'
 #: bound on one ~/calibrate call (the estimation itself; ends as soon as the answer comes)
 CALL_S = 1800.0
 
@@ -215,6 +217,7 @@ class Replay:
     command: list = field(default_factory=list)
     attempts: int = 1
     domain: int = -1
+    earlier: list = field(default_factory=list)
 
     @property
     def complete(self):
@@ -251,6 +254,7 @@ class _Driver:
                                       self._on_progress, 10)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
+        self._stop = threading.Event()
         self._thread = threading.Thread(target=self._spin, daemon=True)
         self._thread.start()
 
@@ -264,7 +268,7 @@ class _Driver:
 
     def _spin(self):
         from rclpy.executors import ExternalShutdownException
-        while self.context.ok():
+        while self.context.ok() and not self._stop.is_set():
             try:
                 self.executor.spin_once(timeout_sec=0.05)
             except ExternalShutdownException:
@@ -279,9 +283,20 @@ class _Driver:
             return self.progress.get(key, default) if self.progress else default
 
     def close(self):
-        self.context.try_shutdown()
+        """Stop spinning, destroy the node (its participant leaves the graph), shut down.
+
+        Shutting the context down alone left the participant and its publishers on the
+        graph until the garbage collector ran: the next live run in the same process (a
+        test file's next case) then saw the last one's temperature publisher on
+        /imu/temperature (its node switched type, or did not follow a renamed topic) and
+        never matched its player.
+        """
+        self._stop.set()
         self._thread.join(5.0)
+        self.executor.remove_node(self.node)
+        self.node.destroy_node()
         self.executor.shutdown(timeout_sec=1.0)
+        self.context.try_shutdown()
 
 
 class LiveCalibrator:
@@ -425,16 +440,25 @@ def run_live(imu, temps, gravity, domain_id, temperature_topics=None, workdir=No
     Best effort may lose messages on a loaded machine (counted, never hidden): a run that
     lost some is repeated with a fresh node; the last run is returned with ``attempts``.
     ``spare_domains``: where to run instead when ``domain_id``'s participant ids 0..31 are
-    all taken (``usable_domain``; ``Replay.domain`` says where it ran).
+    all taken (``usable_domain``), and where a run whose node and player never matched is
+    tried once more (a cause the port scan cannot see; its error is kept in
+    ``Replay.earlier``); ``Replay.domain`` says where the returned run ran.
     """
     workdir = workdir or tempfile.mkdtemp(prefix='live-')
     domain_id = usable_domain(domain_id, spare_domains)
+    earlier = []
     for i in range(1, attempts + 1):
         out = run_live_once(imu, temps, gravity, domain_id, temperature_topics,
                             os.path.join(workdir, f'attempt{i}'), calibration_name,
                             extra_params, temperature_type, temperature_header_ns,
                             set_temperature_type, published_on, late_from)
-        out.attempts, out.domain = i, domain_id
+        out.attempts, out.domain, out.earlier = i, domain_id, list(earlier)
+        spare = next((d for d in spare_domains if d != domain_id
+                      and not dds_domain.participants(d)), None)
+        if out.error and NO_MATCH in out.error and not earlier and spare is not None:
+            earlier.append(f'domain {domain_id}: {out.error}')
+            domain_id = spare
+            continue
         if out.complete or (out.error and not out.error.startswith('not every message')):
             return out
     return out
@@ -510,7 +534,7 @@ def run_live_once(imu, temps, gravity, domain_id, temperature_topics=None, workd
                     and driver.imu_pub.get_subscription_count() >= 1
                     and (not now or driver.temp_pub.get_subscription_count() >= 1))
         try:
-            _wait(connected, 'the node to match the player (the IMU on imu/data_raw'
+            _wait(connected, NO_MATCH + ' (the IMU on imu/data_raw'
                   + (f', the temperature on {published_on})' if now else ')'), node)
         except NodeFailed as e:
             raise NodeFailed(f'{e}; {_match_state(driver, now, domain_id)}; '

@@ -262,6 +262,25 @@ class RosHarness:
         self.executor.shutdown(timeout_sec=1.0)
 
 
+def other_participant(request, name):
+    """Return a node ``name`` in a context of its own: another participant, as a driver's
+    process is (one participant refuses a second type on a topic it has).
+
+    The node is destroyed and the context shut down after the test. Shutting the context
+    down alone does not destroy its participant: its publishers stayed on the graph until
+    the garbage collector ran, and a later test's node on the same domain saw them (a
+    Float32 driver left on /imu/temperature made the next test's node switch type and
+    never match its player; found 2026-12-03 with live_replay's driver).
+    """
+    import rclpy
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=DOMAIN_ID)
+    request.addfinalizer(context.try_shutdown)
+    node = rclpy.create_node(name, context=context)
+    request.addfinalizer(node.destroy_node)
+    return node
+
+
 @pytest.fixture
 def ros_domain_id():
     """Return the ROS domain id of this test run."""

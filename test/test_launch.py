@@ -132,17 +132,13 @@ def test_both_nodes_in_one_process_follow_a_float32_temperature(
     """Both nodes with the shipped types in one context (``bringup``: one DDS participant,
     which refuses a second type on a topic) and a um7 driver publishing std_msgs/Float32 on
     imu/temperature: both re-subscribe as Float32, switched together (``thermal_types``)."""
-    import rclpy
     from std_msgs.msg import Float32
-    from conftest import wait_for
+    from conftest import other_participant, wait_for
     _, nodes = _resolve(launch_module)
     monkeypatch.setenv('HOME', str(tmp_path))
     started = [_start(ros, n) for n in nodes]
     assert len(started) == 2
-    context = rclpy.Context()      # another participant, as a driver's process is
-    rclpy.init(context=context)
-    request.addfinalizer(context.try_shutdown)
-    pub = rclpy.create_node('um7_driver', context=context).create_publisher(
+    pub = other_participant(request, 'um7_driver').create_publisher(
         Float32, '/imu/temperature', 10)
     wait_for(lambda: pub.get_subscription_count() >= 2
              and all(n.type_follower.notes for n in started), 60,
@@ -164,18 +160,14 @@ def test_both_nodes_follow_a_temperature_under_another_name(
     /imu/temp, as calibrate picks a log's temperature, and calibrates with it; the
     compensator takes that calibration by subscribing its input (``topic_follower``) and
     compensates."""
-    import rclpy
     from sensor_msgs.msg import Imu, Temperature
     from std_srvs.srv import Trigger
-    from conftest import replay_flow, wait_for
+    from conftest import other_participant, replay_flow, wait_for
     from thermal_imu_calib import sim
     _, nodes = _resolve(launch_module)
     monkeypatch.setenv('HOME', str(tmp_path))
     comp, calib = [_start(ros, n) for n in nodes]
-    context = rclpy.Context()      # another participant, as a driver's process is
-    rclpy.init(context=context)
-    request.addfinalizer(context.try_shutdown)
-    driver = rclpy.create_node('imu_driver', context=context)
+    driver = other_participant(request, 'imu_driver')
     imu_pub = driver.create_publisher(Imu, 'imu/data_raw', 1000)
     temp_pub = driver.create_publisher(Temperature, '/imu/temp', 100)
     wait_for(lambda: temp_pub.get_subscription_count() >= 1

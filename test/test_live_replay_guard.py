@@ -309,3 +309,26 @@ def test_bench_end_stops_the_launched_group(tmp_path, how):
     else:
         # a normal end: the node was still registered after main; atexit stopped it
         assert rc == 0 and 'REGISTERED 1' in out, out
+
+
+def test_a_run_whose_node_never_matched_is_tried_once_on_a_spare_domain(monkeypatch, tmp_path):
+    # the CI failure of 2026-12-03 (node and player never matched, cause unseen by the port
+    # scan): run_live tries a free spare domain once, and keeps the first error
+    calls = []
+
+    def once(imu, temps, gravity, domain, *args):
+        calls.append(domain)
+        if len(calls) == 1:
+            return live_replay.Replay(error='no progress for 180 s waiting for '
+                                      + live_replay.NO_MATCH + ' (the IMU on imu/data_raw)')
+        return live_replay.Replay(imu_sent=5, imu_received=5, success=True)
+    monkeypatch.setattr(live_replay, 'run_live_once', once)
+    spare = dds_domain.free_domain(SPARE_DOMAINS)
+    out = live_replay.run_live(None, None, 9.81, DOMAIN_ID, workdir=str(tmp_path),
+                               spare_domains=SPARE_DOMAINS)
+    assert calls == [DOMAIN_ID, spare] and out.domain == spare and out.success
+    assert len(out.earlier) == 1 and out.earlier[0].startswith(f'domain {DOMAIN_ID}: ')
+    # without spares the first error is the answer
+    calls.clear()
+    out = live_replay.run_live(None, None, 9.81, DOMAIN_ID, workdir=str(tmp_path))
+    assert calls == [DOMAIN_ID] and live_replay.NO_MATCH in out.error and not out.earlier

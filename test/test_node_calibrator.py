@@ -11,7 +11,8 @@ import subprocess
 import threading
 
 import _motion_data
-from conftest import DOMAIN_ID, replay, replay_flow, venv_exe, wait_count, wait_for
+from conftest import (DOMAIN_ID, other_participant, replay, replay_flow, venv_exe, wait_count,
+                      wait_for)
 import numpy as np
 
 from rclpy.parameter import Parameter
@@ -517,14 +518,10 @@ def test_a_temperature_on_another_topic_is_named_in_the_refusal(ros, tmp_path, r
     # A second driver publishes std_msgs/String on imu/temperature itself (another
     # participant, as a driver's process is): DDS never connects it; the answer says so
     # (a thermal type, std_msgs/Float32 say, would be followed: ``thermal_types``).
-    import rclpy
     from conftest import replay_flow
     rec = recording(repetitions=1, faces=('+z', '-z'))
     calib = calibrator(ros, tmp_path)
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    request.addfinalizer(context.try_shutdown)
-    bare = rclpy.create_node('float_driver', context=context).create_publisher(
+    bare = other_participant(request, 'float_driver').create_publisher(
         String, '/imu/temperature', 10)
     # something is published on imu/temperature, so /imu/temp is not followed
     # (nodes/topic_follower): seen before the driver's topics are

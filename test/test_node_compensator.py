@@ -3,7 +3,7 @@
 import json
 import threading
 
-from conftest import imu_msg, temperature_msg, wait_for
+from conftest import imu_msg, other_participant, temperature_msg, wait_for
 import numpy as np
 import pytest
 
@@ -637,11 +637,7 @@ def test_a_temperature_of_another_type_is_named_in_a_warning(ros, tmp_path, requ
     rig.node._warn_once = lambda key, text: warned.append((key, text))
     # another participant, as a driver's process is (DDS refuses a second type on a topic
     # inside one participant)
-    import rclpy
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    request.addfinalizer(context.try_shutdown)
-    bare = rclpy.create_node('float_driver', context=context).create_publisher(
+    bare = other_participant(request, 'float_driver').create_publisher(
         String, '/imu/temperature', 10)
 
     def on_graph():      # with its node's name (discovered after the endpoint, at times)
@@ -823,15 +819,11 @@ def test_a_float32_temperature_is_followed_without_temperature_types(ros, tmp_pa
     # DDS never connects the two (the node only warned, naming temperature_types, while
     # calibrate read the same topic from a log). It now sees the publisher's type on the
     # graph, subscribes as Float32 and says so; the readings then go on the IMU's clock
-    import rclpy
     from std_msgs.msg import Float32
     cal = make_cal()
     node, _, out, stamps, imu = _imu_clock_rig(ros, cal, tmp_path, None)
     assert node.type_follower.types == ['sensor_msgs/msg/Temperature']
-    context = rclpy.Context()     # another participant, as a driver's process is
-    rclpy.init(context=context)
-    request.addfinalizer(context.try_shutdown)
-    temp_pub = rclpy.create_node('um7_driver', context=context).create_publisher(
+    temp_pub = other_participant(request, 'um7_driver').create_publisher(
         Float32, '/imu/temperature', 100)
     wait_for(lambda: temp_pub.get_subscription_count() >= 1 and node.type_follower.notes,
              WAIT, lambda: f'the node to subscribe as Float32 ({node.type_follower.notes})')

@@ -11,7 +11,7 @@ happened, a snapshot taken before the first reading works, and a publisher of an
 type is still only named.
 """
 
-from conftest import replay_flow, wait_for
+from conftest import other_participant, replay_flow, wait_for
 import numpy as np
 from sensor_msgs.msg import Temperature
 from std_msgs.msg import Float32
@@ -132,7 +132,6 @@ def test_a_late_temperature_stamped_0_goes_on_the_imus_clock(ros, tmp_path, monk
 
 def test_a_late_publisher_of_another_type_is_named_not_taken(ros, tmp_path, monkeypatch,
                                                              request):
-    import rclpy
     monkeypatch.setattr(absent_inputs, 'GRACE_S', GRACE_S)
     rec = recording(repetitions=1)
     imu = rec.imu()
@@ -144,14 +143,7 @@ def test_a_late_publisher_of_another_type_is_named_not_taken(ros, tmp_path, monk
              'the decision without a temperature')
     warned = []
     node.get_logger().warning = warned.append
-    # another participant, as a driver's process is (one participant refuses a second type
-    # on a topic it has)
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    request.addfinalizer(context.try_shutdown)
-    other = rclpy.create_node('float_driver', context=context)
-    request.addfinalizer(other.destroy_node)
-    other.create_publisher(Float32, 'imu/temperature', 10)
+    other_participant(request, 'float_driver').create_publisher(Float32, 'imu/temperature', 10)
     wait_for(lambda: warned, WAIT, 'the warning')
     assert warned[0] == ('/imu/temperature is published now, after the node decided to '
                          "collect without a temperature, as another type than the input's; "
