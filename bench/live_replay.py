@@ -453,12 +453,12 @@ def run_live(imu, temps, gravity, domain_id, temperature_topics=None, workdir=No
                             extra_params, temperature_type, temperature_header_ns,
                             set_temperature_type, published_on, late_from)
         out.attempts, out.domain, out.earlier = i, domain_id, list(earlier)
-        spare = next((d for d in spare_domains if d != domain_id
-                      and not dds_domain.participants(d)), None)
-        if out.error and NO_MATCH in out.error and not earlier and spare is not None:
-            earlier.append(f'domain {domain_id}: {out.error}')
-            domain_id = spare
-            continue
+        if out.error and NO_MATCH in out.error and not earlier:
+            spare = dds_domain.free_domain([d for d in spare_domains if d != domain_id])
+            if spare is not None:
+                earlier.append(f'domain {domain_id}: {out.error}')
+                domain_id = spare
+                continue
         if out.complete or (out.error and not out.error.startswith('not every message')):
             return out
     return out

@@ -9,6 +9,7 @@ the same domain.
 """
 
 import atexit
+import contextlib
 import os
 import shutil
 import sys
@@ -262,23 +263,37 @@ class RosHarness:
         self.executor.shutdown(timeout_sec=1.0)
 
 
-def other_participant(request, name):
-    """Return a node ``name`` in a context of its own: another participant, as a driver's
-    process is (one participant refuses a second type on a topic it has).
+@contextlib.contextmanager
+def participant(name):
+    """Yield a node ``name`` on the test domain in a context of its own; destroy it after.
 
-    The node is destroyed and the context shut down after the test. Shutting the context
-    down alone does not destroy its participant: its publishers stayed on the graph until
-    the garbage collector ran, and a later test's node on the same domain saw them (a
-    Float32 driver left on /imu/temperature made the next test's node switch type and
-    never match its player; found 2026-12-03 with live_replay's driver).
+    Another participant, as a driver's process is (one participant refuses a second type
+    on a topic it has). Nothing spins it: discovery is answered by DDS's own threads. The
+    node is destroyed, not only its context shut down: a shut-down context keeps its
+    participant, and its publishers stayed on the graph until the garbage collector ran, so
+    a later test's node on the same domain saw them (a Float32 driver left on
+    /imu/temperature made the next test's node switch type and never match its player;
+    found 2026-12-03 with live_replay's driver).
     """
     import rclpy
-    context = rclpy.Context()
+    from rclpy.context import Context
+    context = Context()
     rclpy.init(context=context, domain_id=DOMAIN_ID)
-    request.addfinalizer(context.try_shutdown)
-    node = rclpy.create_node(name, context=context)
-    request.addfinalizer(node.destroy_node)
-    return node
+    try:
+        node = rclpy.create_node(name, context=context)
+        try:
+            yield node
+        finally:
+            node.destroy_node()
+    finally:
+        context.try_shutdown()
+
+
+def other_participant(request, name):
+    """Return ``participant(name)``'s node, destroyed after the test."""
+    stack = contextlib.ExitStack()
+    request.addfinalizer(stack.close)
+    return stack.enter_context(participant(name))
 
 
 @pytest.fixture

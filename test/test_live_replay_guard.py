@@ -18,7 +18,6 @@ Waits are on conditions with deadlines (the node on the graph, a line from the h
 the helper's exit, the group emptied).
 """
 
-import contextlib
 import os
 import re
 import signal
@@ -26,7 +25,7 @@ import subprocess
 import sys
 import textwrap
 
-from conftest import DOMAIN_ID, SPARE_DOMAINS, venv_env, wait_for
+from conftest import DOMAIN_ID, participant, SPARE_DOMAINS, venv_env, wait_for
 import pytest
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -90,26 +89,6 @@ def _group_running(pgid, names=False):
         if group == pgid and fields[0] not in 'ZX':
             out.append(comm.split('(', 1)[1] if names else int(pid))
     return out
-
-
-@contextlib.contextmanager
-def _node_on_domain(name):
-    """Yield a node named ``name`` on the test domain, in a context of its own.
-
-    Nothing spins it: discovery is answered by DDS's own threads.
-    """
-    import rclpy
-    from rclpy.context import Context
-    context = Context()
-    rclpy.init(context=context, domain_id=DOMAIN_ID)
-    try:
-        node = rclpy.create_node(name, context=context)
-        try:
-            yield node
-        finally:
-            node.destroy_node()
-    finally:
-        context.try_shutdown()
 
 
 def _children(pid):
@@ -204,7 +183,7 @@ def test_guard_reports_no_node_on_a_free_domain():
 
 
 def test_guard_names_a_foreign_node():
-    with _node_on_domain('stray_calibrator'):
+    with participant('stray_calibrator'):
         found = live_replay.foreign_nodes(DOMAIN_ID, wait_s=30.0)
         with pytest.raises(live_replay.DomainBusy) as e:
             live_replay.check_domain(DOMAIN_ID, wait_s=30.0)
@@ -214,7 +193,7 @@ def test_guard_names_a_foreign_node():
 
 
 def test_scoreboard_refuses_a_busy_domain(tmp_path):
-    with _node_on_domain('stray_calibrator'):
+    with participant('stray_calibrator'):
         r = subprocess.run([sys.executable, os.path.join(BENCH, 'scoreboard.py'),
                             '--work', str(tmp_path / 'work'), '--out', str(tmp_path / 'board'),
                             '--only', 'no_such_recording'], capture_output=True, text=True,
@@ -230,7 +209,7 @@ def test_scoreboard_refuses_a_busy_domain(tmp_path):
 def test_participants_are_read_from_their_ports():
     # conftest chose a free domain; a module fixture of another test may still hold one
     before = dds_domain.participants(DOMAIN_ID)
-    with _node_on_domain('port_probe'):
+    with participant('port_probe'):
         ids = dds_domain.participants(DOMAIN_ID)
         new = sorted(set(ids) - set(before))
         assert len(ids) == len(before) + 1 and 0 <= new[0] < dds_domain.LOCALHOST_PEERS, ids
@@ -282,7 +261,7 @@ def test_a_domain_with_ids_0_to_31_taken_is_refused_at_once(tmp_path):
 
 def test_sigterm_stops_the_launched_calibrator_node(tmp_path):
     def on_graph():
-        with _node_on_domain('cleanup_probe') as probe:
+        with participant('cleanup_probe') as probe:
             def names():
                 return [n for n, _ in probe.get_node_names_and_namespaces()]
             wait_for(lambda: CALIBRATOR in names(), 60,

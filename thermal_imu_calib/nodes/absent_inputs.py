@@ -78,6 +78,7 @@ def drop_inputs(node, why):
     forgotten, and a new collection without them takes the IMU messages still queued.
     """
     node._absent_topics = [s.topic_name for s in node.temp_subs]
+    node._warned_late = False
     # the inputs stay subscribed: a first reading brings them back (``late_inputs``)
     node._late_inputs = (late_inputs.LateInputs(node, node.temp_subs)
                          if late_inputs.watchable(node) else None)

@@ -31,14 +31,10 @@ import copy
 import time
 
 from . import common
+from .thermal_types import type_name
 from ..io.align import StreamAligner
 from ..io.columns import TemperatureColumns
 from ..io.headerless import LiveClocks
-
-
-def _value_field(cls):
-    """Return the value field of thermal message class ``cls`` (``common.THERMAL_TYPES``)."""
-    return next(v for c, v in common.THERMAL_TYPES.values() if c is cls)
 
 
 class _Shadowed:
@@ -49,11 +45,7 @@ class _Shadowed:
 
     def push_columns(self, imu, temps, extra=None):
         self.late.take(self.late.aligner.push_columns(imu, self.late.no_readings))
-        if len(imu):
-            first, newest = int(imu.stamp_ns[0]), int(imu.stamp_ns.max())
-            span = self.late.span
-            self.late.span = (first if span is None else span[0],
-                              newest if span is None else max(span[1], newest))
+        self.late.clocks.add_imu((), imu.stamp_ns)   # the IMU stamps' span only
         return self.own.push_columns(imu, temps, extra)
 
     def finish(self):
@@ -79,15 +71,18 @@ class LateInputs:
         self.held = [[] for _ in range(self.k)]     # (message, info) until adopted
         self.forward = None                         # then the node's own callbacks
         self.stale = 0                              # shadow rows released without a reading
-        self.span = None                            # first, newest IMU header stamp (ns)
+        #: the inputs' clocks once taken back, fed the IMU stamps' span meanwhile, so the
+        #: stamps' clock is chosen at the first readings, as offline
+        self.clocks = LiveClocks(self.topics, [False] * self.k)
         self.since = time.monotonic()
         self.aligner = StreamAligner(self.k, self.timeout)
         self.wrapper = None
-        self.types = [(s.msg_type, _value_field(s.msg_type)) for s in subs]
-        self.subs = [node.create_subscription(cls, topic, self._callback(i),
+        self.types = [type_name(s.msg_type) for s in subs]     # common.THERMAL_TYPES keys
+        self.subs = [node.create_subscription(common.THERMAL_TYPES[typ][0], topic,
+                                              self._callback(i),
                                               common.sensor_qos(node._in_depth),
                                               callback_group=node._data_group)
-                     for i, ((cls, _), topic) in enumerate(zip(self.types, self.topics))]
+                     for i, (typ, topic) in enumerate(zip(self.types, self.topics))]
 
     def _callback(self, index):
         def cb(msg, info):
@@ -119,29 +114,24 @@ def watchable(node):
 
 def adopt(node, late):
     """Take the inputs back into ``node`` (the calibrator) at their first reading."""
-    first = min(int(common.stamp_to_ns(m.header.stamp)) for h in late.held for m, _ in h)
-    clocks = LiveClocks(late.topics, [False] * late.k)
-    clocks.span = late.span               # the stamps' clock is chosen at once, as offline
     with node._lock:
         aside = node._move_aside('without_temperature')
         # the shadow aligner holds the rows of the last max_wait_s, as with the inputs
-        node._restart_with(late.topics, late.units, late.inputs, late.subs, clocks,
+        node._restart_with(late.topics, late.units, late.inputs, late.subs, late.clocks,
                            late.aligner)
         node.counts['samples'] = 0
         node.counts['stale_temperature'] = late.stale
-    late.forward = [node._temperature_cb(i, value) for i, (_, value) in enumerate(late.types)]
+    late.forward = [node._temperature_cb(i, common.THERMAL_TYPES[typ][1])
+                    for i, typ in enumerate(late.types)]
     held, late.held = late.held, [[] for _ in range(late.k)]
     for i, items in enumerate(held):
         for msg, info in items:
             late.forward[i](msg, info)
     node._write_inputs_signature()
     node._absent_topics = []
-    on_clock = late.span is not None and late.span[0] <= first <= late.span[1] + 60 * 10 ** 9
-    behind = (f', stamped {(first - late.span[0]) * 1e-9:.1f} s after the first IMU message'
-              if on_clock else '')     # else its clock is chosen as for any input (a note)
     topics = ', '.join(s.topic_name for s in late.subs)
     why = (f'{topics}: the first reading came {time.monotonic() - late.since:.1f} s after '
-           f'the node decided to collect without a temperature{behind}; the node '
+           f'the node decided to collect without a temperature; the node '
            'collects with it from here, as calibrate does a log whose temperature starts '
            f'late (IMU samples more than {late.timeout:g} s before its first reading are not '
            'collected)' + (f'; the holds collected without it were moved to {aside}'
@@ -153,14 +143,14 @@ def adopt(node, late):
 
 def watch(node):
     """Each tick after a decision without the inputs: adopt them, or warn (``warn_late``)."""
-    late = getattr(node, '_late_inputs', None)
+    late = node._late_inputs
     if late is not None and late.forward is None:
         if any(late.held):
             adopt(node, late)
             return
         with node._lock:                  # the node's aligner is replaced under it too
             late.shadow(node)
-    if not getattr(node, '_warned_late', False):
+    if not node._warned_late:
         warn_late(node, late)
 
 
@@ -169,10 +159,10 @@ def warn_late(node, late=None):
 
     A publisher of the watched input's type is not named: its first reading is taken.
     """
-    watched = {} if late is None else {t: c for t, (c, _) in zip(late.topics, late.types)}
+    watched = {} if late is None else dict(zip(late.topics, late.types))
     try:
         late_topics = [t for t in node._absent_topics
-                       if any(not _same_type(i.topic_type, watched.get(t))
+                       if any(i.topic_type != watched.get(t)
                               for i in node.get_publishers_info_by_topic(t))]
     except Exception:  # noqa: B902 - the graph is only a hint
         late_topics = []
@@ -183,11 +173,3 @@ def warn_late(node, late=None):
             'without a temperature' + ('' if late is None else ", as another type than the "
                                        "input's") +
             '; it is not used: restart the node to calibrate with it')
-
-
-def _same_type(type_name, cls):
-    """Return True when graph type name ``type_name`` is message class ``cls``."""
-    if cls is None:
-        return False
-    module = cls.__module__.split('.')[0]
-    return type_name == f'{module}/msg/{cls.__name__}'
