@@ -153,6 +153,50 @@ def test_both_nodes_in_one_process_follow_a_float32_temperature(
                                '/um7_driver, not sensor_msgs/msg/Temperature'), note
 
 
+def test_both_nodes_in_one_process_follow_a_late_float32_temperature(
+        launch_module, ros, tmp_path, monkeypatch, request):
+    """Both launched nodes in one context, the IMU published without a temperature until the
+    calibrator decides to collect without one (``absent_inputs``); then a um7 driver starts
+    publishing std_msgs/Float32 on imu/temperature: the compensator's input and the
+    calibrator's watched one are re-subscribed as Float32 together (one participant refuses
+    two types on a topic), and the calibrator takes the input at its first reading
+    (``late_inputs``)."""
+    from sensor_msgs.msg import Imu
+    from std_msgs.msg import Float32
+    from conftest import other_participant, replay_flow, wait_for
+    from thermal_imu_calib import sim
+    from thermal_imu_calib.nodes import absent_inputs
+    monkeypatch.setattr(absent_inputs, 'GRACE_S', 1.0)
+    _, nodes = _resolve(launch_module)
+    monkeypatch.setenv('HOME', str(tmp_path))
+    comp, calib = [_start(ros, n) for n in nodes]
+    driver = other_participant(request, 'imu_driver')
+    imu_pub = driver.create_publisher(Imu, 'imu/data_raw', 1000)
+    wait_for(lambda: imu_pub.get_subscription_count() >= 2, 60, 'both nodes on the IMU')
+    imu = sim.simulate('demo', 5, hold_s=(14.0, 15.0), transition_s=(1.5, 2.0),
+                       repetitions=1).imu()
+    sent = replay_flow(imu_pub, imu.slice(slice(0, 4000)), [], 2000.0,
+                       lambda: calib.progress()['imu_received'], what='the calibrator input')
+    wait_for(lambda: calib.progress()['imu_received'] >= sent and calib.k == 0, 60,
+             'the decision without a temperature')
+    pub = other_participant(request, 'um7_driver').create_publisher(
+        Float32, '/imu/temperature', 10)
+    wait_for(lambda: pub.get_subscription_count() >= 2, 60,
+             lambda: f'both nodes to subscribe as Float32 '
+                     f'({comp.type_follower.types}, {calib._late_inputs.types})')
+    pub.publish(Float32(data=24.0))
+    wait_for(lambda: calib.k == 1, 60, 'the calibrator to take the late temperature')
+    assert calib._clocks.bare == [True]
+    for node in (comp, calib):
+        subs = {s.topic_name: s.msg_type.__name__ for s in node.subscriptions}
+        assert subs['/imu/temperature'] == 'Float32', subs
+        assert node.type_follower.types == ['std_msgs/msg/Float32']
+        note, = node.type_follower.notes
+        assert note.startswith('/imu/temperature is published as std_msgs/msg/Float32 by '
+                               '/um7_driver, not sensor_msgs/msg/Temperature'), note
+    assert [n for n in calib.input_notes() if 'the first reading came' in n]
+
+
 def test_both_nodes_follow_a_temperature_under_another_name(
         launch_module, ros, tmp_path, monkeypatch, request):
     """Both launched nodes, a driver publishing its temperature on /imu/temp (the IMU on

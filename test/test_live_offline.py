@@ -106,7 +106,8 @@ def _write_other_clock(path, imu, temps):
                                      'bad_samples',
                                      'slow_temperature', 'float32_temperature',
                                      'float32_followed', 'temperature_on_another_clock',
-                                     'renamed_followed', 'late_temperature'])
+                                     'renamed_followed', 'late_temperature',
+                                     'late_float32_followed'])
 def test_live_calibration_equals_offline(tmp_path, thermal):
     """``bad_samples``: the room-temperature case with samples ``calibrate`` drops; the
     node drops the same ones (before 2026-11-28 it dropped only non-finite ones).
@@ -128,12 +129,15 @@ def test_live_calibration_equals_offline(tmp_path, thermal):
     room temperature's driver starts ``LATE_FROM`` of the way into the recording, after the
     node (shipped config) has decided to collect without a temperature: it takes the
     temperature from its first reading (``nodes/late_inputs``), as ``calibrate`` takes the
-    log's (the IMU samples more than 5 s before it not collected), and says so."""
+    log's (the IMU samples more than 5 s before it not collected), and says so.
+    ``late_float32_followed``: the same with the room temperature as std_msgs/Float32 and
+    the node left at its default type: it follows the late publisher's type, and puts each
+    reading on the IMU's clock as calibrate puts a log's."""
     imu = _recording()
     temps = None
     topics = {}
     kind = live_replay.TEMPERATURE_TYPE
-    if thermal in ('float32_temperature', 'float32_followed'):
+    if thermal in ('float32_temperature', 'float32_followed', 'late_float32_followed'):
         kind = 'std_msgs/msg/Float32'
     if not thermal.startswith('none'):
         temps = real_recordings.flat_temperature(imu)
@@ -141,7 +145,7 @@ def test_live_calibration_equals_offline(tmp_path, thermal):
             imu, temps = _with_bad_samples(imu, temps)
         if thermal == 'slow_temperature':
             temps = _slow(temps)
-        if thermal == 'late_temperature':
+        if thermal.startswith('late_'):
             late = temps.stamp_ns >= imu.stamp_ns[int(LATE_FROM * len(imu))]
             temps = TemperatureColumns(temps.stamp_ns[late], temps.temperature[late],
                                        temps.frame_id)
@@ -172,11 +176,11 @@ def test_live_calibration_equals_offline(tmp_path, thermal):
                                 workdir=str(tmp_path / 'live'), temperature_type=kind,
                                 temperature_header_ns=None if thermal != 'temperature_on_'
                                 'another_clock' else temps.stamp_ns + OTHER_CLOCK_S * 10 ** 9,
-                                set_temperature_type=thermal != 'float32_followed',
+                                set_temperature_type=not thermal.endswith('_followed'),
                                 published_on=(RENAMED if thermal == 'renamed_followed'
                                               else live_replay.TEMPERATURE_TOPIC),
                                 late_from=(int(LATE_FROM * len(imu))
-                                           if thermal == 'late_temperature' else None),
+                                           if thermal.startswith('late_') else None),
                                 spare_domains=SPARE_DOMAINS)
     if live.earlier:        # shown in the run's warnings summary (CI prints it)
         warnings.warn(f'live run retried on domain {live.domain}: {live.earlier}')
@@ -193,13 +197,13 @@ def test_live_calibration_equals_offline(tmp_path, thermal):
                 'topic on the graph' in f.read()
         notes = yaml.safe_load(live.calibration_text)['notes']
         assert [n for n in notes if n.startswith('input: no temperature is published')], notes
-    if thermal == 'late_temperature':        # the node said what it did, and the file
+    if thermal.startswith('late_'):          # the node said what it did, and the file
         said = '/imu/temperature: the first reading came'
         with open(tmp_path / 'live' / f'attempt{live.attempts}' / 'node.log') as f:
             assert said in f.read()
         notes = yaml.safe_load(live.calibration_text)['notes']
         assert [n for n in notes if n.startswith('input: ' + said)], notes
-    if thermal == 'float32_followed':        # the node said what it did, and the file
+    if thermal.endswith('float32_followed'):     # the node said what it did, and the file
         said = ('/imu/temperature is published as std_msgs/msg/Float32 by '
                 '/scoreboard_player, not sensor_msgs/msg/Temperature: subscribed as '
                 'std_msgs/msg/Float32')

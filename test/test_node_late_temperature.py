@@ -7,14 +7,15 @@ takes a log's late temperature (the IMU samples more than ``temperature_timeout`
 it are not collected). Live against offline on a real recording is
 ``test_live_offline.py``'s ``late_temperature`` case; here the mechanics: the inputs come
 back, the collection made without them is moved aside, the file's note says what
-happened, a snapshot taken before the first reading works, and a publisher of another
-type is still only named.
+happened, a snapshot taken before the first reading works, a late Float32 driver is
+followed and its readings put on the IMU's clock, and a publisher of a type that is not a
+thermal one is only named.
 """
 
 from conftest import other_participant, replay_flow, wait_for
 import numpy as np
 from sensor_msgs.msg import Temperature
-from std_msgs.msg import Float32
+from std_msgs.msg import Float32, String
 from std_srvs.srv import Trigger
 from thermal_imu_calib.calibration import Calibration
 from thermal_imu_calib.nodes import absent_inputs
@@ -130,22 +131,73 @@ def test_a_late_temperature_stamped_0_goes_on_the_imus_clock(ros, tmp_path, monk
     assert [n for n in cal.notes if 'the first reading came' in n], cal.notes
 
 
-def test_a_late_publisher_of_another_type_is_named_not_taken(ros, tmp_path, monkeypatch,
-                                                             request):
+class _AsFloat32:
+    """A publisher of std_msgs/Float32 taking the harness's Temperature messages (um7-like)."""
+
+    def __init__(self, pub):
+        self.pub = pub
+
+    def publish(self, msg):
+        self.pub.publish(Float32(data=float(msg.temperature)))
+
+    def __getattr__(self, name):          # topic_name, get_subscription_count, ...
+        return getattr(self.pub, name)
+
+
+def test_a_late_float32_driver_is_followed_and_put_on_the_imus_clock(ros, tmp_path,
+                                                                     monkeypatch, request):
+    # the node subscribes its input as sensor_msgs/Temperature; a driver started late
+    # publishes std_msgs/Float32 (no header) on it: the input is re-subscribed as Float32
+    # (nodes/thermal_types), taken at its first reading, and each reading takes the stamp of
+    # the IMU message published before it (the node kept their publish order meanwhile)
+    monkeypatch.setattr(absent_inputs, 'GRACE_S', GRACE_S)
+    late = _LateSession(ros, tmp_path, 'late_float32_driver')
+    node = late.node
+    warned = []
+    node.get_logger().warning = warned.append
+    # another participant: DDS refuses a second type on a topic in the node's
+    driver = other_participant(request, 'float32_driver')
+    stamps = late.play_rest(_AsFloat32(driver.create_publisher(Float32, 'imu/temperature', 100)))
+    assert node.k == 1 and node._clocks.bare == [True]
+    assert node.type_follower.types == ['std_msgs/msg/Float32']
+    assert not [w for w in warned if 'it is not used' in w], warned
+    resp = late.calibrate()
+    assert resp.success, resp.message
+    cal = Calibration.load(str(tmp_path / 'calibration.yaml'))
+    assert len(cal.inputs) == 1 and cal.valid_range is not None
+    notes = [n for n in cal.notes if n.startswith('input: ')]
+    assert [n for n in notes if 'the first reading came' in n], cal.notes
+    assert [n for n in notes if n.startswith('input: /imu/temperature is published as '
+                                             'std_msgs/msg/Float32 by /float32_driver, '
+                                             'not sensor_msgs/msg/Temperature')], cal.notes
+    # the readings were placed on the IMU's clock from the first: each chunk's readings go
+    # out before its IMU messages (replay_flow), so the first takes the stamp of the last
+    # IMU message published before it, the first part's last; nothing collected starts
+    # more than temperature_timeout before that, and no reading was left out as published
+    # before every IMU message the node kept
+    first = late.imu.stamp_ns[late.cut - 1] * 1e-9
+    assert first - node.temperature_timeout <= node.windows.t0.min() <= stamps[0] * 1e-9 + 30
+    assert len(node.windows.hold_ids) >= 2
+    assert node.counts['temperature_before_imu'] == 0
+
+
+def test_a_late_publisher_of_a_type_not_thermal_is_named_not_taken(ros, tmp_path, monkeypatch,
+                                                                   request):
     monkeypatch.setattr(absent_inputs, 'GRACE_S', GRACE_S)
     rec = recording(repetitions=1)
     imu = rec.imu()
     node = calibrator(ros, tmp_path)
-    drv, imu_pub, progress = imu_player(ros, 'late_float_driver')
+    drv, imu_pub, progress = imu_player(ros, 'late_string_driver')
     sent = replay_flow(imu_pub, imu.slice(slice(0, 3000)), [], RATE,
                        lambda: progress[-1]['imu_received'], what='IMU messages')
     wait_for(lambda: progress[-1]['imu_received'] >= sent and node.k == 0, WAIT,
              'the decision without a temperature')
     warned = []
     node.get_logger().warning = warned.append
-    other_participant(request, 'float_driver').create_publisher(Float32, 'imu/temperature', 10)
+    other_participant(request, 'string_driver').create_publisher(String, 'imu/temperature', 10)
     wait_for(lambda: warned, WAIT, 'the warning')
     assert warned[0] == ('/imu/temperature is published now, after the node decided to '
-                         "collect without a temperature, as another type than the input's; "
-                         'it is not used: restart the node to calibrate with it'), warned
+                         'collect without a temperature (as std_msgs/msg/String, not one '
+                         'thermal type); it is not used: restart the node to calibrate with '
+                         'it'), warned
     assert node.k == 0

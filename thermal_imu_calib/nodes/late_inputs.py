@@ -21,17 +21,22 @@ every message arrives (``test_live_offline.py``, ``late_temperature``). Readings
 before the node's subscription matched the new publisher are lost, as any first messages
 of a publisher (a player should wait for the match, as ``ros2 bag play --delay`` does).
 
-Not for a header-less input (std_msgs/Float32 or Float64: its readings take the IMU's
-clock, whose history the node did not keep meanwhile) nor a publisher of another type or
-name than the input's: those are still named in a warning (``warn_late``) and used after a
-restart. A jump back of the IMU stamps or ``~/reset`` gives the shadow a fresh aligner.
+A header-less input (std_msgs/Float32 or Float64) is taken the same way: its readings go on
+the IMU's clock (the stamp of the IMU message published before each), so while the inputs
+are watched the node keeps the IMU messages' publish order for them (``_ShadowClocks``).
+A late publisher of another thermal type than the input's (a Float32 driver on a topic the
+node subscribes as sensor_msgs/Temperature) is followed as at the start
+(``thermal_types.TypeFollower``) and then taken. Still named in a warning (``warn_late``)
+and used only after a restart: a publisher of a type that is not a thermal one, of several
+types at once, or under another name than the input's. A jump back of the IMU stamps or
+``~/reset`` gives the shadow a fresh aligner and fresh clocks.
 """
 
 import copy
 import time
 
 from . import common
-from .thermal_types import type_name
+from .thermal_types import TypeFollower, type_name
 from ..io.align import StreamAligner
 from ..io.columns import TemperatureColumns
 from ..io.headerless import LiveClocks
@@ -45,7 +50,6 @@ class _Shadowed:
 
     def push_columns(self, imu, temps, extra=None):
         self.late.take(self.late.aligner.push_columns(imu, self.late.no_readings))
-        self.late.clocks.add_imu((), imu.stamp_ns)   # the IMU stamps' span only
         return self.own.push_columns(imu, temps, extra)
 
     def finish(self):
@@ -55,6 +59,30 @@ class _Shadowed:
     def __deepcopy__(self, memo):
         """Copy the node's own aligner only (a snapshot finishes its rows, not the shadow's)."""
         return copy.deepcopy(self.own, memo)
+
+
+class _ShadowClocks:
+    """The node's clocks (no inputs), also feeding every IMU message to the watched inputs'.
+
+    The node keeps its IMU messages' DDS source timestamps while ``on``: here while the
+    watched inputs' clocks need them (a header-less input, or one whose stamps are not
+    judged yet), so a first reading is put on the IMU's clock as it would have been with
+    the inputs from the start.
+    """
+
+    def __init__(self, own, late):
+        self.own, self.late = own, late
+
+    @property
+    def on(self):
+        return self.late.clocks.on
+
+    def add_imu(self, source_ns, stamp_ns):
+        self.late.clocks.add_imu(source_ns, stamp_ns)
+        self.own.add_imu(source_ns, stamp_ns)
+
+    def __getattr__(self, name):          # bare, notes, describe, fresh, ...: the node's own
+        return getattr(self.own, name)
 
 
 class LateInputs:
@@ -67,22 +95,35 @@ class LateInputs:
         self.inputs = list(node.inputs)
         self.k = node.k
         self.timeout = node.temperature_timeout
+        self.node = node
         self.no_readings = [TemperatureColumns.empty() for _ in range(self.k)]
         self.held = [[] for _ in range(self.k)]     # (message, info) until adopted
         self.forward = None                         # then the node's own callbacks
         self.stale = 0                              # shadow rows released without a reading
         #: the inputs' clocks once taken back, fed the IMU stamps' span meanwhile, so the
         #: stamps' clock is chosen at the first readings, as offline
-        self.clocks = LiveClocks(self.topics, [False] * self.k)
+        self.clocks = LiveClocks(self.topics, [common.headerless(s.msg_type) for s in subs])
         self.since = time.monotonic()
         self.aligner = StreamAligner(self.k, self.timeout)
-        self.wrapper = None
+        self.wrapper = self.clock_wrapper = None
         self.types = [type_name(s.msg_type) for s in subs]     # common.THERMAL_TYPES keys
-        self.subs = [node.create_subscription(common.THERMAL_TYPES[typ][0], topic,
-                                              self._callback(i),
-                                              common.sensor_qos(node._in_depth),
-                                              callback_group=node._data_group)
-                     for i, (typ, topic) in enumerate(zip(self.types, self.topics))]
+        self.subs = [self._subscription(i, typ) for i, typ in enumerate(self.types)]
+        #: a late publisher of another thermal type is followed, as at the start
+        self.follower = TypeFollower(node, self.subs, self._subscribe_as)
+
+    def _subscription(self, index, typ):
+        node = self.node
+        return node.create_subscription(common.THERMAL_TYPES[typ][0], self.topics[index],
+                                        self._callback(index), common.sensor_qos(node._in_depth),
+                                        callback_group=node._data_group)
+
+    def _subscribe_as(self, index, typ):
+        """Subscribe input ``index`` as ``typ`` (the follower destroyed the old one)."""
+        self.subs[index] = self._subscription(index, typ)
+        self.types[index] = typ
+        with self.node._lock:
+            self.clocks.retype(index, common.headerless(common.THERMAL_TYPES[typ][0]))
+            self.held[index] = []
 
     def _callback(self, index):
         def cb(msg, info):
@@ -97,7 +138,7 @@ class LateInputs:
         self.stale += sum(len(c.imu) for c in chunks)
 
     def shadow(self, node):
-        """Put the shadow under ``node``'s aligner again when the node replaced it.
+        """Put the shadow under ``node``'s aligner and clocks again when the node replaced them.
 
         Called under ``node._lock``.
         """
@@ -105,11 +146,15 @@ class LateInputs:
             if self.wrapper is not None:        # a jump back or ~/reset: a new timeline
                 self.aligner = StreamAligner(self.k, self.timeout)
             self.wrapper = node.aligner = _Shadowed(node.aligner, self)
+        if node._clocks is not self.clock_wrapper:
+            if self.clock_wrapper is not None:  # ~/reset: stamps judged afresh
+                self.clocks = self.clocks.fresh()
+            self.clock_wrapper = node._clocks = _ShadowClocks(node._clocks, self)
 
 
 def watchable(node):
     """Return True when ``node``'s inputs can be taken back at a late first reading."""
-    return node.k > 0 and not any(common.headerless(s.msg_type) for s in node.temp_subs)
+    return node.k > 0
 
 
 def adopt(node, late):
@@ -121,6 +166,9 @@ def adopt(node, late):
                            late.aligner)
         node.counts['samples'] = 0
         node.counts['stale_temperature'] = late.stale
+    # the node's follower takes the inputs over (the late one lets go of them: one switch)
+    node.type_follower.take(node.temp_subs, late.follower.notes)
+    late.follower.clear()
     late.forward = [node._temperature_cb(i, common.THERMAL_TYPES[typ][1])
                     for i, typ in enumerate(late.types)]
     held, late.held = late.held, [[] for _ in range(late.k)]
@@ -148,28 +196,39 @@ def watch(node):
         if any(late.held):
             adopt(node, late)
             return
+        late.follower()                   # another thermal type: re-subscribed as it
         with node._lock:                  # the node's aligner is replaced under it too
             late.shadow(node)
     if not node._warned_late:
         warn_late(node, late)
 
 
-def warn_late(node, late=None):
-    """Say once that a temperature the node will not take appeared on an input's topic.
+def _taken(types, watched):
+    """Return True when publishers of ``types`` on a watched topic (as ``watched``) are taken.
 
-    A publisher of the watched input's type is not named: its first reading is taken.
+    Those of the watched type are (their first reading); those of one other thermal type
+    are followed first (``thermal_types``).
     """
-    watched = {} if late is None else dict(zip(late.topics, late.types))
+    return watched is not None and (types <= {watched} or (
+        len(types) == 1 and next(iter(types)) in common.THERMAL_TYPES))
+
+
+def warn_late(node, late=None):
+    """Say once that a temperature the node will not take appeared on an input's topic."""
+    watched = {} if late is None else dict(zip((s.topic_name for s in late.subs), late.types))
     try:
-        late_topics = [t for t in node._absent_topics
-                       if any(i.topic_type != watched.get(t)
-                              for i in node.get_publishers_info_by_topic(t))]
+        published = {t: {i.topic_type for i in node.get_publishers_info_by_topic(t)}
+                     for t in node._absent_topics}
     except Exception:  # noqa: B902 - the graph is only a hint
-        late_topics = []
+        published = {}
+    late_topics = [t for t, types in published.items()
+                   if types and not _taken(types, watched.get(t))]
     if late_topics:
         node._warned_late = True
         node.get_logger().warning(
             f'{", ".join(late_topics)} is published now, after the node decided to collect '
-            'without a temperature' + ('' if late is None else ", as another type than the "
-                                       "input's") +
+            'without a temperature' + ('' if late is None else
+                                       ' (' + '; '.join(f'as {", ".join(sorted(published[t]))}'
+                                                        for t in late_topics) +
+                                       ', not one thermal type)') +
             '; it is not used: restart the node to calibrate with it')

@@ -99,6 +99,17 @@ class TypeFollower:
         """Forget every input (the node has destroyed its subscriptions and has none)."""
         del self.topics[:], self.types[:]
 
+    def take(self, subscriptions, notes=()):
+        """Follow ``subscriptions`` from now on (the node's new list), with ``notes`` said.
+
+        For a node that took inputs another follower watched (``late_inputs``); that one
+        lets go of them (``clear``), so a switch has one follower per input.
+        """
+        self.subscriptions = subscriptions
+        self.topics[:] = [s.topic_name for s in subscriptions]
+        self.types[:] = [type_name(s.msg_type) for s in subscriptions]
+        self.notes += [n for n in notes if n not in self.notes]
+
     def _peers(self, topic, old):
         """Return (follower, index) of every input on ``topic`` as ``old`` in this context."""
         context = self.node.context
