@@ -22,7 +22,7 @@ from scipy.stats import chi2
 
 from thermal_imu_calib import sim
 from thermal_imu_calib.collection import blocks, motion, stationary
-from thermal_imu_calib.io import align, cdr, mcap_read
+from thermal_imu_calib.io import align, cdr, mcap_read, packed
 from thermal_imu_calib.io.columns import AlignedChunk, ImuColumns, TemperatureColumns
 from thermal_imu_calib.app.collect import collect_windows
 
@@ -156,8 +156,8 @@ REFERENCES = [(stationary, 'Ring', RefRing), (stationary, 'mean_var', ref_mean_v
               (stationary, 'chi2_ppf', ref_chi2_ppf), (motion, '_Tape', RefTape),
               (align.TemperatureTrack, 'interpolate', ref_interpolate),
               (align.StreamAligner, '_resolve', ref_resolve),
-              (mcap_read, 'gather', ref_gather), (mcap_read, 'crc32', zlib.crc32),
-              (mcap_read, 'windows', sliding_window_view),
+              (packed, 'gather', ref_gather), (mcap_read, 'crc32', zlib.crc32),
+              (packed, 'windows', sliding_window_view), (packed, 'take_rows', ref_take_rows),
               (mcap_read, 'take_rows', ref_take_rows), (cdr, 'take_rows', ref_take_rows),
               (cdr, 'decode_imu_packed', ref_decode_imu_packed)]
 
@@ -345,16 +345,16 @@ def test_gather_and_windows_are_plain_slicing():
     buf = rng.integers(0, 256, 5000).astype(np.uint8)
     starts = rng.integers(0, 4900, 777)
     for width in (1, 8, 31):
-        assert np.array_equal(mcap_read.windows(buf, width), sliding_window_view(buf, width))
-        assert not mcap_read.windows(buf, width).flags.writeable
+        assert np.array_equal(packed.windows(buf, width), sliding_window_view(buf, width))
+        assert not packed.windows(buf, width).flags.writeable
         for idx in (starts, starts[:0], starts[:1]):
-            got = mcap_read.take_rows(buf, width, idx)
+            got = packed.take_rows(buf, width, idx)
             assert got.shape == (len(idx), width) and got.dtype == np.uint8
             assert np.array_equal(got, ref_take_rows(buf, width, idx))
     for same in (True, False):
         starts = np.sort(rng.choice(4000, 300, replace=False))
         lengths = np.full(300, 9) if same else rng.integers(0, 40, 300)
-        assert np.array_equal(mcap_read.gather(buf, starts, lengths),
+        assert np.array_equal(packed.gather(buf, starts, lengths),
                               ref_gather(buf, starts, lengths))
     assert mcap_read.crc32(buf.tobytes()) == zlib.crc32(buf.tobytes())
 

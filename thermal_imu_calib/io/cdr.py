@@ -25,7 +25,7 @@ from collections.abc import Iterator, Sequence
 
 import numpy as np
 from .columns import ImuColumns, TemperatureColumns
-from .mcap_read import take_rows
+from .packed import take_rows
 
 IMU_MSGTYPE = 'sensor_msgs/msg/Imu'
 TEMPERATURE_MSGTYPE = 'sensor_msgs/msg/Temperature'

@@ -25,7 +25,7 @@ import numpy as np
 
 from .cdr import SCALAR_MSGTYPES
 from .columns import TemperatureColumns
-from .mcap_read import take_rows
+from .packed import take_rows
 
 #: header-less scalars a thermal input may arrive as: message type -> CDR value dtype
 HEADERLESS_MSGTYPES = {'std_msgs/msg/Float32': np.dtype('<f4'),

@@ -16,8 +16,8 @@ import numpy as np
 from . import cdr
 from .columns import ImuColumns
 from .headerless import decode_values_packed, StampChoice
-from .mcap_read import (Batch, compact, concat_batches, iter_batches, McapBulkReader,
-                        McapFormatError)
+from .mcap_read import iter_batches, McapBulkReader, McapFormatError
+from .packed import Batch, compact, concat_batches
 
 
 class McapBulkSource:

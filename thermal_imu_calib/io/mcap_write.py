@@ -17,9 +17,9 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from .mcap_read import (Batch, gather, MAGIC, MESSAGE_HEADER, OP_CHANNEL, OP_CHUNK,
-                        OP_CHUNK_INDEX, OP_DATA_END, OP_FOOTER, OP_HEADER, OP_MESSAGE,
-                        OP_MESSAGE_INDEX, OP_SCHEMA, OP_STATISTICS)
+from .mcap_read import (MAGIC, OP_CHANNEL, OP_CHUNK, OP_CHUNK_INDEX, OP_DATA_END, OP_FOOTER,
+                        OP_HEADER, OP_MESSAGE, OP_MESSAGE_INDEX, OP_SCHEMA, OP_STATISTICS)
+from .packed import Batch, gather, MESSAGE_HEADER
 
 OP_SUMMARY_OFFSET = 0x0E
 COMPRESSIONS = ('', 'zstd', 'lz4')
