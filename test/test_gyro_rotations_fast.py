@@ -1,6 +1,6 @@
 """The fast pieces of the gyro fits against their plain versions.
 
-``gyro_rotations._group_starts`` (the merged increment groups of every pose change, found
+``gyro_transitions._group_starts`` (the merged increment groups of every pose change, found
 for all transitions at once) against the sample-by-sample loop it replaced, bit for bit, on
 random increments and on the pose changes of the ``sim.scenarios`` sessions and the real
 fixtures written as bags and collected as the CLI does (``collect_windows(motion=True)``);
@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from thermal_imu_calib import rotations, sim
-from thermal_imu_calib.estimation import gyro_rotations as gr
+from thermal_imu_calib.estimation import gyro_rotations as gr, gyro_transitions as gt
 from thermal_imu_calib.estimation.observability import decide_determined, Layout
 from thermal_imu_calib.app.collect import collect_windows
 
@@ -29,7 +29,7 @@ def loop_starts(b):
     """Return the group starts of the loop ``_merge_commuting`` ran before (the reference)."""
     groups = [0]
     sx = sy = sz = ex = ey = ez = 0.0
-    lim2 = gr.MERGE_COMMUTATOR ** 2
+    lim2 = gt.MERGE_COMMUTATOR ** 2
     for i, (x, y, z) in enumerate(np.asarray(b, float).tolist()):
         # commutator added by appending theta_i to the group: 1/2 S x theta_i
         cx, cy, cz = 0.5 * (sy * z - sz * y), 0.5 * (sz * x - sx * z), 0.5 * (sx * y - sy * x)
@@ -46,12 +46,12 @@ def assert_groups_match(increments):
     """Assert ``_group_starts`` (all at once and one by one) equals the loop; return groups."""
     ref = [loop_starts(b) for b in increments]
     for window in (1, 7, 64):
-        got = gr._group_starts(increments, window)
+        got = gt._group_starts(increments, window)
         assert len(got) == len(ref)
         for j, (r, g) in enumerate(zip(ref, got)):
             assert np.array_equal(r, g), (window, j)
     for b, r in zip(increments, ref):
-        assert np.array_equal(gr._group_starts([b])[0], r)
+        assert np.array_equal(gt._group_starts([b])[0], r)
     return sum(len(r) for r in ref)
 
 
@@ -65,7 +65,7 @@ def test_group_starts_equal_the_loop_on_random_increments():
     groups = assert_groups_match(incs)
     assert groups > 50                      # short and long groups were both exercised
     b = incs[3]
-    merged = gr._merge_commuting([(b, b ** 2, b ** 3, 0 * b)])[0]
+    merged = gt._merge_commuting([(b, b ** 2, b ** 3, 0 * b)])[0]
     starts = loop_starts(b)
     for x, y in zip(merged, (b, b ** 2, b ** 3, 0 * b)):
         assert np.array_equal(x, np.add.reduceat(y, starts, axis=0))
@@ -89,7 +89,7 @@ def pose_changes(tmp_path_factory):
         for tr in col.transitions:
             if len(tr.t) >= 2:
                 dt = np.diff(tr.t)
-                incs += [gr._trapezoid(tr.gyro, dt), gr._trapezoid(tr.gyro - bias, dt)]
+                incs += [gt._trapezoid(tr.gyro, dt), gt._trapezoid(tr.gyro - bias, dt)]
         out[os.path.basename(path)] = incs
     return out
 
@@ -121,7 +121,7 @@ def test_estimate_only_refit_has_the_same_estimate():
     truth = np.eye(3) + rng.normal(size=(3, 3)) * 0.01
     u_from = rng.normal(size=(k, 3))
     u_from /= np.linalg.norm(u_from, axis=1, keepdims=True)
-    prep = gr.PreparedTransitions(b, b ** 2 * 0.1, b ** 3 * 0.01, u_from, u_from,
+    prep = gt.PreparedTransitions(b, b ** 2 * 0.1, b ** 3 * 0.01, u_from, u_from,
                                   np.full(k, 1e-3), np.zeros(k, bool), list(range(k)))
     # residual u_to - carried with u_to = u_from: the carried direction of Omega1 = truth
     prep.u_to = u_from - gr.rotation_residuals(prep, truth, 0.0, 0.0)

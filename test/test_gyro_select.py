@@ -89,7 +89,7 @@ def test_choose_never_keeps_a_candidate_over_the_keep_ratio():
 
 
 def test_a_same_pose_change_of_a_whole_turn_is_closed():
-    from thermal_imu_calib.estimation.gyro_rotations import is_full_turn
+    from thermal_imu_calib.estimation.gyro_transitions import is_full_turn
     t = np.linspace(0.0, 4.0, 401)
     dt = np.diff(t)
     up = np.array([1.0, 0.0, 0.0])

@@ -10,9 +10,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from thermal_imu_calib.collection.outliers import robust_least_squares
-from thermal_imu_calib.estimation.gyro_rotations import (fit_gyro_rotations,
-                                                         PreparedTransitions,
-                                                         rotation_residuals)
+from thermal_imu_calib.estimation.gyro_rotations import fit_gyro_rotations, rotation_residuals
+from thermal_imu_calib.estimation.gyro_transitions import PreparedTransitions
 from thermal_imu_calib.rotations import (quat_from_rotvec, quat_mul, quat_rotate_inverse,
                                          quat_to_matrix, quat_to_rotvec, right_jacobian,
                                          right_jacobian_inverse)

@@ -13,7 +13,8 @@ import numpy as np
 from ..models.whole_unit import WholeUnitGyroModel
 from .observability import CONVENTION, Priors
 
-from .gyro_rotations import fit_gyro_rotations, prepare_transitions, RotationFit
+from .gyro_rotations import fit_gyro_rotations, RotationFit
+from .gyro_transitions import prepare_transitions
 from .gyro_static import fit_gyro_static, hold_directions, StaticGyroFit
 
 
