@@ -5,10 +5,9 @@ all transitions at once by a pairwise tree product) and the gravity direction
 measured before is carried over and compared with the one measured after:
 ``r = u_j - dR' u_i``. Transitions flagged ``closed`` (full turns, start and end
 orientation identical, as the Ferraris protocol) add ``rotvec(dR) = 0``. A pose change
-that starts and ends in the same pose (gravity directions within ``SAME_POSE_DEG``) and
-turns the unit by a whole number of turns (integrated angle within ``FULL_TURN_TOLERANCE``
-of n x 360 deg, n >= 1) is taken as closed: gravity alone cannot see a turn about the
-vertical, the closure can (``is_full_turn``).
+that starts and ends in the same pose and turns the unit by a whole number of turns is
+taken as closed: gravity alone cannot see a turn about the vertical, the closure can
+(``gyro_transitions.is_full_turn``).
 Unknowns: Omega1 (3x3 scale/misalignment relative to the accelerometer frame)
 and the per-axis nonlinearity Omega2, Omega3; observability as in
 ``observability``. The earth rate during a 2-4 s pose change (< 3e-4 rad) is

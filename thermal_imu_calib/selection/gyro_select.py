@@ -110,7 +110,8 @@ def _poly_as_static(poly):
 def _pose_figures(ctx, est, poly, acc, turns_fit):
     """Return {candidate: (k,) held-out pose-change errors (deg)} and how they were held out."""
     from ..estimation.gyro_rotations import (direction_error_deg, heldout_rotation_errors,
-                                             prepare_transitions, priors_like)
+                                             priors_like)
+    from ..estimation.gyro_transitions import prepare_transitions
     from ..estimation.gyro_static import hold_directions
     prep = turns_fit.rotation.prepared
     priors = priors_like(turns_fit.rotation, ctx.options.whole_unit_priors)
