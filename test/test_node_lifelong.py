@@ -151,3 +151,40 @@ def test_holds_during_commanded_motion_are_not_collected(ros, tmp_path):
     store = life.life.store.recent
     assert ((store.t0 >= in_c[0]) & (store.t1 <= in_c[1])).all()
     assert (archives[0] / 'holds' / 'recent.jsonl').read_bytes() == stored
+
+
+def test_lifelong_follows_its_temperature_under_another_name_across_a_restart(ros, tmp_path):
+    # lifelong mode with the shipped temperature_topics and a driver publishing its
+    # temperature on /imu/temp beside the IMU: the node follows it as the collection for
+    # ~/calibrate does (nodes/topic_follower), the lifelong store collects with it and its
+    # calibrations name it; a restart follows it again and resumes the node's collection
+    from test_node_calibrator import calibrator, Player, recording
+    params = {'lifelong': True, 'lifelong_dir': str(tmp_path / 'life'),
+              'frame_id': 'imu_link', 'report': False}
+    rec = recording(repetitions=1)
+    cut = int(np.searchsorted(rec.imu().stamp_ns, (rec.schedule[2].stamp_end_ns
+                                                   + rec.schedule[3].stamp_start_ns) // 2))
+    node = calibrator(ros, tmp_path, **params)
+    player = Player(ros, temperature_topic='/imu/temp')     # waits for the match
+    assert node.temperature_topics == ['/imu/temp']
+    # the state was loaded at start (frame_id given), its inputs named once decided
+    wait_for(lambda: node.lifelong.life.topics == ['/imu/temp'], WAIT, 'the decision')
+    player.play(rec, 0, cut)
+    player.wait_received()
+    wait_for(lambda: node.lifelong.holds() >= 2, WAIT, 'holds in the lifelong store')
+    held, stored = len(node.windows.hold_ids), node.lifelong.holds()
+    ros.remove(node)
+    node = calibrator(ros, tmp_path, **params)
+    assert node._resume_later                                # resumed once followed again
+    player.forget_progress()
+    player.sent = [0, 0]
+    player.wait_connected()
+    assert node.temperature_topics == ['/imu/temp']
+    wait_for(lambda: node.resumed_holds == held, WAIT, 'the resume, once decided')
+    player.play(rec, cut)
+    player.wait_received()
+    wait_for(lambda: node.lifelong.holds() > stored, WAIT, 'more holds in the lifelong store')
+    assert node.lifelong.life.topics == ['/imu/temp']
+    notes = [n for n in node.input_notes() if n.startswith('nothing is published on '
+                                                           '/imu/temperature; /imu/temp')]
+    assert notes, node.input_notes()

@@ -16,8 +16,11 @@ shipped config. Now the node decides once, before it collects anything:
   node then runs as with ``temperature_topics: []`` and says so once.
 
 Until then the IMU messages wait in the node's queue (at most ``GRACE_S`` of them), so the
-holds are those ``calibrate`` finds from the first message. Not for lifelong mode, a
-collection resumed from its file, or a node without inputs (decided at the start); a
+holds are those ``calibrate`` finds from the first message. Lifelong mode waits the same
+way (its temperature may be followed under another name) but never drops its inputs: its
+store learns a thermal model, so without a reading it collects nothing and the node warns
+as for any input without readings. Not for a collection resumed from its file, or a node
+without inputs (decided at the start); a
 collection made without the inputs (a restart in such a session) is resumed once decided
 (``made_without``). A temperature first published after a decision without it is taken
 then, as ``calibrate`` takes a log's late temperature (``late_inputs``).
@@ -105,13 +108,14 @@ def made_without(node):
     moved aside, as any collection of other inputs.
     """
     path = node._collection_path()
-    if not node.k or node.lifelong is not None or not path or not os.path.exists(path):
+    if not node.k or not path or not os.path.exists(path):
         return False
     try:
         with open(path + '.inputs.json') as f:
             topics = json.load(f).get('temperature_topics')
     except (OSError, ValueError, AttributeError):
         return False
-    return topics == [] or (topic_follower.follows(node.temperature_topics)
-                            and isinstance(topics, list) and len(topics) == 1
-                            and topics != list(node.temperature_topics))
+    # lifelong mode never collects without its inputs, but follows another name
+    return (topics == [] and node.lifelong is None) or (
+        topic_follower.follows(node.temperature_topics) and isinstance(topics, list)
+        and len(topics) == 1 and topics != list(node.temperature_topics))

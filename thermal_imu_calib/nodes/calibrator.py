@@ -111,7 +111,11 @@ class CalibratorNode(LiveCollection, Node):
         self.type_follower = thermal_types.TypeFollower(self, self.temp_subs, self._subscribe_as)
         #: no temperature published at all: collect without one, as calibrate does a log
         #: without one (``absent_inputs``); decided once, before anything is collected
-        self._inputs_decided = not self.k or self.lifelong is not None or self.resumed_holds > 0
+        #: lifelong mode keeps its inputs (its store learns a thermal model) but follows one
+        #: under another name, as a collection for ~/calibrate does
+        self._inputs_decided = (not self.k or self.resumed_holds > 0
+                                or (self.lifelong is not None
+                                    and not topic_follower.follows(self.temperature_topics)))
         self._imu_seen_at = None      # steady clock at the first tick that saw an IMU message
         self._input_notes = []        # what was decided about the inputs (the file's notes)
         self._absent_topics = []      # the inputs' topics when decided without them
@@ -162,13 +166,15 @@ class CalibratorNode(LiveCollection, Node):
         if how == absent_inputs.UNDECIDED:
             return False
         self._name_follower = self._name_follower and self._name_follower.close(self)
-        if how == absent_inputs.ABSENT:
-            absent_inputs.drop_inputs(self, why)
+        if how == absent_inputs.ABSENT and self.lifelong is None:
+            absent_inputs.drop_inputs(self, why)     # lifelong: waits for a reading
         if self._resume_later:       # before anything is collected (the queue waits)
             self._resume_later = False
             with self._lock:
                 self._resume_all()
         self._inputs_decided = True
+        if self.lifelong is not None:
+            self.lifelong.inputs_decided()
         return True
 
     def input_notes(self):

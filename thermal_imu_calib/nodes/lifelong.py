@@ -154,6 +154,16 @@ class LifelongMode:
             with self._lock:
                 self._manager()
 
+    def inputs_decided(self):
+        """Name the node's inputs in the store's calibrations once they are decided.
+
+        The node may have followed its temperature under another name
+        (``topic_follower``) after the state was loaded with the configured one.
+        """
+        with self._lock:
+            if self.life is not None:
+                self.life.topics = list(self.node.temperature_topics)
+
     def _log(self, level, text):
         logger = self.node.get_logger()
         if level == 'error':

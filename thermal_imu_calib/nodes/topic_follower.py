@@ -24,8 +24,8 @@ compares the first messages in a log; none singled out: nothing is followed and
 ``~/calibrate`` names them, as before. A temperature published by another node than the
 IMU's is not followed (on a robot that is a battery's or a motor's as often as the
 IMU's), nor one outside the node's namespace (another robot's); its name is in the
-refusal. Not in lifelong mode, nor for a collection resumed from its file (decided at
-the start).
+refusal. In lifelong mode too (its store's calibrations then name the followed topic);
+not for a collection resumed from its file (decided at the start).
 
 ``compensator_node`` with the default list takes such a calibration by subscribing its
 input's topic (``InputAdopter``).
