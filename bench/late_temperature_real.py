@@ -15,7 +15,11 @@ compared as the scoreboard compares them (holds, model, every number to 1e-9 rel
 ``--type std_msgs/msg/Float32``: the readings as std_msgs/Float32 (no header: logged at their
 stamps, published in that order), the node at its default type: it follows the late
 publisher's type (``nodes/thermal_types``) and puts each reading on the IMU's clock, as
-``calibrate`` does a log's (``io.headerless``).
+``calibrate`` does a log's (``io.headerless``). ``--renamed``: the readings on
+``/temperature`` (where the Xsens driver publishes it), ``calibrate`` without
+``--temperature-topic`` (it takes the log's only Temperature topic), the node with the
+shipped ``temperature_topics``: it moves its watched input there by the same rule
+(``nodes/topic_follower``).
 
 Times in the table: seconds of the recording; no unit elsewhere (counts, relative).
 """
@@ -35,6 +39,8 @@ from thermal_imu_calib.io.bag_writer import write_columns  # noqa: E402
 from thermal_imu_calib.io.columns import TemperatureColumns  # noqa: E402
 from thermal_imu_calib.nodes.common import THERMAL_TYPES  # noqa: E402
 
+#: where the Xsens ROS 2 driver publishes its temperature (not the shipped imu/temperature)
+RENAMED = '/temperature'
 #: the recordings with a real temperature, and one without (a flat room temperature added)
 NAMES = ('bmi270_hot', 'bmi270_cold', 'mpu6050')
 
@@ -50,22 +56,27 @@ def _recording(name, work):
     return rec, imu, temps
 
 
-def run(name, work, frac, domain, kind=live_replay.TEMPERATURE_TYPE):
-    """Return the row of recording ``name`` with the temperature from ``frac`` on, as ``kind``."""
+def run(name, work, frac, domain, kind=live_replay.TEMPERATURE_TYPE, renamed=False):
+    """Return the row of recording ``name`` with the temperature from ``frac`` on, as ``kind``.
+
+    ``renamed``: on ``RENAMED`` instead of the shipped topic.
+    """
+    topic = RENAMED if renamed else real_recordings.TEMP_TOPIC
     rec, imu, temps = _recording(name, work)
     i = int(frac * len(imu))
     keep = temps.stamp_ns >= imu.stamp_ns[i]
     late = TemperatureColumns(temps.stamp_ns[keep], temps.temperature[keep], temps.frame_id)
     log = os.path.join(work, f'{name}_late.mcap')
     typed = kind != live_replay.TEMPERATURE_TYPE
-    write_columns(log, '/imu', imu, {real_recordings.TEMP_TOPIC: late}, overwrite=True,
-                  msgtypes={real_recordings.TEMP_TOPIC: kind} if typed else None)
+    write_columns(log, '/imu', imu, {topic: late}, overwrite=True,
+                  msgtypes={topic: kind} if typed else None)
     out = os.path.join(work, f'{name}_late_offline.yaml')
     r = subprocess.run([os.path.join(os.path.dirname(sys.executable), 'thermal-imu-calib'),
                         'calibrate', log, '--imu-topic', '/imu', '--gravity', repr(rec.gravity),
-                        '--temperature-topic', real_recordings.TEMP_TOPIC, '-o', out],
+                        '-o', out] + ([] if renamed else ['--temperature-topic', topic]),
                        capture_output=True, text=True)
-    row = {'recording': name, 'type': kind, 'imu_rows': len(imu), 'late_from_row': i,
+    row = {'recording': name, 'type': kind, 'topic': topic, 'imu_rows': len(imu),
+           'late_from_row': i,
            'late_from_s': round((imu.stamp_ns[i] - imu.stamp_ns[0]) * 1e-9, 1),
            'offline_exit': r.returncode}
     if r.returncode:
@@ -75,7 +86,8 @@ def run(name, work, frac, domain, kind=live_replay.TEMPERATURE_TYPE):
         offline = f.read()
     live = live_replay.run_live(imu, late, rec.gravity, domain,
                                 workdir=os.path.join(work, f'{name}_live'), late_from=i,
-                                temperature_type=kind, set_temperature_type=False)
+                                temperature_type=kind, set_temperature_type=False,
+                                published_on=RENAMED if renamed else live_replay.TEMPERATURE_TOPIC)
     row.update({'imu_sent': live.imu_sent, 'imu_received': live.imu_received,
                 'temp_sent': live.temp_sent, 'temp_received': live.temp_received,
                 'live_success': live.success, 'live_error': live.error,
@@ -98,6 +110,8 @@ def main(argv=None):
     ap.add_argument('--only', nargs='*', default=None, help='recording names')
     ap.add_argument('--type', default=live_replay.TEMPERATURE_TYPE,
                     choices=sorted(THERMAL_TYPES), help="the readings' message type")
+    ap.add_argument('--renamed', action='store_true',
+                    help=f'publish the temperature on {RENAMED}, not the shipped topic')
     ap.add_argument('--json', help='write the rows here')
     a = ap.parse_args(argv)
     domain = int(os.environ.get('ROS_DOMAIN_ID', '88'))
@@ -105,12 +119,13 @@ def main(argv=None):
     os.makedirs(a.work, exist_ok=True)
     rows = []
     for name in a.only or NAMES:
-        row = run(name, a.work, a.frac, domain, a.type)
+        row = run(name, a.work, a.frac, domain, a.type, a.renamed)
         rows.append(row)
         print(json.dumps(row), flush=True)
     if a.json:
         with open(a.json, 'w') as f:
-            json.dump({'from': a.frac, 'type': a.type, 'rows': rows}, f, indent=1)
+            json.dump({'from': a.frac, 'type': a.type, 'renamed': a.renamed, 'rows': rows}, f,
+                      indent=1)
     return 0 if all(r.get('equal') for r in rows) else 1
 
 

@@ -107,7 +107,7 @@ def _write_other_clock(path, imu, temps):
                                      'slow_temperature', 'float32_temperature',
                                      'float32_followed', 'temperature_on_another_clock',
                                      'renamed_followed', 'late_temperature',
-                                     'late_float32_followed'])
+                                     'late_float32_followed', 'late_renamed_followed'])
 def test_live_calibration_equals_offline(tmp_path, thermal):
     """``bad_samples``: the room-temperature case with samples ``calibrate`` drops; the
     node drops the same ones (before 2026-11-28 it dropped only non-finite ones).
@@ -132,7 +132,9 @@ def test_live_calibration_equals_offline(tmp_path, thermal):
     log's (the IMU samples more than 5 s before it not collected), and says so.
     ``late_float32_followed``: the same with the room temperature as std_msgs/Float32 and
     the node left at its default type: it follows the late publisher's type, and puts each
-    reading on the IMU's clock as calibrate puts a log's."""
+    reading on the IMU's clock as calibrate puts a log's. ``late_renamed_followed``: the
+    late room temperature on ``/temperature``: the node, having decided without one, moves
+    its watched input there by calibrate's rule and takes it."""
     imu = _recording()
     temps = None
     topics = {}
@@ -149,7 +151,7 @@ def test_live_calibration_equals_offline(tmp_path, thermal):
             late = temps.stamp_ns >= imu.stamp_ns[int(LATE_FROM * len(imu))]
             temps = TemperatureColumns(temps.stamp_ns[late], temps.temperature[late],
                                        temps.frame_id)
-        topics = {RENAMED if thermal == 'renamed_followed' else real_recordings.TEMP_TOPIC:
+        topics = {RENAMED if thermal.endswith('renamed_followed') else real_recordings.TEMP_TOPIC:
                   temps}
     log = str(tmp_path / 'mpu6050.mcap')
     if thermal == 'temperature_on_another_clock':
@@ -162,7 +164,7 @@ def test_live_calibration_equals_offline(tmp_path, thermal):
     out = str(tmp_path / 'offline.yaml')
     cmd = [venv_exe('thermal-imu-calib'), 'calibrate', log, '--imu-topic', '/imu',
            '--gravity', str(GRAVITY), '-o', out]
-    if temps is not None and thermal != 'renamed_followed':
+    if temps is not None and not thermal.endswith('renamed_followed'):
         cmd += ['--temperature-topic', real_recordings.TEMP_TOPIC]
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, r.stderr[-2000:]
@@ -177,7 +179,7 @@ def test_live_calibration_equals_offline(tmp_path, thermal):
                                 temperature_header_ns=None if thermal != 'temperature_on_'
                                 'another_clock' else temps.stamp_ns + OTHER_CLOCK_S * 10 ** 9,
                                 set_temperature_type=not thermal.endswith('_followed'),
-                                published_on=(RENAMED if thermal == 'renamed_followed'
+                                published_on=(RENAMED if thermal.endswith('renamed_followed')
                                               else live_replay.TEMPERATURE_TOPIC),
                                 late_from=(int(LATE_FROM * len(imu))
                                            if thermal.startswith('late_') else None),
@@ -198,7 +200,8 @@ def test_live_calibration_equals_offline(tmp_path, thermal):
         notes = yaml.safe_load(live.calibration_text)['notes']
         assert [n for n in notes if n.startswith('input: no temperature is published')], notes
     if thermal.startswith('late_'):          # the node said what it did, and the file
-        said = '/imu/temperature: the first reading came'
+        said = (RENAMED if thermal.endswith('renamed_followed') else '/imu/temperature') \
+            + ': the first reading came'
         with open(tmp_path / 'live' / f'attempt{live.attempts}' / 'node.log') as f:
             assert said in f.read()
         notes = yaml.safe_load(live.calibration_text)['notes']
@@ -211,7 +214,7 @@ def test_live_calibration_equals_offline(tmp_path, thermal):
             assert said in f.read()
         notes = yaml.safe_load(live.calibration_text)['notes']
         assert [n for n in notes if n.startswith('input: ' + said)], notes
-    if thermal == 'renamed_followed':        # the node said what it did, and the file
+    if thermal.endswith('renamed_followed'):     # the node said what it did, and the file
         said = ('nothing is published on /imu/temperature; /temperature '
                 '(sensor_msgs/msg/Temperature), published with the IMU topic by '
                 '/scoreboard_player, is the only sensor_msgs/Temperature topic it publishes: '

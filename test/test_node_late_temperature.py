@@ -8,8 +8,8 @@ it are not collected). Live against offline on a real recording is
 ``test_live_offline.py``'s ``late_temperature`` case; here the mechanics: the inputs come
 back, the collection made without them is moved aside, the file's note says what
 happened, a snapshot taken before the first reading works, a late Float32 driver is
-followed and its readings put on the IMU's clock, and a publisher of a type that is not a
-thermal one is only named.
+followed and its readings put on the IMU's clock, a late temperature under another name is
+followed, and a publisher of a type that is not a thermal one is only named.
 """
 
 from conftest import other_participant, replay_flow, wait_for
@@ -201,3 +201,33 @@ def test_a_late_publisher_of_a_type_not_thermal_is_named_not_taken(ros, tmp_path
                          'thermal type); it is not used: restart the node to calibrate with '
                          'it'), warned
     assert node.k == 0
+
+
+def test_a_late_temperature_under_another_name_is_followed_and_taken(ros, tmp_path,
+                                                                     monkeypatch):
+    # the IMU's driver starts publishing its temperature on /imu/temp after the node (the
+    # shipped temperature_topics) decided without one: the watched input moves there by the
+    # rule calibrate picks a log's temperature with (nodes/topic_follower), and is taken at
+    # its first reading; the collection file names it, so a restart follows it again
+    import json
+    monkeypatch.setattr(absent_inputs, 'GRACE_S', GRACE_S)
+    late = _LateSession(ros, tmp_path, 'late_renamed_driver')
+    node = late.node
+    warned = []
+    node.get_logger().warning = warned.append
+    late.play_rest(late.drv.create_publisher(Temperature, '/imu/temp', 100))
+    assert node.k == 1 and node.temperature_topics == ['/imu/temp']
+    said = ('nothing is published on /imu/temperature; /imu/temp (sensor_msgs/msg/Temperature), '
+            'published with the IMU topic by /late_renamed_driver, is the only '
+            'sensor_msgs/Temperature topic it publishes: subscribed to it instead')
+    assert len([w for w in warned if w.startswith(said)]) == 1, warned
+    assert [w for w in warned if w.startswith('/imu/temp: the first reading came')], warned
+    resp = late.calibrate()
+    assert resp.success, resp.message
+    cal = Calibration.load(str(tmp_path / 'calibration.yaml'))
+    assert [i.topic for i in cal.inputs] == ['/imu/temp']
+    notes = [n for n in cal.notes if n.startswith('input: ')]
+    assert [n for n in notes if n.startswith('input: ' + said)], cal.notes
+    assert [n for n in notes if 'the first reading came' in n], cal.notes
+    with open(tmp_path / 'collection.jsonl.inputs.json') as f:
+        assert json.load(f)['temperature_topics'] == ['/imu/temp']

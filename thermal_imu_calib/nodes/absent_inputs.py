@@ -41,6 +41,44 @@ GRACE_S = 10.0
 PRESENT, ABSENT, UNDECIDED = 'with inputs', 'without inputs', ''
 
 
+def decided_at_start(node):
+    """Return True when ``node``'s (the calibrator's) inputs need no decision.
+
+    No inputs, or a collection resumed from its file; in lifelong mode a list the user set
+    (lifelong keeps its inputs: with the default list it may only follow another name).
+    """
+    return (not node.k or node.resumed_holds > 0
+            or (node.lifelong is not None
+                and not topic_follower.follows(node.temperature_topics)))
+
+
+def settle(node, force=False):
+    """Decide ``node``'s inputs when ``decide`` can (each tick); return True once decided.
+
+    Follows the IMU's temperature under another name first (``topic_follower``); without
+    inputs the node collects without them (not in lifelong mode, which waits for a
+    reading); a collection waiting to be resumed is resumed then.
+    """
+    if node._imu_seen_at is None and node._rate.total:
+        node._imu_seen_at = time.monotonic()
+    if node._name_follower and node._name_follower(node):
+        node._name_follower = None
+    how, why = decide(node, node._imu_seen_at, force)
+    if how == UNDECIDED:
+        return False
+    node._name_follower = node._name_follower and node._name_follower.close(node)
+    if how == ABSENT and node.lifelong is None:
+        drop_inputs(node, why)
+    if node._resume_later:       # before anything is collected (the queue waits)
+        node._resume_later = False
+        with node._lock:
+            node._resume_all()
+    node._inputs_decided = True
+    if node.lifelong is not None:
+        node.lifelong.inputs_decided()
+    return True
+
+
 def decide(node, imu_seen_at, force=False, now=None):
     """Return (PRESENT, ABSENT or UNDECIDED, why) for ``node``'s thermal inputs.
 

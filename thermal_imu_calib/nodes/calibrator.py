@@ -111,11 +111,7 @@ class CalibratorNode(LiveCollection, Node):
         self.type_follower = thermal_types.TypeFollower(self, self.temp_subs, self._subscribe_as)
         #: no temperature published at all: collect without one, as calibrate does a log
         #: without one (``absent_inputs``); decided once, before anything is collected
-        #: lifelong mode keeps its inputs (its store learns a thermal model) but follows one
-        #: under another name, as a collection for ~/calibrate does
-        self._inputs_decided = (not self.k or self.resumed_holds > 0
-                                or (self.lifelong is not None
-                                    and not topic_follower.follows(self.temperature_topics)))
+        self._inputs_decided = absent_inputs.decided_at_start(self)
         self._imu_seen_at = None      # steady clock at the first tick that saw an IMU message
         self._input_notes = []        # what was decided about the inputs (the file's notes)
         self._absent_topics = []      # the inputs' topics when decided without them
@@ -156,26 +152,7 @@ class CalibratorNode(LiveCollection, Node):
 
     def _decide_inputs(self, force=False):
         """Decide whether to collect with the thermal inputs; return True once decided."""
-        if self._inputs_decided:
-            return True
-        if self._imu_seen_at is None and self._rate.total:
-            self._imu_seen_at = time.monotonic()
-        if self._name_follower and self._name_follower(self):
-            self._name_follower = None
-        how, why = absent_inputs.decide(self, self._imu_seen_at, force)
-        if how == absent_inputs.UNDECIDED:
-            return False
-        self._name_follower = self._name_follower and self._name_follower.close(self)
-        if how == absent_inputs.ABSENT and self.lifelong is None:
-            absent_inputs.drop_inputs(self, why)     # lifelong: waits for a reading
-        if self._resume_later:       # before anything is collected (the queue waits)
-            self._resume_later = False
-            with self._lock:
-                self._resume_all()
-        self._inputs_decided = True
-        if self.lifelong is not None:
-            self.lifelong.inputs_decided()
-        return True
+        return self._inputs_decided or absent_inputs.settle(self, force)
 
     def input_notes(self):
         """Return what was done to the thermal inputs (the calibration file's notes)."""

@@ -26,16 +26,18 @@ the IMU's clock (the stamp of the IMU message published before each), so while t
 are watched the node keeps the IMU messages' publish order for them (``_ShadowClocks``).
 A late publisher of another thermal type than the input's (a Float32 driver on a topic the
 node subscribes as sensor_msgs/Temperature) is followed as at the start
-(``thermal_types.TypeFollower``) and then taken. Still named in a warning (``warn_late``)
-and used only after a restart: a publisher of a type that is not a thermal one, of several
-types at once, or under another name than the input's. A jump back of the IMU stamps or
-``~/reset`` gives the shadow a fresh aligner and fresh clocks.
+(``thermal_types.TypeFollower``) and then taken; so is the IMU's temperature under another
+name when the IMU's driver starts publishing it late (``topic_follower.NameFollower``, with
+the default ``temperature_topics`` only, by the rule ``calibrate`` picks a log's with).
+Still named in a warning (``warn_late``) and used only after a restart: a publisher of a
+type that is not a thermal one, or of several types at once. A jump back of the IMU stamps
+or ``~/reset`` gives the shadow a fresh aligner and fresh clocks.
 """
 
 import copy
 import time
 
-from . import common
+from . import common, topic_follower
 from .thermal_types import TypeFollower, type_name
 from ..io.align import StreamAligner
 from ..io.columns import TemperatureColumns
@@ -110,6 +112,10 @@ class LateInputs:
         self.subs = [self._subscription(i, typ) for i, typ in enumerate(self.types)]
         #: a late publisher of another thermal type is followed, as at the start
         self.follower = TypeFollower(node, self.subs, self._subscribe_as)
+        #: so is the IMU's temperature under another name (the default topics only)
+        self.name_follower = (topic_follower.NameFollower(target=self)
+                              if topic_follower.follows(self.topics) else None)
+        self.notes = []                  # what was followed (the file's notes at adoption)
 
     def _subscription(self, index, typ):
         node = self.node
@@ -117,13 +123,23 @@ class LateInputs:
                                         self._callback(index), common.sensor_qos(node._in_depth),
                                         callback_group=node._data_group)
 
-    def _subscribe_as(self, index, typ):
-        """Subscribe input ``index`` as ``typ`` (the follower destroyed the old one)."""
+    def _subscribe_as(self, index, typ, topic=None):
+        """Subscribe input ``index`` as ``typ`` (the old subscription is destroyed)."""
+        self.topics[index] = topic or self.topics[index]
         self.subs[index] = self._subscription(index, typ)
         self.types[index] = typ
         with self.node._lock:
-            self.clocks.retype(index, common.headerless(common.THERMAL_TYPES[typ][0]))
+            self.clocks.retype(index, common.headerless(common.THERMAL_TYPES[typ][0]), topic)
             self.held[index] = []
+
+    def follow_name(self, topic, typ, how, by):
+        """Move the one watched input to ``topic`` as ``typ`` (``topic_follower``)."""
+        text = topic_follower.note(self.subs[0].topic_name, topic, typ, how, by)
+        self.node.destroy_subscription(self.subs[0])
+        self._subscribe_as(0, typ, topic)
+        self.follower.topics[0], self.follower.types[0] = self.subs[0].topic_name, typ
+        self.notes.append(text)
+        self.node.get_logger().warning(text)
 
     def _callback(self, index):
         def cb(msg, info):
@@ -184,8 +200,9 @@ def adopt(node, late):
            f'late (IMU samples more than {late.timeout:g} s before its first reading are not '
            'collected)' + (f'; the holds collected without it were moved to {aside}'
                            if aside else ''))
-    node._input_notes[:] = [n for n in node._input_notes
-                            if not n.startswith('no temperature is published')] + [why]
+    node._input_notes[:] = ([n for n in node._input_notes
+                             if not n.startswith('no temperature is published')]
+                            + late.notes + [why])
     node.get_logger().warning(why)
 
 
@@ -197,6 +214,8 @@ def watch(node):
             adopt(node, late)
             return
         late.follower()                   # another thermal type: re-subscribed as it
+        if late.name_follower is not None and late.name_follower(node):
+            late.name_follower = None     # the IMU's temperature under another name
         with node._lock:                  # the node's aligner is replaced under it too
             late.shadow(node)
     if not node._warned_late:

@@ -130,7 +130,9 @@ class NameFollower:
     collected; returns True when it followed a topic (then it is not called again). The
     old subscription is destroyed, the input's topic, clock choice and pending readings
     start afresh, the collection file's inputs are rewritten (by the deferred resume when
-    one waits), and the note is logged and kept for the calibration file.
+    one waits), and the note is logged and kept for the calibration file. With a
+    ``target`` (``late_inputs``: the node decided without a temperature and watches its
+    inputs), the watched input is moved instead, and taken at its first reading.
     """
 
     @classmethod
@@ -138,8 +140,11 @@ class NameFollower:
         """Return a follower for a calibrator whose inputs are undecided and default, else None."""
         return cls() if not node._inputs_decided and follows(node.temperature_topics) else None
 
-    def __init__(self, settle_s=SETTLE_S):
+    def __init__(self, settle_s=SETTLE_S, target=None):
         self.settle_s = float(settle_s)
+        #: None: the node's own input; else the inputs ``late_inputs`` watches (its
+        #: ``subs[0]`` judged, its ``follow_name`` switched)
+        self.target = target
         self._seen = None                 # ((topic, type, how, publishers), since)
         self.frames = {}                  # topic -> frame_id of its first message (probes)
         self._probes = {}                 # topic -> a probe subscription
@@ -153,7 +158,8 @@ class NameFollower:
         probes began, with what is known then.
         """
         now = time.monotonic() if now is None else now
-        among = candidates(node, node.imu_sub, node.temp_subs[0])
+        temp_sub = node.temp_subs[0] if self.target is None else self.target.subs[0]
+        among = candidates(node, node.imu_sub, temp_sub)
         several = [t for t, ty in (among[0] if among else {}).items()
                    if ty == TEMPERATURE_MSGTYPE]
         if len(several) > 1:
@@ -164,7 +170,7 @@ class NameFollower:
         frames = dict(self.frames)
         if node._seen_frame:
             frames[node.imu_sub.topic_name] = node._seen_frame
-        found = topic_to_follow(node, node.imu_sub, node.temp_subs[0], frames, among or ())
+        found = topic_to_follow(node, node.imu_sub, temp_sub, frames, among or ())
         if not found[0]:
             self._seen = None
             return False
@@ -173,7 +179,10 @@ class NameFollower:
         if now - self._seen[1] < self.settle_s:
             return False
         self.close(node)
-        _switch(node, *found)
+        if self.target is None:
+            _switch(node, *found)
+        else:
+            self.target.follow_name(*found)
         return True
 
     def _probe(self, node, topics, now):
