@@ -9,17 +9,18 @@ restarted, while ``calibrate`` on the same log uses it: the IMU samples logged m
 them, ``io.align.fresh_rows``), the rest are, with it.
 
 Now the dropped inputs stay subscribed (``LateInputs``), as the type they were configured
-with, and a *shadow* aligner (``io.align.StreamAligner`` with those inputs) takes every IMU
-row the node processes, as the node would have with the inputs: until a reading comes it
-releases only rows with no temperature (stale, ``max_wait_s`` behind the newest). At the
-first reading the node takes the inputs back (``adopt``): the collection made without them
-is moved aside (``<collection_file>.without_temperature-TIME``), a new one starts with the
-shadow aligner and its rows still pending, and the readings go through the node's own
-callbacks from then on. What it then collects is what the node with the inputs from the
-start would have collected, so ``~/calibrate`` equals ``calibrate`` on the log whenever
-every message arrives (``test_live_offline.py``, ``late_temperature``). Readings published
-before the node's subscription matched the new publisher are lost, as any first messages
-of a publisher (a player should wait for the match, as ``ros2 bag play --delay`` does).
+with (or followed, below), and a *shadow* aligner (``io.align.StreamAligner`` with those
+inputs) takes every IMU row the node processes, as the node would have with the inputs:
+until a reading comes it releases only rows with no temperature (stale, ``max_wait_s``
+behind the newest). At the first reading the node takes the inputs back (``adopt``): the
+collection made without them is moved aside (``<collection_file>.without_temperature-
+TIME``), a new one starts with the shadow aligner and its rows still pending, and the
+readings go through the node's own callbacks from then on. What it then collects is what
+the node with the inputs from the start would have collected, so ``~/calibrate`` equals
+``calibrate`` on the log whenever every message arrives (``test_live_offline.py``,
+``late_temperature``). Readings published before the node's subscription matched the new
+publisher are lost, as any first messages of a publisher (a player should wait for the
+match, as ``ros2 bag play --delay`` does).
 
 A header-less input (std_msgs/Float32 or Float64) is taken the same way: its readings go on
 the IMU's clock (the stamp of the IMU message published before each), so while the inputs
@@ -102,8 +103,9 @@ class LateInputs:
         self.held = [[] for _ in range(self.k)]     # (message, info) until adopted
         self.forward = None                         # then the node's own callbacks
         self.stale = 0                              # shadow rows released without a reading
-        #: the inputs' clocks once taken back, fed the IMU stamps' span meanwhile, so the
-        #: stamps' clock is chosen at the first readings, as offline
+        #: the inputs' clocks once taken back, fed the IMU messages meanwhile
+        #: (``_ShadowClocks``), so the stamps' clock is chosen and applied at the first
+        #: readings as offline
         self.clocks = LiveClocks(self.topics, [common.headerless(s.msg_type) for s in subs])
         self.since = time.monotonic()
         self.aligner = StreamAligner(self.k, self.timeout)
