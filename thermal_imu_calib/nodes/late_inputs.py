@@ -13,14 +13,14 @@ with (or followed, below), and a *shadow* aligner (``io.align.StreamAligner`` wi
 inputs) takes every IMU row the node processes, as the node would have with the inputs:
 until a reading comes it releases only rows with no temperature (stale, ``max_wait_s``
 behind the newest). At the first reading the node takes the inputs back (``adopt``): the
-collection made without them is moved aside (``<collection_file>.without_temperature-
-TIME``), a new one starts with the shadow aligner and its rows still pending, and the
-readings go through the node's own callbacks from then on. What it then collects is what
-the node with the inputs from the start would have collected, so ``~/calibrate`` equals
-``calibrate`` on the log whenever every message arrives (``test_live_offline.py``,
-``late_temperature``). Readings published before the node's subscription matched the new
-publisher are lost, as any first messages of a publisher (a player should wait for the
-match, as ``ros2 bag play --delay`` does).
+collection made without them is moved aside
+(``<collection_file>.without_temperature-TIME``), a new one starts with the shadow aligner
+and its rows still pending, and the readings go through the node's own callbacks from then
+on. What it then collects is what the node with the inputs from the start would have
+collected, so ``~/calibrate`` equals ``calibrate`` on the log whenever every message
+arrives (``test_live_offline.py``, ``late_temperature``). Readings published before the
+node's subscription matched the new publisher are lost, as any first messages of a
+publisher (a player should wait for the match, as ``ros2 bag play --delay`` does).
 
 A header-less input (std_msgs/Float32 or Float64) is taken the same way: its readings go on
 the IMU's clock (the stamp of the IMU message published before each), so while the inputs
