@@ -127,6 +127,16 @@ def test_a_headerless_temperature_type_reaches_both_nodes(launch_module, ros, tm
         assert subs['/imu/temperature'] == 'Float32', subs
 
 
+def _assert_follows_um7_float32(node):
+    """``node`` subscribes /imu/temperature as Float32, followed from /um7_driver's."""
+    subs = {s.topic_name: s.msg_type.__name__ for s in node.subscriptions}
+    assert subs['/imu/temperature'] == 'Float32', subs
+    assert node.type_follower.types == ['std_msgs/msg/Float32']
+    note, = node.type_follower.notes
+    assert note.startswith('/imu/temperature is published as std_msgs/msg/Float32 by '
+                           '/um7_driver, not sensor_msgs/msg/Temperature'), note
+
+
 def test_both_nodes_in_one_process_follow_a_float32_temperature(
         launch_module, ros, tmp_path, monkeypatch, request):
     """Both nodes with the shipped types in one context (``bringup``: one DDS participant,
@@ -145,12 +155,7 @@ def test_both_nodes_in_one_process_follow_a_float32_temperature(
              lambda: f'both nodes to subscribe as Float32 '
                      f'({[n.type_follower.types for n in started]})')
     for node in started:
-        subs = {s.topic_name: s.msg_type.__name__ for s in node.subscriptions}
-        assert subs['/imu/temperature'] == 'Float32', subs
-        assert node.type_follower.types == ['std_msgs/msg/Float32']
-        note, = node.type_follower.notes
-        assert note.startswith('/imu/temperature is published as std_msgs/msg/Float32 by '
-                               '/um7_driver, not sensor_msgs/msg/Temperature'), note
+        _assert_follows_um7_float32(node)
 
 
 def test_both_nodes_in_one_process_follow_a_late_float32_temperature(
@@ -188,12 +193,7 @@ def test_both_nodes_in_one_process_follow_a_late_float32_temperature(
     wait_for(lambda: calib.k == 1, 60, 'the calibrator to take the late temperature')
     assert calib._clocks.bare == [True]
     for node in (comp, calib):
-        subs = {s.topic_name: s.msg_type.__name__ for s in node.subscriptions}
-        assert subs['/imu/temperature'] == 'Float32', subs
-        assert node.type_follower.types == ['std_msgs/msg/Float32']
-        note, = node.type_follower.notes
-        assert note.startswith('/imu/temperature is published as std_msgs/msg/Float32 by '
-                               '/um7_driver, not sensor_msgs/msg/Temperature'), note
+        _assert_follows_um7_float32(node)
     assert [n for n in calib.input_notes() if 'the first reading came' in n]
 
 
