@@ -188,3 +188,38 @@ def test_lifelong_follows_its_temperature_under_another_name_across_a_restart(ro
     notes = [n for n in node.input_notes() if n.startswith('nothing is published on '
                                                            '/imu/temperature; /imu/temp')]
     assert notes, node.input_notes()
+
+
+def test_lifelong_follows_a_temperature_its_driver_publishes_late_under_another_name(
+        ros, tmp_path, monkeypatch):
+    # lifelong mode decided without a reading (nothing published for GRACE_S after the
+    # first IMU message): it collects nothing, and keeps looking; when the IMU's driver
+    # starts publishing /imu/temp, the input moves there (nodes/absent_inputs.follow_late)
+    # and the store collects with it
+    from test_node_calibrator import calibrator, imu_player, recording
+    from thermal_imu_calib.nodes import absent_inputs
+    monkeypatch.setattr(absent_inputs, 'GRACE_S', 1.0)
+    rec = recording(repetitions=1)
+    imu = rec.imu()
+    (_, tc), = rec.temperatures.items()
+    cut = int(np.searchsorted(imu.stamp_ns, (rec.schedule[1].stamp_end_ns
+                                             + rec.schedule[2].stamp_start_ns) // 2))
+    node = calibrator(ros, tmp_path, lifelong=True, lifelong_dir=str(tmp_path / 'life'),
+                      frame_id='imu_link', report=False)
+    drv, imu_pub, progress = imu_player(ros, 'late_imu_driver')
+    sent = replay_flow(imu_pub, imu.slice(slice(0, cut)), [], RATE,
+                       lambda: progress[-1]['imu_received'], what='the first part')
+    wait_for(lambda: progress[-1]['imu_received'] >= sent and node._inputs_decided, WAIT,
+             'the decision without a reading')
+    assert node.k == 1 and node.temperature_topics == ['imu/temperature']
+    assert node.lifelong.holds() == 0
+    temp_pub = drv.create_publisher(Temperature, '/imu/temp', 100)
+    ros.wait_matched(temp_pub, 1, timeout=WAIT)
+    assert node.temperature_topics == ['/imu/temp']
+    rest = imu.slice(slice(cut, None))
+    late = tc.stamp_ns >= rest.stamp_ns[0]
+    sent += replay_flow(imu_pub, rest, [(temp_pub, tc.stamp_ns[late], tc.temperature[late])],
+                        RATE, lambda: progress[-1]['imu_received'], what='the rest',
+                        readings=lambda: progress[-1]['temperature_readings'])
+    wait_for(lambda: node.lifelong.holds() >= 2, WAIT, 'holds in the lifelong store')
+    assert node.lifelong.life.topics == ['/imu/temp'] and node._name_follower is None

@@ -57,7 +57,8 @@ def settle(node, force=False):
 
     Follows the IMU's temperature under another name first (``topic_follower``); without
     inputs the node collects without them (not in lifelong mode, which waits for a
-    reading); a collection waiting to be resumed is resumed then.
+    reading, still looking for one under another name: ``follow_late``); a collection
+    waiting to be resumed is resumed then.
     """
     if node._imu_seen_at is None and node._rate.total:
         node._imu_seen_at = time.monotonic()
@@ -66,9 +67,10 @@ def settle(node, force=False):
     how, why = decide(node, node._imu_seen_at, force)
     if how == UNDECIDED:
         return False
-    node._name_follower = node._name_follower and node._name_follower.close(node)
     if how == ABSENT and node.lifelong is None:
         drop_inputs(node, why)
+    if how != ABSENT or node.lifelong is None:
+        node._name_follower = node._name_follower and node._name_follower.close(node)
     if node._resume_later:       # before anything is collected (the queue waits)
         node._resume_later = False
         with node._lock:
@@ -77,6 +79,21 @@ def settle(node, force=False):
     if node.lifelong is not None:
         node.lifelong.inputs_decided()
     return True
+
+
+def follow_late(node):
+    """Lifelong mode without a reading: follow a temperature published later, renamed.
+
+    The IMU's temperature under another name is followed when its driver starts publishing
+    it after the decision, until a reading comes on the input. Nothing was collected
+    meanwhile (every IMU sample waits for a temperature), so the input moves as before the
+    decision, and the store's calibrations name the new topic.
+    """
+    if any(node.readings_per_topic):
+        node._name_follower = node._name_follower.close(node)
+    elif node._name_follower(node):
+        node._name_follower = None
+        node.lifelong.inputs_decided()
 
 
 def decide(node, imu_seen_at, force=False, now=None):

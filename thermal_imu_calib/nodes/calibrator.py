@@ -147,6 +147,8 @@ class CalibratorNode(LiveCollection, Node):
         """Process what arrived, once the thermal inputs are decided (``absent_inputs``)."""
         if self._inputs_decided or self._decide_inputs():
             self._process()
+            if self._name_follower is not None:     # lifelong mode, still without one
+                absent_inputs.follow_late(self)
         if self._absent_topics:
             late_inputs.watch(self)
 
