@@ -126,13 +126,15 @@ PROBE_S = 3.0
 class NameFollower:
     """Follow the calibrator's one input to the IMU's temperature under another name, once.
 
-    Called while the inputs are undecided (``absent_inputs``), before anything is
-    collected; returns True when it followed a topic (then it is not called again). The
-    old subscription is destroyed, the input's topic, clock choice and pending readings
-    start afresh, the collection file's inputs are rewritten (by the deferred resume when
-    one waits), and the note is logged and kept for the calibration file. With a
-    ``target`` (``late_inputs``: the node decided without a temperature and watches its
-    inputs), the watched input is moved instead, and taken at its first reading.
+    Called while the inputs are undecided (``absent_inputs``), before anything is collected
+    (in lifelong mode also after a decision without a reading, until one comes:
+    ``absent_inputs.follow_late``); returns True when it followed a topic (then it is not
+    called again). The old subscription is destroyed, the input's topic, clock choice and
+    pending readings start afresh, the collection file's inputs are rewritten (by the
+    deferred resume when one waits), and the note is logged and kept for the calibration
+    file. With a ``target`` (``late_inputs``: the node decided without a temperature and
+    watches its inputs), the watched input is moved instead, and taken at its first
+    reading.
     """
 
     @classmethod
