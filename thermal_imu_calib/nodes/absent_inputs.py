@@ -138,15 +138,13 @@ def drop_inputs(node, why):
     node._absent_topics = [s.topic_name for s in node.temp_subs]
     node._warned_late = False
     # the inputs stay subscribed: a first reading brings them back (``late_inputs``)
-    node._late_inputs = (late_inputs.LateInputs(node, node.temp_subs)
-                         if late_inputs.watchable(node) else None)
+    node._late_inputs = late_inputs.LateInputs(node, node.temp_subs)
     for s in node.temp_subs:
         node.destroy_subscription(s)
     node.type_follower.clear()
     with node._lock:
         node._restart_with([], [], [], [], LiveClocks([], []))
-        if node._late_inputs is not None:
-            node._late_inputs.shadow(node)  # from the first IMU message on, as offline
+        node._late_inputs.shadow(node)      # from the first IMU message on, as offline
     node._write_inputs_signature()
     node._input_notes.append(why)
     node.get_logger().warning(why)

@@ -139,7 +139,7 @@ class LateInputs:
         text = topic_follower.note(self.subs[0].topic_name, topic, typ, how, by)
         self.node.destroy_subscription(self.subs[0])
         self._subscribe_as(0, typ, topic)
-        self.follower.topics[0], self.follower.types[0] = self.subs[0].topic_name, typ
+        self.follower.moved(0, typ)
         self.notes.append(text)
         self.node.get_logger().warning(text)
 
@@ -168,11 +168,6 @@ class LateInputs:
             if self.clock_wrapper is not None:  # ~/reset: stamps judged afresh
                 self.clocks = self.clocks.fresh()
             self.clock_wrapper = node._clocks = _ShadowClocks(node._clocks, self)
-
-
-def watchable(node):
-    """Return True when ``node``'s inputs can be taken back at a late first reading."""
-    return node.k > 0
 
 
 def adopt(node, late):
@@ -211,7 +206,7 @@ def adopt(node, late):
 def watch(node):
     """Each tick after a decision without the inputs: adopt them, or warn (``warn_late``)."""
     late = node._late_inputs
-    if late is not None and late.forward is None:
+    if late.forward is None:
         if any(late.held):
             adopt(node, late)
             return
@@ -234,9 +229,9 @@ def _taken(types, watched):
         len(types) == 1 and next(iter(types)) in common.THERMAL_TYPES))
 
 
-def warn_late(node, late=None):
+def warn_late(node, late):
     """Say once that a temperature the node will not take appeared on an input's topic."""
-    watched = {} if late is None else dict(zip((s.topic_name for s in late.subs), late.types))
+    watched = dict(zip((s.topic_name for s in late.subs), late.types))
     try:
         published = {t: {i.topic_type for i in node.get_publishers_info_by_topic(t)}
                      for t in node._absent_topics}
@@ -248,8 +243,6 @@ def warn_late(node, late=None):
         node._warned_late = True
         node.get_logger().warning(
             f'{", ".join(late_topics)} is published now, after the node decided to collect '
-            'without a temperature' + ('' if late is None else
-                                       ' (' + '; '.join(f'as {", ".join(sorted(published[t]))}'
-                                                        for t in late_topics) +
-                                       ', not one thermal type)') +
-            '; it is not used: restart the node to calibrate with it')
+            'without a temperature ('
+            + '; '.join(f'as {", ".join(sorted(published[t]))}' for t in late_topics)
+            + ', not one thermal type); it is not used: restart the node to calibrate with it')

@@ -99,6 +99,11 @@ class TypeFollower:
         """Forget every input (the node has destroyed its subscriptions and has none)."""
         del self.topics[:], self.types[:]
 
+    def moved(self, index, typ):
+        """Follow input ``index`` where its owner re-subscribed it (another topic, ``typ``)."""
+        self.topics[index] = self.subscriptions[index].topic_name
+        self.types[index] = typ
+
     def take(self, subscriptions, notes=()):
         """Follow ``subscriptions`` from now on (the node's new list), with ``notes`` said.
 

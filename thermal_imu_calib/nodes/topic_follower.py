@@ -214,8 +214,7 @@ def _resubscribe(node, topic, typ):
     old = node.temp_subs[0].topic_name
     node.destroy_subscription(node.temp_subs[0])
     node._subscribe_as(0, typ, topic)
-    node.type_follower.topics[0] = node.temp_subs[0].topic_name
-    node.type_follower.types[0] = typ
+    node.type_follower.moved(0, typ)
     return old
 
 
