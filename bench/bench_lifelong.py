@@ -921,8 +921,9 @@ def main():
                     help='holds a swap measures the change alarm\'s reference on '
                          '(LifelongConfig.alarm_reference)')
     mo.add_argument('--alarm-cut', choices=ALARM_CUTS, default='all',
-                    help='what a change alarm cuts: both sensors\' history, or the flagged '
-                         'sensor\'s only (LifelongConfig.alarm_cut)')
+                    help='what a change alarm does with the older holds: drop both sensors\' '
+                         'history, the flagged sensor\'s only, or shift them by the step the '
+                         'newer holds show (LifelongConfig.alarm_cut)')
     mo.add_argument('--accel-score', choices=ACCEL_SCORES, default='magnitude',
                     help='how the swap gate measures the accelerometer on held-out holds '
                          '(LifelongConfig.accel_score)')

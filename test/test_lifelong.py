@@ -695,6 +695,57 @@ def test_a_gyro_alarm_cuts_the_gyro_history_only(tmp_path, month_windows, cut):
         assert lo >= after_cut - 0.5
 
 
+def test_a_shift_alarm_keeps_the_older_holds_moved_by_the_knocks_step(
+        tmp_path, month_windows):
+    """``alarm_cut='shift'``: a knock that steps both sensors' offsets; the alarm measures
+    the step on the holds after it against the active calibration, moves the older holds
+    (raw and compacted, persisted) by it instead of dropping them, and the estimate after
+    it spans the older holds' temperatures for both sensors."""
+    clean, knocked = _clean_and_knocked(month_windows)
+    g_step = _knock_step(month_windows)
+    a_step = np.array([0.04, -0.03, 0.05])                 # m/s^2 (sim: 0.03-0.08)
+    knocked = dataclasses.replace(knocked, accel=knocked.accel + a_step)
+    life = Lifelong(str(tmp_path), CalibrateSettings(), 1, [TOPIC], 'imu_link',
+                    config=LifelongConfig(new_holds=1000, misfit_holds=1000, ageing=False,
+                                          alarm_cut='shift'))
+    life.store.add(clean)
+    life.store.compact(clean.hold_ids[:8])                  # some of them compacted
+    active = life._calibrate(main_pose(clean, 2.0)).calibration     # before the knock
+    life.active = active
+    s = gate.score(active, clean, active.gravity)
+    life.state.update(active_gyro_rms=s['gyro_rms'], active_accel_rms=s['accel_rms'],
+                      active_accel_median=float(np.median(s['errors']['accel'])),
+                      holds_at_estimate=life.store.total_holds)
+    before = life.store.fit_windows()[0]
+    for h in knocked.hold_ids:
+        life.add(knocked.select(knocked.hold == h))
+    alarms = [d for d in life.decisions() if d['action'] == 'alarm']
+    assert len(alarms) == 1 and 'shifted by the step' in alarms[0]['reason'], alarms
+    step = alarms[0]['step']
+    assert step['holds_after'] >= LifelongConfig().alarm_holds and step['holds_before'] == 10
+    np.testing.assert_allclose(step['gyro_rad_s'], g_step, atol=0.1 * np.abs(g_step).max())
+    np.testing.assert_allclose(step['accel_m_s2'], a_step, atol=0.01)
+    # nothing dropped: the older holds are there, moved by the measured step, after a
+    # restart too (raw and compacted)
+    for store in (life.store, HoldStore(str(tmp_path / 'holds'), 1)):
+        old = store.fit_windows()[0]
+        old = old.select(old.t1 <= clean.t1.max())
+        assert len(old) == len(before)
+        np.testing.assert_allclose(old.gyro - before.gyro, np.broadcast_to(
+            step['gyro_rad_s'], old.gyro.shape), atol=1e-12)
+        np.testing.assert_allclose(old.accel - before.accel, np.broadcast_to(
+            step['accel_m_s2'], old.accel.shape), atol=1e-12)
+    assert life.due() == 'change alarm'
+    d = life.estimate('change alarm')
+    assert d['action'] == 'swap' and d['figures']['gyro']['verdict'] == 'better', d['text']
+    for which in ('accel', 'gyro'):         # both models span the pre-knock temperatures
+        assert compose.own_range(life.active, which)[0, 0] <= \
+            main_pose(clean, 2.0).temp[:, 0].min() + 0.5
+    # the new calibration explains the knocked holds to within the alarm's limit
+    e = gate.hold_errors(life.active, knocked, life.active.gravity)
+    assert np.median(e['gyro']) < life.config.alarm_factor * s['gyro_rms'], e['gyro']
+
+
 def test_a_swap_refits_on_every_hold_and_the_next_gate_waits_for_unseen_holds(
         tmp_path, month_windows):
     """``refit_on_swap``: the judged estimate passes, the one fitted on every hold goes in use.

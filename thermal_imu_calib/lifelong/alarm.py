@@ -8,7 +8,9 @@ with the active calibration's errors (``tracked``). When, for one sensor, the la
 of them (``first_hold_start``: older data no longer describe the sensor), an alarm is
 logged (``alarm_decision``) and a re-estimate from the holds after the cut follows. With
 ``alarm_cut`` 'sensor' an alarm of one sensor cuts that sensor's history only: the other's
-model is still fitted on the older holds too (``variants.with_kept``).
+model is still fitted on the older holds too (``variants.with_kept``). With ``alarm_cut``
+'shift' nothing is dropped: the older holds are moved by the step of the biases the holds
+after the cut show against the active calibration (``step``, ``HoldStore.shift``).
 
 The alarm's limit serves two more ends: the new holds the active calibration misses
 (``new_misses``, ``trigger.due``'s misfit trigger) and the holds a swap measures the
@@ -21,6 +23,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import compose, gate
+from .pose import main_pose
 
 
 class Tracked(NamedTuple):
@@ -126,12 +129,50 @@ def first_hold_start(recent, t_end):
     return float(rec.t0[rec.hold == h].min())
 
 
-def alarm_decision(out, t_cut, t_now, config):
+#: raw holds before the cut (the newest) a knock's step is measured against (``step``)
+STEP_BEFORE_HOLDS = 10
+
+
+def step(cal, recent, t_cut, gravity, latitude, pose_deg, ranges):
+    """Return the step of the biases at ``t_cut`` (s) the active calibration shows, or None.
+
+    ``cal``: the active calibration; ``recent``: the store's raw windows; ``ranges``:
+    ``alarm_ranges``. Per sensor, the component-wise median of ``cal``'s compensated hold
+    means (``gate.hold_errors``: the gyro less its vertical earth rate, the accelerometer
+    vector) over the raw holds in the mounting pose that began at or after ``t_cut``, less
+    the same median over the newest ``STEP_BEFORE_HOLDS`` such holds before it, both
+    inside that sensor's alarm range. Returns {'accel': (3,) m/s^2, 'gyro': (3,) rad/s,
+    'after': holds, 'before': holds}; None when a sensor has no hold on either side.
+    """
+    win = main_pose(recent, pose_deg) if len(recent) else recent
+    if not len(win):
+        return None
+    e = gate.hold_errors(cal, win, gravity, latitude)
+    starts = np.array([win.t0[win.hold == h].min() for h in e['ids']])
+    after = starts >= t_cut
+    out = {}
+    for which in ('gyro', 'accel'):
+        lo, hi = ranges[which]
+        inside = np.isnan(e['temp']) | ((e['temp'] >= lo) & (e['temp'] <= hi))
+        a = np.flatnonzero(after & inside)
+        b = np.flatnonzero(~after & inside)
+        b = b[np.argsort(e['t'][b])][-STEP_BEFORE_HOLDS:]
+        if not len(a) or not len(b):
+            return None
+        vec = e[which + '_vec']
+        out[which] = np.median(vec[a], axis=0) - np.median(vec[b], axis=0)
+        out['after'] = min(out.get('after', len(a)), len(a))
+        out['before'] = min(out.get('before', len(b)), len(b))
+    return out
+
+
+def alarm_decision(out, t_cut, t_now, config, moved=None):
     """Return (the alarm's decision dict, the sensor that keeps its older holds or None).
 
     ``out``: ``exceeded``'s sensors; ``t_cut`` (s): where the store is cut; ``t_now`` (s):
     the newest tracked hold's end. A sensor keeps its history only with ``alarm_cut``
-    'sensor' and an alarm of the other sensor alone.
+    'sensor' and an alarm of the other sensor alone. ``moved``: ``step``'s result when
+    the older holds are shifted by it instead (``alarm_cut`` 'shift').
     """
     c = config
     text = '; '.join(f'{w} error {v:.3g} > {lim:.3g} on the last {c.alarm_holds} '
@@ -139,12 +180,25 @@ def alarm_decision(out, t_cut, t_now, config):
     keep = None
     if c.alarm_cut == 'sensor' and len(out) == 1:
         keep = 'accel' if 'gyro' in out else 'gyro'
-    dropped = (f'holds before t={t_cut:.0f} s dropped' if keep is None else
-               f'holds before t={t_cut:.0f} s dropped for the {next(iter(out))} (the '
-               f'{keep} keeps them)')
+    if moved is not None:
+        dropped = (f'holds before t={t_cut:.0f} s shifted by the step the holds after it '
+                   f'show (gyro {np.linalg.norm(moved["gyro"]):.3g} rad/s, accel '
+                   f'{np.linalg.norm(moved["accel"]):.3g} m/s^2; {moved["after"]} holds '
+                   f'after, {moved["before"]} before), re-estimating from every hold')
+    elif keep is None:
+        dropped = (f'holds before t={t_cut:.0f} s dropped, re-estimating from the holds '
+                   'after it')
+    else:
+        dropped = (f'holds before t={t_cut:.0f} s dropped for the {next(iter(out))} (the '
+                   f'{keep} keeps them), re-estimating from the holds after it')
     decision = {'time': t_now, 'action': 'alarm',
-                'reason': f'the active calibration no longer fits: {text}; {dropped}, '
-                          're-estimating from the holds after it', 'figures': out}
+                'reason': f'the active calibration no longer fits: {text}; {dropped}',
+                'figures': out}
+    if moved is not None:
+        decision['step'] = {'gyro_rad_s': [float(x) for x in moved['gyro']],
+                            'accel_m_s2': [float(x) for x in moved['accel']],
+                            'holds_after': int(moved['after']),
+                            'holds_before': int(moved['before'])}
     return decision, keep
 
 

@@ -26,8 +26,9 @@ hold are ``variants``; the settings are ``config.LifelongConfig``.
 
 Change alarm (a knock, ``alarm``): every new hold inside the active valid range is scored
 with the active calibration; when, for one sensor, the last ``alarm_holds`` of them all
-miss its reference by the alarm's limit, the store is cut at the first of them, an alarm is
-logged and a re-estimate from the holds after the cut follows. A swap measures the alarm's
+miss its reference by the alarm's limit, the store is cut at the first of them (with
+``alarm_cut`` 'shift': the older holds are moved by the step the newer ones show), an alarm
+is logged and a re-estimate follows. A swap measures the alarm's
 reference anew (``_activate``).
 
 Reset (``reset``, the node's ``~/reset``): the collection starts afresh without losing
@@ -155,18 +156,23 @@ class Lifelong:
         missed = alarm.new_misses(e, s, c)
         if missed:
             s['missed'] = (s.get('missed') or []) + missed
-        self.track = alarm.tracked(self.track, e, alarm.alarm_ranges(cal, self.k, c.alarm_window),
-                                   s.get('active_accel_median') or 0.0)
+        ranges = alarm.alarm_ranges(cal, self.k, c.alarm_window)
+        self.track = alarm.tracked(self.track, e, ranges, s.get('active_accel_median') or 0.0)
         if s.get('active_gyro_rms') is None or s.get('alarm_pending'):
             return
         out, first = alarm.exceeded(self.track, s, c)
         if out:
             t_cut, t_now = alarm.first_hold_start(self.store.recent, min(first)), self.track[-1].t
-            decision, keep = alarm.alarm_decision(out, t_cut, t_now, c)
+            moved = alarm.step(cal, self.store.recent, t_cut, cal.gravity, self.latitude,
+                               c.pose_deg, ranges) if c.alarm_cut == 'shift' else None
+            decision, keep = alarm.alarm_decision(out, t_cut, t_now, c, moved)
             s['alarms'] += 1
             s['alarm_pending'] = True
             self.track = []
-            self.store.cut(t_cut, keep=keep)
+            if moved is None:
+                self.store.cut(t_cut, keep=keep)
+            else:
+                self.store.shift(t_cut, moved['accel'], moved['gyro'])
             s['last_decision'] = decision['reason']
             self._record(decision)
             self._save_state()

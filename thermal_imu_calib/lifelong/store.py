@@ -25,6 +25,7 @@ bounds the error this adds (1 - cos(cluster_deg) of g: 1.5e-4 m/s^2 at 0.5 deg).
 ``cut(t, keep=sensor)`` (a knock that moved one sensor only) drops it for the other sensor
 alone: the older holds are compacted and kept for ``keep``'s fits (``fit_windows(sensor=
 keep)``), at most ``MAX_KEPT`` such histories, those of the sensor that changed dropped.
+``shift(t, accel, gyro)`` keeps everything, moved by the step a knock made.
 """
 
 from dataclasses import dataclass, fields
@@ -360,9 +361,7 @@ class HoldStore:
         dropped beyond ``MAX_KEPT``); histories kept for the other sensor are dropped.
         None: everything before ``t`` is dropped, kept histories too.
         """
-        old = self.recent.hold_ids[[self.recent.t0[self.recent.hold == h].min() < t
-                                    for h in self.recent.hold_ids]] if len(self.recent) \
-            else np.zeros(0, int)
+        old = self._holds_before(t)
         if keep is None:
             self.kept = []
         else:
@@ -379,6 +378,34 @@ class HoldStore:
             else self.recent
         self._write_state()
         self._write_recent()
+
+    def shift(self, t, accel, gyro):
+        """Move everything before ``t`` (s) by a step of the biases, instead of dropping it.
+
+        ``accel`` (3,) m/s^2 and ``gyro`` (3,) rad/s are added to the means of the raw
+        holds that began before ``t``, of the compacted bins and of the histories kept
+        across one-sensor cuts (a knock steps the offsets, not the thermal sensitivity:
+        the older holds then describe the sensor as it is now, with their temperatures;
+        ``LifelongConfig.alarm_cut`` 'shift'). Persisted: state, then recent.
+        """
+        a, g = np.asarray(accel, float).reshape(3), np.asarray(gyro, float).reshape(3)
+        for bins in [self.bins] + [b for _, b in self.kept]:
+            bins.accel = bins.accel + bins.w[:, None] * a
+            bins.gyro = bins.gyro + bins.w[:, None] * g
+        if len(self.recent):
+            old = np.isin(self.recent.hold, self._holds_before(t))[:, None]
+            self.recent.accel = self.recent.accel + old * a
+            self.recent.gyro = self.recent.gyro + old * g
+        self._write_state()
+        self._write_recent()
+
+    def _holds_before(self, t):
+        """Return the ids of the raw holds that began before ``t`` (s)."""
+        rec = self.recent
+        if not len(rec):
+            return np.zeros(0, int)
+        ids = rec.hold_ids
+        return ids[[rec.t0[rec.hold == h].min() < t for h in ids]]
 
     # ------------------------------------------------------------------ reading
     def windows(self, now=None, exclude=()):
