@@ -18,7 +18,7 @@ from sensor_msgs.msg import Temperature
 from std_msgs.msg import Float32, String
 from std_srvs.srv import Trigger
 from thermal_imu_calib.calibration import Calibration
-from thermal_imu_calib.nodes import absent_inputs
+from thermal_imu_calib.nodes import absent_inputs, late_inputs
 from test_node_calibrator import calibrator, imu_player, RATE, recording, WAIT
 
 #: a shorter wait before deciding without a temperature (the node reads it at each tick)
@@ -100,6 +100,27 @@ def test_a_temperature_published_late_is_taken_from_its_first_reading(ros, tmp_p
     # temperature starts there: samples at most temperature_timeout before the first one
     assert node.windows.t0.min() >= stamps[0] * 1e-9 - node.temperature_timeout
     assert len(node.windows.hold_ids) >= 2
+
+
+def test_a_reset_while_the_inputs_are_watched_feeds_their_clocks_at_once(ros, tmp_path,
+                                                                         monkeypatch):
+    # ~/reset gives the node fresh clocks; the watched inputs' clocks, judged afresh too,
+    # are put under them in the reset itself, not at the next tick: every IMU message
+    # after it reaches them (before 2026-12-03 those of the first tick after it did not).
+    # The tick's re-shadowing is switched off here, so only the reset can do it
+    monkeypatch.setattr(absent_inputs, 'GRACE_S', GRACE_S)
+    late = _LateSession(ros, tmp_path, 'late_reset_driver')
+    watched = late.node._late_inputs
+    monkeypatch.setattr(late_inputs, 'watch', lambda node: None)
+    before = watched.clocks
+    resp = late.ros.call(late.drv, Trigger, '/thermal_imu_calibrator/reset', timeout=60)
+    assert resp.success, resp.message
+    assert watched.clocks is not before and watched.clocks.span is None
+    part = late.imu.slice(slice(late.cut, late.cut + 200))      # one chunk, no back-pressure
+    replay_flow(late.imu_pub, part, [], RATE, late.received, what='after the reset')
+    want = (int(part.stamp_ns[0]), int(part.stamp_ns[-1]))
+    wait_for(lambda: watched.clocks.span == want, WAIT,
+             f'the watched clocks to see the messages after the reset ({want})')
 
 
 class _ZeroStamps:

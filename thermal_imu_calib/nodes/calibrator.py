@@ -382,6 +382,8 @@ class CalibratorNode(LiveCollection, Node):
             self._new_collection()
             self.counts.update({k: 0 for k in self.counts})
             self._clocks = self._clocks.fresh()   # stamps judged afresh, as a new log's
+            if self._absent_topics:     # the watched inputs' too, from the next message on
+                self._late_inputs.shadow(self)
             self._rows.gyro_unit = 0      # a driver fixed since: its data are judged afresh
             self.readings_per_topic = [0] * self.k
             path = self._collection_path()

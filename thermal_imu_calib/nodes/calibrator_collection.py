@@ -230,6 +230,8 @@ class LiveCollection(CollectionStore):
             self.transitions_dropped[why] += n
         self.detector = self._collector()   # no pose change across the jump
         self.aligner = StreamAligner(self.k, self.temperature_timeout)
+        if self._absent_topics:         # the watched inputs' aligner: a new timeline too
+            self._late_inputs.shadow(self)
         self._newest_ns = None
         self.counts['time_resets'] = self.counts.get('time_resets', 0) + 1
         self.get_logger().warning('IMU header stamps jumped back by more than '

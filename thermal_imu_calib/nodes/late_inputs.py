@@ -32,7 +32,7 @@ name when the IMU's driver starts publishing it late (``topic_follower.NameFollo
 the default ``temperature_topics`` only, by the rule ``calibrate`` picks a log's with).
 Still named in a warning (``warn_late``) and used only after a restart: a publisher of a
 type that is not a thermal one, or of several types at once. A jump back of the IMU stamps
-or ``~/reset`` gives the shadow a fresh aligner and fresh clocks.
+or ``~/reset`` gives the shadow a fresh aligner and fresh clocks, at once (``shadow``).
 """
 
 import copy
@@ -158,7 +158,9 @@ class LateInputs:
     def shadow(self, node):
         """Put the shadow under ``node``'s aligner and clocks again when the node replaced them.
 
-        Called under ``node._lock``.
+        Called under ``node._lock``: at each tick, and where the node replaces them (a jump
+        back of the IMU stamps, ``~/reset``), so no IMU message between that and the next
+        tick is missing from the watched inputs' clocks.
         """
         if node.aligner is not self.wrapper:
             if self.wrapper is not None:        # a jump back or ~/reset: a new timeline
