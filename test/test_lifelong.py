@@ -653,6 +653,18 @@ def test_a_one_sensor_cut_keeps_the_other_sensors_history(tmp_path, month_window
     assert st.kept == [] and not st.has_kept('gyro')
 
 
+def _active_before_the_knock(life, clean):
+    """Make the calibration of ``clean``'s mounting pose active in ``life``, with the change
+    alarm's reference measured on ``clean``; return (it, ``gate.score`` on ``clean``)."""
+    active = life._calibrate(main_pose(clean, 2.0)).calibration
+    life.active = active
+    s = gate.score(active, clean, active.gravity)
+    life.state.update(active_gyro_rms=s['gyro_rms'], active_accel_rms=s['accel_rms'],
+                      active_accel_median=float(np.median(s['errors']['accel'])),
+                      holds_at_estimate=life.store.total_holds)
+    return active, s
+
+
 @pytest.mark.parametrize('cut', ['sensor', 'all'])
 def test_a_gyro_alarm_cuts_the_gyro_history_only(tmp_path, month_windows, cut):
     """A knock that moves the gyro only: with ``alarm_cut='sensor'`` the alarm drops the
@@ -664,12 +676,7 @@ def test_a_gyro_alarm_cuts_the_gyro_history_only(tmp_path, month_windows, cut):
                     config=LifelongConfig(new_holds=1000, misfit_holds=1000, ageing=False,
                                           alarm_cut=cut))
     life.store.add(clean)
-    active = life._calibrate(main_pose(clean, 2.0)).calibration     # before the knock
-    life.active = active
-    s = gate.score(active, clean, active.gravity)
-    life.state.update(active_gyro_rms=s['gyro_rms'], active_accel_rms=s['accel_rms'],
-                      active_accel_median=float(np.median(s['errors']['accel'])),
-                      holds_at_estimate=life.store.total_holds)
+    active, s = _active_before_the_knock(life, clean)
     for h in knocked.hold_ids:
         life.add(knocked.select(knocked.hold == h))
     alarms = [d for d in life.decisions() if d['action'] == 'alarm']
@@ -710,12 +717,7 @@ def test_a_shift_alarm_keeps_the_older_holds_moved_by_the_knocks_step(
                                           alarm_cut='shift'))
     life.store.add(clean)
     life.store.compact(clean.hold_ids[:8])                  # some of them compacted
-    active = life._calibrate(main_pose(clean, 2.0)).calibration     # before the knock
-    life.active = active
-    s = gate.score(active, clean, active.gravity)
-    life.state.update(active_gyro_rms=s['gyro_rms'], active_accel_rms=s['accel_rms'],
-                      active_accel_median=float(np.median(s['errors']['accel'])),
-                      holds_at_estimate=life.store.total_holds)
+    active, s = _active_before_the_knock(life, clean)
     before = life.store.fit_windows()[0]
     for h in knocked.hold_ids:
         life.add(knocked.select(knocked.hold == h))
