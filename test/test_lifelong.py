@@ -17,7 +17,8 @@ from _robot_month import detector_windows
 from thermal_imu_calib.app.calibrate import CalibrateSettings
 from thermal_imu_calib.calibration import Calibration
 from thermal_imu_calib.fleet import registry
-from thermal_imu_calib.lifelong import compose, gate
+from thermal_imu_calib.collection.segments import Windows
+from thermal_imu_calib.lifelong import alarm, compose, gate
 from thermal_imu_calib.lifelong.feed import Feeder
 from thermal_imu_calib.lifelong.hints import HintGate, HintSource, twist_still
 from thermal_imu_calib.lifelong.manager import Lifelong, LifelongConfig, main_pose
@@ -746,6 +747,12 @@ def test_a_shift_alarm_keeps_the_older_holds_moved_by_the_knocks_step(
     # the new calibration explains the knocked holds to within the alarm's limit
     e = gate.hold_errors(life.active, knocked, life.active.gravity)
     assert np.median(e['gyro']) < life.config.alarm_factor * s['gyro_rms'], e['gyro']
+    # holds in several poses: no step is measured (the mean vectors differ by the pose)
+    turned = dataclasses.replace(knocked, accel=knocked.accel[:, [2, 0, 1]],
+                                 gyro=knocked.gyro[:, [2, 0, 1]])
+    both = Windows.concat([clean, turned])
+    ranges = alarm.alarm_ranges(active, 1, 'common')
+    assert alarm.step(active, both, turned.t0.min(), active.gravity, None, 2.0, ranges) is None
 
 
 def test_a_swap_refits_on_every_hold_and_the_next_gate_waits_for_unseen_holds(
@@ -803,7 +810,7 @@ def test_slopes_either_way_are_one_orientation_family(month_windows):
     log was refused the same way. Measured from the mounting pose they are one family; a
     hold on another face is not.
     """
-    from thermal_imu_calib.collection.segments import distinct_orientations, Windows
+    from thermal_imu_calib.collection.segments import distinct_orientations
     from thermal_imu_calib.lifelong.pose import one_family
 
     _, win = month_windows

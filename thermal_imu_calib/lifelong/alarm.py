@@ -23,7 +23,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import compose, gate
-from .pose import main_pose
+from .pose import main_pose, one_family
 
 
 class Tracked(NamedTuple):
@@ -142,11 +142,13 @@ def step(cal, recent, t_cut, gravity, latitude, pose_deg, ranges):
     vector) over the raw holds in the mounting pose that began at or after ``t_cut``, less
     the same median over the newest ``STEP_BEFORE_HOLDS`` such holds before it, both
     inside that sensor's alarm range. Returns {'accel': (3,) m/s^2, 'gyro': (3,) rad/s,
-    'after': holds, 'before': holds}; None when a sensor has no hold on either side.
+    'after': holds, 'before': holds}; None when a sensor has no hold on either side, or
+    when the holds are not one orientation family (``pose.one_family``: in several poses
+    the accelerometer's mean vectors differ by the pose, not by a step).
     """
-    win = main_pose(recent, pose_deg) if len(recent) else recent
-    if not len(win):
+    if not len(recent) or not one_family(recent):
         return None
+    win = main_pose(recent, pose_deg)
     e = gate.hold_errors(cal, win, gravity, latitude)
     starts = np.array([win.t0[win.hold == h].min() for h in e['ids']])
     after = starts >= t_cut
