@@ -18,7 +18,7 @@ from thermal_imu_calib.app.calibrate import CalibrateSettings
 from thermal_imu_calib.calibration import Calibration
 from thermal_imu_calib.fleet import registry
 from thermal_imu_calib.collection.segments import Windows
-from thermal_imu_calib.lifelong import alarm, compose, gate
+from thermal_imu_calib.lifelong import alarm, compose, gate, knock_step
 from thermal_imu_calib.lifelong.feed import Feeder
 from thermal_imu_calib.lifelong.hints import HintGate, HintSource, twist_still
 from thermal_imu_calib.lifelong.manager import Lifelong, LifelongConfig, main_pose
@@ -720,12 +720,19 @@ def test_a_shift_alarm_keeps_the_older_holds_moved_by_the_knocks_step(
     life.store.compact(clean.hold_ids[:8])                  # some of them compacted
     active, s = _active_before_the_knock(life, clean)
     before = life.store.fit_windows()[0]
-    for h in knocked.hold_ids:
+    # the first two knocked holds come in unscored (as holds outside the alarm's range
+    # would): the alarm flags the next ones, and the change is found where it began
+    ids = knocked.hold_ids
+    life.store.add(knocked.select(np.isin(knocked.hold, ids[:2])))
+    for h in ids[2:]:
         life.add(knocked.select(knocked.hold == h))
     alarms = [d for d in life.decisions() if d['action'] == 'alarm']
     assert len(alarms) == 1 and 'shifted by the step' in alarms[0]['reason'], alarms
     step = alarms[0]['step']
-    assert step['holds_after'] >= LifelongConfig().alarm_holds and step['holds_before'] == 10
+    assert step['t'] == knocked.t0.min() and step['earlier_holds'] == 2, step
+    assert 'it began 2 holds before the first of them' in alarms[0]['reason'], alarms
+    assert step['holds_after'] >= LifelongConfig().alarm_holds + 2
+    assert step['holds_before'] == 10 and step['dropped_holds'] == 0
     np.testing.assert_allclose(step['gyro_rad_s'], g_step, atol=0.1 * np.abs(g_step).max())
     np.testing.assert_allclose(step['accel_m_s2'], a_step, atol=0.01)
     # nothing dropped: the older holds are there, moved by the measured step, after a
@@ -738,6 +745,9 @@ def test_a_shift_alarm_keeps_the_older_holds_moved_by_the_knocks_step(
             step['gyro_rad_s'], old.gyro.shape), atol=1e-12)
         np.testing.assert_allclose(old.accel - before.accel, np.broadcast_to(
             step['accel_m_s2'], old.accel.shape), atol=1e-12)
+        early = store.recent.select(store.recent.t0 < knocked.t0[knocked.hold == ids[2]].min())
+        early = early.select(early.t0 >= knocked.t0.min())      # after the change: as they are
+        np.testing.assert_array_equal(early.gyro, knocked.gyro[np.isin(knocked.hold, ids[:2])])
     assert life.due() == 'change alarm'
     d = life.estimate('change alarm')
     assert d['action'] == 'swap' and d['figures']['gyro']['verdict'] == 'better', d['text']
@@ -752,7 +762,21 @@ def test_a_shift_alarm_keeps_the_older_holds_moved_by_the_knocks_step(
                                  gyro=knocked.gyro[:, [2, 0, 1]])
     both = Windows.concat([clean, turned])
     ranges = alarm.alarm_ranges(active, 1, 'common')
-    assert alarm.step(active, both, turned.t0.min(), active.gravity, None, 2.0, ranges) is None
+    assert knock_step.step(active, both, turned.t0.min(), active.gravity, None, 2.0,
+                           ranges) is None
+
+
+def test_a_change_starts_where_one_step_explains_both_sensors_best():
+    """``knock_step.change_start``: the split of one mean step, found at or before the
+    first flagged hold, whatever the scale of each sensor (each its own variance)."""
+    rng = np.random.default_rng(5)
+    gyro = rng.normal(0, 1e-4, (30, 3))
+    accel = rng.normal(0, 3e-2, (30, 3))          # tilt scatter: 300x the gyro's
+    gyro[12:] += [2e-3, 0, 1e-3]
+    accel[12:] += [0.05, 0.0, -0.04]
+    assert knock_step.change_start({'gyro': gyro, 'accel': accel}, 17) == 12
+    assert knock_step.change_start({'gyro': gyro, 'accel': accel}, 9) == 9     # at most
+    assert knock_step.change_start({'gyro': gyro}, 2) == 2                      # no room
 
 
 def test_a_swap_refits_on_every_hold_and_the_next_gate_waits_for_unseen_holds(

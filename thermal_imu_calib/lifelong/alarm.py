@@ -9,8 +9,8 @@ of them (``first_hold_start``: older data no longer describe the sensor), an ala
 logged (``alarm_decision``) and a re-estimate from the holds after the cut follows. With
 ``alarm_cut`` 'sensor' an alarm of one sensor cuts that sensor's history only: the other's
 model is still fitted on the older holds too (``variants.with_kept``). With ``alarm_cut``
-'shift' nothing is dropped: the older holds are moved by the step of the biases the holds
-after the cut show against the active calibration (``step``, ``HoldStore.shift``).
+'shift' the holds before the change are moved by the step of the biases the holds
+after the change show against the active calibration (``knock_step``, ``HoldStore.shift``).
 
 The alarm's limit serves two more ends: the new holds the active calibration misses
 (``new_misses``, ``trigger.due``'s misfit trigger) and the holds a swap measures the
@@ -23,7 +23,6 @@ from typing import NamedTuple
 import numpy as np
 
 from . import compose, gate
-from .pose import main_pose, one_family
 
 
 class Tracked(NamedTuple):
@@ -129,52 +128,13 @@ def first_hold_start(recent, t_end):
     return float(rec.t0[rec.hold == h].min())
 
 
-#: raw holds before the cut (the newest) a knock's step is measured against (``step``)
-STEP_BEFORE_HOLDS = 10
-
-
-def step(cal, recent, t_cut, gravity, latitude, pose_deg, ranges):
-    """Return the step of the biases at ``t_cut`` (s) the active calibration shows, or None.
-
-    ``cal``: the active calibration; ``recent``: the store's raw windows; ``ranges``:
-    ``alarm_ranges``. Per sensor, the component-wise median of ``cal``'s compensated hold
-    means (``gate.hold_errors``: the gyro less its vertical earth rate, the accelerometer
-    vector) over the raw holds in the mounting pose that began at or after ``t_cut``, less
-    the same median over the newest ``STEP_BEFORE_HOLDS`` such holds before it, both
-    inside that sensor's alarm range. Returns {'accel': (3,) m/s^2, 'gyro': (3,) rad/s,
-    'after': holds, 'before': holds}; None when a sensor has no hold on either side, or
-    when the holds are not one orientation family (``pose.one_family``: in several poses
-    the accelerometer's mean vectors differ by the pose, not by a step).
-    """
-    if not len(recent) or not one_family(recent):
-        return None
-    win = main_pose(recent, pose_deg)
-    e = gate.hold_errors(cal, win, gravity, latitude)
-    starts = np.array([win.t0[win.hold == h].min() for h in e['ids']])
-    after = starts >= t_cut
-    out = {}
-    for which in ('gyro', 'accel'):
-        lo, hi = ranges[which]
-        inside = np.isnan(e['temp']) | ((e['temp'] >= lo) & (e['temp'] <= hi))
-        a = np.flatnonzero(after & inside)
-        b = np.flatnonzero(~after & inside)
-        b = b[np.argsort(e['t'][b])][-STEP_BEFORE_HOLDS:]
-        if not len(a) or not len(b):
-            return None
-        vec = e[which + '_vec']
-        out[which] = np.median(vec[a], axis=0) - np.median(vec[b], axis=0)
-        out['after'] = min(out.get('after', len(a)), len(a))
-        out['before'] = min(out.get('before', len(b)), len(b))
-    return out
-
-
 def alarm_decision(out, t_cut, t_now, config, moved=None):
     """Return (the alarm's decision dict, the sensor that keeps its older holds or None).
 
     ``out``: ``exceeded``'s sensors; ``t_cut`` (s): where the store is cut; ``t_now`` (s):
     the newest tracked hold's end. A sensor keeps its history only with ``alarm_cut``
     'sensor' and an alarm of the other sensor alone. ``moved``: ``step``'s result when
-    the older holds are shifted by it instead (``alarm_cut`` 'shift').
+    the older holds are shifted by it instead (``alarm_cut`` 'shift'; ``knock_step.step``).
     """
     c = config
     text = '; '.join(f'{w} error {v:.3g} > {lim:.3g} on the last {c.alarm_holds} '
@@ -183,10 +143,14 @@ def alarm_decision(out, t_cut, t_now, config, moved=None):
     if c.alarm_cut == 'sensor' and len(out) == 1:
         keep = 'accel' if 'gyro' in out else 'gyro'
     if moved is not None:
-        dropped = (f'holds before t={t_cut:.0f} s shifted by the step the holds after it '
-                   f'show (gyro {np.linalg.norm(moved["gyro"]):.3g} rad/s, accel '
+        began = (f'; it began {moved["earlier"]} hold{"s" if moved["earlier"] != 1 else ""} '
+                 'before the first of them' if moved['earlier'] else '')
+        dropped = (f'holds before t={moved["t"]:.0f} s shifted by the step the holds after '
+                   f'it show (gyro {np.linalg.norm(moved["gyro"]):.3g} rad/s, accel '
                    f'{np.linalg.norm(moved["accel"]):.3g} m/s^2; {moved["after"]} holds '
-                   f'after, {moved["before"]} before), re-estimating from every hold')
+                   f'after, {moved["before"]} before{began}'
+                   + (f'; {len(moved["drop"])} holds between dropped' if moved['drop'] else '')
+                   + '), re-estimating from every hold')
     elif keep is None:
         dropped = (f'holds before t={t_cut:.0f} s dropped, re-estimating from the holds '
                    'after it')
@@ -197,8 +161,10 @@ def alarm_decision(out, t_cut, t_now, config, moved=None):
                 'reason': f'the active calibration no longer fits: {text}; {dropped}',
                 'figures': out}
     if moved is not None:
-        decision['step'] = {'gyro_rad_s': [float(x) for x in moved['gyro']],
+        decision['step'] = {'t': float(moved['t']), 'earlier_holds': int(moved['earlier']),
+                            'gyro_rad_s': [float(x) for x in moved['gyro']],
                             'accel_m_s2': [float(x) for x in moved['accel']],
+                            'dropped_holds': len(moved['drop']),
                             'holds_after': int(moved['after']),
                             'holds_before': int(moved['before'])}
     return decision, keep

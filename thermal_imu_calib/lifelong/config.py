@@ -64,9 +64,9 @@ class LifelongConfig:
     #: older holds for its fits, ``HoldStore.cut(keep=...)``, ``variants.with_kept``; an
     #: alarm of both cuts both). Off: on seeds 7, 8 and 12 (unseen) it never acted, every
     #: knock's alarm flagged both sensors (the simulated knock steps both; docs/lifelong.md).
-    #: 'shift': nothing is dropped, the older holds are moved by the step of both sensors'
+    #: 'shift': the holds before the change are moved by the step of both sensors'
     #: biases the holds after the alarm show against the active calibration
-    #: (``alarm.step``, ``HoldStore.shift``; a knock moves offsets, not the thermal
+    #: (``knock_step``, ``HoldStore.shift``; a knock moves offsets, not the thermal
     #: sensitivity, so the estimate after the alarm keeps the whole temperature span)
     alarm_cut: str = 'all'
     #: how the swap gate measures the accelerometer on held-out holds

@@ -27,7 +27,8 @@ hold are ``variants``; the settings are ``config.LifelongConfig``.
 Change alarm (a knock, ``alarm``): every new hold inside the active valid range is scored
 with the active calibration; when, for one sensor, the last ``alarm_holds`` of them all
 miss its reference by the alarm's limit, the store is cut at the first of them (with
-``alarm_cut`` 'shift': the older holds are moved by the step the newer ones show), an alarm
+``alarm_cut`` 'shift': the holds before the change are moved by the step the newer ones show,
+``knock_step``), an alarm
 is logged and a re-estimate follows. A swap measures the alarm's
 reference anew (``_activate``).
 
@@ -50,7 +51,7 @@ from ..app.calibrate import calibrate_collected
 from ..estimation.calibrate import CalibrationRefused
 from ..io.output import write_atomic
 from ..collection.collected import Collected
-from . import alarm, compose, files, gate, trigger, variants
+from . import alarm, compose, files, gate, knock_step, trigger, variants
 from ..collection.segments import Windows
 from .archive import ArchiveFull, archive_collection, MAX_ARCHIVES  # noqa: F401 (API)
 from .config import (ALARM_CUTS, ALARM_REFERENCES, ALARM_WINDOWS,  # noqa: F401 (API)
@@ -163,8 +164,9 @@ class Lifelong:
         out, first = alarm.exceeded(self.track, s, c)
         if out:
             t_cut, t_now = alarm.first_hold_start(self.store.recent, min(first)), self.track[-1].t
-            moved = alarm.step(cal, self.store.recent, t_cut, cal.gravity, self.latitude,
-                               c.pose_deg, ranges) if c.alarm_cut == 'shift' else None
+            moved = knock_step.step(cal, self.store.recent, t_cut, cal.gravity,
+                                    self.latitude, c.pose_deg, ranges) \
+                if c.alarm_cut == 'shift' else None
             decision, keep = alarm.alarm_decision(out, t_cut, t_now, c, moved)
             s['alarms'] += 1
             s['alarm_pending'] = True
@@ -172,7 +174,7 @@ class Lifelong:
             if moved is None:
                 self.store.cut(t_cut, keep=keep)
             else:
-                self.store.shift(t_cut, moved['accel'], moved['gyro'])
+                self.store.shift(moved['t'], moved['accel'], moved['gyro'], moved['drop'])
             s['last_decision'] = decision['reason']
             self._record(decision)
             self._save_state()

@@ -379,19 +379,22 @@ class HoldStore:
         self._write_state()
         self._write_recent()
 
-    def shift(self, t, accel, gyro):
+    def shift(self, t, accel, gyro, drop=()):
         """Move everything before ``t`` (s) by a step of the biases, instead of dropping it.
 
+        ``drop``: raw hold ids removed (holds that cannot be placed before or after ``t``).
+
         ``accel`` (3,) m/s^2 and ``gyro`` (3,) rad/s are added to the means of the raw
-        holds that began before ``t``, of the compacted bins and of the histories kept
-        across one-sensor cuts (a knock steps the offsets, not the thermal sensitivity:
-        the older holds then describe the sensor as it is now, with their temperatures;
-        ``LifelongConfig.alarm_cut`` 'shift'). Persisted: state, then recent.
+        holds that began before ``t``, the compacted bins and the kept histories (a knock
+        steps the offsets, not the thermal sensitivity; ``LifelongConfig.alarm_cut``
+        'shift', ``knock_step``). Persisted: state, then recent.
         """
         a, g = np.asarray(accel, float).reshape(3), np.asarray(gyro, float).reshape(3)
         for bins in [self.bins] + [b for _, b in self.kept]:
             bins.accel = bins.accel + bins.w[:, None] * a
             bins.gyro = bins.gyro + bins.w[:, None] * g
+        if len(self.recent) and len(drop):
+            self.recent = self.recent.select(~np.isin(self.recent.hold, list(drop)))
         if len(self.recent):
             old = np.isin(self.recent.hold, self._holds_before(t))[:, None]
             self.recent.accel = self.recent.accel + old * a
@@ -402,9 +405,7 @@ class HoldStore:
     def _holds_before(self, t):
         """Return the ids of the raw holds that began before ``t`` (s)."""
         rec = self.recent
-        if not len(rec):
-            return np.zeros(0, int)
-        ids = rec.hold_ids
+        ids = rec.hold_ids if len(rec) else np.zeros(0, int)
         return ids[[rec.t0[rec.hold == h].min() < t for h in ids]]
 
     # ------------------------------------------------------------------ reading
