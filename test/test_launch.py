@@ -190,11 +190,13 @@ def test_both_nodes_in_one_process_follow_a_late_float32_temperature(
              lambda: f'both nodes to subscribe as Float32 '
                      f'({comp.type_follower.types}, {calib._late_inputs.types})')
     pub.publish(Float32(data=24.0))
-    wait_for(lambda: calib.k == 1, 60, 'the calibrator to take the late temperature')
+    # the adoption's note is its last step (the node's k changes first): wait on it
+    wait_for(lambda: calib.k == 1 and [n for n in calib.input_notes()
+                                       if 'the first reading came' in n], 60,
+             'the calibrator to take the late temperature')
     assert calib._clocks.bare == [True]
     for node in (comp, calib):
         _assert_follows_um7_float32(node)
-    assert [n for n in calib.input_notes() if 'the first reading came' in n]
 
 
 def test_both_nodes_follow_a_temperature_under_another_name(
