@@ -74,6 +74,14 @@ class Windows:
         _, idx = np.unique(self.hold, return_index=True)
         return self.hold[np.sort(idx)]
 
+    def hold_starts(self):
+        """Return (``hold_ids``, (h,) the start (s) of each hold's first window)."""
+        ids = self.hold_ids
+        uniq, inv = np.unique(self.hold, return_inverse=True)
+        start = np.full(len(uniq), np.inf)
+        np.minimum.at(start, inv, self.t0)
+        return ids, start[np.searchsorted(uniq, ids)]
+
     def hold_means(self):
         """Return (ids, (h, 3) sample-weighted mean accel per hold)."""
         ids = self.hold_ids

@@ -76,7 +76,7 @@ def step(cal, recent, t_flag, gravity, latitude, pose_deg, ranges):
         return None
     win = main_pose(recent, pose_deg)
     e = gate.hold_errors(cal, win, gravity, latitude)
-    starts = np.array([win.t0[win.hold == h].min() for h in e['ids']])
+    _, starts = win.hold_starts()                    # in e['ids'] order
     inside = {}
     for which in ('gyro', 'accel'):
         lo, hi = ranges[which]
@@ -91,8 +91,7 @@ def step(cal, recent, t_flag, gravity, latitude, pose_deg, ranges):
     t = float(starts[both[k]]) if k < len(both) else float(t_flag)
     t_before = float(starts[both[k - 1]]) if k > 0 else -np.inf
     after = starts >= t
-    ids = recent.hold_ids
-    begin = np.array([recent.t0[recent.hold == h].min() for h in ids])
+    ids, begin = recent.hold_starts()
     out = {'t': t, 'earlier': int(first - k),
            'drop': ids[(begin > t_before) & (begin < t)].tolist()}
     for which in ('gyro', 'accel'):

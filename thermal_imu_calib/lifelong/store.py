@@ -382,12 +382,11 @@ class HoldStore:
     def shift(self, t, accel, gyro, drop=()):
         """Move everything before ``t`` (s) by a step of the biases, instead of dropping it.
 
-        ``drop``: raw hold ids removed (holds that cannot be placed before or after ``t``).
-
         ``accel`` (3,) m/s^2 and ``gyro`` (3,) rad/s are added to the means of the raw
         holds that began before ``t``, the compacted bins and the kept histories (a knock
         steps the offsets, not the thermal sensitivity; ``LifelongConfig.alarm_cut``
-        'shift', ``knock_step``). Persisted: state, then recent.
+        'shift', ``knock_step``); ``drop``: raw hold ids removed (holds that cannot be
+        placed before or after ``t``). Persisted: state, then recent.
         """
         a, g = np.asarray(accel, float).reshape(3), np.asarray(gyro, float).reshape(3)
         for bins in [self.bins] + [b for _, b in self.kept]:
@@ -404,9 +403,10 @@ class HoldStore:
 
     def _holds_before(self, t):
         """Return the ids of the raw holds that began before ``t`` (s)."""
-        rec = self.recent
-        ids = rec.hold_ids if len(rec) else np.zeros(0, int)
-        return ids[[rec.t0[rec.hold == h].min() < t for h in ids]]
+        if not len(self.recent):
+            return np.zeros(0, int)
+        ids, starts = self.recent.hold_starts()
+        return ids[starts < t]
 
     # ------------------------------------------------------------------ reading
     def windows(self, now=None, exclude=()):

@@ -31,8 +31,7 @@ def holds_after(recent, t):
     """Return how many raw holds of ``recent`` (the store's raw windows) begin after ``t`` (s)."""
     if not len(recent):
         return 0
-    ids = recent.hold_ids
-    starts = np.array([recent.t0[recent.hold == h].min() for h in ids])
+    _, starts = recent.hold_starts()
     return int(np.sum(starts > t))
 
 
