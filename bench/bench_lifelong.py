@@ -144,10 +144,16 @@ def registry_timeline(work_seed, start_ns):
                     for r in rows]
 
 
-def run_seed(seed, days, work, latitude=None, ageing=True, per_sensor=True,
-             alarm_window='common', one_sensor_after_alarm=False, alarm_reference='all',
-             alarm_cut='all', accel_score='magnitude', raw_kept=False, refit_on_swap=False,
-             **overrides):
+#: the package's defaults, which the bench's options start from
+DEFAULT = LifelongConfig()
+
+
+def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
+             per_sensor=DEFAULT.per_sensor, alarm_window=DEFAULT.alarm_window,
+             one_sensor_after_alarm=DEFAULT.one_sensor_after_alarm,
+             alarm_reference=DEFAULT.alarm_reference, alarm_cut=DEFAULT.alarm_cut,
+             accel_score=DEFAULT.accel_score, raw_kept=DEFAULT.raw_kept,
+             refit_on_swap=DEFAULT.refit_on_swap, **overrides):
     m = robot_month(seed, days=days, **overrides)
     spec = m.device.spec
     rate = m.config.imu_rate
@@ -912,19 +918,20 @@ def main():
                     help='without the gyro ageing candidate (LifelongConfig.ageing False)')
     mo.add_argument('--whole-swap', action='store_true',
                     help='swap whole calibrations only (LifelongConfig.per_sensor False)')
-    mo.add_argument('--alarm-window', choices=ALARM_WINDOWS, default='common',
+    mo.add_argument('--alarm-window', choices=ALARM_WINDOWS, default=DEFAULT.alarm_window,
                     help='holds the change alarm watches (LifelongConfig.alarm_window)')
     mo.add_argument('--one-sensor-after-alarm', action='store_true',
                     help='one-sensor swaps after a change alarm too '
                          '(LifelongConfig.one_sensor_after_alarm)')
-    mo.add_argument('--alarm-reference', choices=ALARM_REFERENCES, default='all',
+    mo.add_argument('--alarm-reference', choices=ALARM_REFERENCES,
+                    default=DEFAULT.alarm_reference,
                     help='holds a swap measures the change alarm\'s reference on '
                          '(LifelongConfig.alarm_reference)')
-    mo.add_argument('--alarm-cut', choices=ALARM_CUTS, default='all',
+    mo.add_argument('--alarm-cut', choices=ALARM_CUTS, default=DEFAULT.alarm_cut,
                     help='what a change alarm does with the older holds: drop both sensors\' '
                          'history, the flagged sensor\'s only, or shift them by the step the '
                          'newer holds show (LifelongConfig.alarm_cut)')
-    mo.add_argument('--accel-score', choices=ACCEL_SCORES, default='magnitude',
+    mo.add_argument('--accel-score', choices=ACCEL_SCORES, default=DEFAULT.accel_score,
                     help='how the swap gate measures the accelerometer on held-out holds '
                          '(LifelongConfig.accel_score)')
     mo.add_argument('--raw-kept', action='store_true',
