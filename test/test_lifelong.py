@@ -770,13 +770,18 @@ def test_a_shift_alarm_keeps_the_older_holds_moved_by_the_knocks_step(
 
 
 def test_hold_starts_are_each_holds_first_window_start(month_windows):
-    """``Windows.hold_starts``: ids in order of appearance (any order of hold ids), each
-    hold's earliest window start, as the loop over holds the lifelong code had."""
+    """``Windows.hold_starts`` / ``hold_spans``: ids in order of appearance (any order of
+    hold ids), each hold's earliest window start and latest window end, as the loops over
+    holds the lifelong, selection and noise code had."""
     _, win = month_windows
     mixed = win.select(np.random.default_rng(2).permutation(len(win)))
     ids, starts = mixed.hold_starts()
     np.testing.assert_array_equal(ids, mixed.hold_ids)
     np.testing.assert_array_equal(starts, [mixed.t0[mixed.hold == h].min() for h in ids])
+    ids2, starts2, ends = mixed.hold_spans()
+    np.testing.assert_array_equal(ids2, ids)
+    np.testing.assert_array_equal(starts2, starts)
+    np.testing.assert_array_equal(ends, [mixed.t1[mixed.hold == h].max() for h in ids])
 
 
 def test_a_change_starts_where_one_step_explains_both_sensors_best():

@@ -81,15 +81,14 @@ def add_random_walk(cal, paths, windows, imu_topic=None):
     """
     if not len(windows):
         return ''
-    spans = [(windows.t0[windows.hold == h].min(), windows.t1[windows.hold == h].max())
-             for h in windows.hold_ids]
-    if max(b - a for a, b in spans) < K_MIN_HOLD_S:
+    _, start, end = windows.hold_spans()
+    if np.max(end - start) < K_MIN_HOLD_S:
         return ''
     acc_segs, gyr_segs, rate = [], [], None
     for path in paths:
         t, acc, gyr = _compensated(path, imu_topic, cal)
         rate = rate or sample_rate(t)
-        for a, b in spans:
+        for a, b in zip(start, end):
             i0, i1 = np.searchsorted(t, a), np.searchsorted(t, b, 'right')
             if (i1 - i0) / rate >= MIN_SEGMENT_S:
                 acc_segs.append(acc[i0:i1])

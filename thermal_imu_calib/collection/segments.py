@@ -74,13 +74,21 @@ class Windows:
         _, idx = np.unique(self.hold, return_index=True)
         return self.hold[np.sort(idx)]
 
-    def hold_starts(self):
-        """Return (``hold_ids``, (h,) the start (s) of each hold's first window)."""
+    def hold_spans(self):
+        """Return (``hold_ids``, (h,) first window start (s), (h,) last window end (s))."""
         ids = self.hold_ids
         uniq, inv = np.unique(self.hold, return_inverse=True)
         start = np.full(len(uniq), np.inf)
+        end = np.full(len(uniq), -np.inf)
         np.minimum.at(start, inv, self.t0)
-        return ids, start[np.searchsorted(uniq, ids)]
+        np.maximum.at(end, inv, self.t1)
+        at = np.searchsorted(uniq, ids)
+        return ids, start[at], end[at]
+
+    def hold_starts(self):
+        """Return (``hold_ids``, (h,) the start (s) of each hold's first window)."""
+        ids, start, _ = self.hold_spans()
+        return ids, start
 
     def hold_means(self):
         """Return (ids, (h, 3) sample-weighted mean accel per hold)."""

@@ -310,8 +310,7 @@ def hold_consistency(windows, gravity, temps=None, lsb=None, magnitudes=None):
             'difference_ug': float((mag[i] - mag[r]) / gravity * 1e6),
             'sigma_ug': float(np.hypot(sigma[i], sigma[r]) / gravity * 1e6),
             'z': float(z[i])})
-    span = np.array([[windows.t0[windows.hold == h].min(), windows.t1[windows.hold == h].max()]
-                     for h in ids])
+    span = np.column_stack(windows.hold_spans()[1:])
     if report['left_out'] and not thermal:
         keep = _epochs(report, keep, label, up, mag, sigma, tmid, ids, gravity, span)
     for h in report['left_out']:

@@ -46,14 +46,14 @@ def still_segments(t, accel, gyro, detector=None):
     if not len(win):
         return [], 'none'
     ids, means = win.hold_means()
-    spans = [(win.t0[win.hold == h].min(), win.t1[win.hold == h].max()) for h in ids]
+    _, start, end = win.hold_spans()
     u = means / np.linalg.norm(means, axis=1, keepdims=True)
     angle = np.degrees(np.arccos(np.clip(u @ u[0], -1, 1))).max()
-    covered = sum(b - a for a, b in spans)
+    covered = float(np.sum(end - start))
     if covered >= STILL_COVERAGE * span and angle <= STILL_ANGLE_DEG:
         spans, kind = [(t[0], t[-1])], 'still recording'
     else:
-        kind = 'holds'
+        spans, kind = list(zip(start, end)), 'holds'
     return _cut(t, spans), kind
 
 

@@ -282,8 +282,8 @@ def fit_whole_unit_accel(windows, axis_temps, gravity, t0, priors=None, order=2,
 
 def hold_folds(windows, k=CV_FOLDS):
     """Return a fold id per window: holds in time order dealt round-robin into k folds."""
-    ids = windows.hold_ids
-    order = np.argsort([windows.t0[windows.hold == h].min() for h in ids])
+    ids, start = windows.hold_starts()
+    order = np.argsort(start)
     fold_of = {int(ids[j]): r % k for r, j in enumerate(order)}
     return np.array([fold_of[int(h)] for h in windows.hold])
 

@@ -72,7 +72,7 @@ def time_runs(windows, n_runs=N_RUNS, min_visits=MIN_FACE_VISITS):
     """
     ids, means = windows.hold_means()
     faces = np.array([face_of(m) for m in means])
-    start = np.array([windows.t0[windows.hold == h].min() for h in ids])
+    start = windows.hold_starts()[1]
     order = np.argsort(start, kind='stable')
     count = {f: int(np.sum(faces == f)) for f in set(faces) - {'tilted'}}
     fold_of = np.full(len(ids), -1)

@@ -61,7 +61,7 @@ def heldout_folds(windows, max_folds=MAX_FOLDS, within=None):
               else np.isin(ids, np.unique(windows.hold[within])))
     inner = [f for f, i in zip(faces, inside) if i]
     count_in = {f: inner.count(f) for f in set(inner)}
-    order = np.argsort([windows.t0[windows.hold == h].min() for h in ids])
+    order = np.argsort(windows.hold_starts()[1])
     foldable = [j for j in order if faces[j] == 'tilted' or (
         count[faces[j]] > 1 and (not inside[j] or count_in[faces[j]] > 1))]
     n = min(len(foldable), max_folds)
