@@ -674,7 +674,8 @@ def test_a_gyro_alarm_cuts_the_gyro_history_only(tmp_path, month_windows, cut):
     """A knock that moves the gyro only: with ``alarm_cut='sensor'`` the alarm drops the
     older holds for the gyro alone, and the estimate after it fits the accelerometer on
     them too (its model covers their temperatures), the gyro on the holds after the cut.
-    With 'all' (the default) both sensors start again from the holds after the cut."""
+    With 'all' (the default until 2026-12-04) both sensors start again from the holds
+    after the cut."""
     clean, knocked = _clean_and_knocked(month_windows)
     life = Lifelong(str(tmp_path), CalibrateSettings(), 1, [TOPIC], 'imu_link',
                     config=LifelongConfig(new_holds=1000, misfit_holds=1000, ageing=False,
@@ -690,6 +691,7 @@ def test_a_gyro_alarm_cuts_the_gyro_history_only(tmp_path, month_windows, cut):
     # the epoch starts at the first knocked hold: no hold from before the knock is left in
     # it (a relative stamp tolerance once kept ~4.8 h of them)
     assert (life.store.recent.t0 >= knocked.t0.min()).all()
+    assert life.status()['alarm'] == 're-estimating from the holds after it'
     d = life.estimate('change alarm')
     assert d['action'] == 'swap' and d['figures']['gyro']['verdict'] == 'better', d['text']
     lo = compose.own_range(life.active, 'accel')[0, 0]
@@ -752,8 +754,10 @@ def test_a_shift_alarm_keeps_the_older_holds_moved_by_the_knocks_step(
         early = early.select(early.t0 >= knocked.t0.min())      # after the change: as they are
         np.testing.assert_array_equal(early.gyro, knocked.gyro[np.isin(knocked.hold, ids[:2])])
     assert life.due() == 'change alarm'
+    assert life.status()['alarm'].startswith('re-estimating from every hold, the older')
     d = life.estimate('change alarm')
     assert d['action'] == 'swap' and d['figures']['gyro']['verdict'] == 'better', d['text']
+    assert 'alarm' not in life.status()
     for which in ('accel', 'gyro'):         # both models span the pre-knock temperatures
         assert compose.own_range(life.active, which)[0, 0] <= \
             main_pose(clean, 2.0).temp[:, 0].min() + 0.5

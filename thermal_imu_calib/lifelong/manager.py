@@ -170,6 +170,7 @@ class Lifelong:
             decision, keep = alarm.alarm_decision(out, t_cut, t_now, c, moved)
             s['alarms'] += 1
             s['alarm_pending'] = True
+            s['alarm_shifted'] = moved is not None
             self.track = []
             if moved is None:
                 self.store.cut(t_cut, keep=keep)
@@ -398,6 +399,10 @@ class Lifelong:
                    estimates=s['estimates'], last_decision=s['last_decision'],
                    active=self.active.id if self.active is not None else '',
                    candidate=self.candidate.id if self.candidate is not None else '')
+        if s.get('alarm_pending'):
+            out['alarm'] = ('re-estimating from every hold, the older ones moved by the '
+                            "knock's step" if s.get('alarm_shifted')
+                            else 're-estimating from the holds after it')
         if self.active is not None and s.get('active_since') is not None and now is not None:
             out['active_age_s'] = float(now - s['active_since'])
         if self.active is not None and self.active.valid_range is not None and self.k:

@@ -338,9 +338,9 @@ class LifelongMode:
                 level = common.WARN
                 msg += (f'; temperature {self.last_temperature:.1f} degC outside its valid '
                         f'range {values.get("valid_range_degC")}')
-        if self.life.state.get('alarm_pending'):
+        if st.get('alarm'):
             level = common.WARN
-            msg += '; change alarm: re-estimating from the holds after it'
+            msg += '; change alarm: ' + st['alarm']
         return [common.diagnostic_status(name, node.get_fully_qualified_name(), level, msg,
                                          values)]
 
