@@ -109,6 +109,7 @@ def score_cut(w, t, imu, temp, cut_t, name):
 
 
 def rms(v):
+    """Return the RMS norm of (n, 3) vectors (nan for none)."""
     v = np.asarray(v, float).reshape(-1, 3)
     return float(np.sqrt(np.mean(np.sum(v ** 2, 1)))) if len(v) else float('nan')
 
@@ -131,6 +132,7 @@ def pooled(cuts, band):
 
 
 def main(argv=None):
+    """Score every cut; print the table (and write JSON)."""
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     ap.add_argument('--csv', default=CSV)
     ap.add_argument('--json', default=None)
@@ -172,12 +174,10 @@ def main(argv=None):
     print(f'{seconds:.0f} s')
     if args.json:
         with open(args.json, 'w') as f:
+            pooled_out = {k: {p: {'gyro_mrad_s': v[0], 'accel_mm_s2': v[1], 'blocks': v[2]}
+                              for p, v in b.items()} for k, b in bands.items()}
             json.dump({'command': 'bench/out_of_range_real.py', 'seconds': seconds,
-                       'cuts': cuts, 'pooled': {k: {p: {'gyro_mrad_s': v[0],
-                                                         'accel_mm_s2': v[1], 'blocks': v[2]}
-                                                     for p, v in b.items()}
-                                                 for k, b in bands.items()}},
-                      f, indent=1)
+                       'cuts': cuts, 'pooled': pooled_out}, f, indent=1)
 
 
 if __name__ == '__main__':

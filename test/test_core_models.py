@@ -92,6 +92,42 @@ def test_clamp_and_extrapolate():
     assert list(r.out_of_range) == [False, True, True]
 
 
+def test_linear_continuation_beyond_the_range():
+    """'linear_gyro': the gyro goes on with its slope over the last degC; the accel clamps."""
+    rng = np.random.default_rng(5)
+    cal = _cal(rng)
+    a = np.tile([0.0, 0.0, 9.8], (5, 1))
+    g = np.zeros((5, 3))
+    t = np.array([[45.0], [47.0], [60.0], [15.0], [5.0]])
+    clamped = cal.apply(a, g, t)
+    cal.out_of_range = 'linear_gyro'
+    assert (cal.range_policy('gyro'), cal.range_policy('accel')) == ('linear', 'clamp')
+    r = cal.apply(a, g, t)
+    np.testing.assert_array_equal(r.accel, clamped.accel)
+    assert list(r.out_of_range) == [False, True, True, False, True]
+    # by hand from the polynomial: the value at the edge and 1 degC inside it
+
+    def gyro_at(temp):
+        return cal.gyro.correct(g[:1], np.full((1, 3), temp))[0]
+    for row, (edge, inner) in ((1, (45.0, 44.0)), (2, (45.0, 44.0)), (4, (15.0, 16.0))):
+        excess = abs(t[row, 0] - edge)
+        want = gyro_at(edge) + (gyro_at(edge) - gyro_at(inner)) * excess
+        np.testing.assert_allclose(r.gyro[row], want, rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(r.gyro[[0, 3]], clamped.gyro[[0, 3]])
+    assert not np.allclose(r.gyro[2], clamped.gyro[2])
+    # format 3 (an older reader refuses it instead of clamping); read back, the same output
+    text = cal.to_yaml()
+    assert 'format: thermal_imu_calib/3' in text and 'out_of_range: linear_gyro' in text
+    back = Calibration.from_yaml(text)
+    np.testing.assert_array_equal(back.apply(a, g, t).gyro, r.gyro)
+    # 'linear': the accelerometer continues too
+    cal.out_of_range = 'linear'
+    r2 = cal.apply(a, g, t)
+    np.testing.assert_array_equal(r2.gyro, r.gyro)
+    np.testing.assert_array_equal(r2.accel[[0, 3]], clamped.accel[[0, 3]])
+    assert not np.allclose(r2.accel[2], clamped.accel[2])
+
+
 @pytest.mark.parametrize('edit, message', [
     (lambda d: d.update(format='other/9'), 'format'),
     (lambda d: d['temperature'].update(valid_range={'min': [300.0], 'max': [320.0]}),

@@ -121,6 +121,16 @@ def test_px4_matches_our_compensation(cold, tmp_path):
     assert np.ptp(ours.accel - cold['accel'], axis=0).max() > 100 * UG
 
 
+def test_export_states_a_linear_continuation(cold):
+    """The autopilots clamp; a calibration that continues the gyro says so, per sensor."""
+    import dataclasses
+    cal = dataclasses.replace(cold['cals']['px4'], out_of_range='linear_gyro')
+    for fmt in ('px4', 'ardupilot'):
+        notes = ' '.join(export_calibration(cal, fmt).notes)
+        assert 'continues linearly outside its valid range (gyro)' in notes
+        assert 'continues linearly outside its valid range (accel)' not in notes
+
+
 def test_ardupilot_matches_our_compensation(cold):
     cal = cold['cals']['ardupilot']
     out = export_calibration(cal, 'ardupilot')

@@ -52,7 +52,8 @@ class CalibrateSettings:
     order: int = 2
     #: joint refinement of the field model after the two-step estimate
     refine: bool = True
-    #: outside the valid range: 'clamp' (hold the edge value) or 'extrapolate'
+    #: outside the valid range: 'clamp' (hold the edge value), 'extrapolate', 'linear' or
+    #: 'linear_gyro' (``calibration.OUT_OF_RANGE_POLICIES``)
     out_of_range: str = 'clamp'
     #: valid range = collected range widened by this (degC)
     range_margin: float = 1.0

@@ -10,8 +10,22 @@ FORMAT = 'thermal_imu_calib/1'
 #: knows format 1 only refuses them ("needs a newer version") instead of ignoring the range
 #: and extrapolating that model; every other file stays format 1.
 FORMAT_SENSOR_RANGE = 'thermal_imu_calib/2'
-FILE_FORMATS = (FORMAT, FORMAT_SENSOR_RANGE)
-OUT_OF_RANGE_POLICIES = ('clamp', 'extrapolate')
+#: format 2 plus the out-of-range policies 'linear' and 'linear_gyro'. Written only by files
+#: that use them, so that an older version refuses them instead of clamping a model that
+#: was meant to be continued.
+FORMAT_LINEAR = 'thermal_imu_calib/3'
+FILE_FORMATS = (FORMAT, FORMAT_SENSOR_RANGE, FORMAT_LINEAR)
+#: outside the valid range: 'clamp' holds the edge value (as PX4 and ArduPilot do);
+#: 'extrapolate' evaluates the models there; 'linear' continues each model from the edge
+#: with its slope over the last ``LINEAR_STEP_DEGC`` inside; 'linear_gyro' continues the
+#: gyro linearly and clamps the accelerometer
+OUT_OF_RANGE_POLICIES = ('clamp', 'extrapolate', 'linear', 'linear_gyro')
+#: the policies of format 1 and 2 files
+OUT_OF_RANGE_V1 = ('clamp', 'extrapolate')
+#: the step (degC) inside the edge a linear continuation takes its slope over; an input in
+#: another unit (a proxy) uses ``LINEAR_STEP_FRACTION`` of its valid range
+LINEAR_STEP_DEGC = 1.0
+LINEAR_STEP_FRACTION = 0.05
 #: a calibration file is a few kB; these bound what a hostile one can cost before it is read
 MAX_FILE_BYTES = 4 * 2 ** 20
 #: deepest nesting of YAML mappings/sequences accepted (a real file nests < 10 deep)

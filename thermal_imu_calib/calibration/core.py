@@ -20,7 +20,9 @@ from ..input_units import DEGC, is_temperature
 from ..models import SensorModel
 from ..thermal_input import CalibrationStream, ThermalFilter
 from . import schema
-from .base import CalibrationError, FORMAT, FORMAT_SENSOR_RANGE, NOISE_UNITS, TemperatureInput
+from .base import (CalibrationError, FORMAT, FORMAT_LINEAR, FORMAT_SENSOR_RANGE,
+                   LINEAR_STEP_DEGC, LINEAR_STEP_FRACTION, NOISE_UNITS, OUT_OF_RANGE_V1,
+                   TemperatureInput)
 from .yaml_text import parse_yaml, read_file
 
 
@@ -107,11 +109,31 @@ class Calibration:
         return units[0]
 
     # ------------------------------------------------------------------ apply
-    def axis_temperatures(self, temps, which):
+    def range_policy(self, which):
+        """Return what "accel"/"gyro" does outside its range: clamp, extrapolate or linear."""
+        if self.out_of_range == 'linear_gyro':
+            return 'linear' if which == 'gyro' else 'clamp'
+        return self.out_of_range
+
+    def linear_step(self, which):
+        """Return the (k,) step inside the edge a linear continuation takes its slope over.
+
+        ``LINEAR_STEP_DEGC`` for a temperature input, ``LINEAR_STEP_FRACTION`` of the
+        range for another unit; at most half the sensor's range.
+        """
+        vr = self.sensor_range.get(which, self.valid_range)
+        width = vr[:, 1] - vr[:, 0]
+        step = np.array([LINEAR_STEP_DEGC if is_temperature(i.unit) else
+                         LINEAR_STEP_FRACTION * w for i, w in zip(self.inputs, width)])
+        return np.minimum(step, 0.5 * width)
+
+    def axis_temperatures(self, temps, which, inset=None):
         """Map (n, k) thermal inputs to (n, 3) per-axis inputs for 'accel'/'gyro'.
 
         Returns (per_axis, out_of_range_mask). With no inputs the model's reference
-        temperature is used (temperature-independent calibration).
+        temperature is used (temperature-independent calibration). ``inset``: (k,) the
+        range is narrowed by it at both ends before clamping (a linear continuation's
+        inner point).
         """
         model = self.accel if which == 'accel' else self.gyro
         idx = self.accel_input if which == 'accel' else self.gyro_input
@@ -128,9 +150,43 @@ class Calibration:
         vr = self.sensor_range.get(which, self.valid_range)
         lo, hi = vr[:, 0], vr[:, 1]
         oor = np.any((temps < lo) | (temps > hi), axis=1)
-        if self.out_of_range == 'clamp':
+        if self.range_policy(which) != 'extrapolate':
+            if inset is not None:
+                lo, hi = lo + inset, hi - inset
             temps = np.clip(temps, lo, hi)
         return temps[:, idx], oor
+
+    def _linear_beyond(self, which, temps):
+        """Return (n, 3) excess / step per axis for a 'linear' sensor (0 inside), or None."""
+        if self.range_policy(which) != 'linear' or not self.inputs or not temps.size:
+            return None
+        idx = self.accel_input if which == 'accel' else self.gyro_input
+        vr = self.sensor_range.get(which, self.valid_range)
+        excess = np.maximum(temps - vr[:, 1], 0.0) + np.maximum(vr[:, 0] - temps, 0.0)
+        if not np.any(excess > 0):
+            return None
+        return (excess / self.linear_step(which))[:, idx]
+
+    def _correct(self, which, x, temps, history, aux):
+        """Return (corrected (n, 3), model std or None, per-axis inputs, mask) of one sensor.
+
+        A 'linear' sensor beyond its range: the value at the edge plus the slope between the
+        edge and the step inside it (readings and lagged readings clamped to the narrowed
+        range), times the excess in steps, per axis from the axis' input.
+        """
+        model = getattr(self, which)
+        t, oor = self.axis_temperatures(temps, which)
+        hist = self._axis_history(history, model, which)
+        out = model.correct(x, t, aux={**aux, **(hist or {})})
+        std = _model_std(model, t, hist)
+        k = self._linear_beyond(which, temps)
+        if k is not None:
+            step = self.linear_step(which)
+            t_in, _ = self.axis_temperatures(temps, which, inset=step)
+            h_in = self._axis_history(history, model, which, inset=step)
+            inner = model.correct(x, t_in, aux={**aux, **(h_in or {})})
+            out = out + (out - inner) * k
+        return out, std, oor
 
     def apply(self, accel, gyro, temps=None, history=None, filter_age=None):
         """Compensate (n, 3) accel [m/s^2] and gyro [rad/s] at (n, k) thermal inputs.
@@ -158,22 +214,18 @@ class Calibration:
         oor = np.zeros(n, bool)
         a_out, g_out, a_std, g_std = accel, gyro, None, None
         if self.accel is not None:
-            ta, o = self.axis_temperatures(temps, 'accel')
+            a_out, m_std, o = self._correct('accel', accel, temps, history, {})
             oor |= o
-            ha = self._axis_history(history, self.accel, 'accel')
-            a_out = self.accel.correct(accel, ta, aux=ha)
-            a_std = _combine_std(_model_std(self.accel, ta, ha), self.noise_std('accel'), n,
+            a_std = _combine_std(m_std, self.noise_std('accel'), n,
                                  self.restart_std('accel', filter_age))
         if self.gyro is not None:
-            tg, o = self.axis_temperatures(temps, 'gyro')
+            g_out, m_std, o = self._correct('gyro', gyro, temps, history, {'accel': a_out})
             oor |= o
-            hg = self._axis_history(history, self.gyro, 'gyro')
-            g_out = self.gyro.correct(gyro, tg, aux={'accel': a_out, **(hg or {})})
-            g_std = _combine_std(_model_std(self.gyro, tg, hg), self.noise_std('gyro'), n,
+            g_std = _combine_std(m_std, self.noise_std('gyro'), n,
                                  self.restart_std('gyro', filter_age))
         return Compensated(a_out, g_out, oor, a_std, g_std)
 
-    def _axis_history(self, history, model, which):
+    def _axis_history(self, history, model, which, inset=None):
         """Return ``{'history': {key: (n, 3)}}`` for a history-dependent model, else None.
 
         The lagged readings are mapped to axes and clamped like the readings themselves.
@@ -181,7 +233,8 @@ class Calibration:
         keys = getattr(model, 'history_keys', ())
         if not keys or not history or not self.inputs:
             return None
-        out = {k: self.axis_temperatures(history[k], which)[0] for k in keys if k in history}
+        out = {k: self.axis_temperatures(history[k], which, inset)[0]
+               for k in keys if k in history}
         if '_age_s' in history:
             out['_age_s'] = history['_age_s']
         return {'history': out}
@@ -243,7 +296,8 @@ class Calibration:
         """Return the file content without the free-form ``fit`` and ``notes``."""
         units = self.input_units
         d = {
-            'format': FORMAT_SENSOR_RANGE if self.sensor_range else FORMAT,
+            'format': (FORMAT_LINEAR if self.out_of_range not in OUT_OF_RANGE_V1 else
+                       FORMAT_SENSOR_RANGE if self.sensor_range else FORMAT),
             'software': {'name': 'thermal_imu_calib', 'version': self.software_version},
             'created': self.created or _now(),
             'sensor': {'frame_id': self.frame_id},

@@ -11,7 +11,7 @@ A file looks like::
     temperature:
       inputs: [{name: t0, topic: imu/temperature, unit: degC}]
       valid_range: {min: [20.1], max: [41.7], unit: degC}
-      out_of_range: clamp            # or extrapolate
+      out_of_range: clamp            # or extrapolate, linear, linear_gyro (format 3)
       filter: {kind: lag, tau_s: [300.0], unit: s,   # optional (thermal_input)
                restart_spread: {accel: {value: [...], unit: m/s^2}, gyro: ...}}  # optional
     accel: {kind: field_polynomial, temperature_input: [0, 0, 0], parameters: {...}}

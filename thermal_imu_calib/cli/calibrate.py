@@ -10,6 +10,7 @@ import argparse
 
 from ..app import calibrate as app
 from ..app.calibrate import CalibrateSettings
+from ..calibration import OUT_OF_RANGE_POLICIES
 from .checks import UserError
 from ..collection.stationary import DetectorConfig
 from ..estimation.calibrate import model_choices
@@ -40,9 +41,12 @@ def add_calibrate_parser(sub):
                         f'{DEFAULTS.order})')
     p.add_argument('--no-refine', action='store_true', help='skip the joint refinement')
     p.add_argument('--out-of-range', default=DEFAULTS.out_of_range,
-                   choices=('clamp', 'extrapolate'),
-                   help='outside the valid temperature range: hold the edge value (clamp) or '
-                        'evaluate the model (extrapolate); both are counted and flagged')
+                   choices=OUT_OF_RANGE_POLICIES,
+                   help='outside the valid temperature range: hold the edge value (clamp), '
+                        'evaluate the model (extrapolate), continue it from the edge with '
+                        'its slope over the last 1 degC inside (linear), or that for the '
+                        'gyro and clamp for the accelerometer (linear_gyro); all counted '
+                        f'and flagged (default {DEFAULTS.out_of_range})')
     p.add_argument('--range-margin', type=float, default=DEFAULTS.range_margin,
                    metavar='DEGC', help='valid range = collected temperature range widened by '
                                         f'this (default {DEFAULTS.range_margin:g})')

@@ -297,7 +297,7 @@ def offset_refit(cal, which, smp, columns, fmt):
     y = raw - ours @ lin.T
     t = smp.temps[:, i]
     lo, hi = cal.valid_range[i]
-    if cal.out_of_range == 'clamp':
+    if cal.range_policy(which) != 'extrapolate':    # linear: the samples stay inside
         t = np.clip(t, lo, hi)
     design = columns(t)
     coef, *_ = np.linalg.lstsq(design, y, rcond=None)
@@ -320,8 +320,10 @@ def is_identity(m, tol=1e-12):
 
 
 def check_out(cal, which, fmt) -> Optional[str]:
-    """Return a note when out_of_range is 'extrapolate' (the autopilots clamp)."""
-    if cal.out_of_range == 'extrapolate':
-        return (f'{fmt} clamps the temperature to TMIN..TMAX; this calibration extrapolates '
+    """Return a note when ``which`` is not clamped outside its range (the autopilots clamp)."""
+    policy = cal.range_policy(which)
+    if policy != 'clamp':
+        how = 'extrapolates' if policy == 'extrapolate' else 'continues linearly'
+        return (f'{fmt} clamps the temperature to TMIN..TMAX; this calibration {how} '
                 f'outside its valid range ({which})')
     return None

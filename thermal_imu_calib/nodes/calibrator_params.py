@@ -11,7 +11,7 @@ m/s^2, latitude deg, altitude m, margins degC, detector lengths s.
 from . import common, lifelong as lifelong_mode
 from ..app import calibrate as app
 from ..app.calibrate import CalibrateSettings
-from ..calibration import TemperatureInput
+from ..calibration import OUT_OF_RANGE_POLICIES, TemperatureInput
 from ..collection.stationary import DetectorConfig
 from ..estimation import calibrate as estimation
 from ..gravity import resolve_gravity
@@ -100,7 +100,7 @@ def declare(node):
     node.out_of_range = p.declare('out_of_range', DEFAULTS.out_of_range,
                                   'Written into the calibration: what the compensator does '
                                   'outside the collected temperature range.',
-                                  choices=('clamp', 'extrapolate'))
+                                  choices=OUT_OF_RANGE_POLICIES)
     node.gravity = p.declare('gravity', 0.0, 'Local gravity in m/s^2 (9.7..9.9); 0 derives '
                              'it from latitude/altitude (use_latitude) or uses standard '
                              'gravity.', lo=0.0, hi=9.9, validator=check_gravity)
