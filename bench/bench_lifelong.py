@@ -50,6 +50,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
 from thermal_imu_calib.app.calibrate import CalibrateSettings  # noqa: E402
+from thermal_imu_calib.calibration import OUT_OF_RANGE_POLICIES  # noqa: E402
 from thermal_imu_calib.lifelong.feed import Feeder  # noqa: E402
 from thermal_imu_calib.lifelong.gate import ACCEL_SCORES  # noqa: E402
 from thermal_imu_calib.lifelong.hints import HintGate, HintSource  # noqa: E402
@@ -153,14 +154,15 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
              one_sensor_after_alarm=DEFAULT.one_sensor_after_alarm,
              alarm_reference=DEFAULT.alarm_reference, alarm_cut=DEFAULT.alarm_cut,
              accel_score=DEFAULT.accel_score, raw_kept=DEFAULT.raw_kept,
-             refit_on_swap=DEFAULT.refit_on_swap, **overrides):
+             refit_on_swap=DEFAULT.refit_on_swap, out_of_range=None, **overrides):
     m = robot_month(seed, days=days, **overrides)
     spec = m.device.spec
     rate = m.config.imu_rate
     noise_g = np.sqrt(3 * (spec.gyro_noise_density ** 2 * rate + spec.gyro_lsb ** 2 / 12))
     d = os.path.join(work, f'seed{seed}')
     shutil.rmtree(d, ignore_errors=True)
-    settings = CalibrateSettings(latitude=latitude)
+    settings = CalibrateSettings(latitude=latitude, **(
+        {'out_of_range': out_of_range} if out_of_range else {}))
     log = []
 
     def make():
@@ -308,7 +310,7 @@ def month(args):
         r = run_seed(seed, args.days, work, args.latitude, not args.no_ageing,
                      not args.whole_swap, args.alarm_window, args.one_sensor_after_alarm,
                      args.alarm_reference, args.alarm_cut, args.accel_score,
-                     args.raw_kept, args.refit_on_swap)
+                     args.raw_kept, args.refit_on_swap, args.out_of_range)
         rows.append(r)
         ra, kn = r['ratios'], r['knock']
         print(f'seed {seed}: {r["seconds"]:.0f} s, gyro first day '
@@ -940,6 +942,9 @@ def main():
     mo.add_argument('--refit-on-swap', action='store_true',
                     help='a swap puts in use the estimate fitted again on every hold '
                          '(LifelongConfig.refit_on_swap)')
+    mo.add_argument('--out-of-range', choices=OUT_OF_RANGE_POLICIES, default=None,
+                    help='the calibrations\' out-of-range policy (CalibrateSettings.'
+                         'out_of_range; default: its default)')
     mo.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_month.json'))
     re_ = sub.add_parser('real')
     re_.add_argument('--work', default='')
