@@ -32,7 +32,8 @@ class Compensated:
 
     accel: np.ndarray
     gyro: np.ndarray
-    #: (n,) bool, True where a temperature was outside the valid range (clamped or extrapolated)
+    #: (n,) bool, True where a temperature was outside the valid range (clamped, extrapolated
+    #: or continued)
     out_of_range: np.ndarray
     #: (n, 3) 1-sigma accel uncertainty in m/s^2 (model + white noise) or None
     accel_std: Optional[np.ndarray] = None
