@@ -154,15 +154,15 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
              one_sensor_after_alarm=DEFAULT.one_sensor_after_alarm,
              alarm_reference=DEFAULT.alarm_reference, alarm_cut=DEFAULT.alarm_cut,
              accel_score=DEFAULT.accel_score, raw_kept=DEFAULT.raw_kept,
-             refit_on_swap=DEFAULT.refit_on_swap, out_of_range=None, **overrides):
+             refit_on_swap=DEFAULT.refit_on_swap,
+             out_of_range=CalibrateSettings.out_of_range, **overrides):
     m = robot_month(seed, days=days, **overrides)
     spec = m.device.spec
     rate = m.config.imu_rate
     noise_g = np.sqrt(3 * (spec.gyro_noise_density ** 2 * rate + spec.gyro_lsb ** 2 / 12))
     d = os.path.join(work, f'seed{seed}')
     shutil.rmtree(d, ignore_errors=True)
-    settings = CalibrateSettings(latitude=latitude, **(
-        {'out_of_range': out_of_range} if out_of_range else {}))
+    settings = CalibrateSettings(latitude=latitude, out_of_range=out_of_range)
     log = []
 
     def make():
@@ -942,9 +942,10 @@ def main():
     mo.add_argument('--refit-on-swap', action='store_true',
                     help='a swap puts in use the estimate fitted again on every hold '
                          '(LifelongConfig.refit_on_swap)')
-    mo.add_argument('--out-of-range', choices=OUT_OF_RANGE_POLICIES, default=None,
+    mo.add_argument('--out-of-range', choices=OUT_OF_RANGE_POLICIES,
+                    default=CalibrateSettings.out_of_range,
                     help='the calibrations\' out-of-range policy (CalibrateSettings.'
-                         'out_of_range; default: its default)')
+                         'out_of_range)')
     mo.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_month.json'))
     re_ = sub.add_parser('real')
     re_.add_argument('--work', default='')

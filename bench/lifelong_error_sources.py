@@ -11,9 +11,10 @@ the true calibration at that time. Printed:
   of one mounting pose cannot resolve), and the level stops inside the range; each also
   as the systematic part (active minus true) and as its share of the week's squared error;
 * **outside the valid range, all month**: every stop beyond the active's range scored
-  three ways: clamped at the range (``out_of_range: clamp``, the default, as PX4 and
-  ArduPilot do), continued linearly from the edge (the slope of the last 1 degC inside),
-  and the models' own extrapolation (``extrapolate``); gyro error and the accelerometer
+  three ways, each the calibration's own ``out_of_range``: clamped at the range
+  (``clamp``, the default, as PX4 and ArduPilot do), continued linearly from the edge
+  (``linear``: the slope of the last 1 degC inside), and the models' own extrapolation
+  (``extrapolate``); gyro error and the accelerometer
   error about the median of the same calibration's inside stops (the drift), by how far
   outside the stop is.
 
@@ -41,33 +42,11 @@ from thermal_imu_calib.sim.robot_month import DAY, robot_month  # noqa: E402
 POLICIES = ('clamp', 'linear', 'extrapolate')
 #: how far outside (degC) the policies are compared by
 EXCESS_BANDS = ((0.0, 2.0), (2.0, 5.0), (5.0, np.inf))
-EDGE_STEP_DEGC = 1.0
-
-
-def linear_outputs(cal, ch):
-    """Return (accel, gyro) of a stop's chunks, continued linearly beyond the range."""
-    out = []
-    temps = ch['temp'].reshape(len(ch['temp']), -1)
-    for which in ('accel', 'gyro'):
-        vr = cal.sensor_range.get(which, cal.valid_range)
-        edge = np.clip(temps, vr[:, 0], vr[:, 1])
-        inward = np.where(temps > vr[:, 1], -EDGE_STEP_DEGC,
-                          np.where(temps < vr[:, 0], EDGE_STEP_DEGC, 0.0))
-        at_edge = getattr(cal.apply(ch['accel'], ch['gyro'], edge), which)
-        inside = getattr(cal.apply(ch['accel'], ch['gyro'], edge + inward), which)
-        step = inward[:, :1]
-        slope = np.where(step != 0, (inside - at_edge) / np.where(step != 0, step, 1.0), 0.0)
-        out.append(at_edge + slope * (temps - edge)[:, :1])
-    return out[0], out[1]
 
 
 def stop_errors(cal, ch, policy='clamp'):
     """Return the sample-weighted (gyro, accel) error vectors of one stop (rad/s, m/s^2)."""
-    if policy != 'linear':
-        return stop_error(dataclasses.replace(cal, out_of_range=policy), ch)
-    a, g = linear_outputs(cal, ch)
-    w = ch['n'] / ch['n'].sum()
-    return w @ (g - ch['w']), w @ (a - ch['f'])
+    return stop_error(dataclasses.replace(cal, out_of_range=policy), ch)
 
 
 def score_seed(seed, work_seed, days):

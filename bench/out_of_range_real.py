@@ -13,11 +13,12 @@ fitted valid range are scored:
   beyond: the hot end).
 
 Three policies, as ``lifelong_error_sources.py`` scores them on the simulated months:
-clamped at the range (``out_of_range: clamp``), continued linearly from the edge (the slope
-over the last ``EDGE_STEP_DEGC`` inside), and the models' own extrapolation. The sensor is
-static, so the true output is constant: the reference is the compensated output's mean over
-the fitted rows, and the figure is the RMS over 30-s blocks of |block mean - reference|
-(3-vector; gyro mrad/s, accelerometer mm/s^2), by how far beyond the range the block is.
+clamped at the range (``out_of_range: clamp``), continued linearly from the edge
+(``linear``: the slope over the last 1 degC inside), and the models' own extrapolation.
+The sensor is static, so the true output is constant: the reference is the compensated
+output's mean over the fitted rows, and the figure is the RMS over 30-s blocks of
+|block mean - reference| (3-vector; gyro mrad/s, accelerometer mm/s^2), by how far beyond
+the range the block is.
 
     python bench/out_of_range_real.py [--json bench/results/out_of_range_real.json]
 """
@@ -43,7 +44,6 @@ from thermal_imu_calib.estimation.calibrate import (calibrate_windows,  # noqa: 
 from thermal_imu_calib.io.csv_logs import read_tofupilot_chamber  # noqa: E402
 
 POLICIES = ('clamp', 'linear', 'extrapolate')
-EDGE_STEP_DEGC = 1.0
 BLOCK_S = 30.0
 #: how far beyond the range (degC) the policies are compared by, as lifelong_error_sources
 EXCESS_BANDS = ((0.0, 2.0), (2.0, 5.0), (5.0, np.inf))
@@ -54,22 +54,17 @@ HEAT_CUTS_DEGC = (20.0, 35.0, 50.0)
 def policy_outputs(cal, t, imu, temp):
     """Return {policy: (accel, gyro)} of ``cal`` streamed over the log, and the excess (degC).
 
-    Linear: the clamped output plus the slope between the edge and ``EDGE_STEP_DEGC``
-    inside it (the same calibration with its range narrowed by the step), times the excess.
+    Each policy is the calibration's own ``out_of_range`` (``Calibration.apply``); linear:
+    the edge value plus the slope over the last ``LINEAR_STEP_DEGC`` inside, times the
+    excess.
     """
-    def run(c):
-        r = c.stream().apply(t, imu.accel, imu.gyro, temp[:, None])
-        return r.accel, r.gyro
+    out = {}
+    for p in POLICIES:
+        r = dataclasses.replace(cal, out_of_range=p).stream().apply(
+            t, imu.accel, imu.gyro, temp[:, None])
+        out[p] = (r.accel, r.gyro)
     lo, hi = cal.valid_range[0]
-    inner = dataclasses.replace(cal, valid_range=np.array([[lo + EDGE_STEP_DEGC,
-                                                            hi - EDGE_STEP_DEGC]]))
-    out = {'clamp': run(dataclasses.replace(cal, out_of_range='clamp')),
-           'extrapolate': run(dataclasses.replace(cal, out_of_range='extrapolate'))}
-    a_in, g_in = run(dataclasses.replace(inner, out_of_range='clamp'))
     excess = np.where(temp > hi, temp - hi, np.where(temp < lo, lo - temp, 0.0))
-    a_c, g_c = out['clamp']
-    k = (excess / EDGE_STEP_DEGC)[:, None]
-    out['linear'] = (a_c + (a_c - a_in) * k, g_c + (g_c - g_in) * k)
     return out, excess
 
 

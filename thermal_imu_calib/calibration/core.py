@@ -157,19 +157,8 @@ class Calibration:
             temps = np.clip(temps, lo, hi)
         return temps[:, idx], oor
 
-    def _linear_beyond(self, which, temps):
-        """Return (n, 3) excess / step per axis for a 'linear' sensor (0 inside), or None."""
-        if self.range_policy(which) != 'linear' or not self.inputs or not temps.size:
-            return None
-        idx = self.accel_input if which == 'accel' else self.gyro_input
-        vr = self.sensor_range.get(which, self.valid_range)
-        excess = np.maximum(temps - vr[:, 1], 0.0) + np.maximum(vr[:, 0] - temps, 0.0)
-        if not np.any(excess > 0):
-            return None
-        return (excess / self.linear_step(which))[:, idx]
-
     def _correct(self, which, x, temps, history, aux):
-        """Return (corrected (n, 3), model std or None, per-axis inputs, mask) of one sensor.
+        """Return (corrected (n, 3), model std (n, 3) or None, out-of-range mask) of one sensor.
 
         A 'linear' sensor beyond its range: the value at the edge plus the slope between the
         edge and the step inside it (readings and lagged readings clamped to the narrowed
@@ -180,9 +169,12 @@ class Calibration:
         hist = self._axis_history(history, model, which)
         out = model.correct(x, t, aux={**aux, **(hist or {})})
         std = _model_std(model, t, hist)
-        k = self._linear_beyond(which, temps)
-        if k is not None:
+        if self.range_policy(which) == 'linear' and np.any(oor):
+            idx = self.accel_input if which == 'accel' else self.gyro_input
+            vr = self.sensor_range.get(which, self.valid_range)
             step = self.linear_step(which)
+            excess = np.maximum(temps - vr[:, 1], 0.0) + np.maximum(vr[:, 0] - temps, 0.0)
+            k = (excess / step)[:, idx]
             t_in, _ = self.axis_temperatures(temps, which, inset=step)
             h_in = self._axis_history(history, model, which, inset=step)
             inner = model.correct(x, t_in, aux={**aux, **(h_in or {})})
