@@ -93,7 +93,8 @@ def test_clamp_and_extrapolate():
 
 
 def test_linear_continuation_beyond_the_range():
-    """'linear_gyro': the gyro goes on with its slope over the last degC; the accel clamps."""
+    """'linear_gyro': the gyro goes on with its slope over the last degC, no further than the
+    range's width; the accel clamps."""
     rng = np.random.default_rng(5)
     cal = _cal(rng)
     a = np.tile([0.0, 0.0, 9.8], (5, 1))
@@ -115,6 +116,12 @@ def test_linear_continuation_beyond_the_range():
         np.testing.assert_allclose(r.gyro[row], want, rtol=0, atol=1e-15)
     np.testing.assert_array_equal(r.gyro[[0, 3]], clamped.gyro[[0, 3]])
     assert not np.allclose(r.gyro[2], clamped.gyro[2])
+    # no further than the range's width (15..45 degC: 30), then held
+    far = cal.apply(a[:3], g[:3], np.array([[80.0], [90.0], [-40.0]])).gyro
+    slope_hi, slope_lo = gyro_at(45.0) - gyro_at(44.0), gyro_at(15.0) - gyro_at(16.0)
+    np.testing.assert_allclose(far[0], gyro_at(45.0) + slope_hi * 30.0, rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(far[1], far[0])
+    np.testing.assert_allclose(far[2], gyro_at(15.0) + slope_lo * 30.0, rtol=0, atol=1e-15)
     # format 3 (an older reader refuses it instead of clamping); read back, the same output
     text = cal.to_yaml()
     assert 'format: thermal_imu_calib/3' in text and 'out_of_range: linear_gyro' in text

@@ -17,7 +17,8 @@ FORMAT_LINEAR = 'thermal_imu_calib/3'
 FILE_FORMATS = (FORMAT, FORMAT_SENSOR_RANGE, FORMAT_LINEAR)
 #: outside the valid range: 'clamp' holds the edge value (as PX4 and ArduPilot do);
 #: 'extrapolate' evaluates the models there; 'linear' continues each model from the edge
-#: with its slope over the last ``LINEAR_STEP_DEGC`` inside; 'linear_gyro' continues the
+#: with its slope over the last ``LINEAR_STEP_DEGC`` inside, no further than the range's
+#: width (then held); 'linear_gyro' continues the
 #: gyro linearly and clamps the accelerometer
 OUT_OF_RANGE_POLICIES = ('clamp', 'extrapolate', 'linear', 'linear_gyro')
 #: the policies of format 1 and 2 files

@@ -162,7 +162,10 @@ class Calibration:
 
         A 'linear' sensor beyond its range: the value at the edge plus the slope between the
         edge and the step inside it (readings and lagged readings clamped to the narrowed
-        range), times the excess in steps, per axis from the axis' input.
+        range), times the excess in steps, per axis from the axis' input. The excess counts
+        no further than the range's own width: a slope measured over a range W wide says
+        nothing about the sensor more than W beyond it, so beyond that the continued value
+        is held (docs/lifelong.md, seed 38).
         """
         model = getattr(self, which)
         t, oor = self.axis_temperatures(temps, which)
@@ -174,7 +177,7 @@ class Calibration:
             vr = self.sensor_range.get(which, self.valid_range)
             step = self.linear_step(which)
             excess = np.maximum(temps - vr[:, 1], 0.0) + np.maximum(vr[:, 0] - temps, 0.0)
-            k = (excess / step)[:, idx]
+            k = (np.minimum(excess, vr[:, 1] - vr[:, 0]) / step)[:, idx]
             t_in, _ = self.axis_temperatures(temps, which, inset=step)
             h_in = self._axis_history(history, model, which, inset=step)
             inner = model.correct(x, t_in, aux={**aux, **(h_in or {})})

@@ -44,7 +44,8 @@ def add_calibrate_parser(sub):
                    choices=OUT_OF_RANGE_POLICIES,
                    help='outside the valid temperature range: hold the edge value (clamp), '
                         'evaluate the model (extrapolate), continue it from the edge with '
-                        'its slope over the last 1 degC inside (linear), or that for the '
+                        'its slope over the last 1 degC inside, no further than the range\'s '
+                        'width (linear), or that for the '
                         'gyro and clamp for the accelerometer (linear_gyro); all counted '
                         f'and flagged (default {DEFAULTS.out_of_range})')
     p.add_argument('--range-margin', type=float, default=DEFAULTS.range_margin,
