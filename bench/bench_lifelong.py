@@ -155,7 +155,8 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
              alarm_reference=DEFAULT.alarm_reference, alarm_cut=DEFAULT.alarm_cut,
              accel_score=DEFAULT.accel_score, raw_kept=DEFAULT.raw_kept,
              refit_on_swap=DEFAULT.refit_on_swap,
-             out_of_range=CalibrateSettings.out_of_range, **overrides):
+             out_of_range=CalibrateSettings.out_of_range,
+             gyro_g_sensitivity=DEFAULT.gyro_g_sensitivity, **overrides):
     m = robot_month(seed, days=days, **overrides)
     spec = m.device.spec
     rate = m.config.imu_rate
@@ -175,7 +176,8 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
                                               alarm_cut=alarm_cut,
                                               accel_score=accel_score,
                                               raw_kept=raw_kept,
-                                              refit_on_swap=refit_on_swap),
+                                              refit_on_swap=refit_on_swap,
+                                              gyro_g_sensitivity=gyro_g_sensitivity),
                         log=lambda level, text: log.append((level, text)))
     life = make()
     feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
@@ -310,7 +312,8 @@ def month(args):
         r = run_seed(seed, args.days, work, args.latitude, not args.no_ageing,
                      not args.whole_swap, args.alarm_window, args.one_sensor_after_alarm,
                      args.alarm_reference, args.alarm_cut, args.accel_score,
-                     args.raw_kept, args.refit_on_swap, args.out_of_range)
+                     args.raw_kept, args.refit_on_swap, args.out_of_range,
+                     args.gyro_g_sensitivity)
         rows.append(r)
         ra, kn = r['ratios'], r['knock']
         print(f'seed {seed}: {r["seconds"]:.0f} s, gyro first day '
@@ -946,6 +949,9 @@ def main():
                     default=CalibrateSettings.out_of_range,
                     help='the calibrations\' out-of-range policy (CalibrateSettings.'
                          'out_of_range)')
+    mo.add_argument('--gyro-g-sensitivity', action='store_true',
+                    help='the gyro also takes the g-sensitivity the stops off the mounting '
+                         'pose support, held out (LifelongConfig.gyro_g_sensitivity)')
     mo.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_month.json'))
     re_ = sub.add_parser('real')
     re_.add_argument('--work', default='')

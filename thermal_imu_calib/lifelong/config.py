@@ -90,6 +90,11 @@ class LifelongConfig:
     #: held-out ones too (``variants.refit``); False: the estimate the gate judged, whose
     #: fit left out the newest holds, often the very temperatures that made it due
     refit_on_swap: bool = False
+    #: the gyro also takes the g-sensitivity learned from the holds off the mounting pose
+    #: (slopes), paired with level holds near in time, when the newest of them, held out,
+    #: support it (``g_sensitivity``). Off until judged on months it was not built from
+    #: (docs/lifelong.md)
+    gyro_g_sensitivity: bool = False
     store: StoreConfig = field(default_factory=StoreConfig)
 
     def __post_init__(self):

@@ -44,6 +44,7 @@ store) and applies what they return; the pieces are ``trigger``, ``gate``, ``com
 
 import os
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -51,7 +52,7 @@ from ..app.calibrate import calibrate_collected
 from ..estimation.calibrate import CalibrationRefused
 from ..io.output import write_atomic
 from ..collection.collected import Collected
-from . import alarm, compose, files, gate, knock_step, trigger, variants
+from . import alarm, compose, files, g_sensitivity, gate, knock_step, trigger, variants
 from ..collection.segments import Windows
 from .archive import ArchiveFull, archive_collection, MAX_ARCHIVES  # noqa: F401 (API)
 from .config import (ALARM_CUTS, ALARM_REFERENCES, ALARM_WINDOWS,  # noqa: F401 (API)
@@ -89,6 +90,9 @@ class Lifelong:
         files.load_state(self._path('state.json'), self.state, self.log)
         #: [alarm.Tracked]: the newest holds the change alarm watches
         self.track = []
+        #: (windows, main-pose mask) of the estimate running, for the gyro g-sensitivity
+        self._pool = None
+        self._coupling_notes = []
 
     # ------------------------------------------------------------------ files
     def _path(self, name):
@@ -194,6 +198,8 @@ class Lifelong:
         now = float(self.store.recent.t1.max()) if len(self.store.recent) else 0.0
         everything, times = self.store.fit_windows(now, exclude=held)
         in_pose = main_pose_mask(everything, self.config.pose_deg)
+        self._pool = (everything, in_pose) if c.gyro_g_sensitivity else None
+        self._coupling_notes = []
         fit, times = everything.select(in_pose), times[in_pose]
         holdout = self.store.holds(held)
         holdout_pose = main_pose(holdout, self.config.pose_deg, reference=pose_of(fit))
@@ -239,6 +245,8 @@ class Lifelong:
         if swap:
             swap = not self._unexplained(s_new, decision)
         decision['figures'] = fig
+        if self._coupling_notes:
+            decision['g_sensitivity'] = self._coupling_notes[-1]
         decision['model'] = new.accel.kind if new.accel is not None else 'gyro only'
         decision['summary'] = result.summary
         versus = 'the active calibration' if self.active is not None else 'the raw output'
@@ -326,9 +334,21 @@ class Lifelong:
         self.state['fit_span'] = trigger.fit_span(fit, self.k)
 
     def _calibrate(self, windows):
-        """Return ``calibrate_collected``'s result on these windows (the CLI's calibrate)."""
+        """Return ``calibrate_collected``'s result on these windows (the CLI's calibrate).
+
+        With ``LifelongConfig.gyro_g_sensitivity`` the gyro also takes the g-sensitivity
+        the holds off the mounting pose support, held out (``g_sensitivity``).
+        """
         collected = Collected(windows, self.frame_id, 0, 0.0, list(self.topics), [])
-        return calibrate_collected(self.settings, [collected])
+        result = calibrate_collected(self.settings, [collected])
+        if self._pool is None:
+            return result
+        everything, in_pose = self._pool
+        coupling = g_sensitivity.learn(result.calibration, everything, in_pose,
+                                       result.calibration.gravity, self.latitude)
+        cal, note = g_sensitivity.attach(result.calibration, coupling)
+        self._coupling_notes.append(note)
+        return replace(result, calibration=cal, summary=result.summary + '; ' + note)
 
     def _finish(self, decision):
         self.state['last_decision'] = decision['text']
