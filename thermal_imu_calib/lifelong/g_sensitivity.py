@@ -34,7 +34,7 @@ import numpy as np
 from scipy.special import ndtri
 
 from ..models.whole_unit import WholeUnitGyroModel
-from ..selection.paired import ALPHA, MIN_HELDOUT, paired_test
+from ..selection.paired import ALPHA, hold_positions, MIN_HELDOUT, paired_test
 from . import gate
 
 #: main-pose holds within this of a hold off the pose are its level reference (s)
@@ -61,7 +61,8 @@ class Coupling:
 
 def hold_pose(windows, in_pose, ids):
     """Return (h,) whether each hold of ``ids`` has a window in the main pose (``in_pose``)."""
-    return np.array([bool(np.any(in_pose[windows.hold == i])) for i in ids], bool)
+    pos = hold_positions(ids, windows.hold)
+    return np.bincount(pos, weights=np.asarray(in_pose, float), minlength=len(ids)) > 0
 
 
 def pairs(err, main, pair_s=PAIR_S):
