@@ -13,8 +13,8 @@ the true calibration at that time. Printed:
 * **outside the valid range, all month**: every stop beyond the active's range scored
   three ways, each the calibration's own ``out_of_range``: clamped at the range
   (``clamp``, the default, as PX4 and ArduPilot do), continued linearly from the edge
-  (``linear``: the slope of the last 1 degC inside), and the models' own extrapolation
-  (``extrapolate``); gyro error and the accelerometer
+  (``linear``: the slope of the last 1 degC inside, no further than the range's width),
+  and the models' own extrapolation (``extrapolate``); gyro error and the accelerometer
   error about the median of the same calibration's inside stops (the drift), by how far
   outside the stop is.
 

@@ -14,7 +14,8 @@ fitted valid range are scored:
 
 Three policies, as ``lifelong_error_sources.py`` scores them on the simulated months:
 clamped at the range (``out_of_range: clamp``), continued linearly from the edge
-(``linear``: the slope over the last 1 degC inside), and the models' own extrapolation.
+(``linear``: the slope over the last 1 degC inside, no further than the range's width),
+and the models' own extrapolation.
 The sensor is static, so the true output is constant: the reference is the compensated
 output's mean over the fitted rows, and the figure is the RMS over 30-s blocks of
 |block mean - reference| (3-vector; gyro mrad/s, accelerometer mm/s^2), by how far beyond
