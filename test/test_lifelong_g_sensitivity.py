@@ -112,3 +112,25 @@ def test_too_few_slopes_say_how_many_were_found():
     cal, in_pose = level_fit(win)
     coupling = g_sensitivity.learn(cal, win, in_pose, G0, LAT)
     assert not coupling.used and 'not fitted' in coupling.text and 'needed' in coupling.text
+
+
+def test_the_loop_logs_the_g_sensitivity_with_each_estimate(tmp_path):
+    """With the option on, every judged estimate's logged text says what the stage found."""
+    from thermal_imu_calib.app.calibrate import CalibrateSettings
+    from thermal_imu_calib.lifelong.config import LifelongConfig
+    from thermal_imu_calib.lifelong.feed import Feeder
+    from thermal_imu_calib.lifelong.hints import HintGate, HintSource
+    from thermal_imu_calib.lifelong.manager import Lifelong
+    from thermal_imu_calib.sim.robot_month import robot_month
+    m = robot_month(3, days=1.5)
+    life = Lifelong(str(tmp_path / 'life'), CalibrateSettings(latitude=LAT), 1,
+                    ['/imu/temperature'], 'imu_link',
+                    config=LifelongConfig(gyro_g_sensitivity=True))
+    feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
+    for seg in m.segments():
+        feeder.push(seg.imu, [seg.temperature], [('cmd_vel', t, s) for t, s in seg.hints])
+    judged = [d for d in life.decisions() if d['action'] in ('swap', 'keep')]
+    assert judged, life.decisions()
+    for d in judged:
+        assert d['g_sensitivity'].startswith('g-sensitivity ')
+        assert d['g_sensitivity'] in d['text']

@@ -253,6 +253,8 @@ class Lifelong:
         text = gate.describe(fig) + decision.get('unexplained', '')
         if 'kept_history' in decision:
             text += '; ' + decision['kept_history']['text']
+        if 'g_sensitivity' in decision:
+            text += '; ' + decision['g_sensitivity']
         if swap:
             if c.refit_on_swap:
                 new, fitted = variants.refit(self._calibrate, self.store, c, self.active, new,
