@@ -32,6 +32,7 @@ sys.path.insert(0, HERE)
 
 from bench_lifelong import (  # noqa: E402
     active_index, registry_timeline, scored_stops, stop_error)
+from lifelong_error_sources import rms  # noqa: E402
 from thermal_imu_calib.collection.segments import Windows  # noqa: E402
 from thermal_imu_calib.lifelong import g_sensitivity  # noqa: E402
 from thermal_imu_calib.lifelong.config import LifelongConfig  # noqa: E402
@@ -49,11 +50,6 @@ def stop_windows(rows):
                              np.zeros((m, 3)), np.zeros((m, 3)), ch['temp'],
                              np.zeros((m, ch['temp'].shape[1]))))
     return Windows.concat(parts)
-
-
-def rms(vectors):
-    v = np.asarray(vectors, float).reshape(-1, 3)
-    return float(np.sqrt(np.mean(np.sum(v ** 2, 1)))) * 1e3 if len(v) else float('nan')
 
 
 def score_seed(seed, work_seed, days, latitude, pool_days, pose_deg):
@@ -102,7 +98,8 @@ def main():
     for spec in args.runs:
         seed, d = spec.split(':', 1)
         out, notes = score_seed(int(seed), d, args.days, args.latitude, args.pool_days, pose)
-        r = {k: {'stops': len(v[0]), 'without_mrad_s': rms(v[0]), 'with_mrad_s': rms(v[1])}
+        r = {k: {'stops': len(v[0]), 'without_mrad_s': rms(v[0]) * 1e3,
+                 'with_mrad_s': rms(v[1]) * 1e3}
              for k, v in out.items()}
         r['activations_scored'] = len(notes)
         r['activations_coupled'] = sum(n['used'] for n in notes)
@@ -115,8 +112,8 @@ def main():
             f'{k} {r[k]["stops"]}: {r[k]["without_mrad_s"]:.4f} / {r[k]["with_mrad_s"]:.4f}'
             for k in ('all', 'slope', 'level')) + f'; coupled {r["activations_coupled"]} of '
             f'{r["activations_scored"]} activations', flush=True)
-    result['pooled'] = {k: {'stops': len(v[0]), 'without_mrad_s': rms(v[0]),
-                            'with_mrad_s': rms(v[1])} for k, v in pooled.items()}
+    result['pooled'] = {k: {'stops': len(v[0]), 'without_mrad_s': rms(v[0]) * 1e3,
+                            'with_mrad_s': rms(v[1]) * 1e3} for k, v in pooled.items()}
     print('pooled: ' + '; '.join(f'{k} {v["stops"]}: {v["without_mrad_s"]:.4f} / '
                                  f'{v["with_mrad_s"]:.4f}'
                                  for k, v in result['pooled'].items()))

@@ -92,7 +92,6 @@ class Lifelong:
         self.track = []
         #: (windows, main-pose mask) of the estimate running, for the gyro g-sensitivity
         self._pool = None
-        self._coupling_notes = []
 
     # ------------------------------------------------------------------ files
     def _path(self, name):
@@ -199,7 +198,6 @@ class Lifelong:
         everything, times = self.store.fit_windows(now, exclude=held)
         in_pose = main_pose_mask(everything, self.config.pose_deg)
         self._pool = (everything, in_pose) if c.gyro_g_sensitivity else None
-        self._coupling_notes = []
         fit, times = everything.select(in_pose), times[in_pose]
         holdout = self.store.holds(held)
         holdout_pose = main_pose(holdout, self.config.pose_deg, reference=pose_of(fit))
@@ -245,8 +243,8 @@ class Lifelong:
         if swap:
             swap = not self._unexplained(s_new, decision)
         decision['figures'] = fig
-        if self._coupling_notes:
-            decision['g_sensitivity'] = self._coupling_notes[-1]
+        if 'g_sensitivity' in result.report:
+            decision['g_sensitivity'] = result.report['g_sensitivity']
         decision['model'] = new.accel.kind if new.accel is not None else 'gyro only'
         decision['summary'] = result.summary
         versus = 'the active calibration' if self.active is not None else 'the raw output'
@@ -349,8 +347,8 @@ class Lifelong:
         coupling = g_sensitivity.learn(result.calibration, everything, in_pose,
                                        result.calibration.gravity, self.latitude)
         cal, note = g_sensitivity.attach(result.calibration, coupling)
-        self._coupling_notes.append(note)
-        return replace(result, calibration=cal, summary=result.summary + '; ' + note)
+        return replace(result, calibration=cal, summary=result.summary + '; ' + note,
+                       report={**result.report, 'g_sensitivity': note})
 
     def _finish(self, decision):
         self.state['last_decision'] = decision['text']
