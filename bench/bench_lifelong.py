@@ -51,6 +51,7 @@ sys.path.insert(0, os.path.dirname(HERE))
 
 from thermal_imu_calib.app.calibrate import CalibrateSettings  # noqa: E402
 from thermal_imu_calib.calibration import OUT_OF_RANGE_POLICIES  # noqa: E402
+from thermal_imu_calib.lifelong.config import GYRO_CONTINUATIONS  # noqa: E402
 from thermal_imu_calib.lifelong.feed import Feeder  # noqa: E402
 from thermal_imu_calib.lifelong.gate import ACCEL_SCORES  # noqa: E402
 from thermal_imu_calib.lifelong.hints import HintGate, HintSource  # noqa: E402
@@ -156,7 +157,8 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
              accel_score=DEFAULT.accel_score, raw_kept=DEFAULT.raw_kept,
              refit_on_swap=DEFAULT.refit_on_swap,
              out_of_range=CalibrateSettings.out_of_range,
-             gyro_g_sensitivity=DEFAULT.gyro_g_sensitivity, **overrides):
+             gyro_g_sensitivity=DEFAULT.gyro_g_sensitivity,
+             gyro_continuation=DEFAULT.gyro_continuation, **overrides):
     m = robot_month(seed, days=days, **overrides)
     spec = m.device.spec
     rate = m.config.imu_rate
@@ -177,7 +179,8 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
                                               accel_score=accel_score,
                                               raw_kept=raw_kept,
                                               refit_on_swap=refit_on_swap,
-                                              gyro_g_sensitivity=gyro_g_sensitivity),
+                                              gyro_g_sensitivity=gyro_g_sensitivity,
+                                              gyro_continuation=gyro_continuation),
                         log=lambda level, text: log.append((level, text)))
     life = make()
     feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
@@ -313,7 +316,7 @@ def month(args):
                      not args.whole_swap, args.alarm_window, args.one_sensor_after_alarm,
                      args.alarm_reference, args.alarm_cut, args.accel_score,
                      args.raw_kept, args.refit_on_swap, args.out_of_range,
-                     args.gyro_g_sensitivity)
+                     args.gyro_g_sensitivity, args.gyro_continuation)
         rows.append(r)
         ra, kn = r['ratios'], r['knock']
         print(f'seed {seed}: {r["seconds"]:.0f} s, gyro first day '
@@ -952,6 +955,11 @@ def main():
     mo.add_argument('--gyro-g-sensitivity', action='store_true',
                     help='the gyro also takes the g-sensitivity the stops off the mounting '
                          'pose support, held out (LifelongConfig.gyro_g_sensitivity)')
+    mo.add_argument('--gyro-continuation', choices=GYRO_CONTINUATIONS,
+                    default=DEFAULT.gyro_continuation,
+                    help='the gyro beyond its range: off (the calibrate policy) or history '
+                         '(continued when the holds outside earlier ranges support it; '
+                         'LifelongConfig.gyro_continuation)')
     mo.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_month.json'))
     re_ = sub.add_parser('real')
     re_.add_argument('--work', default='')

@@ -10,9 +10,10 @@ estimate and keeps the other from the active one.
 
 Two calibrations compose only when they read the same thermal inputs the same way: the
 same inputs (topic and unit), the same temperature filter (none, or the same lags), the
-same axis-to-input mapping per sensor and the same gravity and out-of-range policy.
-Each model keeps its own valid range (``Calibration.sensor_range``); ``valid_range`` spans
-both. No ROS import.
+same axis-to-input mapping per sensor and the same gravity. Each model keeps its own
+policy beyond its range when one ``out_of_range`` can say both (``composed_policy``: a
+clamped accelerometer with a linearly continued gyro is 'linear_gyro'), and its own
+valid range (``Calibration.sensor_range``); ``valid_range`` spans both. No ROS import.
 """
 
 from dataclasses import replace
@@ -51,10 +52,24 @@ def why_not(a, b, missing=False):
         return 'their temperature filters (lags) differ'
     if list(a.accel_input) != list(b.accel_input) or list(a.gyro_input) != list(b.gyro_input):
         return 'their axis-to-input mappings differ'
-    if a.out_of_range != b.out_of_range or not np.isclose(a.gravity, b.gravity, rtol=0,
-                                                          atol=1e-9):
+    if composed_policy(a, b) is None or composed_policy(b, a) is None \
+            or not np.isclose(a.gravity, b.gravity, rtol=0, atol=1e-9):
         return 'their gravity or out-of-range policy differ'
     return ''
+
+
+#: (accel policy, gyro policy) -> the one ``Calibration.out_of_range`` that says both
+POLICIES = {('clamp', 'clamp'): 'clamp', ('clamp', 'linear'): 'linear_gyro',
+            ('linear', 'linear'): 'linear', ('extrapolate', 'extrapolate'): 'extrapolate'}
+
+
+def composed_policy(accel_from, gyro_from):
+    """Return the ``out_of_range`` of ``accel_from``'s accel with ``gyro_from``'s gyro.
+
+    Each sensor keeps its source's policy beyond its range (``range_policy``); None when no
+    single policy says both (e.g. a linear accelerometer with a clamped gyro).
+    """
+    return POLICIES.get((accel_from.range_policy('accel'), gyro_from.range_policy('gyro')))
 
 
 def own_range(cal, which):
@@ -111,7 +126,7 @@ def compose(accel_from, gyro_from, note='', missing=False):
                  f'model of {gyro_from.id}' + (f' ({note})' if note else ''))
     return Calibration(
         accel=accel_from.accel, gyro=gyro_from.gyro, inputs=list(accel_from.inputs),
-        valid_range=valid, out_of_range=accel_from.out_of_range,
+        valid_range=valid, out_of_range=composed_policy(accel_from, gyro_from),
         accel_input=list(accel_from.accel_input), gyro_input=list(gyro_from.gyro_input),
         frame_id=accel_from.frame_id or gyro_from.frame_id, gravity=accel_from.gravity,
         gravity_source=accel_from.gravity_source,

@@ -95,6 +95,12 @@ class LifelongConfig:
     #: support it (``g_sensitivity``). Off until judged on months it was not built from
     #: (docs/lifelong.md)
     gyro_g_sensitivity: bool = False
+    #: beyond its valid range the gyro of a new estimate: 'off', as the calibrate settings
+    #: say (``out_of_range``, clamp by default); 'history', continued linearly when the
+    #: holds outside the earlier active calibrations' ranges, held out, say continuing
+    #: beats clamping, else clamped (``continuation``). Off until judged on months it was
+    #: not built from (docs/lifelong.md)
+    gyro_continuation: str = 'off'
     store: StoreConfig = field(default_factory=StoreConfig)
 
     def __post_init__(self):
@@ -102,7 +108,8 @@ class LifelongConfig:
         for name, allowed in (('alarm_window', ALARM_WINDOWS),
                               ('alarm_reference', ALARM_REFERENCES),
                               ('alarm_cut', ALARM_CUTS),
-                              ('accel_score', gate.ACCEL_SCORES)):
+                              ('accel_score', gate.ACCEL_SCORES),
+                              ('gyro_continuation', GYRO_CONTINUATIONS)):
             if getattr(self, name) not in allowed:
                 raise ValueError(f'LifelongConfig.{name} {getattr(self, name)!r} is not one '
                                  f'of {", ".join(allowed)}; give one of them')
@@ -125,3 +132,5 @@ class LifelongConfig:
 ALARM_WINDOWS = ('common', 'sensor')
 ALARM_REFERENCES = ('all', 'explained')
 ALARM_CUTS = ('all', 'sensor', 'shift')
+#: ``LifelongConfig.gyro_continuation``
+GYRO_CONTINUATIONS = ('off', 'history')

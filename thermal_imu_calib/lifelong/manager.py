@@ -52,7 +52,8 @@ from ..app.calibrate import calibrate_collected
 from ..estimation.calibrate import CalibrationRefused
 from ..io.output import write_atomic
 from ..collection.collected import Collected
-from . import alarm, compose, files, g_sensitivity, gate, knock_step, trigger, variants
+from . import alarm, compose, continuation, files, g_sensitivity, gate, knock_step, trigger, \
+    variants
 from ..collection.segments import Windows
 from .archive import ArchiveFull, archive_collection, MAX_ARCHIVES  # noqa: F401 (API)
 from .config import (ALARM_CUTS, ALARM_REFERENCES, ALARM_WINDOWS,  # noqa: F401 (API)
@@ -157,6 +158,8 @@ class Lifelong:
         """Score new holds with the active calibration; on a change alarm, cut the store."""
         cal, s, c = self.active, self.state, self.config
         e = gate.hold_errors(cal, windows, cal.gravity, self.latitude)
+        if c.gyro_continuation == 'history' and not s.get('alarm_pending'):
+            continuation.add(s, continuation.rows(cal, windows, cal.gravity, self.latitude))
         missed = alarm.new_misses(e, s, c)
         if missed:
             s['missed'] = (s.get('missed') or []) + missed
@@ -173,6 +176,7 @@ class Lifelong:
             decision, keep = alarm.alarm_decision(out, t_cut, t_now, c, moved)
             s['alarms'] += 1
             s['alarm_pending'] = True
+            continuation.cut(s, t_cut)
             s['alarm_shifted'] = moved is not None
             self.track = []
             if moved is None:
@@ -243,16 +247,18 @@ class Lifelong:
         if swap:
             swap = not self._unexplained(s_new, decision)
         decision['figures'] = fig
-        if 'g_sensitivity' in result.report:
-            decision['g_sensitivity'] = result.report['g_sensitivity']
+        for key in ('g_sensitivity', 'continuation'):
+            if key in result.report:
+                decision[key] = result.report[key]
         decision['model'] = new.accel.kind if new.accel is not None else 'gyro only'
         decision['summary'] = result.summary
         versus = 'the active calibration' if self.active is not None else 'the raw output'
         text = gate.describe(fig) + decision.get('unexplained', '')
         if 'kept_history' in decision:
             text += '; ' + decision['kept_history']['text']
-        if 'g_sensitivity' in decision:
-            text += '; ' + decision['g_sensitivity']
+        for key in ('g_sensitivity', 'continuation'):
+            if key in decision:
+                text += '; ' + decision[key]
         if swap:
             if c.refit_on_swap:
                 new, fitted = variants.refit(self._calibrate, self.store, c, self.active, new,
@@ -337,18 +343,28 @@ class Lifelong:
         """Return ``calibrate_collected``'s result on these windows (the CLI's calibrate).
 
         With ``LifelongConfig.gyro_g_sensitivity`` the gyro also takes the g-sensitivity
-        the holds off the mounting pose support, held out (``g_sensitivity``).
+        the holds off the mounting pose support, held out (``g_sensitivity``); with
+        ``gyro_continuation`` 'history' its policy beyond the range is the one the holds
+        outside the earlier active calibrations' ranges support (``continuation``).
         """
         collected = Collected(windows, self.frame_id, 0, 0.0, list(self.topics), [])
         result = calibrate_collected(self.settings, [collected])
-        if self._pool is None:
-            return result
-        everything, in_pose = self._pool
-        coupling = g_sensitivity.learn(result.calibration, everything, in_pose,
-                                       result.calibration.gravity, self.latitude)
-        cal, note = g_sensitivity.attach(result.calibration, coupling)
-        return replace(result, calibration=cal, summary=result.summary + '; ' + note,
-                       report={**result.report, 'g_sensitivity': note})
+        if self._pool is not None:
+            everything, in_pose = self._pool
+            coupling = g_sensitivity.learn(result.calibration, everything, in_pose,
+                                           result.calibration.gravity, self.latitude)
+            cal, note = g_sensitivity.attach(result.calibration, coupling)
+            result = replace(result, calibration=cal, summary=result.summary + '; ' + note,
+                             report={**result.report, 'g_sensitivity': note})
+        if self.config.gyro_continuation == 'history':
+            cal, note = continuation.choose(result.calibration,
+                                            self.state.get('continuation') or [],
+                                            self.config.swap_sigmas)
+            if note:
+                result = replace(result, calibration=cal,
+                                 summary=result.summary + '; ' + note,
+                                 report={**result.report, 'continuation': note})
+        return result
 
     def _finish(self, decision):
         self.state['last_decision'] = decision['text']

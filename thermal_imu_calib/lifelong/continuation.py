@@ -1,0 +1,105 @@
+"""The gyro beyond its valid range: continued linearly only where the loop's history says so.
+
+A robot's first calibrations span a few degC; the next days' stops often lie outside that
+range. Clamped (the package's default), the gyro keeps the edge value there; continued
+linearly (``out_of_range: linear_gyro``, the edge slope, capped at the range's width) it
+follows the thermal trend, when the edge slope is right. On 13 simulated months seen while
+building this, the continuation was better after the first day on 12, and on one month
+(seed 43, a hysteresis gyro fitted over 3 degC) it was far worse (docs/lifelong.md).
+So the loop decides it from its own held-out evidence:
+
+* **Evidence.** Each new hold outside the *active* calibration's gyro range (a hold the
+  active calibration never saw) is scored twice: with the active gyro clamped and
+  continued. The row (time s, clamped error, continued error, standard error; rad/s,
+  ``gate.hold_errors``) is kept in the loop's state; rows after a change alarm's cut are
+  dropped (the sensor changed, not the thermal trend).
+* **Verdict.** The swap gate's own gyro rule on all rows: the continued RMS error is lower
+  by more than the margin (the larger of the noise and ``swap_sigmas`` times the standard
+  error of the paired difference). Then every new estimate continues its gyro linearly;
+  otherwise it clamps. With no rows (the first calibrations) it clamps: the standard
+  behaviour is the floor.
+
+Only when the calibrate settings' policy is 'clamp' (the default) or 'linear_gyro'; any
+other policy a user chose is left alone. ``LifelongConfig.gyro_continuation``. No ROS
+import.
+"""
+
+from dataclasses import replace
+
+import numpy as np
+
+from . import gate
+
+#: the policies this rule chooses between (``Calibration.out_of_range``)
+CHOICES = ('clamp', 'linear_gyro')
+#: most evidence rows kept, newest last (a memory bound: weeks of stops beyond the range)
+MAX_ROWS = 2000
+
+
+def outside_holds(cal, windows):
+    """Return the hold ids of ``windows`` with a window outside ``cal``'s gyro range."""
+    if cal is None or cal.gyro is None or not cal.inputs or not len(windows) \
+            or not windows.n_inputs:
+        return np.zeros(0, int)
+    temps = windows.temp
+    if cal.temperature_filter is not None:
+        temps = cal.temperature_filter.window_temperatures(windows)
+    _, oor = cal.axis_temperatures(temps, 'gyro')
+    return np.unique(windows.hold[oor])
+
+
+def rows(cal, windows, gravity, latitude=None):
+    """Return [[t s, clamped error, continued error, standard error]] (rad/s), one per hold.
+
+    Holds of ``windows`` outside ``cal``'s gyro range only; empty when ``cal``'s policy is
+    not one of ``CHOICES``.
+    """
+    if cal is None or cal.out_of_range not in CHOICES:
+        return []
+    ids = outside_holds(cal, windows)
+    if not len(ids):
+        return []
+    sub = windows.select(np.isin(windows.hold, ids))
+    clamp = gate.hold_errors(replace(cal, out_of_range='clamp'), sub, gravity, latitude)
+    cont = gate.hold_errors(replace(cal, out_of_range='linear_gyro'), sub, gravity, latitude)
+    return [[float(t), float(a), float(b), float(s)] for t, a, b, s in
+            zip(clamp['t'], np.abs(clamp['gyro']), np.abs(cont['gyro']), clamp['se_gyro'])]
+
+
+def add(state, new_rows):
+    """Append rows to ``state['continuation']`` (created), keeping the newest ``MAX_ROWS``."""
+    kept = (state.get('continuation') or []) + list(new_rows)
+    state['continuation'] = kept[-MAX_ROWS:]
+
+
+def cut(state, t_cut):
+    """Drop the rows of holds that end at or after ``t_cut`` (s; a change alarm's cut)."""
+    state['continuation'] = [r for r in state.get('continuation') or [] if r[0] < t_cut]
+
+
+def verdict(evidence, sigmas):
+    """Return (continue: bool, text) from evidence rows by the swap gate's gyro rule."""
+    if len(evidence) < 2:
+        return False, (f'gyro clamped beyond its range: {len(evidence)} hold'
+                       f'{"" if len(evidence) == 1 else "s"} outside the earlier active '
+                       'calibrations\' ranges so far, 2 needed to judge a continuation')
+    r = np.asarray(evidence, float)
+    clamp, cont, se = r[:, 1], r[:, 2], r[:, 3]
+    paired = clamp - cont
+    margin = max(gate.rms(se), sigmas * float(np.std(paired, ddof=1) / np.sqrt(len(r))))
+    gain = gate.rms(clamp) - gate.rms(cont)
+    scale = np.degrees(1.0) * 1e3
+    figures = (f'on {len(r)} holds outside the earlier active calibrations\' ranges, '
+               f'clamped {gate.rms(clamp) * scale:.3g} vs continued '
+               f'{gate.rms(cont) * scale:.3g} mdeg/s (margin {margin * scale:.2g})')
+    if gain > margin:
+        return True, 'gyro continued linearly beyond its range: ' + figures
+    return False, 'gyro clamped beyond its range: ' + figures
+
+
+def choose(cal, evidence, sigmas):
+    """Return (calibration with the chosen gyro policy, text); others' policies untouched."""
+    if cal.out_of_range not in CHOICES or cal.gyro is None:
+        return cal, ''
+    go, text = verdict(evidence, sigmas)
+    return replace(cal, out_of_range='linear_gyro' if go else 'clamp'), text
