@@ -952,9 +952,11 @@ def main():
                     default=CalibrateSettings.out_of_range,
                     help='the calibrations\' out-of-range policy (CalibrateSettings.'
                          'out_of_range)')
-    mo.add_argument('--gyro-g-sensitivity', action='store_true',
+    mo.add_argument('--gyro-g-sensitivity', action=argparse.BooleanOptionalAction,
+                    default=DEFAULT.gyro_g_sensitivity,
                     help='the gyro also takes the g-sensitivity the stops off the mounting '
-                         'pose support, held out (LifelongConfig.gyro_g_sensitivity)')
+                         'pose support, held out (LifelongConfig.gyro_g_sensitivity; '
+                         'default: the package\'s)')
     mo.add_argument('--gyro-continuation', choices=GYRO_CONTINUATIONS,
                     default=DEFAULT.gyro_continuation,
                     help='the gyro beyond its range: off (the calibrate policy) or history '
