@@ -1,0 +1,86 @@
+"""After the fact: how far the accelerometer's constant moves from one activation to the next.
+
+For finished ``bench_lifelong.py month`` runs (``SEED:WORK_SEED_DIR``), every scored stop
+after the first day is given to the calibration active then (the registry is the
+timeline), and its accelerometer error against the true specific force (sample-weighted
+mean, m/s^2) is taken. Per activation with at least 5 stops: the median error vector.
+Between consecutive such activations: the step of that median, in mm/s^2, per axis and
+as a length. In one mounting pose the horizontal constant is not observable (the floor's
+tilt from stop to stop and the mount's tilt look the same) and the swap gate scores
+|mean accel| about its median, so a swap can move the output's constant without any held-out
+figure seeing it; the user sees it as a step in the level.
+
+    python bench/lifelong_accel_steps.py 39:/tmp/m39/d39/seed39 [...] \\
+        [--output bench/results/lifelong_accel_steps.json]
+"""
+
+import argparse
+import json
+import os
+import sys
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.dirname(HERE))
+sys.path.insert(0, HERE)
+
+from bench_lifelong import active_index, registry_timeline, scored_stops  # noqa: E402
+from thermal_imu_calib.sim.robot_month import DAY, robot_month  # noqa: E402
+
+MIN_STOPS = 5
+
+
+def steps(seed, work_seed, days):
+    """Return {'steps': [{day, step_mm_s2 (3,), length}], ...} of one month."""
+    m = robot_month(seed, days=days)
+    acts, cals = registry_timeline(work_seed, m.start_ns)
+    by = {}
+    for seg, ch in scored_stops(m, 1.0 * DAY):
+        i = active_index(acts, seg.stop.t0)
+        if i < 0:
+            continue
+        w = ch['n'] / ch['n'].sum()
+        by.setdefault(i, []).append(
+            w @ (cals[i].apply(ch['accel'], ch['gyro'], ch['temp']).accel - ch['f']))
+    keep = [i for i in sorted(by) if len(by[i]) >= MIN_STOPS]
+    med = {i: np.median(np.array(by[i]), 0) for i in keep}
+    out = []
+    for a, b in zip(keep, keep[1:]):
+        d = (med[b] - med[a]) * 1e3
+        out.append({'day': float(acts[b] / DAY), 'step_mm_s2': [float(x) for x in d],
+                    'length_mm_s2': float(np.linalg.norm(d))})
+    length = np.array([s['length_mm_s2'] for s in out])
+    return {'seed': seed, 'activations_scored': len(keep), 'steps': out,
+            'median_mm_s2': float(np.median(length)) if len(length) else None,
+            'max_mm_s2': float(length.max()) if len(length) else None,
+            'over_20_mm_s2': int(np.sum(length > 20.0))}
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+    ap.add_argument('months', nargs='+', help='SEED:WORK_SEED_DIR of finished months')
+    ap.add_argument('--days', type=float, default=30.0)
+    ap.add_argument('--output', default='')
+    args = ap.parse_args(argv)
+    rows = []
+    print('| seed | activations (>= 5 stops) | step median mm/s^2 | max | > 20 mm/s^2 '
+          '(day: x, y, z) |')
+    print('|---|---|---|---|---|')
+    for spec in args.months:
+        seed, work = spec.split(':', 1)
+        r = steps(int(seed), work, args.days)
+        rows.append(r)
+        big = '; '.join(f'{s["day"]:.1f}: ' + ', '.join(f'{x:.0f}' for x in s['step_mm_s2'])
+                        for s in r['steps'] if s['length_mm_s2'] > 20.0)
+        print(f'| {r["seed"]} | {r["activations_scored"]} | {r["median_mm_s2"]:.1f} | '
+              f'{r["max_mm_s2"]:.1f} | {r["over_20_mm_s2"]} ({big}) |', flush=True)
+    if args.output:
+        with open(args.output, 'w') as f:
+            json.dump({'command': 'bench/lifelong_accel_steps.py ' + ' '.join(
+                argv if argv is not None else sys.argv[1:]), 'seeds': rows}, f, indent=1)
+        print(f'wrote {args.output}')
+
+
+if __name__ == '__main__':
+    main()
