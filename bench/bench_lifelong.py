@@ -146,6 +146,20 @@ def registry_timeline(work_seed, start_ns):
                     for r in rows]
 
 
+def months_parser(doc, output=True):
+    """Return the argument parser of an after-the-fact script over finished months.
+
+    Positional ``SEED:WORK_SEED_DIR`` of each month, ``--days`` and (``output``)
+    ``--output``; the description is the first line of ``doc``.
+    """
+    ap = argparse.ArgumentParser(description=doc.split('\n')[0])
+    ap.add_argument('months', nargs='+', help='SEED:WORK_SEED_DIR of finished months')
+    ap.add_argument('--days', type=float, default=30.0)
+    if output:
+        ap.add_argument('--output', default='')
+    return ap
+
+
 #: the package's defaults, which the bench's options start from
 DEFAULT = LifelongConfig()
 

@@ -12,7 +12,6 @@ mm/s^2.
     python bench/lifelong_accel_keep_t0.py 39:/tmp/m39/d39/seed39 [...]
 """
 
-import argparse
 import os
 import sys
 
@@ -22,7 +21,8 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 sys.path.insert(0, HERE)
 
-from bench_lifelong import active_index, drift_rms, registry_timeline, scored_stops  # noqa
+from bench_lifelong import (  # noqa: E402
+    active_index, drift_rms, months_parser, registry_timeline, scored_stops)
 from thermal_imu_calib.sim.robot_month import DAY, robot_month  # noqa: E402
 
 
@@ -60,9 +60,7 @@ def compare(seed, work_seed, days):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
-    ap.add_argument('months', nargs='+', help='SEED:WORK_SEED_DIR of finished months')
-    ap.add_argument('--days', type=float, default=30.0)
+    ap = months_parser(__doc__, output=False)
     args = ap.parse_args(argv)
     print('| seed | first T0 degC | other models | step median / max / > 20, as activated '
           '| re-referenced | last week drift: as activated | re-referenced |')

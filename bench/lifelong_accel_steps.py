@@ -14,7 +14,6 @@ figure seeing it; the user sees it as a step in the level.
         [--output bench/results/lifelong_accel_steps.json]
 """
 
-import argparse
 import json
 import os
 import sys
@@ -25,7 +24,8 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 sys.path.insert(0, HERE)
 
-from bench_lifelong import active_index, registry_timeline, scored_stops  # noqa: E402
+from bench_lifelong import (  # noqa: E402
+    active_index, months_parser, registry_timeline, scored_stops)
 from thermal_imu_calib.sim.robot_month import DAY, robot_month  # noqa: E402
 
 MIN_STOPS = 5
@@ -58,10 +58,7 @@ def steps(seed, work_seed, days):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
-    ap.add_argument('months', nargs='+', help='SEED:WORK_SEED_DIR of finished months')
-    ap.add_argument('--days', type=float, default=30.0)
-    ap.add_argument('--output', default='')
+    ap = months_parser(__doc__)
     args = ap.parse_args(argv)
     rows = []
     print('| seed | activations (>= 5 stops) | step median mm/s^2 | max | > 20 mm/s^2 '

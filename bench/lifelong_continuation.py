@@ -26,7 +26,6 @@ runs the loop.
         --output bench/results/lifelong_continuation.json
 """
 
-import argparse
 import dataclasses
 import json
 import os
@@ -38,7 +37,8 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 sys.path.insert(0, HERE)
 
-from bench_lifelong import active_index, registry_timeline, scored_stops  # noqa: E402
+from bench_lifelong import (  # noqa: E402
+    active_index, months_parser, registry_timeline, scored_stops)
 from thermal_imu_calib.lifelong import continuation  # noqa: E402
 from thermal_imu_calib.lifelong.config import LifelongConfig  # noqa: E402
 from thermal_imu_calib.sim.robot_month import DAY, robot_month  # noqa: E402
@@ -99,10 +99,7 @@ def score_seed(seed, work_seed, days, sigmas):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
-    ap.add_argument('months', nargs='+', help='SEED:WORK_SEED_DIR of finished months')
-    ap.add_argument('--days', type=float, default=30.0)
-    ap.add_argument('--output', default='')
+    ap = months_parser(__doc__)
     args = ap.parse_args(argv)
     sigmas = LifelongConfig().swap_sigmas
     seeds = []

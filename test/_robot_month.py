@@ -14,3 +14,23 @@ def detector_windows(m):
             parts.append(det.update(a.imu.t, a.imu.accel, a.imu.gyro, a.temps))
     parts.append(det.finish())
     return Windows.concat(parts)
+
+
+def lifelong_month(directory, config, seed=3, days=1.5, latitude=45.0):
+    """Return the ``Lifelong`` loop after ``days`` of robot month ``seed`` fed through it.
+
+    The node's path without DDS (``lifelong.feed.Feeder``, a ``cmd_vel`` motion hint), in
+    ``directory``, with ``LifelongConfig`` ``config`` and the latitude (deg) known.
+    """
+    from thermal_imu_calib.app.calibrate import CalibrateSettings
+    from thermal_imu_calib.lifelong.feed import Feeder
+    from thermal_imu_calib.lifelong.hints import HintGate, HintSource
+    from thermal_imu_calib.lifelong.manager import Lifelong
+    from thermal_imu_calib.sim.robot_month import robot_month
+    m = robot_month(seed, days=days)
+    life = Lifelong(str(directory), CalibrateSettings(latitude=latitude), 1,
+                    ['/imu/temperature'], 'imu_link', config=config)
+    feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
+    for seg in m.segments():
+        feeder.push(seg.imu, [seg.temperature], [('cmd_vel', t, s) for t, s in seg.hints])
+    return life

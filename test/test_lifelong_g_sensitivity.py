@@ -8,6 +8,7 @@ and a gyro g-sensitivity G (0.01-0.04 deg/s/g per element, seed 002's class) or 
 
 import numpy as np
 
+from _robot_month import lifelong_month
 from thermal_imu_calib.calibration import TemperatureInput
 from thermal_imu_calib.collection.segments import Windows
 from thermal_imu_calib.estimation.calibrate import calibrate_windows, CalibrateOptions
@@ -116,19 +117,8 @@ def test_too_few_slopes_say_how_many_were_found():
 
 def test_the_loop_logs_the_g_sensitivity_with_each_estimate(tmp_path):
     """With the option on, every judged estimate's logged text says what the stage found."""
-    from thermal_imu_calib.app.calibrate import CalibrateSettings
     from thermal_imu_calib.lifelong.config import LifelongConfig
-    from thermal_imu_calib.lifelong.feed import Feeder
-    from thermal_imu_calib.lifelong.hints import HintGate, HintSource
-    from thermal_imu_calib.lifelong.manager import Lifelong
-    from thermal_imu_calib.sim.robot_month import robot_month
-    m = robot_month(3, days=1.5)
-    life = Lifelong(str(tmp_path / 'life'), CalibrateSettings(latitude=LAT), 1,
-                    ['/imu/temperature'], 'imu_link',
-                    config=LifelongConfig(gyro_g_sensitivity=True))
-    feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
-    for seg in m.segments():
-        feeder.push(seg.imu, [seg.temperature], [('cmd_vel', t, s) for t, s in seg.hints])
+    life = lifelong_month(tmp_path / 'life', LifelongConfig(gyro_g_sensitivity=True))
     judged = [d for d in life.decisions() if d['action'] in ('swap', 'keep')]
     assert judged, life.decisions()
     for d in judged:
