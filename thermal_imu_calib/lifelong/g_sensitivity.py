@@ -24,7 +24,8 @@ the store keeps them, so:
   offset polynomial, unit scale and the coupling (``WholeUnitGyroModel``); a gyro of another
   family is left as it is (the note says so).
 
-Off by default (``LifelongConfig.gyro_g_sensitivity``). No ROS import.
+On by default (``LifelongConfig.gyro_g_sensitivity``; docs/lifelong.md, (c'')). No ROS
+import.
 """
 
 from dataclasses import dataclass, replace
