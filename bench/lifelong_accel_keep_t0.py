@@ -22,7 +22,7 @@ sys.path.insert(0, os.path.dirname(HERE))
 sys.path.insert(0, HERE)
 
 from bench_lifelong import (  # noqa: E402
-    active_index, drift_rms, months_parser, registry_timeline, scored_stops)
+    active_index, drift_rms, months_parser, registry_timeline, scored_stops, stop_error)
 from thermal_imu_calib.sim.robot_month import DAY, robot_month  # noqa: E402
 
 
@@ -43,8 +43,7 @@ def compare(seed, work_seed, days):
         i = active_index(acts, seg.stop.t0)
         if i < 0:
             continue
-        w = ch['n'] / ch['n'].sum()
-        e = w @ (cals[i].apply(ch['accel'], ch['gyro'], ch['temp']).accel - ch['f'])
+        e = stop_error(cals[i], ch)[1]
         by.setdefault(i, []).append((e, e + add[i]))
         if seg.stop.t0 >= days * DAY - 7 * DAY:
             last['as'].append(e)

@@ -25,7 +25,7 @@ sys.path.insert(0, os.path.dirname(HERE))
 sys.path.insert(0, HERE)
 
 from bench_lifelong import (  # noqa: E402
-    active_index, months_parser, registry_timeline, scored_stops)
+    active_index, months_parser, registry_timeline, scored_stops, stop_error)
 from thermal_imu_calib.sim.robot_month import DAY, robot_month  # noqa: E402
 
 MIN_STOPS = 5
@@ -40,9 +40,7 @@ def steps(seed, work_seed, days):
         i = active_index(acts, seg.stop.t0)
         if i < 0:
             continue
-        w = ch['n'] / ch['n'].sum()
-        by.setdefault(i, []).append(
-            w @ (cals[i].apply(ch['accel'], ch['gyro'], ch['temp']).accel - ch['f']))
+        by.setdefault(i, []).append(stop_error(cals[i], ch)[1])
     keep = [i for i in sorted(by) if len(by[i]) >= MIN_STOPS]
     med = {i: np.median(np.array(by[i]), 0) for i in keep}
     out = []

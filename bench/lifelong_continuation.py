@@ -38,7 +38,7 @@ sys.path.insert(0, os.path.dirname(HERE))
 sys.path.insert(0, HERE)
 
 from bench_lifelong import (  # noqa: E402
-    active_index, months_parser, registry_timeline, scored_stops)
+    active_index, months_parser, registry_timeline, scored_stops, stop_error)
 from thermal_imu_calib.lifelong import continuation  # noqa: E402
 from thermal_imu_calib.lifelong.config import LifelongConfig  # noqa: E402
 from thermal_imu_calib.sim.robot_month import DAY, robot_month  # noqa: E402
@@ -47,10 +47,8 @@ WAYS = ('clamp', 'linear_gyro', 'history', 'as_activated')
 
 
 def gyro_error(cal, ch):
-    """Return |sample-weighted mean gyro error| (rad/s) of one stop's chunks."""
-    w = ch['n'] / ch['n'].sum()
-    return float(np.linalg.norm(w @ (cal.apply(ch['accel'], ch['gyro'], ch['temp']).gyro
-                                     - ch['w'])))
+    """Return |sample-weighted mean gyro error| (rad/s) of one stop (``stop_error``)."""
+    return float(np.linalg.norm(stop_error(cal, ch)[0]))
 
 
 def score_seed(seed, work_seed, days, sigmas):

@@ -78,21 +78,18 @@ def cut(state, t_cut):
 
 
 def verdict(evidence, sigmas):
-    """Return (continue: bool, text) from evidence rows by the swap gate's gyro rule."""
+    """Return (continue: bool, text) from evidence rows by the swap gate's rule (``compare``)."""
     if len(evidence) < 2:
         return False, (f'gyro clamped beyond its range: {len(evidence)} hold'
                        f'{"" if len(evidence) == 1 else "s"} outside the earlier active '
                        'calibrations\' ranges so far, 2 needed to judge a continuation')
     r = np.asarray(evidence, float)
-    clamp, cont, se = r[:, 1], r[:, 2], r[:, 3]
-    paired = clamp - cont
-    margin = max(gate.rms(se), sigmas * float(np.std(paired, ddof=1) / np.sqrt(len(r))))
-    gain = gate.rms(clamp) - gate.rms(cont)
+    f = gate.compare(r[:, 1], r[:, 2], gate.rms(r[:, 3]), sigmas)
     scale = np.degrees(1.0) * 1e3
     figures = (f'on {len(r)} holds outside the earlier active calibrations\' ranges, '
-               f'clamped {gate.rms(clamp) * scale:.3g} vs continued '
-               f'{gate.rms(cont) * scale:.3g} mdeg/s (margin {margin * scale:.2g})')
-    if gain > margin:
+               f'clamped {f["active_rms"] * scale:.3g} vs continued '
+               f'{f["new_rms"] * scale:.3g} mdeg/s (margin {f["margin"] * scale:.2g})')
+    if f['verdict'] == 'better':
         return True, 'gyro continued linearly beyond its range: ' + figures
     return False, 'gyro clamped beyond its range: ' + figures
 

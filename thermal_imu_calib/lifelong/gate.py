@@ -147,27 +147,34 @@ def score(cal, windows, gravity, accel_windows=None, latitude=None, accel_score=
             'gyro': e['gyro'], 'accel': acc, 'errors': e}
 
 
+def compare(active, new, noise, sigmas=2.0):
+    """Return one sensor's figures: per-hold errors of two calibrations on the same holds.
+
+    ``active``, ``new``: (h,) errors (their unit); ``noise``: the RMS standard error of the
+    hold means. The margin is the larger of ``noise`` and ``sigmas`` times the standard error
+    of the paired difference of |error|; the verdict is 'better' when the new RMS is lower
+    by more than the margin, 'worse' when higher by more, else 'same'.
+    """
+    if len(new) == 0:
+        return {'active_rms': float('nan'), 'new_rms': float('nan'), 'gain': 0.0,
+                'margin': 0.0, 'noise': 0.0, 'paired_se': float('inf'), 'verdict': 'same'}
+    paired = np.abs(active) - np.abs(new)
+    se = float(np.std(paired, ddof=1) / np.sqrt(len(paired))) if len(paired) > 1 \
+        else float('inf')
+    margin = max(noise, sigmas * se)
+    gain = rms(active) - rms(new)
+    return {'active_rms': rms(active), 'new_rms': rms(new), 'gain': gain, 'margin': margin,
+            'noise': noise, 'paired_se': se,
+            'verdict': 'better' if gain > margin else ('worse' if -gain > margin else 'same')}
+
+
 def decide(active, new, sigmas=2.0):
     """Return (swap: bool, figures dict) from two ``score`` results on the same holds."""
     fig = {'holds': new['holds']}
     verdict = {}
     for which in ('gyro', 'accel'):
-        a, n = active[which], new[which]
-        if len(n) == 0:
-            fig[which] = {'active_rms': float('nan'), 'new_rms': float('nan'), 'gain': 0.0,
-                          'margin': 0.0, 'noise': 0.0, 'paired_se': float('inf'),
-                          'verdict': 'same'}
-            verdict[which] = 'same'
-            continue
-        paired = np.abs(a) - np.abs(n)
-        se = float(np.std(paired, ddof=1) / np.sqrt(len(paired))) if len(paired) > 1 \
-            else float('inf')
-        margin = max(new[f'noise_{which}'], sigmas * se)
-        gain = active[f'{which}_rms'] - new[f'{which}_rms']
-        verdict[which] = 'better' if gain > margin else ('worse' if -gain > margin else 'same')
-        fig[which] = {'active_rms': active[f'{which}_rms'], 'new_rms': new[f'{which}_rms'],
-                      'gain': gain, 'margin': margin, 'noise': new[f'noise_{which}'],
-                      'paired_se': se, 'verdict': verdict[which]}
+        fig[which] = compare(active[which], new[which], new[f'noise_{which}'], sigmas)
+        verdict[which] = fig[which]['verdict']
     net = sum(fig[w]['gain'] / fig[w]['margin'] for w in ('gyro', 'accel')
               if fig[w]['margin'] > 0 and np.isfinite(fig[w]['margin']))
     fig['net_margins'] = float(net)
