@@ -394,3 +394,43 @@ def test_a_saved_stream_state_resumes_without_a_restart_step(chamber_log, chambe
     if family == 'lag':
         with pytest.raises(ValueError, match='other thermal terms'):
             other.stream().restore(saved)
+
+
+def test_flight_stack_cubic_is_pinned_at_the_data_reference_temperature(monkeypatch):
+    """When the one-orientation choice is the flight stacks' cubic, the accelerometer model
+    is that cubic's shape pinned (output = reading) at the data's reference temperature, as
+    every other candidate is, not at ArduPilot's 35 degC: on a log of 5-25 degC the value
+    there is the cubic extrapolated, and the output's level moved with it (a lifelong month
+    swapped in a level 90 mm/s^2 off this way; the held-out figures cannot see a level)."""
+    from thermal_imu_calib.selection import history_select
+    real = history_select.select_history
+
+    def cubic_floor(ctx, *a, **k):
+        res = real(ctx, *a, **k)
+        res['specs'] = {s: ARDUPILOT_SPEC for s in res['specs']}
+        return res
+    monkeypatch.setattr(history_select, 'select_history', cubic_floor)
+    rng = np.random.default_rng(3)
+    n = 1200
+    t = np.arange(n) * 10.0                                   # s
+    temp = 15.0 + 10.0 * np.sin(2 * np.pi * t / 4000.0)       # degC, 5..25, both ways
+    dt = temp - 15.0
+    drift = np.stack([2e-3 * dt + 2e-5 * dt ** 3, -1e-3 * dt, 4e-4 * dt ** 2], 1)   # m/s^2
+    accel = np.array([0.05, -0.03, 9.81]) + drift
+    gyro = np.array([1e-3, -2e-3, 5e-4]) + 1e-5 * dt[:, None]
+    from _thermal_data import make_windows
+    w = make_windows(t, temp, accel, gyro, hold=np.arange(n) // 40, rng=rng)
+    o = options()
+    o.model = 'hysteresis'
+    cal = calibrate_windows(w, o).calibration
+    assert cal.accel.kind == 'offset_polynomial' and cal.accel.order == 3
+    t0 = cal.accel.t0
+    assert np.all(t0 >= temp.min()) and np.all(t0 <= temp.max()), t0
+    np.testing.assert_allclose(cal.accel.offset(t0[None, :]), 0.0, atol=1e-12)
+    # the same shape as ArduPilot's own form: a cubic in T - 35 degC, fitted per axis
+    grid = np.linspace(5.0, 25.0, 9)
+    for i in range(3):
+        p = np.polyfit(w.temp[:, 0] - 35.0, w.accel[:, i], 3)
+        ap = np.polyval(p, grid - 35.0) - np.polyval(p, t0[i] - 35.0)
+        np.testing.assert_allclose(cal.accel.offset(np.repeat(grid[:, None], 3, 1))[:, i], ap,
+                                   atol=1e-9)

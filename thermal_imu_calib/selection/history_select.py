@@ -12,8 +12,7 @@ import numpy as np
 from ..estimation.calibrate import CalibrationRefused, Estimate, register_estimator
 from ..estimation.rvm_fit import fit_rvm_offset
 from ..estimation.thermal_lag import cv_groups
-from ..estimation.hysteresis import (ARDUPILOT_SPEC, ARDUPILOT_TREF, build_model, Features,
-                                     fit_spec)
+from ..estimation.hysteresis import build_model, Features, fit_spec
 from .time_folds import select_history
 
 
@@ -48,7 +47,14 @@ def estimate_hysteresis(ctx):
             notes.append(f'{sig}: rvm (seed 003) in the reading, chosen on held-out blocks '
                          f'of the thermal history ({res["kind"]})')
             continue
-        ref = np.full(3, ARDUPILOT_TREF) if spec is ARDUPILOT_SPEC else np.asarray(t0, float)
+        # every spec, the flight stacks' cubic too, is fitted about the data's own reference
+        # temperature: the fitted shape is the same polynomial family whatever its origin,
+        # and an offset-only accelerometer model is pinned (output = reading) there. Pinned
+        # at ArduPilot's TEMP_REFERENCE (35 degC), often outside the data, the output's
+        # level would be the cubic extrapolated there (tens of mm/s^2 off, and moving from
+        # one estimate to the next). ArduPilot itself pins its correction at the
+        # calibration temperature, not at 35 degC.
+        ref = np.asarray(t0, float)
         feats = Features(ctx.windows, idx)
         rows = np.ones(len(ctx.windows), bool)
         coef, std = fit_spec(feats, spec, getattr(ctx.windows, sig), rows, ref)
