@@ -11,9 +11,15 @@ tilt from stop to stop and the mount's tilt look the same) and the swap gate sco
 figure seeing it; the user sees it as a step in the level.
 
     python bench/lifelong_accel_steps.py 39:/tmp/m39/d39/seed39 [...] \\
-        [--output bench/results/lifelong_accel_steps.json]
+        [--repin-cubic] [--output bench/results/lifelong_accel_steps.json]
+
+``--repin-cubic``: every activated one-pose accelerometer model built about ArduPilot's
+35 degC (the flight stacks' cubic before e5f5922) is re-pinned, the same polynomial, at
+the middle of its own range (what ``history_select`` builds since): the after-the-fact
+view of that fix on months run before it.
 """
 
+import dataclasses
 import json
 import os
 import sys
@@ -26,15 +32,40 @@ sys.path.insert(0, HERE)
 
 from bench_lifelong import (  # noqa: E402
     active_index, months_parser, registry_timeline, scored_stops, stop_error)
+from thermal_imu_calib.estimation.hysteresis import ARDUPILOT_TREF  # noqa: E402
+from thermal_imu_calib.formats.ardupilot import reexpand  # noqa: E402
+from thermal_imu_calib.lifelong.compose import own_range  # noqa: E402
+from thermal_imu_calib.models.polynomial import OffsetPolynomialModel  # noqa: E402
 from thermal_imu_calib.sim.robot_month import DAY, robot_month  # noqa: E402
 
 MIN_STOPS = 5
 
 
-def steps(seed, work_seed, days):
+def repinned(cal):
+    """Return ``cal`` with a one-pose accel model about 35 degC re-pinned mid-range, or None."""
+    acc = cal.accel
+    if not (isinstance(acc, OffsetPolynomialModel) and not acc.include_constant
+            and np.all(acc.t0 == ARDUPILOT_TREF)):
+        return None
+    rng = own_range(cal, 'accel')
+    mid = float(np.round((rng[0, 0] + rng[0, 1]) / 2.0, 2))
+    c = reexpand(acc.coeffs, ARDUPILOT_TREF, mid)
+    c[0] = 0.0
+    new = OffsetPolynomialModel(np.full(3, mid), c, 'accel', False, acc.coeff_std,
+                                input_unit=acc.input_unit)
+    return dataclasses.replace(cal, accel=new)
+
+
+def steps(seed, work_seed, days, repin=False):
     """Return {'steps': [{day, step_mm_s2 (3,), length}], ...} of one month."""
     m = robot_month(seed, days=days)
     acts, cals = registry_timeline(work_seed, m.start_ns)
+    n_repinned = 0
+    if repin:
+        for i, c in enumerate(cals):
+            r = repinned(c)
+            if r is not None:
+                cals[i], n_repinned = r, n_repinned + 1
     by = {}
     for seg, ch in scored_stops(m, 1.0 * DAY):
         i = active_index(acts, seg.stop.t0)
@@ -50,6 +81,7 @@ def steps(seed, work_seed, days):
                     'length_mm_s2': float(np.linalg.norm(d))})
     length = np.array([s['length_mm_s2'] for s in out])
     return {'seed': seed, 'activations_scored': len(keep), 'steps': out,
+            'repinned': n_repinned,
             'median_mm_s2': float(np.median(length)) if len(length) else None,
             'max_mm_s2': float(length.max()) if len(length) else None,
             'over_20_mm_s2': int(np.sum(length > 20.0))}
@@ -57,6 +89,8 @@ def steps(seed, work_seed, days):
 
 def main(argv=None):
     ap = months_parser(__doc__)
+    ap.add_argument('--repin-cubic', action='store_true',
+                    help='re-pin accel models about 35 degC at the middle of their range')
     args = ap.parse_args(argv)
     rows = []
     print('| seed | activations (>= 5 stops) | step median mm/s^2 | max | > 20 mm/s^2 '
@@ -64,7 +98,7 @@ def main(argv=None):
     print('|---|---|---|---|---|')
     for spec in args.months:
         seed, work = spec.split(':', 1)
-        r = steps(int(seed), work, args.days)
+        r = steps(int(seed), work, args.days, args.repin_cubic)
         rows.append(r)
         big = '; '.join(f'{s["day"]:.1f}: ' + ', '.join(f'{x:.0f}' for x in s['step_mm_s2'])
                         for s in r['steps'] if s['length_mm_s2'] > 20.0)
