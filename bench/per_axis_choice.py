@@ -1,0 +1,134 @@
+"""Would choosing the thermal spec per axis beat one spec per sensor? (exploration, not built)
+
+The one-orientation selection (``selection.time_folds.select_history``) picks one spec per
+sensor on the three axes' block drift together. Its figure per fold is
+sqrt(sum over axes of each axis' block drift^2), so choosing per axis, each on its own
+held-out figure, refines the same objective; it costs three choices instead of one (more
+room for selection noise) and a model whose axes may differ in order, terms, lagged input
+and weighting (none of the model kinds today).
+
+On the real chamber log's training part (SOURCE.md there; the held-back test leg is never
+read), for each sensor:
+
+1. the choice on the selection's own folds (the forward folds of ``time_folds``), jointly
+   (today's rule: simplest within ``MARGIN`` of the best, never worse than the flight
+   stacks' cubic) and per axis (the same rule on each axis' score);
+2. both choices refitted on the rest and scored on blocks the selection never scored: the
+   first 25 % and 50 % of the cooling leg held out (``bench_chamber.first_part_table``'s
+   folds), per axis and as the 3-vector figure, m/s^2 and rad/s.
+
+    python bench/per_axis_choice.py [--json bench/results/per_axis_choice_chamber.json]
+"""
+
+import argparse
+import json
+import os
+import sys
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.dirname(HERE))
+
+from thermal_imu_calib.collection.feed import windows_from_columns  # noqa: E402
+from thermal_imu_calib.estimation.hysteresis import (  # noqa: E402
+    ARDUPILOT_SPEC, ARDUPILOT_TREF, candidate_specs, Features, fit_spec, predict)
+from thermal_imu_calib.estimation.thermal_lag import legs  # noqa: E402
+from thermal_imu_calib.io.csv_logs import read_tofupilot_chamber  # noqa: E402
+from thermal_imu_calib.selection.time_folds import (  # noqa: E402
+    _scored_rows, BLOCK_S, complexity, MARGIN, time_folds)
+
+CSV = os.path.join(os.path.dirname(HERE), 'test', 'fixtures', 'real', 'tofupilot_chamber',
+                   'imu_chamber_train.csv.gz')
+
+
+def axis_drift(values, t_mid, rows):
+    """Return (3,) per-axis RMS over ``BLOCK_S`` blocks of block mean - mean of the blocks."""
+    idx = np.flatnonzero(rows)
+    t = t_mid[idx]
+    blk = np.floor((t - t.min()) / BLOCK_S).astype(int)
+    _, inv = np.unique(blk, return_inverse=True)
+    cnt = np.bincount(inv)
+    means = np.stack([np.bincount(inv, values[idx, a]) / cnt for a in range(3)], 1)
+    d = means - means.mean(0)
+    return np.sqrt(np.mean(d * d, 0))
+
+
+def figures(w, sig, specs, t0, folds):
+    """Return ({spec: (folds, 3) per-axis figures}, (folds, 3) raw) of one sensor."""
+    feats = Features(w, [0, 0, 0])
+    y = getattr(w, sig)
+    tm = 0.5 * (w.t0 + w.t1)
+    raw, out = [], {s: [] for s in specs}
+    for train, test, _ in folds:
+        rows = _scored_rows(feats.temp, train, test)
+        raw.append(axis_drift(y, tm, rows))
+        for s in specs:
+            ref = np.full(3, ARDUPILOT_TREF) if s is ARDUPILOT_SPEC else t0
+            coef, _ = fit_spec(feats, s, y, train, ref)
+            out[s].append(axis_drift(y - predict(feats, s, coef, ref), tm, rows))
+    return {s: np.array(v) for s, v in out.items()}, np.array(raw)
+
+
+def pick(scores):
+    """Return today's rule on {spec: score}: simplest within MARGIN of the best, >= floor."""
+    best = min(scores.values())
+    floor = scores[ARDUPILOT_SPEC]
+    pool = [s for s in scores if scores[s] <= best * (1 + MARGIN) and scores[s] <= floor]
+    return min(pool, key=lambda s: (complexity(s), scores[s])) if pool else ARDUPILOT_SPEC
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+    ap.add_argument('--csv', default=CSV)
+    ap.add_argument('--json', default='')
+    args = ap.parse_args(argv)
+    imu, tc = read_tofupilot_chamber(args.csv)
+    w = windows_from_columns([imu], [tc])
+    t0 = np.full(3, np.round((w.temp.min() + w.temp.max()) / 2.0, 2))
+    folds, kind = time_folds(w)
+    tm = 0.5 * (w.t0 + w.t1)
+    ids, _ = legs(w)
+    first = tm[ids == 0]
+    other = []
+    for f in (0.25, 0.5):
+        test = tm < first.min() + f * (first.max() - first.min())
+        other.append((~test, test, f'first {100 * f:.0f} % of the cooling leg'))
+    specs = candidate_specs()
+    result = {'command': 'bench/per_axis_choice.py ' + ' '.join(
+        argv if argv is not None else sys.argv[1:]), 'folds': kind, 'sensors': {}}
+    for sig in ('accel', 'gyro'):
+        figs, raw = figures(w, sig, specs, t0, folds)
+        joint = pick({s: float(np.mean(np.linalg.norm(v, axis=1) / np.linalg.norm(raw, axis=1)))
+                      for s, v in figs.items()})
+        per_axis = [pick({s: float(np.mean(v[:, a] / raw[:, a])) for s, v in figs.items()})
+                    for a in range(3)]
+        used = list({s: None for s in [joint] + per_axis})
+        ofigs, oraw = figures(w, sig, used, t0, other)
+        j = ofigs[joint]
+        p = np.stack([ofigs[per_axis[a]][:, a] for a in range(3)], 1)
+        row = {'joint_choice': joint.label(), 'per_axis_choice': [s.label() for s in per_axis],
+               'unseen_folds': [lab for _, _, lab in other],
+               'raw_per_axis': oraw.tolist(), 'joint_per_axis': j.tolist(),
+               'per_axis_per_axis': p.tolist(),
+               'raw_vector': np.linalg.norm(oraw, axis=1).tolist(),
+               'joint_vector': np.linalg.norm(j, axis=1).tolist(),
+               'per_axis_vector': np.linalg.norm(p, axis=1).tolist()}
+        result['sensors'][sig] = row
+        print(f'{sig}: joint choice {joint.label()}')
+        for a in range(3):
+            print(f'  axis {"xyz"[a]}: per-axis choice {per_axis[a].label()}')
+        print('  blocks never scored (first 25 % / 50 % of the cooling leg), per axis x, y, z '
+              'and the 3-vector:')
+        for name, v in (('raw', oraw), ('joint', j), ('per axis', p)):
+            print(f'    {name:9s} ' + ' | '.join(
+                ' '.join(f'{x:.3g}' for x in v[k]) + f' -> {np.linalg.norm(v[k]):.4g}'
+                for k in range(len(other))))
+    if args.json:
+        with open(args.json, 'w') as f:
+            json.dump(result, f, indent=1)
+        print(f'wrote {args.json}')
+
+
+if __name__ == '__main__':
+    main()
