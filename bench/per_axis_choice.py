@@ -21,6 +21,7 @@ read), for each sensor:
 """
 
 import argparse
+import dataclasses
 import json
 import os
 import sys
@@ -32,42 +33,32 @@ sys.path.insert(0, os.path.dirname(HERE))
 
 from thermal_imu_calib.collection.feed import windows_from_columns  # noqa: E402
 from thermal_imu_calib.estimation.hysteresis import (  # noqa: E402
-    ARDUPILOT_SPEC, ARDUPILOT_TREF, candidate_specs, Features, fit_spec, predict)
+    ARDUPILOT_SPEC, candidate_specs)
 from thermal_imu_calib.estimation.thermal_lag import legs  # noqa: E402
 from thermal_imu_calib.io.csv_logs import read_tofupilot_chamber  # noqa: E402
 from thermal_imu_calib.selection.time_folds import (  # noqa: E402
-    _scored_rows, BLOCK_S, complexity, MARGIN, time_folds)
+    complexity, heldout_figures, MARGIN, time_folds)
 
 CSV = os.path.join(os.path.dirname(HERE), 'test', 'fixtures', 'real', 'tofupilot_chamber',
                    'imu_chamber_train.csv.gz')
 
 
-def axis_drift(values, t_mid, rows):
-    """Return (3,) per-axis RMS over ``BLOCK_S`` blocks of block mean - mean of the blocks."""
-    idx = np.flatnonzero(rows)
-    t = t_mid[idx]
-    blk = np.floor((t - t.min()) / BLOCK_S).astype(int)
-    _, inv = np.unique(blk, return_inverse=True)
-    cnt = np.bincount(inv)
-    means = np.stack([np.bincount(inv, values[idx, a]) / cnt for a in range(3)], 1)
-    d = means - means.mean(0)
-    return np.sqrt(np.mean(d * d, 0))
-
-
 def figures(w, sig, specs, t0, folds):
-    """Return ({spec: (folds, 3) per-axis figures}, (folds, 3) raw) of one sensor."""
-    feats = Features(w, [0, 0, 0])
-    y = getattr(w, sig)
-    tm = 0.5 * (w.t0 + w.t1)
+    """Return ({spec: (folds, 3) per-axis figures}, (folds, 3) raw) of one sensor.
+
+    The selection's own ``heldout_figures`` on each axis alone (the other two zeroed: a
+    zero axis is fitted as zero and adds nothing to the 3-vector figure).
+    """
     raw, out = [], {s: [] for s in specs}
-    for train, test, _ in folds:
-        rows = _scored_rows(feats.temp, train, test)
-        raw.append(axis_drift(y, tm, rows))
+    for a in range(3):
+        y = np.zeros_like(getattr(w, sig))
+        y[:, a] = getattr(w, sig)[:, a]
+        figs, r = heldout_figures(dataclasses.replace(w, **{sig: y}), [0, 0, 0], sig, specs,
+                                  t0, folds)
+        raw.append(r)
         for s in specs:
-            ref = np.full(3, ARDUPILOT_TREF) if s is ARDUPILOT_SPEC else t0
-            coef, _ = fit_spec(feats, s, y, train, ref)
-            out[s].append(axis_drift(y - predict(feats, s, coef, ref), tm, rows))
-    return {s: np.array(v) for s, v in out.items()}, np.array(raw)
+            out[s].append(figs[s])
+    return {s: np.array(v).T for s, v in out.items()}, np.array(raw).T
 
 
 def pick(scores):
