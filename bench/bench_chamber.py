@@ -121,6 +121,23 @@ def forward_table(w, imu, temp, opts, cuts=(0.6, 0.7, 0.8)):
     return out
 
 
+def first_part_folds(w, fractions=(0.25, 0.5)):
+    """Return folds holding out the first ``fractions`` of the cooling leg's time (the rest fits).
+
+    Blocks in the other direction than the history's end, which the selection's forward
+    folds never score.
+    """
+    from thermal_imu_calib.estimation.thermal_lag import legs
+    tm = 0.5 * (w.t0 + w.t1)
+    ids, _ = legs(w)
+    first = tm[ids == 0]
+    folds = []
+    for f in fractions:
+        test = tm < first.min() + f * (first.max() - first.min())
+        folds.append((~test, test, f'first {100 * f:.0f} % of the cooling leg'))
+    return folds
+
+
 def first_part_table(w, opts):
     """Score the default's specs (chosen on the forward folds) on other held-out blocks.
 
@@ -129,17 +146,10 @@ def first_part_table(w, opts):
     direction than the history's end, which the selection never scored. Returns and prints
     {method: {sensor: mean figure}}.
     """
-    from thermal_imu_calib.estimation.thermal_lag import legs
     from thermal_imu_calib.selection.time_folds import heldout_figures, select_history
     ctx = select.make_context(w, opts)
     chosen = select_history(ctx)['specs']
-    tm = 0.5 * (w.t0 + w.t1)
-    ids, _ = legs(w)
-    first = tm[ids == 0]
-    folds = []
-    for f in (0.25, 0.5):
-        test = tm < first.min() + f * (first.max() - first.min())
-        folds.append((~test, test, f'first {100 * f:.0f} % of the cooling leg'))
+    folds = first_part_folds(w)
     out = {}
     for sig, t0 in (('accel', ctx.t0), ('gyro', ctx.gyro_t0)):
         specs = [chosen[sig], ARDUPILOT_SPEC]

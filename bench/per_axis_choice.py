@@ -30,11 +30,12 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
+sys.path.insert(0, HERE)
 
+from bench_chamber import first_part_folds  # noqa: E402
 from thermal_imu_calib.collection.feed import windows_from_columns  # noqa: E402
 from thermal_imu_calib.estimation.hysteresis import (  # noqa: E402
     ARDUPILOT_SPEC, candidate_specs)
-from thermal_imu_calib.estimation.thermal_lag import legs  # noqa: E402
 from thermal_imu_calib.io.csv_logs import read_tofupilot_chamber  # noqa: E402
 from thermal_imu_calib.selection.time_folds import (  # noqa: E402
     complexity, heldout_figures, MARGIN, time_folds)
@@ -78,13 +79,7 @@ def main(argv=None):
     w = windows_from_columns([imu], [tc])
     t0 = np.full(3, np.round((w.temp.min() + w.temp.max()) / 2.0, 2))
     folds, kind = time_folds(w)
-    tm = 0.5 * (w.t0 + w.t1)
-    ids, _ = legs(w)
-    first = tm[ids == 0]
-    other = []
-    for f in (0.25, 0.5):
-        test = tm < first.min() + f * (first.max() - first.min())
-        other.append((~test, test, f'first {100 * f:.0f} % of the cooling leg'))
+    other = first_part_folds(w)
     specs = candidate_specs()
     result = {'command': 'bench/per_axis_choice.py ' + ' '.join(
         argv if argv is not None else sys.argv[1:]), 'folds': kind, 'sensors': {}}
