@@ -11,8 +11,8 @@ On the real chamber log's training part (SOURCE.md there; the held-back test leg
 read), for each sensor:
 
 1. the choice on the selection's own folds (the forward folds of ``time_folds``), jointly
-   (today's rule: simplest within ``MARGIN`` of the best, never worse than the flight
-   stacks' cubic) and per axis (the same rule on each axis' score);
+   (``time_folds.choose``: simplest within ``MARGIN`` of the best, never worse than the
+   flight stacks' cubic) and per axis (the same rule on each axis' figures);
 2. both choices refitted on the rest and scored on blocks the selection never scored: the
    first 25 % and 50 % of the cooling leg held out (``bench_chamber.first_part_table``'s
    folds), per axis and as the 3-vector figure, m/s^2 and rad/s.
@@ -34,11 +34,10 @@ sys.path.insert(0, HERE)
 
 from bench_chamber import first_part_folds  # noqa: E402
 from thermal_imu_calib.collection.feed import windows_from_columns  # noqa: E402
-from thermal_imu_calib.estimation.hysteresis import (  # noqa: E402
-    ARDUPILOT_SPEC, candidate_specs)
+from thermal_imu_calib.estimation.hysteresis import candidate_specs  # noqa: E402
 from thermal_imu_calib.io.csv_logs import read_tofupilot_chamber  # noqa: E402
 from thermal_imu_calib.selection.time_folds import (  # noqa: E402
-    complexity, heldout_figures, MARGIN, time_folds)
+    choose, heldout_figures, time_folds)
 
 CSV = os.path.join(os.path.dirname(HERE), 'test', 'fixtures', 'real', 'tofupilot_chamber',
                    'imu_chamber_train.csv.gz')
@@ -62,14 +61,6 @@ def figures(w, sig, specs, t0, folds):
     return {s: np.array(v).T for s, v in out.items()}, np.array(raw).T
 
 
-def pick(scores):
-    """Return today's rule on {spec: score}: simplest within MARGIN of the best, >= floor."""
-    best = min(scores.values())
-    floor = scores[ARDUPILOT_SPEC]
-    pool = [s for s in scores if scores[s] <= best * (1 + MARGIN) and scores[s] <= floor]
-    return min(pool, key=lambda s: (complexity(s), scores[s])) if pool else ARDUPILOT_SPEC
-
-
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     ap.add_argument('--csv', default=CSV)
@@ -85,9 +76,10 @@ def main(argv=None):
         argv if argv is not None else sys.argv[1:]), 'folds': kind, 'sensors': {}}
     for sig in ('accel', 'gyro'):
         figs, raw = figures(w, sig, specs, t0, folds)
-        joint = pick({s: float(np.mean(np.linalg.norm(v, axis=1) / np.linalg.norm(raw, axis=1)))
-                      for s, v in figs.items()})
-        per_axis = [pick({s: float(np.mean(v[:, a] / raw[:, a])) for s, v in figs.items()})
+        # the selection's own rule (``choose``) on the 3-vector figures and on each axis'
+        joint, _ = choose({s: np.linalg.norm(v, axis=1) for s, v in figs.items()},
+                          np.linalg.norm(raw, axis=1))
+        per_axis = [choose({s: v[:, a] for s, v in figs.items()}, raw[:, a])[0]
                     for a in range(3)]
         used = list({s: None for s in [joint] + per_axis})
         ofigs, oraw = figures(w, sig, used, t0, other)

@@ -5,7 +5,7 @@ import os
 import numpy as np
 import pytest
 
-from _thermal_data import options
+from _thermal_data import make_windows, options
 from thermal_imu_calib.calibration import Calibration, TemperatureInput
 from thermal_imu_calib.estimation.calibrate import calibrate_windows
 from thermal_imu_calib.estimation.hysteresis import (ARDUPILOT_SPEC, candidate_specs,
@@ -418,7 +418,6 @@ def test_flight_stack_cubic_is_pinned_at_the_data_reference_temperature(monkeypa
     drift = np.stack([2e-3 * dt + 2e-5 * dt ** 3, -1e-3 * dt, 4e-4 * dt ** 2], 1)   # m/s^2
     accel = np.array([0.05, -0.03, 9.81]) + drift
     gyro = np.array([1e-3, -2e-3, 5e-4]) + 1e-5 * dt[:, None]
-    from _thermal_data import make_windows
     w = make_windows(t, temp, accel, gyro, hold=np.arange(n) // 40, rng=rng)
     o = options()
     o.model = 'hysteresis'
