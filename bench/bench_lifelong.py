@@ -172,7 +172,8 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
              refit_on_swap=DEFAULT.refit_on_swap,
              out_of_range=CalibrateSettings.out_of_range,
              gyro_g_sensitivity=DEFAULT.gyro_g_sensitivity,
-             gyro_continuation=DEFAULT.gyro_continuation, **overrides):
+             gyro_continuation=DEFAULT.gyro_continuation, alarm_first=DEFAULT.alarm_first,
+             **overrides):
     m = robot_month(seed, days=days, **overrides)
     spec = m.device.spec
     rate = m.config.imu_rate
@@ -194,7 +195,8 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
                                               raw_kept=raw_kept,
                                               refit_on_swap=refit_on_swap,
                                               gyro_g_sensitivity=gyro_g_sensitivity,
-                                              gyro_continuation=gyro_continuation),
+                                              gyro_continuation=gyro_continuation,
+                                              alarm_first=alarm_first),
                         log=lambda level, text: log.append((level, text)))
     life = make()
     feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
@@ -330,7 +332,7 @@ def month(args):
                      not args.whole_swap, args.alarm_window, args.one_sensor_after_alarm,
                      args.alarm_reference, args.alarm_cut, args.accel_score,
                      args.raw_kept, args.refit_on_swap, args.out_of_range,
-                     args.gyro_g_sensitivity, args.gyro_continuation)
+                     args.gyro_g_sensitivity, args.gyro_continuation, args.alarm_first)
         rows.append(r)
         ra, kn = r['ratios'], r['knock']
         print(f'seed {seed}: {r["seconds"]:.0f} s, gyro first day '
@@ -976,6 +978,10 @@ def main():
                     help='the gyro beyond its range: off (the calibrate policy) or history '
                          '(continued when the holds outside earlier ranges support it; '
                          'LifelongConfig.gyro_continuation)')
+    mo.add_argument('--alarm-first', action=argparse.BooleanOptionalAction,
+                    default=DEFAULT.alarm_first,
+                    help='no re-estimate while the change alarm is deciding '
+                         '(LifelongConfig.alarm_first; default: the package\'s)')
     mo.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_month.json'))
     re_ = sub.add_parser('real')
     re_.add_argument('--work', default='')

@@ -446,6 +446,54 @@ def test_holds_the_active_misses_make_a_re_estimate_due(tmp_path, month_windows)
     assert life.state['missed'] == [] and 'missed' not in life.due()
 
 
+@pytest.mark.parametrize('alarm_first', [True, False])
+def test_the_alarm_answers_a_knock_before_the_misfit_trigger(
+        tmp_path, month_windows, alarm_first):
+    """Seed 52 of the month bench: 0.03 day after the knock two missed holds made a misfit
+    re-estimate due; its swap re-measured the alarm's reference on the knocked holds and the
+    alarm (5 in a row) never fired. With ``alarm_first`` no re-estimate is due while the
+    newest holds all miss the limit and fewer than ``alarm_holds`` came in since the first:
+    the fifth raises the alarm. A fitted hold ends the run, and the misfit trigger is due.
+    """
+    m, win = month_windows
+    truth = m.true_calibration(0.5 * DAY)
+    ids = win.hold_ids
+    n = LifelongConfig().alarm_holds
+    first, later = win.select(np.isin(win.hold, ids[:20])), ids[20:20 + 2 * n]
+    life = Lifelong(str(tmp_path), CalibrateSettings(), 1, [TOPIC], 'imu_link',
+                    config=LifelongConfig(new_holds=1000, alarm_first=alarm_first))
+    life.store.add(first)
+    s = gate.score(truth, first, truth.gravity)
+    life.active = truth
+    life.state.update(active_gyro_rms=s['gyro_rms'], active_accel_rms=s['accel_rms'],
+                      active_accel_median=float(np.median(s['errors']['accel'])),
+                      holds_at_estimate=life.store.total_holds)
+
+    def hold(i, gyro_offset):
+        w = win.select(win.hold == later[i])
+        return dataclasses.replace(w, gyro=w.gyro + gyro_offset)
+    big = _knock_step(month_windows)
+    whys = []
+    for i in range(n):
+        life.add(hold(i, big))
+        whys.append(life.due())
+    assert life.state['alarms'] == 1 and whys[-1] == 'change alarm', whys
+    if alarm_first:
+        assert whys[:-1] == [''] * (n - 1), whys          # the alarm answers first
+    else:
+        assert whys[1].startswith('the active calibration missed 2 new holds'), whys
+    # a run the alarm is deciding, broken by a hold the active fits: the misfit trigger
+    life.state['alarm_pending'] = False
+    life.track = []
+    life.add(hold(n, big))
+    life.add(hold(n + 1, big))
+    assert (life.due() == '') == alarm_first
+    assert alarm.pending_since(life.track, life.state, life.config) is not None
+    life.add(hold(n + 2, 0.0))
+    assert alarm.pending_since(life.track, life.state, life.config) is None
+    assert life.due().startswith('the active calibration missed'), life.due()
+
+
 @pytest.mark.parametrize('window', ['common', 'sensor'])
 def test_the_change_alarm_watches_each_sensor_in_its_own_range(tmp_path, month_windows,
                                                                window):

@@ -103,14 +103,49 @@ def exceeded(track, state, config):
         last = [r for r in track if getattr(r, 'in_' + which)][-c.alarm_holds:]
         if len(last) < c.alarm_holds:
             continue
-        err = np.abs([getattr(r, which) for r in last])
-        base = state.get(f'active_{which}_rms') or 0.0
-        floor = c.alarm_floor * float(np.median([getattr(r, 'se_' + which) for r in last]))
-        limit = max(c.alarm_factor * base, floor)
+        err, limit = _errors_and_limit(last, which, state, c)
         if np.all(err > limit):
             out[which] = (float(np.median(err)), limit)
             first.append(last[0].t)
     return out, first
+
+
+def _errors_and_limit(rows, which, state, config):
+    """Return (|errors| of ``rows`` for ``which``, the alarm's limit on them) (SI units).
+
+    The limit is ``alarm_factor`` times the reference in ``state``, at least
+    ``alarm_floor`` times the median of the rows' standard errors.
+    """
+    c = config
+    err = np.abs([getattr(r, which) for r in rows])
+    base = state.get(f'active_{which}_rms') or 0.0
+    floor = c.alarm_floor * float(np.median([getattr(r, 'se_' + which) for r in rows]))
+    return err, max(c.alarm_factor * base, floor)
+
+
+def pending_since(track, state, config):
+    """Return the end (s) of the first hold of a run the alarm is still deciding, or None.
+
+    A sensor's run: its newest holds of ``track`` that all exceed the alarm's limit (as
+    ``exceeded`` will judge them, on its newest ``alarm_holds``), at least one and fewer
+    than ``alarm_holds``: the alarm fires if the next ones miss too. With several, the
+    earliest. None without a reference (``active_gyro_rms``) or a run.
+    """
+    c = config
+    if state.get('active_gyro_rms') is None:
+        return None
+    starts = []
+    for which in ('gyro', 'accel'):
+        last = [r for r in track if getattr(r, 'in_' + which)][-c.alarm_holds:]
+        if not last:
+            continue
+        err, limit = _errors_and_limit(last, which, state, c)
+        run = 0
+        while run < len(err) and err[-1 - run] > limit:
+            run += 1
+        if 0 < run < c.alarm_holds:
+            starts.append(last[-run].t)
+    return min(starts) if starts else None
 
 
 def first_hold_start(recent, t_end):

@@ -59,6 +59,12 @@ class LifelongConfig:
     #: gyro 35 % closer to the true model, but the accelerometer drift 26 % worse, past the
     #: 10 % set before the runs (docs/lifelong.md)
     alarm_reference: str = 'all'
+    #: no re-estimate but the alarm's own while the change alarm is deciding: a sensor's
+    #: newest tracked holds all miss its limit, fewer than ``alarm_holds`` of them, and
+    #: fewer than ``alarm_holds`` holds came in since the first (``trigger.due``,
+    #: ``alarm.pending_since``). Adds no threshold: the alarm's limit and hold count. Off
+    #: until judged on months no rule has seen (docs/lifelong.md)
+    alarm_first: bool = False
     #: what a change alarm cuts: 'all' (every hold before it, for both sensors) or
     #: 'sensor' (when one sensor alone failed, its history only: the other keeps the
     #: older holds for its fits, ``HoldStore.cut(keep=...)``, ``variants.with_kept``; an

@@ -191,7 +191,8 @@ class Lifelong:
     # ------------------------------------------------------------------ when
     def due(self):
         """Return why a re-estimate is due now ('' when it is not; ``trigger.due``)."""
-        return trigger.due(self.store, self.state, self.config, self.active, self.k)
+        return trigger.due(self.store, self.state, self.config, self.active, self.k,
+                           self.track)
 
     # ------------------------------------------------------------------ estimate
     def estimate(self, reason='requested'):

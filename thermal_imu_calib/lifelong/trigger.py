@@ -9,13 +9,17 @@ the last estimate were missed by the active calibration (``gate.misses``: the ch
 alarm's limit, at any temperature, consecutive or not; a re-estimate only makes a
 candidate that must pass the swap gate, so it needs no stronger evidence); after a change
 alarm. After a swap to a calibration fitted on every hold (``refit_on_swap``), not before
-``min_holds + holdout_holds`` holds newer than its fit are in. Units: s, degC, holds. No
-ROS import.
+``min_holds + holdout_holds`` holds newer than its fit are in. With ``alarm_first``, none
+of the others while the change alarm is deciding (``alarm.pending_since``: a sensor's
+newest tracked holds all miss its limit, fewer than ``alarm_holds`` of them) and fewer than
+``alarm_holds`` holds have come in since that run began: a swap would re-measure the
+alarm's reference on the changed holds and hide the change (seeds 2, 19 and 52 of the
+simulated month, docs/lifelong.md). Units: s, degC, holds. No ROS import.
 """
 
 import numpy as np
 
-from . import compose
+from . import alarm, compose
 
 
 def fit_span(fit, k):
@@ -35,12 +39,13 @@ def holds_after(recent, t):
     return int(np.sum(starts > t))
 
 
-def due(store, state, config, active, k):
+def due(store, state, config, active, k, track=()):
     """Return why a re-estimate is due now ('' when it is not).
 
     ``store``: the ``HoldStore``; ``state``: the loop's counters (``manager.Lifelong.state``);
     ``config``: its ``LifelongConfig``; ``active``: the active calibration (None: none);
-    ``k``: the number of thermal inputs.
+    ``k``: the number of thermal inputs; ``track``: the change alarm's tracked holds
+    (``alarm.Tracked``; for ``alarm_first``).
     """
     c, s = config, state
     raw = len(store.recent.hold_ids) if len(store.recent) else 0
@@ -60,6 +65,10 @@ def due(store, state, config, active, k):
                 not s['estimates']:
             return 'no active calibration'
         return ''
+    if c.alarm_first and track:
+        since = alarm.pending_since(track, s, c)
+        if since is not None and 1 + holds_after(store.recent, since) < c.alarm_holds:
+            return ''
     new = store.total_holds - s['holds_at_estimate']
     if new >= c.new_holds:
         return f'{new} new holds'
