@@ -888,7 +888,7 @@ def compare(args):
           'swaps | worse next day > 25 % (gyro + accel drift) | knock alarm delay h | '
           'false alarms | rule acted (swaps) |')
     print('|' + '---|' * 8)
-    geo = {'g': [[], []], 'a': [[], []], 'a1': [[], []], 'g1': [[], []]}
+    geo = {'g': [[], []], 'a': [[], []], 'a1': [[], []], 'g1': [[], []], 'k2': [[], []]}
     tot = [0, 0]
     for seed in seeds:
         b, c = runs[0][seed], runs[1][seed]
@@ -897,6 +897,7 @@ def compare(args):
             geo['a'][i].append(r['active']['accel_drift_last_week'])
             geo['a1'][i].append(r['active']['accel_drift_first_day'])
             geo['g1'][i].append(r['active']['gyro_first_day'])
+            geo['k2'][i].append(r['knock']['gyro_second_day_after'])
             tot[i] += sum(_worse25(r))
         delay = ['none' if r['knock']['alarm_delay_h'] is None else
                  f'{r["knock"]["alarm_delay_h"]:.1f}' for r in (b, c)]
@@ -917,7 +918,9 @@ def compare(args):
           f'{gm(geo["g"][1]):.3f} ({gm(geo["g"][1]) / gm(geo["g"][0]) - 1:+.1%}); accel drift '
           f'last week {gm(geo["a"][0]) * 1e3:.2f} -> {gm(geo["a"][1]) * 1e3:.2f} mm/s^2 '
           f'({gm(geo["a"][1]) / gm(geo["a"][0]) - 1:+.1%}); swaps worse next day by > 25 % '
-          f'(gyro + accel drift) {tot[0]} -> {tot[1]}')
+          f'(gyro + accel drift) {tot[0]} -> {tot[1]}; gyro on the second day after the '
+          f'knock {gm(geo["k2"][0]) * 1e3:.3f} -> {gm(geo["k2"][1]) * 1e3:.3f} mrad/s '
+          f'({gm(geo["k2"][1]) / gm(geo["k2"][0]) - 1:+.1%})')
     raw = [runs[1][seed]['raw'] for seed in seeds]
     print(f'first day: accel drift {gm(geo["a1"][0]) * 1e3:.2f} -> {gm(geo["a1"][1]) * 1e3:.2f} '
           f'mm/s^2 ({gm(geo["a1"][1]) / gm(geo["a1"][0]) - 1:+.1%}; raw '
