@@ -404,6 +404,29 @@ def test_archive_collection_of_a_directory_not_loaded(tmp_path, month_windows):
     assert archive_collection(str(d)) == ''          # an empty store: nothing to move
 
 
+def _truth_active_on_20_holds(tmp_path, month_windows, later, **config):
+    """Return (a loop whose store holds the month's first 20 holds and whose active is the
+    true model, its ``gate.score`` on them, ``hold(i, gyro offset rad/s)``: the i-th of the
+    next ``later`` holds with the offset added to its gyro)."""
+    m, win = month_windows
+    truth = m.true_calibration(0.5 * DAY)
+    ids = win.hold_ids
+    first, after = win.select(np.isin(win.hold, ids[:20])), ids[20:20 + later]
+    life = Lifelong(str(tmp_path), CalibrateSettings(), 1, [TOPIC], 'imu_link',
+                    config=LifelongConfig(**config))
+    life.store.add(first)
+    s = gate.score(truth, first, truth.gravity)
+    life.active = truth
+    life.state.update(active_gyro_rms=s['gyro_rms'], active_accel_rms=s['accel_rms'],
+                      active_accel_median=float(np.median(s['errors']['accel'])),
+                      holds_at_estimate=life.store.total_holds)
+
+    def hold(i, gyro_offset):
+        w = win.select(win.hold == after[i])
+        return dataclasses.replace(w, gyro=w.gyro + gyro_offset)
+    return life, s, hold
+
+
 def test_holds_the_active_misses_make_a_re_estimate_due(tmp_path, month_windows):
     """Two new holds the active calibration misses, at any temperature, make an estimate due.
 
@@ -412,23 +435,9 @@ def test_holds_the_active_misses_make_a_re_estimate_due(tmp_path, month_windows)
     that never. A re-estimate only makes a candidate for the swap gate, so two missed holds
     (each past the alarm's limit) are enough; one is not, and an estimate clears them.
     """
-    m, win = month_windows
-    truth = m.true_calibration(0.5 * DAY)
-    ids = win.hold_ids
-    first, later = win.select(np.isin(win.hold, ids[:20])), ids[20:23]
-    life = Lifelong(str(tmp_path), CalibrateSettings(), 1, [TOPIC], 'imu_link',
-                    config=LifelongConfig(new_holds=1000))
-    life.store.add(first)
-    s = gate.score(truth, first, truth.gravity)
-    life.active = truth
-    life.state.update(active_gyro_rms=s['gyro_rms'], active_accel_rms=s['accel_rms'],
-                      active_accel_median=float(np.median(s['errors']['accel'])),
-                      holds_at_estimate=life.store.total_holds)
+    life, s, hold = _truth_active_on_20_holds(tmp_path, month_windows, 3, new_holds=1000)
+    truth = life.active
     assert life.due() == ''
-
-    def hold(i, gyro_offset):
-        w = win.select(win.hold == later[i])
-        return dataclasses.replace(w, gyro=w.gyro + gyro_offset)
     big = np.array([0.0, 0.0, 10 * LifelongConfig().alarm_factor * s['gyro_rms']])
     life.add(hold(0, 0.0))                               # fitted well: not missed
     assert life.due() == '' and not life.state.get('missed')
@@ -455,23 +464,9 @@ def test_the_alarm_answers_a_knock_before_the_misfit_trigger(
     newest holds all miss the limit and fewer than ``alarm_holds`` came in since the first:
     the fifth raises the alarm. A fitted hold ends the run, and the misfit trigger is due.
     """
-    m, win = month_windows
-    truth = m.true_calibration(0.5 * DAY)
-    ids = win.hold_ids
     n = LifelongConfig().alarm_holds
-    first, later = win.select(np.isin(win.hold, ids[:20])), ids[20:20 + 2 * n]
-    life = Lifelong(str(tmp_path), CalibrateSettings(), 1, [TOPIC], 'imu_link',
-                    config=LifelongConfig(new_holds=1000, alarm_first=alarm_first))
-    life.store.add(first)
-    s = gate.score(truth, first, truth.gravity)
-    life.active = truth
-    life.state.update(active_gyro_rms=s['gyro_rms'], active_accel_rms=s['accel_rms'],
-                      active_accel_median=float(np.median(s['errors']['accel'])),
-                      holds_at_estimate=life.store.total_holds)
-
-    def hold(i, gyro_offset):
-        w = win.select(win.hold == later[i])
-        return dataclasses.replace(w, gyro=w.gyro + gyro_offset)
+    life, _, hold = _truth_active_on_20_holds(tmp_path, month_windows, 2 * n, new_holds=1000,
+                                              alarm_first=alarm_first)
     big = _knock_step(month_windows)
     whys = []
     for i in range(n):
