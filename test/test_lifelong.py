@@ -438,7 +438,7 @@ def test_holds_the_active_misses_make_a_re_estimate_due(tmp_path, month_windows)
     life, s, hold = _truth_active_on_20_holds(tmp_path, month_windows, 3, new_holds=1000)
     truth = life.active
     assert life.due() == ''
-    big = np.array([0.0, 0.0, 10 * LifelongConfig().alarm_factor * s['gyro_rms']])
+    big = _knock_step(month_windows)        # 10x the alarm's factor times the truth's error
     life.add(hold(0, 0.0))                               # fitted well: not missed
     assert life.due() == '' and not life.state.get('missed')
     life.add(hold(1, big))                               # one miss: not yet

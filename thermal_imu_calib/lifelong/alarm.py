@@ -97,30 +97,30 @@ def exceeded(track, state, config):
     ``active_accel_rms`` m/s^2), at least ``alarm_floor`` times the median of their
     standard errors. Empty: no alarm.
     """
-    c = config
     out, first = {}, []
-    for which in ('gyro', 'accel'):
-        last = [r for r in track if getattr(r, 'in_' + which)][-c.alarm_holds:]
-        if len(last) < c.alarm_holds:
-            continue
-        err, limit = _errors_and_limit(last, which, state, c)
-        if np.all(err > limit):
+    for which, last, err, limit in _newest_scored(track, state, config):
+        if len(last) == config.alarm_holds and np.all(err > limit):
             out[which] = (float(np.median(err)), limit)
             first.append(last[0].t)
     return out, first
 
 
-def _errors_and_limit(rows, which, state, config):
-    """Return (|errors| of ``rows`` for ``which``, the alarm's limit on them) (SI units).
+def _newest_scored(track, state, config):
+    """Yield (sensor, newest holds, their |errors|, the alarm's limit) per tracked sensor.
 
-    The limit is ``alarm_factor`` times the reference in ``state``, at least
-    ``alarm_floor`` times the median of the rows' standard errors.
+    The holds are the sensor's newest ``alarm_holds`` of ``track`` (SI units). The limit
+    is ``alarm_factor`` times the sensor's reference in ``state``, at least
+    ``alarm_floor`` times the median of those holds' standard errors.
     """
     c = config
-    err = np.abs([getattr(r, which) for r in rows])
-    base = state.get(f'active_{which}_rms') or 0.0
-    floor = c.alarm_floor * float(np.median([getattr(r, 'se_' + which) for r in rows]))
-    return err, max(c.alarm_factor * base, floor)
+    for which in ('gyro', 'accel'):
+        last = [r for r in track if getattr(r, 'in_' + which)][-c.alarm_holds:]
+        if not last:
+            continue
+        err = np.abs([getattr(r, which) for r in last])
+        base = state.get(f'active_{which}_rms') or 0.0
+        floor = c.alarm_floor * float(np.median([getattr(r, 'se_' + which) for r in last]))
+        yield which, last, err, max(c.alarm_factor * base, floor)
 
 
 def pending_since(track, state, config):
@@ -131,19 +131,14 @@ def pending_since(track, state, config):
     than ``alarm_holds``: the alarm fires if the next ones miss too. With several, the
     earliest. None without a reference (``active_gyro_rms``) or a run.
     """
-    c = config
     if state.get('active_gyro_rms') is None:
         return None
     starts = []
-    for which in ('gyro', 'accel'):
-        last = [r for r in track if getattr(r, 'in_' + which)][-c.alarm_holds:]
-        if not last:
-            continue
-        err, limit = _errors_and_limit(last, which, state, c)
+    for _, last, err, limit in _newest_scored(track, state, config):
         run = 0
         while run < len(err) and err[-1 - run] > limit:
             run += 1
-        if 0 < run < c.alarm_holds:
+        if 0 < run < config.alarm_holds:
             starts.append(last[-run].t)
     return min(starts) if starts else None
 
