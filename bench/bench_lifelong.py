@@ -173,14 +173,15 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
              out_of_range=CalibrateSettings.out_of_range,
              gyro_g_sensitivity=DEFAULT.gyro_g_sensitivity,
              gyro_continuation=DEFAULT.gyro_continuation, alarm_first=DEFAULT.alarm_first,
-             **overrides):
+             high_order_margin=CalibrateSettings.high_order_margin, **overrides):
     m = robot_month(seed, days=days, **overrides)
     spec = m.device.spec
     rate = m.config.imu_rate
     noise_g = np.sqrt(3 * (spec.gyro_noise_density ** 2 * rate + spec.gyro_lsb ** 2 / 12))
     d = os.path.join(work, f'seed{seed}')
     shutil.rmtree(d, ignore_errors=True)
-    settings = CalibrateSettings(latitude=latitude, out_of_range=out_of_range)
+    settings = CalibrateSettings(latitude=latitude, out_of_range=out_of_range,
+                                 high_order_margin=high_order_margin)
     log = []
 
     def make():
@@ -332,7 +333,8 @@ def month(args):
                      not args.whole_swap, args.alarm_window, args.one_sensor_after_alarm,
                      args.alarm_reference, args.alarm_cut, args.accel_score,
                      args.raw_kept, args.refit_on_swap, args.out_of_range,
-                     args.gyro_g_sensitivity, args.gyro_continuation, args.alarm_first)
+                     args.gyro_g_sensitivity, args.gyro_continuation, args.alarm_first,
+                     args.high_order_margin)
         rows.append(r)
         ra, kn = r['ratios'], r['knock']
         print(f'seed {seed}: {r["seconds"]:.0f} s, gyro first day '
@@ -985,6 +987,11 @@ def main():
                     default=DEFAULT.alarm_first,
                     help='no re-estimate while the change alarm is deciding '
                          '(LifelongConfig.alarm_first; default: the package\'s)')
+    mo.add_argument('--high-order-margin', type=float,
+                    default=CalibrateSettings.high_order_margin,
+                    help='valid-range margin (degC) of a model above first order in '
+                         'temperature (CalibrateSettings.high_order_margin; default: the '
+                         'package\'s, range_margin for every model)')
     mo.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_month.json'))
     re_ = sub.add_parser('real')
     re_.add_argument('--work', default='')

@@ -57,6 +57,9 @@ class CalibrateSettings:
     out_of_range: str = 'clamp'
     #: valid range = collected range widened by this (degC)
     range_margin: float = 1.0
+    #: None: ``range_margin`` for every model; a number (degC): the margin of a model above
+    #: first order in temperature (``CalibrateOptions.high_order_margin``; judged, off)
+    high_order_margin: Optional[float] = None
     #: temperature samples further apart than this (s) are a gap: the nearest is held
     max_gap_s: float = 5.0
     #: local gravity (m/s^2); None: from ``latitude``/``altitude``, else standard gravity
@@ -146,7 +149,8 @@ def options(settings, collected, transitions=()):
         frame_id=settings.frame_id or collected[0].frame_id,
         out_of_range=settings.out_of_range, order=settings.order, refine=settings.refine,
         min_hold_s=settings.detector.min_hold_s or det.get('min_hold_s') or 1.0,
-        range_margin=settings.range_margin, latitude=settings.latitude,
+        range_margin=settings.range_margin, high_order_margin=settings.high_order_margin,
+        latitude=settings.latitude,
         transitions=list(transitions), **mapping)
 
 

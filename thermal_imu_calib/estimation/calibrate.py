@@ -38,7 +38,8 @@ from .observability import ORDER_SPAN
 from .thermal_lag import with_restart_spread
 from .options import (CalibrateOptions, CalibrationRefused,  # noqa: F401
                       CalibrationResult, default_input_map, gyro_reference, hold_seconds,
-                      input_margins, input_units, PROXY_MARGIN_FRACTION, valid_range)
+                      input_margins, input_units, narrow_high_order, PROXY_MARGIN_FRACTION,
+                      valid_range)
 from .summary import (_adequacy_notes, _amax, _face_text, _margin_report,  # noqa: F401
                       _model_choice, _pose_change_text, _rms, _rotation_stats, _span_text,
                       ADEQUACY_CHI2, gravity_residuals)
@@ -270,6 +271,7 @@ def calibrate_windows(windows, options=None):
         accel_noise_std=np.sqrt(np.median(windows.accel_var, axis=0)),
         gyro_noise_std=np.sqrt(np.median(windows.gyro_var, axis=0)), notes=notes,
         temperature_filter=est.temperature_filter, noise_model=window_noise(windows))
+    narrow_high_order(cal, windows, o)
     with_restart_spread(cal, windows)
     before, after = gravity_residuals(ctx.accel_view().windows, cal, g)
     fit_stats = dict(est.fit)

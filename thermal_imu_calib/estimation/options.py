@@ -6,6 +6,7 @@ axis mapping (``default_input_map``), the gyro's reference input, and the valid 
 calibration gets (the collected range widened by ``input_margins``).
 """
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import List, Optional
 
@@ -55,6 +56,11 @@ class CalibrateOptions:
     #: a low-order polynomial is trustworthy just past its data, a clamp at the exact data
     #: edge is not (the next warm-up often ends a little higher)
     range_margin: float = 1.0
+    #: None: every model gets ``range_margin``. A number (degC): a sensor whose model is
+    #: above first order in its input (``SensorModel.temperature_degree``) gets this margin
+    #: instead (0: clamped at the collected range), through ``Calibration.sensor_range``;
+    #: judged in docs/lifelong.md (2026-12-05), not the default
+    high_order_margin: Optional[float] = None
     #: margins by unit, {unit: margin in that unit} (e.g. {'Hz': 2.0}); a proxy unit not
     #: named here gets ``range_margin`` scaled by the ratio of its collected span to the
     #: degC inputs' (see ``input_margins``)
@@ -158,3 +164,24 @@ def valid_range(windows, options):
         return None
     m = input_margins(windows, options)
     return np.stack([windows.temp.min(0) - m, windows.temp.max(0) + m], 1)
+
+
+def narrow_high_order(cal, windows, options):
+    """Give each model above first order ``high_order_margin`` instead of ``range_margin``.
+
+    In place on ``cal`` (its ``valid_range`` as ``valid_range`` gives it): such a model's
+    range becomes the collected range widened by ``high_order_margin`` (proxies scaled as
+    in ``input_margins``), through ``Calibration.sensor_range``; when every model is above
+    first order, ``valid_range`` itself. Nothing changes when ``high_order_margin`` is None
+    or there are no inputs.
+    """
+    if options.high_order_margin is None or cal.valid_range is None:
+        return
+    narrow = valid_range(windows, dataclasses.replace(
+        options, range_margin=float(options.high_order_margin), unit_margins=None))
+    models = {w: getattr(cal, w) for w in ('accel', 'gyro') if getattr(cal, w) is not None}
+    high = [w for w, m in models.items() if m.temperature_degree() > 1]
+    if high and len(high) == len(models):
+        cal.valid_range = narrow
+    else:
+        cal.sensor_range = {w: narrow.copy() for w in high}

@@ -1,5 +1,6 @@
 """The one interface every thermal model family implements, and its parameter container."""
 
+import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import ClassVar, Optional
@@ -76,6 +77,14 @@ class SensorModel(ABC):
     def predict_std(self, temps):
         """Return the (n, 3) 1-sigma model uncertainty of the corrected output, or None."""
         return None
+
+    def temperature_degree(self):
+        """Return the highest power of the thermal input the model uses (inf: not a polynomial).
+
+        0: temperature-independent; 1: linear. A model that is not a polynomial in its input
+        (e.g. kernels) returns ``math.inf``.
+        """
+        return math.inf
 
     @abstractmethod
     def params(self):

@@ -58,6 +58,13 @@ class FieldPolynomialModel(SensorModel):
                                                                        float).reshape(3, 6)
         self._s_inv = np.linalg.inv(self.s)
 
+    def temperature_degree(self):
+        """Return 2, 1 or 0: the highest power of dT with a non-zero scale or bias term."""
+        th = self.thermal
+        if np.any(th[:, [2, 5]] != 0.0):
+            return 2
+        return 1 if np.any(th[:, [1, 4]] != 0.0) else 0
+
     def scale_bias(self, temps):
         """Return (k, b), each (n, 3), at per-axis thermal inputs (n, 3) in ``input_unit``."""
         dt = np.asarray(temps, float) - self.t0

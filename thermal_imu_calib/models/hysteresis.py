@@ -73,6 +73,10 @@ class HysteresisOffsetModel(SensorModel):
         """Return the polynomial order."""
         return self.poly.order
 
+    def temperature_degree(self):
+        """Return the degree of the polynomial in the base input (history terms aside)."""
+        return self.poly.temperature_degree()
+
     @property
     def history_keys(self):
         """Return the lag cascades this model needs from the stream (may be empty)."""

@@ -41,6 +41,11 @@ class OffsetPolynomialModel(SensorModel):
         """Return the polynomial order."""
         return self.coeffs.shape[0] - 1
 
+    def temperature_degree(self):
+        """Return the highest power with a non-zero coefficient on any axis (0: constant)."""
+        used = np.flatnonzero(np.any(self.coeffs[1:] != 0.0, axis=1))
+        return int(used[-1]) + 1 if used.size else 0
+
     def offset(self, temps):
         """Return the modelled (n, 3) offset at per-axis thermal inputs (n, 3), ``input_unit``."""
         dt = np.asarray(temps, float) - self.t0

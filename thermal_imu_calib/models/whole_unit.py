@@ -99,6 +99,12 @@ class _WholeUnitTriad(SensorModel):
         """Return the order of the scale polynomial in dX (0: no scale temperature terms)."""
         return self.scale.shape[0]
 
+    def temperature_degree(self):
+        """Return the highest power of dX with a non-zero offset or scale term (0: none)."""
+        off = np.flatnonzero(np.any(self.offset[1:] != 0.0, axis=1))
+        sca = np.flatnonzero(np.any(self.scale != 0.0, axis=1))
+        return int(max(off[-1] + 1 if off.size else 0, sca[-1] + 1 if sca.size else 0))
+
     @property
     def raw_unit(self):
         """Return the unit of the raw and corrected signal."""
