@@ -173,7 +173,8 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
              out_of_range=CalibrateSettings.out_of_range,
              gyro_g_sensitivity=DEFAULT.gyro_g_sensitivity,
              gyro_continuation=DEFAULT.gyro_continuation, alarm_first=DEFAULT.alarm_first,
-             high_order_margin=CalibrateSettings.high_order_margin, **overrides):
+             high_order_margin=CalibrateSettings.high_order_margin,
+             high_order_sensors=CalibrateSettings.high_order_sensors, **overrides):
     m = robot_month(seed, days=days, **overrides)
     spec = m.device.spec
     rate = m.config.imu_rate
@@ -181,7 +182,8 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
     d = os.path.join(work, f'seed{seed}')
     shutil.rmtree(d, ignore_errors=True)
     settings = CalibrateSettings(latitude=latitude, out_of_range=out_of_range,
-                                 high_order_margin=high_order_margin)
+                                 high_order_margin=high_order_margin,
+                                 high_order_sensors=high_order_sensors)
     log = []
 
     def make():
@@ -334,7 +336,7 @@ def month(args):
                      args.alarm_reference, args.alarm_cut, args.accel_score,
                      args.raw_kept, args.refit_on_swap, args.out_of_range,
                      args.gyro_g_sensitivity, args.gyro_continuation, args.alarm_first,
-                     args.high_order_margin)
+                     args.high_order_margin, args.high_order_sensors)
         rows.append(r)
         ra, kn = r['ratios'], r['knock']
         print(f'seed {seed}: {r["seconds"]:.0f} s, gyro first day '
@@ -992,6 +994,9 @@ def main():
                     help='valid-range margin (degC) of a model above first order in '
                          'temperature (CalibrateSettings.high_order_margin; default: the '
                          'package\'s, range_margin for every model)')
+    mo.add_argument('--high-order-sensors', choices=('both', 'accel', 'gyro'),
+                    default=CalibrateSettings.high_order_sensors,
+                    help='the sensors --high-order-margin applies to')
     mo.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_month.json'))
     re_ = sub.add_parser('real')
     re_.add_argument('--work', default='')

@@ -78,3 +78,12 @@ def test_only_models_above_first_order_are_narrowed():
     cal = _cal(2, 3, w, on)                 # both above first order: the valid range itself
     narrow_high_order(cal, w, on)
     assert cal.sensor_range == {} and np.allclose(cal.valid_range, [[4.7, 7.4]])
+
+
+def test_one_sensor_only():
+    w = _Windows(np.array([[4.7], [6.0], [7.4]]))
+    on = CalibrateOptions(range_margin=1.0, high_order_margin=0.0, high_order_sensors='accel')
+    cal = _cal(3, 3, w, on)                 # both cubic, only the accelerometer narrowed
+    narrow_high_order(cal, w, on)
+    assert np.allclose(cal.valid_range, [[3.7, 8.4]])
+    assert list(cal.sensor_range) == ['accel']

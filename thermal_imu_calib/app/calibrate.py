@@ -60,6 +60,8 @@ class CalibrateSettings:
     #: None: ``range_margin`` for every model; a number (degC): the margin of a model above
     #: first order in temperature (``CalibrateOptions.high_order_margin``; judged, off)
     high_order_margin: Optional[float] = None
+    #: the sensors it applies to: 'both', 'accel' or 'gyro'
+    high_order_sensors: str = 'both'
     #: temperature samples further apart than this (s) are a gap: the nearest is held
     max_gap_s: float = 5.0
     #: local gravity (m/s^2); None: from ``latitude``/``altitude``, else standard gravity
@@ -150,6 +152,7 @@ def options(settings, collected, transitions=()):
         out_of_range=settings.out_of_range, order=settings.order, refine=settings.refine,
         min_hold_s=settings.detector.min_hold_s or det.get('min_hold_s') or 1.0,
         range_margin=settings.range_margin, high_order_margin=settings.high_order_margin,
+        high_order_sensors=settings.high_order_sensors,
         latitude=settings.latitude,
         transitions=list(transitions), **mapping)
 

@@ -61,6 +61,8 @@ class CalibrateOptions:
     #: instead (0: clamped at the collected range), through ``Calibration.sensor_range``;
     #: judged in docs/lifelong.md (2026-12-05), not the default
     high_order_margin: Optional[float] = None
+    #: the sensors ``high_order_margin`` applies to: 'both', 'accel' or 'gyro'
+    high_order_sensors: str = 'both'
     #: margins by unit, {unit: margin in that unit} (e.g. {'Hz': 2.0}); a proxy unit not
     #: named here gets ``range_margin`` scaled by the ratio of its collected span to the
     #: degC inputs' (see ``input_margins``)
@@ -180,7 +182,9 @@ def narrow_high_order(cal, windows, options):
     narrow = valid_range(windows, dataclasses.replace(
         options, range_margin=float(options.high_order_margin), unit_margins=None))
     models = {w: getattr(cal, w) for w in ('accel', 'gyro') if getattr(cal, w) is not None}
-    high = [w for w, m in models.items() if m.temperature_degree() > 1]
+    which = ('accel', 'gyro') if options.high_order_sensors == 'both' else \
+        (options.high_order_sensors,)
+    high = [w for w, m in models.items() if w in which and m.temperature_degree() > 1]
     if high and len(high) == len(models):
         cal.valid_range = narrow
     else:
