@@ -4,6 +4,7 @@ import dataclasses
 import math
 
 import numpy as np
+import pytest
 
 from thermal_imu_calib.calibration import Calibration, TemperatureInput
 from thermal_imu_calib.estimation.options import (CalibrateOptions, narrow_high_order,
@@ -87,3 +88,5 @@ def test_one_sensor_only():
     narrow_high_order(cal, w, on)
     assert np.allclose(cal.valid_range, [[3.7, 8.4]])
     assert list(cal.sensor_range) == ['accel']
+    with pytest.raises(ValueError, match='high_order_sensors'):
+        narrow_high_order(cal, w, dataclasses.replace(on, high_order_sensors='imu'))

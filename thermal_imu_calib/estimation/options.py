@@ -168,6 +168,10 @@ def valid_range(windows, options):
     return np.stack([windows.temp.min(0) - m, windows.temp.max(0) + m], 1)
 
 
+#: ``high_order_sensors`` -> the sensors ``high_order_margin`` applies to
+HIGH_ORDER_SENSORS = {'both': ('accel', 'gyro'), 'accel': ('accel',), 'gyro': ('gyro',)}
+
+
 def narrow_high_order(cal, windows, options):
     """Give each model above first order ``high_order_margin`` instead of ``range_margin``.
 
@@ -177,13 +181,15 @@ def narrow_high_order(cal, windows, options):
     first order, ``valid_range`` itself. Nothing changes when ``high_order_margin`` is None
     or there are no inputs.
     """
+    if options.high_order_sensors not in HIGH_ORDER_SENSORS:
+        raise ValueError(f'high_order_sensors {options.high_order_sensors!r} is not one of '
+                         f'{", ".join(HIGH_ORDER_SENSORS)}')
     if options.high_order_margin is None or cal.valid_range is None:
         return
     narrow = valid_range(windows, dataclasses.replace(
         options, range_margin=float(options.high_order_margin), unit_margins=None))
     models = {w: getattr(cal, w) for w in ('accel', 'gyro') if getattr(cal, w) is not None}
-    which = ('accel', 'gyro') if options.high_order_sensors == 'both' else \
-        (options.high_order_sensors,)
+    which = HIGH_ORDER_SENSORS[options.high_order_sensors]
     high = [w for w, m in models.items() if w in which and m.temperature_degree() > 1]
     if high and len(high) == len(models):
         cal.valid_range = narrow
