@@ -51,6 +51,7 @@ sys.path.insert(0, os.path.dirname(HERE))
 
 from thermal_imu_calib.app.calibrate import CalibrateSettings  # noqa: E402
 from thermal_imu_calib.calibration import OUT_OF_RANGE_POLICIES  # noqa: E402
+from thermal_imu_calib.estimation.options import HIGH_ORDER_SENSORS  # noqa: E402
 from thermal_imu_calib.lifelong.config import GYRO_CONTINUATIONS  # noqa: E402
 from thermal_imu_calib.lifelong.feed import Feeder  # noqa: E402
 from thermal_imu_calib.lifelong.gate import ACCEL_SCORES  # noqa: E402
@@ -994,7 +995,7 @@ def main():
                     help='valid-range margin (degC) of a model above first order in '
                          'temperature (CalibrateSettings.high_order_margin; default: the '
                          'package\'s, range_margin for every model)')
-    mo.add_argument('--high-order-sensors', choices=('both', 'accel', 'gyro'),
+    mo.add_argument('--high-order-sensors', choices=tuple(HIGH_ORDER_SENSORS),
                     default=CalibrateSettings.high_order_sensors,
                     help='the sensors --high-order-margin applies to')
     mo.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_month.json'))

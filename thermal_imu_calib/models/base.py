@@ -10,6 +10,15 @@ import numpy as np
 MODEL_KINDS = {}
 
 
+def highest_power(rows):
+    """Return the highest power with a non-zero entry; 0 when none.
+
+    ``rows``: (m, 3) coefficients per axis, row i multiplying the input's power i + 1.
+    """
+    used = np.flatnonzero(np.any(np.asarray(rows) != 0.0, axis=1))
+    return int(used[-1]) + 1 if used.size else 0
+
+
 def register(cls):
     """Class decorator: make a model family loadable from a calibration file by its ``kind``."""
     MODEL_KINDS[cls.kind] = cls

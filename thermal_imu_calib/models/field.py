@@ -16,7 +16,8 @@ Correction inverts the model: f = S^-1 ((raw - b(T)) / k(T)).
 import numpy as np
 
 from ..input_units import coefficient_unit, reference_description
-from .base import input_unit_of, Param, register, require, SensorModel, with_input_unit
+from .base import (highest_power, input_unit_of, Param, register, require, SensorModel,
+                   with_input_unit)
 
 #: thermal vector layout per axis, paper eq. (9)
 THERMAL_NAMES = ('dk0', 'k1', 'k2', 'db0', 'b1', 'b2')
@@ -61,9 +62,7 @@ class FieldPolynomialModel(SensorModel):
     def temperature_degree(self):
         """Return 2, 1 or 0: the highest power of dT with a non-zero scale or bias term."""
         th = self.thermal
-        if np.any(th[:, [2, 5]] != 0.0):
-            return 2
-        return 1 if np.any(th[:, [1, 4]] != 0.0) else 0
+        return max(highest_power(th[:, [1, 2]].T), highest_power(th[:, [4, 5]].T))
 
     def scale_bias(self, temps):
         """Return (k, b), each (n, 3), at per-axis thermal inputs (n, 3) in ``input_unit``."""

@@ -14,7 +14,8 @@ cannot be told apart from the projection of gravity.
 import numpy as np
 
 from ..input_units import coefficient_unit, reference_description
-from .base import input_unit_of, Param, register, require, SensorModel, with_input_unit
+from .base import (highest_power, input_unit_of, Param, register, require, SensorModel,
+                   with_input_unit)
 
 
 @register
@@ -43,8 +44,7 @@ class OffsetPolynomialModel(SensorModel):
 
     def temperature_degree(self):
         """Return the highest power with a non-zero coefficient on any axis (0: constant)."""
-        used = np.flatnonzero(np.any(self.coeffs[1:] != 0.0, axis=1))
-        return int(used[-1]) + 1 if used.size else 0
+        return highest_power(self.coeffs[1:])
 
     def offset(self, temps):
         """Return the modelled (n, 3) offset at per-axis thermal inputs (n, 3), ``input_unit``."""

@@ -39,7 +39,7 @@ their ``std`` is the prior standard deviation (0 for a convention).
 
 import numpy as np
 
-from .base import Param, register, SensorModel
+from .base import highest_power, Param, register, SensorModel
 
 
 def _per_input(u, iu, j):
@@ -101,9 +101,7 @@ class _WholeUnitTriad(SensorModel):
 
     def temperature_degree(self):
         """Return the highest power of dX with a non-zero offset or scale term (0: none)."""
-        off = np.flatnonzero(np.any(self.offset[1:] != 0.0, axis=1))
-        sca = np.flatnonzero(np.any(self.scale != 0.0, axis=1))
-        return int(max(off[-1] + 1 if off.size else 0, sca[-1] + 1 if sca.size else 0))
+        return max(highest_power(self.offset[1:]), highest_power(self.scale))
 
     @property
     def raw_unit(self):
