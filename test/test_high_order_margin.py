@@ -90,3 +90,34 @@ def test_one_sensor_only():
     assert list(cal.sensor_range) == ['accel']
     with pytest.raises(ValueError, match='high_order_sensors'):
         narrow_high_order(cal, w, dataclasses.replace(on, high_order_sensors='imu'))
+
+
+def test_the_command_line_and_the_node_set_the_same_options(ros, tmp_path, monkeypatch):
+    """``--high-order-margin``/``--high-order-sensors`` and the node's parameters reach
+    CalibrateSettings alike; 'off' (node: -1) is None, and a bad value is refused."""
+    import argparse
+    from rclpy.parameter import Parameter
+    from thermal_imu_calib.cli.calibrate import add_calibrate_parser, settings_from_args
+    from thermal_imu_calib.nodes.calibrator import CalibratorNode
+
+    ap = argparse.ArgumentParser()
+    add_calibrate_parser(ap.add_subparsers(dest='cmd'))
+
+    def cli(*extra):
+        s = settings_from_args(ap.parse_args(['calibrate', '-', '-o', '-', *extra]))
+        return s.high_order_margin, s.high_order_sensors
+
+    assert cli('--high-order-margin', '0', '--high-order-sensors', 'gyro') == (0.0, 'gyro')
+    assert cli('--high-order-margin', 'off')[0] is None
+    with pytest.raises(SystemExit):
+        ap.parse_args(['calibrate', '-', '-o', '-', '--high-order-margin', 'wide'])
+    monkeypatch.setenv('HOME', str(tmp_path))
+    for value, sensors, expected in ((0.5, 'accel', 0.5), (-1.0, 'both', None)):
+        node = ros.add(CalibratorNode(context=ros.context, parameter_overrides=[
+            Parameter('temperature_topics', value=['']),
+            Parameter('high_order_margin', value=value),
+            Parameter('high_order_sensors', value=sensors)], node_name=f'hom{len(sensors)}'))
+        s = node.settings()
+        assert (s.high_order_margin, s.high_order_sensors) == (expected, sensors)
+    refused = node.set_parameters([Parameter('high_order_margin', value=-0.5)])[0]
+    assert not refused.successful and 'high_order_margin' in refused.reason

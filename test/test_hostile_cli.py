@@ -297,6 +297,10 @@ def test_unwritable_output_is_one_line_not_a_traceback(argv, clean, tmp_path, ca
 @pytest.mark.parametrize('argv, option', [
     (['calibrate', '{bag}', '-o', '{tmp}/c.yaml', '--range-margin', '-50'], '--range-margin'),
     (['calibrate', '{bag}', '-o', '{tmp}/c.yaml', '--range-margin', 'nan'], '--range-margin'),
+    (['calibrate', '{bag}', '-o', '{tmp}/c.yaml', '--high-order-margin', '-1'],
+     '--high-order-margin'),
+    (['calibrate', '{bag}', '-o', '{tmp}/c.yaml', '--high-order-margin', 'inf'],
+     '--high-order-margin'),
     (['calibrate', '{bag}', '-o', '{tmp}/c.yaml', '--latitude', '45', '--altitude', '1e9'],
      '--altitude'),
     (['evaluate', '{bag}', '--average', '0'], '--average'),

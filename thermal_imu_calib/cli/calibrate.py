@@ -14,6 +14,7 @@ from ..calibration import OUT_OF_RANGE_POLICIES
 from .checks import UserError
 from ..collection.stationary import DetectorConfig
 from ..estimation.calibrate import model_choices
+from ..estimation.options import HIGH_ORDER_SENSORS
 
 #: the defaults of ``calibrate`` (the node's and the fleet's too)
 DEFAULTS = CalibrateSettings()
@@ -51,6 +52,16 @@ def add_calibrate_parser(sub):
     p.add_argument('--range-margin', type=float, default=DEFAULTS.range_margin,
                    metavar='DEGC', help='valid range = collected temperature range widened by '
                                         f'this (default {DEFAULTS.range_margin:g})')
+    p.add_argument('--high-order-margin', type=_margin_or_off,
+                   default=DEFAULTS.high_order_margin, metavar='DEGC|off',
+                   help='margin of a model above first order in temperature (quadratic, '
+                        'cubic, rvm) instead of --range-margin: 0 holds it at its last hold '
+                        'rather than continuing the curve; off: --range-margin for every model '
+                        f'(default {_margin_text(DEFAULTS.high_order_margin)})')
+    p.add_argument('--high-order-sensors', default=DEFAULTS.high_order_sensors,
+                   choices=tuple(HIGH_ORDER_SENSORS),
+                   help='the sensors --high-order-margin applies to (default '
+                        f'{DEFAULTS.high_order_sensors})')
     p.add_argument('--input-unit', action='append', default=[], metavar='TOPIC=UNIT',
                    help='unit of a thermal input, recorded in the calibration: degC (default) '
                         'or a proxy unit such as Hz (e.g. /imu/gyro_resonance=Hz); repeat per '
@@ -143,6 +154,7 @@ def settings_from_args(args):
     return CalibrateSettings(
         model=args.model, order=args.order, refine=not args.no_refine,
         out_of_range=args.out_of_range, range_margin=args.range_margin, max_gap_s=args.max_gap,
+        high_order_margin=args.high_order_margin, high_order_sensors=args.high_order_sensors,
         gravity=args.gravity, latitude=args.latitude, altitude=args.altitude, prior=args.prior,
         frame_id=args.frame_id or '', input_units=list(args.input_unit),
         input_margins=list(args.input_margin), accel_input=args.accel_input,
@@ -155,3 +167,18 @@ def _gravity(args):
                                              altitude=getattr(args, 'altitude', 0.0)))
     except app.SettingsError as e:
         raise UserError(str(e)) from None
+
+
+def _margin_or_off(text):
+    """Parse ``--high-order-margin``: a number (degC) or ``off`` (None)."""
+    if text.strip().lower() == 'off':
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'{text!r} is neither a number (degC) nor off') from None
+
+
+def _margin_text(value):
+    """Return a margin as the command line writes it (None: off)."""
+    return 'off' if value is None else f'{value:g}'

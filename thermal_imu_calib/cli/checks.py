@@ -21,7 +21,7 @@ from ..io import output
 _TOPIC_RE = re.compile(r'^~?/?([A-Za-z_][A-Za-z0-9_]*)(/[A-Za-z_][A-Za-z0-9_]*)*$')
 #: --altitude accepted by calibrate/evaluate (m), as by calibrator_node
 ALTITUDE_RANGE = (-1000.0, 10000.0)
-#: --range-margin accepted (degC)
+#: --range-margin and --high-order-margin accepted (degC)
 RANGE_MARGIN_RANGE = (0.0, 50.0)
 
 
@@ -54,6 +54,8 @@ def check_options(args):
         raise UserError(f'--chunk-size {args.chunk_size} must be >= 1')
     if getattr(args, 'range_margin', None) is not None:
         check_number(args.range_margin, '--range-margin (degC)', *RANGE_MARGIN_RANGE)
+    if getattr(args, 'high_order_margin', None) is not None:
+        check_number(args.high_order_margin, '--high-order-margin (degC)', *RANGE_MARGIN_RANGE)
     if getattr(args, 'latitude', None) is not None:
         check_number(args.latitude, '--latitude (deg)', -90.0, 90.0)
     if getattr(args, 'altitude', None) is not None:

@@ -14,6 +14,7 @@ from ..app.calibrate import CalibrateSettings
 from ..calibration import OUT_OF_RANGE_POLICIES, TemperatureInput
 from ..collection.stationary import DetectorConfig
 from ..estimation import calibrate as estimation
+from ..estimation.options import HIGH_ORDER_SENSORS
 from ..gravity import resolve_gravity
 
 #: the defaults every calibrate path shares (app.calibrate.CalibrateSettings)
@@ -113,6 +114,13 @@ def declare(node):
                               lo=-1000.0, hi=10000.0)
     p.declare('range_margin', DEFAULTS.range_margin, 'Valid range = collected '
               'temperature range widened by this (degC).', lo=0.0, hi=50.0)
+    p.declare('high_order_margin', _margin_param(DEFAULTS.high_order_margin),
+              'Margin (degC) of a model above first order in temperature (quadratic, cubic, '
+              'rvm) instead of range_margin: 0 holds it at its last hold rather than '
+              'continuing the curve; -1: off (range_margin for every model).',
+              lo=-1.0, hi=50.0, validator=_check_margin)
+    p.declare('high_order_sensors', DEFAULTS.high_order_sensors,
+              'The sensors high_order_margin applies to.', choices=tuple(HIGH_ORDER_SENSORS))
     node.frame_id = p.declare('frame_id', '', 'IMU frame written into the calibration; '
                               'empty: the header frame_id of the first IMU message.')
     node.prior_file = p.declare('prior_file', '', 'Optional lab calibration (k0, b0, S at '
@@ -156,6 +164,8 @@ def settings(node):
     return CalibrateSettings(
         model=value('model'), order=value('order'), out_of_range=value('out_of_range'),
         range_margin=value('range_margin'), gravity=g if g > 0 else None,
+        high_order_margin=None if value('high_order_margin') < 0 else value('high_order_margin'),
+        high_order_sensors=value('high_order_sensors'),
         latitude=value('latitude') if use_latitude else None,
         altitude=value('altitude') if use_latitude else DEFAULTS.altitude,
         prior=value('prior_file') or None, frame_id=value('frame_id'),
@@ -182,3 +192,15 @@ def check_gravity(value):
     except ValueError as e:
         return str(e)
     return None
+
+
+def _margin_param(value):
+    """Return a high-order margin as a parameter value (None, off, becomes -1)."""
+    return -1.0 if value is None else float(value)
+
+
+def _check_margin(value):
+    """Return why a high_order_margin value is refused (None: accepted; -1: off)."""
+    if value == -1.0 or 0.0 <= value <= 50.0:
+        return None
+    return f'{value:g} degC is neither -1 (off) nor in [0, 50]'
