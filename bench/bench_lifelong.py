@@ -51,6 +51,7 @@ sys.path.insert(0, os.path.dirname(HERE))
 
 from thermal_imu_calib.app.calibrate import CalibrateSettings  # noqa: E402
 from thermal_imu_calib.calibration import OUT_OF_RANGE_POLICIES  # noqa: E402
+from thermal_imu_calib.cli.calibrate import margin_or_off  # noqa: E402
 from thermal_imu_calib.estimation.options import HIGH_ORDER_SENSORS  # noqa: E402
 from thermal_imu_calib.lifelong.config import GYRO_CONTINUATIONS  # noqa: E402
 from thermal_imu_calib.lifelong.feed import Feeder  # noqa: E402
@@ -990,11 +991,11 @@ def main():
                     default=DEFAULT.alarm_first,
                     help='no re-estimate while the change alarm is deciding '
                          '(LifelongConfig.alarm_first; default: the package\'s)')
-    mo.add_argument('--high-order-margin', type=float,
+    mo.add_argument('--high-order-margin', type=margin_or_off, metavar='DEGC|off',
                     default=CalibrateSettings.high_order_margin,
                     help='valid-range margin (degC) of a model above first order in '
-                         'temperature (CalibrateSettings.high_order_margin; default: the '
-                         'package\'s, range_margin for every model)')
+                         'temperature, or off (CalibrateSettings.high_order_margin; default: '
+                         'the package\'s)')
     mo.add_argument('--high-order-sensors', choices=tuple(HIGH_ORDER_SENSORS),
                     default=CalibrateSettings.high_order_sensors,
                     help='the sensors --high-order-margin applies to')

@@ -52,7 +52,7 @@ def add_calibrate_parser(sub):
     p.add_argument('--range-margin', type=float, default=DEFAULTS.range_margin,
                    metavar='DEGC', help='valid range = collected temperature range widened by '
                                         f'this (default {DEFAULTS.range_margin:g})')
-    p.add_argument('--high-order-margin', type=_margin_or_off,
+    p.add_argument('--high-order-margin', type=margin_or_off,
                    default=DEFAULTS.high_order_margin, metavar='DEGC|off',
                    help='margin of a model above first order in temperature (quadratic, '
                         'cubic, rvm) instead of --range-margin: 0 holds it at its last hold '
@@ -169,7 +169,7 @@ def _gravity(args):
         raise UserError(str(e)) from None
 
 
-def _margin_or_off(text):
+def margin_or_off(text):
     """Parse ``--high-order-margin``: a number (degC) or ``off`` (None)."""
     if text.strip().lower() == 'off':
         return None
