@@ -110,6 +110,14 @@ class Calibration:
         return units[0]
 
     # ------------------------------------------------------------------ apply
+    def own_range(self, which):
+        """Return the (k, 2) range 'accel'/'gyro' is valid over (None: no inputs).
+
+        ``sensor_range[which]`` when that sensor's model has its own (narrower) range, else
+        ``valid_range``.
+        """
+        return self.sensor_range.get(which, self.valid_range)
+
     def range_policy(self, which):
         """Return what "accel"/"gyro" does outside its range: clamp, extrapolate or linear."""
         if self.out_of_range == 'linear_gyro':
@@ -122,7 +130,7 @@ class Calibration:
         ``LINEAR_STEP_DEGC`` for a temperature input, ``LINEAR_STEP_FRACTION`` of the
         range for another unit; at most half the sensor's range.
         """
-        vr = self.sensor_range.get(which, self.valid_range)
+        vr = self.own_range(which)
         width = vr[:, 1] - vr[:, 0]
         step = np.array([LINEAR_STEP_DEGC if is_temperature(i.unit) else
                          LINEAR_STEP_FRACTION * w for i, w in zip(self.inputs, width)])
@@ -148,7 +156,7 @@ class Calibration:
                 f'got {temps.shape[1] if temps.ndim == 2 else "?"} temperature columns, the '
                 f'calibration expects {len(self.inputs)} '
                 f'({", ".join(i.topic for i in self.inputs)})')
-        vr = self.sensor_range.get(which, self.valid_range)
+        vr = self.own_range(which)
         lo, hi = vr[:, 0], vr[:, 1]
         oor = np.any((temps < lo) | (temps > hi), axis=1)
         if self.range_policy(which) != 'extrapolate':
@@ -174,7 +182,7 @@ class Calibration:
         std = _model_std(model, t, hist)
         if self.range_policy(which) == 'linear' and np.any(oor):
             idx = self.accel_input if which == 'accel' else self.gyro_input
-            vr = self.sensor_range.get(which, self.valid_range)
+            vr = self.own_range(which)
             step = self.linear_step(which)
             excess = np.maximum(temps - vr[:, 1], 0.0) + np.maximum(vr[:, 0] - temps, 0.0)
             k = (np.minimum(excess, vr[:, 1] - vr[:, 0]) / step)[:, idx]

@@ -52,7 +52,7 @@ def _snap(c, span):
 def sensor_params(cal, which, smp, imu=1):
     """Return (rows [(name, value)], TMIN, TMAX, notes, loss) for 'accel' or 'gyro'."""
     i = single_input(cal, which, 'ArduPilot')
-    lo, hi = (float(v) for v in cal.valid_range[i])
+    lo, hi = (float(v) for v in cal.own_range(which)[i])
     model = cal.accel if which == 'accel' else cal.gyro
     notes = [n for n in [check_out(cal, which, 'ArduPilot')] if n]
     ex = cubic_offset(cal, which)
@@ -92,7 +92,7 @@ def export(cal, smp, imu=1, header=''):
     """Return ``Exported`` with one .parm file."""
     if not 1 <= imu <= 3:
         raise ExportRefused(f'ArduPilot has INS_TCAL1..3, not {imu}')
-    rows, loss, ranges = [], {}, []
+    rows, loss, ranges = [], {}, {}
     notes = lag_note(cal, 'ArduPilot') + history_note(cal, 'ArduPilot')
     for which in ('accel', 'gyro'):
         if getattr(cal, which) is None:
@@ -101,11 +101,18 @@ def export(cal, smp, imu=1, header=''):
         rows += r
         notes += n
         loss[which] = ls
-        ranges.append((lo, hi))
-    if len(set(ranges)) > 1:
+        ranges[which] = (lo, hi)
+    inputs = {single_input(cal, w, 'ArduPilot') for w in ranges}
+    if len(inputs) > 1:
         raise ExportRefused('ArduPilot has one TMIN/TMAX per IMU; the accel and gyro of this '
                             'calibration use inputs with different valid ranges')
-    lo, hi = ranges[0]
+    lo, hi = min(r[0] for r in ranges.values()), max(r[1] for r in ranges.values())
+    for which, (a, z) in ranges.items():
+        if (a, z) != (lo, hi):    # one sensor's own, narrower range (Calibration.own_range)
+            notes.append(f'{which}: this calibration holds it at its own range {a:.2f}..'
+                         f'{z:.2f} degC; ArduPilot has one TMIN..TMAX per IMU ({lo:.2f}..'
+                         f'{hi:.2f}) and continues its polynomial up to '
+                         f'{max(a - lo, hi - z):.2f} degC beyond')
     if hi - lo < 10.0:
         notes.append(f'the valid range {lo:.1f}..{hi:.1f} degC is narrower than the 10 degC '
                      'ArduPilot\'s own learning requires; it applies the file anyway')

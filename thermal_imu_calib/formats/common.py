@@ -296,7 +296,7 @@ def offset_refit(cal, which, smp, columns, fmt):
         lin = np.linalg.inv(m)
     y = raw - ours @ lin.T
     t = smp.temps[:, i]
-    lo, hi = cal.valid_range[i]
+    lo, hi = cal.own_range(which)[i]
     if cal.range_policy(which) != 'extrapolate':    # linear: the samples stay inside
         t = np.clip(t, lo, hi)
     design = columns(t)

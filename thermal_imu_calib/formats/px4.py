@@ -36,7 +36,7 @@ def _design(tref):
 def sensor_params(cal, which, smp, instance=0, device_id=0):
     """Return (rows [(name, value, type)], notes, loss) for 'accel' or 'gyro'."""
     i = single_input(cal, which, 'PX4')
-    lo, hi = (float(v) for v in cal.valid_range[i])
+    lo, hi = (float(v) for v in cal.own_range(which)[i])
     notes = [n for n in [check_out(cal, which, 'PX4')] if n]
     ex = cubic_offset(cal, which)
     if ex is not None:
@@ -97,7 +97,7 @@ def parse(text):
 def read(text, source='PX4 parameters'):
     """Return the Calibration a PX4 .params file holds (offset_polynomial, order 3)."""
     p = parse(text)
-    models, ranges = {}, []
+    models, ranges = {}, {}
     for which, pre in PREFIX.items():
         if int(p.get(f'{pre}_ENABLE', 0)) != 1:
             continue
@@ -107,17 +107,16 @@ def read(text, source='PX4 parameters'):
         q = f'{pre}{inst[0]}'
         x = np.array([[p.get(f'{q}_X{j}_{a}', 0.0) for a in range(3)] for j in range(4)])
         models[which] = OffsetPolynomialModel(np.full(3, p[f'{q}_TREF']), x, sensor=which)
-        ranges.append((p[f'{q}_TMIN'], p[f'{q}_TMAX']))
+        ranges[which] = (p[f'{q}_TMIN'], p[f'{q}_TMAX'])
     if not models:
         raise ValueError(f'{source}: neither TC_A_ENABLE nor TC_G_ENABLE is 1; no thermal '
                          'compensation to import')
-    lo = min(r[0] for r in ranges)
-    hi = max(r[1] for r in ranges)
-    if len({tuple(r) for r in ranges}) > 1:
-        raise ValueError(f'{source}: accel and gyro have different TMIN/TMAX; one temperature '
-                         'input with one valid range cannot hold both')
+    lo = min(r[0] for r in ranges.values())
+    hi = max(r[1] for r in ranges.values())
+    # a sensor with a narrower TMIN..TMAX keeps it as its own range (Calibration.own_range)
+    own = {w: np.array([r]) for w, r in ranges.items() if r != (lo, hi)}
     return Calibration(accel=models.get('accel'), gyro=models.get('gyro'),
                        inputs=[TemperatureInput('t0', 'imu/temperature')],
-                       valid_range=np.array([[lo, hi]]),
+                       valid_range=np.array([[lo, hi]]), sensor_range=own,
                        fit={'imported': {'format': 'px4', 'source': source}},
                        notes=[f'imported from PX4 thermal compensation parameters ({source})'])

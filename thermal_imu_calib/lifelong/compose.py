@@ -74,7 +74,7 @@ def composed_policy(accel_from, gyro_from):
 
 def own_range(cal, which):
     """Return the (k, 2) valid range of one sensor's model of ``cal`` (None: no inputs)."""
-    return cal.sensor_range.get(which, cal.valid_range)
+    return cal.own_range(which)
 
 
 def common_range(cal):
