@@ -60,7 +60,7 @@ def _cal(accel_degree, gyro_degree, windows, options):
 
 def test_only_models_above_first_order_are_narrowed():
     w = _Windows(np.array([[4.7], [6.0], [7.4]]))
-    off = CalibrateOptions(range_margin=1.0)
+    off = CalibrateOptions(range_margin=1.0, high_order_margin=None, high_order_sensors='both')
     on = dataclasses.replace(off, high_order_margin=0.0)
     cal = _cal(3, 1, w, off)
     narrow_high_order(cal, w, off)          # off: nothing changes

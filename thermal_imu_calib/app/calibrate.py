@@ -58,10 +58,11 @@ class CalibrateSettings:
     #: valid range = collected range widened by this (degC)
     range_margin: float = 1.0
     #: None: ``range_margin`` for every model; a number (degC): the margin of a model above
-    #: first order in temperature (``CalibrateOptions.high_order_margin``; judged, off)
-    high_order_margin: Optional[float] = None
+    #: first order in temperature (``CalibrateOptions.high_order_margin``; judged in
+    #: docs/lifelong.md: 0 for the accelerometer alone)
+    high_order_margin: Optional[float] = 0.0
     #: the sensors it applies to: 'both', 'accel' or 'gyro'
-    high_order_sensors: str = 'both'
+    high_order_sensors: str = 'accel'
     #: temperature samples further apart than this (s) are a gap: the nearest is held
     max_gap_s: float = 5.0
     #: local gravity (m/s^2); None: from ``latitude``/``altitude``, else standard gravity

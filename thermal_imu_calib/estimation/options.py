@@ -58,11 +58,12 @@ class CalibrateOptions:
     range_margin: float = 1.0
     #: None: every model gets ``range_margin``. A number (degC): a sensor whose model is
     #: above first order in its input (``SensorModel.temperature_degree``) gets this margin
-    #: instead (0: clamped at the collected range), through ``Calibration.sensor_range``;
-    #: judged in docs/lifelong.md (2026-12-05), not the default
-    high_order_margin: Optional[float] = None
+    #: instead (0: clamped at the collected range), through ``Calibration.sensor_range``.
+    #: Default 0 for the accelerometer alone (``high_order_sensors``): judged in
+    #: docs/lifelong.md (2026-12-05); for both sensors the gyro lost
+    high_order_margin: Optional[float] = 0.0
     #: the sensors ``high_order_margin`` applies to: 'both', 'accel' or 'gyro'
-    high_order_sensors: str = 'both'
+    high_order_sensors: str = 'accel'
     #: margins by unit, {unit: margin in that unit} (e.g. {'Hz': 2.0}); a proxy unit not
     #: named here gets ``range_margin`` scaled by the ratio of its collected span to the
     #: degC inputs' (see ``input_margins``)
