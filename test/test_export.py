@@ -227,6 +227,33 @@ def test_round_trip_is_identical(cold, tmp_path, fmt, which):
     assert third.files == first.files
 
 
+def test_a_sensor_with_its_own_range(cold, tmp_path):
+    """``sensor_range`` (a lifelong one-sensor swap, ``--high-order-margin``): PX4 gets each
+    sensor's own TMIN/TMAX and reads it back; ArduPilot (one pair per IMU) the wider one,
+    and says how far it continues the narrower sensor."""
+    import dataclasses
+    cal = cold['cals']['px4']
+    (lo, hi), = cal.valid_range
+    narrow = np.array([[lo + 1.0, hi - 1.0]])
+    cal = dataclasses.replace(cal, sensor_range={'accel': narrow})
+    out = export_calibration(cal, 'px4')
+    p = px4_params(out.files[''])
+    assert (p['TC_A0_TMIN'], p['TC_A0_TMAX']) == pytest.approx(tuple(narrow[0]), abs=1e-4)
+    assert (p['TC_G0_TMIN'], p['TC_G0_TMAX']) == pytest.approx((lo, hi), abs=1e-4)
+    back = read_calibration(next(iter(_write(tmp_path, 'a', out, 'px4').values())))
+    assert np.allclose(back.own_range('accel'), narrow, atol=1e-4)
+    assert np.allclose(back.own_range('gyro'), [[lo, hi]], atol=1e-4)
+    t = cold['temps'][:, 0]
+    ours = cal.apply(cold['accel'], cold['gyro'], cold['temps'])
+    da = px4_correct(p, 'TC_A0', cold['accel'], t) - ours.accel
+    assert np.abs(da).max() < 1 * UG and (t < narrow[0, 0]).any()
+    ap = export_calibration(cal, 'ardupilot')
+    q = ap_params(ap.files[''])
+    assert (q['INS_TCAL1_TMIN'], q['INS_TCAL1_TMAX']) == pytest.approx((lo, hi), abs=1e-4)
+    assert any('accel: this calibration holds it at its own range' in n and
+               'up to 1.00 degC beyond' in n for n in ap.notes)
+
+
 def test_kalibr_noise_export_and_round_trip(cold, tmp_path):
     cal = cold['cals']['px4']
     with pytest.raises(ValueError, match='--noise noise.yaml'):

@@ -58,9 +58,8 @@ class CalibrateSettings:
     #: valid range = collected range widened by this (degC)
     range_margin: float = 1.0
     #: None: ``range_margin`` for every model; a number (degC): the margin of a model above
-    #: first order in temperature (``CalibrateOptions.high_order_margin``; judged in
-    #: docs/lifelong.md: 0 for the accelerometer alone)
-    high_order_margin: Optional[float] = 0.0
+    #: first order in temperature (``CalibrateOptions.high_order_margin``; judged, off)
+    high_order_margin: Optional[float] = None
     #: the sensors it applies to: 'both', 'accel' or 'gyro'
     high_order_sensors: str = 'accel'
     #: temperature samples further apart than this (s) are a gap: the nearest is held
