@@ -176,7 +176,8 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
              gyro_g_sensitivity=DEFAULT.gyro_g_sensitivity,
              gyro_continuation=DEFAULT.gyro_continuation, alarm_first=DEFAULT.alarm_first,
              high_order_margin=CalibrateSettings.high_order_margin,
-             high_order_sensors=CalibrateSettings.high_order_sensors, **overrides):
+             high_order_sensors=CalibrateSettings.high_order_sensors,
+             placement_folds=DEFAULT.placement_folds, **overrides):
     m = robot_month(seed, days=days, **overrides)
     spec = m.device.spec
     rate = m.config.imu_rate
@@ -201,7 +202,8 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
                                               refit_on_swap=refit_on_swap,
                                               gyro_g_sensitivity=gyro_g_sensitivity,
                                               gyro_continuation=gyro_continuation,
-                                              alarm_first=alarm_first),
+                                              alarm_first=alarm_first,
+                                              placement_folds=placement_folds),
                         log=lambda level, text: log.append((level, text)))
     life = make()
     feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
@@ -338,7 +340,8 @@ def month(args):
                      args.alarm_reference, args.alarm_cut, args.accel_score,
                      args.raw_kept, args.refit_on_swap, args.out_of_range,
                      args.gyro_g_sensitivity, args.gyro_continuation, args.alarm_first,
-                     args.high_order_margin, args.high_order_sensors)
+                     args.high_order_margin, args.high_order_sensors,
+                     args.placement_folds)
         rows.append(r)
         ra, kn = r['ratios'], r['knock']
         print(f'seed {seed}: {r["seconds"]:.0f} s, gyro first day '
@@ -999,6 +1002,10 @@ def main():
     mo.add_argument('--high-order-sensors', choices=tuple(HIGH_ORDER_SENSORS),
                     default=CalibrateSettings.high_order_sensors,
                     help='the sensors --high-order-margin applies to')
+    mo.add_argument('--placement-folds', action=argparse.BooleanOptionalAction,
+                    default=DEFAULT.placement_folds,
+                    help='held-out folds never keep a test stop\'s other windows in training '
+                         '(LifelongConfig.placement_folds; default: the package\'s)')
     mo.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_month.json'))
     re_ = sub.add_parser('real')
     re_.add_argument('--work', default='')

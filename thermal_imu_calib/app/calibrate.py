@@ -62,6 +62,8 @@ class CalibrateSettings:
     high_order_margin: Optional[float] = None
     #: the sensors it applies to: 'both', 'accel' or 'gyro'
     high_order_sensors: str = 'accel'
+    #: holds are separate placements (``CalibrateOptions.placement_folds``; lifelong)
+    placement_folds: bool = False
     #: temperature samples further apart than this (s) are a gap: the nearest is held
     max_gap_s: float = 5.0
     #: local gravity (m/s^2); None: from ``latitude``/``altitude``, else standard gravity
@@ -153,6 +155,7 @@ def options(settings, collected, transitions=()):
         min_hold_s=settings.detector.min_hold_s or det.get('min_hold_s') or 1.0,
         range_margin=settings.range_margin, high_order_margin=settings.high_order_margin,
         high_order_sensors=settings.high_order_sensors,
+        placement_folds=settings.placement_folds,
         latitude=settings.latitude,
         transitions=list(transitions), **mapping)
 

@@ -65,6 +65,10 @@ class CalibrateOptions:
     high_order_margin: Optional[float] = None
     #: the sensors ``high_order_margin`` applies to: 'both', 'accel' or 'gyro'
     high_order_sensors: str = 'accel'
+    #: the holds are separate placements (a robot's stops: each an unknown pose), so a
+    #: held-out fold of the thermal history never keeps a test hold's other windows in
+    #: training (``selection.time_folds.whole_holds``); False: window folds (one mounting)
+    placement_folds: bool = False
     #: margins by unit, {unit: margin in that unit} (e.g. {'Hz': 2.0}); a proxy unit not
     #: named here gets ``range_margin`` scaled by the ratio of its collected span to the
     #: degC inputs' (see ``input_margins``)

@@ -67,6 +67,11 @@ class LifelongConfig:
     #: criteria written before the runs) the accelerometer drift of the last week was 6.9 %
     #: worse (past the 5 % set) and swaps with a worse next day 7 -> 8 (docs/lifelong.md)
     alarm_first: bool = False
+    #: calibrate with ``CalibrateSettings.placement_folds``: every stop is a separate
+    #: placement, so the held-out folds that choose the thermal model (one orientation)
+    #: never keep a test hold's other windows in training (docs/lifelong.md, "The first
+    #: estimate reads floor tilt as temperature"). Being judged, off
+    placement_folds: bool = False
     #: what a change alarm cuts: 'all' (every hold before it, for both sensors) or
     #: 'sensor' (when one sensor alone failed, its history only: the other keeps the
     #: older holds for its fits, ``HoldStore.cut(keep=...)``, ``variants.with_kept``; an

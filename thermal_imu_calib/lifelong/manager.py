@@ -68,7 +68,9 @@ class Lifelong:
     def __init__(self, directory, settings, k, topics, frame_id='', sensor='',
                  registry_dir='', config=None, log=None):
         self.dir = os.path.expanduser(directory)
-        self.settings = settings
+        # a robot's stops are separate placements: held-out folds keep whole holds
+        self.settings = (replace(settings, placement_folds=True) if config is not None and
+                         config.placement_folds else settings)
         self.k = int(k)
         self.topics = list(topics)
         self.frame_id = frame_id

@@ -37,7 +37,8 @@ from ..estimation.hysteresis import (ARDUPILOT_SPEC, ARDUPILOT_TREF, Features, f
                                      NO_THERMAL_SPEC, predict, Spec)
 from ..estimation.thermal_lag import lagged_axis_temperatures
 from ..input_units import is_temperature
-from .time_folds import BLOCK_S, complexity, label, MARGIN, MIN_TEST_WINDOWS, RVM
+from .time_folds import (BLOCK_S, complexity, label, MARGIN, MIN_TEST_WINDOWS, RVM,
+                         whole_holds)
 
 #: the temperature span is cut into this many equal bands; the interior ones are held out
 #: (the granularity of the previous path's six time blocks, without its two end blocks)
@@ -51,8 +52,11 @@ def _label(key, incumbent):
     return f'{INCUMBENT} ({incumbent.model})' if key == INCUMBENT else label(key)
 
 
-def band_folds(windows, column=0, n_bands=N_BANDS):
-    """Return (list of (train, test, label), kind): interior temperature bands held out."""
+def band_folds(windows, column=0, n_bands=N_BANDS, placements=False):
+    """Return (list of (train, test, label), kind): interior temperature bands held out.
+
+    ``placements``: the holds are separate placements (``time_folds.whole_holds``).
+    """
     if windows.n_inputs == 0 or len(windows) == 0:
         return [], 'no temperature'
     temp = windows.temp[:, column]
@@ -66,8 +70,14 @@ def band_folds(windows, column=0, n_bands=N_BANDS):
         if test.sum() >= MIN_TEST_WINDOWS and (~test).sum() >= 8:
             a, z = lo + b * (hi - lo) / n_bands, lo + (b + 1) * (hi - lo) / n_bands
             folds.append((~test, test, f'band {a:.1f}..{z:.1f} degC'))
-    return folds, (f'{len(folds)} interior temperature bands of {n_bands} equal ones held '
-                   'out, each fitted on the rest')
+    kind = (f'{len(folds)} interior temperature bands of {n_bands} equal ones held out, '
+            'each fitted on the rest')
+    if placements:
+        folds = whole_holds(windows, folds)
+        kind = (f'{len(folds)} interior temperature bands of {n_bands} equal ones held out, '
+                "each fitted on the rest without the test holds' other windows (holds are "
+                'separate placements)')
+    return folds, kind
 
 
 def level_drift(corrected, windows, train, test, block_s=BLOCK_S):
@@ -185,7 +195,7 @@ def select_one_way(ctx, incumbent, fit_single):
         return None, ('one-way history with an input that is not a temperature (a proxy): '
                       'the flight stacks\' cubic and the band candidates are temperature '
                       'models, kept')
-    folds, kind = band_folds(w)
+    folds, kind = band_folds(w, placements=ctx.options.placement_folds)
     if len(folds) < 2:
         return None, f'one-way history: {kind}; fewer than 2 held-out bands, kept'
     lag = incumbent.tau_s if incumbent.model.endswith('lag') else None

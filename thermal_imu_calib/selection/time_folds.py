@@ -73,8 +73,27 @@ def turns_both_ways(ctx):
     return len({leg['direction'] for leg in info}) == 2
 
 
-def time_folds(windows, column=0):
-    """Return (list of (train mask, test mask, label), kind) of contiguous history blocks."""
+def whole_holds(windows, folds, min_train=8):
+    """Return ``folds`` with every test hold's other windows taken out of training.
+
+    For holds that are separate placements (``CalibrateOptions.placement_folds``): a
+    hold's level holds its unknown pose, so a model that can tell holds apart (a lagged
+    input barely moves inside one) would otherwise learn a test hold's level from its own
+    training windows. Folds left with fewer than ``min_train`` training windows are dropped.
+    """
+    out = []
+    for train, test, lab in folds:
+        train = train & ~np.isin(windows.hold, np.unique(windows.hold[test]))
+        if train.sum() >= min_train:
+            out.append((train, test, lab))
+    return out
+
+
+def time_folds(windows, column=0, placements=False):
+    """Return (list of (train mask, test mask, label), kind) of contiguous history blocks.
+
+    ``placements``: the holds are separate placements (``whole_holds``).
+    """
     tm = 0.5 * (windows.t0 + windows.t1)
     leg_ids, info = legs(windows, column)
     folds = []
@@ -83,7 +102,8 @@ def time_folds(windows, column=0):
             test = leg_ids == leg['leg']
             folds.append((~test, test, f'leg {leg["leg"]} ({leg["direction"]} '
                                        f'{leg["t_min"]:.1f}..{leg["t_max"]:.1f} degC)'))
-        return folds, f'leave one of {len(info)} temperature legs out'
+        kind = f'leave one of {len(info)} temperature legs out'
+        return _placed(windows, folds, placements), kind + (_PLACED if placements else '')
     last = leg_ids == (info[-1]['leg'] if info else 0)
     t_lo, t_hi = (tm[last].min(), tm[last].max()) if last.any() else (0.0, 0.0)
     for f in FORWARD_CUTS:
@@ -91,8 +111,18 @@ def time_folds(windows, column=0):
         train = tm < cut
         if train.sum() >= 8 and (~train).sum() >= 2:
             folds.append((train, ~train, f'after {100 * f:.0f} % of the last leg'))
-    return folds, (f'last part of the history held out, fitted on what came before (cuts at '
-                   f'{", ".join(f"{100 * f:.0f}" for f in FORWARD_CUTS)} % of the last leg)')
+    return _placed(windows, folds, placements), (
+        f'last part of the history held out, fitted on what came before (cuts at '
+        f'{", ".join(f"{100 * f:.0f}" for f in FORWARD_CUTS)} % of the last leg)'
+        f'{_PLACED if placements else ""}')
+
+
+#: appended to a fold description when the holds are separate placements
+_PLACED = "; a test hold's other windows out of training (holds are separate placements)"
+
+
+def _placed(windows, folds, placements):
+    return whole_holds(windows, folds) if placements else folds
 
 
 def block_drift(values, t_mid, rows, block_s=BLOCK_S):
@@ -251,7 +281,7 @@ def select_history(ctx, signals=('accel', 'gyro')):
     """
     t_start = time.perf_counter()
     w = ctx.windows
-    folds, kind = time_folds(w)
+    folds, kind = time_folds(w, placements=ctx.options.placement_folds)
     specs = candidate_specs()
     units = {'accel': 'm/s^2', 'gyro': 'rad/s'}
     chosen, table, texts, export_loss = {}, {}, [], {}
