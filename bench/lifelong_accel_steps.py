@@ -34,7 +34,6 @@ from bench_lifelong import (  # noqa: E402
     active_index, months_parser, registry_timeline, scored_stops, stop_error)
 from thermal_imu_calib.estimation.hysteresis import ARDUPILOT_TREF  # noqa: E402
 from thermal_imu_calib.formats.ardupilot import reexpand  # noqa: E402
-from thermal_imu_calib.lifelong.compose import own_range  # noqa: E402
 from thermal_imu_calib.models.polynomial import OffsetPolynomialModel  # noqa: E402
 from thermal_imu_calib.sim.robot_month import DAY, robot_month  # noqa: E402
 
@@ -47,7 +46,7 @@ def repinned(cal):
     if not (isinstance(acc, OffsetPolynomialModel) and not acc.include_constant
             and np.all(acc.t0 == ARDUPILOT_TREF)):
         return None
-    rng = own_range(cal, 'accel')
+    rng = cal.own_range('accel')
     mid = float(np.round((rng[0, 0] + rng[0, 1]) / 2.0, 2))
     c = reexpand(acc.coeffs, ARDUPILOT_TREF, mid)
     c[0] = 0.0

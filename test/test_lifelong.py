@@ -18,7 +18,7 @@ from thermal_imu_calib.app.calibrate import CalibrateSettings
 from thermal_imu_calib.calibration import Calibration
 from thermal_imu_calib.fleet import registry
 from thermal_imu_calib.collection.segments import Windows
-from thermal_imu_calib.lifelong import alarm, compose, gate, knock_step
+from thermal_imu_calib.lifelong import alarm, gate, knock_step
 from thermal_imu_calib.lifelong.feed import Feeder
 from thermal_imu_calib.lifelong.hints import HintGate, HintSource, twist_still
 from thermal_imu_calib.lifelong.manager import Lifelong, LifelongConfig, main_pose
@@ -737,7 +737,7 @@ def test_a_gyro_alarm_cuts_the_gyro_history_only(tmp_path, month_windows, cut):
     assert life.status()['alarm'] == 're-estimating from the holds after it'
     d = life.estimate('change alarm')
     assert d['action'] == 'swap' and d['figures']['gyro']['verdict'] == 'better', d['text']
-    lo = compose.own_range(life.active, 'accel')[0, 0]
+    lo = life.active.own_range('accel')[0, 0]
     after_cut = life.store.windows().temp[:, 0].min()
     if cut == 'sensor':
         assert d['kept_history']['used'] and 'history kept' in d['text'], d['text']
@@ -745,7 +745,7 @@ def test_a_gyro_alarm_cuts_the_gyro_history_only(tmp_path, month_windows, cut):
         assert composed['accel_from'] != composed['gyro_from']
         # the accelerometer's model spans the older holds' temperatures
         assert lo <= clean.temp[:, 0].min() + 0.5 < after_cut, (lo, after_cut)
-        assert compose.own_range(life.active, 'gyro')[0, 0] >= after_cut - 0.5
+        assert life.active.own_range('gyro')[0, 0] >= after_cut - 0.5
     else:
         assert 'kept_history' not in d
         assert lo >= after_cut - 0.5
@@ -802,7 +802,7 @@ def test_a_shift_alarm_keeps_the_older_holds_moved_by_the_knocks_step(
     assert d['action'] == 'swap' and d['figures']['gyro']['verdict'] == 'better', d['text']
     assert 'alarm' not in life.status()
     for which in ('accel', 'gyro'):         # both models span the pre-knock temperatures
-        assert compose.own_range(life.active, which)[0, 0] <= \
+        assert life.active.own_range(which)[0, 0] <= \
             main_pose(clean, 2.0).temp[:, 0].min() + 0.5
     # the new calibration explains the knocked holds to within the alarm's limit
     e = gate.hold_errors(life.active, knocked, life.active.gravity)

@@ -15,11 +15,11 @@ from ..input_units import TEMPERATURE_BOUNDS
 from .base import (CalibrationError, FILE_FORMATS, FORMAT, GRAVITY_BOUNDS, MAX_DEPTH,
                    MAX_FILE_BYTES, MAX_NODES, NOISE_UNITS, out_unit, OUT_OF_RANGE_POLICIES,
                    TemperatureInput)
-from .core import Calibration, Compensated
+from .core import Calibration, Compensated, spanning_range
 from .yaml_text import check_yaml_shape, decode_text
 
 __all__ = ['Calibration', 'CalibrationError', 'Compensated', 'FILE_FORMATS', 'FORMAT',
            'TemperatureInput',
            'TEMPERATURE_BOUNDS', 'GRAVITY_BOUNDS', 'MAX_DEPTH', 'MAX_FILE_BYTES', 'MAX_NODES',
            'NOISE_UNITS', 'OUT_OF_RANGE_POLICIES', 'check_yaml_shape', 'decode_text',
-           'out_unit']
+           'out_unit', 'spanning_range']

@@ -389,6 +389,18 @@ class Calibration:
         return schema.load(d, source, Calibration)
 
 
+def spanning_range(ranges):
+    """Return (valid_range, sensor_range) of per-sensor ranges {'accel'|'gyro': (k, 2)}.
+
+    The valid range spans them all; a sensor whose range differs from that span keeps it
+    as its own (``Calibration.sensor_range``, ``own_range``).
+    """
+    rs = [np.asarray(r, float) for r in ranges.values()]
+    valid = np.stack([np.min([r[:, 0] for r in rs], 0), np.max([r[:, 1] for r in rs], 0)], 1)
+    return valid, {w: np.array(r, float) for w, r in ranges.items()
+                   if not np.array_equal(r, valid)}
+
+
 def _model_std(model, temps, aux):
     """Return the model's predict_std, with its history terms when it has them."""
     if aux is None:

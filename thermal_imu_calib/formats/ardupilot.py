@@ -19,7 +19,7 @@ cubic and the loss is reported.
 import numpy as np
 from numpy.polynomial import Polynomial
 
-from ..calibration import Calibration, TemperatureInput
+from ..calibration import Calibration, spanning_range, TemperatureInput
 from ..models.polynomial import OffsetPolynomialModel
 from .common import (check_out, cubic_offset, exact_loss, Exported, ExportRefused, history_note,
                      lag_note, num, offset_refit, parse_params, single_input, summarize_loss)
@@ -101,18 +101,18 @@ def export(cal, smp, imu=1, header=''):
         rows += r
         notes += n
         loss[which] = ls
-        ranges[which] = (lo, hi)
+        ranges[which] = np.array([[lo, hi]])
     inputs = {single_input(cal, w, 'ArduPilot') for w in ranges}
     if len(inputs) > 1:
         raise ExportRefused('ArduPilot has one TMIN/TMAX per IMU; the accel and gyro of this '
                             'calibration use inputs with different valid ranges')
-    lo, hi = min(r[0] for r in ranges.values()), max(r[1] for r in ranges.values())
-    for which, (a, z) in ranges.items():
-        if (a, z) != (lo, hi):    # one sensor's own, narrower range (Calibration.own_range)
-            notes.append(f'{which}: this calibration holds it at its own range {a:.2f}..'
-                         f'{z:.2f} degC; ArduPilot has one TMIN..TMAX per IMU ({lo:.2f}..'
-                         f'{hi:.2f}) and continues its polynomial up to '
-                         f'{max(a - lo, hi - z):.2f} degC beyond')
+    valid, own = spanning_range(ranges)
+    lo, hi = (float(v) for v in valid[0])
+    for which, ((a, z),) in own.items():    # a sensor's own, narrower range
+        notes.append(f'{which}: this calibration holds it at its own range {a:.2f}..'
+                     f'{z:.2f} degC; ArduPilot has one TMIN..TMAX per IMU ({lo:.2f}..'
+                     f'{hi:.2f}) and continues its polynomial up to '
+                     f'{max(a - lo, hi - z):.2f} degC beyond')
     if hi - lo < 10.0:
         notes.append(f'the valid range {lo:.1f}..{hi:.1f} degC is narrower than the 10 degC '
                      'ArduPilot\'s own learning requires; it applies the file anyway')

@@ -20,7 +20,7 @@ tab-separated columns, type 6 = MAV_PARAM_TYPE_INT32, 9 = MAV_PARAM_TYPE_REAL32.
 
 import numpy as np
 
-from ..calibration import Calibration, TemperatureInput
+from ..calibration import Calibration, spanning_range, TemperatureInput
 from ..models.polynomial import OffsetPolynomialModel
 from .common import (check_out, cubic_offset, exact_loss, Exported, ExportRefused, history_note,
                      lag_note, num, offset_refit, parse_params, single_input, summarize_loss)
@@ -107,16 +107,14 @@ def read(text, source='PX4 parameters'):
         q = f'{pre}{inst[0]}'
         x = np.array([[p.get(f'{q}_X{j}_{a}', 0.0) for a in range(3)] for j in range(4)])
         models[which] = OffsetPolynomialModel(np.full(3, p[f'{q}_TREF']), x, sensor=which)
-        ranges[which] = (p[f'{q}_TMIN'], p[f'{q}_TMAX'])
+        ranges[which] = np.array([[p[f'{q}_TMIN'], p[f'{q}_TMAX']]])
     if not models:
         raise ValueError(f'{source}: neither TC_A_ENABLE nor TC_G_ENABLE is 1; no thermal '
                          'compensation to import')
-    lo = min(r[0] for r in ranges.values())
-    hi = max(r[1] for r in ranges.values())
     # a sensor with a narrower TMIN..TMAX keeps it as its own range (Calibration.own_range)
-    own = {w: np.array([r]) for w, r in ranges.items() if r != (lo, hi)}
+    valid, own = spanning_range(ranges)
     return Calibration(accel=models.get('accel'), gyro=models.get('gyro'),
                        inputs=[TemperatureInput('t0', 'imu/temperature')],
-                       valid_range=np.array([[lo, hi]]), sensor_range=own,
+                       valid_range=valid, sensor_range=own,
                        fit={'imported': {'format': 'px4', 'source': source}},
                        notes=[f'imported from PX4 thermal compensation parameters ({source})'])

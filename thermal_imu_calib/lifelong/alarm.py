@@ -46,7 +46,7 @@ def alarm_ranges(cal, k, window):
     if cal.valid_range is None or not k:
         return {w: (-np.inf, np.inf) for w in compose.SENSORS}
     if window == 'sensor':
-        return {w: tuple(compose.own_range(cal, w)[0]) for w in compose.SENSORS}
+        return {w: tuple(cal.own_range(w)[0]) for w in compose.SENSORS}
     common = tuple(compose.common_range(cal)[0])
     return {w: common for w in compose.SENSORS}
 

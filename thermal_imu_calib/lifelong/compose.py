@@ -20,7 +20,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..calibration import Calibration
+from ..calibration import Calibration, spanning_range
 from . import gate
 
 SENSORS = ('accel', 'gyro')
@@ -72,11 +72,6 @@ def composed_policy(accel_from, gyro_from):
     return POLICIES.get((accel_from.range_policy('accel'), gyro_from.range_policy('gyro')))
 
 
-def own_range(cal, which):
-    """Return the (k, 2) valid range of one sensor's model of ``cal`` (None: no inputs)."""
-    return cal.own_range(which)
-
-
 def common_range(cal):
     """Return the (k, 2) range inside every sensor's own range (None: no inputs).
 
@@ -86,7 +81,7 @@ def common_range(cal):
     """
     if cal is None or cal.valid_range is None:
         return None
-    own = [own_range(cal, w) for w in SENSORS if getattr(cal, w) is not None]
+    own = [cal.own_range(w) for w in SENSORS if getattr(cal, w) is not None]
     return np.stack([np.max([r[:, 0] for r in own], 0), np.min([r[:, 1] for r in own], 0)], 1)
 
 
@@ -101,15 +96,13 @@ def compose(accel_from, gyro_from, note='', missing=False):
     why = why_not(accel_from, gyro_from, missing)
     if why:
         raise ValueError(f'the calibrations do not compose: {why}')
-    ranges = {w: own_range(c, w) for w, c in (('accel', accel_from), ('gyro', gyro_from))
+    ranges = {w: c.own_range(w) for w, c in (('accel', accel_from), ('gyro', gyro_from))
               if getattr(c, w) is not None}
     if not ranges:
         raise ValueError('the calibrations do not compose: neither sensor has a model')
     valid, sensor_range = None, {}
     if accel_from.inputs:          # the span of the models' own ranges (one model: its own)
-        valid = np.stack([np.min([r[:, 0] for r in ranges.values()], 0),
-                          np.max([r[:, 1] for r in ranges.values()], 0)], 1)
-        sensor_range = {w: r.copy() for w, r in ranges.items() if not np.array_equal(r, valid)}
+        valid, sensor_range = spanning_range(ranges)
     noise = {k: v for k, v in (accel_from.noise_model or {}).items() if not k.startswith('gyro')}
     noise.update({k: v for k, v in (gyro_from.noise_model or {}).items()
                   if k.startswith('gyro')})
