@@ -68,15 +68,15 @@ class Lifelong:
     def __init__(self, directory, settings, k, topics, frame_id='', sensor='',
                  registry_dir='', config=None, log=None):
         self.dir = os.path.expanduser(directory)
-        # a robot's stops are separate placements: held-out folds keep whole holds
-        self.settings = (replace(settings, placement_folds=True) if config is not None and
-                         config.placement_folds else settings)
+        self.settings = settings
         self.k = int(k)
         self.topics = list(topics)
         self.frame_id = frame_id
         self.sensor = sensor or frame_id or 'imu'
         self.registry_dir = os.path.expanduser(registry_dir) if registry_dir else ''
         self.config = config or LifelongConfig()
+        if self.config.placement_folds:   # a robot's stops: separate placements
+            self.settings = replace(settings, placement_folds=True)
         #: deg or None: the swap gate takes the known vertical earth rate off the gyro
         self.latitude = getattr(settings, 'latitude', None)
         self.log = log or (lambda level, text: None)

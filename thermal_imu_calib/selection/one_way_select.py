@@ -37,7 +37,7 @@ from ..estimation.hysteresis import (ARDUPILOT_SPEC, ARDUPILOT_TREF, Features, f
                                      NO_THERMAL_SPEC, predict, Spec)
 from ..estimation.thermal_lag import lagged_axis_temperatures
 from ..input_units import is_temperature
-from .time_folds import (BLOCK_S, complexity, label, MARGIN, MIN_TEST_WINDOWS, RVM,
+from .time_folds import (BLOCK_S, complexity, label, MARGIN, MIN_TEST_WINDOWS, PLACED, RVM,
                          whole_holds)
 
 #: the temperature span is cut into this many equal bands; the interior ones are held out
@@ -70,14 +70,10 @@ def band_folds(windows, column=0, n_bands=N_BANDS, placements=False):
         if test.sum() >= MIN_TEST_WINDOWS and (~test).sum() >= 8:
             a, z = lo + b * (hi - lo) / n_bands, lo + (b + 1) * (hi - lo) / n_bands
             folds.append((~test, test, f'band {a:.1f}..{z:.1f} degC'))
-    kind = (f'{len(folds)} interior temperature bands of {n_bands} equal ones held out, '
-            'each fitted on the rest')
     if placements:
         folds = whole_holds(windows, folds)
-        kind = (f'{len(folds)} interior temperature bands of {n_bands} equal ones held out, '
-                "each fitted on the rest without the test holds' other windows (holds are "
-                'separate placements)')
-    return folds, kind
+    return folds, (f'{len(folds)} interior temperature bands of {n_bands} equal ones held '
+                   'out, each fitted on the rest' + (PLACED if placements else ''))
 
 
 def level_drift(corrected, windows, train, test, block_s=BLOCK_S):

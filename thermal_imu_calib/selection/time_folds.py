@@ -73,6 +73,10 @@ def turns_both_ways(ctx):
     return len({leg['direction'] for leg in info}) == 2
 
 
+#: appended to a fold description when the holds are separate placements (``whole_holds``)
+PLACED = "; a test hold's other windows out of training (holds are separate placements)"
+
+
 def whole_holds(windows, folds, min_train=8):
     """Return ``folds`` with every test hold's other windows taken out of training.
 
@@ -103,26 +107,19 @@ def time_folds(windows, column=0, placements=False):
             folds.append((~test, test, f'leg {leg["leg"]} ({leg["direction"]} '
                                        f'{leg["t_min"]:.1f}..{leg["t_max"]:.1f} degC)'))
         kind = f'leave one of {len(info)} temperature legs out'
-        return _placed(windows, folds, placements), kind + (_PLACED if placements else '')
-    last = leg_ids == (info[-1]['leg'] if info else 0)
-    t_lo, t_hi = (tm[last].min(), tm[last].max()) if last.any() else (0.0, 0.0)
-    for f in FORWARD_CUTS:
-        cut = t_lo + f * (t_hi - t_lo)
-        train = tm < cut
-        if train.sum() >= 8 and (~train).sum() >= 2:
-            folds.append((train, ~train, f'after {100 * f:.0f} % of the last leg'))
-    return _placed(windows, folds, placements), (
-        f'last part of the history held out, fitted on what came before (cuts at '
-        f'{", ".join(f"{100 * f:.0f}" for f in FORWARD_CUTS)} % of the last leg)'
-        f'{_PLACED if placements else ""}')
-
-
-#: appended to a fold description when the holds are separate placements
-_PLACED = "; a test hold's other windows out of training (holds are separate placements)"
-
-
-def _placed(windows, folds, placements):
-    return whole_holds(windows, folds) if placements else folds
+    else:
+        last = leg_ids == (info[-1]['leg'] if info else 0)
+        t_lo, t_hi = (tm[last].min(), tm[last].max()) if last.any() else (0.0, 0.0)
+        for f in FORWARD_CUTS:
+            cut = t_lo + f * (t_hi - t_lo)
+            train = tm < cut
+            if train.sum() >= 8 and (~train).sum() >= 2:
+                folds.append((train, ~train, f'after {100 * f:.0f} % of the last leg'))
+        kind = (f'last part of the history held out, fitted on what came before (cuts at '
+                f'{", ".join(f"{100 * f:.0f}" for f in FORWARD_CUTS)} % of the last leg)')
+    if placements:
+        folds = whole_holds(windows, folds)
+    return folds, kind + (PLACED if placements else '')
 
 
 def block_drift(values, t_mid, rows, block_s=BLOCK_S):
