@@ -177,7 +177,8 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
              gyro_continuation=DEFAULT.gyro_continuation, alarm_first=DEFAULT.alarm_first,
              high_order_margin=CalibrateSettings.high_order_margin,
              high_order_sensors=CalibrateSettings.high_order_sensors,
-             placement_folds=DEFAULT.placement_folds, **overrides):
+             placement_folds=DEFAULT.placement_folds,
+             placement_floor=DEFAULT.placement_floor, **overrides):
     m = robot_month(seed, days=days, **overrides)
     spec = m.device.spec
     rate = m.config.imu_rate
@@ -203,7 +204,8 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
                                               gyro_g_sensitivity=gyro_g_sensitivity,
                                               gyro_continuation=gyro_continuation,
                                               alarm_first=alarm_first,
-                                              placement_folds=placement_folds),
+                                              placement_folds=placement_folds,
+                                              placement_floor=placement_floor),
                         log=lambda level, text: log.append((level, text)))
     life = make()
     feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
@@ -341,7 +343,7 @@ def month(args):
                      args.raw_kept, args.refit_on_swap, args.out_of_range,
                      args.gyro_g_sensitivity, args.gyro_continuation, args.alarm_first,
                      args.high_order_margin, args.high_order_sensors,
-                     args.placement_folds)
+                     args.placement_folds, args.placement_floor)
         rows.append(r)
         ra, kn = r['ratios'], r['knock']
         print(f'seed {seed}: {r["seconds"]:.0f} s, gyro first day '
@@ -1006,6 +1008,11 @@ def main():
                     default=DEFAULT.placement_folds,
                     help='held-out folds never keep a test stop\'s other windows in training '
                          '(LifelongConfig.placement_folds; default: the package\'s)')
+    mo.add_argument('--placement-floor', action=argparse.BooleanOptionalAction,
+                    default=DEFAULT.placement_floor,
+                    help='one-way first estimates: a sensor\'s thermal model must beat its raw '
+                         'output on held-out stops (LifelongConfig.placement_floor; default: '
+                         'the package\'s)')
     mo.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_month.json'))
     re_ = sub.add_parser('real')
     re_.add_argument('--work', default='')

@@ -64,6 +64,9 @@ class CalibrateSettings:
     high_order_sensors: str = 'accel'
     #: holds are separate placements (``CalibrateOptions.placement_folds``; lifelong)
     placement_folds: bool = False
+    #: per sensor, no worse than its raw output on held-out placements
+    #: (``CalibrateOptions.placement_floor``; lifelong)
+    placement_floor: bool = False
     #: temperature samples further apart than this (s) are a gap: the nearest is held
     max_gap_s: float = 5.0
     #: local gravity (m/s^2); None: from ``latitude``/``altitude``, else standard gravity
@@ -156,6 +159,7 @@ def options(settings, collected, transitions=()):
         range_margin=settings.range_margin, high_order_margin=settings.high_order_margin,
         high_order_sensors=settings.high_order_sensors,
         placement_folds=settings.placement_folds,
+        placement_floor=settings.placement_floor,
         latitude=settings.latitude,
         transitions=list(transitions), **mapping)
 

@@ -76,7 +76,9 @@ class Lifelong:
         self.registry_dir = os.path.expanduser(registry_dir) if registry_dir else ''
         self.config = config or LifelongConfig()
         if self.config.placement_folds:   # a robot's stops: separate placements
-            self.settings = replace(settings, placement_folds=True)
+            self.settings = replace(self.settings, placement_folds=True)
+        if self.config.placement_floor:
+            self.settings = replace(self.settings, placement_floor=True)
         #: deg or None: the swap gate takes the known vertical earth rate off the gyro
         self.latitude = getattr(settings, 'latitude', None)
         self.log = log or (lambda level, text: None)

@@ -25,6 +25,14 @@ on top of it:
   each sensor gets the simplest spec of its pool (the cubic when the pool is empty), fitted
   by ``history_select`` (model ``hysteresis``).
 
+With ``placement_floor`` (the holds are separate placements: a robot's stops) a candidate
+is also scored with whole placements left out (``time_folds.placement_groups``; inputs
+clamped to the training range, as a calibration from the training part is applied), and
+for a sensor only the candidates no worse there than the output as it is (score <= 1, no
+thermal terms always) stay eligible; the pool, the floor and the pick are then taken among
+them. It adds no threshold: the bands and the placements are both held-out data, and a
+model is kept only when neither says it harms.
+
 ``fit.model_choice`` lists every candidate's per-fold figure (``heldout``).
 """
 
@@ -32,12 +40,14 @@ import time
 
 import numpy as np
 
-from ..estimation.calibrate import input_units
+from ..estimation.calibrate import input_margins, input_units
 from ..estimation.hysteresis import (ARDUPILOT_SPEC, ARDUPILOT_TREF, Features, fit_spec,
                                      NO_THERMAL_SPEC, predict, Spec)
 from ..estimation.thermal_lag import lagged_axis_temperatures
 from ..input_units import is_temperature
-from .time_folds import (BLOCK_S, complexity, label, MARGIN, MIN_TEST_WINDOWS, PLACED, RVM,
+from .heldout import clamp_to_training
+from .time_folds import (BLOCK_S, complexity, label, MARGIN, MIN_TEST_WINDOWS, PLACED,
+                         placement_groups, RVM,
                          whole_holds)
 
 #: the temperature span is cut into this many equal bands; the interior ones are held out
@@ -132,11 +142,12 @@ def export_figures(windows, axis_input, signal, spec, t0, folds):
     return out
 
 
-def _family_figures(ctx, name, tau, kernels, fit_single, folds):
+def _family_figures(ctx, name, tau, kernels, fit_single, folds, margin=None):
     """Return {sensor: [figure per fold]} of a family of the previous path, or None.
 
     ``kernels``: the RVM kernels chosen on every window; only their presence is used (the
-    family was fitted), each fold searches its own.
+    family was fitted), each fold searches its own. ``margin``: not None, the inputs are
+    clamped to each fold's training range +- margin (``heldout.clamp_to_training``).
     """
     family = {'offset': 'poly', 'lag': 'poly', 'rvm': 'rvm', 'rvm-lag': 'rvm'}.get(name)
     if family is None or (family == 'rvm' and not kernels):
@@ -150,22 +161,57 @@ def _family_figures(ctx, name, tau, kernels, fit_single, folds):
         # the RVM's kernels are searched again on the training part of each fold: kernels
         # chosen on every window would have seen the held-out band
         acc, gyr, _ = fit_single(ctx, family, tau, w.select(train))
-        for sig, m in (('accel', acc), ('gyro', gyr)):
+        for sig, m, idx in (('accel', acc, ctx.accel_input), ('gyro', gyr, ctx.gyro_input)):
             y = getattr(w, sig)
-            out[sig].append(level_drift(m.correct(y, temps[sig]), w, train, test))
+            x = (temps[sig] if margin is None else
+                 clamp_to_training(temps[sig], w, train, idx, margin))
+            out[sig].append(level_drift(m.correct(y, x), w, train, test))
     return out
 
 
-def _spec_figures(windows, axis_input, signal, specs, t0, folds):
+class _Clamped(Features):
+    """``Features`` whose readings and lagged readings are clamped to a training range."""
+
+    def __init__(self, feats, clamp):
+        super().__init__(feats.windows, feats.axis_input)
+        self._src, self._clamp = feats, clamp
+        self.temp = clamp(feats.temp)
+
+    def lagged(self, taus):
+        return self._clamp(self._src.lagged(taus))
+
+
+def _spec_figures(windows, axis_input, signal, specs, t0, folds, margin=None):
+    """Return {spec: [figure per fold]}; ``margin`` as in ``_family_figures``."""
     feats = Features(windows, axis_input)
     y = getattr(windows, signal)
     out = {s: [] for s in specs}
     for train, test, _ in folds:
+        used = feats if margin is None else _Clamped(
+            feats, lambda x, tr=train: clamp_to_training(x, windows, tr, axis_input, margin))
         for s in specs:
             ref = np.full(3, ARDUPILOT_TREF) if s is ARDUPILOT_SPEC else t0
             coef, _ = fit_spec(feats, s, y, train, ref)
-            out[s].append(level_drift(y - predict(feats, s, coef, ref), windows, train, test))
+            out[s].append(level_drift(y - predict(used, s, coef, ref), windows, train, test))
     return out
+
+
+def _placement_scores(ctx, sig, idx, t0, keys, incumbent, fit_single, floor_folds, cache):
+    """Return {candidate: score of raw} with whole placements held out (inputs clamped)."""
+    w = ctx.windows
+    margin = input_margins(w, ctx.options) if ctx.k else ctx.options.range_margin
+    y = getattr(w, sig)
+    raw = [level_drift(y, w, tr, te) for tr, te, _ in floor_folds]
+    specs = [k for k in keys if isinstance(k, Spec)]
+    figs = _spec_figures(w, idx, sig, specs, t0, floor_folds, margin)
+    for key, name, tau in ((INCUMBENT, incumbent.model, incumbent.tau_s), (RVM, RVM, None)):
+        if key in keys:
+            if key not in cache:
+                cache[key] = _family_figures(ctx, name, tau, incumbent.kernels.get(name),
+                                             fit_single, floor_folds, margin)
+            if cache[key] is not None:
+                figs[key] = cache[key][sig]
+    return _scores(figs, raw)
 
 
 def _scores(figs, raw):
@@ -204,6 +250,8 @@ def select_one_way(ctx, incumbent, fit_single):
            if lag is None and incumbent.model != RVM else None)
     units = {'accel': 'm/s^2', 'gyro': 'rad/s'}
     table, pools, picks, texts, export_loss = {}, {}, {}, [], {}
+    floor_folds = placement_groups(w) if ctx.options.placement_floor else []
+    floor_cache = {}
     for sig, idx, t0 in (('accel', ctx.accel_input, ctx.t0),
                          ('gyro', ctx.gyro_input, ctx.gyro_t0)):
         y = getattr(w, sig)
@@ -216,11 +264,31 @@ def select_one_way(ctx, incumbent, fit_single):
             figs[RVM] = rvm[sig]
         scores = {k: v for k, v in _scores(figs, raw).items() if np.isfinite(v)}
         eligible = {k: v for k, v in scores.items() if k not in shown}
+        placed = ''
+        if len(floor_folds) >= 2:
+            held = _placement_scores(ctx, sig, idx, t0, list(eligible), incumbent, fit_single,
+                                     floor_folds, floor_cache)
+            harm = [k for k in eligible if k is not NO_THERMAL_SPEC
+                    and not held.get(k, np.inf) <= 1.0]
+            eligible = {k: v for k, v in eligible.items() if k not in harm}
+            for k, v in held.items():
+                table.setdefault(_label(k, incumbent), {})[f'{sig}_placement_score'] = v
+            placed = (f'; placement floor ({len(floor_folds)} groups of whole holds held '
+                      f'out): {len(harm)} worse than the output as it is' +
+                      (' (' + ', '.join(_label(k, incumbent) for k in harm) + ')' if harm
+                       else ''))
         best = min(eligible.values())
         floor = eligible.get(floor_spec, np.inf)
         pools[sig] = [k for k in eligible if eligible[k] <= best * (1 + MARGIN)
                       and eligible[k] <= floor]
         spec_pool = [k for k in pools[sig] if k != INCUMBENT]
+        if placed and not spec_pool:
+            # the incumbent alone qualified, and may not stay (the other sensor): the
+            # specs within the margin of the best spec the placements did not reject
+            specs_left = {k: v for k, v in eligible.items() if isinstance(k, Spec)}
+            spec_best = min(specs_left.values())
+            spec_pool = [k for k, v in specs_left.items()
+                         if v <= spec_best * (1 + MARGIN) and v <= floor]
         picks[sig] = (min(spec_pool, key=lambda s: (complexity(s), scores[s])) if spec_pool
                       else floor_spec)
         table.setdefault('raw', {})[sig] = float(np.mean(raw))
@@ -243,7 +311,8 @@ def select_one_way(ctx, incumbent, fit_single):
         texts.append(f'{sig}: raw {np.mean(raw):.3g} {units[sig]}; best (score of raw) '
                      f'{parts}; floor {floor_spec.label()} {floor:.3f}' +
                      ''.join(f'; {k.label()} {scores[k]:.3f} (reported only: the lag '
-                             'search chose the lagged input)' for k in shown if k in scores))
+                             'search chose the lagged input)' for k in shown if k in scores)
+                     + placed)
     keep = inc is not None and all(INCUMBENT in pools[s] for s in pools)
     verdict = (f'kept {incumbent.model}' if keep else
                'chose ' + ', '.join(f'{s} {_label(p, incumbent)}' for s, p in picks.items()))

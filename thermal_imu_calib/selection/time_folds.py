@@ -93,6 +93,28 @@ def whole_holds(windows, folds, min_train=8):
     return out
 
 
+def placement_groups(windows, max_groups=6, min_train=8):
+    """Return [(train, test, label)]: whole holds (placements) left out, a group at a time.
+
+    The holds in time order are cut into at most ``max_groups`` contiguous groups of
+    near-equal hold counts (one hold a group while there are no more holds than that);
+    each group is held out in turn and the rest trains, so no test hold has a window in
+    training. Folds left with fewer than ``min_train`` training windows are dropped.
+    """
+    ids = np.unique(windows.hold)
+    if len(ids) < 2:
+        return []
+    first = np.array([windows.t0[windows.hold == h].min() for h in ids])
+    groups = np.array_split(ids[np.argsort(first)], min(max_groups, len(ids)))
+    out = []
+    for g in groups:
+        test = np.isin(windows.hold, g)
+        if (~test).sum() >= min_train:
+            lab = f'hold {g[0]}' if len(g) == 1 else f'holds {g[0]}..{g[-1]} ({len(g)})'
+            out.append((~test, test, lab))
+    return out
+
+
 def time_folds(windows, column=0, placements=False):
     """Return (list of (train mask, test mask, label), kind) of contiguous history blocks.
 
