@@ -435,8 +435,11 @@ def real_pieces(name):
             TemperatureColumns(stamp, x[:, 0], 'imu'), 5.0, ' + '.join(paths))
 
 
-def run_real(name, work, piece_s=None):
-    """Play a real recording through lifelong mode; judge every swap on the later holds."""
+def run_real(name, work, piece_s=None, config=None):
+    """Play a real recording through lifelong mode; judge every swap on the later holds.
+
+    ``config``: the ``LifelongConfig`` (None: the package's defaults).
+    """
     from thermal_imu_calib.io.columns import TemperatureColumns
     from thermal_imu_calib.lifelong import gate
     imu, temp, piece, path = real_pieces(name)
@@ -444,7 +447,7 @@ def run_real(name, work, piece_s=None):
     d = os.path.join(work, name)
     shutil.rmtree(d, ignore_errors=True)
     life = Lifelong(d, CalibrateSettings(), 1, ['/imu/temperature'], 'imu',
-                    registry_dir=os.path.join(d, 'registry'))
+                    registry_dir=os.path.join(d, 'registry'), config=config)
     feeder = Feeder(life, None)
     t = (imu.stamp_ns - imu.stamp_ns[0]) * 1e-9
     pid = np.floor(t / piece).astype(int)
@@ -485,7 +488,8 @@ def real(args):
     work = args.work or tempfile.mkdtemp(prefix='bench_lifelong_real_')
     rows = []
     for name in ('bmi270', 'chamber'):
-        r = run_real(name, work)
+        r = run_real(name, work, config=LifelongConfig(
+            placement_folds=args.placement_folds, placement_floor=args.placement_floor))
         rows.append(r)
         print(f'{name}: {r["holds"]} holds, decisions '
               f'{[d["action"] for d in r["decisions"]]}, swaps {len(r["swaps"])}, harmful '
@@ -1016,6 +1020,10 @@ def main():
     mo.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_month.json'))
     re_ = sub.add_parser('real')
     re_.add_argument('--work', default='')
+    for flag in ('folds', 'floor'):
+        re_.add_argument(f'--placement-{flag}', action=argparse.BooleanOptionalAction,
+                         default=getattr(DEFAULT, f'placement_{flag}'),
+                         help=f'LifelongConfig.placement_{flag} (default: the package\'s)')
     re_.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_real.json'))
     me = sub.add_parser('merge')
     me.add_argument('inputs', nargs='+')
