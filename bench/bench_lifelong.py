@@ -178,7 +178,7 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
              high_order_margin=CalibrateSettings.high_order_margin,
              high_order_sensors=CalibrateSettings.high_order_sensors,
              placement_folds=DEFAULT.placement_folds,
-             placement_floor=DEFAULT.placement_floor, **overrides):
+             placement_floor=DEFAULT.placement_floor, stop_day=None, **overrides):
     m = robot_month(seed, days=days, **overrides)
     spec = m.device.spec
     rate = m.config.imu_rate
@@ -216,6 +216,8 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
     base = m.start_ns * 1e-9
     for seg in m.segments():
         s = seg.stop
+        if stop_day is not None and s.t0 > stop_day * DAY:
+            break                           # the month's first days only
         while restarts and restarts[0] < s.t0:
             restarts.pop(0)
             life = make()                   # restart: state from the directory only
@@ -232,6 +234,8 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
         peak_rss = max(peak_rss, rss_mb())
         peak_disk = max(peak_disk, dir_bytes(d))
     seconds = time.perf_counter() - t_run
+    if stop_day is not None:        # scored afterwards by lifelong_first_day.py
+        return {'seed': seed, 'seconds': round(seconds, 1), 'stop_day': stop_day}
     decisions = life.decisions()
     return evaluate(m, stops, timeline, decisions, noise_g, base) | {
         'seed': seed, 'seconds': round(seconds, 1), 'peak_rss_mb': round(peak_rss, 1),
@@ -343,8 +347,14 @@ def month(args):
                      args.raw_kept, args.refit_on_swap, args.out_of_range,
                      args.gyro_g_sensitivity, args.gyro_continuation, args.alarm_first,
                      args.high_order_margin, args.high_order_sensors,
-                     args.placement_folds, args.placement_floor)
+                     args.placement_folds, args.placement_floor, args.stop_day)
         rows.append(r)
+        if args.stop_day is not None:
+            print(f'seed {seed}: {r["seconds"]:.0f} s, stopped after day {args.stop_day:g} '
+                  f'(score: bench/lifelong_first_day.py {seed}:{work}/seed{seed})',
+                  flush=True)
+            _write(args.output, {'command': ' '.join(sys.argv), 'rows': rows})
+            continue
         ra, kn = r['ratios'], r['knock']
         print(f'seed {seed}: {r["seconds"]:.0f} s, gyro first day '
               f'{r["active"]["gyro_first_day"] * 1e3:.3f} last week '
@@ -359,7 +369,8 @@ def month(args):
         _write(args.output, {'command': ' '.join(sys.argv), 'days': args.days,
                              'seeds': [x['seed'] for x in rows], 'rows': rows,
                              'summary': summarise(rows)})
-    print(json.dumps(summarise(rows), indent=1))
+    if args.stop_day is None:
+        print(json.dumps(summarise(rows), indent=1))
 
 
 def summarise(rows):
@@ -1017,6 +1028,9 @@ def main():
                     help='one-way first estimates: a sensor\'s thermal model must beat its raw '
                          'output on held-out stops (LifelongConfig.placement_floor; default: '
                          'the package\'s)')
+    mo.add_argument('--stop-day', type=float, default=None,
+                    help='stop the month after this day (the first days only; no month '
+                         'figures: score them with bench/lifelong_first_day.py)')
     mo.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_month.json'))
     re_ = sub.add_parser('real')
     re_.add_argument('--work', default='')
