@@ -20,13 +20,14 @@ from thermal_imu_calib.selection.time_folds import placement_groups
 G = 9.80665
 
 
-def _stops(n_holds=8, per_hold=12, seed=4):
+def _stops(n_holds=8, per_hold=12, seed=4, both_ways=False):
     rng = np.random.default_rng(seed)
     holds = np.repeat(np.arange(n_holds), per_hold)
     m = len(holds)
     # 30-s windows, a 20-min drive between stops
     t0 = np.arange(m) * 30.0 + holds * 1200.0
-    temp = 10.0 + 30.0 * (t0 - t0[0]) / (t0[-1] - t0[0])           # degC, warming
+    x = (t0 - t0[0]) / (t0[-1] - t0[0])
+    temp = 10.0 + 30.0 * (np.sin(np.pi * x) if both_ways else x)      # degC
     tilt = rng.normal(0.0, 0.003, (n_holds, 2))                      # rad, per stop
     accel = np.zeros((m, 3))
     accel[:, :2] = G * tilt[holds] + rng.normal(0.0, 2e-4, (m, 2))
@@ -87,3 +88,41 @@ def test_without_the_floor_the_bands_alone_give_the_tilt_a_model():
     assert f'accel {NO_THERMAL_SPEC.label()}' not in choice['reason']
     corr = cal.accel.correct(w.accel, np.repeat(w.temp, 3, axis=1)) - w.accel
     assert np.ptp(corr, axis=0).max() > 1e-3
+
+
+def test_the_floor_on_the_history_path():
+    """The temperature warms and cools again (the history path, ``time_folds``): the
+    chosen spec is checked on held-out stops, and the accelerometer model the forward
+    blocks chose from the tilt gives way to no thermal terms; the gyro keeps its model."""
+    w = _stops(n_holds=10, seed=2, both_ways=True)
+    without, _ = _choice(w)
+    assert 'held-out blocks of the thermal history' in without['reason']
+    assert f'chose {NO_THERMAL_SPEC.label()}' not in without['reason']
+    choice, cal = _choice(w, placement_floor=True)
+    reason = choice['reason']
+    accel = reason[reason.index('accel (m/s^2)'):reason.index('gyro (rad/s)')]
+    gyro = reason[reason.index('gyro (rad/s)'):]
+    assert 'placement floor (6 groups of whole holds held out)' in accel
+    assert 'so no thermal terms instead of' in accel
+    assert 'placement floor' in gyro and 'so no thermal terms' not in gyro
+    corr = cal.accel.correct(w.accel, np.repeat(w.temp, 3, axis=1)) - w.accel
+    assert np.ptp(corr, axis=0).max() < 1e-12
+    gyr = cal.gyro.correct(w.gyro, np.repeat(w.temp, 3, axis=1))
+    assert np.std(gyr, axis=0).max() < 0.2 * np.std(w.gyro, axis=0).min()
+
+
+def test_the_floor_on_the_family_kept_without_bands():
+    """Too few windows for two temperature bands: the previous path's family stays
+    (``select_single``, a score of both sensors). The floor refits it per sensor with whole
+    stops held out; the accelerometer it harms is fitted with no thermal terms."""
+    w = _stops(n_holds=6, per_hold=6, seed=3)
+    without, cal0 = _choice(w)
+    assert 'fewer than 2 held-out bands, kept' in without['reason']
+    corr0 = cal0.accel.correct(w.accel, np.repeat(w.temp, 3, axis=1)) - w.accel
+    assert np.ptp(corr0, axis=0).max() > 1e-3
+    choice, cal = _choice(w, placement_floor=True)
+    assert 'no thermal terms for the accel' in choice['reason']
+    corr = cal.accel.correct(w.accel, np.repeat(w.temp, 3, axis=1)) - w.accel
+    assert np.ptp(corr, axis=0).max() < 1e-12
+    gyr = cal.gyro.correct(w.gyro, np.repeat(w.temp, 3, axis=1))
+    assert np.std(gyr, axis=0).max() < 0.2 * np.std(w.gyro, axis=0).min()

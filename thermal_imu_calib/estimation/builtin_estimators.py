@@ -32,11 +32,16 @@ def _default_gyro(ctx, est):
 DEFAULT_GYRO = [_default_gyro]
 
 
+def no_thermal(ctx):
+    """Return the sensors the model choice gave no thermal terms (its placement floor)."""
+    return getattr(getattr(ctx, 'thermal_selection', None), 'no_thermal', ())
+
+
 def _gyro_bias(ctx):
     """Fit the default gyro bias polynomial; groups = holds when there are enough."""
     w = ctx.windows
     groups = w.hold if len(np.unique(w.hold)) >= 3 else time_groups(w.t0)
-    orders = (0, 1, 2, 3) if ctx.k else (0,)
+    orders = (0, 1, 2, 3) if ctx.k and 'gyro' not in no_thermal(ctx) else (0,)
     return fit_offset_model(w, ctx.tg, ctx.gyro_t0 if ctx.k else np.zeros(3), 'gyro', 'gyro',
                             include_constant=True, orders=orders, groups=groups)
 
@@ -50,7 +55,8 @@ def estimate_offset(ctx):
             'separate bias or scale factor from gravity; hold the six faces (+x -x +y -y +z '
             '-z up)'])
     model, rep = fit_offset_model(ctx.windows, ctx.ta, ctx.t0, 'accel', 'accel',
-                                  include_constant=False)
+                                  include_constant=False,
+                                  orders=(0,) if 'accel' in no_thermal(ctx) else (0, 1, 2, 3))
     return Estimate(accel=model, report={'accel_offset': rep},
                     fit={'pose': 'single orientation (offset-only)'},
                     notes=['offset-only model for a single orientation: removes the drift of '

@@ -69,10 +69,11 @@ class CalibrateOptions:
     #: held-out fold of the thermal history never keeps a test hold's other windows in
     #: training (``selection.time_folds.whole_holds``); False: window folds (one mounting)
     placement_folds: bool = False
-    #: one orientation, a history that runs one way: a thermal model of a sensor must also
-    #: be no worse than that sensor's output as it is when whole placements (groups of
-    #: holds) are left out (``one_way_select``, ``time_folds.placement_groups``); False: the
-    #: temperature bands alone decide
+    #: one orientation, holds that are separate placements (lifelong): a sensor's thermal
+    #: model must also be no worse than its output as it is when whole placements (groups
+    #: of holds) are left out (``selection.placements``); else it gets no thermal terms.
+    #: Checked on every candidate of the one-way bands, on the family kept without bands and
+    #: on the history path's choice. False: the held-out blocks alone decide
     placement_floor: bool = False
     #: margins by unit, {unit: margin in that unit} (e.g. {'Hz': 2.0}); a proxy unit not
     #: named here gets ``range_margin`` scaled by the ratio of its collected span to the

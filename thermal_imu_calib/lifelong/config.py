@@ -72,9 +72,9 @@ class LifelongConfig:
     #: never keep a test hold's other windows in training (docs/lifelong.md, "The first
     #: estimate reads floor tilt as temperature"). Being judged, off
     placement_folds: bool = False
-    #: calibrate with ``CalibrateSettings.placement_floor``: on the first estimates (the
-    #: history runs one way) a sensor's thermal model must also beat its output as it is
-    #: when whole stops are left out; else that sensor gets no thermal terms. Being built, off
+    #: calibrate with ``CalibrateSettings.placement_floor``: a sensor's thermal model must
+    #: also be no worse than its output as it is when whole stops are left out; else that
+    #: sensor gets no thermal terms. Being judged, off
     placement_floor: bool = False
     #: what a change alarm cuts: 'all' (every hold before it, for both sensors) or
     #: 'sensor' (when one sensor alone failed, its history only: the other keeps the

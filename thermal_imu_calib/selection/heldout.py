@@ -38,11 +38,16 @@ class Selection:
     groups: str = ''
     kernels: Dict[str, list] = field(default_factory=dict)
     seconds: float = 0.0
+    #: sensors fitted with no thermal terms (``placements``: the model harmed them)
+    no_thermal: tuple = ()
 
     def report(self):
         """Return a plain dict for the calibration file's fit section."""
-        return {'model': self.model, 'reason': self.reason, 'cv_groups': self.groups,
-                'heldout': self.table, 'lag': self.lag, 'seconds': round(self.seconds, 2)}
+        out = {'model': self.model, 'reason': self.reason, 'cv_groups': self.groups,
+               'heldout': self.table, 'lag': self.lag, 'seconds': round(self.seconds, 2)}
+        if self.no_thermal:
+            out['no_thermal'] = list(self.no_thermal)
+        return out
 
 
 def _weighted_mean(x, n):

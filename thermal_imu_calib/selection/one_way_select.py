@@ -26,7 +26,7 @@ on top of it:
   by ``history_select`` (model ``hysteresis``).
 
 With ``placement_floor`` (the holds are separate placements: a robot's stops) a candidate
-is also scored with whole placements left out (``time_folds.placement_groups``; inputs
+is also scored with whole placements left out (``placements.placement_groups``; inputs
 clamped to the training range, as a calibration from the training part is applied), and
 for a sensor only the candidates no worse there than the output as it is (score <= 1, no
 thermal terms always) stay eligible; the pool, the floor and the pick are then taken among
@@ -40,15 +40,15 @@ import time
 
 import numpy as np
 
-from ..estimation.calibrate import input_margins, input_units
-from ..estimation.hysteresis import (ARDUPILOT_SPEC, ARDUPILOT_TREF, Features, fit_spec,
+from ..estimation.calibrate import input_units
+from ..estimation.hysteresis import (ARDUPILOT_SPEC, Features, fit_spec,
                                      NO_THERMAL_SPEC, predict, Spec)
 from ..estimation.thermal_lag import lagged_axis_temperatures
 from ..input_units import is_temperature
 from .heldout import clamp_to_training
-from .time_folds import (BLOCK_S, complexity, label, MARGIN, MIN_TEST_WINDOWS, PLACED,
-                         placement_groups, RVM,
-                         whole_holds)
+from .placements import (BLOCK_S, floor_margin, harms, level_drift,  # noqa: F401 (re-export)
+                         mean_ratios, placement_groups, raw_figures, spec_figures)
+from .time_folds import complexity, label, MARGIN, MIN_TEST_WINDOWS, PLACED, RVM, whole_holds
 
 #: the temperature span is cut into this many equal bands; the interior ones are held out
 #: (the granularity of the previous path's six time blocks, without its two end blocks)
@@ -84,25 +84,6 @@ def band_folds(windows, column=0, n_bands=N_BANDS, placements=False):
         folds = whole_holds(windows, folds)
     return folds, (f'{len(folds)} interior temperature bands of {n_bands} equal ones held '
                    'out, each fitted on the rest' + (PLACED if placements else ''))
-
-
-def level_drift(corrected, windows, train, test, block_s=BLOCK_S):
-    """Return the held-out figure: RMS over ``block_s`` blocks of |block mean - train mean|.
-
-    ``corrected``: (m, 3) corrected window means; the training mean is weighted by the
-    windows' sample counts. The blocks are cut in the held-out windows' mid times.
-    """
-    idx = np.flatnonzero(test)
-    if len(idx) == 0 or not np.any(train):
-        return float('nan')
-    ref = np.average(corrected[train], axis=0, weights=windows.n[train])
-    tm = 0.5 * (windows.t0[idx] + windows.t1[idx])
-    blk = np.floor((tm - tm.min()) / block_s).astype(int)
-    _, inv = np.unique(blk, return_inverse=True)
-    cnt = np.bincount(inv)
-    d = np.stack([np.bincount(inv, corrected[idx, a] - ref[a]) / cnt for a in range(3)],
-                 axis=1)
-    return float(np.sqrt(np.mean(np.sum(d * d, axis=1))))
 
 
 def candidate_specs(tau):
@@ -169,41 +150,12 @@ def _family_figures(ctx, name, tau, kernels, fit_single, folds, margin=None):
     return out
 
 
-class _Clamped(Features):
-    """``Features`` whose readings and lagged readings are clamped to a training range."""
-
-    def __init__(self, feats, clamp):
-        super().__init__(feats.windows, feats.axis_input)
-        self._src, self._clamp = feats, clamp
-        self.temp = clamp(feats.temp)
-
-    def lagged(self, taus):
-        return self._clamp(self._src.lagged(taus))
-
-
-def _spec_figures(windows, axis_input, signal, specs, t0, folds, margin=None):
-    """Return {spec: [figure per fold]}; ``margin`` as in ``_family_figures``."""
-    feats = Features(windows, axis_input)
-    y = getattr(windows, signal)
-    out = {s: [] for s in specs}
-    for train, test, _ in folds:
-        used = feats if margin is None else _Clamped(
-            feats, lambda x, tr=train: clamp_to_training(x, windows, tr, axis_input, margin))
-        for s in specs:
-            ref = np.full(3, ARDUPILOT_TREF) if s is ARDUPILOT_SPEC else t0
-            coef, _ = fit_spec(feats, s, y, train, ref)
-            out[s].append(level_drift(y - predict(used, s, coef, ref), windows, train, test))
-    return out
-
-
 def _placement_scores(ctx, sig, idx, t0, keys, incumbent, fit_single, floor_folds, cache):
     """Return {candidate: score of raw} with whole placements held out (inputs clamped)."""
     w = ctx.windows
-    margin = input_margins(w, ctx.options) if ctx.k else ctx.options.range_margin
-    y = getattr(w, sig)
-    raw = [level_drift(y, w, tr, te) for tr, te, _ in floor_folds]
+    margin = floor_margin(ctx)
     specs = [k for k in keys if isinstance(k, Spec)]
-    figs = _spec_figures(w, idx, sig, specs, t0, floor_folds, margin)
+    figs = spec_figures(w, idx, sig, specs, t0, floor_folds, margin)
     for key, name, tau in ((INCUMBENT, incumbent.model, incumbent.tau_s), (RVM, RVM, None)):
         if key in keys:
             if key not in cache:
@@ -211,14 +163,30 @@ def _placement_scores(ctx, sig, idx, t0, keys, incumbent, fit_single, floor_fold
                                              fit_single, floor_folds, margin)
             if cache[key] is not None:
                 figs[key] = cache[key][sig]
-    return _scores(figs, raw)
+    return mean_ratios(figs, raw_figures(w, sig, floor_folds))
 
 
-def _scores(figs, raw):
-    raw = np.asarray(raw, float)
-    ok = raw > 0
-    return {k: float(np.mean(np.asarray(v)[ok] / raw[ok])) if ok.any() else float(np.mean(v))
-            for k, v in figs.items()}
+def floor_family(ctx, sel, fit_single):
+    """Apply the placement floor to the previous path's family as it stays; returns a note.
+
+    Each sensor's model of ``sel``'s family is refitted with whole placements left out;
+    a sensor it harms there is listed in ``sel.no_thermal`` (the estimator then fits it
+    with no thermal terms). '' when the option is off or fewer than 2 groups remain.
+    """
+    folds = placement_groups(ctx.windows) if ctx.options.placement_floor else []
+    if len(folds) < 2:
+        return ''
+    figs = _family_figures(ctx, sel.model, sel.tau_s, sel.kernels.get(sel.model), fit_single,
+                           folds, floor_margin(ctx))
+    if figs is None:
+        return ''
+    held = {s: mean_ratios({s: figs[s]}, raw_figures(ctx.windows, s, folds))[s]
+            for s in ('accel', 'gyro')}
+    sel.no_thermal = tuple(s for s, v in held.items() if harms(v))
+    return (f'placement floor ({len(folds)} groups of whole holds held out): {sel.model} '
+            + ', '.join(f'{s} {v:.3f} of raw' for s, v in held.items())
+            + (f'; no thermal terms for the {" and ".join(sel.no_thermal)}'
+               if sel.no_thermal else ''))
 
 
 def select_one_way(ctx, incumbent, fit_single):
@@ -239,7 +207,9 @@ def select_one_way(ctx, incumbent, fit_single):
                       'models, kept')
     folds, kind = band_folds(w, placements=ctx.options.placement_folds)
     if len(folds) < 2:
-        return None, f'one-way history: {kind}; fewer than 2 held-out bands, kept'
+        floor = floor_family(ctx, incumbent, fit_single)
+        return None, (f'one-way history: {kind}; fewer than 2 held-out bands, kept'
+                      + (f'; {floor}' if floor else ''))
     lag = incumbent.tau_s if incumbent.model.endswith('lag') else None
     specs, floor_spec, shown = candidate_specs(lag)
     inc = _family_figures(ctx, incumbent.model, incumbent.tau_s,
@@ -257,12 +227,12 @@ def select_one_way(ctx, incumbent, fit_single):
         y = getattr(w, sig)
         t0 = np.asarray(t0, float)
         raw = [level_drift(y, w, tr, te) for tr, te, _ in folds]
-        figs = _spec_figures(w, idx, sig, specs + shown, t0, folds)
+        figs = spec_figures(w, idx, sig, specs + shown, t0, folds)
         if inc is not None:
             figs[INCUMBENT] = inc[sig]
         if rvm is not None:
             figs[RVM] = rvm[sig]
-        scores = {k: v for k, v in _scores(figs, raw).items() if np.isfinite(v)}
+        scores = {k: v for k, v in mean_ratios(figs, raw).items() if np.isfinite(v)}
         eligible = {k: v for k, v in scores.items() if k not in shown}
         placed = ''
         if len(floor_folds) >= 2:

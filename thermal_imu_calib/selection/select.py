@@ -148,7 +148,8 @@ def _estimate(ctx, name, family, lagged):
     report = {}
     if ctx.n_orientations == 1:
         kernels = sel.kernels.get(name) if sel is not None else None
-        acc, gyr, rep = fit_single(ctx, family, tau, kernels=kernels)
+        acc, gyr, rep = fit_single(ctx, family, tau, kernels=kernels,
+                                   no_thermal=sel.no_thermal if sel is not None else ())
         report.update({'accel_offset': rep['accel'], 'gyro_offset': rep['gyro']})
         fit_stats['pose'] = 'single orientation (offset-only)'
         notes.append('one orientation: the accelerometer model removes the drift relative '

@@ -43,12 +43,13 @@ LAG_MIN_IMPROVEMENT = 0.10
 
 
 def fit_single(ctx, family, tau, windows=None, groups=None, kernels=None, rvm_settings=None,
-               signals=('accel', 'gyro')):
+               signals=('accel', 'gyro'), no_thermal=()):
     """Fit accel and gyro offset models of ``family`` ('poly'/'rvm') on lagged inputs.
 
     Returns (accel model, gyro model, report); a sensor not in ``signals`` gets None.
     ``windows`` defaults to the context's; ``groups`` are its CV groups (legs, holds,
-    time blocks).
+    time blocks). A sensor in ``no_thermal`` gets an offset polynomial of order 0 (no
+    thermal terms: the gyro's bias; nothing for an offset-only accelerometer).
     """
     w = ctx.windows if windows is None else windows
     if groups is None:
@@ -62,10 +63,11 @@ def fit_single(ctx, family, tau, windows=None, groups=None, kernels=None, rvm_se
         temps = lagged_axis_temperatures(w, tau, idx)
         single_accel = sig == 'accel'    # one pose: the constant is gravity, not bias
         ref = ctx.t0 if single_accel else ctx.gyro_t0
-        if family == 'poly':
+        if family == 'poly' or sig in no_thermal:
             out[sig], rep[sig] = fit_offset_model(w, temps, ref, sig, sig,
                                                   include_constant=not single_accel,
-                                                  groups=groups)
+                                                  orders=(0,) if sig in no_thermal else
+                                                  (0, 1, 2, 3), groups=groups)
         else:
             out[sig], rep[sig] = fit_rvm_offset(w, temps, sig, sig, groups,
                                                 offset_only=single_accel, t_ref=ref,

@@ -36,9 +36,10 @@ from ..estimation.hysteresis import (ARDUPILOT_SPEC, ARDUPILOT_TREF, candidate_s
                                      Features, fit_spec, NO_THERMAL_SPEC, predict, Spec)
 from ..estimation.rvm_fit import fit_rvm_offset
 from ..estimation.thermal_lag import cv_groups, legs
+from .heldout import clamp_to_training
+from .placements import (BLOCK_S, floor_margin, harms, level_drift, mean_ratios,
+                         placement_groups, raw_figures, spec_figures)
 
-#: held-out figure: averaging block, s (the chamber log's scoring window)
-BLOCK_S = 30.0
 #: forward folds: the last leg after this fraction of its time span is held out
 FORWARD_CUTS = (0.25, 0.5, 0.75)
 #: fewest held-out windows inside the training range for the range to be used
@@ -90,28 +91,6 @@ def whole_holds(windows, folds, min_train=8):
         train = train & ~np.isin(windows.hold, np.unique(windows.hold[test]))
         if train.sum() >= min_train:
             out.append((train, test, lab))
-    return out
-
-
-def placement_groups(windows, max_groups=6, min_train=8):
-    """Return [(train, test, label)]: whole holds (placements) left out, a group at a time.
-
-    The holds in time order are cut into at most ``max_groups`` contiguous groups of
-    near-equal hold counts (one hold a group while there are no more holds than that);
-    each group is held out in turn and the rest trains, so no test hold has a window in
-    training. Folds left with fewer than ``min_train`` training windows are dropped.
-    """
-    ids = np.unique(windows.hold)
-    if len(ids) < 2:
-        return []
-    first = np.array([windows.t0[windows.hold == h].min() for h in ids])
-    groups = np.array_split(ids[np.argsort(first)], min(max_groups, len(ids)))
-    out = []
-    for g in groups:
-        test = np.isin(windows.hold, g)
-        if (~test).sum() >= min_train:
-            lab = f'hold {g[0]}' if len(g) == 1 else f'holds {g[0]}..{g[-1]} ({len(g)})'
-            out.append((~test, test, lab))
     return out
 
 
@@ -292,6 +271,24 @@ def family_best(figs):
     return dict(sorted(out.items()))
 
 
+def _floor_score(ctx, sig, idx, t0, spec, folds):
+    """Return the placement score (of raw) of the chosen ``spec`` or RVM for one sensor."""
+    w, margin = ctx.windows, floor_margin(ctx)
+    if isinstance(spec, Spec):
+        figs = spec_figures(w, idx, sig, [spec], t0, folds, margin)[spec]
+    else:                       # the RVM in the reading, kernels searched in each fold
+        temps = w.temp[:, list(idx)]
+        y = getattr(w, sig)
+        figs = []
+        for train, test, _ in folds:
+            wt = w.select(train)
+            model, _ = fit_rvm_offset(wt, temps[train], sig, sig, cv_groups(wt)[0],
+                                      offset_only=sig == 'accel', t_ref=t0)
+            x = clamp_to_training(temps, w, train, idx, margin)
+            figs.append(level_drift(model.correct(y, x), w, train, test))
+    return mean_ratios({'m': figs}, raw_figures(w, sig, folds))['m']
+
+
 def select_history(ctx, signals=('accel', 'gyro')):
     """Choose the history model per sensor; returns a dict for Selection and the estimator.
 
@@ -301,6 +298,7 @@ def select_history(ctx, signals=('accel', 'gyro')):
     t_start = time.perf_counter()
     w = ctx.windows
     folds, kind = time_folds(w, placements=ctx.options.placement_folds)
+    floor_folds = placement_groups(w) if ctx.options.placement_floor else []
     specs = candidate_specs()
     units = {'accel': 'm/s^2', 'gyro': 'rad/s'}
     chosen, table, texts, export_loss = {}, {}, [], {}
@@ -315,6 +313,14 @@ def select_history(ctx, signals=('accel', 'gyro')):
         if fine_figs is not None and fine not in figs:
             figs[fine] = fine_figs
         spec, scores = choose(figs, raw)
+        placed = ''
+        if len(floor_folds) >= 2 and spec != NO_THERMAL_SPEC:
+            held = _floor_score(ctx, sig, idx, np.asarray(t0, float), spec, floor_folds)
+            placed = (f'; placement floor ({len(floor_folds)} groups of whole holds held '
+                      f'out): {held:.3f} of raw')
+            if harms(held):
+                placed += f', so no thermal terms instead of {label(spec)}'
+                spec = NO_THERMAL_SPEC
         chosen[sig] = spec
         table.setdefault('raw', {})[sig] = float(np.mean(raw))
         for s in figs:
@@ -334,7 +340,7 @@ def select_history(ctx, signals=('accel', 'gyro')):
         texts.append(f'{sig} ({units[sig]}): raw {np.mean(raw):.3g}, ardupilot cubic '
                      f'{floor:.3g}; best of each family: {fam}; chose {label(spec)} '
                      f'{best:.3g} ({len(figs)} candidates, lags refined by the held-out '
-                     'figure)')
+                     'figure)' + placed)
     reason = (f'one orientation; held-out blocks of the thermal history ({kind}; '
               f'{BLOCK_S:.0f}-s drift RMS, mean over {len(folds)} folds): ' + '; '.join(texts))
     return {'specs': chosen, 'table': table, 'kind': kind, 'export_loss': export_loss,
