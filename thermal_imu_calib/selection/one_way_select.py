@@ -221,12 +221,11 @@ def select_one_way(ctx, incumbent, fit_single):
     units = {'accel': 'm/s^2', 'gyro': 'rad/s'}
     table, pools, picks, texts, export_loss = {}, {}, {}, [], {}
     floor_folds = placement_groups(w) if ctx.options.placement_floor else []
-    floor_cache = {}
+    floor_on, floor_cache = len(floor_folds) >= 2, {}
     for sig, idx, t0 in (('accel', ctx.accel_input, ctx.t0),
                          ('gyro', ctx.gyro_input, ctx.gyro_t0)):
-        y = getattr(w, sig)
         t0 = np.asarray(t0, float)
-        raw = [level_drift(y, w, tr, te) for tr, te, _ in folds]
+        raw = raw_figures(w, sig, folds)
         figs = spec_figures(w, idx, sig, specs + shown, t0, folds)
         if inc is not None:
             figs[INCUMBENT] = inc[sig]
@@ -235,11 +234,11 @@ def select_one_way(ctx, incumbent, fit_single):
         scores = {k: v for k, v in mean_ratios(figs, raw).items() if np.isfinite(v)}
         eligible = {k: v for k, v in scores.items() if k not in shown}
         placed = ''
-        if len(floor_folds) >= 2:
+        if floor_on:
             held = _placement_scores(ctx, sig, idx, t0, list(eligible), incumbent, fit_single,
                                      floor_folds, floor_cache)
             harm = [k for k in eligible if k is not NO_THERMAL_SPEC
-                    and not held.get(k, np.inf) <= 1.0]
+                    and harms(held.get(k, np.inf))]
             eligible = {k: v for k, v in eligible.items() if k not in harm}
             for k, v in held.items():
                 table.setdefault(_label(k, incumbent), {})[f'{sig}_placement_score'] = v
@@ -252,7 +251,7 @@ def select_one_way(ctx, incumbent, fit_single):
         pools[sig] = [k for k in eligible if eligible[k] <= best * (1 + MARGIN)
                       and eligible[k] <= floor]
         spec_pool = [k for k in pools[sig] if k != INCUMBENT]
-        if placed and not spec_pool:
+        if floor_on and not spec_pool:
             # the incumbent alone qualified, and may not stay (the other sensor): the
             # specs within the margin of the best spec the placements did not reject
             specs_left = {k: v for k, v in eligible.items() if isinstance(k, Spec)}

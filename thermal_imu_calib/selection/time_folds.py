@@ -163,22 +163,29 @@ def heldout_figures(windows, axis_input, signal, specs, t0, folds):
     return out, raw
 
 
+def rvm_fold_models(windows, axis_input, signal, t0, folds):
+    """Yield (train, test, per-axis readings, model) of the RVM in the reading per fold.
+
+    The model is fitted on the fold's training part, its kernels searched there.
+    """
+    temps = windows.temp[:, list(axis_input)]
+    for train, test, _ in folds:
+        wt = windows.select(train)
+        model, _ = fit_rvm_offset(wt, temps[train], signal, signal, cv_groups(wt)[0],
+                                  offset_only=signal == 'accel', t_ref=t0)
+        yield train, test, temps, model
+
+
 def rvm_figures(windows, axis_input, signal, t0, folds):
     """Return [figure per fold] of the RVM in the reading, kernels searched in each fold.
 
     Scored like the specs (the rows of ``_scored_rows``, the model evaluated as fitted).
     """
-    temps = windows.temp[:, list(axis_input)]
     y = getattr(windows, signal)
     tm = 0.5 * (windows.t0 + windows.t1)
-    out = []
-    for train, test, _ in folds:
-        rows = _scored_rows(temps, train, test)
-        wt = windows.select(train)
-        model, _ = fit_rvm_offset(wt, temps[train], signal, signal, cv_groups(wt)[0],
-                                  offset_only=signal == 'accel', t_ref=t0)
-        out.append(block_drift(model.correct(y, temps), tm, rows))
-    return out
+    return [block_drift(model.correct(y, temps), tm, _scored_rows(temps, train, test))
+            for train, test, temps, model in rvm_fold_models(windows, axis_input, signal, t0,
+                                                             folds)]
 
 
 def export_figures(windows, axis_input, signal, spec, t0, folds):
@@ -277,15 +284,10 @@ def _floor_score(ctx, sig, idx, t0, spec, folds):
     if isinstance(spec, Spec):
         figs = spec_figures(w, idx, sig, [spec], t0, folds, margin)[spec]
     else:                       # the RVM in the reading, kernels searched in each fold
-        temps = w.temp[:, list(idx)]
         y = getattr(w, sig)
-        figs = []
-        for train, test, _ in folds:
-            wt = w.select(train)
-            model, _ = fit_rvm_offset(wt, temps[train], sig, sig, cv_groups(wt)[0],
-                                      offset_only=sig == 'accel', t_ref=t0)
-            x = clamp_to_training(temps, w, train, idx, margin)
-            figs.append(level_drift(model.correct(y, x), w, train, test))
+        figs = [level_drift(model.correct(y, clamp_to_training(temps, w, train, idx, margin)),
+                            w, train, test)
+                for train, test, temps, model in rvm_fold_models(w, idx, sig, t0, folds)]
     return mean_ratios({'m': figs}, raw_figures(w, sig, folds))['m']
 
 
