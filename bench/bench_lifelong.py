@@ -53,7 +53,7 @@ from thermal_imu_calib.app.calibrate import CalibrateSettings  # noqa: E402
 from thermal_imu_calib.calibration import OUT_OF_RANGE_POLICIES  # noqa: E402
 from thermal_imu_calib.cli.calibrate import margin_or_off  # noqa: E402
 from thermal_imu_calib.estimation.options import HIGH_ORDER_SENSORS  # noqa: E402
-from thermal_imu_calib.lifelong.config import GYRO_CONTINUATIONS  # noqa: E402
+from thermal_imu_calib.lifelong.config import GYRO_CONTINUATIONS, RANGE_SENSORS  # noqa: E402
 from thermal_imu_calib.lifelong.feed import Feeder  # noqa: E402
 from thermal_imu_calib.lifelong.gate import ACCEL_SCORES  # noqa: E402
 from thermal_imu_calib.lifelong.hints import HintGate, HintSource  # noqa: E402
@@ -178,7 +178,8 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
              high_order_margin=CalibrateSettings.high_order_margin,
              high_order_sensors=CalibrateSettings.high_order_sensors,
              placement_folds=DEFAULT.placement_folds,
-             placement_floor=DEFAULT.placement_floor, stop_day=None, **overrides):
+             placement_floor=DEFAULT.placement_floor, stop_day=None,
+             range_sensors=DEFAULT.range_sensors, **overrides):
     m = robot_month(seed, days=days, **overrides)
     spec = m.device.spec
     rate = m.config.imu_rate
@@ -205,7 +206,8 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
                                               gyro_continuation=gyro_continuation,
                                               alarm_first=alarm_first,
                                               placement_folds=placement_folds,
-                                              placement_floor=placement_floor),
+                                              placement_floor=placement_floor,
+                                              range_sensors=range_sensors),
                         log=lambda level, text: log.append((level, text)))
     life = make()
     feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
@@ -347,7 +349,8 @@ def month(args):
                      args.raw_kept, args.refit_on_swap, args.out_of_range,
                      args.gyro_g_sensitivity, args.gyro_continuation, args.alarm_first,
                      args.high_order_margin, args.high_order_sensors,
-                     args.placement_folds, args.placement_floor, args.stop_day)
+                     args.placement_folds, args.placement_floor, args.stop_day,
+                     args.range_sensors)
         rows.append(r)
         if args.stop_day is not None:
             print(f'seed {seed}: {r["seconds"]:.0f} s, stopped after day {args.stop_day:g} '
@@ -500,7 +503,8 @@ def real(args):
     rows = []
     for name in ('bmi270', 'chamber'):
         r = run_real(name, work, config=LifelongConfig(
-            placement_folds=args.placement_folds, placement_floor=args.placement_floor))
+            placement_folds=args.placement_folds, placement_floor=args.placement_floor,
+            range_sensors=args.range_sensors))
         rows.append(r)
         print(f'{name}: {r["holds"]} holds, decisions '
               f'{[d["action"] for d in r["decisions"]]}, swaps {len(r["swaps"])}, harmful '
@@ -1033,6 +1037,12 @@ def main():
                          'figures: score them with bench/lifelong_first_day.py)')
     mo.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_month.json'))
     re_ = sub.add_parser('real')
+    for sp in (mo, re_):
+        sp.add_argument('--range-sensors', choices=RANGE_SENSORS,
+                       default=DEFAULT.range_sensors,
+                       help='whose own ranges bound the common range: every sensor\'s, or '
+                            'only models that depend on temperature '
+                            '(LifelongConfig.range_sensors; default: the package\'s)')
     re_.add_argument('--work', default='')
     for flag in ('folds', 'floor'):
         re_.add_argument(f'--placement-{flag}', action=argparse.BooleanOptionalAction,

@@ -37,17 +37,25 @@ class Tracked(NamedTuple):
     in_accel: bool      #: inside the accelerometer's alarm range
 
 
-def alarm_ranges(cal, k, window):
+def alarm_ranges(cal, k, window, sensors='every'):
     """Return {sensor: (lo, hi) degC} inside which a hold counts for that sensor's alarm.
 
     ``cal``: the active calibration; ``k``: the number of thermal inputs; ``window``:
-    ``LifelongConfig.alarm_window``.
+    ``LifelongConfig.alarm_window``; ``sensors``: ``LifelongConfig.range_sensors`` (with
+    'thermal' a model that does not depend on temperature bounds no range: with 'sensor',
+    that sensor watches the valid range).
     """
     if cal.valid_range is None or not k:
         return {w: (-np.inf, np.inf) for w in compose.SENSORS}
     if window == 'sensor':
-        return {w: tuple(cal.own_range(w)[0]) for w in compose.SENSORS}
-    common = tuple(compose.common_range(cal)[0])
+        out = {}
+        for w in compose.SENSORS:
+            m = getattr(cal, w)
+            flat = (sensors == 'thermal' and m is not None
+                    and not compose.depends_on_temperature(m))
+            out[w] = tuple(np.asarray(cal.valid_range if flat else cal.own_range(w))[0])
+        return out
+    common = tuple(compose.common_range(cal, sensors)[0])
     return {w: common for w in compose.SENSORS}
 
 

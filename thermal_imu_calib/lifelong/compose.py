@@ -72,16 +72,34 @@ def composed_policy(accel_from, gyro_from):
     return POLICIES.get((accel_from.range_policy('accel'), gyro_from.range_policy('gyro')))
 
 
-def common_range(cal):
+def depends_on_temperature(model):
+    """Return whether a sensor model's correction changes with its thermal input.
+
+    False for a model of degree 0 in temperature (``temperature_degree``) without terms of
+    the thermal history (``terms``): its own range says where it was fitted, not where it
+    holds.
+    """
+    return model.temperature_degree() > 0 or bool(getattr(model, 'terms', ()))
+
+
+def common_range(cal, sensors='every'):
     """Return the (k, 2) range inside every sensor's own range (None: no inputs).
 
     A composed calibration's ``valid_range`` spans both models; outside this one, one of
     them clamps (or extrapolates). The lifelong loop uses it for "inside the valid range":
     the range extension that makes a re-estimate due, the change alarm, diagnostics.
+    ``sensors`` (``LifelongConfig.range_sensors``): 'every' sensor's own range bounds it;
+    'thermal', only those of models that depend on temperature
+    (``depends_on_temperature``; none: the valid range).
     """
     if cal is None or cal.valid_range is None:
         return None
-    own = [cal.own_range(w) for w in SENSORS if getattr(cal, w) is not None]
+    models = [(w, getattr(cal, w)) for w in SENSORS if getattr(cal, w) is not None]
+    if sensors == 'thermal':
+        models = [(w, m) for w, m in models if depends_on_temperature(m)]
+    if not models:
+        return np.asarray(cal.valid_range, float)
+    own = [np.asarray(cal.own_range(w), float) for w, _ in models]
     return np.stack([np.max([r[:, 0] for r in own], 0), np.min([r[:, 1] for r in own], 0)], 1)
 
 

@@ -167,7 +167,7 @@ class Lifelong:
         missed = alarm.new_misses(e, s, c)
         if missed:
             s['missed'] = (s.get('missed') or []) + missed
-        ranges = alarm.alarm_ranges(cal, self.k, c.alarm_window)
+        ranges = alarm.alarm_ranges(cal, self.k, c.alarm_window, c.range_sensors)
         self.track = alarm.tracked(self.track, e, ranges, s.get('active_accel_median') or 0.0)
         if s.get('active_gyro_rms') is None or s.get('alarm_pending'):
             return
@@ -447,7 +447,7 @@ class Lifelong:
         if self.active is not None and s.get('active_since') is not None and now is not None:
             out['active_age_s'] = float(now - s['active_since'])
         if self.active is not None and self.active.valid_range is not None and self.k:
-            lo, hi = compose.common_range(self.active)[0]
+            lo, hi = compose.common_range(self.active, self.config.range_sensors)[0]
             out['valid_range'] = [float(lo), float(hi)]
             if temperature is not None:
                 out['in_range'] = bool(lo <= temperature <= hi)

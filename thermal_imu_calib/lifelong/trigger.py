@@ -79,7 +79,7 @@ def due(store, state, config, active, k, track=()):
                 f'{temps} degC)')
     span = store.temperature_span()
     if span and active.valid_range is not None and k and new >= c.min_holds:
-        lo, hi = compose.common_range(active)[0]
+        lo, hi = compose.common_range(active, c.range_sensors)[0]
         ref_lo, ref_hi, also = lo, hi, ''
         seen = s.get('fit_span')
         if seen:
