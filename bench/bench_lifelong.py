@@ -1039,10 +1039,10 @@ def main():
     re_ = sub.add_parser('real')
     for sp in (mo, re_):
         sp.add_argument('--range-sensors', choices=RANGE_SENSORS,
-                       default=DEFAULT.range_sensors,
-                       help='whose own ranges bound the common range: every sensor\'s, or '
-                            'only models that depend on temperature '
-                            '(LifelongConfig.range_sensors; default: the package\'s)')
+                        default=DEFAULT.range_sensors,
+                        help='whose own ranges bound the common range: every sensor\'s, or '
+                             'only models that depend on temperature '
+                             '(LifelongConfig.range_sensors; default: the package\'s)')
     re_.add_argument('--work', default='')
     for flag in ('folds', 'floor'):
         re_.add_argument(f'--placement-{flag}', action=argparse.BooleanOptionalAction,

@@ -18,7 +18,7 @@ from thermal_imu_calib.app.calibrate import CalibrateSettings
 from thermal_imu_calib.calibration import Calibration
 from thermal_imu_calib.fleet import registry
 from thermal_imu_calib.collection.segments import Windows
-from thermal_imu_calib.lifelong import alarm, gate, knock_step
+from thermal_imu_calib.lifelong import alarm, compose, gate, knock_step
 from thermal_imu_calib.lifelong.feed import Feeder
 from thermal_imu_calib.lifelong.hints import HintGate, HintSource, twist_still
 from thermal_imu_calib.lifelong.manager import Lifelong, LifelongConfig, main_pose
@@ -526,6 +526,53 @@ def test_the_change_alarm_watches_each_sensor_in_its_own_range(tmp_path, month_w
         assert life.state['alarms'] == 1
     else:                           # outside the common range: not watched
         assert alarms == [] and not life.state['alarm_pending']
+
+
+@pytest.mark.parametrize('sensors', ['every', 'thermal'])
+def test_a_model_without_temperature_terms_does_not_narrow_the_alarm_window(
+        tmp_path, month_windows, sensors):
+    """An accelerometer model of degree 0 kept from a few cold holds (its own range
+    -20..25 degC) narrows the common range with ``range_sensors='every'``, so a gyro knock
+    at 29-33 degC is not watched; with 'thermal' the window is the valid range and the
+    alarm fires (seeds 59 and 61 of the month bench lost their knock alarm so)."""
+    m, win = month_windows
+    truth = m.true_calibration(0.5 * DAY)
+    ids = win.hold_ids
+    clean = win.select(np.isin(win.hold, ids[:20]))
+    s = gate.score(truth, clean, truth.gravity)
+    a = truth.accel
+    thermal = a.thermal.copy()
+    thermal[:, [1, 2, 4, 5]] = 0.0                  # no scale or bias terms in dT
+    flat = type(a)(a.t0, thermal, a.k0, a.b0, a.s)
+    assert flat.temperature_degree() == 0 and not compose.depends_on_temperature(flat)
+    assert compose.depends_on_temperature(truth.gyro)
+    active = dataclasses.replace(truth, accel=flat,
+                                 sensor_range={'accel': np.array([[-20.0, 25.0]])})
+    common = compose.common_range(active, sensors)
+    lo, hi = active.valid_range[0]
+    want = [[lo, hi]] if sensors == 'thermal' else [[max(lo, -20.0), min(hi, 25.0)]]
+    np.testing.assert_allclose(common, want)
+    life = Lifelong(str(tmp_path), CalibrateSettings(), 1, [TOPIC], 'imu_link',
+                    config=LifelongConfig(new_holds=1000, misfit_holds=1000,
+                                          range_sensors=sensors))
+    life.store.add(clean)
+    life.active = active
+    life.state.update(active_gyro_rms=s['gyro_rms'], active_accel_rms=s['accel_rms'],
+                      active_accel_median=float(np.median(s['errors']['accel'])),
+                      holds_at_estimate=life.store.total_holds)
+    step = np.array([0.0, 0.0, 10 * LifelongConfig().alarm_factor * s['gyro_rms']])
+    for h in ids[20:20 + LifelongConfig().alarm_holds]:
+        w = win.select(win.hold == h)
+        assert 25.0 < w.temp.min()
+        life.add(dataclasses.replace(w, gyro=w.gyro + step))
+    alarms = [d for d in life.decisions() if d['action'] == 'alarm']
+    if sensors == 'thermal':
+        assert len(alarms) == 1 and life.state['alarm_pending'], alarms
+        assert alarms[0]['reason'].startswith('the active calibration no longer fits: gyro')
+    else:                           # outside the accelerometer's own range: not watched
+        assert alarms == [] and not life.state['alarm_pending']
+    with pytest.raises(ValueError, match="range_sensors 'sensor' is not one of every"):
+        LifelongConfig(range_sensors='sensor')
 
 
 def _knock_step(month_windows):
