@@ -42,19 +42,14 @@ def alarm_ranges(cal, k, window, sensors='every'):
 
     ``cal``: the active calibration; ``k``: the number of thermal inputs; ``window``:
     ``LifelongConfig.alarm_window``; ``sensors``: ``LifelongConfig.range_sensors`` (with
-    'thermal' a model that does not depend on temperature bounds no range: with 'sensor',
-    that sensor watches the valid range).
+    'sensor', a sensor whose range bounds nothing, ``compose.bounds_range``, watches the
+    valid range).
     """
     if cal.valid_range is None or not k:
         return {w: (-np.inf, np.inf) for w in compose.SENSORS}
     if window == 'sensor':
-        out = {}
-        for w in compose.SENSORS:
-            m = getattr(cal, w)
-            flat = (sensors == 'thermal' and m is not None
-                    and not compose.depends_on_temperature(m))
-            out[w] = tuple(np.asarray(cal.valid_range if flat else cal.own_range(w))[0])
-        return out
+        return {w: tuple(np.asarray(cal.own_range(w) if compose.bounds_range(cal, w, sensors)
+                                    else cal.valid_range)[0]) for w in compose.SENSORS}
     common = tuple(compose.common_range(cal, sensors)[0])
     return {w: common for w in compose.SENSORS}
 

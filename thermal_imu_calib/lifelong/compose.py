@@ -82,24 +82,29 @@ def depends_on_temperature(model):
     return model.temperature_degree() > 0 or bool(getattr(model, 'terms', ()))
 
 
+def bounds_range(cal, which, sensors='every'):
+    """Return whether ``which``'s own range bounds ``cal``'s common range.
+
+    ``sensors`` (``LifelongConfig.range_sensors``): 'every' model with one does; 'thermal',
+    only a model that depends on temperature (``depends_on_temperature``).
+    """
+    model = getattr(cal, which)
+    return model is not None and (sensors == 'every' or depends_on_temperature(model))
+
+
 def common_range(cal, sensors='every'):
     """Return the (k, 2) range inside every sensor's own range (None: no inputs).
 
     A composed calibration's ``valid_range`` spans both models; outside this one, one of
     them clamps (or extrapolates). The lifelong loop uses it for "inside the valid range":
     the range extension that makes a re-estimate due, the change alarm, diagnostics.
-    ``sensors`` (``LifelongConfig.range_sensors``): 'every' sensor's own range bounds it;
-    'thermal', only those of models that depend on temperature
-    (``depends_on_temperature``; none: the valid range).
+    ``sensors``: whose own ranges bound it (``bounds_range``; none: the valid range).
     """
     if cal is None or cal.valid_range is None:
         return None
-    models = [(w, getattr(cal, w)) for w in SENSORS if getattr(cal, w) is not None]
-    if sensors == 'thermal':
-        models = [(w, m) for w, m in models if depends_on_temperature(m)]
-    if not models:
+    own = [np.asarray(cal.own_range(w), float) for w in SENSORS if bounds_range(cal, w, sensors)]
+    if not own:
         return np.asarray(cal.valid_range, float)
-    own = [np.asarray(cal.own_range(w), float) for w, _ in models]
     return np.stack([np.max([r[:, 0] for r in own], 0), np.min([r[:, 1] for r in own], 0)], 1)
 
 
