@@ -489,25 +489,16 @@ def test_the_alarm_answers_a_knock_before_the_misfit_trigger(
     assert life.due().startswith('the active calibration missed'), life.due()
 
 
-@pytest.mark.parametrize('window', ['common', 'sensor'])
-def test_the_change_alarm_watches_each_sensor_in_its_own_range(tmp_path, month_windows,
-                                                               window):
-    """After one-sensor swaps the sensors' valid ranges differ; a gyro knock at temperatures
-    only the gyro's model covers is seen with ``alarm_window='sensor'``, not with 'common'.
-
-    Seed 2 of the month bench: the common range narrowed and the knock alarm came 20.6 h
-    late (3.4 h with whole swaps).
-    """
-    m, win = month_windows
-    truth = m.true_calibration(0.5 * DAY)
+def _gyro_knock_above_25_degc(tmp_path, month_windows, active, **config):
+    """Return (the loop's alarm decisions, the loop) after a gyro knock on holds at 29-33
+    degC, with ``active`` (its alarm reference measured on the first 20 holds, without the
+    knock) and the ``LifelongConfig`` fields ``config``."""
+    _, win = month_windows
     ids = win.hold_ids
     clean = win.select(np.isin(win.hold, ids[:20]))
-    s = gate.score(truth, clean, truth.gravity)
-    # the accelerometer's model covers -20..25 degC only; these holds are at 29-33 degC
-    active = dataclasses.replace(truth, sensor_range={'accel': np.array([[-20.0, 25.0]])})
+    s = gate.score(active, clean, active.gravity)
     life = Lifelong(str(tmp_path), CalibrateSettings(), 1, [TOPIC], 'imu_link',
-                    config=LifelongConfig(new_holds=1000, misfit_holds=1000,
-                                          alarm_window=window))
+                    config=LifelongConfig(new_holds=1000, misfit_holds=1000, **config))
     life.store.add(clean)
     life.active = active
     life.state.update(active_gyro_rms=s['gyro_rms'], active_accel_rms=s['accel_rms'],
@@ -518,7 +509,23 @@ def test_the_change_alarm_watches_each_sensor_in_its_own_range(tmp_path, month_w
         w = win.select(win.hold == h)
         assert 25.0 < w.temp.min()
         life.add(dataclasses.replace(w, gyro=w.gyro + step))
-    alarms = [d for d in life.decisions() if d['action'] == 'alarm']
+    return [d for d in life.decisions() if d['action'] == 'alarm'], life
+
+
+@pytest.mark.parametrize('window', ['common', 'sensor'])
+def test_the_change_alarm_watches_each_sensor_in_its_own_range(tmp_path, month_windows,
+                                                               window):
+    """After one-sensor swaps the sensors' valid ranges differ; a gyro knock at temperatures
+    only the gyro's model covers is seen with ``alarm_window='sensor'``, not with 'common'.
+
+    Seed 2 of the month bench: the common range narrowed and the knock alarm came 20.6 h
+    late (3.4 h with whole swaps).
+    """
+    truth = month_windows[0].true_calibration(0.5 * DAY)
+    # the accelerometer's model covers -20..25 degC only; these holds are at 29-33 degC
+    active = dataclasses.replace(truth, sensor_range={'accel': np.array([[-20.0, 25.0]])})
+    alarms, life = _gyro_knock_above_25_degc(tmp_path, month_windows, active,
+                                             alarm_window=window)
     if window == 'sensor':
         assert len(alarms) == 1 and life.state['alarm_pending'], alarms
         assert alarms[0]['reason'].startswith('the active calibration no longer fits: gyro')
@@ -535,11 +542,7 @@ def test_a_model_without_temperature_terms_does_not_narrow_the_alarm_window(
     -20..25 degC) narrows the common range with ``range_sensors='every'``, so a gyro knock
     at 29-33 degC is not watched; with 'thermal' the window is the valid range and the
     alarm fires (seeds 59 and 61 of the month bench lost their knock alarm so)."""
-    m, win = month_windows
-    truth = m.true_calibration(0.5 * DAY)
-    ids = win.hold_ids
-    clean = win.select(np.isin(win.hold, ids[:20]))
-    s = gate.score(truth, clean, truth.gravity)
+    truth = month_windows[0].true_calibration(0.5 * DAY)
     a = truth.accel
     thermal = a.thermal.copy()
     thermal[:, [1, 2, 4, 5]] = 0.0                  # no scale or bias terms in dT
@@ -548,24 +551,11 @@ def test_a_model_without_temperature_terms_does_not_narrow_the_alarm_window(
     assert compose.depends_on_temperature(truth.gyro)
     active = dataclasses.replace(truth, accel=flat,
                                  sensor_range={'accel': np.array([[-20.0, 25.0]])})
-    common = compose.common_range(active, sensors)
     lo, hi = active.valid_range[0]
     want = [[lo, hi]] if sensors == 'thermal' else [[max(lo, -20.0), min(hi, 25.0)]]
-    np.testing.assert_allclose(common, want)
-    life = Lifelong(str(tmp_path), CalibrateSettings(), 1, [TOPIC], 'imu_link',
-                    config=LifelongConfig(new_holds=1000, misfit_holds=1000,
-                                          range_sensors=sensors))
-    life.store.add(clean)
-    life.active = active
-    life.state.update(active_gyro_rms=s['gyro_rms'], active_accel_rms=s['accel_rms'],
-                      active_accel_median=float(np.median(s['errors']['accel'])),
-                      holds_at_estimate=life.store.total_holds)
-    step = np.array([0.0, 0.0, 10 * LifelongConfig().alarm_factor * s['gyro_rms']])
-    for h in ids[20:20 + LifelongConfig().alarm_holds]:
-        w = win.select(win.hold == h)
-        assert 25.0 < w.temp.min()
-        life.add(dataclasses.replace(w, gyro=w.gyro + step))
-    alarms = [d for d in life.decisions() if d['action'] == 'alarm']
+    np.testing.assert_allclose(compose.common_range(active, sensors), want)
+    alarms, life = _gyro_knock_above_25_degc(tmp_path, month_windows, active,
+                                             range_sensors=sensors)
     if sensors == 'thermal':
         assert len(alarms) == 1 and life.state['alarm_pending'], alarms
         assert alarms[0]['reason'].startswith('the active calibration no longer fits: gyro')
