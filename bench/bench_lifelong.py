@@ -179,7 +179,8 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
              high_order_sensors=CalibrateSettings.high_order_sensors,
              placement_folds=DEFAULT.placement_folds,
              placement_floor=DEFAULT.placement_floor, stop_day=None,
-             range_sensors=DEFAULT.range_sensors, **overrides):
+             range_sensors=DEFAULT.range_sensors,
+             placement_levels=DEFAULT.placement_levels, **overrides):
     m = robot_month(seed, days=days, **overrides)
     spec = m.device.spec
     rate = m.config.imu_rate
@@ -207,7 +208,8 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
                                               alarm_first=alarm_first,
                                               placement_folds=placement_folds,
                                               placement_floor=placement_floor,
-                                              range_sensors=range_sensors),
+                                              range_sensors=range_sensors,
+                                              placement_levels=placement_levels),
                         log=lambda level, text: log.append((level, text)))
     life = make()
     feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
@@ -350,7 +352,7 @@ def month(args):
                      args.gyro_g_sensitivity, args.gyro_continuation, args.alarm_first,
                      args.high_order_margin, args.high_order_sensors,
                      args.placement_folds, args.placement_floor, args.stop_day,
-                     args.range_sensors)
+                     args.range_sensors, placement_levels=args.placement_levels)
         rows.append(r)
         if args.stop_day is not None:
             print(f'seed {seed}: {r["seconds"]:.0f} s, stopped after day {args.stop_day:g} '
@@ -504,7 +506,7 @@ def real(args):
     for name in ('bmi270', 'chamber'):
         r = run_real(name, work, config=LifelongConfig(
             placement_folds=args.placement_folds, placement_floor=args.placement_floor,
-            range_sensors=args.range_sensors))
+            range_sensors=args.range_sensors, placement_levels=args.placement_levels))
         rows.append(r)
         print(f'{name}: {r["holds"]} holds, decisions '
               f'{[d["action"] for d in r["decisions"]]}, swaps {len(r["swaps"])}, harmful '
@@ -1032,6 +1034,10 @@ def main():
                     help='one-way first estimates: a sensor\'s thermal model must beat its raw '
                          'output on held-out stops (LifelongConfig.placement_floor; default: '
                          'the package\'s)')
+    mo.add_argument('--placement-levels', action=argparse.BooleanOptionalAction,
+                    default=DEFAULT.placement_levels,
+                    help='a random level per stop in the thermal-history fits (REML; '
+                         'LifelongConfig.placement_levels; default: the package\'s)')
     mo.add_argument('--stop-day', type=float, default=None,
                     help='stop the month after this day (the first days only; no month '
                          'figures: score them with bench/lifelong_first_day.py)')
@@ -1044,7 +1050,7 @@ def main():
                              'only models that depend on temperature '
                              '(LifelongConfig.range_sensors; default: the package\'s)')
     re_.add_argument('--work', default='')
-    for flag in ('folds', 'floor'):
+    for flag in ('folds', 'floor', 'levels'):
         re_.add_argument(f'--placement-{flag}', action=argparse.BooleanOptionalAction,
                          default=getattr(DEFAULT, f'placement_{flag}'),
                          help=f'LifelongConfig.placement_{flag} (default: the package\'s)')

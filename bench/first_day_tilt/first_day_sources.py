@@ -157,8 +157,9 @@ for name, mask in (('first cal, T in accel range', (ks == 0) & inr),
 with open(pkl, 'rb') as f:
     cap = pickle.load(f)
 fit = cap['fit']
-assert np.allclose(cap['active']['accel']['parameters']['c2']['value'], acc0.coeffs[2]), \
-    'captured fit is not this run\'s first calibration'
+_top = f'c{acc0.order}'   # the highest power the file stores
+assert np.allclose(cap['active']['accel']['parameters'][_top]['value'],
+                   acc0.coeffs[acc0.order]), 'captured fit is not this run\'s first calibration'
 # true specific force of each fit window: the stop it lies in (still: f_b = g C[2, :])
 tmid = 0.5 * (fit.t0 + fit.t1) - base
 fb = np.zeros((len(fit), 3))
@@ -229,6 +230,12 @@ if BASE:
         'refit raw, per-hold consts, base T': (refit(spec_T, fit.accel, True), False)})
 
 
+def c2_text(poly):
+    """The quadratic coefficients in mm/s^2/degC^2 ('-' for a linear model)."""
+    poly = np.asarray(poly)
+    return np.array2string(poly[2] * 1e3, precision=1) if len(poly) > 2 else '-'
+
+
 def make_cal(coeffs, lag, clamp=None):
     c = copy.deepcopy(cal0)
     coeffs, terms = coeffs
@@ -268,7 +275,7 @@ for name, (coef, lag) in variants.items():
         dtx = '' if not TERMS else (
             ' d0 ' + np.array2string(np.asarray(coef[1])[0] * 1e3, precision=0))
     print(f'{name:34s} {np.array2string(np.array(coef[0][1]) * 1e3, precision=1):>22} '
-          f'{np.array2string(np.array(coef[0][2]) * 1e3, precision=1):>22} | {out[0] * 1e3:6.1f} '
+          f'{c2_text(coef[0]):>22} | {out[0] * 1e3:6.1f} '
           f'{out[2] * 1e3:6.1f} {out[1] * 1e3:7.1f} {out[3] * 1e3:8.1f} | '
           f'{step[0] * 1e3:6.1f} {step[1] * 1e3:6.1f}{dtx}')
 e = act_all.copy()

@@ -67,6 +67,9 @@ class CalibrateSettings:
     #: per sensor, no worse than its raw output on held-out placements
     #: (``CalibrateOptions.placement_floor``; lifelong)
     placement_floor: bool = False
+    #: a random level per placement in the thermal-history fits
+    #: (``CalibrateOptions.placement_levels``; lifelong)
+    placement_levels: bool = False
     #: temperature samples further apart than this (s) are a gap: the nearest is held
     max_gap_s: float = 5.0
     #: local gravity (m/s^2); None: from ``latitude``/``altitude``, else standard gravity
@@ -160,6 +163,7 @@ def options(settings, collected, transitions=()):
         high_order_sensors=settings.high_order_sensors,
         placement_folds=settings.placement_folds,
         placement_floor=settings.placement_floor,
+        placement_levels=settings.placement_levels,
         latitude=settings.latitude,
         transitions=list(transitions), **mapping)
 

@@ -43,7 +43,8 @@ def _gyro_bias(ctx):
     groups = w.hold if len(np.unique(w.hold)) >= 3 else time_groups(w.t0)
     orders = (0, 1, 2, 3) if ctx.k and 'gyro' not in no_thermal(ctx) else (0,)
     return fit_offset_model(w, ctx.tg, ctx.gyro_t0 if ctx.k else np.zeros(3), 'gyro', 'gyro',
-                            include_constant=True, orders=orders, groups=groups)
+                            include_constant=True, orders=orders, groups=groups,
+                            levels=ctx.options.placement_levels)
 
 
 @register_estimator('offset')
@@ -56,7 +57,8 @@ def estimate_offset(ctx):
             '-z up)'])
     model, rep = fit_offset_model(ctx.windows, ctx.ta, ctx.t0, 'accel', 'accel',
                                   include_constant=False,
-                                  orders=(0,) if 'accel' in no_thermal(ctx) else (0, 1, 2, 3))
+                                  orders=(0,) if 'accel' in no_thermal(ctx) else (0, 1, 2, 3),
+                                  levels=ctx.options.placement_levels)
     return Estimate(accel=model, report={'accel_offset': rep},
                     fit={'pose': 'single orientation (offset-only)'},
                     notes=['offset-only model for a single orientation: removes the drift of '

@@ -22,6 +22,7 @@ import numpy as np
 from ..models.hysteresis import HysteresisOffsetModel
 from ..models.polynomial import OffsetPolynomialModel
 from ..thermal_input import history_key, history_windows
+from .placement_levels import random_level_fit
 
 #: temperature-uniform weighting: the span is cut into this many equal bins
 TEMP_BINS = 40
@@ -96,9 +97,12 @@ def candidate_specs():
 class Features:
     """Window-level inputs of every candidate, computed once per window table."""
 
-    def __init__(self, windows, axis_input):
+    def __init__(self, windows, axis_input, levels=False):
         self.windows = windows
         self.axis_input = list(axis_input)
+        #: (m,) placement (hold) ids whose levels ``fit_spec`` takes as random
+        #: (``placement_levels``), or None: every window independent
+        self.levels = np.asarray(windows.hold) if levels else None
         self.temp = windows.temp[:, self.axis_input] if windows.n_inputs else \
             np.zeros((len(windows), 3))
         self._lags = {}
@@ -143,7 +147,9 @@ def fit_spec(feats, spec, y, rows, t0):
     """Fit a spec per axis on ``rows``; returns (coef (p, 3), std (p, 3)).
 
     Weighted least squares (``fit_weights`` on each axis' reading); the std is from the
-    weighted residual scatter (coefficient covariance s^2 (A^T W A)^-1).
+    weighted residual scatter (coefficient covariance s^2 (A^T W A)^-1). With
+    ``feats.levels`` each placement's level is a random effect
+    (``placement_levels.random_level_fit``, REML per axis).
     """
     a = feats.design(spec, t0)
     p = a.shape[-1]
@@ -151,6 +157,11 @@ def fit_spec(feats, spec, y, rows, t0):
     std = np.zeros((p, 3))
     for i in range(3):
         w = fit_weights(feats.temp[:, i], spec.weighting, rows)[rows]
+        if feats.levels is not None:
+            fit = random_level_fit(a[rows, i], y[rows, i], w, feats.levels[rows])
+            coef[:, i] = fit.coef
+            std[:, i] = fit.std(fit.sigma2 / max(float(np.mean(w)), 1e-300))
+            continue
         sw = np.sqrt(w)
         ai = a[rows, i] * sw[:, None]
         yi = y[rows, i] * sw

@@ -7,6 +7,7 @@ Used for the gyroscope bias (constant included) and for the single-orientation w
 import numpy as np
 
 from ..models.polynomial import OffsetPolynomialModel
+from .placement_levels import held_out_level_fits, random_level_fit
 
 
 def _vander(dt, order):
@@ -19,8 +20,16 @@ def _polyfit_coef(dt, y, w, order):
     return np.linalg.lstsq(a, y * w, rcond=None)[0], a
 
 
-def weighted_polyfit(dt, y, w, order):
-    """Return (coeffs (order+1,), std (order+1,)) of a weighted LS polynomial in dt."""
+def weighted_polyfit(dt, y, w, order, levels=None):
+    """Return (coeffs (order+1,), std (order+1,)) of a weighted LS polynomial in dt.
+
+    ``w``: 1 / std of each value; ``levels``: (m,) placement ids whose levels are random
+    effects (``placement_levels.random_level_fit``), or None. The residual variance is in
+    units of that std and never below 1 (the values' own noise).
+    """
+    if levels is not None:
+        fit = random_level_fit(_vander(dt, order), y, w ** 2, levels)
+        return fit.coef, fit.std(max(fit.sigma2, 1.0))
     coef, a = _polyfit_coef(dt, y, w, order)
     r = (y - _vander(dt, order) @ coef) * w
     dof = max(len(y) - order - 1, 1)
@@ -67,12 +76,14 @@ def _others_extreme(values, fn):
     return out
 
 
-def cv_order(dt, y, w, groups, orders):
+def cv_order(dt, y, w, groups, orders, levels=None):
     """Pick the order with the lowest held-out weighted squared error (leave one group out).
 
     Returns (order, {order: cv_rms}). Groups are e.g. holds or contiguous time blocks.
     An order scores inf when a training set has too few points or no temperature span.
-    All groups of an order are fitted at once (``_held_out_fits``).
+    All groups of an order are fitted at once (``_held_out_fits``); with ``levels``
+    ((m,) placement ids) each training part is fitted with a random level per placement
+    (``placement_levels.held_out_level_fits``).
     """
     scores = {}
     dt, y, w = (np.asarray(a, float) for a in (dt, y, w))
@@ -90,7 +101,8 @@ def cv_order(dt, y, w, groups, orders):
         if ng == 0 or np.any(n_train <= order + 1) or not np.all(span > 0):
             scores[order] = np.inf
             continue
-        coef = _held_out_fits(dt, y, w, gi, ng, order)
+        coef = (_held_out_fits(dt, y, w, gi, ng, order) if levels is None else
+                held_out_level_fits(_vander(dt, order), y, w ** 2, gi, np.asarray(levels)))
         r = (y - np.einsum('ip,ip->i', _vander(dt, order), coef[gi])) * w
         wsum = float(np.sum(w ** 2))
         scores[order] = float(np.sqrt(float(np.sum(r * r)) / wsum)) if wsum else np.inf
@@ -113,12 +125,14 @@ def time_groups(t, n_groups=6):
 
 
 def fit_offset_model(windows, axis_temps, t0, signal, sensor, include_constant,
-                     orders=(0, 1, 2, 3), groups=None):
+                     orders=(0, 1, 2, 3), groups=None, levels=False):
     """Fit an OffsetPolynomialModel per axis with a CV-chosen order.
 
     windows: Windows; axis_temps: (m, 3) degC; signal: 'accel' or 'gyro' field of windows.
     Without a constant (single-orientation accel) the constant is still fitted (it holds the
-    unobservable gravity projection) but not stored. Returns (model, report dict).
+    unobservable gravity projection) but not stored. ``levels``: each hold of ``windows``
+    is a placement whose level is a random effect (``CalibrateOptions.placement_levels``).
+    Returns (model, report dict).
     """
     y_all = getattr(windows, signal)
     var = getattr(windows, f'{signal}_var')
@@ -126,12 +140,13 @@ def fit_offset_model(windows, axis_temps, t0, signal, sensor, include_constant,
     if groups is None:
         groups = time_groups(windows.t0)
     t0 = np.asarray(t0, float)
+    lv = np.asarray(windows.hold) if levels else None
     chosen, cv = [], []
     for i in range(3):
         dt = axis_temps[:, i] - t0[i]
         span = float(np.ptp(dt)) if len(dt) else 0.0
         allowed = [o for o in orders if o == 0 or span > 0.5 * o]
-        o, sc = cv_order(dt, y_all[:, i], w_all[:, i], groups, allowed)
+        o, sc = cv_order(dt, y_all[:, i], w_all[:, i], groups, allowed, lv)
         chosen.append(o)
         cv.append(sc)
     order = max(chosen)
@@ -139,7 +154,7 @@ def fit_offset_model(windows, axis_temps, t0, signal, sensor, include_constant,
     std = np.zeros((order + 1, 3))
     for i in range(3):
         dt = axis_temps[:, i] - t0[i]
-        c, s = weighted_polyfit(dt, y_all[:, i], w_all[:, i], chosen[i])
+        c, s = weighted_polyfit(dt, y_all[:, i], w_all[:, i], chosen[i], lv)
         coeffs[:chosen[i] + 1, i] = c
         std[:chosen[i] + 1, i] = s
     model = OffsetPolynomialModel(t0, coeffs, sensor=sensor, include_constant=include_constant,

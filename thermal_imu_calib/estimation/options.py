@@ -75,6 +75,11 @@ class CalibrateOptions:
     #: Checked on every candidate of the one-way bands, on the family kept without bands and
     #: on the history path's choice. False: the held-out blocks alone decide
     placement_floor: bool = False
+    #: the holds are separate placements: in the thermal-history fits (``hysteresis.fit_spec``)
+    #: each hold's level is a random effect, its variance estimated (REML,
+    #: ``estimation.placement_levels``), so levels that differ from stop to stop (floor
+    #: tilt, heading) are not read as temperature. False: every window independent
+    placement_levels: bool = False
     #: margins by unit, {unit: margin in that unit} (e.g. {'Hz': 2.0}); a proxy unit not
     #: named here gets ``range_margin`` scaled by the ratio of its collected span to the
     #: degC inputs' (see ``input_margins``)

@@ -23,6 +23,7 @@ from scipy.optimize import minimize_scalar
 
 from ..thermal_input import lag_windows
 from .offset_fit import time_groups
+from .placement_levels import random_level_fit
 
 #: candidate time constants of the coarse grid, s (0 = no lag)
 TAU_GRID = (0.0, 10.0, 20.0, 40.0, 70.0, 120.0, 200.0, 320.0, 500.0, 800.0, 1300.0, 2000.0)
@@ -94,11 +95,13 @@ def _weights(windows, signal):
     return 1.0 / np.sqrt(np.maximum(var, 1e-30) / np.maximum(windows.n, 1)[:, None])
 
 
-def heldout_poly_error(x, y, w, groups, order):
+def heldout_poly_error(x, y, w, groups, order, levels=None):
     """Return the per-axis held-out weighted RMS of an offset polynomial (leave a group out).
 
     x: (m, 3) input temperature per axis (centred), y: (m, 3) signal, w: (m, 3) weights
-    (1 / std of each window mean). The residual is in units of that std.
+    (1 / std of each window mean). The residual is in units of that std. ``levels``: (m,)
+    placement ids whose levels are random effects in the fits
+    (``placement_levels.random_level_fit``), or None.
     """
     ug = np.unique(groups)
     sse = np.zeros(y.shape[1])
@@ -106,8 +109,12 @@ def heldout_poly_error(x, y, w, groups, order):
         test = groups == g
         train = ~test
         for a in range(y.shape[1]):
-            v = _vander(x[train, a], order) * w[train, a, None]
-            coef, *_ = np.linalg.lstsq(v, y[train, a] * w[train, a], rcond=None)
+            if levels is not None:
+                coef = random_level_fit(_vander(x[train, a], order), y[train, a],
+                                        w[train, a] ** 2, levels[train]).coef
+            else:
+                v = _vander(x[train, a], order) * w[train, a, None]
+                coef, *_ = np.linalg.lstsq(v, y[train, a] * w[train, a], rcond=None)
             r = (y[test, a] - _vander(x[test, a], order) @ coef) * w[test, a]
             sse[a] += float(r @ r)
     return np.sqrt(sse / len(groups))
@@ -139,7 +146,7 @@ class LagEstimate:
 
 
 def estimate_tau(windows, accel_input, gyro_input, groups=None, order=2, grid=TAU_GRID,
-                 signals=('accel', 'gyro'), group_kind='', lagged=None):
+                 signals=('accel', 'gyro'), group_kind='', lagged=None, levels=False):
     """Estimate one first-order lag time constant (s) for the temperature inputs.
 
     Score(tau) = sum over the axes of ``signals`` of the held-out RMS (in units of each
@@ -147,13 +154,16 @@ def estimate_tau(windows, accel_input, gyro_input, groups=None, order=2, grid=TA
     normalised per axis by its value at tau = 0 so that every axis counts alike.
     ``lagged``: (k,) bool, the inputs the lag applies to (default all); the others keep
     tau 0, e.g. a thermal proxy measured on the sensing element itself (a gyro's
-    resonance frequency) does not lag the error it follows. Returns a ``LagEstimate``.
+    resonance frequency) does not lag the error it follows. ``levels``: each hold is a
+    placement whose level is a random effect in the fits (``placement_levels``). Returns a
+    ``LagEstimate``.
     """
     if windows.n_inputs == 0:
         raise ValueError('a thermal lag needs a temperature input')
     if groups is None:
         groups, group_kind = cv_groups(windows)
     k = windows.n_inputs
+    lv = np.asarray(windows.hold) if levels else None
     mask = np.ones(k, bool) if lagged is None else np.asarray(lagged, bool).reshape(k)
     # a sensor on unlagged inputs only would add a constant to the score: left out
     ys = [(getattr(windows, s), _weights(windows, s), idx)
@@ -168,7 +178,7 @@ def estimate_tau(windows, accel_input, gyro_input, groups=None, order=2, grid=TA
         for y, w, idx in ys:
             x = lag[:, idx]
             x = x - x.mean(0)
-            out.append(heldout_poly_error(x, y, w, groups, order))
+            out.append(heldout_poly_error(x, y, w, groups, order, lv))
         return np.concatenate(out)
 
     base = raw_errors(0.0)

@@ -87,6 +87,11 @@ class LifelongConfig:
     #: floor's degree-0 accelerometer narrowed seed 61's alarm window and lost the knock
     #: alarm; the pair is judged next (docs/lifelong.md)
     placement_floor: bool = False
+    #: calibrate with ``CalibrateSettings.placement_levels``: in the thermal-history fits
+    #: each stop's level is a random effect (REML), so floor tilt and heading that differ
+    #: from stop to stop are not read as temperature (docs/lifelong.md, "A random level
+    #: per stop"). Built, not judged yet: off
+    placement_levels: bool = False
     #: what a change alarm cuts: 'all' (every hold before it, for both sensors) or
     #: 'sensor' (when one sensor alone failed, its history only: the other keeps the
     #: older holds for its fits, ``HoldStore.cut(keep=...)``, ``variants.with_kept``; an

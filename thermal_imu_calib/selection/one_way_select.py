@@ -107,13 +107,13 @@ def candidate_specs(tau):
     return out, floor, ([ARDUPILOT_SPEC] if base else [])
 
 
-def export_figures(windows, axis_input, signal, spec, t0, folds):
+def export_figures(windows, axis_input, signal, spec, t0, folds, levels=False):
     """Return the per-fold figure of ``spec`` refitted as the exporters write it (in T).
 
     A spec in a lagged input is exported as the same polynomial in the reading (thermal
     equilibrium); specs in the reading export unchanged.
     """
-    feats = Features(windows, axis_input)
+    feats = Features(windows, axis_input, levels)
     y = getattr(windows, signal)
     flat = Spec(spec.order, (), (), spec.weighting)
     out = []
@@ -155,7 +155,8 @@ def _placement_scores(ctx, sig, idx, t0, keys, incumbent, fit_single, floor_fold
     w = ctx.windows
     margin = floor_margin(ctx)
     specs = [k for k in keys if isinstance(k, Spec)]
-    figs = spec_figures(w, idx, sig, specs, t0, floor_folds, margin)
+    figs = spec_figures(w, idx, sig, specs, t0, floor_folds, margin,
+                        ctx.options.placement_levels)
     for key, name, tau in ((INCUMBENT, incumbent.model, incumbent.tau_s), (RVM, RVM, None)):
         if key in keys:
             if key not in cache:
@@ -226,7 +227,8 @@ def select_one_way(ctx, incumbent, fit_single):
                          ('gyro', ctx.gyro_input, ctx.gyro_t0)):
         t0 = np.asarray(t0, float)
         raw = raw_figures(w, sig, folds)
-        figs = spec_figures(w, idx, sig, specs + shown, t0, folds)
+        figs = spec_figures(w, idx, sig, specs + shown, t0, folds,
+                            levels=ctx.options.placement_levels)
         if inc is not None:
             figs[INCUMBENT] = inc[sig]
         if rvm is not None:
@@ -270,7 +272,8 @@ def select_one_way(ctx, incumbent, fit_single):
             row[f'{sig}_score'] = scores.get(k, float('nan'))
         if isinstance(picks[sig], Spec) and picks[sig].base:
             ref = t0
-            exported = export_figures(w, idx, sig, picks[sig], ref, folds)
+            exported = export_figures(w, idx, sig, picks[sig], ref, folds,
+                                      ctx.options.placement_levels)
             export_loss[sig] = {'model': float(np.mean(figs[picks[sig]])),
                                 'as_cubic_without_history': float(np.mean(exported)),
                                 'unit': units[sig],

@@ -77,6 +77,7 @@ class ClampedFeatures(Features):
 
     def __init__(self, feats, clamp):
         super().__init__(feats.windows, feats.axis_input)
+        self.levels = feats.levels
         self._src, self._clamp = feats, clamp
         self.temp = clamp(feats.temp)
 
@@ -90,13 +91,14 @@ def floor_margin(ctx):
     return input_margins(ctx.windows, ctx.options) if ctx.k else ctx.options.range_margin
 
 
-def spec_figures(windows, axis_input, signal, specs, t0, folds, margin=None):
+def spec_figures(windows, axis_input, signal, specs, t0, folds, margin=None, levels=False):
     """Return {spec: [level_drift per fold]} of hysteresis specs fitted on each training part.
 
     ``margin``: not None, the inputs are clamped to the fold's training range +- margin
-    (``heldout.clamp_to_training``), as the calibration would apply them.
+    (``heldout.clamp_to_training``), as the calibration would apply them. ``levels``:
+    each placement's level is a random effect in the fits (``Features``).
     """
-    feats = Features(windows, axis_input)
+    feats = Features(windows, axis_input, levels)
     y = getattr(windows, signal)
     out = {s: [] for s in specs}
     for train, test, _ in folds:

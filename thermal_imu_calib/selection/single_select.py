@@ -67,7 +67,8 @@ def fit_single(ctx, family, tau, windows=None, groups=None, kernels=None, rvm_se
             out[sig], rep[sig] = fit_offset_model(w, temps, ref, sig, sig,
                                                   include_constant=not single_accel,
                                                   orders=(0,) if sig in no_thermal else
-                                                  (0, 1, 2, 3), groups=groups)
+                                                  (0, 1, 2, 3), groups=groups,
+                                                  levels=ctx.options.placement_levels)
         else:
             out[sig], rep[sig] = fit_rvm_offset(w, temps, sig, sig, groups,
                                                 offset_only=single_accel, t_ref=ref,
@@ -125,7 +126,12 @@ def select_single(ctx, rvm_settings=None, candidates=SINGLE_CANDIDATES,
         return Selection('offset', 'too few windows for held-out validation: offset '
                          'polynomial', groups=kind)
     lag = estimate_tau(w, ctx.accel_input, ctx.gyro_input, groups, group_kind=kind,
-                       signals=signals, lagged=_lagged_inputs(ctx))
+                       signals=signals, lagged=_lagged_inputs(ctx),
+                       levels=ctx.options.placement_levels)
+    if ctx.options.placement_levels:
+        # the RVM cannot take a random level per placement: it would read them as
+        # temperature, so it is no candidate when the holds are separate placements
+        candidates = tuple(c for c in candidates if not c.startswith('rvm'))
     tau = tau_or_none(lag, LAG_MIN_IMPROVEMENT)
     lag_note = (f'lag search: tau {np.max(lag.tau_s):.0f} s cuts the held-out error of a '
                 f'quadratic by {100 * lag.improvement:.0f} % (used above '

@@ -147,9 +147,12 @@ def _scored_rows(temps, train, test):
     return test
 
 
-def heldout_figures(windows, axis_input, signal, specs, t0, folds):
-    """Return ({spec: [figure per fold]}, [raw figure per fold]) for one sensor."""
-    feats = Features(windows, axis_input)
+def heldout_figures(windows, axis_input, signal, specs, t0, folds, levels=False):
+    """Return ({spec: [figure per fold]}, [raw figure per fold]) for one sensor.
+
+    ``levels``: each placement's level is a random effect in the fits (``Features``).
+    """
+    feats = Features(windows, axis_input, levels)
     y = getattr(windows, signal)
     tm = 0.5 * (windows.t0 + windows.t1)
     raw, out = [], {s: [] for s in specs}
@@ -188,14 +191,14 @@ def rvm_figures(windows, axis_input, signal, t0, folds):
                                                              folds)]
 
 
-def export_figures(windows, axis_input, signal, spec, t0, folds):
+def export_figures(windows, axis_input, signal, spec, t0, folds, levels=False):
     """Return the per-fold figure of ``spec`` written as a flight stack's cubic.
 
     PX4 and ArduPilot compensate with a cubic of the reading and no history: the exporters
     (``formats``) refit the model at thermal equilibrium, where the history terms vanish
     and a lagged input equals the reading. That is the spec's polynomial alone, in T.
     """
-    feats = Features(windows, axis_input)
+    feats = Features(windows, axis_input, levels)
     y = getattr(windows, signal)
     tm = 0.5 * (windows.t0 + windows.t1)
     flat = dataclasses.replace(spec, base=(), terms=(), name='')
@@ -215,7 +218,7 @@ def scaled(spec, factor):
     return dataclasses.replace(spec, base=sc(spec.base), terms=terms, name='')
 
 
-def refine(windows, axis_input, signal, spec, t0, folds, raw):
+def refine(windows, axis_input, signal, spec, t0, folds, raw, levels=False):
     """Refine the lags of ``spec`` by the held-out figure; returns (spec, figures).
 
     A bounded 1-D search of a common factor on its time constants (x0.6 .. x1.6, the
@@ -230,7 +233,7 @@ def refine(windows, axis_input, signal, spec, t0, folds, raw):
 
     def figures(factor):
         s = scaled(spec, factor)
-        return s, heldout_figures(windows, axis_input, signal, [s], t0, folds)[0][s]
+        return s, heldout_figures(windows, axis_input, signal, [s], t0, folds, levels)[0][s]
 
     def objective(log_f):
         v = np.asarray(figures(float(np.exp(log_f)))[1])
@@ -282,7 +285,8 @@ def _floor_score(ctx, sig, idx, t0, spec, folds):
     """Return the placement score (of raw) of the chosen ``spec`` or RVM for one sensor."""
     w, margin = ctx.windows, floor_margin(ctx)
     if isinstance(spec, Spec):
-        figs = spec_figures(w, idx, sig, [spec], t0, folds, margin)[spec]
+        figs = spec_figures(w, idx, sig, [spec], t0, folds, margin,
+                            ctx.options.placement_levels)[spec]
     else:                       # the RVM in the reading, kernels searched in each fold
         y = getattr(w, sig)
         figs = [level_drift(model.correct(y, clamp_to_training(temps, w, train, idx, margin)),
@@ -302,16 +306,18 @@ def select_history(ctx, signals=('accel', 'gyro')):
     folds, kind = time_folds(w, placements=ctx.options.placement_folds)
     floor_folds = placement_groups(w) if ctx.options.placement_floor else []
     specs = candidate_specs()
+    lv = ctx.options.placement_levels
     units = {'accel': 'm/s^2', 'gyro': 'rad/s'}
     chosen, table, texts, export_loss = {}, {}, [], {}
     for sig, idx, t0 in (('accel', ctx.accel_input, ctx.t0), ('gyro', ctx.gyro_input,
                                                               ctx.gyro_t0)):
         if sig not in signals:
             continue
-        figs, raw = heldout_figures(w, idx, sig, specs, np.asarray(t0, float), folds)
-        figs[RVM] = rvm_figures(w, idx, sig, np.asarray(t0, float), folds)
+        figs, raw = heldout_figures(w, idx, sig, specs, np.asarray(t0, float), folds, lv)
+        if not lv:      # the RVM cannot take a random level per placement (no candidate)
+            figs[RVM] = rvm_figures(w, idx, sig, np.asarray(t0, float), folds)
         spec, _ = choose(figs, raw)
-        fine, fine_figs = refine(w, idx, sig, spec, np.asarray(t0, float), folds, raw)
+        fine, fine_figs = refine(w, idx, sig, spec, np.asarray(t0, float), folds, raw, lv)
         if fine_figs is not None and fine not in figs:
             figs[fine] = fine_figs
         spec, scores = choose(figs, raw)
@@ -332,7 +338,7 @@ def select_history(ctx, signals=('accel', 'gyro')):
             row[f'{sig}_score'] = scores.get(s, float('nan'))
         ref = np.full(3, ARDUPILOT_TREF) if spec is ARDUPILOT_SPEC else np.asarray(t0, float)
         if isinstance(spec, Spec):
-            exported = export_figures(w, idx, sig, spec, ref, folds)
+            exported = export_figures(w, idx, sig, spec, ref, folds, lv)
             export_loss[sig] = {'model': float(np.mean(figs[spec])),
                                 'as_cubic_without_history': float(np.mean(exported)),
                                 'unit': units[sig], 'per_fold': [float(v) for v in exported]}

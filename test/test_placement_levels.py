@@ -1,0 +1,129 @@
+"""``placement_levels``: a random level per placement (a robot's stop), fitted by REML.
+
+The core (``estimation.placement_levels``) is checked against a plain dense
+implementation of the same restricted likelihood (every matrix built, scipy's bounded
+minimiser), against ordinary least squares where placements do not matter, and on the
+case it is for: a few stops whose floor tilts happen to line up with their temperatures.
+Then through ``calibrate``: the synthetic warming stops of ``test_placement_floor`` (the
+horizontal levels are tilt only, no temperature dependence at all).
+"""
+
+import numpy as np
+import pytest
+from scipy.optimize import minimize_scalar
+
+from thermal_imu_calib.estimation.offset_fit import weighted_polyfit
+from thermal_imu_calib.estimation.placement_levels import (held_out_level_fits,
+                                                           random_level_fit)
+
+from test_placement_floor import _choice, _stops
+
+
+def _placements(rng, n_place=12, level_std=0.02, slope=0.002, noise=0.003):
+    per = rng.integers(3, 15, n_place)
+    g = np.repeat(np.arange(n_place), per)
+    n = len(g)
+    temp = np.repeat(rng.uniform(0.0, 3.0, n_place), per) + rng.normal(0.0, 0.3, n)
+    a = np.stack([np.ones(n), temp - 1.0, (temp - 1.0) ** 2], axis=1)
+    y = a @ np.array([0.1, slope, 5e-4]) + rng.normal(0.0, level_std, n_place)[g] \
+        + rng.normal(0.0, noise, n)
+    return a, y, rng.uniform(0.5, 1.5, n), g
+
+
+def _dense_reml(a, y, w, g):
+    """The same restricted likelihood with every matrix built (the cross-check)."""
+    n, p = a.shape
+    z = (g[:, None] == np.unique(g)[None]).astype(float)
+
+    def crit(log_lam):
+        v = np.diag(1.0 / w) + 10.0 ** log_lam * z @ z.T
+        vi = np.linalg.inv(v)
+        m = a.T @ vi @ a
+        c = np.linalg.solve(m, a.T @ vi @ y)
+        r = y - a @ c
+        return (n - p) * np.log(r @ vi @ r) + np.linalg.slogdet(v)[1] + \
+            np.linalg.slogdet(m)[1], c
+    res = minimize_scalar(lambda x: crit(x)[0], bounds=(-6.0, 8.0), method='bounded',
+                          options={'xatol': 1e-9})
+    return crit(res.x)[1], 10.0 ** res.x
+
+
+@pytest.mark.parametrize('seed', [1, 2, 3])
+def test_the_fit_equals_a_dense_reml(seed):
+    a, y, w, g = _placements(np.random.default_rng(seed))
+    coef, lam = _dense_reml(a, y, w, g)
+    fit = random_level_fit(a, y, w, g)
+    assert fit.lam == pytest.approx(lam, rel=0.05)
+    np.testing.assert_allclose(fit.coef, coef, rtol=2e-3, atol=1e-6)
+    assert np.all(fit.std() > 0)
+
+
+def test_without_scatter_between_placements_it_is_ordinary_least_squares():
+    """No level scatter: REML mostly lands on lam = 0 (then exactly OLS), else near it."""
+    at_zero = 0
+    for seed in range(7, 15):
+        a, y, w, g = _placements(np.random.default_rng(seed), level_std=0.0)
+        fit = random_level_fit(a, y, w, g)
+        sw = np.sqrt(w)
+        ols = np.linalg.lstsq(a * sw[:, None], y * sw, rcond=None)[0]
+        if fit.lam == 0.0:
+            at_zero += 1
+            np.testing.assert_allclose(fit.coef, ols, rtol=1e-9, atol=1e-12)
+        assert np.all(np.abs(fit.coef - ols) <= 2.0 * fit.std())
+    assert at_zero >= 4
+    a, y, w, g = _placements(np.random.default_rng(7))
+    one = random_level_fit(a, y, w, np.zeros(len(y), int))     # one placement: OLS
+    assert one.lam == 0.0
+    sw = np.sqrt(w)
+    np.testing.assert_allclose(one.coef, np.linalg.lstsq(a * sw[:, None], y * sw,
+                                                         rcond=None)[0], rtol=1e-9)
+
+
+def test_levels_that_line_up_with_temperature_are_not_read_as_a_slope():
+    """Five stops over 1 degC, tilt levels 15 mm/s^2 apart, a true 2 mm/s^2/degC."""
+    rng = np.random.default_rng(11)
+    err_ols, err_lv, covered = [], [], 0
+    trials = 200
+    for _ in range(trials):
+        n_place, per = 5, 15
+        g = np.repeat(np.arange(n_place), per)
+        t = np.linspace(5.0, 6.1, n_place * per) + rng.normal(0.0, 0.02, n_place * per)
+        y = 0.002 * (t - 5.5) + rng.normal(0.0, 0.015, n_place)[g] \
+            + rng.normal(0.0, 5e-4, len(g))
+        w = np.full(len(g), 1.0 / 5e-4)                     # 1 / std of a window mean
+        c_ols, _ = weighted_polyfit(t - 5.5, y, w, 1)
+        c_lv, s_lv = weighted_polyfit(t - 5.5, y, w, 1, levels=g)
+        err_ols.append(c_ols[1] - 0.002)
+        err_lv.append(c_lv[1] - 0.002)
+        covered += abs(c_lv[1] - 0.002) <= 2.0 * s_lv[1]
+    rms_ols = np.sqrt(np.mean(np.square(err_ols)))
+    rms_lv = np.sqrt(np.mean(np.square(err_lv)))
+    assert rms_lv < 0.5 * rms_ols
+    assert covered >= 0.85 * trials          # its standard error is honest
+
+
+def test_held_out_fits_leave_each_group_out():
+    a, y, w, g = _placements(np.random.default_rng(5))
+    groups = g % 4
+    out = held_out_level_fits(a, y, w, groups, g)
+    for k in range(4):
+        tr = groups != k
+        np.testing.assert_allclose(out[k], random_level_fit(a[tr], y[tr], w[tr], g[tr]).coef)
+
+
+@pytest.mark.parametrize('seed', [4, 6])
+def test_calibrate_does_not_read_floor_tilt_as_temperature(seed):
+    """The horizontal axes have no thermal dependence; the gyro has a real one."""
+    w = _stops(seed=seed)
+    _, plain = _choice(w)
+    _, levels = _choice(w, placement_levels=True)
+    temps = np.linspace(w.temp.min(), w.temp.max(), 50)[:, None]
+
+    def swing(cal):          # largest horizontal offset the model applies over the stops
+        off = cal.accel.correct(np.zeros((50, 3)), temps)
+        return float(np.max(np.ptp(off[:, :2], axis=0)))
+    assert swing(levels) < 0.25 * swing(plain)
+    assert swing(levels) < 5e-3               # m/s^2, against tilt levels of ~30 mm/s^2
+    gyro = levels.gyro.correct(np.zeros((50, 3)), temps) - plain.gyro.correct(
+        np.zeros((50, 3)), temps)
+    assert np.max(np.abs(gyro)) < 1e-6        # rad/s: the real gyro slope is kept
