@@ -180,7 +180,8 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
              placement_folds=DEFAULT.placement_folds,
              placement_floor=DEFAULT.placement_floor, stop_day=None,
              range_sensors=DEFAULT.range_sensors,
-             placement_levels=DEFAULT.placement_levels, **overrides):
+             placement_levels=DEFAULT.placement_levels,
+             placement_levels_sensors=DEFAULT.placement_levels_sensors, **overrides):
     m = robot_month(seed, days=days, **overrides)
     spec = m.device.spec
     rate = m.config.imu_rate
@@ -209,7 +210,8 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
                                               placement_folds=placement_folds,
                                               placement_floor=placement_floor,
                                               range_sensors=range_sensors,
-                                              placement_levels=placement_levels),
+                                              placement_levels=placement_levels,
+                                              placement_levels_sensors=placement_levels_sensors),
                         log=lambda level, text: log.append((level, text)))
     life = make()
     feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
@@ -352,7 +354,8 @@ def month(args):
                      args.gyro_g_sensitivity, args.gyro_continuation, args.alarm_first,
                      args.high_order_margin, args.high_order_sensors,
                      args.placement_folds, args.placement_floor, args.stop_day,
-                     args.range_sensors, placement_levels=args.placement_levels)
+                     args.range_sensors, placement_levels=args.placement_levels,
+                     placement_levels_sensors=args.placement_levels_sensors)
         rows.append(r)
         if args.stop_day is not None:
             print(f'seed {seed}: {r["seconds"]:.0f} s, stopped after day {args.stop_day:g} '
@@ -506,7 +509,8 @@ def real(args):
     for name in ('bmi270', 'chamber'):
         r = run_real(name, work, config=LifelongConfig(
             placement_folds=args.placement_folds, placement_floor=args.placement_floor,
-            range_sensors=args.range_sensors, placement_levels=args.placement_levels))
+            range_sensors=args.range_sensors, placement_levels=args.placement_levels,
+            placement_levels_sensors=args.placement_levels_sensors))
         rows.append(r)
         print(f'{name}: {r["holds"]} holds, decisions '
               f'{[d["action"] for d in r["decisions"]]}, swaps {len(r["swaps"])}, harmful '
@@ -1044,6 +1048,10 @@ def main():
     mo.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_month.json'))
     re_ = sub.add_parser('real')
     for sp in (mo, re_):
+        sp.add_argument('--placement-levels-sensors', choices=tuple(HIGH_ORDER_SENSORS),
+                        default=DEFAULT.placement_levels_sensors,
+                        help='the sensors --placement-levels applies to '
+                             '(LifelongConfig.placement_levels_sensors)')
         sp.add_argument('--range-sensors', choices=RANGE_SENSORS,
                         default=DEFAULT.range_sensors,
                         help='whose own ranges bound the common range: every sensor\'s, or '

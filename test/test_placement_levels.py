@@ -127,3 +127,22 @@ def test_calibrate_does_not_read_floor_tilt_as_temperature(seed):
     gyro = levels.gyro.correct(np.zeros((50, 3)), temps) - plain.gyro.correct(
         np.zeros((50, 3)), temps)
     assert np.max(np.abs(gyro)) < 1e-6        # rad/s: the real gyro slope is kept
+
+
+def test_the_accelerometer_alone_leaves_the_gyro_fit_as_it_was():
+    w = _stops(seed=6)
+    _, plain = _choice(w)
+    _, both = _choice(w, placement_levels=True)
+    _, accel = _choice(w, placement_levels=True, placement_levels_sensors='accel')
+    temps = np.linspace(w.temp.min(), w.temp.max(), 50)[:, None]
+    zero = np.zeros((50, 3))
+    np.testing.assert_allclose(accel.accel.correct(zero, temps),
+                               both.accel.correct(zero, temps), rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(accel.gyro.correct(zero, temps),
+                               plain.gyro.correct(zero, temps), rtol=1e-9, atol=1e-15)
+
+
+def test_lifelong_refuses_an_unknown_sensor_set():
+    from thermal_imu_calib.lifelong.config import LifelongConfig
+    with pytest.raises(ValueError, match="placement_levels_sensors 'mag' is not one of"):
+        LifelongConfig(placement_levels_sensors='mag')

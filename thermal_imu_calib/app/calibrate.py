@@ -70,6 +70,8 @@ class CalibrateSettings:
     #: a random level per placement in the thermal-history fits
     #: (``CalibrateOptions.placement_levels``; lifelong)
     placement_levels: bool = False
+    #: the sensors it applies to: 'both', 'accel' or 'gyro'
+    placement_levels_sensors: str = 'both'
     #: temperature samples further apart than this (s) are a gap: the nearest is held
     max_gap_s: float = 5.0
     #: local gravity (m/s^2); None: from ``latitude``/``altitude``, else standard gravity
@@ -164,6 +166,7 @@ def options(settings, collected, transitions=()):
         placement_folds=settings.placement_folds,
         placement_floor=settings.placement_floor,
         placement_levels=settings.placement_levels,
+        placement_levels_sensors=settings.placement_levels_sensors,
         latitude=settings.latitude,
         transitions=list(transitions), **mapping)
 

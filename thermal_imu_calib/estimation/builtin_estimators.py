@@ -44,7 +44,7 @@ def _gyro_bias(ctx):
     orders = (0, 1, 2, 3) if ctx.k and 'gyro' not in no_thermal(ctx) else (0,)
     return fit_offset_model(w, ctx.tg, ctx.gyro_t0 if ctx.k else np.zeros(3), 'gyro', 'gyro',
                             include_constant=True, orders=orders, groups=groups,
-                            levels=ctx.options.placement_levels)
+                            levels=ctx.options.levels('gyro'))
 
 
 @register_estimator('offset')
@@ -58,7 +58,7 @@ def estimate_offset(ctx):
     model, rep = fit_offset_model(ctx.windows, ctx.ta, ctx.t0, 'accel', 'accel',
                                   include_constant=False,
                                   orders=(0,) if 'accel' in no_thermal(ctx) else (0, 1, 2, 3),
-                                  levels=ctx.options.placement_levels)
+                                  levels=ctx.options.levels('accel'))
     return Estimate(accel=model, report={'accel_offset': rep},
                     fit={'pose': 'single orientation (offset-only)'},
                     notes=['offset-only model for a single orientation: removes the drift of '

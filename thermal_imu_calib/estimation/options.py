@@ -80,6 +80,9 @@ class CalibrateOptions:
     #: ``estimation.placement_levels``), so levels that differ from stop to stop (floor
     #: tilt, heading) are not read as temperature. False: every window independent
     placement_levels: bool = False
+    #: the sensors ``placement_levels`` applies to: 'both', 'accel' or 'gyro'
+    #: (``HIGH_ORDER_SENSORS``' names)
+    placement_levels_sensors: str = 'both'
     #: margins by unit, {unit: margin in that unit} (e.g. {'Hz': 2.0}); a proxy unit not
     #: named here gets ``range_margin`` scaled by the ratio of its collected span to the
     #: degC inputs' (see ``input_margins``)
@@ -95,6 +98,16 @@ class CalibrateOptions:
     #: prior means and stds of ``whole_unit`` (``whole_unit_fit.Priors``; None: the
     #: consumer-MEMS defaults)
     whole_unit_priors: Optional[object] = None
+
+    def level_sensors(self):
+        """Return the sensors whose fits take a random level per placement (a tuple)."""
+        if not self.placement_levels:
+            return ()
+        return HIGH_ORDER_SENSORS[self.placement_levels_sensors]
+
+    def levels(self, sensor):
+        """Return whether ``sensor``'s fits take a random level per placement."""
+        return sensor in self.level_sensors()
 
 
 @dataclass

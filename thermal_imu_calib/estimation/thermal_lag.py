@@ -146,7 +146,7 @@ class LagEstimate:
 
 
 def estimate_tau(windows, accel_input, gyro_input, groups=None, order=2, grid=TAU_GRID,
-                 signals=('accel', 'gyro'), group_kind='', lagged=None, levels=False):
+                 signals=('accel', 'gyro'), group_kind='', lagged=None, levels=()):
     """Estimate one first-order lag time constant (s) for the temperature inputs.
 
     Score(tau) = sum over the axes of ``signals`` of the held-out RMS (in units of each
@@ -154,19 +154,19 @@ def estimate_tau(windows, accel_input, gyro_input, groups=None, order=2, grid=TA
     normalised per axis by its value at tau = 0 so that every axis counts alike.
     ``lagged``: (k,) bool, the inputs the lag applies to (default all); the others keep
     tau 0, e.g. a thermal proxy measured on the sensing element itself (a gyro's
-    resonance frequency) does not lag the error it follows. ``levels``: each hold is a
-    placement whose level is a random effect in the fits (``placement_levels``). Returns a
-    ``LagEstimate``.
+    resonance frequency) does not lag the error it follows. ``levels``: the sensors whose
+    fits take each hold as a placement with a random level (``placement_levels``). Returns
+    a ``LagEstimate``.
     """
     if windows.n_inputs == 0:
         raise ValueError('a thermal lag needs a temperature input')
     if groups is None:
         groups, group_kind = cv_groups(windows)
     k = windows.n_inputs
-    lv = np.asarray(windows.hold) if levels else None
+    hold = np.asarray(windows.hold)
     mask = np.ones(k, bool) if lagged is None else np.asarray(lagged, bool).reshape(k)
     # a sensor on unlagged inputs only would add a constant to the score: left out
-    ys = [(getattr(windows, s), _weights(windows, s), idx)
+    ys = [(getattr(windows, s), _weights(windows, s), idx, hold if s in levels else None)
           for s, idx in zip(('accel', 'gyro'), (accel_input, gyro_input))
           if s in signals and np.any(mask[list(idx)])]
     if not ys:
@@ -175,7 +175,7 @@ def estimate_tau(windows, accel_input, gyro_input, groups=None, order=2, grid=TA
     def raw_errors(tau):
         lag = lag_windows(windows.t0, windows.t1, windows.temp, np.where(mask, tau, 0.0))
         out = []
-        for y, w, idx in ys:
+        for y, w, idx, lv in ys:
             x = lag[:, idx]
             x = x - x.mean(0)
             out.append(heldout_poly_error(x, y, w, groups, order, lv))

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..collection.segments import MOUNTING_POSE_DEG
+from ..estimation.options import HIGH_ORDER_SENSORS
 from . import gate
 from .store import StoreConfig
 
@@ -96,6 +97,8 @@ class LifelongConfig:
     #: fell 67 % (below raw), the last week within 5 %, but swaps with a worse next day
     #: 1 -> 3 (two of them the knock's recovery swaps)
     placement_levels: bool = False
+    #: the sensors ``placement_levels`` applies to: 'both', 'accel' or 'gyro'
+    placement_levels_sensors: str = 'both'
     #: what a change alarm cuts: 'all' (every hold before it, for both sensors) or
     #: 'sensor' (when one sensor alone failed, its history only: the other keeps the
     #: older holds for its fits, ``HoldStore.cut(keep=...)``, ``variants.with_kept``; an
@@ -148,7 +151,8 @@ class LifelongConfig:
                               ('alarm_reference', ALARM_REFERENCES),
                               ('alarm_cut', ALARM_CUTS),
                               ('accel_score', gate.ACCEL_SCORES),
-                              ('gyro_continuation', GYRO_CONTINUATIONS)):
+                              ('gyro_continuation', GYRO_CONTINUATIONS),
+                              ('placement_levels_sensors', tuple(HIGH_ORDER_SENSORS))):
             if getattr(self, name) not in allowed:
                 raise ValueError(f'LifelongConfig.{name} {getattr(self, name)!r} is not one '
                                  f'of {", ".join(allowed)}; give one of them')

@@ -80,7 +80,8 @@ class Lifelong:
         if self.config.placement_floor:
             self.settings = replace(self.settings, placement_floor=True)
         if self.config.placement_levels:
-            self.settings = replace(self.settings, placement_levels=True)
+            self.settings = replace(self.settings, placement_levels=True,
+                                    placement_levels_sensors=self.config.placement_levels_sensors)
         #: deg or None: the swap gate takes the known vertical earth rate off the gyro
         self.latitude = getattr(settings, 'latitude', None)
         self.log = log or (lambda level, text: None)

@@ -55,7 +55,7 @@ def estimate_hysteresis(ctx):
         # one estimate to the next). ArduPilot itself pins its correction at the
         # calibration temperature, not at 35 degC.
         ref = np.asarray(t0, float)
-        feats = Features(ctx.windows, idx, ctx.options.placement_levels)
+        feats = Features(ctx.windows, idx, ctx.options.levels(sig))
         rows = np.ones(len(ctx.windows), bool)
         coef, std = fit_spec(feats, spec, getattr(ctx.windows, sig), rows, ref)
         models[sig] = build_model(spec, coef, std, ref, sig, include_constant=sig == 'gyro',

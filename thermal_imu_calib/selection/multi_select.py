@@ -137,7 +137,7 @@ def select_multi(ctx, rvm_settings=None):
     if ctx.k:
         lag = estimate_tau(w, ctx.accel_input, ctx.gyro_input, signals=('gyro',),
                            groups=w.hold, group_kind='holds', lagged=_lagged_inputs(ctx),
-                           levels=ctx.options.placement_levels)
+                           levels=ctx.options.level_sensors())
         tau = tau_or_none(lag, MULTI_LAG_IMPROVEMENT) if _filter_ok(ctx) else None
         lag_note = (f'gyro-bias lag search: tau {np.max(lag.tau_s):.0f} s, '
                     f'{100 * lag.improvement:.0f} % better held out')

@@ -156,7 +156,7 @@ def _placement_scores(ctx, sig, idx, t0, keys, incumbent, fit_single, floor_fold
     margin = floor_margin(ctx)
     specs = [k for k in keys if isinstance(k, Spec)]
     figs = spec_figures(w, idx, sig, specs, t0, floor_folds, margin,
-                        ctx.options.placement_levels)
+                        ctx.options.levels(sig))
     for key, name, tau in ((INCUMBENT, incumbent.model, incumbent.tau_s), (RVM, RVM, None)):
         if key in keys:
             if key not in cache:
@@ -228,7 +228,7 @@ def select_one_way(ctx, incumbent, fit_single):
         t0 = np.asarray(t0, float)
         raw = raw_figures(w, sig, folds)
         figs = spec_figures(w, idx, sig, specs + shown, t0, folds,
-                            levels=ctx.options.placement_levels)
+                            levels=ctx.options.levels(sig))
         if inc is not None:
             figs[INCUMBENT] = inc[sig]
         if rvm is not None:
@@ -273,7 +273,7 @@ def select_one_way(ctx, incumbent, fit_single):
         if isinstance(picks[sig], Spec) and picks[sig].base:
             ref = t0
             exported = export_figures(w, idx, sig, picks[sig], ref, folds,
-                                      ctx.options.placement_levels)
+                                      ctx.options.levels(sig))
             export_loss[sig] = {'model': float(np.mean(figs[picks[sig]])),
                                 'as_cubic_without_history': float(np.mean(exported)),
                                 'unit': units[sig],

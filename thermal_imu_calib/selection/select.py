@@ -126,11 +126,11 @@ def _lag_for(ctx, name, sel):
                                  'record the IMU temperature topic')
     if ctx.n_orientations == 1:
         est = estimate_tau(ctx.windows, ctx.accel_input, ctx.gyro_input,
-                           lagged=_lagged_inputs(ctx), levels=ctx.options.placement_levels)
+                           lagged=_lagged_inputs(ctx), levels=ctx.options.level_sensors())
     else:
         est = estimate_tau(ctx.windows, ctx.accel_input, ctx.gyro_input, signals=('gyro',),
                            groups=ctx.windows.hold, group_kind='holds',
-                           lagged=_lagged_inputs(ctx), levels=ctx.options.placement_levels)
+                           lagged=_lagged_inputs(ctx), levels=ctx.options.level_sensors())
     return est.tau_s, est.report()
 
 
@@ -177,7 +177,7 @@ def _estimate(ctx, name, family, lagged):
             gyr, report['gyro_offset'] = fit_offset_model(ctx.windows, tg, ctx.gyro_t0, 'gyro',
                                                           'gyro', include_constant=True,
                                                           groups=groups,
-                                                          levels=ctx.options.placement_levels)
+                                                          levels=ctx.options.levels('gyro'))
         notes.append('gyroscope: bias vs temperature from stationary windows; earth rotation '
                      'is not removed (up to 7.3e-5 rad/s)')
     if sel is not None:

@@ -68,7 +68,7 @@ def fit_single(ctx, family, tau, windows=None, groups=None, kernels=None, rvm_se
                                                   include_constant=not single_accel,
                                                   orders=(0,) if sig in no_thermal else
                                                   (0, 1, 2, 3), groups=groups,
-                                                  levels=ctx.options.placement_levels)
+                                                  levels=ctx.options.levels(sig))
         else:
             out[sig], rep[sig] = fit_rvm_offset(w, temps, sig, sig, groups,
                                                 offset_only=single_accel, t_ref=ref,
@@ -127,8 +127,8 @@ def select_single(ctx, rvm_settings=None, candidates=SINGLE_CANDIDATES,
                          'polynomial', groups=kind)
     lag = estimate_tau(w, ctx.accel_input, ctx.gyro_input, groups, group_kind=kind,
                        signals=signals, lagged=_lagged_inputs(ctx),
-                       levels=ctx.options.placement_levels)
-    if ctx.options.placement_levels:
+                       levels=ctx.options.level_sensors())
+    if ctx.options.level_sensors():
         # the RVM cannot take a random level per placement: it would read them as
         # temperature, so it is no candidate when the holds are separate placements
         candidates = tuple(c for c in candidates if not c.startswith('rvm'))

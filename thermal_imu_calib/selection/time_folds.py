@@ -286,7 +286,7 @@ def _floor_score(ctx, sig, idx, t0, spec, folds):
     w, margin = ctx.windows, floor_margin(ctx)
     if isinstance(spec, Spec):
         figs = spec_figures(w, idx, sig, [spec], t0, folds, margin,
-                            ctx.options.placement_levels)[spec]
+                            ctx.options.levels(sig))[spec]
     else:                       # the RVM in the reading, kernels searched in each fold
         y = getattr(w, sig)
         figs = [level_drift(model.correct(y, clamp_to_training(temps, w, train, idx, margin)),
@@ -306,13 +306,13 @@ def select_history(ctx, signals=('accel', 'gyro')):
     folds, kind = time_folds(w, placements=ctx.options.placement_folds)
     floor_folds = placement_groups(w) if ctx.options.placement_floor else []
     specs = candidate_specs()
-    lv = ctx.options.placement_levels
     units = {'accel': 'm/s^2', 'gyro': 'rad/s'}
     chosen, table, texts, export_loss = {}, {}, [], {}
     for sig, idx, t0 in (('accel', ctx.accel_input, ctx.t0), ('gyro', ctx.gyro_input,
                                                               ctx.gyro_t0)):
         if sig not in signals:
             continue
+        lv = ctx.options.levels(sig)
         figs, raw = heldout_figures(w, idx, sig, specs, np.asarray(t0, float), folds, lv)
         if not lv:      # the RVM cannot take a random level per placement (no candidate)
             figs[RVM] = rvm_figures(w, idx, sig, np.asarray(t0, float), folds)
