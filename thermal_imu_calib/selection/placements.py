@@ -76,8 +76,7 @@ class ClampedFeatures(Features):
     """``Features`` whose readings and lagged readings pass through ``clamp``."""
 
     def __init__(self, feats, clamp):
-        super().__init__(feats.windows, feats.axis_input)
-        self.levels = feats.levels
+        super().__init__(feats.windows, feats.axis_input, feats.levels is not None)
         self._src, self._clamp = feats, clamp
         self.temp = clamp(feats.temp)
 
