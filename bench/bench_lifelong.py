@@ -510,7 +510,8 @@ def real(args):
         r = run_real(name, work, config=LifelongConfig(
             placement_folds=args.placement_folds, placement_floor=args.placement_floor,
             range_sensors=args.range_sensors, placement_levels=args.placement_levels,
-            placement_levels_sensors=args.placement_levels_sensors))
+            placement_levels_sensors=args.placement_levels_sensors,
+            gyro_continuation=args.gyro_continuation))
         rows.append(r)
         print(f'{name}: {r["holds"]} holds, decisions '
               f'{[d["action"] for d in r["decisions"]]}, swaps {len(r["swaps"])}, harmful '
@@ -1058,6 +1059,9 @@ def main():
                              'only models that depend on temperature '
                              '(LifelongConfig.range_sensors; default: the package\'s)')
     re_.add_argument('--work', default='')
+    re_.add_argument('--gyro-continuation', choices=GYRO_CONTINUATIONS,
+                     default=DEFAULT.gyro_continuation,
+                     help='LifelongConfig.gyro_continuation (default: the package\'s)')
     for flag in ('folds', 'floor', 'levels'):
         re_.add_argument(f'--placement-{flag}', action=argparse.BooleanOptionalAction,
                          default=getattr(DEFAULT, f'placement_{flag}'),
