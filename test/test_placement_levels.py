@@ -146,3 +146,10 @@ def test_lifelong_refuses_an_unknown_sensor_set():
     from thermal_imu_calib.lifelong.config import LifelongConfig
     with pytest.raises(ValueError, match="placement_levels_sensors 'mag' is not one of"):
         LifelongConfig(placement_levels_sensors='mag')
+
+
+def test_calibrate_options_refuse_an_unknown_sensor_set_by_name():
+    from thermal_imu_calib.estimation.options import CalibrateOptions
+    options = CalibrateOptions(placement_levels=True, placement_levels_sensors='mag')
+    with pytest.raises(ValueError, match="placement_levels_sensors 'mag' is not one of both"):
+        options.levels('accel')

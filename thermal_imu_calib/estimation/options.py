@@ -103,7 +103,7 @@ class CalibrateOptions:
         """Return the sensors whose fits take a random level per placement (a tuple)."""
         if not self.placement_levels:
             return ()
-        return HIGH_ORDER_SENSORS[self.placement_levels_sensors]
+        return sensor_set('placement_levels_sensors', self.placement_levels_sensors)
 
     def levels(self, sensor):
         """Return whether ``sensor``'s fits take a random level per placement."""
@@ -202,6 +202,13 @@ def valid_range(windows, options):
 HIGH_ORDER_SENSORS = {'both': ('accel', 'gyro'), 'accel': ('accel',), 'gyro': ('gyro',)}
 
 
+def sensor_set(option, value):
+    """Return the sensors a ``HIGH_ORDER_SENSORS`` name stands for; refuse another name."""
+    if value not in HIGH_ORDER_SENSORS:
+        raise ValueError(f'{option} {value!r} is not one of {", ".join(HIGH_ORDER_SENSORS)}')
+    return HIGH_ORDER_SENSORS[value]
+
+
 def narrow_high_order(cal, windows, options):
     """Give each model above first order ``high_order_margin`` instead of ``range_margin``.
 
@@ -211,15 +218,12 @@ def narrow_high_order(cal, windows, options):
     first order, ``valid_range`` itself. Nothing changes when ``high_order_margin`` is None
     or there are no inputs.
     """
-    if options.high_order_sensors not in HIGH_ORDER_SENSORS:
-        raise ValueError(f'high_order_sensors {options.high_order_sensors!r} is not one of '
-                         f'{", ".join(HIGH_ORDER_SENSORS)}')
+    which = sensor_set('high_order_sensors', options.high_order_sensors)
     if options.high_order_margin is None or cal.valid_range is None:
         return
     narrow = valid_range(windows, dataclasses.replace(
         options, range_margin=float(options.high_order_margin), unit_margins=None))
     models = {w: getattr(cal, w) for w in ('accel', 'gyro') if getattr(cal, w) is not None}
-    which = HIGH_ORDER_SENSORS[options.high_order_sensors]
     high = [w for w, m in models.items() if w in which and m.temperature_degree() > 1]
     if high and len(high) == len(models):
         cal.valid_range = narrow
