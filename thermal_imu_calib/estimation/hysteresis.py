@@ -143,15 +143,16 @@ def fit_weights(temps, weighting, rows):
     return w / np.mean(w[rows])
 
 
-def fit_spec(feats, spec, y, rows, t0):
+def fit_spec(feats, spec, y, rows, t0, design=None):
     """Fit a spec per axis on ``rows``; returns (coef (p, 3), std (p, 3)).
 
     Weighted least squares (``fit_weights`` on each axis' reading); the std is from the
     weighted residual scatter (coefficient covariance s^2 (A^T W A)^-1). With
     ``feats.levels`` each placement's level is a random effect
-    (``placement_levels.random_level_fit``, REML per axis).
+    (``placement_levels.random_level_fit``, REML per axis). ``design``: the spec's
+    ``feats.design(spec, t0)`` when the caller already has it (it does not depend on rows).
     """
-    a = feats.design(spec, t0)
+    a = feats.design(spec, t0) if design is None else design
     p = a.shape[-1]
     coef = np.zeros((p, 3))
     std = np.zeros((p, 3))
@@ -174,9 +175,13 @@ def fit_spec(feats, spec, y, rows, t0):
     return coef, std
 
 
-def predict(feats, spec, coef, t0):
-    """Return the (m, 3) modelled offset (constant included) of a fitted spec."""
-    return np.einsum('map,pa->ma', feats.design(spec, t0), coef)
+def predict(feats, spec, coef, t0, design=None):
+    """Return the (m, 3) modelled offset (constant included) of a fitted spec.
+
+    ``design``: ``feats.design(spec, t0)`` when the caller already has it.
+    """
+    a = feats.design(spec, t0) if design is None else design
+    return np.einsum('map,pa->ma', a, coef)
 
 
 def restart_spread(feats, spec, coef, t0):

@@ -49,8 +49,9 @@ def _sums(a, y, w, groups):
     ata = a.T @ wa                                           # (p, p)
     aty = wa.T @ y                                           # (p,)
     yty = float(np.sum(w * y * y))
-    g = np.zeros((h, a.shape[1]))
-    np.add.at(g, gi, wa)                                     # (H, p) sum w a per placement
+    g = np.zeros((h, a.shape[1]))                            # (H, p) sum w a per placement
+    for j in range(a.shape[1]):     # bincount: the sums of np.add.at, in the same order
+        g[:, j] = np.bincount(gi, weights=wa[:, j], minlength=h)
     q = np.bincount(gi, weights=w * y, minlength=h)          # (H,) sum w y
     s = np.bincount(gi, weights=w, minlength=h)              # (H,) sum w
     return ata, aty, yty, g, q, s

@@ -155,14 +155,16 @@ def heldout_figures(windows, axis_input, signal, specs, t0, folds, levels=False)
     feats = Features(windows, axis_input, levels)
     y = getattr(windows, signal)
     tm = 0.5 * (windows.t0 + windows.t1)
-    raw, out = [], {s: [] for s in specs}
-    for train, test, _ in folds:
-        rows = _scored_rows(feats.temp, train, test)
-        raw.append(block_drift(y, tm, rows))
-        for s in specs:
-            ref = np.full(3, ARDUPILOT_TREF) if s is ARDUPILOT_SPEC else t0
-            coef, _ = fit_spec(feats, s, y, train, ref)
-            out[s].append(block_drift(y - predict(feats, s, coef, ref), tm, rows))
+    scored = [_scored_rows(feats.temp, train, test) for train, test, _ in folds]
+    raw = [block_drift(y, tm, rows) for rows in scored]
+    out = {}
+    for s in specs:             # each spec's design once, for every fold
+        ref = np.full(3, ARDUPILOT_TREF) if s is ARDUPILOT_SPEC else t0
+        a = feats.design(s, ref)
+        out[s] = []
+        for (train, _, _), rows in zip(folds, scored):
+            coef, _ = fit_spec(feats, s, y, train, ref, design=a)
+            out[s].append(block_drift(y - predict(feats, s, coef, ref, design=a), tm, rows))
     return out, raw
 
 
