@@ -58,18 +58,24 @@ def _sums(a, y, w, groups):
 
 
 def _evaluate(lam, stats, n):
-    """Return (-2 REML log-likelihood up to a constant, coef, M, r^T V^-1 r, dof) per lam."""
+    """Return (-2 REML log-likelihood up to a constant, coef, M, r^T V^-1 r, dof) per lam.
+
+    Matrix products (BLAS) over the batch of ``lam``; ``einsum`` with three or four operands
+    loops in C without BLAS and took two thirds of a lifelong re-estimate's fits.
+    """
     ata, aty, yty, g, q, s = stats
+    h, p = g.shape
     f = lam[:, None] / (1.0 + lam[:, None] * s[None, :])    # (L, H)
-    m = ata[None] - np.einsum('lh,hp,hq->lpq', f, g, g)
-    b = aty[None] - np.einsum('lh,hp,h->lp', f, g, q)
+    m = ata[None] - (f @ (g[:, :, None] * g[:, None, :]).reshape(h, p * p)).reshape(-1, p, p)
+    b = aty[None] - f @ (g * q[:, None])                     # (L, p)
     ev, vec = np.linalg.eigh(m)
     tol = np.max(np.abs(ev), axis=1, keepdims=True) * 1e-12
     inv_ev = np.where(ev > tol, 1.0 / np.where(ev > tol, ev, 1.0), 0.0)
-    coef = np.einsum('lpk,lk,lqk,lq->lp', vec, inv_ev, vec, b)      # pseudo-inverse
+    vtb = np.matmul(b[:, None, :], vec)[:, 0]                # (L, p): V^T b
+    coef = np.matmul(vec, (inv_ev * vtb)[:, :, None])[:, :, 0]      # pseudo-inverse
     rank = np.sum(ev > tol, axis=1)
-    wrr = yty - 2 * np.einsum('lp,p->l', coef, aty) + np.einsum('lp,pq,lq->l', coef, ata, coef)
-    gr = q[None] - np.einsum('hp,lp->lh', g, coef)           # (L, H) sum w r per placement
+    wrr = yty - 2 * (coef @ aty) + np.sum((coef @ ata) * coef, axis=1)
+    gr = q[None] - coef @ g.T                                # (L, H) sum w r per placement
     quad = np.maximum(wrr - np.sum(f * gr ** 2, axis=1), 1e-300)
     logdet_m = np.sum(np.log(np.where(ev > tol, ev, 1.0)), axis=1)
     dof = np.maximum(n - rank, 1)
