@@ -153,3 +153,28 @@ def test_calibrate_options_refuse_an_unknown_sensor_set_by_name():
     options = CalibrateOptions(placement_levels=True, placement_levels_sensors='mag')
     with pytest.raises(ValueError, match="placement_levels_sensors 'mag' is not one of both"):
         options.levels('accel')
+
+
+def test_the_file_and_the_report_say_which_fits_took_levels():
+    """fit.placement_levels and a note name the sensors; the report refits them the same way."""
+    import copy
+    from thermal_imu_calib.report import validation
+    w = _stops(seed=6)
+    _, plain = _choice(w)
+    _, accel = _choice(w, placement_levels=True, placement_levels_sensors='accel')
+    assert 'placement_levels' not in plain.fit
+    assert not any(n.startswith('placement levels') for n in plain.notes)
+    assert accel.fit['placement_levels'] == ['accel']
+    assert any(n.startswith('placement levels: the accel thermal fits') for n in accel.notes)
+    assert validation.has_validation(accel)
+    unlabelled = copy.copy(accel)
+    unlabelled.fit = {k: v for k, v in accel.fit.items() if k != 'placement_levels'}
+
+    def curves(cal):                # the held-out panels' lines: accel, then gyro
+        fig = validation.heldout_residuals(cal, w)
+        return [[np.asarray(ln.get_ydata()) for ln in ax.lines if ln.get_label() != 'raw']
+                for ax in fig.axes[:2]]
+    with_levels, without = curves(accel), curves(unlabelled)
+    assert any(a.shape != b.shape or not np.allclose(a, b)
+               for a, b in zip(with_levels[0], without[0]))      # accel: refitted with levels
+    assert all(np.array_equal(a, b) for a, b in zip(with_levels[1], without[1]))  # gyro: not

@@ -7,7 +7,8 @@ For a calibration whose model was chosen on held-out blocks of the thermal histo
 * ``heldout_residuals``: every fold's held-out part, each candidate family's best spec (as
   in the summary), the ArduPilot-style cubic and raw refitted on the fold's training part;
   their held-out output averaged over 30-s blocks, minus the part's mean (the figure the
-  choice was made on), norm over the axes, against time;
+  choice was made on), norm over the axes, against time; fitted with a random level per
+  hold for the sensors whose choice was (``fit.placement_levels``);
 * ``side_by_side``: the whole log, raw, compensated (the calibration streamed over the
   windows' history) and the ArduPilot-style cubic fitted on the same windows, each as
   its 30-s drift about its mean, per axis, against time.
@@ -42,10 +43,15 @@ def _blocks(t, y, rows):
     return mids, np.linalg.norm(means - means.mean(0), axis=1)
 
 
-def _family_specs(windows, axis_input, signal, t0, folds):
+def _levels(cal, signal):
+    """Return whether the calibration's fits of ``signal`` took a random level per hold."""
+    return signal in ((cal.fit or {}).get('placement_levels') or ())
+
+
+def _family_specs(windows, axis_input, signal, t0, folds, levels=False):
     """Return [(label, spec)]: the best spec of each family by the held-out figure."""
     specs = candidate_specs()
-    figs, _ = heldout_figures(windows, axis_input, signal, specs, t0, folds)
+    figs, _ = heldout_figures(windows, axis_input, signal, specs, t0, folds, levels)
     best = {}
     for s, v in figs.items():
         f = family(s)
@@ -73,9 +79,10 @@ def heldout_residuals(cal, windows):
                                           ('gyro', cal.gyro_input,
                                            getattr(cal.gyro, 't0', cal.accel.t0)))):
         ax = grid[row]
-        feats = Features(windows, idx)
+        lv = _levels(cal, sig)      # fitted as the choice was (placement_levels)
+        feats = Features(windows, idx, lv)
         y = getattr(windows, sig)
-        fams = _family_specs(windows, idx, sig, np.asarray(t0, float), folds)
+        fams = _family_specs(windows, idx, sig, np.asarray(t0, float), folds, lv)
         cmap = [f'C{i}' for i in range(10)]
         for k, (train, test, label) in enumerate(folds):
             lo, hi = feats.temp[train].min(0), feats.temp[train].max(0)
