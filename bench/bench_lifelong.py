@@ -63,6 +63,8 @@ from thermal_imu_calib.sim.robot_month import DAY, robot_month  # noqa: E402
 
 RESULTS = os.path.join(HERE, 'results')
 CHUNK_S = 30.0
+#: the file a checkpoint directory (``<work>/seedN.restartK``) carries its meta in
+CHECKPOINT_META = 'bench_checkpoint.json'
 
 
 def rss_mb():
@@ -181,13 +183,19 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
              placement_floor=DEFAULT.placement_floor, stop_day=None,
              range_sensors=DEFAULT.range_sensors,
              placement_levels=DEFAULT.placement_levels,
-             placement_levels_sensors=DEFAULT.placement_levels_sensors, **overrides):
+             placement_levels_sensors=DEFAULT.placement_levels_sensors, checkpoints=False,
+             resume=False, **overrides):
     m = robot_month(seed, days=days, **overrides)
     spec = m.device.spec
     rate = m.config.imu_rate
     noise_g = np.sqrt(3 * (spec.gyro_noise_density ** 2 * rate + spec.gyro_lsb ** 2 / 12))
     d = os.path.join(work, f'seed{seed}')
-    shutil.rmtree(d, ignore_errors=True)
+    ckpt = latest_checkpoint(d) if resume else None
+    if ckpt is None:
+        shutil.rmtree(d, ignore_errors=True)
+    else:                                   # the directory as it was at that restart
+        shutil.rmtree(d, ignore_errors=True)
+        shutil.copytree(ckpt[1], d, ignore=shutil.ignore_patterns(CHECKPOINT_META))
     settings = CalibrateSettings(latitude=latitude, out_of_range=out_of_range,
                                  high_order_margin=high_order_margin,
                                  high_order_sensors=high_order_sensors)
@@ -219,13 +227,26 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
     stops = []
     restarts = list(m.restart_times)
     peak_rss, peak_disk, t_run = rss_mb(), 0, time.perf_counter()
+    done_s, after = 0.0, -np.inf            # a resumed month: seconds spent, restart time
+    if ckpt is not None:
+        k, _, meta = ckpt
+        after, restarts = restarts[k], restarts[k + 1:]
+        peak_rss, peak_disk = max(peak_rss, meta['peak_rss_mb']), meta['peak_dir_bytes']
+        done_s = meta['seconds']
     base = m.start_ns * 1e-9
     for seg in m.segments():
         s = seg.stop
+        if s.t0 <= after:
+            continue                        # before the restart the month resumed from
         if stop_day is not None and s.t0 > stop_day * DAY:
             break                           # the month's first days only
         while restarts and restarts[0] < s.t0:
+            k = len(m.restart_times) - len(restarts)
             restarts.pop(0)
+            if checkpoints:                 # the restart reads this directory only
+                save_checkpoint(d, k, {'seconds': done_s + time.perf_counter() - t_run,
+                                       'peak_rss_mb': peak_rss, 'peak_dir_bytes': peak_disk,
+                                       'restart_s': float(m.restart_times[k])})
             life = make()                   # restart: state from the directory only
             feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
         ch = stop_chunks(seg)
@@ -239,14 +260,40 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
         feeder.decisions = []
         peak_rss = max(peak_rss, rss_mb())
         peak_disk = max(peak_disk, dir_bytes(d))
-    seconds = time.perf_counter() - t_run
+    seconds = done_s + time.perf_counter() - t_run
     if stop_day is not None:        # scored afterwards by lifelong_first_day.py
         return {'seed': seed, 'seconds': round(seconds, 1), 'stop_day': stop_day}
     decisions = life.decisions()
-    return evaluate(m, stops, timeline, decisions, noise_g, base) | {
+    scored = (evaluate(m, stops, timeline, decisions, noise_g, base) if ckpt is None else
+              reeval_seed(d, seed, days) | {'resumed_from_restart': ckpt[0]})
+    return scored | {
         'seed': seed, 'seconds': round(seconds, 1), 'peak_rss_mb': round(peak_rss, 1),
         'peak_dir_mb': round(peak_disk / 2 ** 20, 2), 'summary': m.summary(),
         'store': life.store.summary(), 'registry_rows': _registry_rows(d)}
+
+
+def save_checkpoint(d, k, meta):
+    """Copy the lifelong directory ``d`` as it is at the month's restart ``k`` (+ meta)."""
+    dst = f'{d}.restart{k}'
+    shutil.rmtree(dst, ignore_errors=True)
+    shutil.copytree(d, dst + '.part')
+    with open(os.path.join(dst + '.part', CHECKPOINT_META), 'w') as f:
+        json.dump(meta, f)
+    os.rename(dst + '.part', dst)           # complete or absent
+
+
+def latest_checkpoint(d):
+    """Return (restart index, directory, meta) of ``d``'s latest checkpoint, or None."""
+    done = []
+    for k in range(16):
+        path = f'{d}.restart{k}'
+        if os.path.isfile(os.path.join(path, CHECKPOINT_META)):
+            with open(os.path.join(path, CHECKPOINT_META)) as f:
+                done.append((k, path, json.load(f)))
+    if not done:
+        return None
+    k, path, meta = done[-1]
+    return k, path, meta
 
 
 def _registry_rows(d):
@@ -355,7 +402,8 @@ def month(args):
                      args.high_order_margin, args.high_order_sensors,
                      args.placement_folds, args.placement_floor, args.stop_day,
                      args.range_sensors, placement_levels=args.placement_levels,
-                     placement_levels_sensors=args.placement_levels_sensors)
+                     placement_levels_sensors=args.placement_levels_sensors,
+                     checkpoints=args.checkpoints, resume=args.resume)
         rows.append(r)
         if args.stop_day is not None:
             print(f'seed {seed}: {r["seconds"]:.0f} s, stopped after day {args.stop_day:g} '
@@ -1043,6 +1091,12 @@ def main():
                     default=DEFAULT.placement_levels,
                     help='a random level per stop in the thermal-history fits (REML; '
                          'LifelongConfig.placement_levels; default: the package\'s)')
+    mo.add_argument('--checkpoints', action='store_true',
+                    help='copy each lifelong directory at each of the month\'s restarts to '
+                    '<work>/seedN.restartK (the restart reads that directory only)')
+    mo.add_argument('--resume', action='store_true',
+                    help='continue each seed from its latest checkpoint in --work (the '
+                    'decisions are those of an uninterrupted run; scored from the registry)')
     mo.add_argument('--stop-day', type=float, default=None,
                     help='stop the month after this day (the first days only; no month '
                          'figures: score them with bench/lifelong_first_day.py)')
