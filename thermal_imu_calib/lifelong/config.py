@@ -144,7 +144,8 @@ class LifelongConfig:
     #: beats clamping, else clamped (``continuation``). Off: on seeds 44-48 one swap more
     #: was worse next day (its cause, the cubic pinned at 35 degC, fixed since); on seeds
     #: 137-138 it met all its criteria against the default before ``placement_levels``
-    #: (gyro last/true -16 %), and is being judged on top of it (docs/lifelong.md)
+    #: (gyro last/true -16 %); on seeds 139-140, on top of it, five of six (gyro last/true
+    #: -23 %) but one swap more worse next day (docs/lifelong.md)
     gyro_continuation: str = 'off'
     store: StoreConfig = field(default_factory=StoreConfig)
 
