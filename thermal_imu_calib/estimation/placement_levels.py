@@ -27,6 +27,7 @@ values is evaluated at once (a log grid, then finer ones around its best point).
 """
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -40,21 +41,33 @@ FINE = 25
 REFINE = 3
 
 
+class _Stats(NamedTuple):
+    """Sufficient statistics of the weighted fit and of each placement (``_sums``)."""
+
+    ata: np.ndarray     # (p, p) sum w a a^T
+    aty: np.ndarray     # (p,) sum w a y
+    yty: float          # sum w y^2
+    g: np.ndarray       # (H, p) sum w a per placement
+    q: np.ndarray       # (H,) sum w y per placement
+    s: np.ndarray       # (H,) sum w per placement
+    gg: np.ndarray      # (H, p * p) g g^T per placement, flattened
+    gq: np.ndarray      # (H, p) g q per placement
+
+
 def _sums(a, y, w, groups):
-    """Return the sufficient statistics of the weighted fit and of each placement."""
+    """Return the ``_Stats`` of the weighted fit (once per fit, for every ``lam``)."""
     _, gi = np.unique(groups, return_inverse=True)
     gi = gi.ravel()
     h = int(gi.max()) + 1 if len(gi) else 0
+    p = a.shape[1]
     wa = a * w[:, None]
-    ata = a.T @ wa                                           # (p, p)
-    aty = wa.T @ y                                           # (p,)
-    yty = float(np.sum(w * y * y))
-    g = np.zeros((h, a.shape[1]))                            # (H, p) sum w a per placement
-    for j in range(a.shape[1]):     # bincount: the sums of np.add.at, in the same order
+    g = np.zeros((h, p))
+    for j in range(p):              # bincount: the sums of np.add.at, in the same order
         g[:, j] = np.bincount(gi, weights=wa[:, j], minlength=h)
-    q = np.bincount(gi, weights=w * y, minlength=h)          # (H,) sum w y
-    s = np.bincount(gi, weights=w, minlength=h)              # (H,) sum w
-    return ata, aty, yty, g, q, s
+    q = np.bincount(gi, weights=w * y, minlength=h)
+    return _Stats(ata=a.T @ wa, aty=wa.T @ y, yty=float(np.sum(w * y * y)), g=g, q=q,
+                  s=np.bincount(gi, weights=w, minlength=h),
+                  gg=(g[:, :, None] * g[:, None, :]).reshape(h, p * p), gq=g * q[:, None])
 
 
 def _evaluate(lam, stats, n):
@@ -64,11 +77,11 @@ def _evaluate(lam, stats, n):
     loops in C without BLAS and took about 70 % of the random-level fits' time in a lifelong
     re-estimate (docs/speed.md).
     """
-    ata, aty, yty, g, q, s = stats
-    h, p = g.shape
+    ata, aty, yty, g, q, s = stats.ata, stats.aty, stats.yty, stats.g, stats.q, stats.s
+    p = g.shape[1]
     f = lam[:, None] / (1.0 + lam[:, None] * s[None, :])    # (L, H)
-    m = ata[None] - (f @ (g[:, :, None] * g[:, None, :]).reshape(h, p * p)).reshape(-1, p, p)
-    b = aty[None] - f @ (g * q[:, None])                     # (L, p)
+    m = ata[None] - (f @ stats.gg).reshape(-1, p, p)
+    b = aty[None] - f @ stats.gq                             # (L, p)
     ev, vec = np.linalg.eigh(m)
     tol = np.max(np.abs(ev), axis=1, keepdims=True) * 1e-12
     inv_ev = np.where(ev > tol, 1.0 / np.where(ev > tol, ev, 1.0), 0.0)
@@ -102,7 +115,7 @@ def random_level_fit(a, y, w, groups):
     w = np.asarray(w, float)
     n, p = a.shape
     stats = _sums(a, y, w, groups)
-    s = stats[-1]
+    s = stats.s
     if len(s) < 2 or n <= p + 1:
         lams = np.zeros(1)
     else:
