@@ -99,14 +99,18 @@ def spec_figures(windows, axis_input, signal, specs, t0, folds, margin=None, lev
     """
     feats = Features(windows, axis_input, levels)
     y = getattr(windows, signal)
-    out = {s: [] for s in specs}
-    for train, test, _ in folds:
-        used = feats if margin is None else ClampedFeatures(
-            feats, lambda x, tr=train: clamp_to_training(x, windows, tr, axis_input, margin))
-        for s in specs:
-            ref = np.full(3, ARDUPILOT_TREF) if s is ARDUPILOT_SPEC else t0
-            coef, _ = fit_spec(feats, s, y, train, ref)
-            out[s].append(level_drift(y - predict(used, s, coef, ref), windows, train, test))
+    used = [feats if margin is None else ClampedFeatures(
+        feats, lambda x, tr=train: clamp_to_training(x, windows, tr, axis_input, margin))
+        for train, _, _ in folds]
+    out = {}
+    for s in specs:             # each spec's design once, for every fold (time_folds too)
+        ref = np.full(3, ARDUPILOT_TREF) if s is ARDUPILOT_SPEC else t0
+        a = feats.design(s, ref)
+        out[s] = []
+        for (train, test, _), feats_k in zip(folds, used):
+            coef, _ = fit_spec(feats, s, y, train, ref, design=a)
+            offset = predict(feats_k, s, coef, ref, design=a if margin is None else None)
+            out[s].append(level_drift(y - offset, windows, train, test))
     return out
 
 
