@@ -251,8 +251,9 @@ def calibrate_windows(windows, options=None):
                  else AUTO_POLICY[0](ctx.accel_view()))
     est = ESTIMATORS[name](ctx)
     notes = flat + pose + earth + consistency_notes(consistency) + list(est.notes)
-    if o.level_sensors():
-        notes.append(f'placement levels: the {" and ".join(o.level_sensors())} thermal fits '
+    levels = o.level_sensors()
+    if levels:
+        notes.append(f'placement levels: the {" and ".join(levels)} thermal fits '
                      'give each hold a level of its own (a random effect, REML), so a tilt '
                      'or heading that differs from stop to stop is not read as temperature')
     floor = why.split(f'; {FLOOR_REASON}', 1)
@@ -301,8 +302,8 @@ def calibrate_windows(windows, options=None):
             'collected': len(o.transitions), 'used': int(rot.get('rotations_used', 0))}
     if 'rotation_direction_error_deg' in rot:
         fit_stats['rotation_direction_error_deg'] = rot['rotation_direction_error_deg']
-    if o.level_sensors():
-        fit_stats['placement_levels'] = list(o.level_sensors())
+    if levels:
+        fit_stats['placement_levels'] = list(levels)
     cal.fit = fit_stats
     kind = est.accel.kind if est.accel is not None else 'gyro bias only'
     if name == 'standard':
