@@ -186,15 +186,10 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
              placement_levels_sensors=DEFAULT.placement_levels_sensors, checkpoints=False,
              resume=False, **overrides):
     m = robot_month(seed, days=days, **overrides)
-    spec = m.device.spec
-    rate = m.config.imu_rate
-    noise_g = np.sqrt(3 * (spec.gyro_noise_density ** 2 * rate + spec.gyro_lsb ** 2 / 12))
     d = os.path.join(work, f'seed{seed}')
     ckpt = latest_checkpoint(d) if resume else None
-    if ckpt is None:
-        shutil.rmtree(d, ignore_errors=True)
-    else:                                   # the directory as it was at that restart
-        shutil.rmtree(d, ignore_errors=True)
+    shutil.rmtree(d, ignore_errors=True)
+    if ckpt is not None:                    # the directory as it was at that restart
         shutil.copytree(ckpt[1], d, ignore=shutil.ignore_patterns(CHECKPOINT_META))
     settings = CalibrateSettings(latitude=latitude, out_of_range=out_of_range,
                                  high_order_margin=high_order_margin,
@@ -245,8 +240,7 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
             restarts.pop(0)
             if checkpoints:                 # the restart reads this directory only
                 save_checkpoint(d, k, {'seconds': done_s + time.perf_counter() - t_run,
-                                       'peak_rss_mb': peak_rss, 'peak_dir_bytes': peak_disk,
-                                       'restart_s': float(m.restart_times[k])})
+                                       'peak_rss_mb': peak_rss, 'peak_dir_bytes': peak_disk})
             life = make()                   # restart: state from the directory only
             feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
         ch = stop_chunks(seg)
@@ -264,8 +258,8 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
     if stop_day is not None:        # scored afterwards by lifelong_first_day.py
         return {'seed': seed, 'seconds': round(seconds, 1), 'stop_day': stop_day}
     decisions = life.decisions()
-    scored = (evaluate(m, stops, timeline, decisions, noise_g, base) if ckpt is None else
-              reeval_seed(d, seed, days) | {'resumed_from_restart': ckpt[0]})
+    scored = (evaluate(m, stops, timeline, decisions, gyro_noise(m), base) if ckpt is None
+              else registry_scores(m, d, decisions) | {'resumed_from_restart': ckpt[0]})
     return scored | {
         'seed': seed, 'seconds': round(seconds, 1), 'peak_rss_mb': round(peak_rss, 1),
         'peak_dir_mb': round(peak_disk / 2 ** 20, 2), 'summary': m.summary(),
@@ -284,16 +278,19 @@ def save_checkpoint(d, k, meta):
 
 def latest_checkpoint(d):
     """Return (restart index, directory, meta) of ``d``'s latest checkpoint, or None."""
-    done = []
-    for k in range(16):
-        path = f'{d}.restart{k}'
-        if os.path.isfile(os.path.join(path, CHECKPOINT_META)):
-            with open(os.path.join(path, CHECKPOINT_META)) as f:
-                done.append((k, path, json.load(f)))
-    if not done:
+    found = [k for k in range(16)
+             if os.path.isfile(os.path.join(f'{d}.restart{k}', CHECKPOINT_META))]
+    if not found:
         return None
-    k, path, meta = done[-1]
-    return k, path, meta
+    path = f'{d}.restart{found[-1]}'
+    with open(os.path.join(path, CHECKPOINT_META)) as f:
+        return found[-1], path, json.load(f)
+
+
+def gyro_noise(m):
+    """Return the gyro's white noise per sample of month ``m`` (rad/s, norm of 3 axes)."""
+    spec, rate = m.device.spec, m.config.imu_rate
+    return np.sqrt(3 * (spec.gyro_noise_density ** 2 * rate + spec.gyro_lsb ** 2 / 12))
 
 
 def _registry_rows(d):
@@ -586,12 +583,15 @@ def history_alarms(reg, knock_day):
 
 def reeval_seed(work_seed, seed, days):
     """Score a finished month again from its lifelong directory (registry = the timeline)."""
+    with open(os.path.join(work_seed, 'decisions.jsonl')) as f:
+        decisions = [json.loads(x) for x in f if x.strip()]
+    return registry_scores(robot_month(seed, days=days), work_seed, decisions)
+
+
+def registry_scores(m, work_seed, decisions):
+    """Score month ``m`` from its lifelong directory: the registry is the timeline."""
     from thermal_imu_calib.calibration import Calibration
     from thermal_imu_calib.fleet import registry
-    m = robot_month(seed, days=days)
-    spec = m.device.spec
-    rate = m.config.imu_rate
-    noise_g = np.sqrt(3 * (spec.gyro_noise_density ** 2 * rate + spec.gyro_lsb ** 2 / 12))
     base = m.start_ns * 1e-9
     rows = registry.read_index(os.path.join(work_seed, 'registry'))
     timeline = [(-np.inf, None)] + [
@@ -601,10 +601,7 @@ def reeval_seed(work_seed, seed, days):
     for seg, ch in scored_stops(m):
         cal = [c for t, c in timeline if t <= seg.stop.t0][-1]
         stops.append((seg.stop.t0, cal, ch))
-    decisions = []
-    with open(os.path.join(work_seed, 'decisions.jsonl')) as f:
-        decisions = [json.loads(x) for x in f if x.strip()]
-    return evaluate(m, stops, timeline, decisions, noise_g, base)
+    return evaluate(m, stops, timeline, decisions, gyro_noise(m), base)
 
 
 def reeval(args):
