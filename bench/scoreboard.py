@@ -532,7 +532,8 @@ def main(argv=None):
     meta = {'date': time.strftime('%Y-%m-%d'), 'commit': commit + (' +dirty' if dirty else ''),
             'node_params': NODE_PARAMS,
             'json': os.path.relpath(a.out + '.json', ROOT)}
-    command = ('ROS_DOMAIN_ID=63 .venv/bin/python bench/scoreboard.py'
+    command = (f'ROS_DOMAIN_ID={domain} .venv/bin/python bench/scoreboard.py'
+               + (f' --work {a.work}' if a.work != ap.get_default('work') else '')
                + (' --only ' + ' '.join(a.only) if a.only else '')
                + (' --no-live' if a.no_live else '')
                + ''.join(f' --node-param {p}' for p in a.node_param)
