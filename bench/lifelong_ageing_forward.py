@@ -114,8 +114,8 @@ def main():
         res = {}
         for period, lo in (('last week', args.days - 7), ('month', 0.0)):
             sel = [r for r in rows if r[0] >= lo]
-            figs = [rms([r[1] for r in sel])] + [rms([r[2][k] for r in sel])
-                                                  for k in range(len(caps))]
+            figs = [rms([r[1] for r in sel])]
+            figs += [rms([r[2][k] for r in sel]) for k in range(len(caps))]
             res[period] = {'stops': len(sel), 'true_mrad_s': rms([r[3] for r in sel]),
                            **{n: f for n, f in zip(names, figs)}}
             print(f'seed {seed}, {period} ({len(sel)} stops): gyro mrad/s ' + ', '.join(
