@@ -92,7 +92,9 @@ def stop_chunks(seg):
         x = x.reshape(len(x), -1)
         return np.stack([np.bincount(cid, x[:, j]) for j in range(x.shape[1])], 1)[keep] \
             / n[keep, None]
-    return {'n': n[keep], 'accel': mean(seg.imu.accel), 'gyro': mean(seg.imu.gyro),
+    stamps = seg.imu.stamp_ns.astype(float)[:, None] * 1e-9
+    return {'n': n[keep], 't': mean(stamps)[:, 0], 'accel': mean(seg.imu.accel),
+            'gyro': mean(seg.imu.gyro),
             'f': mean(seg.specific_force), 'w': mean(seg.angular_rate),
             'temp': mean(seg.temp_true)}
 
@@ -102,7 +104,7 @@ def stop_error(cal, ch):
     if cal is None:
         a, g = ch['accel'], ch['gyro']
     else:
-        res = cal.apply(ch['accel'], ch['gyro'], ch['temp'])
+        res = cal.apply(ch['accel'], ch['gyro'], ch['temp'], stamps=ch['t'])
         a, g = res.accel, res.gyro
     w = ch['n'] / ch['n'].sum()
     return w @ (g - ch['w']), w @ (a - ch['f'])
@@ -184,7 +186,7 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
              range_sensors=DEFAULT.range_sensors,
              placement_levels=DEFAULT.placement_levels,
              placement_levels_sensors=DEFAULT.placement_levels_sensors, checkpoints=False,
-             resume=False, **overrides):
+             resume=False, gyro_ageing_forward=DEFAULT.gyro_ageing_forward, **overrides):
     m = robot_month(seed, days=days, **overrides)
     d = os.path.join(work, f'seed{seed}')
     ckpt = latest_checkpoint(d) if resume else None
@@ -214,7 +216,8 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
                                               placement_floor=placement_floor,
                                               range_sensors=range_sensors,
                                               placement_levels=placement_levels,
-                                              placement_levels_sensors=placement_levels_sensors),
+                                              placement_levels_sensors=placement_levels_sensors,
+                                              gyro_ageing_forward=gyro_ageing_forward),
                         log=lambda level, text: log.append((level, text)))
     life = make()
     feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
@@ -400,7 +403,8 @@ def month(args):
                      args.placement_folds, args.placement_floor, args.stop_day,
                      args.range_sensors, placement_levels=args.placement_levels,
                      placement_levels_sensors=args.placement_levels_sensors,
-                     checkpoints=args.checkpoints, resume=args.resume)
+                     checkpoints=args.checkpoints, resume=args.resume,
+                     gyro_ageing_forward=args.gyro_ageing_forward)
         rows.append(r)
         if args.stop_day is not None:
             print(f'seed {seed}: {r["seconds"]:.0f} s, stopped after day {args.stop_day:g} '
@@ -556,7 +560,8 @@ def real(args):
             placement_folds=args.placement_folds, placement_floor=args.placement_floor,
             range_sensors=args.range_sensors, placement_levels=args.placement_levels,
             placement_levels_sensors=args.placement_levels_sensors,
-            gyro_continuation=args.gyro_continuation))
+            gyro_continuation=args.gyro_continuation,
+            gyro_ageing_forward=args.gyro_ageing_forward))
         rows.append(r)
         print(f'{name}: {r["holds"]} holds, decisions '
               f'{[d["action"] for d in r["decisions"]]}, swaps {len(r["swaps"])}, harmful '
@@ -1063,6 +1068,11 @@ def main():
                     help='the gyro beyond its range: off (the calibrate policy) or history '
                          '(continued when the holds outside earlier ranges support it; '
                          'LifelongConfig.gyro_continuation)')
+    mo.add_argument('--gyro-ageing-forward', action=argparse.BooleanOptionalAction,
+                    default=DEFAULT.gyro_ageing_forward,
+                    help='an estimate fitted with the gyro ageing removed carries the rates '
+                         'forward in time in its file (LifelongConfig.gyro_ageing_forward; '
+                         'default: the package\'s)')
     mo.add_argument('--alarm-first', action=argparse.BooleanOptionalAction,
                     default=DEFAULT.alarm_first,
                     help='no re-estimate while the change alarm is deciding '
@@ -1110,6 +1120,9 @@ def main():
                              'only models that depend on temperature '
                              '(LifelongConfig.range_sensors; default: the package\'s)')
     re_.add_argument('--work', default='')
+    re_.add_argument('--gyro-ageing-forward', action=argparse.BooleanOptionalAction,
+                     default=DEFAULT.gyro_ageing_forward,
+                     help='LifelongConfig.gyro_ageing_forward (default: the package\'s)')
     re_.add_argument('--gyro-continuation', choices=GYRO_CONTINUATIONS,
                      default=DEFAULT.gyro_continuation,
                      help='LifelongConfig.gyro_continuation (default: the package\'s)')

@@ -34,6 +34,7 @@ def full_calibration():
                      'horizon_s': 3600.0},
         temperature_filter=ThermalFilter(np.array([120.0]), restart_spread={
             'accel': [1e-3, 2e-3, 3e-3], 'gyro': [1e-4, 2e-4, 3e-4]}),
+        gyro_ageing={'rate': np.array([1e-6, -2e-6, 3e-7]), 'epoch': 1.7e9, 'max_days': 5.0},
         created='2026-11-27T00:00:00+00:00')
 
 
@@ -78,7 +79,8 @@ def test_the_walk_covers_every_section_of_the_file():
               'temperature.filter.tau_s', 'temperature.filter.restart_spread.gyro.value',
               'accel.parameters.T0.std', 'gyro.temperature_input',
               'noise.gyro_random_walk.value', 'noise.horizon_s.value', 'gravity.value', 'fit',
-              'notes', 'created', 'software.version', 'sensor.frame_id', 'accel.meta'):
+              'notes', 'created', 'software.version', 'sensor.frame_id', 'accel.meta',
+              'gyro_ageing.max_days.value'):
         assert p in paths, p
     assert len(FIELDS) >= 40
 

@@ -306,7 +306,8 @@ class CalibrationStream:
         """Compensate one batch (rows in time order, t in s); returns ``Compensated``.
 
         With a filter the calibration also gets the filter's age (``filter_age``): its
-        1-sigma covers the restart (``ThermalFilter.restart_spread``).
+        1-sigma covers the restart (``ThermalFilter.restart_spread``). With a gyro ageing
+        term it gets the stamps (``Calibration.gyro_ageing``).
         """
         history, extra = None, {}
         if temps is not None:
@@ -318,6 +319,8 @@ class CalibrationStream:
                 extra['filter_age'] = self.thermal.age_s(t)
         if history is not None:
             extra['history'] = history
+        if getattr(self.calibration, 'gyro_ageing', None):
+            extra['stamps'] = t     # the gyro bias carried to the samples' time
         return self.calibration.apply(accel, gyro, temps, **extra)
 
     def reset(self):

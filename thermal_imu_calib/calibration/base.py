@@ -14,7 +14,13 @@ FORMAT_SENSOR_RANGE = 'thermal_imu_calib/2'
 #: that use them, so that an older version refuses them instead of clamping a model that
 #: was meant to be continued.
 FORMAT_LINEAR = 'thermal_imu_calib/3'
-FILE_FORMATS = (FORMAT, FORMAT_SENSOR_RANGE, FORMAT_LINEAR)
+#: format 3 plus ``gyro_ageing`` (a gyro bias that drifts in time at a fitted rate, carried
+#: forward from the estimate's time on the IMU's stamps). Written only by files that have
+#: it, so that an older version refuses them instead of holding the bias of that time
+FORMAT_AGEING = 'thermal_imu_calib/4'
+FILE_FORMATS = (FORMAT, FORMAT_SENSOR_RANGE, FORMAT_LINEAR, FORMAT_AGEING)
+#: seconds per day: the unit of ``Calibration.gyro_ageing``'s rate and bound
+DAY_S = 86400.0
 #: outside the valid range: 'clamp' holds the edge value (as PX4 and ArduPilot do);
 #: 'extrapolate' evaluates the models there; 'linear' continues each model from the edge
 #: with its slope over the last ``LINEAR_STEP_DEGC`` inside, no further than the range's

@@ -20,9 +20,9 @@ from ..input_units import DEGC, is_temperature
 from ..models import SensorModel
 from ..thermal_input import CalibrationStream, ThermalFilter
 from . import schema
-from .base import (CalibrationError, FORMAT, FORMAT_LINEAR, FORMAT_SENSOR_RANGE,
-                   LINEAR_STEP_DEGC, LINEAR_STEP_FRACTION, NOISE_UNITS, OUT_OF_RANGE_V1,
-                   TemperatureInput)
+from .base import (CalibrationError, DAY_S, FORMAT, FORMAT_AGEING, FORMAT_LINEAR,
+                   FORMAT_SENSOR_RANGE, LINEAR_STEP_DEGC, LINEAR_STEP_FRACTION, NOISE_UNITS,
+                   OUT_OF_RANGE_V1, TemperatureInput)
 from .yaml_text import parse_yaml, read_file
 
 
@@ -74,6 +74,13 @@ class Calibration:
     #: models fitted on different holds, ``lifelong.compose``); ``valid_range`` then spans
     #: both, and each model is clamped to its own range
     sensor_range: dict = field(default_factory=dict)
+    #: optional gyro bias ageing carried forward in time: ``rate`` (3,) rad/s per day,
+    #: ``epoch`` (s, the stamps' clock: UNIX time for header stamps) when the gyro model is
+    #: the bias, ``max_days`` (> 0) the most it is carried either way. ``apply`` with
+    #: ``stamps`` takes ``rate * clip((t - epoch) / day, -max_days, max_days)`` off the gyro;
+    #: without stamps, the model as at ``epoch``. Empty: none (a lifelong estimate fitted
+    #: with the ageing removed writes it, ``lifelong.variants.with_ageing``)
+    gyro_ageing: dict = field(default_factory=dict)
 
     def __post_init__(self):
         for which in ('accel', 'gyro'):
@@ -192,7 +199,19 @@ class Calibration:
             out = out + (out - inner) * k
         return out, std, oor
 
-    def apply(self, accel, gyro, temps=None, history=None, filter_age=None):
+    def ageing_offset(self, stamps):
+        """Return the (n, 3) gyro bias change (rad/s) since ``gyro_ageing``'s epoch, or None.
+
+        ``stamps``: (n,) s on the clock of the epoch. None without an ageing term or stamps.
+        """
+        ag = self.gyro_ageing
+        if not ag or stamps is None or self.gyro is None:
+            return None
+        days = (np.asarray(stamps, float).reshape(-1) - float(ag['epoch'])) / DAY_S
+        cap = float(ag['max_days'])
+        return np.clip(days, -cap, cap)[:, None] * np.asarray(ag['rate'], float)
+
+    def apply(self, accel, gyro, temps=None, history=None, filter_age=None, stamps=None):
         """Compensate (n, 3) accel [m/s^2] and gyro [rad/s] at (n, k) thermal inputs.
 
         Column j of ``temps`` is input j in its unit (degC, or a proxy's unit such as Hz).
@@ -205,7 +224,9 @@ class Calibration:
         (``thermal_input.HistoryStream``, filled by ``stream().apply``); None: equilibrium.
         ``filter_age``: (n,) s since the stream's filter (re)started in equilibrium (filled
         by ``stream().apply``): the 1-sigma adds the filter's ``restart_spread`` decaying
-        ``exp(-age / tau)``; None: no restart term.
+        ``exp(-age / tau)``; None: no restart term. ``stamps``: (n,) s (header stamps, filled
+        by ``stream().apply``): with a ``gyro_ageing`` term the gyro bias is carried to them
+        (``ageing_offset``); None: the bias at the term's epoch.
         """
         accel = np.asarray(accel, float)
         gyro = np.asarray(gyro, float)
@@ -224,6 +245,9 @@ class Calibration:
                                  self.restart_std('accel', filter_age))
         if self.gyro is not None:
             g_out, m_std, o = self._correct('gyro', gyro, temps, history, {'accel': a_out})
+            drift = self.ageing_offset(stamps)
+            if drift is not None:
+                g_out = g_out - drift
             oor |= o
             g_std = _combine_std(m_std, self.noise_std('gyro'), n,
                                  self.restart_std('gyro', filter_age))
@@ -300,7 +324,8 @@ class Calibration:
         """Return the file content without the free-form ``fit`` and ``notes``."""
         units = self.input_units
         d = {
-            'format': (FORMAT_LINEAR if self.out_of_range not in OUT_OF_RANGE_V1 else
+            'format': (FORMAT_AGEING if self.gyro_ageing and self.gyro is not None else
+                       FORMAT_LINEAR if self.out_of_range not in OUT_OF_RANGE_V1 else
                        FORMAT_SENSOR_RANGE if self.sensor_range else FORMAT),
             'software': {'name': 'thermal_imu_calib', 'version': self.software_version},
             'created': self.created or _now(),
@@ -332,6 +357,14 @@ class Calibration:
                 sec = model.to_dict()
                 sec['temperature_input'] = [int(i) for i in idx]
                 d[name] = sec
+        if self.gyro_ageing and self.gyro is not None:
+            ag = self.gyro_ageing
+            d['gyro_ageing'] = {
+                'rate': {'value': np.asarray(ag['rate'], float).tolist(), 'unit': 'rad/s/day'},
+                'epoch': {'value': float(ag['epoch']), 'unit': 's',
+                          'description': 'when the gyro model is the bias (IMU stamps)'},
+                'max_days': {'value': float(ag['max_days']), 'unit': 'day',
+                             'description': 'carried at most this far either way'}}
         noise = {}
         if self.accel_noise_std is not None:
             noise['accel_std'] = {'value': np.asarray(self.accel_noise_std).tolist(),

@@ -17,6 +17,8 @@ A file looks like::
     accel: {kind: field_polynomial, temperature_input: [0, 0, 0], parameters: {...}}
     gyro: {kind: offset_polynomial, temperature_input: [0, 0, 0], parameters: {...}}
     noise: {accel_std: [...], gyro_std: [...], unit: ...}
+    gyro_ageing: {rate: {value: [...], unit: rad/s/day}, epoch: {value: ..., unit: s},
+                  max_days: {value: ..., unit: day}}         # optional (format 4)
     fit: {...}
     notes: [...]
 
@@ -51,7 +53,7 @@ from ..input_units import check_values, DEGC, normalize_unit
 from ..models import model_from_dict
 from ..thermal_input import ThermalFilter
 from . import plausible
-from .base import (CalibrationError, FILE_FORMATS, GRAVITY_BOUNDS, NOISE_UNITS,
+from .base import (CalibrationError, FILE_FORMATS, FORMAT_AGEING, GRAVITY_BOUNDS, NOISE_UNITS,
                    OUT_OF_RANGE_POLICIES, short, TemperatureInput, type_name)
 from .spec import (Choice, FreeForm, Indices, ListOf, Mapping, MapOf, Notes, Number, Numbers,
                    REQUIRED, Text, TextOrList, Valued)
@@ -114,6 +116,11 @@ SCHEMA = Mapping({
                       'accel_noise_density': AXES, 'gyro_noise_density': AXES,
                       'accel_random_walk': AXES, 'gyro_random_walk': AXES,
                       'rate_hz': POSITIVE, 'horizon_s': POSITIVE}),
+    # optional (format 4): the gyro bias carried forward in time (Calibration.gyro_ageing)
+    'gyro_ageing': Mapping({'rate': Valued(Numbers(REQUIRED, size=3)),
+                            'epoch': Valued(Number(REQUIRED)),
+                            'max_days': Valued(Number(REQUIRED, positive=True))},
+                           what='a mapping with rate, epoch and max_days', optional=True),
     'fit': FreeForm(dict),
     'notes': Notes(),
 })
@@ -245,6 +252,19 @@ def _noise(raw, doc, out):
     out['noise_model'] = {k: noise[k] for k in NOISE_UNITS if noise[k] is not None}
 
 
+def _gyro_ageing(raw, doc, out):
+    ag, out['gyro_ageing'] = doc['gyro_ageing'], {}
+    if ag is None:
+        return
+    if out['gyro'] is None:
+        raise ValueError('gyro_ageing needs a gyro model: remove it or add the gyro section')
+    if raw.get('format') != FORMAT_AGEING:
+        raise ValueError(f'gyro_ageing is a field of format {FORMAT_AGEING!r}, the file says '
+                         f'{raw.get("format")!r}; the file was edited: recalibrate')
+    out['gyro_ageing'] = {'rate': np.asarray(ag['rate'], float), 'epoch': float(ag['epoch']),
+                          'max_days': float(ag['max_days'])}
+
+
 def _plain_fields(raw, doc, out):
     out.update(out_of_range=doc['temperature']['out_of_range'],
                frame_id=doc['sensor']['frame_id'], gravity=doc['gravity']['value'],
@@ -256,8 +276,8 @@ def _plain_fields(raw, doc, out):
 #: arguments of Calibration to ``out``
 RULES = [('temperature.inputs', _inputs), ('temperature.valid_range', _valid_range),
          ('temperature.sensor_range', _sensor_range),
-         ('temperature.filter', _filter), ('accel/gyro', _models), ('noise', _noise),
-         ('the file', _plain_fields)]
+         ('temperature.filter', _filter), ('accel/gyro', _models),
+         ('gyro_ageing', _gyro_ageing), ('noise', _noise), ('the file', _plain_fields)]
 
 
 def check_format(d, source):

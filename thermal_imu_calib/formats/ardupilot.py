@@ -21,8 +21,9 @@ from numpy.polynomial import Polynomial
 
 from ..calibration import Calibration, spanning_range, TemperatureInput
 from ..models.polynomial import OffsetPolynomialModel
-from .common import (check_out, cubic_offset, exact_loss, Exported, ExportRefused, history_note,
-                     lag_note, num, offset_refit, parse_params, single_input, summarize_loss)
+from .common import (ageing_note, check_out, cubic_offset, exact_loss, Exported, ExportRefused,
+                     history_note, lag_note, num, offset_refit, parse_params, single_input,
+                     summarize_loss)
 
 TEMP_REFERENCE = 35.0
 SCALE = 1e6
@@ -93,7 +94,8 @@ def export(cal, smp, imu=1, header=''):
     if not 1 <= imu <= 3:
         raise ExportRefused(f'ArduPilot has INS_TCAL1..3, not {imu}')
     rows, loss, ranges = [], {}, {}
-    notes = lag_note(cal, 'ArduPilot') + history_note(cal, 'ArduPilot')
+    notes = (lag_note(cal, 'ArduPilot') + history_note(cal, 'ArduPilot')
+             + ageing_note(cal, 'ArduPilot'))
     for which in ('accel', 'gyro'):
         if getattr(cal, which) is None:
             continue

@@ -249,6 +249,18 @@ def lag_note(cal, fmt):
             f'{fmt} uses the reading itself, so the lag is not exported']
 
 
+def ageing_note(cal, fmt):
+    """Return a note when the gyro bias is carried forward in time (no format has time)."""
+    ag = cal.gyro_ageing if cal.gyro is not None else None
+    if not ag:
+        return []
+    rate = ', '.join(f'{v:+.3g}' for v in np.degrees(np.asarray(ag['rate'], float)) * 1e3)
+    return [f'gyro: the calibration carries its bias forward in time ({rate} '
+            f'mdeg/s per day from its epoch, at most {ag["max_days"]:.1f} days); {fmt} has no '
+            'time term, so the exported bias is the one at the epoch: recalibrate or export '
+            'again as it ages']
+
+
 def history_note(cal, fmt):
     """Return notes when a model uses the thermal history, with the loss of dropping it.
 

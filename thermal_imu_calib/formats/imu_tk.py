@@ -16,7 +16,8 @@ import numpy as np
 
 from ..calibration import Calibration
 from ..models.whole_unit import WholeUnitAccelModel, WholeUnitGyroModel
-from .common import affine_map, Exported, ExportRefused, num, rounded, summarize_loss
+from .common import (affine_map, ageing_note, Exported, ExportRefused, num, rounded,
+                     summarize_loss)
 
 #: significant digits written (round trips stay identical; 1e-12 is far below 1 ug)
 DIGITS = 12
@@ -50,7 +51,7 @@ def parse_triad(text, source='imu_tk file'):
 
 def export(cal, smp, temperature=None):
     """Return ``Exported``: {'_acc.calib': text, '_gyro.calib': text} for the models present."""
-    files, notes, loss = {}, [], {}
+    files, notes, loss = {}, ageing_note(cal, 'imu_tk'), {}
     for which in ('accel', 'gyro'):
         model = getattr(cal, which)
         if model is None:

@@ -19,7 +19,7 @@ import numpy as np
 
 from ..calibration import Calibration
 from ..models.whole_unit import WholeUnitAccelModel, WholeUnitGyroModel
-from .common import affine_map, Exported, rounded, summarize_loss
+from .common import affine_map, ageing_note, Exported, rounded, summarize_loss
 from .imu_tk import DIGITS, STATIC_T0
 
 SI = {'acc': 'm/s^2', 'gyr': 'rad/s'}
@@ -41,7 +41,7 @@ def export(cal, smp, temperature=None):
     if cal.accel is None or cal.gyro is None:
         raise ValueError('imucal holds an accelerometer and a gyro calibration together; this '
                          'calibration lacks one of them')
-    notes, loss, mats = [], {}, {}
+    notes, loss, mats = ageing_note(cal, 'imucal'), {}, {}
     for which in ('accel', 'gyro'):
         model = getattr(cal, which)
         t = np.full(3, temperature) if temperature is not None else model.t0

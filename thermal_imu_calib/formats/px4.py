@@ -22,8 +22,9 @@ import numpy as np
 
 from ..calibration import Calibration, spanning_range, TemperatureInput
 from ..models.polynomial import OffsetPolynomialModel
-from .common import (check_out, cubic_offset, exact_loss, Exported, ExportRefused, history_note,
-                     lag_note, num, offset_refit, parse_params, single_input, summarize_loss)
+from .common import (ageing_note, check_out, cubic_offset, exact_loss, Exported, ExportRefused,
+                     history_note, lag_note, num, offset_refit, parse_params, single_input,
+                     summarize_loss)
 
 INT32, REAL32 = 6, 9
 PREFIX = {'accel': 'TC_A', 'gyro': 'TC_G'}
@@ -67,7 +68,8 @@ def export(cal, smp, instance=0, accel_id=0, gyro_id=0, header=''):
     """Return ``Exported`` with one .params file (TC_A_ENABLE, TC_G_ENABLE and the rows)."""
     if not 0 <= instance <= 3:
         raise ExportRefused(f'PX4 has thermal compensation instances 0..3, not {instance}')
-    rows, notes, loss = [], lag_note(cal, 'PX4') + history_note(cal, 'PX4'), {}
+    rows, loss = [], {}
+    notes = lag_note(cal, 'PX4') + history_note(cal, 'PX4') + ageing_note(cal, 'PX4')
     for which, dev in (('accel', accel_id), ('gyro', gyro_id)):
         if getattr(cal, which) is None:
             continue

@@ -112,9 +112,9 @@ def compose(accel_from, gyro_from, note='', missing=False):
     """Return the calibration with ``accel_from``'s accel model and ``gyro_from``'s gyro.
 
     Raises ValueError naming the difference when they do not compose (``why_not``;
-    ``missing``: a source without the model leaves that sensor raw). Noise figures follow
-    their sensor; ``fit`` is the gyro source's, with ``composed`` saying where each model
-    came from.
+    ``missing``: a source without the model leaves that sensor raw). Noise figures and a
+    gyro ageing term follow their sensor; ``fit`` is the gyro source's, with ``composed``
+    saying where each model came from.
     """
     why = why_not(accel_from, gyro_from, missing)
     if why:
@@ -148,7 +148,8 @@ def compose(accel_from, gyro_from, note='', missing=False):
         gravity_source=accel_from.gravity_source,
         accel_noise_std=accel_from.accel_noise_std, gyro_noise_std=gyro_from.gyro_noise_std,
         fit=fit, notes=notes, temperature_filter=filt,
-        noise_model=noise, sensor_range=sensor_range)
+        noise_model=noise, sensor_range=sensor_range,
+        gyro_ageing=dict(gyro_from.gyro_ageing) if gyro_from.gyro is not None else {})
 
 
 def with_sensor(active, new, which, raw_kept, note):

@@ -147,6 +147,11 @@ class LifelongConfig:
     #: (gyro last/true -16 %); on seeds 139-140, on top of it, five of six (gyro last/true
     #: -23 %) but one swap more worse next day (docs/lifelong.md)
     gyro_continuation: str = 'off'
+    #: an estimate kept with its gyro ageing removed (``ageing``) carries the resolved rates
+    #: forward in time in its file (``Calibration.gyro_ageing``: from the estimate's time,
+    #: at most the span the rates were measured over); False: the file holds the bias of
+    #: the estimate's time until the next swap. Being judged, off
+    gyro_ageing_forward: bool = False
     store: StoreConfig = field(default_factory=StoreConfig)
 
     def __post_init__(self):

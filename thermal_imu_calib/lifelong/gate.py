@@ -56,7 +56,8 @@ def hold_errors(cal, windows, gravity, latitude=None):
     else:
         if temps is not None and cal.temperature_filter is not None:
             temps = cal.temperature_filter.window_temperatures(windows)
-        res = cal.apply(windows.accel, windows.gyro, temps)
+        res = cal.apply(windows.accel, windows.gyro, temps,
+                        stamps=0.5 * (windows.t0 + windows.t1))   # a gyro ageing term's time
         acc, gyr = res.accel, res.gyro
     h = len(ids)
     out = {'ids': ids, 't': np.zeros(h), 'temp': np.full(h, np.nan), 'gyro': np.zeros(h),
