@@ -563,9 +563,12 @@ def real(args):
             gyro_continuation=args.gyro_continuation,
             gyro_ageing_forward=args.gyro_ageing_forward))
         rows.append(r)
+        fixture = os.sep + 'fixtures' + os.sep in r['path']
         print(f'{name}: {r["holds"]} holds, decisions '
               f'{[d["action"] for d in r["decisions"]]}, swaps {len(r["swaps"])}, harmful '
-              f'{r["harmful_swaps"]}')
+              f'{r["harmful_swaps"]} ({r["path"]}'
+              + ('; the test fixture\'s slice: set THERMAL_REAL_DATA to the shared '
+                 'recordings for the whole' if fixture else '') + ')')
         for s in r['swaps']:
             print(f'  swap at {s["time_s"]:.0f} s ({s["later_holds"]} later holds): '
                   f'{s.get("text", "no later holds to judge it on")}')
