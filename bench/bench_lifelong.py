@@ -132,6 +132,18 @@ def scored_stops(m, t_from=0.0, t_to=np.inf):
             yield seg, ch
 
 
+def active_stops(m, starts, cals):
+    """Yield (segment, ``stop_chunks``, index, calibration active when the stop began).
+
+    Every scored stop of ``m`` (``scored_stops``) after the first activation of a
+    ``registry_timeline`` (``starts`` s, ``cals``).
+    """
+    for seg, ch in scored_stops(m):
+        i = active_index(starts, seg.stop.t0)
+        if i >= 0:
+            yield seg, ch, i, cals[i]
+
+
 def active_index(starts, t):
     """Return the index of the calibration active at ``t`` (s; ``registry_timeline``), -1: none."""
     return int(np.searchsorted(starts, t, side='right')) - 1

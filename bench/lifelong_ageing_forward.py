@@ -32,8 +32,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 sys.path.insert(0, HERE)
 
-from bench_lifelong import (  # noqa: E402
-    active_index, registry_timeline, scored_stops, stop_error)
+from bench_lifelong import active_stops, registry_timeline, stop_error  # noqa: E402
 from thermal_imu_calib.lifelong.ageing import RESOLVED_SIGMAS  # noqa: E402
 from thermal_imu_calib.sim.robot_month import DAY, robot_month  # noqa: E402
 
@@ -77,12 +76,9 @@ def score(seed, work_seed, days, caps, unused=False):
     starts, cals = registry_timeline(work_seed, m.start_ns)
     rates = gyro_rates(work_seed, m.start_ns * 1e-9, starts, unused)
     rows = []
-    for seg, ch in scored_stops(m):
+    for seg, ch, i, cal in active_stops(m, starts, cals):
         s = seg.stop
-        i = active_index(starts, s.t0)
-        if i < 0:
-            continue
-        g, _ = stop_error(cals[i], ch)
+        g, _ = stop_error(cal, ch)
         rate, t_est = rates[i]
         t_mid = 0.5 * (s.t0 + s.t1)
         age = max(t_mid - t_est, 0.0) / DAY

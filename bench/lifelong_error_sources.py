@@ -34,8 +34,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 sys.path.insert(0, HERE)
 
-from bench_lifelong import (  # noqa: E402
-    active_index, registry_timeline, scored_stops, stop_error)
+from bench_lifelong import active_stops, registry_timeline, stop_error  # noqa: E402
 from thermal_imu_calib.lifelong import compose  # noqa: E402
 from thermal_imu_calib.sim.robot_month import DAY, robot_month  # noqa: E402
 
@@ -54,12 +53,8 @@ def score_seed(seed, work_seed, days):
     m = robot_month(seed, days=days)
     acts, cals = registry_timeline(work_seed, m.start_ns)
     stops = []
-    for seg, ch in scored_stops(m):
+    for seg, ch, i, cal in active_stops(m, acts, cals):
         s = seg.stop
-        i = active_index(acts, s.t0)
-        if i < 0:
-            continue
-        cal = cals[i]
         lo, hi = compose.common_range(cal)[0]
         temp = ch['temp'][:, 0]
         excess = max(lo - temp.min(), temp.max() - hi, 0.0)
