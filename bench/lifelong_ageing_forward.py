@@ -33,7 +33,7 @@ sys.path.insert(0, os.path.dirname(HERE))
 sys.path.insert(0, HERE)
 
 from bench_lifelong import active_stops, registry_timeline, stop_error  # noqa: E402
-from thermal_imu_calib.lifelong.ageing import RESOLVED_SIGMAS  # noqa: E402
+from thermal_imu_calib.lifelong.ageing import Trend  # noqa: E402
 from thermal_imu_calib.sim.robot_month import DAY, robot_month  # noqa: E402
 
 
@@ -59,12 +59,11 @@ def gyro_rates(work_seed, start_s, starts, unused=False):
             out.append(prev)
         else:
             ag = d.get('ageing') or {}
-            rate = np.asarray(ag['rate_rad_s_per_day'], float) if ag.get('used') or (
-                unused and 'rate_rad_s_per_day' in ag) else np.zeros(3)
-            if unused and not ag.get('used') and 'rate_rad_s_per_day' in ag:
-                # only the resolved axes, as ``ageing.detrended`` moves them
-                std = np.asarray(ag['std_rad_s_per_day'], float)
-                rate = np.where(np.abs(rate) > RESOLVED_SIGMAS * std, rate, 0.0)
+            rate = np.zeros(3)
+            if 'rate_rad_s_per_day' in ag and (ag.get('used') or unused):
+                # the rates ``ageing.detrended`` applies: the resolved axes only
+                rate = Trend(np.asarray(ag['rate_rad_s_per_day'], float),
+                             np.asarray(ag['std_rad_s_per_day'], float), 0, 0.0).applied
             out.append((rate, float(t)))
         prev = out[-1]
     return out

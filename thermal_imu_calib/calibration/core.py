@@ -79,10 +79,13 @@ class Calibration:
     #: the bias, ``max_days`` (> 0) the most it is carried either way. ``apply`` with
     #: ``stamps`` takes ``rate * clip((t - epoch) / day, -max_days, max_days)`` off the gyro;
     #: without stamps, the model as at ``epoch``. Empty: none (a lifelong estimate fitted
-    #: with the ageing removed writes it, ``lifelong.variants.with_ageing``)
+    #: with the ageing removed writes it, ``lifelong.variants.with_ageing``); always empty
+    #: without a gyro model
     gyro_ageing: dict = field(default_factory=dict)
 
     def __post_init__(self):
+        if self.gyro is None:
+            self.gyro_ageing = {}    # a term of the gyro model: none without one
         for which in ('accel', 'gyro'):
             model = getattr(self, which)
             if model is None or not self.inputs:
@@ -205,7 +208,7 @@ class Calibration:
         ``stamps``: (n,) s on the clock of the epoch. None without an ageing term or stamps.
         """
         ag = self.gyro_ageing
-        if not ag or stamps is None or self.gyro is None:
+        if not ag or stamps is None:
             return None
         days = (np.asarray(stamps, float).reshape(-1) - float(ag['epoch'])) / DAY_S
         cap = float(ag['max_days'])
@@ -324,7 +327,7 @@ class Calibration:
         """Return the file content without the free-form ``fit`` and ``notes``."""
         units = self.input_units
         d = {
-            'format': (FORMAT_AGEING if self.gyro_ageing and self.gyro is not None else
+            'format': (FORMAT_AGEING if self.gyro_ageing else
                        FORMAT_LINEAR if self.out_of_range not in OUT_OF_RANGE_V1 else
                        FORMAT_SENSOR_RANGE if self.sensor_range else FORMAT),
             'software': {'name': 'thermal_imu_calib', 'version': self.software_version},
@@ -357,7 +360,7 @@ class Calibration:
                 sec = model.to_dict()
                 sec['temperature_input'] = [int(i) for i in idx]
                 d[name] = sec
-        if self.gyro_ageing and self.gyro is not None:
+        if self.gyro_ageing:
             ag = self.gyro_ageing
             d['gyro_ageing'] = {
                 'rate': {'value': np.asarray(ag['rate'], float).tolist(), 'unit': 'rad/s/day'},

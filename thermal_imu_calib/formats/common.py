@@ -251,7 +251,7 @@ def lag_note(cal, fmt):
 
 def ageing_note(cal, fmt):
     """Return a note when the gyro bias is carried forward in time (no format has time)."""
-    ag = cal.gyro_ageing if cal.gyro is not None else None
+    ag = cal.gyro_ageing
     if not ag:
         return []
     rate = ', '.join(f'{v:+.3g}' for v in np.degrees(np.asarray(ag['rate'], float)) * 1e3)

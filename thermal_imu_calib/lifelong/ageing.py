@@ -18,7 +18,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-DAY_S = 86400.0
+from ..calibration.base import DAY_S
 #: a rate is applied only when it is this many standard errors from zero
 RESOLVED_SIGMAS = 2.0
 #: fewer holds than this: no trend is estimated
@@ -41,6 +41,11 @@ class Trend:
     def resolved(self):
         """Return the (3,) mask of the axes whose rate is resolved."""
         return np.abs(self.rate) > RESOLVED_SIGMAS * self.std
+
+    @property
+    def applied(self):
+        """Return the rates that are applied, rad/s per day: resolved axes only, else 0."""
+        return np.where(self.resolved, self.rate, 0.0)
 
     def text(self):
         """Return the rates for a decision log (mdeg/s per day)."""
@@ -94,6 +99,5 @@ def trend(windows, times, now):
 
 def detrended(windows, times, now, found):
     """Return the windows with their gyro means moved to ``now`` along the resolved rates."""
-    rate = np.where(found.resolved, found.rate, 0.0)
     tau = (np.asarray(times, float) - now) / DAY_S
-    return replace(windows, gyro=windows.gyro - tau[:, None] * rate[None, :])
+    return replace(windows, gyro=windows.gyro - tau[:, None] * found.applied[None, :])

@@ -149,7 +149,7 @@ def compose(accel_from, gyro_from, note='', missing=False):
         accel_noise_std=accel_from.accel_noise_std, gyro_noise_std=gyro_from.gyro_noise_std,
         fit=fit, notes=notes, temperature_filter=filt,
         noise_model=noise, sensor_range=sensor_range,
-        gyro_ageing=dict(gyro_from.gyro_ageing) if gyro_from.gyro is not None else {})
+        gyro_ageing=dict(gyro_from.gyro_ageing))
 
 
 def with_sensor(active, new, which, raw_kept, note):

@@ -71,8 +71,7 @@ def with_ageing(calibrate, fit, times, now, holdout, pose, s_plain, decision, co
         'used': used, 'rate_rad_s_per_day': found.rate, 'std_rad_s_per_day': found.std,
         'heldout_gyro_rms': [s_plain['gyro_rms'], score['gyro_rms']]}
     if used and config.gyro_ageing_forward:
-        carried = np.where(found.resolved, found.rate, 0.0)
-        result.calibration.gyro_ageing = {'rate': carried, 'epoch': float(now),
+        result.calibration.gyro_ageing = {'rate': found.applied, 'epoch': float(now),
                                           'max_days': float(found.span_days)}
         carried_text = (f'carried forward in the file for up to {found.span_days:.1f} '
                         'days')
