@@ -969,6 +969,15 @@ def _worse25(r):
             sum(s['accel_drift_new'] > 1.25 * s['accel_drift_old'] for s in r['swaps']))
 
 
+def _worse25_own(r, other, tol_days=0.01):
+    """Return how many of ``r``'s swaps worse next day by > 25 % (gyro or accel drift) the
+    ``other`` month (the same seed, the other arm) has no swap within ``tol_days`` of."""
+    there = np.array([s['day'] for s in other['swaps']])
+    return int(sum((s['gyro_new'] > 1.25 * s['gyro_old']
+                    or s['accel_drift_new'] > 1.25 * s['accel_drift_old'])
+                   and not np.any(np.abs(there - s['day']) <= tol_days) for s in r['swaps']))
+
+
 def _acted(work, seed, text):
     """Return how many swap decisions of a month's directory contain ``text`` (None: none)."""
     path = os.path.join(work, f'seed{seed}', 'decisions.jsonl')
@@ -991,7 +1000,7 @@ def compare(args):
           'false alarms | rule acted (swaps) |')
     print('|' + '---|' * 8)
     geo = {'g': [[], []], 'a': [[], []], 'a1': [[], []], 'g1': [[], []], 'k2': [[], []]}
-    tot = [0, 0]
+    tot, own = [0, 0], [0, 0]
     for seed in seeds:
         b, c = runs[0][seed], runs[1][seed]
         for i, r in enumerate((b, c)):
@@ -1001,6 +1010,7 @@ def compare(args):
             geo['g1'][i].append(r['active']['gyro_first_day'])
             geo['k2'][i].append(r['knock']['gyro_second_day_after'])
             tot[i] += sum(_worse25(r))
+            own[i] += _worse25_own(r, (c, b)[i])
         delay = ['none' if r['knock']['alarm_delay_h'] is None else
                  f'{r["knock"]["alarm_delay_h"]:.1f}' for r in (b, c)]
         acted = _acted(args.work, seed, args.grep) if args.work and args.grep else None
@@ -1020,7 +1030,8 @@ def compare(args):
           f'{gm(geo["g"][1]):.3f} ({gm(geo["g"][1]) / gm(geo["g"][0]) - 1:+.1%}); accel drift '
           f'last week {gm(geo["a"][0]) * 1e3:.2f} -> {gm(geo["a"][1]) * 1e3:.2f} mm/s^2 '
           f'({gm(geo["a"][1]) / gm(geo["a"][0]) - 1:+.1%}); swaps worse next day by > 25 % '
-          f'(gyro + accel drift) {tot[0]} -> {tot[1]}; gyro on the second day after the '
+          f'(gyro + accel drift) {tot[0]} -> {tot[1]} (swaps with a worse next day that the '
+          f'other arm does not make: {own[0]} -> {own[1]}); gyro on the second day after the '
           f'knock {gm(geo["k2"][0]) * 1e3:.3f} -> {gm(geo["k2"][1]) * 1e3:.3f} mrad/s '
           f'({gm(geo["k2"][1]) / gm(geo["k2"][0]) - 1:+.1%})')
     raw = [runs[1][seed]['raw'] for seed in seeds]
