@@ -963,19 +963,21 @@ def table(args):
     print(json.dumps(d['summary'], indent=1))
 
 
-def _worse25(r):
-    """Return (gyro, accel drift) counts of swaps whose next day was worse by > 25 %."""
-    return (sum(s['gyro_new'] > 1.25 * s['gyro_old'] for s in r['swaps']),
-            sum(s['accel_drift_new'] > 1.25 * s['accel_drift_old'] for s in r['swaps']))
+def _worse25(r, swaps=None):
+    """Return (gyro, accel drift) counts of swaps whose next day was worse by > 25 %.
+
+    ``swaps``: those of ``r``'s swap rows to count (default: all)."""
+    swaps = r['swaps'] if swaps is None else swaps
+    return (sum(s['gyro_new'] > 1.25 * s['gyro_old'] for s in swaps),
+            sum(s['accel_drift_new'] > 1.25 * s['accel_drift_old'] for s in swaps))
 
 
 def _worse25_own(r, other, tol_days=0.01):
-    """Return how many of ``r``'s swaps worse next day by > 25 % (gyro or accel drift) the
+    """Return ``_worse25``'s (gyro, accel drift) counts over the swaps of ``r`` that the
     ``other`` month (the same seed, the other arm) has no swap within ``tol_days`` of."""
     there = np.array([s['day'] for s in other['swaps']])
-    return int(sum((s['gyro_new'] > 1.25 * s['gyro_old']
-                    or s['accel_drift_new'] > 1.25 * s['accel_drift_old'])
-                   and not np.any(np.abs(there - s['day']) <= tol_days) for s in r['swaps']))
+    own = [s for s in r['swaps'] if not np.any(np.abs(there - s['day']) <= tol_days)]
+    return _worse25(r, own)
 
 
 def _acted(work, seed, text):
@@ -1010,7 +1012,7 @@ def compare(args):
             geo['g1'][i].append(r['active']['gyro_first_day'])
             geo['k2'][i].append(r['knock']['gyro_second_day_after'])
             tot[i] += sum(_worse25(r))
-            own[i] += _worse25_own(r, (c, b)[i])
+            own[i] += sum(_worse25_own(r, (c, b)[i]))
         delay = ['none' if r['knock']['alarm_delay_h'] is None else
                  f'{r["knock"]["alarm_delay_h"]:.1f}' for r in (b, c)]
         acted = _acted(args.work, seed, args.grep) if args.work and args.grep else None
@@ -1030,8 +1032,8 @@ def compare(args):
           f'{gm(geo["g"][1]):.3f} ({gm(geo["g"][1]) / gm(geo["g"][0]) - 1:+.1%}); accel drift '
           f'last week {gm(geo["a"][0]) * 1e3:.2f} -> {gm(geo["a"][1]) * 1e3:.2f} mm/s^2 '
           f'({gm(geo["a"][1]) / gm(geo["a"][0]) - 1:+.1%}); swaps worse next day by > 25 % '
-          f'(gyro + accel drift) {tot[0]} -> {tot[1]} (swaps with a worse next day that the '
-          f'other arm does not make: {own[0]} -> {own[1]}); gyro on the second day after the '
+          f'(gyro + accel drift) {tot[0]} -> {tot[1]} (of them in swaps the other arm does '
+          f'not make: {own[0]} -> {own[1]}); gyro on the second day after the '
           f'knock {gm(geo["k2"][0]) * 1e3:.3f} -> {gm(geo["k2"][1]) * 1e3:.3f} mrad/s '
           f'({gm(geo["k2"][1]) / gm(geo["k2"][0]) - 1:+.1%})')
     raw = [runs[1][seed]['raw'] for seed in seeds]
