@@ -5,11 +5,15 @@ For finished ``bench_lifelong.py month`` runs (``SEED:WORK_SEED_DIR`` pairs, the
 it, with the calibration active when it began (the registry is the timeline), and with
 the true calibration at that time. Printed:
 
-* **last week, by source** (the acceptance figure's stops): the gyro error RMS (mrad/s)
+* **last week, by source** (the acceptance figure's stops, each scored with the calibration
+  as the month served it, its own ``out_of_range``): the gyro error RMS (mrad/s)
   of the stops outside the active calibration's valid range (where neither sensor's model
   clamps), on a slope (the mount tilted 3-12 degC: the gyro's g-sensitivity, which a fit
   of one mounting pose cannot resolve), and the level stops inside the range; each also
   as the systematic part (active minus true) and as its share of the week's squared error;
+  the level stops inside also by the age of the calibration active at the stop (days since
+  its activation, ``AGE_BANDS``): a systematic part that grows with the age is the gyro
+  bias ageing since the last swap, one that does not is the fit;
 * **outside the valid range, all month**: every stop beyond the active's range scored
   three ways, each the calibration's own ``out_of_range``: clamped at the range
   (``clamp``, the default, as PX4 and ArduPilot do), continued linearly from the edge
@@ -41,6 +45,8 @@ from thermal_imu_calib.sim.robot_month import DAY, robot_month  # noqa: E402
 POLICIES = ('clamp', 'linear', 'extrapolate')
 #: how far outside (degC) the policies are compared by
 EXCESS_BANDS = ((0.0, 2.0), (2.0, 5.0), (5.0, np.inf))
+#: the age bands (days since the active calibration's activation) of the level stops inside
+AGE_BANDS = ((0.0, 1.0), (1.0, 3.0), (3.0, np.inf))
 
 
 def stop_errors(cal, ch, policy='clamp'):
@@ -59,9 +65,13 @@ def score_seed(seed, work_seed, days):
         temp = ch['temp'][:, 0]
         excess = max(lo - temp.min(), temp.max() - hi, 0.0)
         pol = POLICIES if excess > 0 else ('clamp',)
+        errors = {p: stop_errors(cal, ch, p) for p in pol}
+        # as the month served it (the calibration's own out_of_range: a gyro continued by
+        # ``gyro_continuation`` is 'linear_gyro'); inside the range every policy is the same
+        errors['activated'] = stop_error(cal, ch) if excess > 0 else errors['clamp']
         stops.append({'day': s.t0 / DAY, 'activation': (seed, int(i)), 'excess': float(excess),
                       'slope': bool(s.slope_deg > 0), 'age_days': (s.t0 - acts[i]) / DAY,
-                      'errors': {p: stop_errors(cal, ch, p) for p in pol},
+                      'errors': errors,
                       'true': stop_errors(m.true_calibration(s.t0), ch)})
     return stops
 
@@ -73,20 +83,28 @@ def rms(vectors):
 
 def last_week(stops, days):
     week = [s for s in stops if s['day'] >= days - 7]
-    total = np.sum([np.sum(s['errors']['clamp'][0] ** 2) for s in week])
-    out = {'stops': len(week), 'gyro_mrad_s': rms([s['errors']['clamp'][0] for s in week]) * 1e3,
+    total = np.sum([np.sum(s['errors']['activated'][0] ** 2) for s in week])
+    out = {'stops': len(week),
+           'gyro_mrad_s': rms([s['errors']['activated'][0] for s in week]) * 1e3,
            'true_mrad_s': rms([s['true'][0] for s in week]) * 1e3}
     groups = {'outside the range': lambda s: s['excess'] > 0,
               'slope, inside': lambda s: s['excess'] == 0 and s['slope'],
               'level, inside': lambda s: s['excess'] == 0 and not s['slope']}
     for name, sel in groups.items():
         g = [s for s in week if sel(s)]
-        act = [s['errors']['clamp'][0] for s in g]
+        act = [s['errors']['activated'][0] for s in g]
         out[name] = {'stops': len(g), 'gyro_mrad_s': rms(act) * 1e3,
-                     'systematic_mrad_s': rms([s['errors']['clamp'][0] - s['true'][0]
+                     'systematic_mrad_s': rms([s['errors']['activated'][0] - s['true'][0]
                                                for s in g]) * 1e3,
                      'share_of_squared_error': float(np.sum(np.square(act)) / total)
                      if total > 0 else float('nan')}
+    level = [s for s in week if s['excess'] == 0 and not s['slope']]
+    out['level, inside, by age'] = {
+        f'{lo:g}-{hi:g} d': {
+            'stops': len(g), 'gyro_mrad_s': rms([s['errors']['activated'][0] for s in g]) * 1e3,
+            'systematic_mrad_s': rms([s['errors']['activated'][0] - s['true'][0]
+                                      for s in g]) * 1e3}
+        for lo, hi in AGE_BANDS for g in [[s for s in level if lo <= s['age_days'] < hi]]}
     return out
 
 
@@ -128,7 +146,10 @@ def main():
               f'{lw["true_mrad_s"]:.3f}), ' + '; '.join(
                   f'{k} {v["stops"]}: {v["gyro_mrad_s"]:.3f} '
                   f'({100 * v["share_of_squared_error"]:.0f} %)'
-                  for k, v in lw.items() if isinstance(v, dict)), flush=True)
+                  for k, v in lw.items() if isinstance(v, dict) and 'stops' in v), flush=True)
+        print('  level inside by the active calibration\'s age: ' + '; '.join(
+            f'{k} {v["stops"]}: {v["gyro_mrad_s"]:.3f} (systematic {v["systematic_mrad_s"]:.3f})'
+            for k, v in lw['level, inside, by age'].items()), flush=True)
     result['outside_all_seeds'] = outside(every)
     for band, v in result['outside_all_seeds'].items():
         print(f'outside {band}: {v["stops"]} stops; gyro mrad/s ' + ', '.join(
