@@ -67,8 +67,10 @@ def score_seed(seed, work_seed, days):
         pol = POLICIES if excess > 0 else ('clamp',)
         errors = {p: stop_errors(cal, ch, p) for p in pol}
         # as the month served it (the calibration's own out_of_range: a gyro continued by
-        # ``gyro_continuation`` is 'linear_gyro'); inside the range every policy is the same
-        errors['activated'] = stop_error(cal, ch) if excess > 0 else errors['clamp']
+        # ``gyro_continuation`` is 'linear_gyro'; a policy scored above is not scored again);
+        # inside the range every policy is the same
+        own = cal.out_of_range if excess > 0 else 'clamp'
+        errors['activated'] = errors[own] if own in errors else stop_error(cal, ch)
         stops.append({'day': s.t0 / DAY, 'activation': (seed, int(i)), 'excess': float(excess),
                       'slope': bool(s.slope_deg > 0), 'age_days': (s.t0 - acts[i]) / DAY,
                       'errors': errors,
@@ -98,7 +100,7 @@ def last_week(stops, days):
                                                for s in g]) * 1e3,
                      'share_of_squared_error': float(np.sum(np.square(act)) / total)
                      if total > 0 else float('nan')}
-    level = [s for s in week if s['excess'] == 0 and not s['slope']]
+    level = [s for s in week if groups['level, inside'](s)]
     out['level, inside, by age'] = {
         f'{lo:g}-{hi:g} d': {
             'stops': len(g), 'gyro_mrad_s': rms([s['errors']['activated'][0] for s in g]) * 1e3,
