@@ -83,6 +83,13 @@ def rms(vectors):
     return float(np.sqrt(np.mean(np.sum(v ** 2, 1)))) if len(v) else float('nan')
 
 
+def figures(group):
+    """Return the stops, gyro error RMS and its systematic part (mrad/s) of a group of stops."""
+    act = [s['errors']['activated'][0] for s in group]
+    return {'stops': len(group), 'gyro_mrad_s': rms(act) * 1e3,
+            'systematic_mrad_s': rms([a - s['true'][0] for a, s in zip(act, group)]) * 1e3}
+
+
 def last_week(stops, days):
     week = [s for s in stops if s['day'] >= days - 7]
     total = np.sum([np.sum(s['errors']['activated'][0] ** 2) for s in week])
@@ -94,19 +101,13 @@ def last_week(stops, days):
               'level, inside': lambda s: s['excess'] == 0 and not s['slope']}
     for name, sel in groups.items():
         g = [s for s in week if sel(s)]
-        act = [s['errors']['activated'][0] for s in g]
-        out[name] = {'stops': len(g), 'gyro_mrad_s': rms(act) * 1e3,
-                     'systematic_mrad_s': rms([s['errors']['activated'][0] - s['true'][0]
-                                               for s in g]) * 1e3,
-                     'share_of_squared_error': float(np.sum(np.square(act)) / total)
+        squared = np.sum(np.square([s['errors']['activated'][0] for s in g]))
+        out[name] = {**figures(g), 'share_of_squared_error': float(squared / total)
                      if total > 0 else float('nan')}
     level = [s for s in week if groups['level, inside'](s)]
     out['level, inside, by age'] = {
-        f'{lo:g}-{hi:g} d': {
-            'stops': len(g), 'gyro_mrad_s': rms([s['errors']['activated'][0] for s in g]) * 1e3,
-            'systematic_mrad_s': rms([s['errors']['activated'][0] - s['true'][0]
-                                      for s in g]) * 1e3}
-        for lo, hi in AGE_BANDS for g in [[s for s in level if lo <= s['age_days'] < hi]]}
+        f'{lo:g}-{hi:g} d': figures([s for s in level if lo <= s['age_days'] < hi])
+        for lo, hi in AGE_BANDS}
     return out
 
 
