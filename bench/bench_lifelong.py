@@ -198,7 +198,8 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
              range_sensors=DEFAULT.range_sensors,
              placement_levels=DEFAULT.placement_levels,
              placement_levels_sensors=DEFAULT.placement_levels_sensors, checkpoints=False,
-             resume=False, gyro_ageing_forward=DEFAULT.gyro_ageing_forward, **overrides):
+             resume=False, gyro_ageing_forward=DEFAULT.gyro_ageing_forward,
+             gyro_pooled_gate=DEFAULT.gyro_pooled_gate, **overrides):
     m = robot_month(seed, days=days, **overrides)
     d = os.path.join(work, f'seed{seed}')
     ckpt = latest_checkpoint(d) if resume else None
@@ -229,7 +230,8 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
                                               range_sensors=range_sensors,
                                               placement_levels=placement_levels,
                                               placement_levels_sensors=placement_levels_sensors,
-                                              gyro_ageing_forward=gyro_ageing_forward),
+                                              gyro_ageing_forward=gyro_ageing_forward,
+                                              gyro_pooled_gate=gyro_pooled_gate),
                         log=lambda level, text: log.append((level, text)))
     life = make()
     feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
@@ -416,7 +418,8 @@ def month(args):
                      args.range_sensors, placement_levels=args.placement_levels,
                      placement_levels_sensors=args.placement_levels_sensors,
                      checkpoints=args.checkpoints, resume=args.resume,
-                     gyro_ageing_forward=args.gyro_ageing_forward)
+                     gyro_ageing_forward=args.gyro_ageing_forward,
+                     gyro_pooled_gate=args.gyro_pooled_gate)
         rows.append(r)
         if args.stop_day is not None:
             print(f'seed {seed}: {r["seconds"]:.0f} s, stopped after day {args.stop_day:g} '
@@ -573,7 +576,8 @@ def real(args):
             range_sensors=args.range_sensors, placement_levels=args.placement_levels,
             placement_levels_sensors=args.placement_levels_sensors,
             gyro_continuation=args.gyro_continuation,
-            gyro_ageing_forward=args.gyro_ageing_forward))
+            gyro_ageing_forward=args.gyro_ageing_forward,
+            gyro_pooled_gate=args.gyro_pooled_gate))
         rows.append(r)
         fixture = os.sep + 'fixtures' + os.sep in r['path']
         print(f'{name}: {r["holds"]} holds, decisions '
@@ -1101,6 +1105,11 @@ def main():
                     help='an estimate fitted with the gyro ageing removed carries the rates '
                          'forward in time in its file (LifelongConfig.gyro_ageing_forward; '
                          'default: the package\'s)')
+    mo.add_argument('--gyro-pooled-gate', action=argparse.BooleanOptionalAction,
+                    default=DEFAULT.gyro_pooled_gate,
+                    help='the gyro swap also judged on the held-out holds of successive '
+                         'estimates pooled (LifelongConfig.gyro_pooled_gate; default: the '
+                         'package\'s)')
     mo.add_argument('--alarm-first', action=argparse.BooleanOptionalAction,
                     default=DEFAULT.alarm_first,
                     help='no re-estimate while the change alarm is deciding '
@@ -1151,6 +1160,9 @@ def main():
     re_.add_argument('--gyro-ageing-forward', action=argparse.BooleanOptionalAction,
                      default=DEFAULT.gyro_ageing_forward,
                      help='LifelongConfig.gyro_ageing_forward (default: the package\'s)')
+    re_.add_argument('--gyro-pooled-gate', action=argparse.BooleanOptionalAction,
+                     default=DEFAULT.gyro_pooled_gate,
+                     help='LifelongConfig.gyro_pooled_gate (default: the package\'s)')
     re_.add_argument('--gyro-continuation', choices=GYRO_CONTINUATIONS,
                      default=DEFAULT.gyro_continuation,
                      help='LifelongConfig.gyro_continuation (default: the package\'s)')

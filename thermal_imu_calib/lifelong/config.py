@@ -155,6 +155,11 @@ class LifelongConfig:
     #: written before the runs) gyro last/true -14.9 % and the accelerometer and alarms the
     #: same, but swaps with a worse next day 3 -> 5 (docs/lifelong.md)
     gyro_ageing_forward: bool = False
+    #: when the gate keeps the active gyro, the held-out gyro errors of the successive
+    #: estimates are pooled (each hold once) and judged by the gate's rule with the noise
+    #: floor of the pool's size (``pooled``); 'better' swaps the candidate's gyro alone.
+    #: Off until judged on unseen months (criteria in docs/lifelong.md, 2026-12-06)
+    gyro_pooled_gate: bool = False
     store: StoreConfig = field(default_factory=StoreConfig)
 
     def __post_init__(self):

@@ -52,8 +52,8 @@ from ..app.calibrate import calibrate_collected
 from ..estimation.calibrate import CalibrationRefused
 from ..io.output import write_atomic
 from ..collection.collected import Collected
-from . import alarm, compose, continuation, files, g_sensitivity, gate, knock_step, trigger, \
-    variants
+from . import alarm, compose, continuation, files, g_sensitivity, gate, knock_step, pooled, \
+    trigger, variants
 from ..collection.segments import Windows
 from .archive import ArchiveFull, archive_collection, MAX_ARCHIVES  # noqa: F401 (API)
 from .config import (ALARM_CUTS, ALARM_REFERENCES, ALARM_WINDOWS,  # noqa: F401 (API)
@@ -184,6 +184,7 @@ class Lifelong:
             s['alarms'] += 1
             s['alarm_pending'] = True
             continuation.cut(s, t_cut)
+            pooled.clear(s)
             s['alarm_shifted'] = moved is not None
             self.track = []
             if moved is None:
@@ -251,9 +252,16 @@ class Lifelong:
         only = ''
         if part is not None:
             new, s_new, fig = part
-            swap, only = True, f' ({decision["one_sensor"]["sensor"]} model only)'
+            swap, only = True, decision['one_sensor']['sensor']
         if swap:
             swap = not self._unexplained(s_new, decision)
+        if c.gyro_pooled_gate and not swap:     # the evidence of estimates that keep the gyro
+            part, record = pooled.judge(self.state, self.active, new, fig, s_act, s_new,
+                                        holdout, holdout_pose, self.latitude, c)
+            if record:
+                decision['pooled'] = record
+            if part is not None and not self._unexplained(part[1], decision):
+                (new, s_new, fig), swap, only = part, True, 'gyro'
         decision['figures'] = fig
         for key in ('g_sensitivity', 'continuation'):
             if key in result.report:
@@ -262,6 +270,8 @@ class Lifelong:
         decision['summary'] = result.summary
         versus = 'the active calibration' if self.active is not None else 'the raw output'
         text = gate.describe(fig) + decision.get('unexplained', '')
+        if decision.get('pooled'):
+            text += '; ' + decision['pooled']['text']
         if 'kept_history' in decision:
             text += '; ' + decision['kept_history']['text']
         for key in ('g_sensitivity', 'continuation'):
@@ -270,8 +280,7 @@ class Lifelong:
         if swap:
             if c.refit_on_swap:
                 new, fitted = variants.refit(self._calibrate, self.store, c, self.active, new,
-                                             now, decision,
-                                             only and decision['one_sensor']['sensor'])
+                                             now, decision, only)
                 if decision['refit']['used']:
                     self._note_fit_span(fitted)
                 text += '; ' + decision['refit']['text']
@@ -279,8 +288,8 @@ class Lifelong:
             # newer than its fit (``due``); any other swap ends that wait
             self.state['active_fit_until'] = \
                 now if decision.get('refit', {}).get('used') else None
-            text += self._activate(new, now, s_new, holdout_pose, held,
-                                   decision['one_sensor']['sensor'] if only else None)
+            text += self._activate(new, now, s_new, holdout_pose, held, only or None)
+            only = f' ({only} model only)' if only else ''
             decision.update(action='swap', id=new.id,
                             text=f'new calibration {new.id} replaces {versus}{only}: {text}')
         else:
@@ -425,6 +434,8 @@ class Lifelong:
         kept = {'accel': ('active_gyro_rms',), 'gyro': ('active_accel_rms',)}.get(only, ())
         self.state.update({k: before[k] for k in kept if before[k] is not None})
         self.track = []
+        if only != 'accel':          # the active gyro model changed: its evidence starts anew
+            pooled.clear(self.state)
         if self.registry_dir:
             from ..fleet import registry
             t_ns = int(now * 1e9)
