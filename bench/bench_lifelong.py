@@ -199,7 +199,8 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
              placement_levels=DEFAULT.placement_levels,
              placement_levels_sensors=DEFAULT.placement_levels_sensors, checkpoints=False,
              resume=False, gyro_ageing_forward=DEFAULT.gyro_ageing_forward,
-             gyro_pooled_gate=DEFAULT.gyro_pooled_gate, **overrides):
+             gyro_pooled_gate=DEFAULT.gyro_pooled_gate,
+             swap_must_explain=DEFAULT.swap_must_explain, **overrides):
     m = robot_month(seed, days=days, **overrides)
     d = os.path.join(work, f'seed{seed}')
     ckpt = latest_checkpoint(d) if resume else None
@@ -231,7 +232,8 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
                                               placement_levels=placement_levels,
                                               placement_levels_sensors=placement_levels_sensors,
                                               gyro_ageing_forward=gyro_ageing_forward,
-                                              gyro_pooled_gate=gyro_pooled_gate),
+                                              gyro_pooled_gate=gyro_pooled_gate,
+                                              swap_must_explain=swap_must_explain),
                         log=lambda level, text: log.append((level, text)))
     life = make()
     feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
@@ -419,7 +421,8 @@ def month(args):
                      placement_levels_sensors=args.placement_levels_sensors,
                      checkpoints=args.checkpoints, resume=args.resume,
                      gyro_ageing_forward=args.gyro_ageing_forward,
-                     gyro_pooled_gate=args.gyro_pooled_gate)
+                     gyro_pooled_gate=args.gyro_pooled_gate,
+                     swap_must_explain=args.swap_must_explain)
         rows.append(r)
         if args.stop_day is not None:
             print(f'seed {seed}: {r["seconds"]:.0f} s, stopped after day {args.stop_day:g} '
@@ -577,7 +580,8 @@ def real(args):
             placement_levels_sensors=args.placement_levels_sensors,
             gyro_continuation=args.gyro_continuation,
             gyro_ageing_forward=args.gyro_ageing_forward,
-            gyro_pooled_gate=args.gyro_pooled_gate))
+            gyro_pooled_gate=args.gyro_pooled_gate,
+            swap_must_explain=args.swap_must_explain))
         rows.append(r)
         fixture = os.sep + 'fixtures' + os.sep in r['path']
         print(f'{name}: {r["holds"]} holds, decisions '
@@ -1110,6 +1114,11 @@ def main():
                     help='the gyro swap also judged on the held-out holds of successive '
                          'estimates pooled (LifelongConfig.gyro_pooled_gate; default: the '
                          'package\'s)')
+    mo.add_argument('--swap-must-explain', action=argparse.BooleanOptionalAction,
+                    default=DEFAULT.swap_must_explain,
+                    help='no swap to a calibration that misses misfit_holds of the held-out '
+                         'holds by the change alarm\'s limit (LifelongConfig.swap_must_explain;'
+                         ' default: the package\'s)')
     mo.add_argument('--alarm-first', action=argparse.BooleanOptionalAction,
                     default=DEFAULT.alarm_first,
                     help='no re-estimate while the change alarm is deciding '
@@ -1163,6 +1172,9 @@ def main():
     re_.add_argument('--gyro-pooled-gate', action=argparse.BooleanOptionalAction,
                      default=DEFAULT.gyro_pooled_gate,
                      help='LifelongConfig.gyro_pooled_gate (default: the package\'s)')
+    re_.add_argument('--swap-must-explain', action=argparse.BooleanOptionalAction,
+                     default=DEFAULT.swap_must_explain,
+                     help='LifelongConfig.swap_must_explain (default: the package\'s)')
     re_.add_argument('--gyro-continuation', choices=GYRO_CONTINUATIONS,
                      default=DEFAULT.gyro_continuation,
                      help='LifelongConfig.gyro_continuation (default: the package\'s)')
