@@ -1054,6 +1054,13 @@ def compare(args):
           f'{gm([r["accel_drift_last_week"] for r in raw]) * 1e3:.2f} mm/s^2')
 
 
+def option(parser, field, text):
+    """Add ``--field`` (and ``--no-field``) for a boolean ``LifelongConfig`` field."""
+    parser.add_argument('--' + field.replace('_', '-'), action=argparse.BooleanOptionalAction,
+                        default=getattr(DEFAULT, field),
+                        help=f'{text} (LifelongConfig.{field}; default: the package\'s)')
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest='cmd')
@@ -1094,35 +1101,20 @@ def main():
                     default=CalibrateSettings.out_of_range,
                     help='the calibrations\' out-of-range policy (CalibrateSettings.'
                          'out_of_range)')
-    mo.add_argument('--gyro-g-sensitivity', action=argparse.BooleanOptionalAction,
-                    default=DEFAULT.gyro_g_sensitivity,
-                    help='the gyro also takes the g-sensitivity the stops off the mounting '
-                         'pose support, held out (LifelongConfig.gyro_g_sensitivity; '
-                         'default: the package\'s)')
+    option(mo, 'gyro_g_sensitivity', 'the gyro also takes the g-sensitivity the stops off '
+           'the mounting pose support, held out')
     mo.add_argument('--gyro-continuation', choices=GYRO_CONTINUATIONS,
                     default=DEFAULT.gyro_continuation,
                     help='the gyro beyond its range: off (the calibrate policy) or history '
                          '(continued when the holds outside earlier ranges support it; '
                          'LifelongConfig.gyro_continuation)')
-    mo.add_argument('--gyro-ageing-forward', action=argparse.BooleanOptionalAction,
-                    default=DEFAULT.gyro_ageing_forward,
-                    help='an estimate fitted with the gyro ageing removed carries the rates '
-                         'forward in time in its file (LifelongConfig.gyro_ageing_forward; '
-                         'default: the package\'s)')
-    mo.add_argument('--gyro-pooled-gate', action=argparse.BooleanOptionalAction,
-                    default=DEFAULT.gyro_pooled_gate,
-                    help='the gyro swap also judged on the held-out holds of successive '
-                         'estimates pooled (LifelongConfig.gyro_pooled_gate; default: the '
-                         'package\'s)')
-    mo.add_argument('--swap-must-explain', action=argparse.BooleanOptionalAction,
-                    default=DEFAULT.swap_must_explain,
-                    help='no swap to a calibration that misses misfit_holds of the held-out '
-                         'holds by the change alarm\'s limit (LifelongConfig.swap_must_explain;'
-                         ' default: the package\'s)')
-    mo.add_argument('--alarm-first', action=argparse.BooleanOptionalAction,
-                    default=DEFAULT.alarm_first,
-                    help='no re-estimate while the change alarm is deciding '
-                         '(LifelongConfig.alarm_first; default: the package\'s)')
+    option(mo, 'gyro_ageing_forward', 'an estimate fitted with the gyro ageing removed carries '
+           'the rates forward in time in its file')
+    option(mo, 'gyro_pooled_gate', 'the gyro swap also judged on the held-out holds of '
+           'successive estimates pooled')
+    option(mo, 'swap_must_explain', 'no swap to a calibration that misses misfit_holds of the '
+           'held-out holds by the change alarm\'s limit')
+    option(mo, 'alarm_first', 'no re-estimate while the change alarm is deciding')
     mo.add_argument('--high-order-margin', type=margin_or_off, metavar='DEGC|off',
                     default=CalibrateSettings.high_order_margin,
                     help='valid-range margin (degC) of a model above first order in '
@@ -1166,15 +1158,8 @@ def main():
                              'only models that depend on temperature '
                              '(LifelongConfig.range_sensors; default: the package\'s)')
     re_.add_argument('--work', default='')
-    re_.add_argument('--gyro-ageing-forward', action=argparse.BooleanOptionalAction,
-                     default=DEFAULT.gyro_ageing_forward,
-                     help='LifelongConfig.gyro_ageing_forward (default: the package\'s)')
-    re_.add_argument('--gyro-pooled-gate', action=argparse.BooleanOptionalAction,
-                     default=DEFAULT.gyro_pooled_gate,
-                     help='LifelongConfig.gyro_pooled_gate (default: the package\'s)')
-    re_.add_argument('--swap-must-explain', action=argparse.BooleanOptionalAction,
-                     default=DEFAULT.swap_must_explain,
-                     help='LifelongConfig.swap_must_explain (default: the package\'s)')
+    for field in ('gyro_ageing_forward', 'gyro_pooled_gate', 'swap_must_explain'):
+        option(re_, field, 'as in month')
     re_.add_argument('--gyro-continuation', choices=GYRO_CONTINUATIONS,
                      default=DEFAULT.gyro_continuation,
                      help='LifelongConfig.gyro_continuation (default: the package\'s)')
