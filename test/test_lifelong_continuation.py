@@ -9,11 +9,10 @@ from dataclasses import replace
 
 import numpy as np
 
+from _level_holds import earth_rate, windows_of
 from _robot_month import lifelong_month
 from thermal_imu_calib.calibration import TemperatureInput
-from thermal_imu_calib.collection.segments import Windows
 from thermal_imu_calib.estimation.calibrate import calibrate_windows, CalibrateOptions
-from thermal_imu_calib.estimation.gyro_static import EARTH_RATE
 from thermal_imu_calib.lifelong import compose, continuation
 
 G0 = 9.80665
@@ -33,20 +32,14 @@ def holds(temps, seed, flat_above=None, first_id=0, t_start=0.0):
     rows = []
     for h, temp in enumerate(temps):
         heading = rng.uniform(0, 2 * np.pi)
-        w = EARTH_RATE * np.array([np.cos(np.radians(LAT)) * np.cos(heading),
-                                   np.cos(np.radians(LAT)) * np.sin(heading),
-                                   np.sin(np.radians(LAT))])
+        w = earth_rate(heading, LAT)
         for j in range(3):
             t = t_start + 600.0 * h + 60.0 * j
             tj = temp + rng.normal(0, 0.05)
             g = bias(np.array([tj]), flat_above)[0] + w + rng.normal(0, 2e-6, 3)
             rows.append((first_id + h, t, t + 60.0, tj, g,
                          np.array([0.0, 0.0, G0]) + rng.normal(0, 2e-3, 3)))
-    m = len(rows)
-    col = [np.array([r[i] for r in rows]) for i in range(6)]
-    return Windows(col[0], col[1], col[2], np.full(m, 600), col[5], col[4],
-                   np.full((m, 3), 1e-6), np.full((m, 3), 1e-8), col[3][:, None],
-                   np.zeros((m, 1)))
+    return windows_of(rows)
 
 
 def fitted(seed=0):

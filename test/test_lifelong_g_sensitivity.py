@@ -8,11 +8,10 @@ and a gyro g-sensitivity G (0.01-0.04 deg/s/g per element, seed 002's class) or 
 
 import numpy as np
 
+from _level_holds import earth_rate, windows_of
 from _robot_month import lifelong_month
 from thermal_imu_calib.calibration import TemperatureInput
-from thermal_imu_calib.collection.segments import Windows
 from thermal_imu_calib.estimation.calibrate import calibrate_windows, CalibrateOptions
-from thermal_imu_calib.estimation.gyro_static import EARTH_RATE
 from thermal_imu_calib.lifelong import g_sensitivity
 from thermal_imu_calib.lifelong.pose import main_pose_mask
 
@@ -44,9 +43,7 @@ def month(g_sens, days=12.0, holds=400, seed=0):
         f = tilted(rng, rng.uniform(3.0, 12.0)) if rng.random() < 0.125 else \
             mount + rng.normal(0, 0.01, 3)
         heading = rng.uniform(0, 2 * np.pi)
-        w_true = EARTH_RATE * np.array([np.cos(np.radians(LAT)) * np.cos(heading),
-                                        np.cos(np.radians(LAT)) * np.sin(heading),
-                                        np.sin(np.radians(LAT))])
+        w_true = earth_rate(heading, LAT)
         for j in range(4):
             t = th + 60.0 * j
             temp = 15.0 + 8.0 * np.sin(2 * np.pi * t / DAY) + rng.normal(0, 0.3)
@@ -54,11 +51,7 @@ def month(g_sens, days=12.0, holds=400, seed=0):
             if g_sens is not None:
                 g = g + g_sens @ f
             rows.append((h, t - 30.0, t + 30.0, temp, g, f + rng.normal(0, 2e-3, 3)))
-    m = len(rows)
-    col = [np.array([r[i] for r in rows]) for i in range(6)]
-    return Windows(col[0], col[1], col[2], np.full(m, 600), col[5], col[4],
-                   np.full((m, 3), 1e-6), np.full((m, 3), 1e-8), col[3][:, None],
-                   np.zeros((m, 1)))
+    return windows_of(rows)
 
 
 def level_fit(win):

@@ -1,0 +1,27 @@
+"""Shared pieces of the lifelong tests' synthetic stops (rad/s, m/s^2, s, degC).
+
+The earth rate a level sensor reads at a heading, and the windows built from rows of
+(hold, t0 s, t1 s, temperature degC, gyro (3,) rad/s, accel (3,) m/s^2). Neither draws
+random numbers, so the tests that use them keep their own draws.
+"""
+
+import numpy as np
+
+from thermal_imu_calib.collection.segments import Windows
+from thermal_imu_calib.estimation.gyro_static import EARTH_RATE
+
+
+def earth_rate(heading, lat_deg):
+    """Return the earth rate (3,) rad/s a level sensor reads at ``heading`` rad, latitude deg."""
+    c = np.cos(np.radians(lat_deg))
+    return EARTH_RATE * np.array([c * np.cos(heading), c * np.sin(heading),
+                                  np.sin(np.radians(lat_deg))])
+
+
+def windows_of(rows, gyro_var=1e-8, accel_var=1e-6, samples=600):
+    """Return Windows of ``rows``; per-sample variances (m/s^2)^2 and (rad/s)^2."""
+    m = len(rows)
+    col = [np.array([r[i] for r in rows]) for i in range(6)]
+    return Windows(col[0], col[1], col[2], np.full(m, samples), col[5], col[4],
+                   np.full((m, 3), accel_var), np.full((m, 3), gyro_var), col[3][:, None],
+                   np.zeros((m, 1)))
