@@ -39,10 +39,11 @@ class LifelongConfig:
     per_sensor: bool = True
     #: no swap to a calibration that misses ``misfit_holds`` of the held-out holds by the
     #: change alarm's gyro limit (they say the sensor changed;
-    #: ``manager.Lifelong._unexplained``). Off: on the month it was not built from (seed 4)
-    #: the knock alarm came sooner (5.5 -> 3.4 h) but the last week's gyro error tripled
-    #: (docs/lifelong.md)
-    swap_must_explain: bool = False
+    #: ``manager.Lifelong._unexplained``). On since 2026-12-06: judged on four months no
+    #: run had seen (165-168) at the default of that day, it caught a knock the default
+    #: missed and harmed nothing (gyro last week / true model -20 %; docs/lifelong.md). It
+    #: was off after its first judgement (seed 4, 2026-11-28, an older default)
+    swap_must_explain: bool = True
     #: which holds the change alarm watches: 'common', those inside both sensors' valid
     #: range (``compose.common_range``); 'sensor', each sensor's holds inside its own range
     #: (after one-sensor swaps the common range narrows and a knock is seen later)

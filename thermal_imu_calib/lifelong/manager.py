@@ -307,8 +307,8 @@ class Lifelong:
     def _unexplained(self, s_new, decision):
         """Return True (no swap) when the new calibration misses the newest holds too.
 
-        Only with ``LifelongConfig.swap_must_explain`` (off by default: not supported on a
-        month it was not built from; docs/lifelong.md).
+        Only with ``LifelongConfig.swap_must_explain`` (on by default since 2026-12-06;
+        docs/lifelong.md).
 
         A swap re-measures the change alarm's reference on the new calibration. When the
         newest (held-out) holds are ones the new calibration also misses, by the alarm's
