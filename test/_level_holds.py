@@ -8,14 +8,18 @@ random numbers, so the tests that use them keep their own draws.
 import numpy as np
 
 from thermal_imu_calib.collection.segments import Windows
-from thermal_imu_calib.estimation.gyro_static import EARTH_RATE
+from thermal_imu_calib.estimation.gyro_static import earth_rate_parts
 
 
 def earth_rate(heading, lat_deg):
-    """Return the earth rate (3,) rad/s a level sensor reads at ``heading`` rad, latitude deg."""
-    c = np.cos(np.radians(lat_deg))
-    return EARTH_RATE * np.array([c * np.cos(heading), c * np.sin(heading),
-                                  np.sin(np.radians(lat_deg))])
+    """Return the earth rate (3,) rad/s a level sensor reads at ``heading`` rad, latitude deg.
+
+    ``lat_deg`` None: no earth rate (zeros).
+    """
+    if lat_deg is None:
+        return np.zeros(3)
+    vertical, horizontal = earth_rate_parts(lat_deg)
+    return np.array([horizontal * np.cos(heading), horizontal * np.sin(heading), vertical])
 
 
 def windows_of(rows, gyro_var=1e-8, accel_var=1e-6, samples=600):

@@ -10,6 +10,7 @@ import json
 import numpy as np
 import pytest
 
+from _level_holds import earth_rate
 from thermal_imu_calib.collection.segments import Windows
 from thermal_imu_calib.estimation.calibrate import calibrate_windows, CalibrateOptions
 from thermal_imu_calib.estimation.gyro_static import EARTH_RATE
@@ -35,9 +36,7 @@ def season(days=14.0, holds=300, seed=0, lat_deg=None):
     rows = []
     for h, th in enumerate(t_hold):
         heading = rng.uniform(0, 2 * np.pi)
-        horiz = 0.0 if lat_deg is None else EARTH_RATE * np.cos(np.radians(lat_deg))
-        w_true = np.array([horiz * np.cos(heading), horiz * np.sin(heading),
-                           0.0 if lat_deg is None else EARTH_RATE * np.sin(np.radians(lat_deg))])
+        w_true = earth_rate(heading, lat_deg)
         for j in range(4):
             t = th + 60.0 * j
             temp = 12.0 + 1.0 * t / DAY + 6.0 * np.sin(2 * np.pi * t / DAY) \
