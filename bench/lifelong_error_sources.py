@@ -13,7 +13,8 @@ the true calibration at that time. Printed:
   as the systematic part (active minus true) and as its share of the week's squared error;
   the level stops inside also by the age of the calibration active at the stop (days since
   its activation, ``AGE_BANDS``): a systematic part that grows with the age is the gyro
-  bias ageing since the last swap, one that does not is the fit;
+  bias ageing since the last swap, one that does not is the fit; and the stops outside
+  split by whose range they are beyond: the gyro's own, or only the accelerometer's;
 * **outside the valid range, all month**: every stop beyond the active's range scored
   three ways, each the calibration's own ``out_of_range``: clamped at the range
   (``clamp``, the default, as PX4 and ArduPilot do), continued linearly from the edge
@@ -64,6 +65,8 @@ def score_seed(seed, work_seed, days):
         lo, hi = compose.common_range(cal)[0]
         temp = ch['temp'][:, 0]
         excess = max(lo - temp.min(), temp.max() - hi, 0.0)
+        g_lo, g_hi = np.asarray(cal.own_range('gyro'), float)[0]
+        gyro_excess = max(g_lo - temp.min(), temp.max() - g_hi, 0.0)
         pol = POLICIES if excess > 0 else ('clamp',)
         errors = {p: stop_errors(cal, ch, p) for p in pol}
         # as the month served it (the calibration's own out_of_range: a gyro continued by
@@ -72,6 +75,7 @@ def score_seed(seed, work_seed, days):
         own = cal.out_of_range if excess > 0 else 'clamp'
         errors['activated'] = errors[own] if own in errors else stop_error(cal, ch)
         stops.append({'day': s.t0 / DAY, 'activation': (seed, int(i)), 'excess': float(excess),
+                      'gyro_excess': float(gyro_excess),
                       'slope': bool(s.slope_deg > 0), 'age_days': (s.t0 - acts[i]) / DAY,
                       'errors': errors,
                       'true': stop_errors(m.true_calibration(s.t0), ch)})
@@ -104,6 +108,12 @@ def last_week(stops, days):
         squared = np.sum(np.square([s['errors']['activated'][0] for s in g]))
         out[name] = {**figures(g), 'share_of_squared_error': float(squared / total)
                      if total > 0 else float('nan')}
+    # the stops outside split by whose range they are beyond: the gyro's own (its model
+    # clamps or continues there) or only the accelerometer's (the gyro is inside its own)
+    out['outside, by sensor'] = {
+        "beyond the gyro's own range": figures([s for s in week if s['gyro_excess'] > 0]),
+        "beyond the accelerometer's only": figures(
+            [s for s in week if s['excess'] > 0 and s['gyro_excess'] == 0])}
     level = [s for s in week if groups['level, inside'](s)]
     out['level, inside, by age'] = {
         f'{lo:g}-{hi:g} d': figures([s for s in level if lo <= s['age_days'] < hi])
@@ -153,6 +163,9 @@ def main():
         print('  level inside by the active calibration\'s age: ' + '; '.join(
             f'{k} {v["stops"]}: {v["gyro_mrad_s"]:.3f} (systematic {v["systematic_mrad_s"]:.3f})'
             for k, v in lw['level, inside, by age'].items()), flush=True)
+        print('  outside, by sensor: ' + '; '.join(
+            f'{k} {v["stops"]}: {v["gyro_mrad_s"]:.3f} (systematic {v["systematic_mrad_s"]:.3f})'
+            for k, v in lw['outside, by sensor'].items()), flush=True)
     result['outside_all_seeds'] = outside(every)
     for band, v in result['outside_all_seeds'].items():
         print(f'outside {band}: {v["stops"]} stops; gyro mrad/s ' + ', '.join(
