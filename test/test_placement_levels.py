@@ -14,7 +14,8 @@ from scipy.optimize import minimize_scalar
 
 from thermal_imu_calib.estimation.offset_fit import weighted_polyfit
 from thermal_imu_calib.estimation.placement_levels import (held_out_level_fits,
-                                                           random_level_fit)
+                                                           random_level_fit,
+                                                           random_level_fits)
 
 from test_placement_floor import _choice, _stops
 
@@ -100,6 +101,29 @@ def test_levels_that_line_up_with_temperature_are_not_read_as_a_slope():
     rms_lv = np.sqrt(np.mean(np.square(err_lv)))
     assert rms_lv < 0.5 * rms_ols
     assert covered >= 0.85 * trials          # its standard error is honest
+
+
+def test_fits_done_together_are_each_the_fit_done_alone():
+    """Three axes' fits at once (a thermal fit's) equal each fit alone, bit for bit."""
+    rng = np.random.default_rng(7)
+    a, y, w, g = _placements(rng, level_std=0.0)
+    a3 = np.stack([a, a * np.array([1.0, 1.3, 0.7]),
+                   np.column_stack([a[:, 0], a[:, 1] + 0.5, a[:, 2]])])
+    # little scatter between placements, some, and much (three different lam)
+    y3 = np.stack([y, y + rng.normal(0.0, 0.02, g.max() + 1)[g],
+                   3.0 * y + rng.normal(0.0, 0.2, g.max() + 1)[g]])
+    w3 = np.stack([w, w[::-1], np.ones_like(w)])
+    together = random_level_fits(a3, y3, w3, g)
+    for k, fit in enumerate(together):
+        alone = random_level_fit(a3[k], y3[k], w3[k], g)
+        assert fit.lam == alone.lam and fit.sigma2 == alone.sigma2
+        assert np.array_equal(fit.coef, alone.coef)
+        assert np.array_equal(fit.unscaled_cov, alone.unscaled_cov)
+    # one placement: ordinary weighted least squares for every fit (lam 0)
+    one = random_level_fits(a3, y3, w3, np.zeros(len(g)))
+    assert [f.lam for f in one] == [0.0] * 3
+    np.testing.assert_allclose(one[0].coef, np.linalg.lstsq(
+        a * np.sqrt(w)[:, None], y * np.sqrt(w), rcond=None)[0], rtol=1e-9)
 
 
 def test_held_out_fits_leave_each_group_out():

@@ -22,7 +22,7 @@ import numpy as np
 from ..models.hysteresis import HysteresisOffsetModel
 from ..models.polynomial import OffsetPolynomialModel
 from ..thermal_input import history_key, history_windows
-from .placement_levels import random_level_fit
+from .placement_levels import random_level_fits
 
 #: temperature-uniform weighting: the span is cut into this many equal bins
 TEMP_BINS = 40
@@ -149,20 +149,22 @@ def fit_spec(feats, spec, y, rows, t0, design=None):
     Weighted least squares (``fit_weights`` on each axis' reading); the std is from the
     weighted residual scatter (coefficient covariance s^2 (A^T W A)^-1). With
     ``feats.levels`` each placement's level is a random effect
-    (``placement_levels.random_level_fit``, REML per axis). ``design``: the spec's
+    (``placement_levels.random_level_fits``, REML per axis). ``design``: the spec's
     ``feats.design(spec, t0)`` when the caller already has it (it does not depend on rows).
     """
     a = feats.design(spec, t0) if design is None else design
     p = a.shape[-1]
     coef = np.zeros((p, 3))
     std = np.zeros((p, 3))
-    for i in range(3):
-        w = fit_weights(feats.temp[:, i], spec.weighting, rows)[rows]
-        if feats.levels is not None:
-            fit = random_level_fit(a[rows, i], y[rows, i], w, feats.levels[rows])
+    ws = [fit_weights(feats.temp[:, i], spec.weighting, rows)[rows] for i in range(3)]
+    if feats.levels is not None:        # the three axes' REML fits at once
+        fits = random_level_fits(a[rows].transpose(1, 0, 2), y[rows].T, np.stack(ws),
+                                 feats.levels[rows])
+        for i, (fit, w) in enumerate(zip(fits, ws)):
             coef[:, i] = fit.coef
             std[:, i] = fit.std(fit.sigma2 / max(float(np.mean(w)), 1e-300))
-            continue
+        return coef, std
+    for i, w in enumerate(ws):
         sw = np.sqrt(w)
         ai = a[rows, i] * sw[:, None]
         yi = y[rows, i] * sw

@@ -42,58 +42,71 @@ REFINE = 3
 
 
 class _Stats(NamedTuple):
-    """Sufficient statistics of the weighted fit and of each placement (``_sums``)."""
+    """Sufficient statistics of B weighted fits and of each placement (``_sums``).
 
-    ata: np.ndarray     # (p, p) sum w a a^T
-    aty: np.ndarray     # (p,) sum w a y
-    yty: float          # sum w y^2
-    g: np.ndarray       # (H, p) sum w a per placement
-    q: np.ndarray       # (H,) sum w y per placement
-    s: np.ndarray       # (H,) sum w per placement
-    gg: np.ndarray      # (H, p * p) g g^T per placement, flattened
-    gq: np.ndarray      # (H, p) g q per placement
+    The B fits share the rows and the placements (the three axes of one fit).
+    """
+
+    ata: np.ndarray     # (B, p, p) sum w a a^T
+    aty: np.ndarray     # (B, p) sum w a y
+    yty: np.ndarray     # (B,) sum w y^2
+    g: np.ndarray       # (B, H, p) sum w a per placement
+    q: np.ndarray       # (B, H) sum w y per placement
+    s: np.ndarray       # (B, H) sum w per placement
+    gg: np.ndarray      # (B, H, p * p) g g^T per placement, flattened
+    gq: np.ndarray      # (B, H, p) g q per placement
 
 
 def _sums(a, y, w, groups):
-    """Return the ``_Stats`` of the weighted fit (once per fit, for every ``lam``)."""
+    """Return the ``_Stats`` of the B weighted fits (once per fit, for every ``lam``)."""
     _, gi = np.unique(groups, return_inverse=True)
     gi = gi.ravel()
     h = int(gi.max()) + 1 if len(gi) else 0
-    p = a.shape[1]
-    wa = a * w[:, None]
-    g = np.zeros((h, p))
-    for j in range(p):              # bincount: the sums of np.add.at, in the same order
-        g[:, j] = np.bincount(gi, weights=wa[:, j], minlength=h)
-    q = np.bincount(gi, weights=w * y, minlength=h)
-    return _Stats(ata=a.T @ wa, aty=wa.T @ y, yty=float(np.sum(w * y * y)), g=g, q=q,
-                  s=np.bincount(gi, weights=w, minlength=h),
-                  gg=(g[:, :, None] * g[:, None, :]).reshape(h, p * p), gq=g * q[:, None])
+    nb, _, p = a.shape
+    wa = a * w[:, :, None]
+    g = np.zeros((nb, h, p))
+    q = np.zeros((nb, h))
+    s = np.zeros((nb, h))
+    for b in range(nb):
+        for j in range(p):          # bincount: the sums of np.add.at, in the same order
+            g[b, :, j] = np.bincount(gi, weights=wa[b, :, j], minlength=h)
+        q[b] = np.bincount(gi, weights=w[b] * y[b], minlength=h)
+        s[b] = np.bincount(gi, weights=w[b], minlength=h)
+    return _Stats(ata=np.matmul(a.transpose(0, 2, 1), wa),
+                  aty=np.matmul(wa.transpose(0, 2, 1), y[:, :, None])[:, :, 0],
+                  yty=np.sum(w * y * y, axis=1), g=g, q=q, s=s,
+                  gg=(g[:, :, :, None] * g[:, :, None, :]).reshape(nb, h, p * p),
+                  gq=g * q[:, :, None])
 
 
 def _evaluate(lam, stats, n):
     """Return (-2 REML log-likelihood up to a constant, coef, M, r^T V^-1 r, dof) per lam.
 
-    Matrix products (BLAS) over the batch of ``lam``; ``einsum`` with three or four operands
-    loops in C without BLAS and took about 70 % of the random-level fits' time in a lifelong
+    ``lam``: (B, L), a batch of ratios per fit; every result has (B, L) in front.
+    Matrix products (BLAS) over the batch; ``einsum`` with three or four operands loops in
+    C without BLAS and took about 70 % of the random-level fits' time in a lifelong
     re-estimate (docs/speed.md).
     """
     ata, aty, yty, g, q, s = stats.ata, stats.aty, stats.yty, stats.g, stats.q, stats.s
-    p = g.shape[1]
-    f = lam[:, None] / (1.0 + lam[:, None] * s[None, :])    # (L, H)
-    m = ata[None] - (f @ stats.gg).reshape(-1, p, p)
-    b = aty[None] - f @ stats.gq                             # (L, p)
+    nb, nl = lam.shape
+    p = g.shape[2]
+    f = lam[:, :, None] / (1.0 + lam[:, :, None] * s[:, None, :])      # (B, L, H)
+    m = ata[:, None] - np.matmul(f, stats.gg).reshape(nb, nl, p, p)
+    b = aty[:, None] - np.matmul(f, stats.gq)                            # (B, L, p)
     ev, vec = np.linalg.eigh(m)
-    tol = np.max(np.abs(ev), axis=1, keepdims=True) * 1e-12
+    tol = np.max(np.abs(ev), axis=2, keepdims=True) * 1e-12
     inv_ev = np.where(ev > tol, 1.0 / np.where(ev > tol, ev, 1.0), 0.0)
-    vtb = np.matmul(b[:, None, :], vec)[:, 0]                # (L, p): V^T b
-    coef = np.matmul(vec, (inv_ev * vtb)[:, :, None])[:, :, 0]      # pseudo-inverse
-    rank = np.sum(ev > tol, axis=1)
-    wrr = yty - 2 * (coef @ aty) + np.sum((coef @ ata) * coef, axis=1)
-    gr = q[None] - coef @ g.T                                # (L, H) sum w r per placement
-    quad = np.maximum(wrr - np.sum(f * gr ** 2, axis=1), 1e-300)
-    logdet_m = np.sum(np.log(np.where(ev > tol, ev, 1.0)), axis=1)
+    vtb = np.matmul(b[:, :, None, :], vec)[:, :, 0]                      # (B, L, p): V^T b
+    coef = np.matmul(vec, (inv_ev * vtb)[..., None])[..., 0]            # pseudo-inverse
+    rank = np.sum(ev > tol, axis=2)
+    wrr = (yty[:, None] - 2 * np.matmul(coef, aty[:, :, None])[..., 0]
+           + np.sum(np.matmul(coef, ata) * coef, axis=2))
+    gr = q[:, None] - np.matmul(coef, g.transpose(0, 2, 1))              # (B, L, H)
+    quad = np.maximum(wrr - np.sum(f * gr ** 2, axis=2), 1e-300)
+    logdet_m = np.sum(np.log(np.where(ev > tol, ev, 1.0)), axis=2)
     dof = np.maximum(n - rank, 1)
-    crit = dof * np.log(quad) + np.sum(np.log1p(lam[:, None] * s[None]), axis=1) + logdet_m
+    crit = (dof * np.log(quad) + np.sum(np.log1p(lam[:, :, None] * s[:, None]), axis=2)
+            + logdet_m)
     return crit, coef, m, quad, dof
 
 
@@ -111,27 +124,45 @@ def random_level_fit(a, y, w, groups):
     weighted least squares.
     """
     a = np.asarray(a, float)
-    y = np.asarray(y, float)
-    w = np.asarray(w, float)
-    n, p = a.shape
+    return random_level_fits(a[None], np.asarray(y, float)[None], np.asarray(w, float)[None],
+                             groups)[0]
+
+
+def random_level_fits(a, y, w, groups):
+    """Return B ``random_level_fit`` results of fits that share their rows' placements.
+
+    a: (B, n, p); y, w: (B, n); groups: (n,). Each fit is the one ``random_level_fit``
+    gives on its own (its own ``lam`` search); done together, numpy's per-call cost is
+    paid once for the B fits (the three axes of a thermal fit).
+    """
+    a = np.ascontiguousarray(a, float)
+    y = np.ascontiguousarray(y, float)
+    w = np.ascontiguousarray(w, float)
+    nb, n, p = a.shape
     stats = _sums(a, y, w, groups)
     s = stats.s
-    if len(s) < 2 or n <= p + 1:
-        lams = np.zeros(1)
+    if s.shape[1] < 2 or n <= p + 1:
+        lams = np.zeros((nb, 1))
     else:
-        scale = 1.0 / max(float(np.mean(s)), 1e-300)
-        lams = scale * 10.0 ** np.linspace(-LOG_SPAN, LOG_SPAN, GRID)
-        edge = False
+        scale = 1.0 / np.maximum(np.mean(s, axis=1), 1e-300)            # (B,)
+        lams = scale[:, None] * 10.0 ** np.linspace(-LOG_SPAN, LOG_SPAN, GRID)
+        lowest = lams[:, 0].copy()
+        edge = np.zeros(nb, bool)
+        rows = np.arange(nb)
         for _ in range(REFINE):       # each grid spans the previous one's best cell pair
-            k = int(np.argmin(_evaluate(lams, stats, n)[0]))
-            edge = edge or (k == 0 and lams[0] <= scale * 10.0 ** -LOG_SPAN)
-            lo, hi = np.log10(lams[max(k - 1, 0)]), np.log10(lams[min(k + 1, len(lams) - 1)])
-            lams = 10.0 ** np.linspace(lo, hi, FINE)
-        if edge:                      # at the lower edge: "placements do not matter"
-            lams = np.concatenate([[0.0], lams])
+            k = np.argmin(_evaluate(lams, stats, n)[0], axis=1)
+            edge |= (k == 0) & (lams[:, 0] <= lowest)
+            lo = np.log10(lams[rows, np.maximum(k - 1, 0)])
+            hi = np.log10(lams[rows, np.minimum(k + 1, lams.shape[1] - 1)])
+            lams = 10.0 ** np.linspace(lo, hi, FINE, axis=1)
+        # at the lower edge, "placements do not matter": 0 is a candidate too (a fit not
+        # at the edge gets its lowest ratio again, which changes nothing)
+        lams = np.concatenate([np.where(edge, 0.0, lams[:, 0])[:, None], lams], axis=1)
     crit, coef, m, quad, dof = _evaluate(lams, stats, n)
-    k = int(np.argmin(crit))
-    return LevelFit(coef[k], np.linalg.pinv(m[k]), float(quad[k] / dof[k]), float(lams[k]))
+    k = np.argmin(crit, axis=1)
+    return [LevelFit(coef[b, k[b]], np.linalg.pinv(m[b, k[b]]),
+                     float(quad[b, k[b]] / dof[b, k[b]]), float(lams[b, k[b]]))
+            for b in range(nb)]
 
 
 @dataclass
