@@ -118,19 +118,26 @@ def test_nothing_is_pooled_without_an_active_calibration_or_after_an_alarm():
 
 
 def test_the_loop_pools_logs_and_starts_afresh_after_a_gyro_swap(tmp_path):
-    life = lifelong_month(tmp_path / 'life', CONFIG, days=3.0)
+    # 2.2 days: a swap of both models (day 0.76), then three kept estimates judged on
+    # the pool (days 1.5-2.0); 3 days gave the same checks in 4.5x the time
+    life = lifelong_month(tmp_path / 'life', CONFIG, days=2.2)
     judged = [d for d in life.decisions() if d['action'] in ('swap', 'keep')]
     assert judged, life.decisions()
     records = [d for d in judged if 'pooled' in d]
     assert records, [d['text'] for d in judged]
     for d in records:
         assert d['pooled']['text'] in d['text']
+    # the pool grows over successive estimates
+    assert any(d['pooled']['pooled_holds'] > d['pooled']['added'] for d in records)
     # after a swap that replaced the gyro the pool holds only the newer estimates' holds
     fresh = False
+    checked = 0
     for d in judged:
         if 'pooled' in d and fresh:
             assert d['pooled']['pooled_holds'] == d['pooled']['added'], d['text']
+            checked += 1
         fresh = d['action'] == 'swap' and '(accel model only)' not in d['text']
+    assert checked, [d['text'] for d in judged]
     pool = life.state.get('gyro_pool') or []
     times = [r[0] for r in pool]
     assert len(set(times)) == len(times)
