@@ -202,3 +202,19 @@ def test_the_checker_sees_a_violation(tmp_path):
     deps, ros = _imports('io.fake', str(path), False, modules)
     assert deps == {'app.collect'} and ros == {'rclpy'}
     assert _layer('app.collect') > _layer('io.fake')
+
+
+def test_the_compensator_node_starts_without_scipy():
+    """The compensator (and ``compensate``) never fits: importing its node loads no scipy.
+
+    scipy.special and scipy.optimize took about 0.8 of the node module's 1.4 s of import
+    (``python -X importtime``); they are imported where a fit or a derived detector
+    setting needs them (``collection.outliers``, ``collection.detector_config``).
+    """
+    import subprocess
+    import sys
+    code = ('import sys, thermal_imu_calib.nodes.compensator, thermal_imu_calib.app.compensate; '
+            'print(sorted(m for m in sys.modules if m.split(".")[0] == "scipy"))')
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         check=True, cwd=ROOT)
+    assert out.stdout.strip() == '[]', out.stdout + out.stderr

@@ -37,7 +37,6 @@ from typing import List
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
-from scipy.optimize import least_squares
 
 MAD_TO_SIGMA = 1.4826
 
@@ -319,6 +318,7 @@ def _from_zero(fun, x, jac, kwargs):
     if 'bounds' in kwargs:
         lo, hi = kwargs['bounds']
         kwargs['bounds'] = (np.asarray(lo, float) - x, np.asarray(hi, float) - x)
+    from scipy.optimize import least_squares   # not at import: 0.3 s of a node's start
     res = least_squares(lambda d: fun(x + d), np.zeros_like(x),
                         jac=(lambda d: jac(x + d)) if callable(jac) else jac, **kwargs)
     res.x = x + res.x
