@@ -97,10 +97,15 @@ def test_thermal_family_kept_when_held_out_runs_say_so():
 
 
 def test_no_run_and_no_hold_fold_evidence_returns_the_standard_fit():
-    # each face twice along the warm-up: no time run can be held out; the hold folds at
-    # fixed tilts leave each face at one temperature and do not favour the family
+    # each face twice along the warm-up: no time run can be held out; with the standard
+    # form as the truth the hold folds at fixed tilts do not favour the family. (Before
+    # 2026-12-07 this ran with a scale factor changing 1e-4 per degC, and the standard fit
+    # was returned because the two-step field fit of these sessions stopped at its 1000
+    # sweeps unconverged: its tilts spoilt both held-out figures, 1556 against 1608 ug.
+    # Converged (``estimation.fixed_point``, 250 sweeps) the folds see that truth:
+    # field 107 against 1023 ug, z 3.49, kept; ``bench/two_step_speed.py``.)
     for seed in (0, 1):
-        res = calibrate_windows(_session(1e-4, visits=2, seed=seed), options())
+        res = calibrate_windows(_session(0.0, visits=2, seed=seed), options())
         choice = res.report['model_choice']
         assert choice['model'] == 'standard', choice['reason']
         assert 'no run of holds in time can be held out' in choice['reason']
@@ -111,6 +116,25 @@ def test_no_run_and_no_hold_fold_evidence_returns_the_standard_fit():
         assert any(n.startswith('auto, a thermal family judged against the standard fit (')
                    and 'the standard fit (bias polynomial in temperature)' in n
                    for n in res.calibration.notes), res.calibration.notes
+
+
+def test_six_faces_held_twice_converge_and_the_folds_then_see_the_thermal_truth(monkeypatch):
+    """The two-step field fit of these sessions converges (it stopped unconverged at its
+    1000 sweeps before 2026-12-07), and the hold folds then keep the family its truth is."""
+    import thermal_imu_calib.estimation.field_estimator as fe
+    from thermal_imu_calib.estimation import fixed_point
+    w = _session(1e-4, visits=2)
+    ta, t0 = np.repeat(w.temp, 3, 1), np.full(3, 30.0)
+    mixed = fe.fit_field_model(w, ta, G, t0, refine=False)
+    assert mixed.converged and mixed.iterations < 500
+    res = calibrate_windows(w, options())
+    choice = res.report['model_choice']
+    assert choice['model'] == 'field', choice['reason']
+    assert 'no run of holds in time can be held out' in choice['reason']
+    assert 'field predicts them better by more than the noise: kept' in choice['reason']
+    monkeypatch.setattr(fixed_point, 'ANDERSON_DEPTH', 0)   # the plain alternation, as before
+    plain = fe.fit_field_model(w, ta, G, t0, refine=False, tol=1e-3)
+    assert not plain.converged and plain.iterations == 1000
 
 
 def test_hold_folds_at_fixed_tilts_keep_the_family_the_held_out_holds_support():

@@ -147,7 +147,7 @@ def estimate_field(ctx, free_s=False):
         notes.append(f'field model: {fit.refine_note}')
     if not fit.converged:
         notes.append(f'field model: the two-step estimation did not settle in {fit.iterations} '
-                     'iterations (the fitted window means still moved by more than 1e-3 of '
+                     'iterations (the fitted window means still moved by more than 1e-5 of '
                      'their noise)' + ('; the joint refinement started from there'
                                        if fit.refined else ''))
     stats = {'iterations': fit.iterations, 'converged': bool(fit.converged),

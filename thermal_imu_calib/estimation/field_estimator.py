@@ -19,6 +19,7 @@ import numpy as np
 from scipy.optimize import brentq, least_squares
 
 from ..models.field import FieldPolynomialModel, THERMAL_NAMES
+from .fixed_point import fixed_point
 from .observability import converged, FitNotConverged
 
 #: columns of the per-axis design for each polynomial order
@@ -195,7 +196,7 @@ def _design(f, dt, order):
 
 
 def fit_field_model(windows, axis_temps, gravity, t0, k0=None, b0=None, s=None, order=2,
-                    refine=True, max_iter=1000, tol=1e-3, free_s=False):
+                    refine=True, max_iter=1000, tol=1e-5, free_s=False):
     """Estimate the seed 000 model from stationary windows.
 
     windows: estimation.segments.Windows (accel means in m/s^2 with per-sample variances).
@@ -206,6 +207,9 @@ def fit_field_model(windows, axis_temps, gravity, t0, k0=None, b0=None, s=None, 
     free_s: also estimate S in the joint refinement (``s`` must be None): its three
     below-diagonal terms, unit diagonal (``s_of_terms``), zero-mean prior
     ``S_PRIOR_STD``; needs ``refine``.
+    max_iter, tol: steps 2-3 are repeated (``fixed_point.fixed_point``) until one pass moves every
+    fitted window mean by less than ``tol`` times the median standard error of the window
+    means, at most ``max_iter`` times (``FieldFit.converged`` says which).
     """
     if free_s and (s is not None or not refine):
         raise ValueError('free_s estimates S from identity in the joint refinement: '
@@ -231,21 +235,20 @@ def fit_field_model(windows, axis_temps, gravity, t0, k0=None, b0=None, s=None, 
         m = fp.mean(axis=0)
         tilts[j] = m / np.linalg.norm(m)
 
-    thermal = np.zeros((3, 6))
-    converged = False
-    it = 0
-    pred_prev = None
     se_min = float(np.median(se))
-    for it in range(1, max_iter + 1):
+
+    def sweep(c):
+        """One pass of steps 2-3 from tilts c: (new tilts, thermal vector, window means)."""
         # step 1: thermal vector given tilts (eq. 16), weighted, axis by axis
-        fa = gravity * (tilts[hold_idx] @ s.T)            # specific force in frame a
+        th = np.zeros((3, 6))
+        fa = gravity * (c[hold_idx] @ s.T)            # specific force in frame a
         for i in range(3):
             a = _design(fa[:, i], dt[:, i], order) * w[:, i:i + 1]
             y = (raw[:, i] - k0[i] * fa[:, i] - b0[i]) * w[:, i]
             sol, *_ = np.linalg.lstsq(a, y, rcond=None)
-            thermal[i, cols] = sol
+            th[i, cols] = sol
         # step 2: tilt per hold given the thermal vector (eqs. 20-27)
-        model = FieldPolynomialModel(t0, thermal, k0, b0, s)
+        model = FieldPolynomialModel(t0, th, k0, b0, s)
         k, b = model.scale_bias(t0 + dt)
         aw = gravity * k[:, :, None] * s[None, :, :] * w[:, :, None]   # W diag(k) S g
         m_win = np.einsum('mki,mkj->mij', aw, aw)
@@ -254,14 +257,10 @@ def fit_field_model(windows, axis_temps, gravity, t0, k0=None, b0=None, s=None, 
         v_hold = np.zeros((nh, 3))
         np.add.at(m_hold, hold_idx, m_win)
         np.add.at(v_hold, hold_idx, v_win)
-        tilts, _, _ = kkt_unit_tilt_batch(m_hold, v_hold, tilts)
-        # converged when the fitted window means stop moving (relative to their noise)
-        pred = model.forward(gravity * tilts[hold_idx], t0 + dt)
-        if pred_prev is not None and np.max(np.abs(pred - pred_prev)) < tol * se_min:
-            converged = True
-            break
-        pred_prev = pred
+        c_new, _, _ = kkt_unit_tilt_batch(m_hold, v_hold, c)
+        return c_new, th, model.forward(gravity * c_new[hold_idx], t0 + dt)
 
+    tilts, thermal, converged, it = fixed_point(sweep, tilts, tol * se_min, max_iter)
     refined = False
     thermal_std = None
     refine_note = ''
