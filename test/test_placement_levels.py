@@ -135,6 +135,28 @@ def test_held_out_fits_leave_each_group_out():
         np.testing.assert_allclose(out[k], random_level_fit(a[tr], y[tr], w[tr], g[tr]).coef)
 
 
+def test_held_out_fits_done_together_are_each_fold_fitted_alone():
+    """The folds' fits at once (padded placements, their own rows) equal each fold's
+    ``random_level_fit``, bit for bit: folds of whole placements and folds cutting them,
+    folds left with one placement or too few rows (the ordinary fit), many seeds."""
+    checked = fallback = 0
+    for seed in range(40):
+        rng = np.random.default_rng(seed)
+        a, y, w, g = _placements(rng, n_place=int(rng.integers(2, 14)),
+                                 level_std=float(rng.choice([0.0, 0.005, 0.05])))
+        for groups in (g // 3, rng.integers(0, 5, len(g)), np.arange(len(g)) * 4 // len(g),
+                       (g > 0).astype(int)):
+            out = held_out_level_fits(a, y, w, groups, g)
+            for k, grp in enumerate(np.unique(groups)):
+                tr = groups != grp
+                alone = random_level_fit(a[tr], y[tr], w[tr], g[tr])
+                assert np.array_equal(out[k], alone.coef), (seed, k)
+                checked += 1
+                fallback += alone.lam == 0.0 and (len(np.unique(g[tr])) < 2
+                                                  or tr.sum() <= a.shape[1] + 1)
+    assert checked > 500 and fallback > 20        # 562 and 53 on 2026-12-07
+
+
 @pytest.mark.parametrize('seed', [4, 6])
 def test_calibrate_does_not_read_floor_tilt_as_temperature(seed):
     """The horizontal axes have no thermal dependence; the gyro has a real one."""

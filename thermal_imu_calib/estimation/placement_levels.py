@@ -44,7 +44,8 @@ REFINE = 3
 class _Stats(NamedTuple):
     """Sufficient statistics of B weighted fits and of each placement (``_sums``).
 
-    The B fits share the rows and the placements (the three axes of one fit).
+    The B fits share the rows and the placements (the three axes of one fit), or each has
+    its own, padded at the end with empty placements (``held_out_level_fits``).
     """
 
     ata: np.ndarray     # (B, p, p) sum w a a^T
@@ -82,7 +83,8 @@ def _sums(a, y, w, groups):
 def _evaluate(lam, stats, n):
     """Return (-2 REML log-likelihood up to a constant, coef, M, r^T V^-1 r, dof) per lam.
 
-    ``lam``: (B, L), a batch of ratios per fit; every result has (B, L) in front.
+    ``lam``: (B, L), a batch of ratios per fit; ``n``: (B,) rows of each fit; every result
+    has (B, L) in front.
     Matrix products (BLAS) over the batch; ``einsum`` with three or four operands loops in
     C without BLAS and took about 70 % of the random-level fits' time in a lifelong
     re-estimate (docs/speed.md).
@@ -104,7 +106,7 @@ def _evaluate(lam, stats, n):
     gr = q[:, None] - np.matmul(coef, g.transpose(0, 2, 1))              # (B, L, H)
     quad = np.maximum(wrr - np.sum(f * gr ** 2, axis=2), 1e-300)
     logdet_m = np.sum(np.log(np.where(ev > tol, ev, 1.0)), axis=2)
-    dof = np.maximum(n - rank, 1)
+    dof = np.maximum(np.asarray(n)[:, None] - rank, 1)
     crit = (dof * np.log(quad) + np.sum(np.log1p(lam[:, :, None] * s[:, None]), axis=2)
             + logdet_m)
     return crit, coef, m, quad, dof
@@ -140,11 +142,39 @@ def random_level_fits(a, y, w, groups):
     w = np.ascontiguousarray(w, float)
     nb, n, p = a.shape
     stats = _sums(a, y, w, groups)
+    return _search(stats, np.full(nb, n), np.full(nb, stats.s.shape[1]))
+
+
+def _search(stats, n, h, cov=True):
+    """REML ``lam`` search of B fits; return their ``LevelFit``.
+
+    n: (B,) rows of each fit; h: (B,) its placements, the first ``h`` of ``stats``'s
+    (the rest, if any, are empty: all their sums 0, which adds nothing to any term).
+    ``cov`` False: ``LevelFit.unscaled_cov`` is None (held-out fits need the coefficients
+    only).
+    """
+    nb = len(n)
+    p = stats.g.shape[2]
+    fallback = (h < 2) | (n <= p + 1)
+    out = [None] * nb
+    for part in (np.flatnonzero(fallback), np.flatnonzero(~fallback)):
+        if not len(part):
+            continue
+        sub = _Stats(*(x[part] for x in stats)) if len(part) < nb else stats
+        for b, fit in zip(part, _search_part(sub, n[part], h[part], fallback[part[0]],
+                                             cov)):
+            out[b] = fit
+    return out
+
+
+def _search_part(stats, n, h, fallback, cov):
+    """``_search`` of fits that all fall back to ``lam`` 0 or all search it."""
+    nb = len(n)
     s = stats.s
-    if s.shape[1] < 2 or n <= p + 1:
+    if fallback:
         lams = np.zeros((nb, 1))
     else:
-        scale = 1.0 / np.maximum(np.mean(s, axis=1), 1e-300)            # (B,)
+        scale = 1.0 / np.maximum(np.array([np.mean(s[b, :h[b]]) for b in range(nb)]), 1e-300)
         lams = scale[:, None] * 10.0 ** np.linspace(-LOG_SPAN, LOG_SPAN, GRID)
         lowest = lams[:, 0].copy()
         edge = np.zeros(nb, bool)
@@ -160,7 +190,7 @@ def random_level_fits(a, y, w, groups):
         lams = np.concatenate([np.where(edge, 0.0, lams[:, 0])[:, None], lams], axis=1)
     crit, coef, m, quad, dof = _evaluate(lams, stats, n)
     k = np.argmin(crit, axis=1)
-    return [LevelFit(coef[b, k[b]], np.linalg.pinv(m[b, k[b]]),
+    return [LevelFit(coef[b, k[b]], np.linalg.pinv(m[b, k[b]]) if cov else None,
                      float(quad[b, k[b]] / dof[b, k[b]]), float(lams[b, k[b]]))
             for b in range(nb)]
 
@@ -171,6 +201,7 @@ class LevelFit:
 
     coef: np.ndarray          # (p,)
     unscaled_cov: np.ndarray  # (p, p): (A^T V^-1 A)^+, times sigma2 the covariance
+    #                           (None in ``held_out_level_fits``: coefficients only)
     sigma2: float             # residual variance, in 1 / weight units
     lam: float                # tau^2 / sigma^2: the placements' level variance ratio
 
@@ -185,12 +216,38 @@ def held_out_level_fits(a, y, w, groups, levels):
 
     ``groups``: (n,) held-out groups; ``levels``: (n,) placement ids of the random levels.
     A training part the fit cannot take (``random_level_fit``'s fallback) is fitted by
-    ordinary weighted least squares, as there.
+    ordinary weighted least squares, as there. The training parts are fitted together
+    (``_search``): each one's sums over its own rows and placements, padded with empty
+    placements to the largest count.
     """
+    a = np.asarray(a, float)
+    y = np.asarray(y, float)
+    w = np.asarray(w, float)
     ug, gi = np.unique(groups, return_inverse=True)
     gi = gi.ravel()
-    out = np.empty((len(ug), a.shape[1]))
+    if not len(ug):
+        return np.empty((0, a.shape[1]))
+    parts = []
     for g in range(len(ug)):
         tr = gi != g
-        out[g] = random_level_fit(a[tr], y[tr], w[tr], levels[tr]).coef
+        parts.append(_sums(a[tr][None], y[tr][None], w[tr][None], levels[tr]))
+    h = np.array([x.s.shape[1] for x in parts])
+    n = np.array([int(np.sum(gi != g)) for g in range(len(ug))])
+    hmax = int(h.max())
+    fields = []
+    for k, first in enumerate(parts[0]):
+        per_placement = k >= 3          # g, q, s, gg, gq: (1, H, ...); the rest (1, ...)
+        x = np.zeros((len(parts),) + ((hmax,) + first.shape[2:] if per_placement
+                                      else first.shape[1:]))
+        for b, part in enumerate(parts):
+            if per_placement:
+                x[b, :h[b]] = part[k][0]
+            else:
+                x[b] = part[k][0]
+        fields.append(x)
+    stats = _Stats(*fields)
+    fits = _search(stats, n, h, cov=False)
+    out = np.empty((len(ug), a.shape[1]))
+    for g, fit in enumerate(fits):
+        out[g] = fit.coef
     return out

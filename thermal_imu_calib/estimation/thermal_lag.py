@@ -23,7 +23,7 @@ from scipy.optimize import minimize_scalar
 
 from ..thermal_input import lag_windows
 from .offset_fit import time_groups
-from .placement_levels import random_level_fit
+from .placement_levels import held_out_level_fits
 
 #: candidate time constants of the coarse grid, s (0 = no lag)
 TAU_GRID = (0.0, 10.0, 20.0, 40.0, 70.0, 120.0, 200.0, 320.0, 500.0, 800.0, 1300.0, 2000.0)
@@ -101,20 +101,25 @@ def heldout_poly_error(x, y, w, groups, order, levels=None):
     x: (m, 3) input temperature per axis (centred), y: (m, 3) signal, w: (m, 3) weights
     (1 / std of each window mean). The residual is in units of that std. ``levels``: (m,)
     placement ids whose levels are random effects in the fits
-    (``placement_levels.random_level_fit``), or None.
+    (``placement_levels.held_out_level_fits``), or None.
     """
     ug = np.unique(groups)
     sse = np.zeros(y.shape[1])
+    if levels is not None:      # every group's training part fitted at once, axis by axis
+        for a in range(y.shape[1]):
+            coefs = held_out_level_fits(_vander(x[:, a], order), y[:, a], w[:, a] ** 2,
+                                        groups, np.asarray(levels))
+            for g, coef in zip(ug, coefs):
+                test = groups == g
+                r = (y[test, a] - _vander(x[test, a], order) @ coef) * w[test, a]
+                sse[a] += float(r @ r)
+        return np.sqrt(sse / len(groups))
     for g in ug:
         test = groups == g
         train = ~test
         for a in range(y.shape[1]):
-            if levels is not None:
-                coef = random_level_fit(_vander(x[train, a], order), y[train, a],
-                                        w[train, a] ** 2, levels[train]).coef
-            else:
-                v = _vander(x[train, a], order) * w[train, a, None]
-                coef, *_ = np.linalg.lstsq(v, y[train, a] * w[train, a], rcond=None)
+            v = _vander(x[train, a], order) * w[train, a, None]
+            coef, *_ = np.linalg.lstsq(v, y[train, a] * w[train, a], rcond=None)
             r = (y[test, a] - _vander(x[test, a], order) @ coef) * w[test, a]
             sse[a] += float(r @ r)
     return np.sqrt(sse / len(groups))
