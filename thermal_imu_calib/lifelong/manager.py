@@ -260,10 +260,11 @@ class Lifelong:
                                         holdout, holdout_pose, self.latitude, c)
             if record:
                 decision['pooled'] = record
-            if part is not None and self._unexplained(part[1], decision):
-                record['used'] = False      # the log says it was not swapped
-            elif part is not None:
-                (new, s_new, fig), swap, only = part, True, 'gyro'
+            if part is not None:
+                if self._unexplained(part[1], decision):
+                    record['used'] = False      # the log says it was not swapped
+                else:
+                    (new, s_new, fig), swap, only = part, True, 'gyro'
         decision['figures'] = fig
         for key in ('g_sensitivity', 'continuation'):
             if key in result.report:
