@@ -19,32 +19,24 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, '..'))
+sys.path.insert(0, HERE)
 sys.path.insert(0, os.path.join(HERE, '..', 'test'))
 
 from test_standard_floor import _session, G  # noqa: E402
-from thermal_imu_calib.estimation import field_estimator as fe, fixed_point  # noqa: E402
+from thermal_imu_calib.estimation import fixed_point  # noqa: E402
+from two_step_speed import _means, _run, _se  # noqa: E402
 
 
 def main():
     rows = []
     t0 = np.full(3, 30.0)
-    depth = fixed_point.ANDERSON_DEPTH
     for visits, tilt, slope, seed in itertools.product((2, 3, 5), (0.0, 0.05), (0.0, 1e-4),
                                                        range(4)):
         w = _session(slope, visits=visits, seed=seed, tilt=tilt)
-        ta = np.repeat(w.temp, 3, 1)
-        se = np.sqrt(np.maximum(w.accel_var, 1e-30) / w.n[:, None])
-        hold_idx = np.unique(w.hold, return_inverse=True)[1]
-
-        def means(fit):
-            return fit.model.forward(G * fit.tilts[hold_idx], ta)
-        mixed = fe.fit_field_model(w, ta, G, t0, refine=False)
-        fixed_point.ANDERSON_DEPTH = 0
-        try:
-            plain = fe.fit_field_model(w, ta, G, t0, refine=False, tol=1e-9, max_iter=30000)
-        finally:
-            fixed_point.ANDERSON_DEPTH = depth
-        d = float(np.max(np.abs(means(mixed) - means(plain)) / se))
+        a = (w, np.repeat(w.temp, 3, 1), G, t0)
+        mixed, _ = _run(a, {}, fixed_point.ANDERSON_DEPTH)
+        plain, _ = _run(a, {}, 0, tol=1e-9, max_iter=30000)
+        d = float(np.max(np.abs(_means(mixed, a) - _means(plain, a)) / _se(w)))
         rows.append((visits, tilt, slope, seed, mixed.iterations, mixed.converged,
                      plain.iterations, plain.converged, d))
         print(rows[-1], flush=True)

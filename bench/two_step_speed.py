@@ -76,7 +76,13 @@ def _run(a, k, depth, **extra):
         fixed_point.ANDERSON_DEPTH = saved
 
 
+def _se(w):
+    """Return (m, 3) standard errors of the window means, m/s^2 (``fit_field_model``'s)."""
+    return np.sqrt(np.maximum(w.accel_var, 1e-30) / w.n[:, None])
+
+
 def _means(fit, a):
+    """Return (m, 3) fitted window means, m/s^2, of ``fit`` on its arguments ``a``."""
     w = a[0]
     hold_idx = np.unique(w.hold, return_inverse=True)[1]
     return fit.model.forward(a[2] * fit.tilts[hold_idx], np.asarray(a[1], float))
@@ -85,7 +91,7 @@ def _means(fit, a):
 def compare(a, k):
     """Return the three runs of one recorded fit as a dict."""
     w = a[0]
-    se = np.sqrt(np.maximum(w.accel_var, 1e-30) / w.n[:, None])
+    se = _se(w)
     exact, t_exact = _run(a, k, fixed_point.ANDERSON_DEPTH, tol=EXACT_TOL, max_iter=EXACT_MAX_ITER)
     ref = _means(exact, a)
     row = {'windows': int(len(w.n)), 'holds': int(len(np.unique(w.hold))),

@@ -11,7 +11,7 @@ import numpy as np
 ANDERSON_DEPTH = 5
 
 
-def fixed_point(sweep, c, tol, max_iter, depth=None):
+def fixed_point(sweep, c, tol, max_iter):
     """Iterate ``sweep`` (tilts -> tilts, thermal vector, window means) to its fixed point.
 
     c: (h, 3) unit vectors to start from. ``sweep(c)`` returns (new unit vectors, the
@@ -21,16 +21,15 @@ def fixed_point(sweep, c, tol, max_iter, depth=None):
     the bias and scale terms trade off: on a simulated three-log unit (``fleet.simulate``)
     it took ~450 sweeps to move the fitted means by less than 1e-3 of their noise, and then
     was still ~0.05 of their noise from its fixed point. Anderson mixing (type II, Walker
-    and Ni 2011, SIAM J. Numer. Anal. 49(4)) of the last ``depth`` sweeps reaches the same
+    and Ni 2011, SIAM J. Numer. Anal. 49(4)) of the last ``ANDERSON_DEPTH`` sweeps reaches the same
     fixed point, to ~1e-5 of the noise, in ~60 sweeps (``bench/two_step_speed.py``). Each
     mixed vector is put back on the unit sphere; the memory is dropped (one plain sweep)
     when a sweep moves the vectors more than the one before it, or the mixing is not finite.
 
     Stops when one sweep moves the fitted window means by less than ``tol`` (m/s^2).
-    ``depth`` None: ``ANDERSON_DEPTH``.
     Returns (vectors, thermal vector, converged, sweeps): the last sweep's output.
     """
-    depth = ANDERSON_DEPTH if depth is None else depth
+    depth = ANDERSON_DEPTH      # read at each call: benches and tests set 0 (the plain one)
     xs, fs = [], []
     pred_prev = None
     f_prev = np.inf

@@ -58,6 +58,10 @@ class _Stats(NamedTuple):
     gq: np.ndarray      # (B, H, p) g q per placement
 
 
+#: the ``_Stats`` fields with one entry per placement (the rest are per fit)
+_PER_PLACEMENT = ('g', 'q', 's', 'gg', 'gq')
+
+
 def _sums(a, y, w, groups):
     """Return the ``_Stats`` of the B weighted fits (once per fit, for every ``lam``)."""
     _, gi = np.unique(groups, return_inverse=True)
@@ -232,22 +236,19 @@ def held_out_level_fits(a, y, w, groups, levels):
         tr = gi != g
         parts.append(_sums(a[tr][None], y[tr][None], w[tr][None], levels[tr]))
     h = np.array([x.s.shape[1] for x in parts])
-    n = np.array([int(np.sum(gi != g)) for g in range(len(ug))])
+    n = len(gi) - np.bincount(gi, minlength=len(ug))
     hmax = int(h.max())
-    fields = []
-    for k, first in enumerate(parts[0]):
-        per_placement = k >= 3          # g, q, s, gg, gq: (1, H, ...); the rest (1, ...)
+    fields = {}
+    for name in _Stats._fields:
+        first = getattr(parts[0], name)
+        per_placement = name in _PER_PLACEMENT         # (1, H, ...): padded to hmax
         x = np.zeros((len(parts),) + ((hmax,) + first.shape[2:] if per_placement
                                       else first.shape[1:]))
         for b, part in enumerate(parts):
             if per_placement:
-                x[b, :h[b]] = part[k][0]
+                x[b, :h[b]] = getattr(part, name)[0]
             else:
-                x[b] = part[k][0]
-        fields.append(x)
-    stats = _Stats(*fields)
-    fits = _search(stats, n, h, cov=False)
-    out = np.empty((len(ug), a.shape[1]))
-    for g, fit in enumerate(fits):
-        out[g] = fit.coef
-    return out
+                x[b] = getattr(part, name)[0]
+        fields[name] = x
+    stats = _Stats(**fields)
+    return np.array([fit.coef for fit in _search(stats, n, h, cov=False)])
