@@ -200,7 +200,8 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
              placement_levels_sensors=DEFAULT.placement_levels_sensors, checkpoints=False,
              resume=False, gyro_ageing_forward=DEFAULT.gyro_ageing_forward,
              gyro_pooled_gate=DEFAULT.gyro_pooled_gate,
-             swap_must_explain=DEFAULT.swap_must_explain, **overrides):
+             swap_must_explain=DEFAULT.swap_must_explain, gyro_follow=DEFAULT.gyro_follow,
+             **overrides):
     m = robot_month(seed, days=days, **overrides)
     d = os.path.join(work, f'seed{seed}')
     ckpt = latest_checkpoint(d) if resume else None
@@ -233,12 +234,13 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
                                               placement_levels_sensors=placement_levels_sensors,
                                               gyro_ageing_forward=gyro_ageing_forward,
                                               gyro_pooled_gate=gyro_pooled_gate,
-                                              swap_must_explain=swap_must_explain),
+                                              swap_must_explain=swap_must_explain,
+                                              gyro_follow=gyro_follow),
                         log=lambda level, text: log.append((level, text)))
     life = make()
     feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
     timeline = [(-np.inf, None)]            # (activated at s since start, calibration)
-    stops = []
+    stops, models = [], []                  # models: the active one (the follower's base)
     restarts = list(m.restart_times)
     peak_rss, peak_disk, t_run = rss_mb(), 0, time.perf_counter()
     done_s, after = 0.0, -np.inf            # a resumed month: seconds spent, restart time
@@ -263,8 +265,9 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
             life = make()                   # restart: state from the directory only
             feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
         ch = stop_chunks(seg)
-        if ch is not None and not s.blocked:
-            stops.append((s.t0, timeline[-1][1], ch))
+        if ch is not None and not s.blocked:      # scored with what is published now
+            stops.append((s.t0, life.output if gyro_follow else timeline[-1][1], ch))
+            models.append(timeline[-1][1])
         feeder.push(seg.imu, [seg.temperature], [('cmd_vel', t, still)
                                                  for t, still in seg.hints])
         for dec in feeder.decisions:
@@ -277,7 +280,8 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
     if stop_day is not None:        # scored afterwards by lifelong_first_day.py
         return {'seed': seed, 'seconds': round(seconds, 1), 'stop_day': stop_day}
     decisions = life.decisions()
-    scored = (evaluate(m, stops, timeline, decisions, gyro_noise(m), base) if ckpt is None
+    scored = (evaluate(m, stops, timeline, decisions, gyro_noise(m), base,
+                       models if gyro_follow else None) if ckpt is None
               else registry_scores(m, d, decisions) | {'resumed_from_restart': ckpt[0]})
     return scored | {
         'seed': seed, 'seconds': round(seconds, 1), 'peak_rss_mb': round(peak_rss, 1),
@@ -317,12 +321,20 @@ def _registry_rows(d):
     return len(registry.read_index(os.path.join(d, 'registry')))
 
 
-def evaluate(m, stops, timeline, decisions, noise_g, base):
+def evaluate(m, stops, timeline, decisions, noise_g, base, models=None):
+    """Score a month: ``stops`` (t0 s, the calibration published then, chunks).
+
+    ``models``: per stop the active model when what was published differs from it (the
+    gyro follower, ``LifelongConfig.gyro_follow``): also scored, as 'model'. The swaps
+    compare the models of ``timeline``.
+    """
     t = np.array([s[0] for s in stops])
     truth = [m.true_calibration(t0) for t0, _, _ in stops]
     err = {'active': [stop_error(cal, ch) for _, cal, ch in stops],
            'true': [stop_error(tc, ch) for tc, (_, _, ch) in zip(truth, stops)],
            'raw': [stop_error(None, ch) for _, _, ch in stops]}
+    if models is not None:
+        err['model'] = [stop_error(cal, ch) for cal, (_, _, ch) in zip(models, stops)]
     out = {}
     figures = {}
     for name, e in err.items():
@@ -362,6 +374,9 @@ def evaluate(m, stops, timeline, decisions, noise_g, base):
             act['gyro_sample_last_week'] / act['gyro_sample_first_day'],
         'gyro_sample_last_week_over_true':
             act['gyro_sample_last_week'] / tru['gyro_sample_last_week']}
+    if models is not None:
+        out['ratios']['model_gyro_last_week_over_true'] = \
+            out['model']['gyro_last_week'] / tru['gyro_last_week']
     # swaps: the next day's error with the new and with the replaced calibration
     c_act = figures['active'][2]
     swaps = []
@@ -422,7 +437,8 @@ def month(args):
                      checkpoints=args.checkpoints, resume=args.resume,
                      gyro_ageing_forward=args.gyro_ageing_forward,
                      gyro_pooled_gate=args.gyro_pooled_gate,
-                     swap_must_explain=args.swap_must_explain)
+                     swap_must_explain=args.swap_must_explain,
+                     gyro_follow=args.gyro_follow)
         rows.append(r)
         if args.stop_day is not None:
             print(f'seed {seed}: {r["seconds"]:.0f} s, stopped after day {args.stop_day:g} '
@@ -625,11 +641,39 @@ def registry_scores(m, work_seed, decisions):
     timeline = [(-np.inf, None)] + [
         (registry.parse_time(r['time']) * 1e-9 - base,
          Calibration.load(os.path.join(work_seed, 'registry', r['file']))) for r in rows]
-    stops = []
+    stops, models = [], []
+    published = follower_timeline(work_seed, timeline, base)
     for seg, ch in scored_stops(m):
         cal = [c for t, c in timeline if t <= seg.stop.t0][-1]
-        stops.append((seg.stop.t0, cal, ch))
-    return evaluate(m, stops, timeline, decisions, gyro_noise(m), base)
+        stops.append((seg.stop.t0, published(seg.stop.t0, cal), ch))
+        models.append(cal)
+    return evaluate(m, stops, timeline, decisions, gyro_noise(m), base,
+                    models if published.used else None)
+
+
+def follower_timeline(work_seed, timeline, base):
+    """Return ``published(t, model)``: what a month's node published at ``t`` s.
+
+    From the gyro follower's log (``lifelong.manager.FOLLOWER_LOG``): the model with the
+    offset of the newest record at or before ``t`` that names it; without a log, or no
+    such record, the model itself. ``published.used``: a log was found.
+    """
+    from thermal_imu_calib.lifelong import files, follower
+    from thermal_imu_calib.lifelong.manager import FOLLOWER_LOG
+    path = os.path.join(work_seed, FOLLOWER_LOG)
+    rows = files.read_decisions(path) if os.path.exists(path) else []
+    times = np.array([r['time'] - base for r in rows])
+
+    def published(t, model):
+        if model is None or not rows:
+            return model
+        i = int(np.searchsorted(times, t, side='right')) - 1
+        if i < 0 or rows[i].get('active') != model.id or 'offset_rad_s' not in rows[i]:
+            return model
+        return follower.with_offset(model, rows[i]['offset_rad_s'], rows[i]['time'],
+                                    DEFAULT.follow_horizon_days)
+    published.used = bool(rows)
+    return published
 
 
 def reeval(args):
@@ -1115,6 +1159,8 @@ def main():
     option(mo, 'swap_must_explain', 'no swap to a calibration that misses misfit_holds of the '
            'held-out holds by the change alarm\'s limit')
     option(mo, 'alarm_first', 'no re-estimate while the change alarm is deciding')
+    option(mo, 'gyro_follow', 'the published gyro has the newest holds\' miss of the active '
+           'model taken off (scored as published; the model alone as "model")')
     mo.add_argument('--high-order-margin', type=margin_or_off, metavar='DEGC|off',
                     default=CalibrateSettings.high_order_margin,
                     help='valid-range margin (degC) of a model above first order in '

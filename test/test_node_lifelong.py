@@ -223,3 +223,70 @@ def test_lifelong_follows_a_temperature_its_driver_publishes_late_under_another_
                         readings=lambda: progress[-1]['temperature_readings'])
     wait_for(lambda: node.lifelong.holds() >= 2, WAIT, 'holds in the lifelong store')
     assert node.lifelong.life.topics == ['/imu/temp'] and node._name_follower is None
+
+
+def test_the_published_calibration_follows_the_newest_holds(ros, tmp_path):
+    """``gyro_follow``: the node publishes the active model with the newest holds' gyro miss
+    taken off (``gyro_ageing.offset``, format 5) on start, and again after a new hold."""
+    from _robot_month import detector_windows
+    from thermal_imu_calib.lifelong import follower
+    from thermal_imu_calib.lifelong.store import HoldStore, StoreConfig
+    from thermal_imu_calib.nodes import common
+    m = robot_month(2, days=1.0)
+    a, b = (m.segment(s) for s in _stops(m, 40)[-2:])     # the day's last two plain stops
+    base = m.start_ns * 1e-9
+    # an earlier run's state: the true model active, the holds before stop A stored
+    win = detector_windows(m)
+    before = win.select(win.t1 < base + a.stop.t0 - 5.0)
+    life_dir = tmp_path / 'life'
+    life_dir.mkdir()
+    HoldStore(str(life_dir / 'holds'), 1, StoreConfig()).add(before)
+    truth = m.true_calibration(a.stop.t0)
+    truth.save(str(life_dir / 'active.yaml'))
+    player = ros.node('player')
+    latched = []
+    player.create_subscription(String, 'imu/calibration', latched.append,
+                               common.CALIBRATION_QOS)
+    node = ros.add(CalibratorNode(context=ros.context, parameter_overrides=[
+        Parameter(k, value=v) for k, v in {
+            'lifelong': True, 'lifelong_dir': str(life_dir), 'gyro_follow': True,
+            'new_holds': 100000,                # no re-estimate running when the test ends
+            'use_latitude': True, 'latitude': 45.0, 'frame_id': 'imu_link',
+            'calibration_file': str(tmp_path / 'cal.yaml'),
+            'collection_file': str(tmp_path / 'collection.jsonl'),
+            'progress_period': 0.2, 'report': False}.items()]))
+    life = node.lifelong
+    first = Calibration.from_yaml(wait_for(lambda: latched and latched[-1], WAIT,
+                                           'the published calibration').data)
+    active = Calibration.load(str(life_dir / 'active.yaml'))
+    want, rec = follower.follow(active, life.life.store.recent, active.gravity, 45.0,
+                                float(before.t1.max()), 0.5, 2.0, 5.0)
+    assert want is not None, rec
+    np.testing.assert_allclose(first.gyro_ageing['offset'], want, rtol=1e-9)
+    assert first.id == life.life.output.id != active.id
+    # a new hold moves the offset: published again
+    imu_pub = player.create_publisher(Imu, 'imu/data_raw', 1000)
+    temp_pub = player.create_publisher(Temperature, '/imu/temperature', 100)
+    for pub in (imu_pub, temp_pub):
+        ros.wait_matched(pub, timeout=WAIT)
+    progress = []
+    player.create_subscription(String, '/thermal_imu_calibrator/progress',
+                               lambda msg: progress.append(json.loads(msg.data)), 10)
+
+    def received():
+        return progress[-1]['imu_received'] if progress else 0
+    n0, sent = life.holds(), 0
+    for seg in (a, b):                         # stop A, then driving to B closes its hold
+        imu = seg.imu
+        tc = seg.temperature
+        sel = (tc.stamp_ns >= imu.stamp_ns[0]) & (tc.stamp_ns <= imu.stamp_ns[-1])
+        sent += replay_flow(imu_pub, imu, [(temp_pub, tc.stamp_ns[sel], tc.temperature[sel])],
+                            RATE, received, what='IMU messages at the calibrator')
+    wait_count(received, sent, 'IMU messages at the calibrator')
+    wait_for(lambda: life.holds() > n0, WAIT, 'stop A in the lifelong store')
+    new = wait_for(lambda: next((Calibration.from_yaml(x.data) for x in reversed(latched)
+                                 if Calibration.from_yaml(x.data).id != first.id), None),
+                   WAIT, 'the calibration published again after the new hold')
+    assert new.id == life.life.output.id and new.gyro_ageing['offset'] is not None
+    assert not np.allclose(new.gyro_ageing['offset'], first.gyro_ageing['offset'], rtol=0,
+                           atol=1e-12)

@@ -18,7 +18,11 @@ FORMAT_LINEAR = 'thermal_imu_calib/3'
 #: forward from the estimate's time on the IMU's stamps). Written only by files that have
 #: it, so that an older version refuses them instead of holding the bias of that time
 FORMAT_AGEING = 'thermal_imu_calib/4'
-FILE_FORMATS = (FORMAT, FORMAT_SENSOR_RANGE, FORMAT_LINEAR, FORMAT_AGEING)
+#: format 4 plus ``gyro_ageing.offset`` (the gyro bias moved by a constant at the epoch: a
+#: lifelong node's offset follower, ``lifelong.follower``). Written only by files that have
+#: it, so that an older version refuses them instead of dropping that offset
+FORMAT_OFFSET = 'thermal_imu_calib/5'
+FILE_FORMATS = (FORMAT, FORMAT_SENSOR_RANGE, FORMAT_LINEAR, FORMAT_AGEING, FORMAT_OFFSET)
 #: seconds per day: the unit of ``Calibration.gyro_ageing``'s rate and bound
 DAY_S = 86400.0
 #: outside the valid range: 'clamp' holds the edge value (as PX4 and ArduPilot do);

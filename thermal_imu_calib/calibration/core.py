@@ -20,7 +20,7 @@ from ..input_units import DEGC, is_temperature
 from ..models import SensorModel
 from ..thermal_input import CalibrationStream, ThermalFilter
 from . import schema
-from .base import (CalibrationError, DAY_S, FORMAT, FORMAT_AGEING, FORMAT_LINEAR,
+from .base import (CalibrationError, DAY_S, FORMAT, FORMAT_AGEING, FORMAT_LINEAR, FORMAT_OFFSET,
                    FORMAT_SENSOR_RANGE, LINEAR_STEP_DEGC, LINEAR_STEP_FRACTION, NOISE_UNITS,
                    OUT_OF_RANGE_V1, TemperatureInput)
 from .yaml_text import parse_yaml, read_file
@@ -84,9 +84,11 @@ class Calibration:
     #: ``epoch`` (s, the stamps' clock: UNIX time for header stamps) when the gyro model is
     #: the bias, ``max_days`` (> 0) the most it is carried either way. ``apply`` with
     #: ``stamps`` takes ``rate * clip((t - epoch) / day, -max_days, max_days)`` off the gyro;
-    #: without stamps, the model as at ``epoch``. Empty: none (a lifelong estimate fitted
-    #: with the ageing removed writes it, ``lifelong.variants.with_ageing``); always empty
-    #: without a gyro model
+    #: without stamps, the model as at ``epoch``. Optional ``offset`` (3,) rad/s (format 5):
+    #: the bias moved by that constant at the epoch (taken off with or without stamps; a
+    #: lifelong node's offset follower, ``lifelong.follower``). Empty: none (a lifelong
+    #: estimate fitted with the ageing removed writes it, ``lifelong.variants.with_ageing``);
+    #: always empty without a gyro model
     gyro_ageing: dict = field(default_factory=dict)
 
     def __post_init__(self):
@@ -208,17 +210,24 @@ class Calibration:
             out = out + (out - inner) * k
         return out, std, oor
 
-    def ageing_offset(self, stamps):
-        """Return the (n, 3) gyro bias change (rad/s) since ``gyro_ageing``'s epoch, or None.
+    def ageing_offset(self, stamps, n=None):
+        """Return the (n, 3) gyro bias change (rad/s) since the model's fit, or None.
 
-        ``stamps``: (n,) s on the clock of the epoch. None without an ageing term or stamps.
+        ``gyro_ageing``'s ``offset`` (if any) plus its rate carried from the epoch to
+        ``stamps`` ((n,) s on the epoch's clock; None: at the epoch, ``n`` rows). None
+        without an ageing term, or with only a rate and no stamps.
         """
         ag = self.gyro_ageing
-        if not ag or stamps is None:
+        if not ag:
             return None
+        offset = ag.get('offset')
+        if stamps is None:
+            return None if offset is None or n is None else \
+                np.broadcast_to(np.asarray(offset, float), (n, 3))
         days = (np.asarray(stamps, float).reshape(-1) - float(ag['epoch'])) / DAY_S
         cap = float(ag['max_days'])
-        return np.clip(days, -cap, cap)[:, None] * np.asarray(ag['rate'], float)
+        drift = np.clip(days, -cap, cap)[:, None] * np.asarray(ag['rate'], float)
+        return drift if offset is None else drift + np.asarray(offset, float)
 
     def apply(self, accel, gyro, temps=None, history=None, filter_age=None, stamps=None):
         """Compensate (n, 3) accel [m/s^2] and gyro [rad/s] at (n, k) thermal inputs.
@@ -235,7 +244,7 @@ class Calibration:
         by ``stream().apply``): the 1-sigma adds the filter's ``restart_spread`` decaying
         ``exp(-age / tau)``; None: no restart term. ``stamps``: (n,) s (header stamps, filled
         by ``stream().apply``): with a ``gyro_ageing`` term the gyro bias is carried to them
-        (``ageing_offset``); None: the bias at the term's epoch.
+        (``ageing_offset``); None: the bias at the term's epoch (its ``offset`` included).
         """
         accel = np.asarray(accel, float)
         gyro = np.asarray(gyro, float)
@@ -254,7 +263,7 @@ class Calibration:
                                  self.restart_std('accel', filter_age))
         if self.gyro is not None:
             g_out, m_std, o = self._correct('gyro', gyro, temps, history, {'accel': a_out})
-            drift = self.ageing_offset(stamps)
+            drift = self.ageing_offset(stamps, n)
             if drift is not None:
                 g_out = g_out - drift
             oor |= o
@@ -333,7 +342,8 @@ class Calibration:
         """Return the file content without the free-form ``fit`` and ``notes``."""
         units = self.input_units
         d = {
-            'format': (FORMAT_AGEING if self.gyro_ageing else
+            'format': (FORMAT_OFFSET if self.gyro_ageing.get('offset') is not None else
+                       FORMAT_AGEING if self.gyro_ageing else
                        FORMAT_LINEAR if self.out_of_range not in OUT_OF_RANGE_V1 else
                        FORMAT_SENSOR_RANGE if self.sensor_range else FORMAT),
             'software': {'name': 'thermal_imu_calib', 'version': self.software_version},
@@ -374,6 +384,10 @@ class Calibration:
                           'description': 'when the gyro model is the bias (IMU stamps)'},
                 'max_days': {'value': float(ag['max_days']), 'unit': 'day',
                              'description': 'carried at most this far either way'}}
+            if ag.get('offset') is not None:
+                d['gyro_ageing']['offset'] = {
+                    'value': np.asarray(ag['offset'], float).tolist(), 'unit': 'rad/s',
+                    'description': 'the bias moved by this at the epoch (recent holds)'}
         noise = {}
         if self.accel_noise_std is not None:
             noise['accel_std'] = {'value': np.asarray(self.accel_noise_std).tolist(),

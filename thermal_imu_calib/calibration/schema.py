@@ -18,7 +18,8 @@ A file looks like::
     gyro: {kind: offset_polynomial, temperature_input: [0, 0, 0], parameters: {...}}
     noise: {accel_std: [...], gyro_std: [...], unit: ...}
     gyro_ageing: {rate: {value: [...], unit: rad/s/day}, epoch: {value: ..., unit: s},
-                  max_days: {value: ..., unit: day}}         # optional (format 4)
+                  max_days: {value: ..., unit: day},         # optional (format 4)
+                  offset: {value: [...], unit: rad/s}}       # optional (format 5)
     fit: {...}
     notes: [...]
 
@@ -53,7 +54,8 @@ from ..input_units import check_values, DEGC, normalize_unit
 from ..models import model_from_dict
 from ..thermal_input import ThermalFilter
 from . import plausible
-from .base import (CalibrationError, FILE_FORMATS, FORMAT_AGEING, GRAVITY_BOUNDS, NOISE_UNITS,
+from .base import (CalibrationError, FILE_FORMATS, FORMAT_AGEING, FORMAT_OFFSET, GRAVITY_BOUNDS,
+                   NOISE_UNITS,
                    OUT_OF_RANGE_POLICIES, short, TemperatureInput, type_name)
 from .spec import (Choice, FreeForm, Indices, ListOf, Mapping, MapOf, Notes, Number, Numbers,
                    REQUIRED, Text, TextOrList, Valued)
@@ -119,8 +121,11 @@ SCHEMA = Mapping({
     # optional (format 4): the gyro bias carried forward in time (Calibration.gyro_ageing)
     'gyro_ageing': Mapping({'rate': Valued(Numbers(REQUIRED, size=3)),
                             'epoch': Valued(Number(REQUIRED)),
-                            'max_days': Valued(Number(REQUIRED, positive=True))},
-                           what='a mapping with rate, epoch and max_days', optional=True),
+                            'max_days': Valued(Number(REQUIRED, positive=True)),
+                            # optional (format 5): a constant the bias moved by at the epoch
+                            'offset': Valued(Numbers(size=3))},
+                           what='a mapping with rate, epoch, max_days (and offset)',
+                           optional=True),
     'fit': FreeForm(dict),
     'notes': Notes(),
 })
@@ -258,11 +263,15 @@ def _gyro_ageing(raw, doc, out):
         return
     if out['gyro'] is None:
         raise ValueError('gyro_ageing needs a gyro model: remove it or add the gyro section')
-    if raw.get('format') != FORMAT_AGEING:
-        raise ValueError(f'gyro_ageing is a field of format {FORMAT_AGEING!r}, the file says '
+    want = FORMAT_OFFSET if ag.get('offset') is not None else FORMAT_AGEING
+    if raw.get('format') != want:
+        what = 'gyro_ageing.offset' if want == FORMAT_OFFSET else 'gyro_ageing'
+        raise ValueError(f'{what} is a field of format {want!r}, the file says '
                          f'{raw.get("format")!r}; the file was edited: recalibrate')
     out['gyro_ageing'] = {'rate': np.asarray(ag['rate'], float), 'epoch': float(ag['epoch']),
                           'max_days': float(ag['max_days'])}
+    if ag.get('offset') is not None:
+        out['gyro_ageing']['offset'] = np.asarray(ag['offset'], float)
 
 
 def _plain_fields(raw, doc, out):

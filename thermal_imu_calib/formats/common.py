@@ -250,15 +250,23 @@ def lag_note(cal, fmt):
 
 
 def ageing_note(cal, fmt):
-    """Return a note when the gyro bias is carried forward in time (no format has time)."""
+    """Return notes when the gyro bias is carried forward in time or moved by an offset."""
     ag = cal.gyro_ageing
     if not ag:
         return []
-    rate = ', '.join(f'{v:+.3g}' for v in np.degrees(np.asarray(ag['rate'], float)) * 1e3)
-    return [f'gyro: the calibration carries its bias forward in time ({rate} '
-            f'mdeg/s per day from its epoch, at most {ag["max_days"]:.1f} days); {fmt} has no '
-            'time term, so the exported bias is the one at the epoch: recalibrate or export '
-            'again as it ages']
+    notes = []
+    if np.any(ag['rate']):
+        rate = ', '.join(f'{v:+.3g}' for v in np.degrees(np.asarray(ag['rate'], float)) * 1e3)
+        notes.append(f'gyro: the calibration carries its bias forward in time ({rate} '
+                     f'mdeg/s per day from its epoch, at most {ag["max_days"]:.1f} days); '
+                     f'{fmt} has no time term, so the exported bias is the one at the epoch: '
+                     'recalibrate or export again as it ages')
+    if ag.get('offset') is not None:
+        off = ', '.join(f'{v:+.3g}' for v in np.degrees(np.asarray(ag['offset'], float)) * 1e3)
+        notes.append(f'gyro: the exported bias includes the offset the recent holds gave '
+                     f'({off} mdeg/s, a lifelong node\'s follower): it is the bias of that '
+                     'time; export again as it moves')
+    return notes
 
 
 def history_note(cal, fmt):

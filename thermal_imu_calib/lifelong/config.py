@@ -163,6 +163,16 @@ class LifelongConfig:
     #: -3.5 % (10 % asked), accel drift +8.1 % and swaps with a worse next day 5 -> 6
     #: (docs/lifelong.md)
     gyro_pooled_gate: bool = False
+    #: the published calibration takes off the gyro what the newest holds say the active
+    #: model misses now (``follower``: an exponentially weighted mean of their errors, the
+    #: known vertical earth rate removed; needs the latitude); an output correction only,
+    #: the gate, the alarm and the registry judge the model. Off until judged on unseen
+    #: months (docs/lifelong.md, "The gyro's recent miss followed")
+    gyro_follow: bool = False
+    #: the follower's time constant and horizon (days) and the effective holds it needs
+    follow_tau_days: float = 0.5
+    follow_horizon_days: float = 2.0
+    follow_min_holds: float = 5.0
     store: StoreConfig = field(default_factory=StoreConfig)
 
     def __post_init__(self):
@@ -185,7 +195,7 @@ class LifelongConfig:
                 raise ValueError(f'LifelongConfig.{name} is {v!r}; give a whole number of '
                                  f'holds, at least {lo}')
         for name in ('range_extension_degc', 'swap_sigmas', 'alarm_factor', 'alarm_floor',
-                     'pose_deg'):
+                     'pose_deg', 'follow_tau_days', 'follow_horizon_days', 'follow_min_holds'):
             v = getattr(self, name)
             if not isinstance(v, (int, float, np.floating)) or not np.isfinite(v) or v <= 0:
                 raise ValueError(f'LifelongConfig.{name} is {v!r}; give a finite number '

@@ -3,10 +3,11 @@
 ``Lifelong`` owns a directory (its files are read and written by ``files``)::
 
     holds/        the bounded hold store (``store.HoldStore``)
-    active.yaml   the calibration in use (the node publishes it)
+    active.yaml   the calibration in use (the node publishes ``output``, see below)
     candidate.yaml the newest estimate that did not pass the swap gate
     state.json    counters (holds at the last estimate, the active's held-out figures)
     decisions.jsonl every decision with its figures (the newest ``files.MAX_DECISIONS`` kept)
+    follower.jsonl  the gyro follower's offsets (``follower``; the newest kept likewise)
     archive/<UTC time>/ what a reset moved aside (``holds/``, ``candidate.yaml``)
 
 and, when ``registry_dir`` is given, adds every calibration it activates to a registry in
@@ -37,6 +38,9 @@ data: the hold store and the candidate move into ``archive/<UTC time>/`` (at mos
 ``MAX_ARCHIVES`` archives; one more is refused, saying what to do), the active
 calibration, the counters, the decisions and the registry stay. No ROS import.
 
+Gyro follower (``gyro_follow``, off by default): ``output``, the published calibration, takes
+off the gyro the active model's recent miss (``follower``); every decision judges the model.
+
 ``Lifelong`` holds the state the pieces share (the counters, the active calibration, the
 store) and applies what they return; the pieces are ``trigger``, ``gate``, ``compose``,
 ``variants``, ``ageing``, ``alarm``, ``store``, ``files`` and ``archive``.
@@ -52,14 +56,17 @@ from ..app.calibrate import calibrate_collected
 from ..estimation.calibrate import CalibrationRefused
 from ..io.output import write_atomic
 from ..collection.collected import Collected
-from . import alarm, compose, continuation, files, g_sensitivity, gate, knock_step, pooled, \
-    trigger, variants
+from . import alarm, compose, continuation, files, follower, g_sensitivity, gate, knock_step, \
+    pooled, trigger, variants
 from ..collection.segments import Windows
 from .archive import ArchiveFull, archive_collection, MAX_ARCHIVES  # noqa: F401 (API)
 from .config import (ALARM_CUTS, ALARM_REFERENCES, ALARM_WINDOWS,  # noqa: F401 (API)
                      LifelongConfig)
 from .pose import main_pose, main_pose_mask, pose_of
 from .store import HoldStore
+
+#: the follower's offsets (``follower.follow`` records), JSON lines, the newest kept
+FOLLOWER_LOG = 'follower.jsonl'
 
 
 class Lifelong:
@@ -100,6 +107,9 @@ class Lifelong:
         self.track = []
         #: (windows, main-pose mask) of the estimate running, for the gyro g-sensitivity
         self._pool = None
+        #: the calibration to publish: the active one, with the follower's offset when on
+        self.output = self.active
+        self._follow(record=False)
 
     # ------------------------------------------------------------------ files
     def _path(self, name):
@@ -114,6 +124,15 @@ class Lifelong:
     def decisions(self, last=None):
         """Return the logged decision records (dicts), oldest first."""
         return files.read_decisions(self._path('decisions.jsonl'), last)
+
+    # ------------------------------------------------------------------ output
+    def _follow(self, record=True):
+        """Set ``output`` (``follower.output``); log a changed offset when ``record``."""
+        before = self.output
+        self.output, row = follower.output(self.active, self.store.recent, self.latitude,
+                                           self.config)
+        if record and row is not None and self.output is not before:
+            files.append_decision(self._path(FOLLOWER_LOG), row | {'output': self.output.id})
 
     # ------------------------------------------------------------------ reset
     def reset(self, when=None):
@@ -141,6 +160,7 @@ class Lifelong:
         kept = (f'the active calibration {self.active.id} stays active until a new one '
                 'passes the swap gate' if self.active is not None
                 else 'no active calibration yet')
+        self._follow()
         decision = {'time': newest, 'action': 'reset',
                     'wall_time': time.time() if when is None else float(when),
                     'reason': 'requested', 'archive': dest, 'archived': before,
@@ -159,6 +179,7 @@ class Lifelong:
         ids = self.store.add(windows)
         if self.active is not None:
             self._check_change(self.store.holds(ids))
+        self._follow()
         return ids
 
     def _check_change(self, windows):
@@ -408,6 +429,7 @@ class Lifelong:
         """
         before = {k: self.state.get(k) for k in ('active_gyro_rms', 'active_accel_rms')}
         self.active = cal
+        self._follow()
         self.candidate = None
         if os.path.exists(self._path('candidate.yaml')):
             os.unlink(self._path('candidate.yaml'))

@@ -16,13 +16,14 @@ IMU's time base. A hold counts only when every configured hint said still over i
 Re-estimation runs on a worker thread at nice +10 (Linux threads have their own nice
 value), never more than one at a time; the holds arriving meanwhile are queued and added
 after it. A swap publishes the new calibration latched on ``imu/calibration`` and writes
-``calibration_file`` (as ~/calibrate does). /diagnostics gets one more status: the
-active model's age, the present temperature against its valid range (WARN outside it),
-its error on the newest holds, the number of holds and the temperature coverage. The
-node's own collection (what ~/calibrate uses) is cut to its newest ``NODE_HOLDS`` holds, so
-memory and collection_file stay bounded over weeks. ``~/reset`` starts the lifelong
-collection afresh too (``reset``): the store is archived, never deleted, and the active
-calibration stays active.
+``calibration_file`` (as ~/calibrate does); with ``gyro_follow`` the calibration published
+carries the gyro follower's offset, published again after every hold that moves it.
+/diagnostics gets one more status: the active model's age, the present temperature against
+its valid range (WARN outside it), its error on the newest holds, the number of holds and
+the temperature coverage. The node's own collection (what ~/calibrate uses) is cut to its
+newest ``NODE_HOLDS`` holds, so memory and collection_file stay bounded over weeks.
+``~/reset`` starts the lifelong collection afresh too (``reset``): the store is archived,
+never deleted, and the active calibration stays active.
 """
 
 from concurrent.futures import ThreadPoolExecutor
@@ -86,6 +87,9 @@ def declare(node, p):
         'per_sensor_swap': p.declare('per_sensor_swap', c.per_sensor, 'A new estimate better '
                                      'for one sensor only replaces that sensor\'s model alone; '
                                      'false: the whole calibration or nothing.', **ro),
+        'gyro_follow': p.declare('gyro_follow', c.gyro_follow, 'The published calibration '
+                                 'takes off the gyro what the newest holds say the active '
+                                 'model misses now (needs latitude; docs/lifelong.md).', **ro),
     }
     if not on:
         return None
@@ -106,7 +110,8 @@ class LifelongMode:
                                 new_holds=values['new_holds'],
                                 misfit_holds=values['misfit_holds'],
                                 holdout_holds=values['holdout_holds'],
-                                per_sensor=values['per_sensor_swap'])
+                                per_sensor=values['per_sensor_swap'],
+                                gyro_follow=values['gyro_follow'])
         self.config = config
         sources = []
         qos = common.sensor_qos(100)
@@ -127,6 +132,7 @@ class LifelongMode:
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix='lifelong')
         self._worker.submit(_lower_priority)
         self.life = None
+        self._published = None               # id of the calibration published last
         self.counts = {'hint_messages': 0, 'holds_refused_by_hints': 0}
         self.last_temperature = None
 
@@ -139,14 +145,24 @@ class LifelongMode:
             self.life = Lifelong(self.dir, n.settings(), n.k, list(n.temperature_topics),
                                  frame, self.values['sensor_id'] or frame,
                                  self.registry_dir, self.config, log=self._log)
-            if self.life.active is not None:
-                n.cal_pub.publish(String(data=self.life.active.to_yaml()))
+            self._publish_output()
             st = self.life.store.summary()
             n.get_logger().info(
                 f'lifelong: {st["holds_total"]} holds so far ({st["raw_holds"]} raw, '
                 f'{st["compacted_bins"]} compacted bins) in {self.dir}; active calibration '
                 f'{self.life.active.id if self.life.active is not None else "none yet"}')
         return self.life
+
+    def _publish_output(self):
+        """Publish the lifelong output unless it is the one published last.
+
+        The output: the active calibration, with the gyro follower's offset when
+        ``gyro_follow`` is on.
+        """
+        cal = self.life.output
+        if cal is not None and cal.id != self._published:
+            self.node.cal_pub.publish(String(data=cal.to_yaml()))
+            self._published = cal.id
 
     def start(self):
         """Load the state now when the frame is configured (publishes the active model)."""
@@ -243,6 +259,7 @@ class LifelongMode:
             life = self._manager()
             while self._pending:
                 life.add(self._pending.pop(0))
+            self._publish_output()
             why = '' if self._busy else life.due()
             if why:
                 self._busy = True
@@ -254,11 +271,12 @@ class LifelongMode:
         try:
             with self._lock:
                 decision = self.life.estimate(why)
+                cal = self.life.output
+                if decision['action'] == 'swap':
+                    self._publish_output()
             if decision['action'] == 'swap':
-                cal = self.life.active
                 self.node._result = _Result(cal)
                 ok, where = self.node._write(cal)
-                self.node.cal_pub.publish(String(data=cal.to_yaml()))
                 self.node.get_logger().info(f'lifelong: published {cal.id}; {where}')
         except Exception as e:  # noqa: B902 - report, never kill the worker
             self.node.get_logger().error(f'lifelong estimation failed: {e!r}')
