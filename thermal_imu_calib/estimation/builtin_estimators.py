@@ -11,7 +11,8 @@ import numpy as np
 
 from ..input_units import DEGC
 from .context import Estimate, register_estimator
-from .field_estimator import fit_field_model, per_axis_vertical_range, S_TERM_NAMES, S_TERMS
+from .field_estimator import (fit_field_model, per_axis_vertical_range, S_TERM_NAMES, S_TERMS,
+                              SWEEP_TOL)
 from .observability import ORDER_SPAN
 from .offset_fit import fit_offset_model, time_groups
 from .options import CalibrationRefused, hold_seconds, input_units
@@ -147,9 +148,9 @@ def estimate_field(ctx, free_s=False):
         notes.append(f'field model: {fit.refine_note}')
     if not fit.converged:
         notes.append(f'field model: the two-step estimation did not settle in {fit.iterations} '
-                     'iterations (the fitted window means still moved by more than 1e-5 of '
-                     'their noise)' + ('; the joint refinement started from there'
-                                       if fit.refined else ''))
+                     f'iterations (the fitted window means still moved by more than '
+                     f'{SWEEP_TOL:g} of their noise)'
+                     + ('; the joint refinement started from there' if fit.refined else ''))
     stats = {'iterations': fit.iterations, 'converged': bool(fit.converged),
              'joint_refinement': bool(fit.refined), 'order': order,
              'residual_rms': {'value': fit.residual_rms, 'unit': 'm/s^2'},

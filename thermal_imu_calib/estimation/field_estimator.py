@@ -27,6 +27,9 @@ _COLS = {0: [0, 3], 1: [0, 1, 3, 4], 2: [0, 1, 2, 3, 4, 5]}
 
 #: evaluations of the joint refinement (``_refine``) before it counts as not converged
 REFINE_MAX_NFEV = 200
+#: the two-step sweeps stop when one moves every fitted window mean by less than this times
+#: the median standard error of the window means (``fit_field_model``'s ``tol``)
+SWEEP_TOL = 1e-5
 
 
 @dataclass
@@ -196,7 +199,7 @@ def _design(f, dt, order):
 
 
 def fit_field_model(windows, axis_temps, gravity, t0, k0=None, b0=None, s=None, order=2,
-                    refine=True, max_iter=1000, tol=1e-5, free_s=False):
+                    refine=True, max_iter=1000, tol=SWEEP_TOL, free_s=False):
     """Estimate the seed 000 model from stationary windows.
 
     windows: estimation.segments.Windows (accel means in m/s^2 with per-sample variances).
