@@ -414,6 +414,11 @@ def evaluate(m, stops, timeline, decisions, noise_g, base, models=None):
                     'gyro_day_after': rms(g, (t >= k) & (t < k + DAY)),
                     'gyro_second_day_after': rms(g, (t >= k + DAY) & (t < k + 2 * DAY)),
                     'true_gyro_day_before': rms(figures['true'][0], (t >= k - DAY) & (t < k))}
+    if models is not None:
+        gm = figures['model'][0]
+        out['knock'].update(model_gyro_day_before=rms(gm, (t >= k - DAY) & (t < k)),
+                            model_gyro_second_day_after=rms(
+                                gm, (t >= k + DAY) & (t < k + 2 * DAY)))
     out['daily_gyro'] = [rms(g, (t >= dd * DAY) & (t < (dd + 1) * DAY))
                          for dd in range(int(np.ceil(days)))]
     out['decisions'] = {a: sum(d['action'] == a for d in decisions)
@@ -1098,6 +1103,53 @@ def compare(args):
           f'{gm([r["accel_drift_last_week"] for r in raw]) * 1e3:.2f} mm/s^2')
 
 
+def follower_table(args):
+    """Print the gyro follower's criteria table: published against model, one run each.
+
+    Each ``SEED:WORK/seedSEED`` of a month run with ``--gyro-follow`` is re-scored from its
+    directory (``registry_scores``: the registry and ``follower.jsonl``).
+    """
+    rows = []
+    for spec in args.runs:
+        seed, d = spec.split(':', 1)
+        rows.append(reeval_seed(d, int(seed), args.days) | {'seed': int(seed)})
+    mr = 1e3
+    print('| seed | gyro last week / true: model / published | first day mrad/s: model / '
+          'published | 2nd day after the knock mrad/s: model / published | knock alarm h, '
+          'false alarms | swaps (worse next day > 25 %: gyro, accel drift) |')
+    print('|' + '---|' * 6)
+    geo = {k: [] for k in ('lm', 'lp', 'fm', 'fp', 'km', 'kp')}
+    for r in rows:
+        ra, k, a, m = r['ratios'], r['knock'], r['active'], r['model']
+        vals = dict(lm=ra['model_gyro_last_week_over_true'], lp=ra['gyro_last_week_over_true'],
+                    fm=m['gyro_first_day'], fp=a['gyro_first_day'],
+                    km=k['model_gyro_second_day_after'], kp=k['gyro_second_day_after'])
+        for key, v in vals.items():
+            geo[key].append(v)
+        delay = 'none' if k['alarm_delay_h'] is None else f'{k["alarm_delay_h"]:.1f}'
+        g25, a25 = _worse25(r)
+        print(f'| {r["seed"]} | {vals["lm"]:.2f} / {vals["lp"]:.2f} | {vals["fm"] * mr:.3f} / '
+              f'{vals["fp"] * mr:.3f} | {vals["km"] * mr:.3f} / {vals["kp"] * mr:.3f} | '
+              f'{delay}, {k["alarms_before"]} | {r["swaps_total"]} ({g25}, {a25}) |')
+
+    def gm(v):
+        v = np.asarray(v, float)
+        v = v[np.isfinite(v)]
+        return float(np.exp(np.mean(np.log(v)))) if len(v) else float('nan')
+    g = {key: gm(v) for key, v in geo.items()}
+    print(f'\ngeometric means: last/true {g["lm"]:.3f} -> {g["lp"]:.3f} '
+          f'({g["lp"] / g["lm"] - 1:+.1%}); first day {g["fm"] * mr:.4f} -> {g["fp"] * mr:.4f} '
+          f'mrad/s ({g["fp"] / g["fm"] - 1:+.1%}); 2nd day after the knock {g["km"] * mr:.4f} '
+          f'-> {g["kp"] * mr:.4f} mrad/s ({g["kp"] / g["km"] - 1:+.1%}); worst month, '
+          f'published over model: '
+          f'{max(p / m for p, m in zip(geo["lp"], geo["lm"])) - 1:+.1%}; within 1.5x true: '
+          f'model {sum(v <= 1.5 for v in geo["lm"])}, published '
+          f'{sum(v <= 1.5 for v in geo["lp"])} of {len(rows)}')
+    if args.output:
+        _write(args.output, {'command': ' '.join(sys.argv), 'rows': rows,
+                             'geometric_means': g})
+
+
 def option(parser, field, text):
     """Add ``--field`` (and ``--no-field``) for a boolean ``LifelongConfig`` field."""
     parser.add_argument('--' + field.replace('_', '-'), action=argparse.BooleanOptionalAction,
@@ -1214,6 +1266,10 @@ def main():
                          default=getattr(DEFAULT, f'placement_{flag}'),
                          help=f'LifelongConfig.placement_{flag} (default: the package\'s)')
     re_.add_argument('--output', default=os.path.join(RESULTS, 'bench_lifelong_real.json'))
+    fo = sub.add_parser('follower', help='the gyro follower: published against model')
+    fo.add_argument('runs', nargs='+', help='SEED:WORK/seedSEED of --gyro-follow month runs')
+    fo.add_argument('--days', type=float, default=30.0)
+    fo.add_argument('--output', default='')
     me = sub.add_parser('merge')
     me.add_argument('inputs', nargs='+')
     me.add_argument('--work', action='append', default=[],
@@ -1262,6 +1318,8 @@ def main():
         reeval(args)
     elif args.cmd == 'dds':
         dds(args)
+    elif args.cmd == 'follower':
+        follower_table(args)
     else:
         real(args)
     print(f'max RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB')
