@@ -160,6 +160,10 @@ def test_the_loop_publishes_the_followed_model_and_judges_the_model(tmp_path, mo
     assert rows[-1]['output'] == on.output.id and rows[-1]['active'] == on.active.id
     got = np.asarray(on.output.gyro_ageing['offset'])
     np.testing.assert_allclose(got, rows[-1]['offset_rad_s'], rtol=1e-12)
+    st = on.status()
+    assert st['published'] == on.output.id != st['active']
+    assert st['gyro_follow_offset_rad_s'] == pytest.approx(np.linalg.norm(got))
+    assert off.status()['gyro_follow_offset_rad_s'] == 0.0
     # most of the newest holds carry the step: the offset has moved towards it
     assert np.linalg.norm(got - OFFSET) < 0.5 * np.linalg.norm(OFFSET), got
     again = Lifelong(str(tmp_path / 'True'), CalibrateSettings(latitude=LAT), 1, [TOPIC],

@@ -75,6 +75,15 @@ def output(active, recent, latitude, config):
     return with_offset(active, offset, now, config.follow_horizon_days), rec
 
 
+def status(published):
+    """Return the /diagnostics figures of what is published: its id and offset (rad/s)."""
+    if published is None:
+        return {'published': ''}
+    offset = (published.gyro_ageing or {}).get('offset')
+    return {'published': published.id, 'gyro_follow_offset_rad_s':
+            float(np.linalg.norm(offset)) if offset is not None else 0.0}
+
+
 def _model_only(cal):
     """Return ``cal`` without a follower offset (the model the gate and alarm judge)."""
     ag = cal.gyro_ageing

@@ -478,6 +478,7 @@ class Lifelong:
         out.update(swaps=s['swaps'], kept=s['kept'], alarms=s['alarms'],
                    estimates=s['estimates'], last_decision=s['last_decision'],
                    active=self.active.id if self.active is not None else '',
+                   **follower.status(self.output),
                    candidate=self.candidate.id if self.candidate is not None else '')
         if s.get('alarm_pending'):
             out['alarm'] = ('re-estimating from every hold, the older ones moved by the '
