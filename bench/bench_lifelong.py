@@ -586,7 +586,13 @@ def run_real(name, work, piece_s=None, config=None):
                                     or fig['net_margins'] < -1.0),
                        text=gate.describe(fig))
         swaps.append(row)
+    from thermal_imu_calib.lifelong import files
+    from thermal_imu_calib.lifelong.manager import FOLLOWER_LOG
+    log = os.path.join(d, FOLLOWER_LOG)
+    followed = files.read_decisions(log) if os.path.exists(log) else []
     return {'recording': name, 'path': path, 'piece_s': piece,
+            'follower_offsets': sum('offset_rad_s' in x for x in followed),
+            'follower_why': sorted({x['why'] for x in followed if 'why' in x}),
             'holds': life.store.total_holds, 'decisions': life.decisions(),
             'swaps': swaps, 'harmful_swaps': sum(bool(s.get('harmful')) for s in swaps)}
 
@@ -602,7 +608,7 @@ def real(args):
             gyro_continuation=args.gyro_continuation,
             gyro_ageing_forward=args.gyro_ageing_forward,
             gyro_pooled_gate=args.gyro_pooled_gate,
-            swap_must_explain=args.swap_must_explain))
+            swap_must_explain=args.swap_must_explain, gyro_follow=args.gyro_follow))
         rows.append(r)
         fixture = os.sep + 'fixtures' + os.sep in r['path']
         print(f'{name}: {r["holds"]} holds, decisions '
@@ -1256,7 +1262,8 @@ def main():
                              'only models that depend on temperature '
                              '(LifelongConfig.range_sensors; default: the package\'s)')
     re_.add_argument('--work', default='')
-    for field in ('gyro_ageing_forward', 'gyro_pooled_gate', 'swap_must_explain'):
+    for field in ('gyro_ageing_forward', 'gyro_pooled_gate', 'swap_must_explain',
+                  'gyro_follow'):
         option(re_, field, 'as in month')
     re_.add_argument('--gyro-continuation', choices=GYRO_CONTINUATIONS,
                      default=DEFAULT.gyro_continuation,
