@@ -38,7 +38,7 @@ data: the hold store and the candidate move into ``archive/<UTC time>/`` (at mos
 ``MAX_ARCHIVES`` archives; one more is refused, saying what to do), the active
 calibration, the counters, the decisions and the registry stay. No ROS import.
 
-Gyro follower (``gyro_follow``, off by default): ``output``, the published calibration, takes
+Gyro follower (``gyro_follow``, on by default): ``output``, the published calibration, takes
 off the gyro the active model's recent miss (``follower``); every decision judges the model.
 
 ``Lifelong`` holds the state the pieces share (the counters, the active calibration, the

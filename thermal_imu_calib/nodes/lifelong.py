@@ -89,7 +89,8 @@ def declare(node, p):
                                      'false: the whole calibration or nothing.', **ro),
         'gyro_follow': p.declare('gyro_follow', c.gyro_follow, 'The published calibration '
                                  'takes off the gyro what the newest holds say the active '
-                                 'model misses now (needs latitude; docs/lifelong.md).', **ro),
+                                 'model misses now (needs use_latitude; docs/lifelong.md).',
+                                 **ro),
     }
     if not on:
         return None
@@ -150,7 +151,10 @@ class LifelongMode:
             n.get_logger().info(
                 f'lifelong: {st["holds_total"]} holds so far ({st["raw_holds"]} raw, '
                 f'{st["compacted_bins"]} compacted bins) in {self.dir}; active calibration '
-                f'{self.life.active.id if self.life.active is not None else "none yet"}')
+                f'{self.life.active.id if self.life.active is not None else "none yet"}'
+                + ('; gyro follower idle: the vertical earth rate is not known (set '
+                   'use_latitude and latitude)' if self.config.gyro_follow
+                   and self.life.latitude is None else ''))
         return self.life
 
     def _publish_output(self):
