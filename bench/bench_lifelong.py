@@ -586,10 +586,7 @@ def run_real(name, work, piece_s=None, config=None):
                                     or fig['net_margins'] < -1.0),
                        text=gate.describe(fig))
         swaps.append(row)
-    from thermal_imu_calib.lifelong import files
-    from thermal_imu_calib.lifelong.manager import FOLLOWER_LOG
-    log = os.path.join(d, FOLLOWER_LOG)
-    followed = files.read_decisions(log) if os.path.exists(log) else []
+    followed = follower_rows(d)
     return {'recording': name, 'path': path, 'piece_s': piece,
             'follower_offsets': sum('offset_rad_s' in x for x in followed),
             'follower_why': sorted({x['why'] for x in followed if 'why' in x}),
@@ -653,7 +650,7 @@ def registry_scores(m, work_seed, decisions):
         (registry.parse_time(r['time']) * 1e-9 - base,
          Calibration.load(os.path.join(work_seed, 'registry', r['file']))) for r in rows]
     stops, models = [], []
-    published = follower_timeline(work_seed, timeline, base)
+    published = follower_timeline(work_seed, base)
     for seg, ch in scored_stops(m):
         cal = [c for t, c in timeline if t <= seg.stop.t0][-1]
         stops.append((seg.stop.t0, published(seg.stop.t0, cal), ch))
@@ -662,17 +659,23 @@ def registry_scores(m, work_seed, decisions):
                     models if published.used else None)
 
 
-def follower_timeline(work_seed, timeline, base):
+def follower_rows(d):
+    """Return the gyro follower's log of lifelong directory ``d`` (dicts), [] without one."""
+    from thermal_imu_calib.lifelong import files
+    from thermal_imu_calib.lifelong.manager import FOLLOWER_LOG
+    path = os.path.join(d, FOLLOWER_LOG)
+    return files.read_decisions(path) if os.path.exists(path) else []
+
+
+def follower_timeline(work_seed, base):
     """Return ``published(t, model)``: what a month's node published at ``t`` s.
 
-    From the gyro follower's log (``lifelong.manager.FOLLOWER_LOG``): the model with the
-    offset of the newest record at or before ``t`` that names it; without a log, or no
-    such record, the model itself. ``published.used``: a log was found.
+    From the gyro follower's log (``follower_rows``): the model with the offset of the
+    newest record at or before ``t`` that names it; without a log, or no such record, the
+    model itself. ``published.used``: a log was found.
     """
-    from thermal_imu_calib.lifelong import files, follower
-    from thermal_imu_calib.lifelong.manager import FOLLOWER_LOG
-    path = os.path.join(work_seed, FOLLOWER_LOG)
-    rows = files.read_decisions(path) if os.path.exists(path) else []
+    from thermal_imu_calib.lifelong import follower
+    rows = follower_rows(work_seed)
     times = np.array([r['time'] - base for r in rows])
 
     def published(t, model):
@@ -1089,8 +1092,7 @@ def compare(args):
                  '' if acted is None else str(acted)]
         print(f'| {seed} | ' + ' | '.join(cells) + ' |')
 
-    def gm(x):
-        return float(np.exp(np.mean(np.log(x))))
+    gm = geometric_mean
     print(f'\ngeometric mean over seeds {seeds}: gyro last/true {gm(geo["g"][0]):.3f} -> '
           f'{gm(geo["g"][1]):.3f} ({gm(geo["g"][1]) / gm(geo["g"][0]) - 1:+.1%}); accel drift '
           f'last week {gm(geo["a"][0]) * 1e3:.2f} -> {gm(geo["a"][1]) * 1e3:.2f} mm/s^2 '
@@ -1107,6 +1109,11 @@ def compare(args):
           f'({gm(geo["g1"][1]) / gm(geo["g1"][0]) - 1:+.1%}; raw '
           f'{gm([r["gyro_first_day"] for r in raw]) * 1e3:.3f}); last week raw accel drift '
           f'{gm([r["accel_drift_last_week"] for r in raw]) * 1e3:.2f} mm/s^2')
+
+
+def geometric_mean(x):
+    """Return the geometric mean of positive numbers ``x``."""
+    return float(np.exp(np.mean(np.log(x))))
 
 
 def follower_table(args):
@@ -1138,11 +1145,9 @@ def follower_table(args):
               f'{vals["fp"] * mr:.3f} | {vals["km"] * mr:.3f} / {vals["kp"] * mr:.3f} | '
               f'{delay}, {k["alarms_before"]} | {r["swaps_total"]} ({g25}, {a25}) |')
 
-    def gm(v):
-        v = np.asarray(v, float)
-        v = v[np.isfinite(v)]
-        return float(np.exp(np.mean(np.log(v)))) if len(v) else float('nan')
-    g = {key: gm(v) for key, v in geo.items()}
+    # a month shorter than the knock's second day after has no figure there: left out
+    g = {key: geometric_mean(np.asarray(v)[np.isfinite(v)]) if np.isfinite(v).any()
+         else float('nan') for key, v in geo.items()}
     print(f'\ngeometric means: last/true {g["lm"]:.3f} -> {g["lp"]:.3f} '
           f'({g["lp"] / g["lm"] - 1:+.1%}); first day {g["fm"] * mr:.4f} -> {g["fp"] * mr:.4f} '
           f'mrad/s ({g["fp"] / g["fm"] - 1:+.1%}); 2nd day after the knock {g["km"] * mr:.4f} '

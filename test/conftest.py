@@ -323,6 +323,18 @@ def pacer():
     return Pacer
 
 
+@pytest.fixture(scope='module')
+def month_windows():
+    """Return (RobotMonth of 1.5 days, seed 3, the windows the detector gives on its stops).
+
+    The lifelong tests' loop fixture (``test_lifelong._truth_active_on_20_holds``).
+    """
+    from _robot_month import detector_windows
+    from thermal_imu_calib.sim.robot_month import robot_month
+    m = robot_month(3, days=1.5)
+    return m, detector_windows(m)
+
+
 def calibrate_compensate_rig(ros, tmp_path, gravity, temperature_topic='imu/temperature'):
     """Start calibrator_node and compensator_node on one calibration file, and a player.
 

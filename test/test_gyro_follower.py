@@ -7,14 +7,11 @@ Real numbers: synthetic level holds with a known ageing (``test_lifelong_ageing.
 and the simulated robot month's detector windows. Units: rad/s, s, days.
 """
 
-import dataclasses
-
 import numpy as np
 import pytest
 
-from _level_holds import earth_rate  # noqa: F401 (season's earth rate; documents the truth)
-from _robot_month import detector_windows
 from test_gyro_ageing import INPUTS, with_term
+from test_lifelong import _truth_active_on_20_holds
 from test_lifelong_ageing import DAY, season
 from thermal_imu_calib.app.calibrate import CalibrateSettings
 from thermal_imu_calib.calibration import Calibration, CalibrationError
@@ -22,7 +19,6 @@ from thermal_imu_calib.estimation.calibrate import calibrate_windows, CalibrateO
 from thermal_imu_calib.estimation.gyro_static import earth_rate_parts
 from thermal_imu_calib.lifelong import files, follower, gate
 from thermal_imu_calib.lifelong.manager import FOLLOWER_LOG, Lifelong, LifelongConfig
-from thermal_imu_calib.sim.robot_month import robot_month
 
 LAT = 45.0
 OFFSET = np.array([3e-5, -2e-5, 1e-5])
@@ -116,40 +112,18 @@ def test_the_follower_waits_for_holds_and_needs_the_latitude(ageing_holds):
     assert off is None and rec['why'] == 'no hold within the horizon'
 
 
-@pytest.fixture(scope='module')
-def month_windows():
-    """Return (RobotMonth of 1.5 days, the windows its stops give)."""
-    m = robot_month(3, days=1.5)
-    return m, detector_windows(m)
-
-
-def _loop(d, month_windows, follow):
-    """A loop at 45 deg whose active is the true model, fed the month's first 20 holds."""
-    m, win = month_windows
-    life = Lifelong(str(d), CalibrateSettings(latitude=LAT), 1, [TOPIC], 'imu_link',
-                    config=LifelongConfig(gyro_follow=follow, new_holds=1000))
-    truth = m.true_calibration(0.5 * DAY)
-    first = win.select(np.isin(win.hold, win.hold_ids[:20]))
-    life.store.add(first)
-    s = gate.score(truth, first, truth.gravity, latitude=LAT)
-    life.active = truth
-    life._save_cal(truth, 'active.yaml')          # what a swap leaves for a restart
-    life.state.update(active_gyro_rms=s['gyro_rms'], active_accel_rms=s['accel_rms'],
-                      active_accel_median=float(np.median(s['errors']['accel'])),
-                      holds_at_estimate=life.store.total_holds)
-    return life, win, win.hold_ids[20:]
-
-
 def test_the_loop_publishes_the_followed_model_and_judges_the_model(tmp_path, month_windows):
     """A gyro step under the alarm's limit: the published output follows it, the model
     the gate and the alarm judge stays the active one, the offsets are logged, and a
     restart publishes the same output (it is computed from the stored holds)."""
-    arms = {}
+    arms, later = {}, len(month_windows[1].hold_ids) - 20
     for follow in (False, True):
-        life, win, later = _loop(tmp_path / str(follow), month_windows, follow)
-        for h in later:
-            w = win.select(win.hold == h)
-            life.add(dataclasses.replace(w, gyro=w.gyro + OFFSET))
+        life, _, hold = _truth_active_on_20_holds(tmp_path / str(follow), month_windows, later,
+                                                  latitude=LAT, gyro_follow=follow,
+                                                  new_holds=1000)
+        life._save_cal(life.active, 'active.yaml')     # what a swap leaves for a restart
+        for i in range(later):
+            life.add(hold(i, OFFSET))
         arms[follow] = life
     off, on = arms[False], arms[True]
     assert off.output is off.active and on.active.id == off.active.id

@@ -13,7 +13,6 @@ import re
 import numpy as np
 import pytest
 
-from _robot_month import detector_windows
 from thermal_imu_calib.app.calibrate import CalibrateSettings
 from thermal_imu_calib.calibration import Calibration
 from thermal_imu_calib.fleet import registry
@@ -28,13 +27,6 @@ from thermal_imu_calib.sim.robot_month import DAY, robot_month
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 TOPIC = '/imu/temperature'
-
-
-@pytest.fixture(scope='module')
-def month_windows():
-    """Return (RobotMonth of 1.5 days, the windows its stops give, per stop)."""
-    m = robot_month(3, days=1.5)
-    return m, detector_windows(m)
 
 
 def test_core_imports_no_ros():
@@ -404,18 +396,19 @@ def test_archive_collection_of_a_directory_not_loaded(tmp_path, month_windows):
     assert archive_collection(str(d)) == ''          # an empty store: nothing to move
 
 
-def _truth_active_on_20_holds(tmp_path, month_windows, later, **config):
+def _truth_active_on_20_holds(tmp_path, month_windows, later, latitude=None, **config):
     """Return (a loop whose store holds the month's first 20 holds and whose active is the
     true model, its ``gate.score`` on them, ``hold(i, gyro offset rad/s)``: the i-th of the
-    next ``later`` holds with the offset added to its gyro)."""
+    next ``later`` holds with the offset added to its gyro). ``latitude`` (deg): the
+    loop's and the score's, None: not known."""
     m, win = month_windows
     truth = m.true_calibration(0.5 * DAY)
     ids = win.hold_ids
     first, after = win.select(np.isin(win.hold, ids[:20])), ids[20:20 + later]
-    life = Lifelong(str(tmp_path), CalibrateSettings(), 1, [TOPIC], 'imu_link',
-                    config=LifelongConfig(**config))
+    life = Lifelong(str(tmp_path), CalibrateSettings(latitude=latitude), 1, [TOPIC],
+                    'imu_link', config=LifelongConfig(**config))
     life.store.add(first)
-    s = gate.score(truth, first, truth.gravity)
+    s = gate.score(truth, first, truth.gravity, latitude=latitude)
     life.active = truth
     life.state.update(active_gyro_rms=s['gyro_rms'], active_accel_rms=s['accel_rms'],
                       active_accel_median=float(np.median(s['errors']['accel'])),

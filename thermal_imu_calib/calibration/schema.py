@@ -55,8 +55,7 @@ from ..models import model_from_dict
 from ..thermal_input import ThermalFilter
 from . import plausible
 from .base import (CalibrationError, FILE_FORMATS, FORMAT_AGEING, FORMAT_OFFSET, GRAVITY_BOUNDS,
-                   NOISE_UNITS,
-                   OUT_OF_RANGE_POLICIES, short, TemperatureInput, type_name)
+                   NOISE_UNITS, OUT_OF_RANGE_POLICIES, short, TemperatureInput, type_name)
 from .spec import (Choice, FreeForm, Indices, ListOf, Mapping, MapOf, Notes, Number, Numbers,
                    REQUIRED, Text, TextOrList, Valued)
 

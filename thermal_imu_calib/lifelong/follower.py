@@ -53,7 +53,7 @@ def follow(cal, windows, gravity, latitude, now, tau_days, horizon_days, min_hol
     eff = float(w.sum() ** 2 / np.sum(w ** 2))
     rec.update(holds=int(len(w)), effective=round(eff, 2))
     if eff < min_holds:
-        rec['why'] = f'{eff:.1f} effective holds, {min_holds} needed'
+        rec['why'] = f'{eff:.1f} effective holds, {min_holds:g} needed'
         return None, rec
     offset = w @ e['gyro_vec'] / w.sum()
     rec['offset_rad_s'] = offset.tolist()
