@@ -52,6 +52,7 @@ sys.path.insert(0, os.path.dirname(HERE))
 from thermal_imu_calib.app.calibrate import CalibrateSettings  # noqa: E402
 from thermal_imu_calib.calibration import OUT_OF_RANGE_POLICIES  # noqa: E402
 from thermal_imu_calib.cli.calibrate import margin_or_off  # noqa: E402
+from thermal_imu_calib.estimation.gyro_static import EARTH_RATE  # noqa: E402
 from thermal_imu_calib.estimation.options import HIGH_ORDER_SENSORS  # noqa: E402
 from thermal_imu_calib.lifelong.config import GYRO_CONTINUATIONS, RANGE_SENSORS  # noqa: E402
 from thermal_imu_calib.lifelong.feed import Feeder  # noqa: E402
@@ -201,7 +202,7 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
              resume=False, gyro_ageing_forward=DEFAULT.gyro_ageing_forward,
              gyro_pooled_gate=DEFAULT.gyro_pooled_gate,
              swap_must_explain=DEFAULT.swap_must_explain, gyro_follow=DEFAULT.gyro_follow,
-             **overrides):
+             follow_without_latitude=DEFAULT.follow_without_latitude, **overrides):
     m = robot_month(seed, days=days, **overrides)
     d = os.path.join(work, f'seed{seed}')
     ckpt = latest_checkpoint(d) if resume else None
@@ -235,7 +236,8 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
                                               gyro_ageing_forward=gyro_ageing_forward,
                                               gyro_pooled_gate=gyro_pooled_gate,
                                               swap_must_explain=swap_must_explain,
-                                              gyro_follow=gyro_follow),
+                                              gyro_follow=gyro_follow,
+                                              follow_without_latitude=follow_without_latitude),
                         log=lambda level, text: log.append((level, text)))
     life = make()
     feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
@@ -280,9 +282,11 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
     if stop_day is not None:        # scored afterwards by lifelong_first_day.py
         return {'seed': seed, 'seconds': round(seconds, 1), 'stop_day': stop_day}
     decisions = life.decisions()
+    in_model = latitude is None and follow_without_latitude
     scored = (evaluate(m, stops, timeline, decisions, gyro_noise(m), base,
-                       models if gyro_follow else None) if ckpt is None
-              else registry_scores(m, d, decisions) | {'resumed_from_restart': ckpt[0]})
+                       models if gyro_follow else None, in_model) if ckpt is None
+              else registry_scores(m, d, decisions, in_model)
+              | {'resumed_from_restart': ckpt[0]})
     return scored | {
         'seed': seed, 'seconds': round(seconds, 1), 'peak_rss_mb': round(peak_rss, 1),
         'peak_dir_mb': round(peak_disk / 2 ** 20, 2), 'summary': m.summary(),
@@ -321,20 +325,38 @@ def _registry_rows(d):
     return len(registry.read_index(os.path.join(d, 'registry')))
 
 
-def evaluate(m, stops, timeline, decisions, noise_g, base, models=None):
+def vertical_earth_rate(m, ch):
+    """Return the vertical earth rate of month ``m`` along a stop's true up (3,) rad/s.
+
+    Sample-weighted over the stop's chunks (``stop_chunks``): what a calibration fitted
+    without the latitude takes into its gyro bias on a level hold.
+    """
+    up = ch['f'] / np.linalg.norm(ch['f'], axis=1, keepdims=True)
+    return EARTH_RATE * np.sin(np.radians(m.config.latitude)) * (ch['n'] @ up) / ch['n'].sum()
+
+
+def evaluate(m, stops, timeline, decisions, noise_g, base, models=None, in_model=False):
     """Score a month: ``stops`` (t0 s, the calibration published then, chunks).
 
     ``models``: per stop the active model when what was published differs from it (the
     gyro follower, ``LifelongConfig.gyro_follow``): also scored, as 'model'. The swaps
-    compare the models of ``timeline``.
+    compare the models of ``timeline``. ``in_model``: the month's calibrations were
+    fitted without the latitude and are scored in their own convention: their gyro error
+    is against the true rate less the vertical earth rate (``vertical_earth_rate``; the
+    true model and the raw output are scored against the true rate).
     """
     t = np.array([s[0] for s in stops])
     truth = [m.true_calibration(t0) for t0, _, _ in stops]
-    err = {'active': [stop_error(cal, ch) for _, cal, ch in stops],
+
+    def fitted_error(cal, ch):
+        g, a = stop_error(cal, ch)
+        return (g + vertical_earth_rate(m, ch), a) if in_model and cal is not None \
+            else (g, a)
+    err = {'active': [fitted_error(cal, ch) for _, cal, ch in stops],
            'true': [stop_error(tc, ch) for tc, (_, _, ch) in zip(truth, stops)],
            'raw': [stop_error(None, ch) for _, _, ch in stops]}
     if models is not None:
-        err['model'] = [stop_error(cal, ch) for cal, (_, _, ch) in zip(models, stops)]
+        err['model'] = [fitted_error(cal, ch) for cal, (_, _, ch) in zip(models, stops)]
     out = {}
     figures = {}
     for name, e in err.items():
@@ -384,8 +406,8 @@ def evaluate(m, stops, timeline, decisions, noise_g, base, models=None):
         sel = [i for i, (t0, _, _) in enumerate(stops) if ts <= t0 < ts + DAY]
         if not sel:
             continue
-        e_new = [stop_error(new, stops[i][2]) for i in sel]
-        e_old = [stop_error(old, stops[i][2]) for i in sel]
+        e_new = [fitted_error(new, stops[i][2]) for i in sel]
+        e_old = [fitted_error(old, stops[i][2]) for i in sel]
         gn = np.sqrt(np.mean([np.sum(x[0] ** 2) for x in e_new]))
         go = np.sqrt(np.mean([np.sum(x[0] ** 2) for x in e_old]))
         an = np.sqrt(np.mean([np.sum((x[1] - c_act) ** 2) for x in e_new]))
@@ -443,7 +465,8 @@ def month(args):
                      gyro_ageing_forward=args.gyro_ageing_forward,
                      gyro_pooled_gate=args.gyro_pooled_gate,
                      swap_must_explain=args.swap_must_explain,
-                     gyro_follow=args.gyro_follow)
+                     gyro_follow=args.gyro_follow,
+                     follow_without_latitude=args.follow_without_latitude)
         rows.append(r)
         if args.stop_day is not None:
             print(f'seed {seed}: {r["seconds"]:.0f} s, stopped after day {args.stop_day:g} '
@@ -590,8 +613,40 @@ def run_real(name, work, piece_s=None, config=None):
     return {'recording': name, 'path': path, 'piece_s': piece,
             'follower_offsets': sum('offset_rad_s' in x for x in followed),
             'follower_why': sorted({x['why'] for x in followed if 'why' in x}),
+            'follower_scores': published_against_model(followed, holds, actives),
             'holds': life.store.total_holds, 'decisions': life.decisions(),
             'swaps': swaps, 'harmful_swaps': sum(bool(s.get('harmful')) for s in swaps)}
+
+
+def published_against_model(followed, holds, actives):
+    """Score the follower on a real recording's holds, each by what was published before it.
+
+    ``followed``: the follower's log (``follower_rows``); ``holds``: the store's raw
+    windows; ``actives``: (swap time s, model) on their clock. Per hold with an offset
+    published before its start (for the model active then): the gyro error (rad/s,
+    ``gate.hold_errors`` without a latitude: the norm of the compensated mean, the model's
+    convention) of the published calibration and of the model alone. Returns the holds
+    scored and the two RMS (None when no hold had an offset before it).
+    """
+    from thermal_imu_calib.lifelong import follower, gate
+    rows = [r for r in followed if 'offset_rad_s' in r]
+    times = np.array([r['time'] for r in rows])
+    pub, mod = [], []
+    for hid in (holds.hold_ids if len(holds) else []):
+        one = holds.select(holds.hold == hid)
+        t0 = float(one.t0.min())
+        model = [c for t, c in actives if t <= t0][-1]
+        i = int(np.searchsorted(times, t0, side='left')) - 1   # logged before the hold
+        if model is None or i < 0 or rows[i]['active'] != model.id:
+            continue
+        cal = follower.with_offset(model, rows[i]['offset_rad_s'], rows[i]['time'],
+                                   DEFAULT.follow_horizon_days)
+        pub.append(gate.hold_errors(cal, one, model.gravity)['gyro'][0])
+        mod.append(gate.hold_errors(model, one, model.gravity)['gyro'][0])
+    if not pub:
+        return None
+    return {'holds': len(pub), 'published_rms_rad_s': float(np.sqrt(np.mean(np.square(pub)))),
+            'model_rms_rad_s': float(np.sqrt(np.mean(np.square(mod))))}
 
 
 def real(args):
@@ -605,7 +660,8 @@ def real(args):
             gyro_continuation=args.gyro_continuation,
             gyro_ageing_forward=args.gyro_ageing_forward,
             gyro_pooled_gate=args.gyro_pooled_gate,
-            swap_must_explain=args.swap_must_explain, gyro_follow=args.gyro_follow))
+            swap_must_explain=args.swap_must_explain, gyro_follow=args.gyro_follow,
+            follow_without_latitude=args.follow_without_latitude))
         rows.append(r)
         fixture = os.sep + 'fixtures' + os.sep in r['path']
         print(f'{name}: {r["holds"]} holds, decisions '
@@ -616,6 +672,11 @@ def real(args):
         for s in r['swaps']:
             print(f'  swap at {s["time_s"]:.0f} s ({s["later_holds"]} later holds): '
                   f'{s.get("text", "no later holds to judge it on")}')
+        fs = r['follower_scores']
+        if fs:
+            print(f'  follower: {fs["holds"]} holds after an offset, gyro RMS published '
+                  f'{fs["published_rms_rad_s"] * 1e3:.4f} mrad/s, model '
+                  f'{fs["model_rms_rad_s"] * 1e3:.4f}')
     _write(args.output, {'command': ' '.join(sys.argv), 'rows': rows})
 
 
@@ -633,14 +694,17 @@ def history_alarms(reg, knock_day):
                                     registry.parse_time(a.split('-> ')[1][:16]) >= knock]}
 
 
-def reeval_seed(work_seed, seed, days):
-    """Score a finished month again from its lifelong directory (registry = the timeline)."""
+def reeval_seed(work_seed, seed, days, in_model=False):
+    """Score a finished month again from its lifelong directory (registry = the timeline).
+
+    ``in_model``: as in ``evaluate``.
+    """
     with open(os.path.join(work_seed, 'decisions.jsonl')) as f:
         decisions = [json.loads(x) for x in f if x.strip()]
-    return registry_scores(robot_month(seed, days=days), work_seed, decisions)
+    return registry_scores(robot_month(seed, days=days), work_seed, decisions, in_model)
 
 
-def registry_scores(m, work_seed, decisions):
+def registry_scores(m, work_seed, decisions, in_model=False):
     """Score month ``m`` from its lifelong directory: the registry is the timeline."""
     from thermal_imu_calib.calibration import Calibration
     from thermal_imu_calib.fleet import registry
@@ -656,7 +720,7 @@ def registry_scores(m, work_seed, decisions):
         stops.append((seg.stop.t0, published(seg.stop.t0, cal), ch))
         models.append(cal)
     return evaluate(m, stops, timeline, decisions, gyro_noise(m), base,
-                    models if published.used else None)
+                    models if published.used else None, in_model)
 
 
 def follower_rows(d):
@@ -1125,7 +1189,8 @@ def follower_table(args):
     rows = []
     for spec in args.runs:
         seed, d = spec.split(':', 1)
-        rows.append(reeval_seed(d, int(seed), args.days) | {'seed': int(seed)})
+        rows.append(reeval_seed(d, int(seed), args.days, args.earth_rate_in_model)
+                    | {'seed': int(seed)})
     mr = 1e3
     print('| seed | gyro last week / true: model / published | first day mrad/s: model / '
           'published | 2nd day after the knock mrad/s: model / published | knock alarm h, '
@@ -1224,6 +1289,8 @@ def main():
     option(mo, 'alarm_first', 'no re-estimate while the change alarm is deciding')
     option(mo, 'gyro_follow', 'the published gyro has the newest holds\' miss of the active '
            'model taken off (scored as published; the model alone as "model")')
+    option(mo, 'follow_without_latitude', 'without --latitude the follower follows in the '
+           'model\'s convention (scored so: the vertical earth rate counted as bias)')
     mo.add_argument('--high-order-margin', type=margin_or_off, metavar='DEGC|off',
                     default=CalibrateSettings.high_order_margin,
                     help='valid-range margin (degC) of a model above first order in '
@@ -1268,7 +1335,7 @@ def main():
                              '(LifelongConfig.range_sensors; default: the package\'s)')
     re_.add_argument('--work', default='')
     for field in ('gyro_ageing_forward', 'gyro_pooled_gate', 'swap_must_explain',
-                  'gyro_follow'):
+                  'gyro_follow', 'follow_without_latitude'):
         option(re_, field, 'as in month')
     re_.add_argument('--gyro-continuation', choices=GYRO_CONTINUATIONS,
                      default=DEFAULT.gyro_continuation,
@@ -1281,6 +1348,10 @@ def main():
     fo = sub.add_parser('follower', help='the gyro follower: published against model')
     fo.add_argument('runs', nargs='+', help='SEED:WORK/seedSEED of --gyro-follow month runs')
     fo.add_argument('--days', type=float, default=30.0)
+    fo.add_argument('--earth-rate-in-model', action='store_true',
+                    help='months run without --latitude, with --follow-without-latitude: '
+                         'their calibrations scored in their own convention (the vertical '
+                         'earth rate in the bias)')
     fo.add_argument('--output', default='')
     me = sub.add_parser('merge')
     me.add_argument('inputs', nargs='+')

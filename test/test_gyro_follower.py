@@ -100,6 +100,41 @@ def test_the_follower_takes_off_the_ageing_since_the_fit_and_keeps_the_earth_rat
     assert abs(np.mean(vertical)) < 0.2 * earth_rate_parts(LAT)[0], np.mean(vertical)
 
 
+def test_without_the_latitude_it_follows_in_the_model_convention(ageing_holds):
+    """``follow_without_latitude``: a model fitted without the latitude holds the vertical
+    earth rate in its bias; followed in that convention, its ageing since the fit is taken
+    off as with the latitude, and the output at rest reads no vertical earth rate.
+
+    Scored in the model's convention: the vertical earth rate (z, the holds are level)
+    put back into both outputs, then the gate's error with the latitude.
+    """
+    win, _, later = ageing_holds
+    ends = np.array([win.t1[win.hold == h].max() for h in win.hold_ids])
+    past = win.hold_ids[ends < 14.0 * DAY]
+    cal = calibrate_windows(win.select(np.isin(win.hold, past)),
+                            CalibrateOptions(model='offset', inputs=INPUTS)).calibration
+    up_rate = np.array([0.0, 0.0, earth_rate_parts(LAT)[0]])
+    plain, followed, vertical = [], [], []
+    for h in later:
+        w = win.select(win.hold == h)
+        prior = win.select(win.t1 <= w.t0.min())
+        off, rec = follower.follow(cal, prior, 9.80665, None, float(prior.t1.max()), 0.5,
+                                   2.0, 5, without_latitude=True)
+        assert off is not None and rec['effective'] > 20, rec
+        out = follower.with_offset(cal, off, 0.0, 2.0)
+        vertical.append(gate.hold_errors(out, w, 9.80665)['gyro_vec'][0, 2])
+        plain.append(gate.hold_errors(follower.with_offset(cal, -up_rate, 0.0, 2.0), w,
+                                      9.80665, LAT)['gyro'][0])
+        followed.append(gate.hold_errors(follower.with_offset(cal, off - up_rate, 0.0, 2.0),
+                                         w, 9.80665, LAT)['gyro'][0])
+    p, f = gate.rms(np.array(plain)), gate.rms(np.array(followed))
+    assert p > 6e-5 and f < 0.4 * p, (p, f)
+    assert abs(np.mean(vertical)) < 0.2 * up_rate[2], np.mean(vertical)
+    # off (the default): nothing without the latitude
+    off, rec = follower.follow(cal, win, 9.80665, None, float(win.t1.max()), 0.5, 2.0, 5)
+    assert off is None and 'no latitude' in rec['why']
+
+
 def test_the_follower_waits_for_holds_and_needs_the_latitude(ageing_holds):
     win, cal, _ = ageing_holds
     first = win.select(np.isin(win.hold, win.hold_ids[:3]))

@@ -175,6 +175,11 @@ class LifelongConfig:
     follow_tau_days: float = 0.5
     follow_horizon_days: float = 2.0
     follow_min_holds: float = 5.0
+    #: without a latitude the follower follows in the model's own convention (a model
+    #: fitted without it holds the vertical earth rate in its gyro bias, so its miss is
+    #: the whole compensated mean; ``follower``); off: without a latitude it follows
+    #: nothing. Being judged (docs/lifelong.md, "The follower without a latitude")
+    follow_without_latitude: bool = False
     store: StoreConfig = field(default_factory=StoreConfig)
 
     def __post_init__(self):

@@ -18,7 +18,13 @@ It is an output correction only: ``with_offset`` puts it into the published cali
 as ``gyro_ageing.offset`` (file format 5; every stream takes it off the gyro), while the
 swap gate, the change alarm and the registry go on judging the model itself, so the
 loop's decisions are the same with or without it. It needs the latitude: without it the
-vertical earth rate would look like a bias and be taken off the output.
+vertical earth rate would look like a bias and be taken off the output. With
+``follow_without_latitude`` it follows without one, in the model's own convention: a
+model fitted without the latitude took the vertical earth rate of its holds into its gyro
+bias (its output at rest reads about zero, not the earth rate), so its miss on a hold is
+the whole compensated mean, which a robot's stops measure in the same way (what
+``imu_bias_remover`` takes off). A model fitted with the latitude and followed without it
+would lose the vertical earth rate from its output (<= 7.3e-5 rad/s).
 
 No ROS import. Units: rad/s, s, days.
 """
@@ -31,18 +37,22 @@ from ..calibration.base import DAY_S
 from . import gate
 
 
-def follow(cal, windows, gravity, latitude, now, tau_days, horizon_days, min_holds):
+def follow(cal, windows, gravity, latitude, now, tau_days, horizon_days, min_holds,
+           without_latitude=False):
     """Return (offset (3,) rad/s or None, record dict) of ``cal`` on the newest holds.
 
     ``windows``: the store's raw windows (``collection.segments.Windows``, the holds the
-    alarm and the gate see); ``now``: s on their clock (the newest hold's end). The
-    record (for the log): time, holds used, effective holds, offset (or why none).
+    alarm and the gate see); ``now``: s on their clock (the newest hold's end);
+    ``without_latitude``: ``latitude`` None follows in the model's convention (the module
+    docstring), else it follows nothing. The record (for the log): time, holds used,
+    effective holds, offset (or why none).
     """
     rec = {'time': float(now), 'active': cal.id if cal is not None else ''}
-    if cal is None or cal.gyro is None or latitude is None or not len(windows):
+    defined = latitude is not None or without_latitude    # the model's miss is known
+    if cal is None or cal.gyro is None or not defined or not len(windows):
         rec['why'] = ('no active gyro model' if cal is None or cal.gyro is None else
-                      'no latitude: the vertical earth rate is not known' if latitude is None
-                      else 'no holds')
+                      'no latitude: the vertical earth rate is not known'
+                      if not defined else 'no holds')
         return None, rec
     recent = windows.select(windows.t1 >= now - horizon_days * DAY_S)
     if not len(recent):
@@ -71,7 +81,7 @@ def output(active, recent, latitude, config):
     now = float(recent.t1.max()) if len(recent) else 0.0
     offset, rec = follow(active, recent, active.gravity, latitude, now,
                          config.follow_tau_days, config.follow_horizon_days,
-                         config.follow_min_holds)
+                         config.follow_min_holds, config.follow_without_latitude)
     return with_offset(active, offset, now, config.follow_horizon_days), rec
 
 
