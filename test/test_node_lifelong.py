@@ -290,3 +290,49 @@ def test_the_published_calibration_follows_the_newest_holds(ros, tmp_path):
     assert new.id == life.life.output.id and new.gyro_ageing['offset'] is not None
     assert not np.allclose(new.gyro_ageing['offset'], first.gyro_ageing['offset'], rtol=0,
                            atol=1e-12)
+
+
+def test_without_a_latitude_the_follower_publishes_only_when_told(ros, tmp_path):
+    """No ``use_latitude``: the node publishes the active model as it is (the follower idle,
+    said in the start-up log), or, with ``follow_without_latitude``, the model with the
+    stored holds' miss in its own convention (the vertical earth rate left in the miss)."""
+    from _robot_month import detector_windows
+    from thermal_imu_calib.lifelong import follower
+    from thermal_imu_calib.lifelong.store import HoldStore, StoreConfig
+    from thermal_imu_calib.nodes import common
+    m = robot_month(2, days=1.0)
+    win = detector_windows(m)
+    truth = m.true_calibration(m.config.days * 86400.0 / 2)
+    player = ros.node('player_nl')
+    logs = []
+    player.create_subscription(Log, '/rosout', logs.append, 100)
+    for without in (False, True):
+        life_dir = tmp_path / f'life{int(without)}'
+        life_dir.mkdir()
+        HoldStore(str(life_dir / 'holds'), 1, StoreConfig()).add(win)
+        truth.save(str(life_dir / 'active.yaml'))
+        latched = []
+        player.create_subscription(String, f'/nl{int(without)}/imu/calibration',
+                                   latched.append, common.CALIBRATION_QOS)
+        node = ros.add(CalibratorNode(
+            context=ros.context, namespace=f'nl{int(without)}', parameter_overrides=[
+                Parameter(k, value=v) for k, v in {
+                    'lifelong': True, 'lifelong_dir': str(life_dir), 'gyro_follow': True,
+                    'follow_without_latitude': without, 'new_holds': 100000,
+                    'frame_id': 'imu_link', 'calibration_file': str(tmp_path / 'cal.yaml'),
+                    'collection_file': str(tmp_path / f'collection{int(without)}.jsonl'),
+                    'report': False}.items()]))
+        got = Calibration.from_yaml(wait_for(lambda: latched and latched[-1], WAIT,
+                                             'the published calibration').data)
+        active = Calibration.load(str(life_dir / 'active.yaml'))
+        if not without:
+            assert got.id == active.id and not got.gyro_ageing
+            wait_for(lambda: any('gyro follower idle' in x.msg for x in logs), WAIT,
+                     'the start-up log saying the follower is idle')
+            continue
+        want, rec = follower.follow(active, node.lifelong.life.store.recent, active.gravity,
+                                    None, float(win.t1.max()), 0.5, 2.0, 5.0, True)
+        assert want is not None, rec
+        np.testing.assert_allclose(got.gyro_ageing['offset'], want, rtol=1e-9)
+        # the true model keeps the earth rate: its miss holds the vertical 52 urad/s
+        assert 3e-5 < np.linalg.norm(want) < 1e-4, want

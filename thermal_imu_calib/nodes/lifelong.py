@@ -89,8 +89,12 @@ def declare(node, p):
                                      'false: the whole calibration or nothing.', **ro),
         'gyro_follow': p.declare('gyro_follow', c.gyro_follow, 'The published calibration '
                                  'takes off the gyro what the newest holds say the active '
-                                 'model misses now (needs use_latitude; docs/lifelong.md).',
-                                 **ro),
+                                 'model misses now (needs use_latitude, or '
+                                 'follow_without_latitude; docs/lifelong.md).', **ro),
+        'follow_without_latitude': p.declare(
+            'follow_without_latitude', c.follow_without_latitude, 'Without use_latitude the '
+            'gyro follower follows in the model\'s own convention (the vertical earth rate '
+            'is in its bias; the output at rest reads no earth rate).', **ro),
     }
     if not on:
         return None
@@ -112,7 +116,8 @@ class LifelongMode:
                                 misfit_holds=values['misfit_holds'],
                                 holdout_holds=values['holdout_holds'],
                                 per_sensor=values['per_sensor_swap'],
-                                gyro_follow=values['gyro_follow'])
+                                gyro_follow=values['gyro_follow'],
+                                follow_without_latitude=values['follow_without_latitude'])
         self.config = config
         sources = []
         qos = common.sensor_qos(100)
@@ -153,8 +158,9 @@ class LifelongMode:
                 f'{st["compacted_bins"]} compacted bins) in {self.dir}; active calibration '
                 f'{self.life.active.id if self.life.active is not None else "none yet"}'
                 + ('; gyro follower idle: the vertical earth rate is not known (set '
-                   'use_latitude and latitude)' if self.config.gyro_follow
-                   and self.life.latitude is None else ''))
+                   'use_latitude and latitude, or follow_without_latitude)'
+                   if self.config.gyro_follow and self.life.latitude is None
+                   and not self.config.follow_without_latitude else ''))
         return self.life
 
     def _publish_output(self):
