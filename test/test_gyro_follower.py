@@ -130,7 +130,7 @@ def test_without_the_latitude_it_follows_in_the_model_convention(ageing_holds):
     p, f = gate.rms(np.array(plain)), gate.rms(np.array(followed))
     assert p > 6e-5 and f < 0.4 * p, (p, f)
     assert abs(np.mean(vertical)) < 0.2 * up_rate[2], np.mean(vertical)
-    # off (the default): nothing without the latitude
+    # off (follow_without_latitude false): nothing without the latitude
     off, rec = follower.follow(cal, win, 9.80665, None, float(win.t1.max()), 0.5, 2.0, 5)
     assert off is None and 'no latitude' in rec['why']
 

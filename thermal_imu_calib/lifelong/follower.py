@@ -17,14 +17,16 @@ what it learns at one temperature is only the model's recent miss, not the bias.
 It is an output correction only: ``with_offset`` puts it into the published calibration
 as ``gyro_ageing.offset`` (file format 5; every stream takes it off the gyro), while the
 swap gate, the change alarm and the registry go on judging the model itself, so the
-loop's decisions are the same with or without it. It needs the latitude: without it the
-vertical earth rate would look like a bias and be taken off the output. With
-``follow_without_latitude`` it follows without one, in the model's own convention: a
-model fitted without the latitude took the vertical earth rate of its holds into its gyro
-bias (its output at rest reads about zero, not the earth rate), so its miss on a hold is
-the whole compensated mean, which a robot's stops measure in the same way (what
-``imu_bias_remover`` takes off). A model fitted with the latitude and followed without it
-would lose the vertical earth rate from its output (<= 7.3e-5 rad/s).
+loop's decisions are the same with or without it.
+
+Without the latitude the vertical earth rate cannot be told from a bias. With
+``follow_without_latitude`` (the default) the follower then follows in the model's own
+convention: a model fitted without the latitude took the vertical earth rate of its holds
+into its gyro bias (its output at rest reads about zero, not the earth rate), so its miss
+on a hold is the whole compensated mean (what ``imu_bias_remover`` takes off). A model
+fitted with the latitude and followed without it would lose the vertical earth rate from
+its output (<= 7.3e-5 rad/s); in the loop both use the one setting. Off: without the
+latitude it follows nothing.
 
 No ROS import. Units: rad/s, s, days.
 """
