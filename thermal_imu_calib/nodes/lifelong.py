@@ -94,7 +94,7 @@ def declare(node, p):
         'follow_without_latitude': p.declare(
             'follow_without_latitude', c.follow_without_latitude, 'Without use_latitude the '
             'gyro follower follows in the model\'s own convention (the vertical earth rate '
-            'is in its bias; the output at rest reads no earth rate).', **ro),
+            'is in its bias; the output at rest reads no vertical earth rate).', **ro),
     }
     if not on:
         return None
