@@ -466,7 +466,8 @@ def month(args):
                      gyro_pooled_gate=args.gyro_pooled_gate,
                      swap_must_explain=args.swap_must_explain,
                      gyro_follow=args.gyro_follow,
-                     follow_without_latitude=args.follow_without_latitude)
+                     follow_without_latitude=args.follow_without_latitude,
+                     dock_fraction=args.dock_fraction)
         rows.append(r)
         if args.stop_day is not None:
             print(f'seed {seed}: {r["seconds"]:.0f} s, stopped after day {args.stop_day:g} '
@@ -694,14 +695,16 @@ def history_alarms(reg, knock_day):
                                     registry.parse_time(a.split('-> ')[1][:16]) >= knock]}
 
 
-def reeval_seed(work_seed, seed, days, in_model=False):
+def reeval_seed(work_seed, seed, days, in_model=False, **month):
     """Score a finished month again from its lifelong directory (registry = the timeline).
 
-    ``in_model``: as in ``evaluate``.
+    ``in_model``: as in ``evaluate``; ``month``: ``RobotMonthConfig`` fields the month ran
+    with (e.g. ``dock_fraction``).
     """
     with open(os.path.join(work_seed, 'decisions.jsonl')) as f:
         decisions = [json.loads(x) for x in f if x.strip()]
-    return registry_scores(robot_month(seed, days=days), work_seed, decisions, in_model)
+    return registry_scores(robot_month(seed, days=days, **month), work_seed, decisions,
+                           in_model)
 
 
 def registry_scores(m, work_seed, decisions, in_model=False):
@@ -1189,8 +1192,8 @@ def follower_table(args):
     rows = []
     for spec in args.runs:
         seed, d = spec.split(':', 1)
-        rows.append(reeval_seed(d, int(seed), args.days, args.earth_rate_in_model)
-                    | {'seed': int(seed)})
+        rows.append(reeval_seed(d, int(seed), args.days, args.earth_rate_in_model,
+                                dock_fraction=args.dock_fraction) | {'seed': int(seed)})
     mr = 1e3
     print('| seed | gyro last week / true: model / published | first day mrad/s: model / '
           'published | 2nd day after the knock mrad/s: model / published | knock alarm h, '
@@ -1348,6 +1351,10 @@ def main():
     fo = sub.add_parser('follower', help='the gyro follower: published against model')
     fo.add_argument('runs', nargs='+', help='SEED:WORK/seedSEED of --gyro-follow month runs')
     fo.add_argument('--days', type=float, default=30.0)
+    for sp in (mo, fo):
+        sp.add_argument('--dock-fraction', type=float, default=0.0,
+                        help='the fraction of stops level at one heading, a dock '
+                             '(RobotMonthConfig.dock_fraction)')
     fo.add_argument('--earth-rate-in-model', action='store_true',
                     help='months run without --latitude, with --follow-without-latitude: '
                          'their calibrations scored in their own convention (the vertical '

@@ -10,7 +10,9 @@ a mobile robot for ``days`` days:
   stop (time constant ``heat_tau_s``);
 * stops: ``stops_per_day`` at uniformly random times, each 10 s .. 10 min (log-uniform
   ``stop_s``), level (tilt 0..``level_tilt_deg``, random heading) or, with probability
-  ``slope_fraction``, on a slope of ``slope_deg``;
+  ``slope_fraction``, on a slope of ``slope_deg``; with probability ``dock_fraction``
+  (default 0) a stop is level at one heading, ``dock_heading_deg`` (a robot that returns
+  to its dock: drawn from a stream of its own, so 0 leaves the month as it was);
 * bias ageing: accel bias drifts ``age_accel`` m/s^2/day and the gyro bias ``age_gyro``
   rad/s/day (random direction); a knock at a random day in ``knock_day`` steps them by
   ``knock_accel`` / ``knock_gyro`` (random direction);
@@ -66,6 +68,8 @@ class RobotMonthConfig:
     level_tilt_deg: float = 0.3
     slope_fraction: float = 0.1
     slope_deg: Tuple[float, float] = (3.0, 12.0)
+    dock_fraction: float = 0.0
+    dock_heading_deg: float = 30.0
     season: Tuple[float, float] = (8.0, 24.0)
     diurnal_amp: Tuple[float, float] = (5.0, 9.0)
     weather_amp: float = 3.0
@@ -128,6 +132,7 @@ class RobotMonth:
         self.start_ns = MONTH_EPOCH_NS
         rng = _rng(seed, 'robot-month', 'schedule')
         env = _rng(seed, 'robot-month', 'environment')
+        dock = _rng(seed, 'robot-month', 'dock')
         days = cfg.days
         # stops
         stops, t = [], []
@@ -147,6 +152,9 @@ class RobotMonth:
             tilt = rng.uniform(*cfg.slope_deg) if slope else \
                 rng.uniform(0, cfg.level_tilt_deg)
             c = _attitude(rng.uniform(0, 360), tilt, rng.uniform(0, 2 * np.pi))
+            if cfg.dock_fraction and dock.random() < cfg.dock_fraction:
+                slope, tilt = False, dock.uniform(0, cfg.level_tilt_deg)
+                c = _attitude(cfg.dock_heading_deg, tilt, dock.uniform(0, 2 * np.pi))
             push = None
             if rng.random() < cfg.push_fraction and dur[i] > 30:
                 p0 = t[i] + rng.uniform(5, dur[i] - 15)
