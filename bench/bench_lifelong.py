@@ -52,7 +52,7 @@ sys.path.insert(0, os.path.dirname(HERE))
 from thermal_imu_calib.app.calibrate import CalibrateSettings  # noqa: E402
 from thermal_imu_calib.calibration import OUT_OF_RANGE_POLICIES  # noqa: E402
 from thermal_imu_calib.cli.calibrate import margin_or_off  # noqa: E402
-from thermal_imu_calib.estimation.gyro_static import EARTH_RATE  # noqa: E402
+from thermal_imu_calib.estimation.gyro_static import earth_rate_parts  # noqa: E402
 from thermal_imu_calib.estimation.options import HIGH_ORDER_SENSORS  # noqa: E402
 from thermal_imu_calib.lifelong.config import GYRO_CONTINUATIONS, RANGE_SENSORS  # noqa: E402
 from thermal_imu_calib.lifelong.feed import Feeder  # noqa: E402
@@ -332,7 +332,7 @@ def vertical_earth_rate(m, ch):
     without the latitude takes into its gyro bias on a level hold.
     """
     up = ch['f'] / np.linalg.norm(ch['f'], axis=1, keepdims=True)
-    return EARTH_RATE * np.sin(np.radians(m.config.latitude)) * (ch['n'] @ up) / ch['n'].sum()
+    return earth_rate_parts(m.config.latitude)[0] * (ch['n'] @ up) / ch['n'].sum()
 
 
 def evaluate(m, stops, timeline, decisions, noise_g, base, models=None, in_model=False):
@@ -611,37 +611,34 @@ def run_real(name, work, piece_s=None, config=None):
                        text=gate.describe(fig))
         swaps.append(row)
     followed = follower_rows(d)
+    scores = published_against_model(follower_timeline(d, 0.0), holds, actives)
     return {'recording': name, 'path': path, 'piece_s': piece,
             'follower_offsets': sum('offset_rad_s' in x for x in followed),
             'follower_why': sorted({x['why'] for x in followed if 'why' in x}),
-            'follower_scores': published_against_model(followed, holds, actives),
+            'follower_scores': scores,
             'holds': life.store.total_holds, 'decisions': life.decisions(),
             'swaps': swaps, 'harmful_swaps': sum(bool(s.get('harmful')) for s in swaps)}
 
 
-def published_against_model(followed, holds, actives):
+def published_against_model(published, holds, actives):
     """Score the follower on a real recording's holds, each by what was published before it.
 
-    ``followed``: the follower's log (``follower_rows``); ``holds``: the store's raw
-    windows; ``actives``: (swap time s, model) on their clock. Per hold with an offset
-    published before its start (for the model active then): the gyro error (rad/s,
-    ``gate.hold_errors`` without a latitude: the norm of the compensated mean, the model's
-    convention) of the published calibration and of the model alone. Returns the holds
-    scored and the two RMS (None when no hold had an offset before it).
+    ``published``: ``follower_timeline`` of the recording's directory (times on the
+    holds' clock); ``holds``: the store's raw windows; ``actives``: (swap time s, model)
+    on their clock. Per hold whose start saw an offset published for the model active
+    then: the gyro error (rad/s, ``gate.hold_errors`` without a latitude: the norm of the
+    compensated mean, the model's convention) of the published calibration and of the
+    model alone. Returns the holds scored and the two RMS (None when no hold had one).
     """
-    from thermal_imu_calib.lifelong import follower, gate
-    rows = [r for r in followed if 'offset_rad_s' in r]
-    times = np.array([r['time'] for r in rows])
+    from thermal_imu_calib.lifelong import gate
     pub, mod = [], []
     for hid in (holds.hold_ids if len(holds) else []):
         one = holds.select(holds.hold == hid)
         t0 = float(one.t0.min())
         model = [c for t, c in actives if t <= t0][-1]
-        i = int(np.searchsorted(times, t0, side='left')) - 1   # logged before the hold
-        if model is None or i < 0 or rows[i]['active'] != model.id:
+        cal = published(t0, model)
+        if cal is model:                    # no model, or no offset published for it
             continue
-        cal = follower.with_offset(model, rows[i]['offset_rad_s'], rows[i]['time'],
-                                   DEFAULT.follow_horizon_days)
         pub.append(gate.hold_errors(cal, one, model.gravity)['gyro'][0])
         mod.append(gate.hold_errors(model, one, model.gravity)['gyro'][0])
     if not pub:
