@@ -60,7 +60,9 @@ class LifelongConfig:
     #: after a change alarm, a new estimate better for one sensor only also replaces that
     #: sensor alone (False: after an alarm the whole new calibration is judged; on seeds 0-5
     #: the first swap after the knock then took an accelerometer fitted on the few holds
-    #: after the cut, and the next day's accel drift was 1.5-32x worse)
+    #: after the cut, and the next day's accel drift was 1.5-32x worse). Judged again on
+    #: seeds 179-181 (2026-12-07, with the shifted cut): swaps worse next day 3 -> 2, but
+    #: the last week's accel drift +41 % (the pre-knock accelerometer kept longer): off
     one_sensor_after_alarm: bool = False
     #: the holds a swap measures the change alarm's new reference on: 'all' (the raw holds
     #: it was fitted on and the held-out ones), or 'explained' (of those, the ones the new
