@@ -39,7 +39,8 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 sys.path.insert(0, HERE)
 
-from bench_lifelong import active_stops, registry_timeline, stop_error  # noqa: E402
+from bench_lifelong import (  # noqa: E402
+    active_stops, registry_timeline, stop_error, vertical_earth_rate)
 from thermal_imu_calib.lifelong import compose  # noqa: E402
 from thermal_imu_calib.sim.robot_month import DAY, robot_month  # noqa: E402
 
@@ -50,14 +51,23 @@ EXCESS_BANDS = ((0.0, 2.0), (2.0, 5.0), (5.0, np.inf))
 AGE_BANDS = ((0.0, 1.0), (1.0, 3.0), (3.0, np.inf))
 
 
-def stop_errors(cal, ch, policy='clamp'):
-    """Return the sample-weighted (gyro, accel) error vectors of one stop (rad/s, m/s^2)."""
-    return stop_error(dataclasses.replace(cal, out_of_range=policy), ch)
+def stop_errors(cal, ch, policy='clamp', earth=0.0):
+    """Return the sample-weighted (gyro, accel) error vectors of one stop (rad/s, m/s^2).
+
+    ``earth``: the vertical earth rate (3,) rad/s a calibration fitted without the latitude
+    took in, added to its gyro error (``bench_lifelong.py --earth-rate-in-model``).
+    """
+    g, a = stop_error(dataclasses.replace(cal, out_of_range=policy), ch)
+    return g + earth, a
 
 
-def score_seed(seed, work_seed, days):
-    """Return every scored stop of one seed's month (dicts, errors under each policy)."""
-    m = robot_month(seed, days=days)
+def score_seed(seed, work_seed, days, dock_fraction=0.0, in_model=False):
+    """Return every scored stop of one seed's month (dicts, errors under each policy).
+
+    ``dock_fraction`` and ``in_model``: as the month was run and scored
+    (``bench_lifelong.py month|follower --dock-fraction``, ``--earth-rate-in-model``).
+    """
+    m = robot_month(seed, days=days, dock_fraction=dock_fraction)
     acts, cals = registry_timeline(work_seed, m.start_ns)
     stops = []
     for seg, ch, i, cal in active_stops(m, acts, cals):
@@ -68,12 +78,14 @@ def score_seed(seed, work_seed, days):
         g_lo, g_hi = np.asarray(cal.own_range('gyro'), float)[0]
         gyro_excess = max(g_lo - temp.min(), temp.max() - g_hi, 0.0)
         pol = POLICIES if excess > 0 else ('clamp',)
-        errors = {p: stop_errors(cal, ch, p) for p in pol}
+        earth = vertical_earth_rate(m, ch) if in_model else 0.0
+        errors = {p: stop_errors(cal, ch, p, earth) for p in pol}
         # as the month served it (the calibration's own out_of_range: a gyro continued by
         # ``gyro_continuation`` is 'linear_gyro'; a policy scored above is not scored again);
         # inside the range every policy is the same
         own = cal.out_of_range if excess > 0 else 'clamp'
-        errors['activated'] = errors[own] if own in errors else stop_error(cal, ch)
+        errors['activated'] = errors[own] if own in errors else stop_errors(
+            cal, ch, own, earth)
         stops.append({'day': s.t0 / DAY, 'activation': (seed, int(i)), 'excess': float(excess),
                       'gyro_excess': float(gyro_excess),
                       'slope': bool(s.slope_deg > 0), 'age_days': (s.t0 - acts[i]) / DAY,
@@ -145,12 +157,18 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     ap.add_argument('runs', nargs='+', help='SEED:WORK_DIR/seedSEED of a finished month run')
     ap.add_argument('--days', type=float, default=30.0)
+    ap.add_argument('--dock-fraction', type=float, default=0.0,
+                    help='as the months were run (RobotMonthConfig.dock_fraction)')
+    ap.add_argument('--earth-rate-in-model', action='store_true',
+                    help='months run without the latitude: score the gyro in the '
+                         "calibrations' own convention, as bench_lifelong.py does")
     ap.add_argument('--output', default='')
     args = ap.parse_args()
     result, every = {'command': ' '.join(sys.argv), 'seeds': {}}, []
     for spec in args.runs:
         seed, d = spec.split(':', 1)
-        stops = score_seed(int(seed), d, args.days)
+        stops = score_seed(int(seed), d, args.days, args.dock_fraction,
+                           args.earth_rate_in_model)
         every += stops
         r = {'last_week': last_week(stops, args.days), 'outside': outside(stops)}
         result['seeds'][seed] = r

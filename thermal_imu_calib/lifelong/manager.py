@@ -186,8 +186,11 @@ class Lifelong:
         """Score new holds with the active calibration; on a change alarm, cut the store."""
         cal, s, c = self.active, self.state, self.config
         e = gate.hold_errors(cal, windows, cal.gravity, self.latitude)
-        if c.gyro_continuation == 'history' and not s.get('alarm_pending'):
-            continuation.add(s, continuation.rows(cal, windows, cal.gravity, self.latitude))
+        if c.gyro_continuation != 'off' and not s.get('alarm_pending'):
+            reference = None if s.get('active_gyro_rms') is None else \
+                (s['active_gyro_rms'], c.alarm_factor, c.alarm_floor)
+            continuation.add(s, continuation.rows(cal, windows, cal.gravity, self.latitude,
+                                                  reference))
         missed = alarm.new_misses(e, s, c)
         if missed:
             s['missed'] = (s.get('missed') or []) + missed
@@ -385,8 +388,9 @@ class Lifelong:
 
         With ``LifelongConfig.gyro_g_sensitivity`` the gyro also takes the g-sensitivity
         the holds off the mounting pose support, held out (``g_sensitivity``); with
-        ``gyro_continuation`` 'history' its policy beyond the range is the one the holds
-        outside the earlier active calibrations' ranges support (``continuation``).
+        ``gyro_continuation`` 'history' (or 'explained') its policy beyond the range is the
+        one the holds outside the earlier active calibrations' ranges support
+        (``continuation``).
         """
         collected = Collected(windows, self.frame_id, 0, 0.0, list(self.topics), [])
         result = calibrate_collected(self.settings, [collected])
@@ -397,10 +401,11 @@ class Lifelong:
             cal, note = g_sensitivity.attach(result.calibration, coupling)
             result = replace(result, calibration=cal, summary=result.summary + '; ' + note,
                              report={**result.report, 'g_sensitivity': note})
-        if self.config.gyro_continuation == 'history':
+        if self.config.gyro_continuation != 'off':
             cal, note = continuation.choose(result.calibration,
                                             self.state.get('continuation') or [],
-                                            self.config.swap_sigmas)
+                                            self.config.swap_sigmas,
+                                            self.config.gyro_continuation == 'explained')
             if note:
                 result = replace(result, calibration=cal,
                                  summary=result.summary + '; ' + note,
