@@ -79,6 +79,15 @@ def rows(cal, windows, gravity, latitude=None, reference=None):
                 lim)]
 
 
+def reference(state, config):
+    """Return the change alarm's (gyro RMS rad/s, factor, floor) for ``rows``, None: none yet.
+
+    ``state``: the loop's counters (``active_gyro_rms``); ``config``: its ``LifelongConfig``.
+    """
+    rms = state.get('active_gyro_rms')
+    return None if rms is None else (rms, config.alarm_factor, config.alarm_floor)
+
+
 def explained(evidence):
     """Return (the rows at least one policy explains, how many were left out).
 
