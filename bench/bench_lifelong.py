@@ -1277,10 +1277,9 @@ def main():
            'the mounting pose support, held out')
     mo.add_argument('--gyro-continuation', choices=GYRO_CONTINUATIONS,
                     default=DEFAULT.gyro_continuation,
-                    help='the gyro beyond its range: off (the calibrate policy), history '
-                         '(continued when the holds outside earlier ranges support it) or '
-                         'explained (the same without the holds both policies miss by the '
-                         'change alarm\'s limit; LifelongConfig.gyro_continuation)')
+                    help='the gyro beyond its range: off (the calibrate policy) or history '
+                         '(continued when the holds outside earlier ranges support it; '
+                         'LifelongConfig.gyro_continuation)')
     option(mo, 'gyro_ageing_forward', 'an estimate fitted with the gyro ageing removed carries '
            'the rates forward in time in its file')
     option(mo, 'gyro_pooled_gate', 'the gyro swap also judged on the held-out holds of '

@@ -149,9 +149,9 @@ class LifelongConfig:
     #: the stops beyond the range -49 %, gyro last/true -34 %, accel drift -15 %, swaps
     #: with a worse next day 5 -> 3, the same alarms, no harmful swap on the real
     #: recordings. Earlier: seeds 44-48 and 139-140 missed by one swap each (a timing of
-    #: the same swap on 139), 137-138 met (docs/lifelong.md). 'explained': as 'history'
-    #: without the holds both policies miss by the change alarm's limit (on seeds 175 and
-    #: 178 a first day's few such holds kept the gyro clamped all month). Being judged
+    #: the same swap on 139), 137-138 met (docs/lifelong.md). A verdict without the holds
+    #: both policies miss by the alarm's limit was judged on seed 183 (2026-12-07): no
+    #: gain, and it does not act on 175 and 178, whose first-day rows keep them clamped
     gyro_continuation: str = 'history'
     #: an estimate kept with its gyro ageing removed (``ageing``) carries the resolved rates
     #: forward in time in its file (``Calibration.gyro_ageing``: from the estimate's time,
@@ -223,4 +223,4 @@ RANGE_SENSORS = ('every', 'thermal')
 ALARM_REFERENCES = ('all', 'explained')
 ALARM_CUTS = ('all', 'sensor', 'shift')
 #: ``LifelongConfig.gyro_continuation``
-GYRO_CONTINUATIONS = ('off', 'history', 'explained')
+GYRO_CONTINUATIONS = ('off', 'history')

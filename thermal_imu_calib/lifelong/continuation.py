@@ -18,14 +18,6 @@ So the loop decides it from its own held-out evidence:
   error of the paired difference). Then every new estimate continues its gyro linearly;
   otherwise it clamps. With no rows (the first calibrations) it clamps: the standard
   behaviour is the floor.
-* **Explained rows only** (``explained``, ``LifelongConfig.gyro_continuation``
-  'explained'). Each row also keeps the change alarm's gyro limit of its hold (rad/s,
-  ``gate.limit``: the alarm factor times the active's held-out RMS, at least the floor
-  times the hold's standard error; infinite before the loop has a reference). A hold that
-  both policies miss by that limit (the active calibration did not explain it at all,
-  e.g. a first calibration fitted over a few degC and hours) says nothing about which
-  policy continues the trend, yet its squared error outweighs every other row in the
-  RMS; it is left out of the verdict.
 
 Only when the calibrate settings' policy is 'clamp' (the default) or 'linear_gyro'; any
 other policy a user chose is left alone. ``LifelongConfig.gyro_continuation``. No ROS
@@ -56,13 +48,11 @@ def outside_holds(cal, windows):
     return np.unique(windows.hold[oor])
 
 
-def rows(cal, windows, gravity, latitude=None, reference=None):
-    """Return [[t s, clamped error, continued error, standard error, limit]], one per hold.
+def rows(cal, windows, gravity, latitude=None):
+    """Return [[t s, clamped error, continued error, standard error]] (rad/s), one per hold.
 
-    Errors in rad/s. Holds of ``windows`` outside ``cal``'s gyro range only; empty when
-    ``cal``'s policy is not one of ``CHOICES``. ``reference``: (gyro RMS rad/s, factor,
-    floor) of the change alarm (``gate.limit``), the limit column; None: infinite (no
-    reference yet).
+    Holds of ``windows`` outside ``cal``'s gyro range only; empty when ``cal``'s policy is
+    not one of ``CHOICES``.
     """
     if cal is None or cal.out_of_range not in CHOICES:
         return []
@@ -72,30 +62,8 @@ def rows(cal, windows, gravity, latitude=None, reference=None):
     sub = windows.select(np.isin(windows.hold, ids))
     clamp = gate.hold_errors(replace(cal, out_of_range='clamp'), sub, gravity, latitude)
     cont = gate.hold_errors(replace(cal, out_of_range='linear_gyro'), sub, gravity, latitude)
-    lim = np.full(len(clamp['t']), np.inf) if reference is None else \
-        gate.limit(clamp, 'gyro', *reference)
-    return [[float(t), float(a), float(b), float(s), float(m)] for t, a, b, s, m in
-            zip(clamp['t'], np.abs(clamp['gyro']), np.abs(cont['gyro']), clamp['se_gyro'],
-                lim)]
-
-
-def reference(state, config):
-    """Return the change alarm's (gyro RMS rad/s, factor, floor) for ``rows``, None: none yet.
-
-    ``state``: the loop's counters (``active_gyro_rms``); ``config``: its ``LifelongConfig``.
-    """
-    rms = state.get('active_gyro_rms')
-    return None if rms is None else (rms, config.alarm_factor, config.alarm_floor)
-
-
-def explained(evidence):
-    """Return (the rows at least one policy explains, how many were left out).
-
-    A row is left out when both its errors exceed its limit (the fifth column); rows
-    without one (written before the column existed) stay.
-    """
-    kept = [r for r in evidence if len(r) < 5 or min(r[1], r[2]) <= r[4]]
-    return kept, len(evidence) - len(kept)
+    return [[float(t), float(a), float(b), float(s)] for t, a, b, s in
+            zip(clamp['t'], np.abs(clamp['gyro']), np.abs(cont['gyro']), clamp['se_gyro'])]
 
 
 def add(state, new_rows):
@@ -109,36 +77,26 @@ def cut(state, t_cut):
     state['continuation'] = [r for r in state.get('continuation') or [] if r[0] < t_cut]
 
 
-def verdict(evidence, sigmas, only_explained=False):
-    """Return (continue: bool, text) from evidence rows by the swap gate's rule (``compare``).
-
-    ``only_explained``: judged on the rows ``explained`` keeps.
-    """
-    dropped = ''
-    if only_explained:
-        evidence, n = explained(evidence)
-        dropped = (f' ({n} hold{"" if n == 1 else "s"} both missed by the change alarm\'s '
-                   'limit left out)') if n else ''
+def verdict(evidence, sigmas):
+    """Return (continue: bool, text) from evidence rows by the swap gate's rule (``compare``)."""
     if len(evidence) < 2:
         return False, (f'gyro clamped beyond its range: {len(evidence)} hold'
                        f'{"" if len(evidence) == 1 else "s"} outside the earlier active '
-                       'calibrations\' ranges so far, 2 needed to judge a continuation'
-                       + dropped)
-    r = np.asarray([x[:4] for x in evidence], float)
+                       'calibrations\' ranges so far, 2 needed to judge a continuation')
+    r = np.asarray(evidence, float)
     f = gate.compare(r[:, 1], r[:, 2], gate.rms(r[:, 3]), sigmas)
     scale = np.degrees(1.0) * 1e3
     figures = (f'on {len(r)} holds outside the earlier active calibrations\' ranges, '
                f'clamped {f["active_rms"] * scale:.3g} vs continued '
-               f'{f["new_rms"] * scale:.3g} mdeg/s (margin {f["margin"] * scale:.2g})'
-               + dropped)
+               f'{f["new_rms"] * scale:.3g} mdeg/s (margin {f["margin"] * scale:.2g})')
     if f['verdict'] == 'better':
         return True, 'gyro continued linearly beyond its range: ' + figures
     return False, 'gyro clamped beyond its range: ' + figures
 
 
-def choose(cal, evidence, sigmas, only_explained=False):
+def choose(cal, evidence, sigmas):
     """Return (calibration with the chosen gyro policy, text); others' policies untouched."""
     if cal.out_of_range not in CHOICES or cal.gyro is None:
         return cal, ''
-    go, text = verdict(evidence, sigmas, only_explained)
+    go, text = verdict(evidence, sigmas)
     return replace(cal, out_of_range='linear_gyro' if go else 'clamp'), text

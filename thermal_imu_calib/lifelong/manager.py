@@ -28,9 +28,10 @@ hold are ``variants``; the settings are ``config.LifelongConfig``.
 Change alarm (a knock, ``alarm``): every new hold inside the active valid range is scored
 with the active calibration; when, for one sensor, the last ``alarm_holds`` of them all
 miss its reference by the alarm's limit, the store is cut at the first of them (with
-``alarm_cut`` 'shift': the holds before the change are moved by the step the newer ones
-show, ``knock_step``), an alarm is logged and a re-estimate follows. A swap measures the
-alarm's reference anew (``_activate``).
+``alarm_cut`` 'shift': the holds before the change are moved by the step the newer ones show,
+``knock_step``), an alarm
+is logged and a re-estimate follows. A swap measures the alarm's
+reference anew (``_activate``).
 
 Reset (``reset``, the node's ``~/reset``): the collection starts afresh without losing
 data: the hold store and the candidate move into ``archive/<UTC time>/`` (at most
@@ -137,10 +138,11 @@ class Lifelong:
     def reset(self, when=None):
         """Start the collection afresh; the old one is archived, nothing is deleted.
 
-        The store (and the candidate) move into ``archive/<UTC time>/`` (``archive_collection``);
-        the active calibration stays active, the state's counters and the decisions stay,
-        the next re-estimate waits for new holds. Returns the decision dict (action 'reset',
-        logged); raises ``ArchiveFull`` or ``OSError`` with nothing changed.
+        The store (and the candidate) move into ``archive/<UTC time>/``
+        (``archive_collection``); the active calibration stays active, the state's counters
+        and the decisions stay, the next re-estimate waits for new holds. Returns the
+        decision dict (action 'reset', logged); raises ``ArchiveFull`` or ``OSError`` with
+        nothing changed.
         """
         before = self.store.summary()
         rec = self.store.recent
@@ -184,9 +186,8 @@ class Lifelong:
         """Score new holds with the active calibration; on a change alarm, cut the store."""
         cal, s, c = self.active, self.state, self.config
         e = gate.hold_errors(cal, windows, cal.gravity, self.latitude)
-        if c.gyro_continuation != 'off' and not s.get('alarm_pending'):
-            continuation.add(s, continuation.rows(cal, windows, cal.gravity, self.latitude,
-                                                  continuation.reference(s, c)))
+        if c.gyro_continuation == 'history' and not s.get('alarm_pending'):
+            continuation.add(s, continuation.rows(cal, windows, cal.gravity, self.latitude))
         missed = alarm.new_misses(e, s, c)
         if missed:
             s['missed'] = (s.get('missed') or []) + missed
@@ -384,8 +385,8 @@ class Lifelong:
 
         With ``LifelongConfig.gyro_g_sensitivity`` the gyro also takes the g-sensitivity
         the holds off the mounting pose support, held out (``g_sensitivity``); with
-        ``gyro_continuation`` on, its policy beyond the range is the one the holds outside
-        the earlier active calibrations' ranges support (``continuation``).
+        ``gyro_continuation`` 'history' its policy beyond the range is the one the holds
+        outside the earlier active calibrations' ranges support (``continuation``).
         """
         collected = Collected(windows, self.frame_id, 0, 0.0, list(self.topics), [])
         result = calibrate_collected(self.settings, [collected])
@@ -396,11 +397,10 @@ class Lifelong:
             cal, note = g_sensitivity.attach(result.calibration, coupling)
             result = replace(result, calibration=cal, summary=result.summary + '; ' + note,
                              report={**result.report, 'g_sensitivity': note})
-        if self.config.gyro_continuation != 'off':
+        if self.config.gyro_continuation == 'history':
             cal, note = continuation.choose(result.calibration,
                                             self.state.get('continuation') or [],
-                                            self.config.swap_sigmas,
-                                            self.config.gyro_continuation == 'explained')
+                                            self.config.swap_sigmas)
             if note:
                 result = replace(result, calibration=cal,
                                  summary=result.summary + '; ' + note,
