@@ -1277,9 +1277,10 @@ def main():
            'the mounting pose support, held out')
     mo.add_argument('--gyro-continuation', choices=GYRO_CONTINUATIONS,
                     default=DEFAULT.gyro_continuation,
-                    help='the gyro beyond its range: off (the calibrate policy) or history '
-                         '(continued when the holds outside earlier ranges support it; '
-                         'LifelongConfig.gyro_continuation)')
+                    help='the gyro beyond its range: off (the calibrate policy), history '
+                         '(continued when the holds outside earlier ranges support it) or '
+                         'span (the same on the holds of calibrations spanning at least '
+                         'half the new one\'s span; LifelongConfig.gyro_continuation)')
     option(mo, 'gyro_ageing_forward', 'an estimate fitted with the gyro ageing removed carries '
            'the rates forward in time in its file')
     option(mo, 'gyro_pooled_gate', 'the gyro swap also judged on the held-out holds of '

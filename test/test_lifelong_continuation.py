@@ -92,6 +92,31 @@ def test_no_evidence_clamps_and_other_policies_are_left_alone():
     assert continuation.rows(ext, holds([25.0], 1), G0, LAT) == []
 
 
+def test_like_for_like_judges_on_the_rows_of_calibrations_of_a_like_span():
+    """A first calibration's few rows, far worse continued, do not decide for a wide one.
+
+    The pattern of seeds 175 and 178 (docs/lifelong.md): a calibration over a few degC
+    continued far worse beyond its edge, later ones over 10 degC (here 10-20) far better.
+    """
+    cal = fitted()
+    assert 10.0 <= continuation.span(cal) < 13.0          # 10-20 degC and its margin
+    beyond = holds(np.linspace(22.0, 27.0, 12), 1, first_id=100, t_start=1e5)
+    later = continuation.rows(cal, beyond, G0, LAT)
+    assert all(r[4] == continuation.span(cal) for r in later)
+    first = [[float(t), 1.0e-3, 7.0e-3, 1e-5, 3.0] for t in range(6)]
+    evidence = first + later
+    go, text = continuation.verdict(evidence, 2.0)
+    assert not go and 'on 18 holds' in text                      # the RMS of every row
+    go, text = continuation.verdict(evidence, 2.0, width=continuation.span(cal))
+    assert go and 'on 12 holds' in text and 'spanning at least' in text
+    assert continuation.choose(cal, evidence, 2.0, like_for_like=True)[0].out_of_range \
+        == 'linear_gyro'
+    # a narrow new estimate is judged on every row (each spans at least half of its span)
+    assert len(continuation.like(evidence, 4.0)) == 18
+    # rows without a span (older state files) stay
+    assert continuation.like([[0.0, 1.0, 1.0, 0.1]], 30.0) == [[0.0, 1.0, 1.0, 0.1]]
+
+
 def test_the_evidence_is_bounded_and_cut_at_a_change():
     state = {}
     continuation.add(state, [[float(t), 1.0, 0.5, 0.1] for t in range(3000)])
@@ -115,7 +140,7 @@ def test_a_clamped_accelerometer_composes_with_a_continued_gyro():
 def test_the_loop_logs_the_continuation_with_each_estimate(tmp_path):
     """With the option on, every judged estimate's logged text says what the rule chose."""
     from thermal_imu_calib.lifelong.config import LifelongConfig
-    life = lifelong_month(tmp_path / 'life', LifelongConfig(gyro_continuation='history'))
+    life = lifelong_month(tmp_path / 'life', LifelongConfig(gyro_continuation='span'))
     judged = [d for d in life.decisions() if d['action'] in ('swap', 'keep')]
     assert judged, life.decisions()
     for d in judged:
@@ -123,6 +148,6 @@ def test_the_loop_logs_the_continuation_with_each_estimate(tmp_path):
     # the first estimate had no evidence; later ones were judged on held-out rows
     assert '0 holds' in judged[0]['continuation']
     rows = life.state.get('continuation') or []
-    assert all(len(r) == 4 and r[1] >= 0 and r[2] >= 0 for r in rows)
+    assert all(len(r) == 5 and r[1] >= 0 and r[2] >= 0 and r[4] > 0 for r in rows)
     assert rows == sorted(rows)
     assert life.active is not None and life.active.out_of_range in continuation.CHOICES

@@ -151,7 +151,9 @@ class LifelongConfig:
     #: recordings. Earlier: seeds 44-48 and 139-140 missed by one swap each (a timing of
     #: the same swap on 139), 137-138 met (docs/lifelong.md). A verdict without the holds
     #: both policies miss by the alarm's limit was judged on seed 183 (2026-12-07): no
-    #: gain, and it does not act on 175 and 178, whose first-day rows keep them clamped
+    #: gain, and it does not act on 175 and 178, whose first-day rows keep them clamped.
+    #: 'span': as 'history', on the rows of calibrations spanning at least half the new
+    #: estimate's span (``continuation.like``). Being judged
     gyro_continuation: str = 'history'
     #: an estimate kept with its gyro ageing removed (``ageing``) carries the resolved rates
     #: forward in time in its file (``Calibration.gyro_ageing``: from the estimate's time,
@@ -223,4 +225,4 @@ RANGE_SENSORS = ('every', 'thermal')
 ALARM_REFERENCES = ('all', 'explained')
 ALARM_CUTS = ('all', 'sensor', 'shift')
 #: ``LifelongConfig.gyro_continuation``
-GYRO_CONTINUATIONS = ('off', 'history')
+GYRO_CONTINUATIONS = ('off', 'history', 'span')

@@ -18,6 +18,11 @@ So the loop decides it from its own held-out evidence:
   error of the paired difference). Then every new estimate continues its gyro linearly;
   otherwise it clamps. With no rows (the first calibrations) it clamps: the standard
   behaviour is the floor.
+* **Like for like** (``LifelongConfig.gyro_continuation`` 'span'). Each row also keeps the
+  gyro span (degC, first input) of the calibration that scored it. A new estimate is
+  judged only on the rows of calibrations spanning at least half its own span: what the
+  first calibrations, fitted over a few degC, did beyond their edge says little about one
+  fitted over weeks (docs/lifelong.md, "Seed 178's gyro beyond its range").
 
 Only when the calibrate settings' policy is 'clamp' (the default) or 'linear_gyro'; any
 other policy a user chose is left alone. ``LifelongConfig.gyro_continuation``. No ROS
@@ -34,6 +39,17 @@ from . import gate
 CHOICES = ('clamp', 'linear_gyro')
 #: most evidence rows kept, newest last (a memory bound: weeks of stops beyond the range)
 MAX_ROWS = 2000
+#: 'span': the rows judged are those of calibrations spanning at least this fraction of
+#: the new estimate's gyro span
+SPAN_FRACTION = 0.5
+
+
+def span(cal):
+    """Return the width (degC) of ``cal``'s gyro range on its first input (0: none)."""
+    if cal is None or not cal.inputs:
+        return 0.0
+    lo, hi = np.asarray(cal.own_range('gyro'), float)[0]
+    return float(hi - lo)
 
 
 def outside_holds(cal, windows):
@@ -49,10 +65,11 @@ def outside_holds(cal, windows):
 
 
 def rows(cal, windows, gravity, latitude=None):
-    """Return [[t s, clamped error, continued error, standard error]] (rad/s), one per hold.
+    """Return [[t s, clamped error, continued error, standard error, span]], one per hold.
 
-    Holds of ``windows`` outside ``cal``'s gyro range only; empty when ``cal``'s policy is
-    not one of ``CHOICES``.
+    Errors in rad/s; span: ``cal``'s gyro span (degC, ``span``). Holds of ``windows``
+    outside ``cal``'s gyro range only; empty when ``cal``'s policy is not one of
+    ``CHOICES``.
     """
     if cal is None or cal.out_of_range not in CHOICES:
         return []
@@ -62,8 +79,17 @@ def rows(cal, windows, gravity, latitude=None):
     sub = windows.select(np.isin(windows.hold, ids))
     clamp = gate.hold_errors(replace(cal, out_of_range='clamp'), sub, gravity, latitude)
     cont = gate.hold_errors(replace(cal, out_of_range='linear_gyro'), sub, gravity, latitude)
-    return [[float(t), float(a), float(b), float(s)] for t, a, b, s in
+    width = span(cal)
+    return [[float(t), float(a), float(b), float(s), width] for t, a, b, s in
             zip(clamp['t'], np.abs(clamp['gyro']), np.abs(cont['gyro']), clamp['se_gyro'])]
+
+
+def like(evidence, width):
+    """Return the rows of calibrations spanning at least ``SPAN_FRACTION`` of ``width`` degC.
+
+    Rows without a span (written before the column existed) stay.
+    """
+    return [r for r in evidence if len(r) < 5 or r[4] >= SPAN_FRACTION * width]
 
 
 def add(state, new_rows):
@@ -77,16 +103,24 @@ def cut(state, t_cut):
     state['continuation'] = [r for r in state.get('continuation') or [] if r[0] < t_cut]
 
 
-def verdict(evidence, sigmas):
-    """Return (continue: bool, text) from evidence rows by the swap gate's rule (``compare``)."""
+def verdict(evidence, sigmas, width=None):
+    """Return (continue: bool, text) from evidence rows by the swap gate's rule (``compare``).
+
+    ``width``: the new estimate's gyro span (degC); given, only the rows ``like`` keeps.
+    """
+    if width is not None:
+        evidence = like(evidence, width)
     if len(evidence) < 2:
         return False, (f'gyro clamped beyond its range: {len(evidence)} hold'
                        f'{"" if len(evidence) == 1 else "s"} outside the earlier active '
                        'calibrations\' ranges so far, 2 needed to judge a continuation')
-    r = np.asarray(evidence, float)
+    r = np.asarray([x[:4] for x in evidence], float)
     f = gate.compare(r[:, 1], r[:, 2], gate.rms(r[:, 3]), sigmas)
     scale = np.degrees(1.0) * 1e3
-    figures = (f'on {len(r)} holds outside the earlier active calibrations\' ranges, '
+    like_for_like = '' if width is None else \
+        f' of calibrations spanning at least {SPAN_FRACTION * width:.3g} degC'
+    figures = (f'on {len(r)} holds outside the earlier active calibrations\' ranges'
+               f'{like_for_like}, '
                f'clamped {f["active_rms"] * scale:.3g} vs continued '
                f'{f["new_rms"] * scale:.3g} mdeg/s (margin {f["margin"] * scale:.2g})')
     if f['verdict'] == 'better':
@@ -94,9 +128,12 @@ def verdict(evidence, sigmas):
     return False, 'gyro clamped beyond its range: ' + figures
 
 
-def choose(cal, evidence, sigmas):
-    """Return (calibration with the chosen gyro policy, text); others' policies untouched."""
+def choose(cal, evidence, sigmas, like_for_like=False):
+    """Return (calibration with the chosen gyro policy, text); others' policies untouched.
+
+    ``like_for_like``: judged on the rows of calibrations like ``cal`` (``like``).
+    """
     if cal.out_of_range not in CHOICES or cal.gyro is None:
         return cal, ''
-    go, text = verdict(evidence, sigmas)
+    go, text = verdict(evidence, sigmas, span(cal) if like_for_like else None)
     return replace(cal, out_of_range='linear_gyro' if go else 'clamp'), text

@@ -28,10 +28,9 @@ hold are ``variants``; the settings are ``config.LifelongConfig``.
 Change alarm (a knock, ``alarm``): every new hold inside the active valid range is scored
 with the active calibration; when, for one sensor, the last ``alarm_holds`` of them all
 miss its reference by the alarm's limit, the store is cut at the first of them (with
-``alarm_cut`` 'shift': the holds before the change are moved by the step the newer ones show,
-``knock_step``), an alarm
-is logged and a re-estimate follows. A swap measures the alarm's
-reference anew (``_activate``).
+``alarm_cut`` 'shift': the holds before the change are moved by the step the newer ones
+show, ``knock_step``), an alarm is logged and a re-estimate follows. A swap measures the
+alarm's reference anew (``_activate``).
 
 Reset (``reset``, the node's ``~/reset``): the collection starts afresh without losing
 data: the hold store and the candidate move into ``archive/<UTC time>/`` (at most
@@ -186,7 +185,7 @@ class Lifelong:
         """Score new holds with the active calibration; on a change alarm, cut the store."""
         cal, s, c = self.active, self.state, self.config
         e = gate.hold_errors(cal, windows, cal.gravity, self.latitude)
-        if c.gyro_continuation == 'history' and not s.get('alarm_pending'):
+        if c.gyro_continuation != 'off' and not s.get('alarm_pending'):
             continuation.add(s, continuation.rows(cal, windows, cal.gravity, self.latitude))
         missed = alarm.new_misses(e, s, c)
         if missed:
@@ -397,10 +396,11 @@ class Lifelong:
             cal, note = g_sensitivity.attach(result.calibration, coupling)
             result = replace(result, calibration=cal, summary=result.summary + '; ' + note,
                              report={**result.report, 'g_sensitivity': note})
-        if self.config.gyro_continuation == 'history':
+        if self.config.gyro_continuation != 'off':
             cal, note = continuation.choose(result.calibration,
                                             self.state.get('continuation') or [],
-                                            self.config.swap_sigmas)
+                                            self.config.swap_sigmas,
+                                            self.config.gyro_continuation == 'span')
             if note:
                 result = replace(result, calibration=cal,
                                  summary=result.summary + '; ' + note,
