@@ -25,6 +25,7 @@ sys.path.insert(0, os.path.dirname(HERE))
 sys.path.insert(0, HERE)
 
 from bench_lifelong import active_index, registry_timeline  # noqa: E402
+from thermal_imu_calib.lifelong.continuation import span  # noqa: E402
 from thermal_imu_calib.sim.robot_month import DAY, robot_month  # noqa: E402
 
 #: gyro range widths (degC) the rows are grouped by
@@ -42,8 +43,7 @@ def span_rows(seed, d, dock_fraction=0.0):
     for r in rows:
         i = active_index(acts, r[0] - base)
         if i >= 0:
-            lo, hi = np.asarray(cals[i].own_range('gyro'), float)[0]
-            out.append(((r[0] - base) / DAY, hi - lo, r[1], r[2]))
+            out.append(((r[0] - base) / DAY, span(cals[i]), r[1], r[2]))
     return np.array(out).reshape(-1, 4)
 
 
