@@ -54,7 +54,8 @@ from thermal_imu_calib.calibration import OUT_OF_RANGE_POLICIES  # noqa: E402
 from thermal_imu_calib.cli.calibrate import margin_or_off  # noqa: E402
 from thermal_imu_calib.estimation.gyro_static import earth_rate_parts  # noqa: E402
 from thermal_imu_calib.estimation.options import HIGH_ORDER_SENSORS  # noqa: E402
-from thermal_imu_calib.lifelong.config import GYRO_CONTINUATIONS, RANGE_SENSORS  # noqa: E402
+from thermal_imu_calib.lifelong.config import (  # noqa: E402
+    GYRO_CONTINUATIONS, INCUMBENT_SPECS, RANGE_SENSORS)
 from thermal_imu_calib.lifelong.feed import Feeder  # noqa: E402
 from thermal_imu_calib.lifelong.gate import ACCEL_SCORES  # noqa: E402
 from thermal_imu_calib.lifelong.hints import HintGate, HintSource  # noqa: E402
@@ -202,7 +203,8 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
              resume=False, gyro_ageing_forward=DEFAULT.gyro_ageing_forward,
              gyro_pooled_gate=DEFAULT.gyro_pooled_gate,
              swap_must_explain=DEFAULT.swap_must_explain, gyro_follow=DEFAULT.gyro_follow,
-             follow_without_latitude=DEFAULT.follow_without_latitude, **overrides):
+             follow_without_latitude=DEFAULT.follow_without_latitude,
+             incumbent_spec=DEFAULT.incumbent_spec, **overrides):
     m = robot_month(seed, days=days, **overrides)
     d = os.path.join(work, f'seed{seed}')
     ckpt = latest_checkpoint(d) if resume else None
@@ -237,7 +239,8 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
                                               gyro_pooled_gate=gyro_pooled_gate,
                                               swap_must_explain=swap_must_explain,
                                               gyro_follow=gyro_follow,
-                                              follow_without_latitude=follow_without_latitude),
+                                              follow_without_latitude=follow_without_latitude,
+                                              incumbent_spec=incumbent_spec),
                         log=lambda level, text: log.append((level, text)))
     life = make()
     feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
@@ -467,6 +470,7 @@ def month(args):
                      swap_must_explain=args.swap_must_explain,
                      gyro_follow=args.gyro_follow,
                      follow_without_latitude=args.follow_without_latitude,
+                     incumbent_spec=args.incumbent_spec,
                      dock_fraction=args.dock_fraction)
         rows.append(r)
         if args.stop_day is not None:
@@ -659,7 +663,8 @@ def real(args):
             gyro_ageing_forward=args.gyro_ageing_forward,
             gyro_pooled_gate=args.gyro_pooled_gate,
             swap_must_explain=args.swap_must_explain, gyro_follow=args.gyro_follow,
-            follow_without_latitude=args.follow_without_latitude))
+            follow_without_latitude=args.follow_without_latitude,
+            incumbent_spec=args.incumbent_spec))
         rows.append(r)
         fixture = os.sep + 'fixtures' + os.sep in r['path']
         print(f'{name}: {r["holds"]} holds, decisions '
@@ -1281,6 +1286,10 @@ def main():
                          '(continued when the holds outside earlier ranges support it) or '
                          'span (the same on the holds of calibrations spanning at least '
                          'half the new one\'s span; LifelongConfig.gyro_continuation)')
+    mo.add_argument('--incumbent-spec', choices=INCUMBENT_SPECS,
+                    default=DEFAULT.incumbent_spec,
+                    help='the spec of the model in use offered to the next estimate, kept '
+                         'while within the margin of the best (LifelongConfig.incumbent_spec)')
     option(mo, 'gyro_ageing_forward', 'an estimate fitted with the gyro ageing removed carries '
            'the rates forward in time in its file')
     option(mo, 'gyro_pooled_gate', 'the gyro swap also judged on the held-out holds of '
@@ -1341,6 +1350,9 @@ def main():
     re_.add_argument('--gyro-continuation', choices=GYRO_CONTINUATIONS,
                      default=DEFAULT.gyro_continuation,
                      help='LifelongConfig.gyro_continuation (default: the package\'s)')
+    re_.add_argument('--incumbent-spec', choices=INCUMBENT_SPECS,
+                     default=DEFAULT.incumbent_spec,
+                     help='LifelongConfig.incumbent_spec (default: the package\'s)')
     for flag in ('folds', 'floor', 'levels'):
         re_.add_argument(f'--placement-{flag}', action=argparse.BooleanOptionalAction,
                          default=getattr(DEFAULT, f'placement_{flag}'),

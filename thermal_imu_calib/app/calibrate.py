@@ -150,8 +150,11 @@ def thermal_inputs(settings, topics):
     return inputs, mapping
 
 
-def options(settings, collected, transitions=()):
-    """Return the CalibrateOptions of ``settings`` for holds collected as ``collected``."""
+def options(settings, collected, transitions=(), incumbent_specs=None):
+    """Return the CalibrateOptions of ``settings`` for holds collected as ``collected``.
+
+    ``incumbent_specs``: ``CalibrateOptions.incumbent_specs`` (the lifelong loop's).
+    """
     g, g_src = resolve(settings)
     prior = load_prior(os.path.expanduser(settings.prior)) if settings.prior else None
     inputs, mapping = thermal_inputs(settings, collected[0].temperature_topics)
@@ -167,7 +170,7 @@ def options(settings, collected, transitions=()):
         placement_floor=settings.placement_floor,
         placement_levels=settings.placement_levels,
         placement_levels_sensors=settings.placement_levels_sensors,
-        latitude=settings.latitude,
+        latitude=settings.latitude, incumbent_specs=incumbent_specs,
         transitions=list(transitions), **mapping)
 
 
@@ -278,7 +281,7 @@ def write_calibration(cal, path, inputs=(), keep_backup=False):
     cal.save(path)
 
 
-def calibrate_collected(settings, collected, paths=(), imu_topic=None):
+def calibrate_collected(settings, collected, paths=(), imu_topic=None, incumbent_specs=None):
     """Estimate one calibration from the holds of one or more collections.
 
     ``collected``: the ``collection.collected.Collected`` of each log (or of the live
@@ -286,7 +289,8 @@ def calibrate_collected(settings, collected, paths=(), imu_topic=None):
     go to ``fit.inputs`` and long holds are re-read for the random walk,
     ``app.noise.add_random_walk``). Returns the
     CalibrationResult, checked by the loader the compensator uses (SettingsError when it
-    would be refused: nothing usable can be written).
+    would be refused: nothing usable can be written). ``incumbent_specs``: the specs of the
+    calibration in use (``CalibrateOptions.incumbent_specs``; the lifelong loop's).
     """
     topics = collected[0].temperature_topics
     for c in collected[1:]:
@@ -295,7 +299,8 @@ def calibrate_collected(settings, collected, paths=(), imu_topic=None):
                                 f'{c.temperature_topics}); name the topics to use')
     windows = merge_windows(collected)
     transitions = merge_transitions(collected)
-    result = calibrate_windows(windows, options(settings, collected, transitions))
+    result = calibrate_windows(windows, options(settings, collected, transitions,
+                                                incumbent_specs))
     cal = result.calibration
     if paths:
         cal.fit['inputs'] = [os.path.basename(os.path.normpath(p)) for p in paths]

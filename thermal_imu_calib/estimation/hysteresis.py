@@ -62,6 +62,22 @@ class Spec:
         parts += [f'{k} {history_key(t)}' for k, t in self.terms]
         return ' + '.join(parts) + f', {self.weighting}-weighted'
 
+    def to_dict(self):
+        """Return a JSON-able form (``spec_from_dict`` reads it back equal)."""
+        return {'order': self.order, 'base': list(self.base),
+                'terms': [[k, list(t)] for k, t in self.terms], 'weighting': self.weighting,
+                'name': self.name}
+
+
+def spec_from_dict(item):
+    """Return the ``Spec`` of ``Spec.to_dict``'s form; None when it is not one."""
+    try:
+        return Spec(int(item['order']), tuple(float(x) for x in item['base']),
+                    tuple((str(k), tuple(float(x) for x in t)) for k, t in item['terms']),
+                    str(item['weighting']), str(item.get('name', '')))
+    except (KeyError, TypeError, ValueError, AttributeError):
+        return None
+
 
 #: the flight stacks' cubic as ArduPilot's offline tool fits it (tempcal_IMU.py: cubic
 #: polyfit of every sample against T - 35 degC): time-weighted, no history

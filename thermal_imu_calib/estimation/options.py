@@ -83,6 +83,11 @@ class CalibrateOptions:
     #: the sensors ``placement_levels`` applies to: 'both', 'accel' or 'gyro'
     #: (``HIGH_ORDER_SENSORS``' names)
     placement_levels_sensors: str = 'both'
+    #: {sensor: ``hysteresis.Spec`` or 'rvm'}: the spec of the calibration in use (lifelong
+    #: ``incumbent_spec``). The history path (``time_folds.select_history``) scores it with
+    #: the other candidates and keeps it whenever it is in the pool (within ``MARGIN`` of the
+    #: best, no worse than the flight stacks' cubic); None: the simplest of the pool
+    incumbent_specs: Optional[dict] = None
     #: margins by unit, {unit: margin in that unit} (e.g. {'Hz': 2.0}); a proxy unit not
     #: named here gets ``range_margin`` scaled by the ratio of its collected span to the
     #: degC inputs' (see ``input_margins``)

@@ -189,6 +189,10 @@ class LifelongConfig:
     #: 3 of 4 within 1.5x), the second day after the knock -42 %, the first day -0.6 %;
     #: the real chamber log -0.6 % (docs/lifelong.md, "The follower without a latitude")
     follow_without_latitude: bool = True
+    #: the thermal spec of the model in use is offered to the next estimate, which keeps it
+    #: whenever held-out blocks put it within the margin of the best (``incumbent``):
+    #: 'off', 'accel' or 'both'. Being judged (off)
+    incumbent_spec: str = 'off'
     store: StoreConfig = field(default_factory=StoreConfig)
 
     def __post_init__(self):
@@ -199,6 +203,7 @@ class LifelongConfig:
                               ('alarm_cut', ALARM_CUTS),
                               ('accel_score', gate.ACCEL_SCORES),
                               ('gyro_continuation', GYRO_CONTINUATIONS),
+                              ('incumbent_spec', INCUMBENT_SPECS),
                               ('placement_levels_sensors', tuple(HIGH_ORDER_SENSORS))):
             if getattr(self, name) not in allowed:
                 raise ValueError(f'LifelongConfig.{name} {getattr(self, name)!r} is not one '
@@ -226,3 +231,5 @@ ALARM_REFERENCES = ('all', 'explained')
 ALARM_CUTS = ('all', 'sensor', 'shift')
 #: ``LifelongConfig.gyro_continuation``
 GYRO_CONTINUATIONS = ('off', 'history', 'span')
+#: ``LifelongConfig.incumbent_spec``
+INCUMBENT_SPECS = ('off', 'accel', 'both')

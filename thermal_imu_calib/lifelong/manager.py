@@ -42,7 +42,7 @@ off the gyro the active model's recent miss (``follower``); every decision judge
 
 ``Lifelong`` holds the state the pieces share (the counters, the active calibration, the
 store) and applies what they return; the pieces are ``trigger``, ``gate``, ``compose``,
-``variants``, ``ageing``, ``alarm``, ``store``, ``files`` and ``archive``.
+``variants``, ``ageing``, ``alarm``, ``incumbent``, ``store``, ``files`` and ``archive``.
 """
 
 import os
@@ -55,8 +55,8 @@ from ..app.calibrate import calibrate_collected
 from ..estimation.calibrate import CalibrationRefused
 from ..io.output import write_atomic
 from ..collection.collected import Collected
-from . import alarm, compose, continuation, files, follower, g_sensitivity, gate, knock_step, \
-    pooled, trigger, variants
+from . import alarm, compose, continuation, files, follower, g_sensitivity, gate, incumbent, \
+    knock_step, pooled, trigger, variants
 from ..collection.segments import Windows
 from .archive import ArchiveFull, archive_collection, MAX_ARCHIVES  # noqa: F401 (API)
 from .config import (ALARM_CUTS, ALARM_REFERENCES, ALARM_WINDOWS,  # noqa: F401 (API)
@@ -81,10 +81,9 @@ class Lifelong:
         self.sensor = sensor or frame_id or 'imu'
         self.registry_dir = os.path.expanduser(registry_dir) if registry_dir else ''
         self.config = config or LifelongConfig()
-        if self.config.placement_folds:   # a robot's stops: separate placements
-            self.settings = replace(self.settings, placement_folds=True)
-        if self.config.placement_floor:
-            self.settings = replace(self.settings, placement_floor=True)
+        for name in ('placement_folds', 'placement_floor'):   # a robot's stops: placements
+            if getattr(self.config, name):
+                self.settings = replace(self.settings, **{name: True})
         if self.config.placement_levels:
             self.settings = replace(self.settings, placement_levels=True,
                                     placement_levels_sensors=self.config.placement_levels_sensors)
@@ -102,10 +101,9 @@ class Lifelong:
                       'alarm_pending': False, 'swaps': 0, 'kept': 0, 'estimates': 0,
                       'last_decision': ''}
         files.load_state(self._path('state.json'), self.state, self.log)
-        #: [alarm.Tracked]: the newest holds the change alarm watches
-        self.track = []
+        self.track = []     # [alarm.Tracked]: the newest holds the change alarm watches
         #: (windows, main-pose mask) of the estimate running, for the gyro g-sensitivity
-        self._pool = None
+        self._pool, self._specs = None, {}      # _specs: ``incumbent.note``'s
         #: the calibration to publish: the active one, with the follower's offset when on
         self.output = self.active
         self._follow(record=False)
@@ -297,9 +295,8 @@ class Lifelong:
             text += '; ' + decision['pooled']['text']
         if 'kept_history' in decision:
             text += '; ' + decision['kept_history']['text']
-        for key in ('g_sensitivity', 'continuation'):
-            if key in decision:
-                text += '; ' + decision[key]
+        text += ''.join('; ' + decision[k] for k in ('g_sensitivity', 'continuation')
+                        if k in decision)
         if swap:
             if c.refit_on_swap:
                 new, fitted = variants.refit(self._calibrate, self.store, c, self.active, new,
@@ -388,7 +385,8 @@ class Lifelong:
         outside the earlier active calibrations' ranges support (``continuation``).
         """
         collected = Collected(windows, self.frame_id, 0, 0.0, list(self.topics), [])
-        result = calibrate_collected(self.settings, [collected])
+        result = calibrate_collected(self.settings, [collected], incumbent_specs=(
+            incumbent.offered(self.state, self.config)))
         if self._pool is not None:
             everything, in_pose = self._pool
             coupling = g_sensitivity.learn(result.calibration, everything, in_pose,
@@ -405,6 +403,7 @@ class Lifelong:
                 result = replace(result, calibration=cal,
                                  summary=result.summary + '; ' + note,
                                  report={**result.report, 'continuation': note})
+        incumbent.note(self._specs, result)     # the models as they are kept
         return result
 
     def _finish(self, decision):
@@ -429,6 +428,7 @@ class Lifelong:
         """
         before = {k: self.state.get(k) for k in ('active_gyro_rms', 'active_accel_rms')}
         self.active = cal
+        incumbent.activate(self.state, self._specs, cal, only)
         self._follow()
         self.candidate = None
         if os.path.exists(self._path('candidate.yaml')):

@@ -43,7 +43,7 @@ def estimate_hysteresis(ctx):
                 ctx.windows, ctx.windows.temp[:, idx], sig, sig, cv_groups(ctx.windows)[0],
                 offset_only=sig == 'accel', t_ref=t0, kernels=kernels)
             report[f'{sig}_history'] = {'spec': 'rvm', 'weighting': 'rvm',
-                                        'history_terms': []}
+                                        'history_terms': [], 'spec_state': 'rvm'}
             notes.append(f'{sig}: rvm (seed 003) in the reading, chosen on held-out blocks '
                          f'of the thermal history ({res["kind"]})')
             continue
@@ -61,7 +61,8 @@ def estimate_hysteresis(ctx):
         models[sig] = build_model(spec, coef, std, ref, sig, include_constant=sig == 'gyro',
                                   feats=feats)
         report[f'{sig}_history'] = {'spec': spec.label(), 'weighting': spec.weighting,
-                                    'history_terms': getattr(models[sig], 'history_keys', [])}
+                                    'history_terms': getattr(models[sig], 'history_keys', []),
+                                    'spec_state': spec.to_dict()}
         notes.append(f'{sig}: {spec.label()} (weighting: {_weighting_note(spec)}), chosen '
                      f'on held-out blocks of the thermal history ({res["kind"]})')
     notes.append(f'model choice: {res["reason"]}')

@@ -23,7 +23,9 @@ on top of it:
 * per sensor, the pool is the candidates within ``MARGIN`` of the best that are not worse
   than the cubic. The incumbent stays when it is in the pool of both sensors; otherwise
   each sensor gets the simplest spec of its pool (the cubic when the pool is empty), fitted
-  by ``history_select`` (model ``hysteresis``).
+  by ``history_select`` (model ``hysteresis``). A spec offered as the one in use
+  (``CalibrateOptions.incumbent_specs``, the lifelong loop's) is scored too and is that
+  sensor's pick whenever it is in the pool.
 
 With ``placement_floor`` (the holds are separate placements: a robot's stops) a candidate
 is also scored with whole placements left out (``placements.placement_groups``; inputs
@@ -48,7 +50,8 @@ from ..input_units import is_temperature
 from .heldout import clamp_to_training
 from .placements import (BLOCK_S, floor_margin, harms, level_drift,  # noqa: F401 (re-export)
                          mean_ratios, placement_groups, raw_figures, spec_figures)
-from .time_folds import complexity, label, MARGIN, MIN_TEST_WINDOWS, PLACED, RVM, whole_holds
+from .time_folds import (complexity, incumbent_note, label, MARGIN, MIN_TEST_WINDOWS, PLACED,
+                         RVM, whole_holds)
 
 #: the temperature span is cut into this many equal bands; the interior ones are held out
 #: (the granularity of the previous path's six time blocks, without its two end blocks)
@@ -227,7 +230,10 @@ def select_one_way(ctx, incumbent, fit_single):
                          ('gyro', ctx.gyro_input, ctx.gyro_t0)):
         t0 = np.asarray(t0, float)
         raw = raw_figures(w, sig, folds)
-        figs = spec_figures(w, idx, sig, specs + shown, t0, folds,
+        offered = (ctx.options.incumbent_specs or {}).get(sig)
+        offered = offered if isinstance(offered, Spec) and offered not in shown else None
+        extra = [offered] if offered is not None and offered not in specs else []
+        figs = spec_figures(w, idx, sig, specs + shown + extra, t0, folds,
                             levels=ctx.options.levels(sig))
         if inc is not None:
             figs[INCUMBENT] = inc[sig]
@@ -260,8 +266,10 @@ def select_one_way(ctx, incumbent, fit_single):
             spec_best = min(specs_left.values())
             spec_pool = [k for k, v in specs_left.items()
                          if v <= spec_best * (1 + MARGIN) and v <= floor]
-        picks[sig] = (min(spec_pool, key=lambda s: (complexity(s), scores[s])) if spec_pool
+        picks[sig] = (offered if offered in spec_pool else
+                      min(spec_pool, key=lambda s: (complexity(s), scores[s])) if spec_pool
                       else floor_spec)
+        placed += incumbent_note(offered if offered in scores else None, picks[sig], scores)
         table.setdefault('raw', {})[sig] = float(np.mean(raw))
         table['raw'][f'{sig}_per_fold'] = [float(v) for v in raw]
         for k, v in figs.items():

@@ -245,8 +245,13 @@ def refine(windows, axis_input, signal, spec, t0, folds, raw, levels=False):
     return figures(float(np.exp(res.x)))
 
 
-def choose(figures, raw):
-    """Return (chosen spec, {spec: score}): simplest within MARGIN of the best, >= floor."""
+def choose(figures, raw, incumbent=None):
+    """Return (chosen spec, {spec: score}): simplest within MARGIN of the best, >= floor.
+
+    ``incumbent`` (a key of ``figures``, ``CalibrateOptions.incumbent_specs``): chosen
+    whenever it is in that pool, so the spec in use changes only when held-out blocks say
+    it is more than ``MARGIN`` worse than the best.
+    """
     raw = np.asarray(raw, float)
     ok = raw > 0
     scores = {s: float(np.mean(np.asarray(v)[ok] / raw[ok])) if ok.any() else float(np.mean(v))
@@ -255,6 +260,8 @@ def choose(figures, raw):
     best = min(scores.values())
     floor = scores.get(ARDUPILOT_SPEC, np.inf)
     pool = [s for s in scores if scores[s] <= best * (1 + MARGIN) and scores[s] <= floor]
+    if incumbent is not None and incumbent in pool:
+        return incumbent, scores
     chosen = min(pool, key=lambda s: (complexity(s), scores[s])) if pool else ARDUPILOT_SPEC
     return chosen, scores
 
@@ -297,6 +304,14 @@ def _floor_score(ctx, sig, idx, t0, spec, folds):
     return mean_ratios({'m': figs}, raw_figures(w, sig, folds))['m']
 
 
+def incumbent_note(inc, spec, scores):
+    """Return the summary's words on the spec in use (``choose``'s ``incumbent``), or ''."""
+    if inc is None:
+        return ''
+    return (f'; the calibration in use\'s {label(inc)} {scores.get(inc, np.nan):.3f} of raw, '
+            + ('kept (within the margin of the best)' if spec == inc else 'replaced'))
+
+
 def select_history(ctx, signals=('accel', 'gyro')):
     """Choose the history model per sensor; returns a dict for Selection and the estimator.
 
@@ -315,19 +330,24 @@ def select_history(ctx, signals=('accel', 'gyro')):
         if sig not in signals:
             continue
         lv = ctx.options.levels(sig)
-        figs, raw = heldout_figures(w, idx, sig, specs, np.asarray(t0, float), folds, lv)
+        inc = (ctx.options.incumbent_specs or {}).get(sig)
+        extra = [inc] if isinstance(inc, Spec) and inc not in specs else []
+        figs, raw = heldout_figures(w, idx, sig, specs + extra, np.asarray(t0, float), folds,
+                                    lv)
         if not lv:      # the RVM cannot take a random level per placement (no candidate)
             figs[RVM] = rvm_figures(w, idx, sig, np.asarray(t0, float), folds)
-        spec, _ = choose(figs, raw)
-        fine, fine_figs = refine(w, idx, sig, spec, np.asarray(t0, float), folds, raw, lv)
-        if fine_figs is not None and fine not in figs:
-            figs[fine] = fine_figs
-        spec, scores = choose(figs, raw)
-        placed = ''
+        inc = inc if inc in figs else None
+        spec, _ = choose(figs, raw, inc)
+        if spec != inc:
+            fine, fine_figs = refine(w, idx, sig, spec, np.asarray(t0, float), folds, raw, lv)
+            if fine_figs is not None and fine not in figs:
+                figs[fine] = fine_figs
+        spec, scores = choose(figs, raw, inc)
+        placed = incumbent_note(inc, spec, scores)
         if len(floor_folds) >= 2 and spec != NO_THERMAL_SPEC:
             held = _floor_score(ctx, sig, idx, np.asarray(t0, float), spec, floor_folds)
-            placed = (f'; placement floor ({len(floor_folds)} groups of whole holds held '
-                      f'out): {held:.3f} of raw')
+            placed += (f'; placement floor ({len(floor_folds)} groups of whole holds held '
+                       f'out): {held:.3f} of raw')
             if harms(held):
                 placed += f', so no thermal terms instead of {label(spec)}'
                 spec = NO_THERMAL_SPEC
