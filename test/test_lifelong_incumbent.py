@@ -1,6 +1,7 @@
 """The spec of the calibration in use offered to the next estimate (``incumbent_spec``)."""
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -11,6 +12,9 @@ from thermal_imu_calib.estimation.hysteresis import (ARDUPILOT_SPEC, NO_THERMAL_
 from thermal_imu_calib.lifelong import incumbent
 from thermal_imu_calib.lifelong.config import LifelongConfig
 from thermal_imu_calib.selection.time_folds import choose
+
+CHAMBER = os.path.join(os.path.dirname(__file__), 'fixtures', 'real', 'tofupilot_chamber',
+                       'imu_chamber_train.csv.gz')
 
 LINEAR = Spec(1, (), (), 'time')
 LAGGED = Spec(2, (216.3,), (('diff', (50.0, 500.0)),), 'temperature')
@@ -79,3 +83,35 @@ def test_the_loop_offers_the_active_spec_and_says_what_became_of_it(tmp_path):
     again = Lifelong(str(tmp_path / 'life'), CalibrateSettings(latitude=45.0), 1,
                      ['/imu/temperature'], 'imu_link', config=life.config)
     assert incumbent.offered(again.state, again.config) == offered
+
+
+def test_the_one_way_path_is_offered_no_history_terms(monkeypatch):
+    """One leg cannot tell a history term (it flips with the rate's sign): a spec in use
+    with one is not scored there, a plain polynomial in the reading is. The real chamber
+    log's cooling leg (51.6 -> -17.6 degC, one way)."""
+    import thermal_imu_calib.selection.one_way_select as ow
+    from thermal_imu_calib.calibration import TemperatureInput
+    from thermal_imu_calib.estimation.calibrate import calibrate_windows, CalibrateOptions
+    from thermal_imu_calib.io.csv_logs import read_tofupilot_chamber
+    from thermal_imu_calib.collection.feed import windows_from_columns
+    imu, tc = read_tofupilot_chamber(CHAMBER)
+    w = windows_from_columns([imu], [tc])
+    t_turn = imu.stamp_ns[np.argmin(tc.temperature)] * 1e-9
+    leg = w.select(0.5 * (w.t0 + w.t1) <= t_turn)
+    seen = []
+    real = ow.spec_figures
+
+    def spy(w, idx, sig, specs, *a, **k):
+        seen.append((sig, list(specs)))
+        return real(w, idx, sig, specs, *a, **k)
+    monkeypatch.setattr(ow, 'spec_figures', spy)
+    quartic = Spec(4, (), (), 'time')
+    for offered, scored in ((LAGGED, False), (quartic, True)):
+        seen.clear()
+        opts = CalibrateOptions(inputs=[TemperatureInput('/imu/temperature')],
+                                incumbent_specs={'accel': offered})
+        reason = calibrate_windows(leg, opts).calibration.fit['model_choice']['reason']
+        accel = [specs for sig, specs in seen if sig == 'accel']
+        assert accel, 'the one-way path did not run'
+        assert (offered in accel[0]) is scored
+        assert ("the calibration in use's order 4 T" in reason) is scored

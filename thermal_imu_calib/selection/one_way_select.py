@@ -25,7 +25,9 @@ on top of it:
   each sensor gets the simplest spec of its pool (the cubic when the pool is empty), fitted
   by ``history_select`` (model ``hysteresis``). A spec offered as the one in use
   (``CalibrateOptions.incumbent_specs``, the lifelong loop's) is scored too and is that
-  sensor's pick whenever it is in the pool.
+  sensor's pick whenever it is in the pool, if it is a candidate here or a polynomial in
+  the reading (one with history terms or a lagged input is not offered here: one leg
+  cannot tell those, see above).
 
 With ``placement_floor`` (the holds are separate placements: a robot's stops) a candidate
 is also scored with whole placements left out (``placements.placement_groups``; inputs
@@ -230,8 +232,11 @@ def select_one_way(ctx, incumbent, fit_single):
                          ('gyro', ctx.gyro_input, ctx.gyro_t0)):
         t0 = np.asarray(t0, float)
         raw = raw_figures(w, sig, folds)
+        # the spec in use, if it is one this path may choose: a candidate here, or a
+        # polynomial in the reading (history terms and lags are decided on time blocks)
         offered = (ctx.options.incumbent_specs or {}).get(sig)
-        offered = offered if isinstance(offered, Spec) and offered not in shown else None
+        offered = offered if isinstance(offered, Spec) and offered not in shown and (
+            offered in specs or not (offered.base or offered.terms)) else None
         extra = [offered] if offered is not None and offered not in specs else []
         figs = spec_figures(w, idx, sig, specs + shown + extra, t0, folds,
                             levels=ctx.options.levels(sig))
