@@ -204,7 +204,8 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
              gyro_pooled_gate=DEFAULT.gyro_pooled_gate,
              swap_must_explain=DEFAULT.swap_must_explain, gyro_follow=DEFAULT.gyro_follow,
              follow_without_latitude=DEFAULT.follow_without_latitude,
-             incumbent_spec=DEFAULT.incumbent_spec, **overrides):
+             incumbent_spec=DEFAULT.incumbent_spec,
+             prequential_holds=DEFAULT.prequential_holds, **overrides):
     m = robot_month(seed, days=days, **overrides)
     d = os.path.join(work, f'seed{seed}')
     ckpt = latest_checkpoint(d) if resume else None
@@ -240,7 +241,8 @@ def run_seed(seed, days, work, latitude=None, ageing=DEFAULT.ageing,
                                               swap_must_explain=swap_must_explain,
                                               gyro_follow=gyro_follow,
                                               follow_without_latitude=follow_without_latitude,
-                                              incumbent_spec=incumbent_spec),
+                                              incumbent_spec=incumbent_spec,
+                                              prequential_holds=prequential_holds),
                         log=lambda level, text: log.append((level, text)))
     life = make()
     feeder = Feeder(life, HintGate([HintSource('cmd_vel', True, 1.0)]))
@@ -471,6 +473,7 @@ def month(args):
                      gyro_follow=args.gyro_follow,
                      follow_without_latitude=args.follow_without_latitude,
                      incumbent_spec=args.incumbent_spec,
+                     prequential_holds=args.prequential_holds,
                      dock_fraction=args.dock_fraction)
         rows.append(r)
         if args.stop_day is not None:
@@ -664,7 +667,8 @@ def real(args):
             gyro_pooled_gate=args.gyro_pooled_gate,
             swap_must_explain=args.swap_must_explain, gyro_follow=args.gyro_follow,
             follow_without_latitude=args.follow_without_latitude,
-            incumbent_spec=args.incumbent_spec))
+            incumbent_spec=args.incumbent_spec,
+            prequential_holds=args.prequential_holds))
         rows.append(r)
         fixture = os.sep + 'fixtures' + os.sep in r['path']
         print(f'{name}: {r["holds"]} holds, decisions '
@@ -1290,6 +1294,9 @@ def main():
                     default=DEFAULT.incumbent_spec,
                     help='the spec of the model in use offered to the next estimate, kept '
                          'while within the margin of the best (LifelongConfig.incumbent_spec)')
+    mo.add_argument('--prequential-holds', type=int, default=DEFAULT.prequential_holds,
+                    help='a swap the gate passes waits for this many later holds and takes '
+                         'effect when they favour it (LifelongConfig.prequential_holds)')
     option(mo, 'gyro_ageing_forward', 'an estimate fitted with the gyro ageing removed carries '
            'the rates forward in time in its file')
     option(mo, 'gyro_pooled_gate', 'the gyro swap also judged on the held-out holds of '
@@ -1353,6 +1360,8 @@ def main():
     re_.add_argument('--incumbent-spec', choices=INCUMBENT_SPECS,
                      default=DEFAULT.incumbent_spec,
                      help='LifelongConfig.incumbent_spec (default: the package\'s)')
+    re_.add_argument('--prequential-holds', type=int, default=DEFAULT.prequential_holds,
+                     help='LifelongConfig.prequential_holds (default: the package\'s)')
     for flag in ('folds', 'floor', 'levels'):
         re_.add_argument(f'--placement-{flag}', action=argparse.BooleanOptionalAction,
                          default=getattr(DEFAULT, f'placement_{flag}'),

@@ -140,10 +140,12 @@ def test_one_sensor_swap_keeps_the_other_sensor(month, tmp_path):
                     config=LifelongConfig(new_holds=1000))
     life.active = active
     decision = {}
-    assert life._one_sensor(new, fig, s_act, holdout, pose, decision) is not None
+    assert compose.one_sensor_swap(life.active, new, fig, s_act, holdout, pose, None,
+                                   life.config, life.state, decision) is not None
     assert decision['one_sensor']['used']
     life.config.per_sensor = False
-    assert life._one_sensor(new, fig, s_act, holdout, pose, {}) is None
+    assert compose.one_sensor_swap(life.active, new, fig, s_act, holdout, pose, None,
+                                   life.config, life.state, {}) is None
 
 
 def test_raw_kept_first_swap_leaves_the_other_sensor_raw(month):

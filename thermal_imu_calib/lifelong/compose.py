@@ -202,3 +202,22 @@ def one_sensor(active, new, fig, s_act, holdout, pose, latitude, sigmas,
                        f'alone; its {which} model with {mine} '
                        f'{"passes" if ok else "fails"} the gate ({gate.describe(fig_c)})')}
     return ((cal, score, fig_c) if ok else None), record
+
+
+def one_sensor_swap(active, new, fig, s_act, holdout, pose, latitude, config, state,
+                    decision):
+    """Return ``one_sensor``'s swap (None: none) with the loop's settings.
+
+    ``decision`` (dict) records it. Not after a change alarm (unless
+    ``one_sensor_after_alarm``): the alarm says the sensor changed, and in one mounting
+    pose the gate cannot see a change of the accelerometer's level (it compares the holds'
+    spread about their median), so the whole new calibration is judged.
+    """
+    c = config
+    if not c.per_sensor or (state.get('alarm_pending') and not c.one_sensor_after_alarm):
+        return None
+    found, record = one_sensor(active, new, fig, s_act, holdout, pose, latitude,
+                               c.swap_sigmas, c.accel_score, c.raw_kept)
+    if record:
+        decision['one_sensor'] = record
+    return found

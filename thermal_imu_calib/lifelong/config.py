@@ -39,7 +39,7 @@ class LifelongConfig:
     per_sensor: bool = True
     #: no swap to a calibration that misses ``misfit_holds`` of the held-out holds by the
     #: change alarm's gyro limit (they say the sensor changed;
-    #: ``manager.Lifelong._unexplained``). On since 2026-12-06: judged on four months no
+    #: ``gate.unexplained``). On since 2026-12-06: judged on four months no
     #: run had seen (165-168) at the default of that day, it caught a knock the default
     #: missed and harmed nothing (gyro last week / true model -20 %; docs/lifelong.md). It
     #: was off after its first judgement (seed 4, 2026-11-28, an older default)
@@ -197,6 +197,10 @@ class LifelongConfig:
     #: written before the runs) accel drift last week -10.9 %, but gyro last/true +7.4 %
     #: (5 % allowed) and swaps worse next day 2 -> 2 (fewer asked); docs/lifelong.md
     incumbent_spec: str = 'off'
+    #: a swap the gate passes waits for this many holds collected after its estimate and
+    #: takes effect only when they favour it too (``prequential``); 0: at once. Not without
+    #: an active calibration nor after a change alarm. Being judged (off)
+    prequential_holds: int = 0
     store: StoreConfig = field(default_factory=StoreConfig)
 
     def __post_init__(self):
@@ -219,6 +223,10 @@ class LifelongConfig:
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
                 raise ValueError(f'LifelongConfig.{name} is {v!r}; give a whole number of '
                                  f'holds, at least {lo}')
+        v = self.prequential_holds
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
+            raise ValueError(f'LifelongConfig.prequential_holds is {v!r}; give a whole number '
+                             'of holds (0: a swap takes effect at once)')
         for name in ('range_extension_degc', 'swap_sigmas', 'alarm_factor', 'alarm_floor',
                      'pose_deg', 'follow_tau_days', 'follow_horizon_days', 'follow_min_holds'):
             v = getattr(self, name)

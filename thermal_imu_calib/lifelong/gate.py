@@ -112,6 +112,36 @@ def misses(errors, accel_median, gyro_rms, accel_rms, factor, floor):
     return g | a
 
 
+def unexplained(s_new, state, config, has_active):
+    """Return why a swap is refused because the new calibration misses the newest holds too.
+
+    '' when it is not. Only with ``LifelongConfig.swap_must_explain`` (on by default since
+    2026-12-06; docs/lifelong.md). ``s_new``: the new calibration's ``score``; ``state``:
+    the lifelong state (``active_gyro_rms``, the change alarm's gyro reference, rad/s).
+
+    A swap re-measures the change alarm's reference on the new calibration. When the
+    newest (held-out) holds are ones the new calibration also misses, by the alarm's
+    per-hold gyro limit against the active's reference (``misses``), the holds say the
+    sensor changed, not that the new model is better: after seed 2's knock the gate called
+    such estimates "better" (107 -> 106 mdeg/s on holds the active fitted to 2), and each
+    swap raised the reference until the alarm came 21 h late. At least ``misfit_holds``
+    such holds keep the active calibration, so the alarm can see the change. Not after an
+    alarm (the reference is the old sensor's) nor without an active calibration.
+    """
+    c = config
+    if not c.swap_must_explain or not has_active or state.get('alarm_pending') \
+            or state.get('active_gyro_rms') is None:
+        return ''
+    e = s_new['errors']
+    lim = limit(e, 'gyro', state['active_gyro_rms'], c.alarm_factor, c.alarm_floor)
+    missed = int(np.sum(np.abs(e['gyro']) > lim))
+    if missed < c.misfit_holds:
+        return ''
+    return (f'; not swapped: the new calibration also misses {missed} of the '
+            f'{len(e["gyro"])} held-out holds (gyro error > {float(np.min(lim)):.3g} rad/s, '
+            'the change alarm\'s limit): the sensor may have changed')
+
+
 def rms(x):
     """Return the root mean square of ``x`` (its unit), NaN when ``x`` is empty."""
     return float(np.sqrt(np.mean(np.square(x)))) if len(x) else float('nan')

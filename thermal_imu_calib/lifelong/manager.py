@@ -37,12 +37,14 @@ data: the hold store and the candidate move into ``archive/<UTC time>/`` (at mos
 ``MAX_ARCHIVES`` archives; one more is refused, saying what to do), the active
 calibration, the counters, the decisions and the registry stay. No ROS import.
 
-Gyro follower (``gyro_follow``, on by default): ``output``, the published calibration, takes
-off the gyro the active model's recent miss (``follower``); every decision judges the model.
+Gyro follower (``gyro_follow``, on): ``output``, the published calibration, takes off the
+gyro the active model's recent miss (``follower``); every decision judges the model. A
+swap may wait for later holds to judge it (``prequential_holds``, off: ``prequential``).
 
 ``Lifelong`` holds the state the pieces share (the counters, the active calibration, the
 store) and applies what they return; the pieces are ``trigger``, ``gate``, ``compose``,
-``variants``, ``ageing``, ``alarm``, ``incumbent``, ``store``, ``files`` and ``archive``.
+``variants``, ``ageing``, ``alarm``, ``incumbent``, ``prequential``, ``store``, ``files``,
+``status`` and ``archive``.
 """
 
 import os
@@ -56,7 +58,7 @@ from ..estimation.calibrate import CalibrationRefused
 from ..io.output import write_atomic
 from ..collection.collected import Collected
 from . import alarm, compose, continuation, files, follower, g_sensitivity, gate, incumbent, \
-    knock_step, pooled, trigger, variants
+    knock_step, pooled, prequential, status, trigger, variants
 from ..collection.segments import Windows
 from .archive import ArchiveFull, archive_collection, MAX_ARCHIVES  # noqa: F401 (API)
 from .config import (ALARM_CUTS, ALARM_REFERENCES, ALARM_WINDOWS,  # noqa: F401 (API)
@@ -101,6 +103,10 @@ class Lifelong:
                       'alarm_pending': False, 'swaps': 0, 'kept': 0, 'estimates': 0,
                       'last_decision': ''}
         files.load_state(self._path('state.json'), self.state, self.log)
+        #: a swap held back until later holds judge it (``prequential``)
+        self.pending = files.load_calibration(self._path(prequential.PENDING), self.log) \
+            if self.state.get('pending') else None
+        self.state['pending'] = self.state.get('pending') if self.pending else None
         self.track = []     # [alarm.Tracked]: the newest holds the change alarm watches
         #: (windows, main-pose mask) of the estimate running, for the gyro g-sensitivity
         self._pool, self._specs = None, {}      # _specs: ``incumbent.note``'s
@@ -147,6 +153,7 @@ class Lifelong:
         dest = archive_collection(self.dir, when)
         self.store = HoldStore(os.path.join(self.dir, 'holds'), self.k, self.config.store)
         self.candidate = None
+        self._drop_pending()
         self.track = []
         self.state.update(holds_at_estimate=0, alarm_pending=False, missed=[], fit_span=None,
                           resets=self.state.get('resets', 0) + 1)
@@ -210,6 +217,7 @@ class Lifelong:
             else:
                 self.store.shift(moved['t'], moved['accel'], moved['gyro'], moved['drop'])
             s['last_decision'] = decision['reason']
+            self._drop_pending()
             self._record(decision)
             self._save_state()
             self.log('error', 'lifelong ALARM: ' + decision['reason'])
@@ -217,12 +225,16 @@ class Lifelong:
     # ------------------------------------------------------------------ when
     def due(self):
         """Return why a re-estimate is due now ('' when it is not; ``trigger.due``)."""
+        if self.pending is not None and prequential.ready(self.store, self.state, self.config):
+            return prequential.REASON
         return trigger.due(self.store, self.state, self.config, self.active, self.k,
                            self.track)
 
     # ------------------------------------------------------------------ estimate
     def estimate(self, reason='requested'):
         """Re-estimate and pass the swap gate; return the decision dict (also logged)."""
+        if reason == prequential.REASON and self.pending is not None:
+            return self._confirm()
         c = self.config
         held = self.store.newest_holds(c.holdout_holds)
         now = float(self.store.recent.t1.max()) if len(self.store.recent) else 0.0
@@ -266,7 +278,8 @@ class Lifelong:
         s_act = gate.score(self.active, holdout, g, holdout_pose, self.latitude,
                            c.accel_score)
         swap, fig = gate.decide(s_act, s_new, c.swap_sigmas)
-        part = self._one_sensor(new, fig, s_act, holdout, holdout_pose, decision)
+        part = compose.one_sensor_swap(self.active, new, fig, s_act, holdout, holdout_pose,
+                                       self.latitude, c, self.state, decision)
         only = ''
         if part is not None:
             new, s_new, fig = part
@@ -306,8 +319,10 @@ class Lifelong:
                 text += '; ' + decision['refit']['text']
             # a refit active: the next estimate waits for min_holds + holdout_holds holds
             # newer than its fit (``due``); any other swap ends that wait
-            self.state['active_fit_until'] = \
-                now if decision.get('refit', {}).get('used') else None
+            fit_until = now if decision.get('refit', {}).get('used') else None
+            if prequential.holds_back(c, self.state, self.active):
+                return self._hold_back(new, now, only, fit_until, decision, text)
+            self.state['active_fit_until'] = fit_until
             text += self._activate(new, now, s_new, holdout_pose, held, only or None)
             only = f' ({only} model only)' if only else ''
             decision.update(action='swap', id=new.id,
@@ -322,55 +337,65 @@ class Lifelong:
         self.state['alarm_pending'] = False
         return self._finish(decision)
 
+    def _hold_back(self, new, now, only, fit_until, decision, text):
+        """Keep a swap the gate passed until later holds judge it (``prequential``)."""
+        before = self.pending
+        self.pending = new
+        self._save_cal(new, prequential.PENDING)
+        self.state['pending'] = prequential.record(new, now, only or None, fit_until)
+        only = f' ({only} model only)' if only else ''
+        decision.update(action='pending', id=new.id, text=(
+            f'new calibration {new.id} passes the swap gate{only}: {text}; held back until '
+            f'{self.config.prequential_holds} later holds judge it'
+            + (f' (it replaces the held-back {before.id})' if before is not None else '')))
+        return self._finish(decision)
+
+    def _confirm(self):
+        """Judge the held-back swap on the holds after its estimate; take it or keep it."""
+        p, cal = self.state['pending'], self.pending
+        take, fig, s_new, pose, ids = prequential.judge(self.active, cal, self.store,
+                                                        self.state, self.config, self.latitude)
+        now = float(self.store.recent.t1.max())
+        self.pending, self.state['pending'] = None, None
+        self._unlink(prequential.PENDING)
+        why = prequential.describe(fig, take, len(ids))
+        decision = {'time': now, 'reason': prequential.REASON, 'heldout_holds': int(len(ids)),
+                    'figures': fig, 'held_back': p}
+        if take:
+            self.state['active_fit_until'] = p.get('fit_until')
+            note = self._activate(cal, now, s_new, pose, ids, p.get('only'))
+            only = f' ({p["only"]} model only)' if p.get('only') else ''
+            decision.update(action='swap', id=cal.id, text=(
+                f'new calibration {cal.id} replaces the active calibration{only}: {why}{note}'))
+        else:
+            self.candidate = cal
+            self._save_cal(cal, 'candidate.yaml')
+            self.state['kept'] += 1
+            decision.update(action='keep', id=cal.id, text=(
+                f'kept the active calibration; new calibration {cal.id} is a candidate: {why}'))
+        return self._finish(decision)
+
+    def _drop_pending(self):
+        """Make a held-back calibration the candidate (a change alarm, a reset)."""
+        if self.pending is not None:
+            self.candidate = self.pending
+            self._save_cal(self.pending, 'candidate.yaml')
+        self.pending, self.state['pending'] = None, None
+        self._unlink(prequential.PENDING)
+
+    def _unlink(self, name):
+        if os.path.exists(self._path(name)):
+            os.unlink(self._path(name))
+
     def _unexplained(self, s_new, decision):
         """Return True (no swap) when the new calibration misses the newest holds too.
 
-        Only with ``LifelongConfig.swap_must_explain`` (on by default since 2026-12-06;
-        docs/lifelong.md).
-
-        A swap re-measures the change alarm's reference on the new calibration. When the
-        newest (held-out) holds are ones the new calibration also misses, by the alarm's
-        per-hold gyro limit against the active's reference (``gate.misses``), the holds say
-        the sensor changed, not that the new model is better: after seed 2's knock the gate
-        called such estimates "better" (107 -> 106 mdeg/s on holds the active fitted to 2),
-        and each swap raised the reference until the alarm came 21 h late. At least
-        ``misfit_holds`` such holds keep the active calibration, so the alarm can see the
-        change. Not after an alarm (the reference is the old sensor's) nor without an
-        active calibration.
+        ``gate.unexplained`` (``LifelongConfig.swap_must_explain``); the decision records it.
         """
-        c, st = self.config, self.state
-        if not c.swap_must_explain or self.active is None or st.get('alarm_pending') \
-                or st.get('active_gyro_rms') is None:
-            return False
-        e = s_new['errors']
-        limit = gate.limit(e, 'gyro', st['active_gyro_rms'], c.alarm_factor, c.alarm_floor)
-        missed = int(np.sum(np.abs(e['gyro']) > limit))
-        if missed < c.misfit_holds:
-            return False
-        decision['unexplained'] = (
-            f'; not swapped: the new calibration also misses {missed} of the '
-            f'{len(e["gyro"])} held-out holds (gyro error > {float(np.min(limit)):.3g} rad/s, '
-            'the change alarm\'s limit): the sensor may have changed')
-        return True
-
-    def _one_sensor(self, new, fig, s_act, holdout, pose, decision):
-        """Return ``compose.one_sensor``'s swap (None: none); the decision records it.
-
-        Not after a change alarm (unless ``one_sensor_after_alarm``): the alarm says the
-        sensor changed, and in one mounting pose the gate cannot see a change of the
-        accelerometer's level (it compares the holds' spread about their median), so the
-        whole new calibration is judged.
-        """
-        c = self.config
-        if not c.per_sensor or (self.state.get('alarm_pending') and
-                                not c.one_sensor_after_alarm):
-            return None
-        found, record = compose.one_sensor(self.active, new, fig, s_act, holdout, pose,
-                                           self.latitude, self.config.swap_sigmas,
-                                           self.config.accel_score, self.config.raw_kept)
-        if record:
-            decision['one_sensor'] = record
-        return found
+        note = gate.unexplained(s_new, self.state, self.config, self.active is not None)
+        if note:
+            decision['unexplained'] = note
+        return bool(note)
 
     def _note_fit_span(self, fit):
         """Keep the temperature span (degC) an estimate fitted (``due``'s range trigger)."""
@@ -431,8 +456,7 @@ class Lifelong:
         incumbent.activate(self.state, self._specs, cal, only)
         self._follow()
         self.candidate = None
-        if os.path.exists(self._path('candidate.yaml')):
-            os.unlink(self._path('candidate.yaml'))
+        self._unlink('candidate.yaml')
         self._save_cal(cal, 'active.yaml')
         # the alarm's reference: the error the calibration leaves on the raw holds it was
         # fitted on (all their temperatures) and on the held-out ones, whichever is larger
@@ -472,29 +496,5 @@ class Lifelong:
 
     # ------------------------------------------------------------------ status
     def status(self, temperature=None, now=None):
-        """Return the figures /diagnostics shows: age, range, held-out error, coverage."""
-        s = self.state
-        out = dict(self.store.summary())
-        out.update(swaps=s['swaps'], kept=s['kept'], alarms=s['alarms'],
-                   estimates=s['estimates'], last_decision=s['last_decision'],
-                   active=self.active.id if self.active is not None else '',
-                   **follower.status(self.output),
-                   candidate=self.candidate.id if self.candidate is not None else '')
-        if s.get('alarm_pending'):
-            out['alarm'] = ('re-estimating from every hold, the older ones moved by the '
-                            "knock's step" if s.get('alarm_shifted')
-                            else 're-estimating from the holds after it')
-        if self.active is not None and s.get('active_since') is not None and now is not None:
-            out['active_age_s'] = float(now - s['active_since'])
-        if self.active is not None and self.active.valid_range is not None and self.k:
-            lo, hi = compose.common_range(self.active, self.config.range_sensors)[0]
-            out['valid_range'] = [float(lo), float(hi)]
-            if temperature is not None:
-                out['in_range'] = bool(lo <= temperature <= hi)
-        if self.active is not None:
-            held = self.store.holds(self.store.newest_holds(self.config.holdout_holds))
-            if len(held):
-                sc = gate.score(self.active, held, self.active.gravity, latitude=self.latitude)
-                out['recent_gyro_rms_rad_s'] = sc['gyro_rms']
-                out['recent_accel_rms_mps2'] = sc['accel_rms']
-        return out
+        """Return the figures /diagnostics shows (``status.figures``)."""
+        return status.figures(self, temperature, now)
