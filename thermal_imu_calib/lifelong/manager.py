@@ -103,9 +103,8 @@ class Lifelong:
                       'alarm_pending': False, 'swaps': 0, 'kept': 0, 'estimates': 0,
                       'last_decision': ''}
         files.load_state(self._path('state.json'), self.state, self.log)
-        #: a swap held back until later holds judge it (``prequential``)
         self.pending = files.load_calibration(self._path(prequential.PENDING), self.log) \
-            if self.state.get('pending') else None
+            if self.state.get('pending') else None      # a swap held back (``prequential``)
         self.state['pending'] = self.state.get('pending') if self.pending else None
         self.track = []     # [alarm.Tracked]: the newest holds the change alarm watches
         #: (windows, main-pose mask) of the estimate running, for the gyro g-sensitivity
@@ -224,11 +223,14 @@ class Lifelong:
 
     # ------------------------------------------------------------------ when
     def due(self):
-        """Return why a re-estimate is due now ('' when it is not; ``trigger.due``)."""
-        if self.pending is not None and prequential.ready(self.store, self.state, self.config):
-            return prequential.REASON
-        return trigger.due(self.store, self.state, self.config, self.active, self.k,
-                           self.track)
+        """Return why a re-estimate is due now ('' when it is not; ``trigger.due``).
+
+        While a swap is held back, only its judgement can be (``prequential``).
+        """
+        c = self.config
+        if self.pending is not None:
+            return prequential.REASON if prequential.ready(self.store, self.state, c) else ''
+        return trigger.due(self.store, self.state, c, self.active, self.k, self.track)
 
     # ------------------------------------------------------------------ estimate
     def estimate(self, reason='requested'):
@@ -339,15 +341,13 @@ class Lifelong:
 
     def _hold_back(self, new, now, only, fit_until, decision, text):
         """Keep a swap the gate passed until later holds judge it (``prequential``)."""
-        before = self.pending
         self.pending = new
         self._save_cal(new, prequential.PENDING)
         self.state['pending'] = prequential.record(new, now, only or None, fit_until)
         only = f' ({only} model only)' if only else ''
         decision.update(action='pending', id=new.id, text=(
             f'new calibration {new.id} passes the swap gate{only}: {text}; held back until '
-            f'{self.config.prequential_holds} later holds judge it'
-            + (f' (it replaces the held-back {before.id})' if before is not None else '')))
+            f'{self.config.prequential_holds} later holds judge it'))
         return self._finish(decision)
 
     def _confirm(self):

@@ -11,9 +11,10 @@ when they favour the new one: ``gate.decide``'s net gain in margins above 0, wit
 margin of its own (the gate has already asked for one). Otherwise the held-back
 calibration becomes the candidate.
 
-A newer estimate that passes the gate replaces the held-back one; a change alarm or a
-reset turns it into the candidate. Nothing is held back without an active calibration
-or after a change alarm: the first calibration and a knock's recovery do not wait.
+While a swap is held back no other estimate is due (``Lifelong.due``), so each one is
+judged; a change alarm or a reset turns it into the candidate, and the alarm's
+re-estimate follows. Nothing is held back without an active calibration or after a
+change alarm: the first calibration and a knock's recovery do not wait.
 No ROS import.
 """
 
