@@ -217,16 +217,12 @@ class LifelongConfig:
                 raise ValueError(f'LifelongConfig.{name} {getattr(self, name)!r} is not one '
                                  f'of {", ".join(allowed)}; give one of them')
         least = {'new_holds': 1, 'holdout_holds': 2, 'min_holds': 1, 'alarm_holds': 1,
-                 'misfit_holds': 1}
+                 'misfit_holds': 1, 'prequential_holds': 0}
         for name, lo in least.items():
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
                 raise ValueError(f'LifelongConfig.{name} is {v!r}; give a whole number of '
                                  f'holds, at least {lo}')
-        v = self.prequential_holds
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
-            raise ValueError(f'LifelongConfig.prequential_holds is {v!r}; give a whole number '
-                             'of holds (0: a swap takes effect at once)')
         for name in ('range_extension_degc', 'swap_sigmas', 'alarm_factor', 'alarm_floor',
                      'pose_deg', 'follow_tau_days', 'follow_horizon_days', 'follow_min_holds'):
             v = getattr(self, name)

@@ -46,13 +46,12 @@ def record(cal, now, only, fit_until):
 
 
 def later_ids(store, t):
-    """Return the ids of the raw holds that start after ``t`` (s), oldest first."""
+    """Return the ids of the raw holds that start after ``t`` (s)."""
     rec = store.recent
     if not len(rec):
         return np.zeros(0, int)
     ids, start = rec.hold_starts()
-    later = start > t
-    return ids[later][np.argsort(start[later], kind='stable')]
+    return ids[start > t]
 
 
 def ready(store, state, config):
