@@ -54,6 +54,12 @@ def write_state(path, state):
     write_atomic(path, json.dumps(state, indent=1))
 
 
+def remove(path):
+    """Remove the file ``path`` if it exists (a candidate or held-back calibration)."""
+    if os.path.exists(path):
+        os.unlink(path)
+
+
 def append_decision(path, decision):
     """Append ``decision`` (dict) to the log at ``path``; keep its newest ``MAX_DECISIONS``."""
     line = json.dumps(decision, separators=(',', ':'), default=_plain) + '\n'

@@ -330,9 +330,7 @@ class Lifelong:
             decision.update(action='swap', id=new.id,
                             text=f'new calibration {new.id} replaces {versus}{only}: {text}')
         else:
-            self.candidate = new
-            self._save_cal(new, 'candidate.yaml')
-            self.state['kept'] += 1
+            self._make_candidate(new, kept=True)
             decision.update(action='keep', id=new.id,
                             text=f'kept {versus}; new calibration {new.id} is a candidate: '
                                  f'{text}')
@@ -357,7 +355,7 @@ class Lifelong:
                                                         self.state, self.config, self.latitude)
         now = float(self.store.recent.t1.max())
         self.pending, self.state['pending'] = None, None
-        self._unlink(prequential.PENDING)
+        files.remove(self._path(prequential.PENDING))
         why = prequential.describe(fig, take, len(ids))
         decision = {'time': now, 'reason': prequential.REASON, 'heldout_holds': int(len(ids)),
                     'figures': fig, 'held_back': p}
@@ -368,9 +366,7 @@ class Lifelong:
             decision.update(action='swap', id=cal.id, text=(
                 f'new calibration {cal.id} replaces the active calibration{only}: {why}{note}'))
         else:
-            self.candidate = cal
-            self._save_cal(cal, 'candidate.yaml')
-            self.state['kept'] += 1
+            self._make_candidate(cal, kept=True)
             decision.update(action='keep', id=cal.id, text=(
                 f'kept the active calibration; new calibration {cal.id} is a candidate: {why}'))
         return self._finish(decision)
@@ -378,14 +374,15 @@ class Lifelong:
     def _drop_pending(self):
         """Make a held-back calibration the candidate (a change alarm, a reset)."""
         if self.pending is not None:
-            self.candidate = self.pending
-            self._save_cal(self.pending, 'candidate.yaml')
+            self._make_candidate(self.pending, kept=False)
         self.pending, self.state['pending'] = None, None
-        self._unlink(prequential.PENDING)
+        files.remove(self._path(prequential.PENDING))
 
-    def _unlink(self, name):
-        if os.path.exists(self._path(name)):
-            os.unlink(self._path(name))
+    def _make_candidate(self, cal, kept):
+        """Make ``cal`` the candidate (``candidate.yaml``); ``kept``: count a kept swap."""
+        self.candidate = cal
+        self._save_cal(cal, 'candidate.yaml')
+        self.state['kept'] += int(kept)
 
     def _unexplained(self, s_new, decision):
         """Return True (no swap) when the new calibration misses the newest holds too.
@@ -456,7 +453,7 @@ class Lifelong:
         incumbent.activate(self.state, self._specs, cal, only)
         self._follow()
         self.candidate = None
-        self._unlink('candidate.yaml')
+        files.remove(self._path('candidate.yaml'))
         self._save_cal(cal, 'active.yaml')
         # the alarm's reference: the error the calibration leaves on the raw holds it was
         # fitted on (all their temperatures) and on the held-out ones, whichever is larger
